@@ -1,0 +1,764 @@
+"""
+Scene files: parse and validate a scene YAML, build the bodies, and put them in a World.
+
+The format is documented in doc/scenes.md. The data path is::
+
+    load_scene(name or path) -> SceneSpec (plain NumPy arrays, fully validated)
+    build_world(spec, defaults) -> (sm_ros.core.World, [BodyMeta])
+
+A bad scene raises :class:`SceneError` naming the file, the body and the key, e.g.
+``scenes/x.yaml: body 'sponge': spacing must be > 0, got -1``; nothing is half-loaded
+(``load_scene`` returns only after every body was built, ``build_world`` makes a new World).
+No rclpy here; the solver core is imported only by the functions that need it, and trimesh
+only when a scene has a mesh body.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import yaml
+
+from sm_ros import shapes
+from sm_ros.shapes import GeometryError, Surface
+
+#: The node parameters a scene's bodies inherit (and their defaults when the caller gives
+#: none, e.g. the render command). Keys use the node's parameter names.
+NODE_DEFAULTS: Dict[str, Any] = {
+    'mode': 'linear',
+    'alpha': 0.5,
+    'beta': 0.5,
+    'clusters': 1,
+    'plasticity.yield': 0.0,
+    'plasticity.creep': 0.0,
+    'plasticity.max': 0.0,
+    'gravity': (0.0, 0.0, -9.81),
+    'ground.enabled': True,
+    'ground.height': 0.0,
+    'ground.friction': 0.5,
+    'ground.restitution': 0.0,
+}
+
+#: Keys a body may override, in node-parameter naming ('damping' has no node parameter:
+#: it is 0 unless a body sets it).
+OVERRIDE_KEYS = ('mode', 'alpha', 'beta', 'clusters', 'plasticity.yield', 'plasticity.creep',
+                 'plasticity.max', 'damping')
+
+MODES = ('rigid', 'linear', 'quadratic')
+SHAPES = ('box', 'sphere', 'cylinder', 'capsule', 'sheet', 'rope', 'mesh', 'cloud')
+
+#: Largest total number of particles a scene may have.
+MAX_SCENE_POINTS = 2_000_000
+
+DEFAULT_SPACING = 0.05      # m
+DEFAULT_MASS = 1.0          # kg, per body
+
+_COMMON_KEYS = ('name', 'shape', 'position', 'orientation', 'mass', 'density', 'velocity',
+                'angular_velocity', 'pinned', 'mode', 'alpha', 'beta', 'clusters', 'damping',
+                'plasticity', 'copies')
+_SHAPE_KEYS = {
+    'box': ('size', 'spacing'),
+    'sphere': ('radius', 'spacing'),
+    'cylinder': ('radius', 'length', 'spacing'),
+    'capsule': ('radius', 'length', 'spacing'),
+    'sheet': ('size', 'spacing'),
+    'rope': ('length', 'spacing'),
+    'mesh': ('file', 'fill', 'spacing', 'scale', 'center'),
+    'cloud': ('file', 'scale', 'center', 'max_points', 'voxel'),
+}
+_LATTICE_SHAPES = ('box', 'sphere', 'cylinder', 'capsule')
+_TOP_KEYS = ('description', 'bodies', 'colliders')
+
+
+class SceneError(ValueError):
+    """A scene that cannot be loaded; the message names the file, the body and the key."""
+
+
+# ----------------------------------------------------------------------------------------
+# Results
+# ----------------------------------------------------------------------------------------
+
+@dataclass
+class BodySpec:
+    """
+    One body ready for ``World.add_body``.
+
+    Attributes:
+        name: body name (the ``frame_id`` that ``force`` and ``poses`` use).
+        points: (N, 3) rest and initial positions in world coordinates (m).
+        masses: (N,) particle masses (kg).
+        velocities: (N, 3) initial velocities (m/s) or None for rest.
+        pinned: indices of particles held fixed (int64, possibly empty).
+        overrides: parameter overrides in node naming (subset of OVERRIDE_KEYS).
+        surface: a :class:`sm_ros.shapes.Surface` for bodies from a mesh file, else None.
+        shape: the shape keyword it was made from ('box', 'mesh', 'cloud', ...).
+    """
+
+    name: str
+    points: np.ndarray
+    masses: np.ndarray
+    velocities: Optional[np.ndarray] = None
+    pinned: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    overrides: Dict[str, Any] = field(default_factory=dict)
+    surface: Optional[Surface] = None
+    shape: str = ''
+
+    @property
+    def n(self) -> int:
+        """Number of particles."""
+        return len(self.points)
+
+
+@dataclass
+class SceneSpec:
+    """
+    A validated scene.
+
+    Attributes:
+        bodies: the bodies, in file order (copies expanded).
+        colliders: ``{'ground': None or dict, 'boxes': [{'lo', 'hi'}], 'spheres':
+            [{'center', 'radius'}]}``; ground None means "use the node's ground
+            parameters", a dict holds the keys the scene set (enabled, height, friction,
+            restitution).
+        source: the file it came from (or a label for scenes built in code).
+        description: the scene's description text.
+    """
+
+    bodies: List[BodySpec]
+    colliders: Dict[str, Any]
+    source: str = '<scene>'
+    description: str = ''
+
+    @property
+    def n_points(self) -> int:
+        """Total number of particles."""
+        return sum(b.n for b in self.bodies)
+
+
+@dataclass
+class BodyMeta:
+    """What the node keeps per body beside the core Body: name, overrides and surface."""
+
+    name: str
+    overrides: Dict[str, Any]
+    surface: Optional[Surface] = None
+    shape: str = ''
+
+
+# ----------------------------------------------------------------------------------------
+# Finding scenes
+# ----------------------------------------------------------------------------------------
+
+def scene_dirs() -> List[Path]:
+    """
+    Folders searched for bundled scenes, in order.
+
+    1. ``<repo>/config/scenes`` next to the package (a source checkout or develop install);
+    2. ``<share>/sm_ros/config/scenes`` from ament_index (a colcon install);
+    3. ``<sys.prefix>/share/sm_ros/config/scenes`` (a pip install with data_files).
+    """
+    dirs = [Path(__file__).resolve().parent.parent / 'config' / 'scenes']
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        dirs.append(Path(get_package_share_directory('sm_ros')) / 'config' / 'scenes')
+    except Exception:  # noqa: B902 - not installed, not found: fall through
+        pass
+    dirs.append(Path(sys.prefix) / 'share' / 'sm_ros' / 'config' / 'scenes')
+    return [d for d in dirs if d.is_dir()]
+
+
+def list_scenes() -> List[str]:
+    """Names of the bundled scenes."""
+    names = set()
+    for d in scene_dirs():
+        names.update(p.stem for p in d.glob('*.yaml'))
+    return sorted(names)
+
+
+def resolve_scene(name_or_path: Union[str, Path]) -> Path:
+    """
+    The file of a scene: an existing path as given, or a bundled scene by name.
+
+    '' means 'default'. Raises SceneError when neither exists.
+    """
+    text = str(name_or_path).strip() or 'default'
+    p = Path(text).expanduser()
+    if p.is_file():
+        return p
+    looks_like_path = ('/' in text or text.endswith(('.yaml', '.yml')))
+    if not looks_like_path:
+        for d in scene_dirs():
+            cand = d / f'{text}.yaml'
+            if cand.is_file():
+                return cand
+    bundled = ', '.join(list_scenes()) or 'none found'
+    raise SceneError(f'{text}: no such scene file and no bundled scene of that name '
+                     f'(bundled: {bundled})')
+
+
+# ----------------------------------------------------------------------------------------
+# Validation helpers
+# ----------------------------------------------------------------------------------------
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, str):
+        return repr(value)
+    if isinstance(value, float) and value.is_integer() and abs(value) < 1e15:
+        return str(int(value)) if not math.isinf(value) else str(value)
+    return str(value)
+
+
+class _Where:
+    """Builds error messages: '<file>: body '<name>': <key> <reason>'."""
+
+    def __init__(self, source: str, body: Optional[str] = None):
+        self.source = source
+        self.body = body
+
+    def error(self, key: Optional[str], reason: str) -> SceneError:
+        parts = [self.source]
+        if self.body is not None:
+            parts.append(f"body '{self.body}'")
+        parts.append(f'{key} {reason}' if key else reason)
+        return SceneError(': '.join(parts))
+
+    def number(self, key: str, value: Any, *, gt: Optional[float] = None,
+               ge: Optional[float] = None, le: Optional[float] = None) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(key, f'must be a number, got {_fmt(value)}')
+        v = float(value)
+        if not math.isfinite(v):
+            raise self.error(key, f'must be finite, got {_fmt(value)}')
+        if gt is not None and not v > gt:
+            raise self.error(key, f'must be > {_fmt(gt)}, got {_fmt(value)}')
+        if ge is not None and not v >= ge:
+            raise self.error(key, f'must be >= {_fmt(ge)}, got {_fmt(value)}')
+        if le is not None and not v <= le:
+            raise self.error(key, f'must be <= {_fmt(le)}, got {_fmt(value)}')
+        return v
+
+    def integer(self, key: str, value: Any, *, ge: int = 1) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            if isinstance(value, float) and value.is_integer():
+                value = int(value)
+            else:
+                raise self.error(key, f'must be an integer, got {_fmt(value)}')
+        if value < ge:
+            raise self.error(key, f'must be >= {ge}, got {value}')
+        return int(value)
+
+    def vector(self, key: str, value: Any, n: int, *, gt: Optional[float] = None
+               ) -> np.ndarray:
+        if not isinstance(value, (list, tuple)) or len(value) != n:
+            raise self.error(key, f'must be a list of {n} numbers, got {_fmt(value)}')
+        out = np.empty(n)
+        for i, v in enumerate(value):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) \
+                    or not math.isfinite(float(v)):
+                raise self.error(key, f'must be a list of {n} finite numbers, '
+                                      f'got {_fmt(value)}')
+            out[i] = float(v)
+        if gt is not None and not np.all(out > gt):
+            raise self.error(key, f'must be > {_fmt(gt)} in every component, '
+                                  f'got {_fmt(value)}')
+        return out
+
+    def string(self, key: str, value: Any) -> str:
+        if not isinstance(value, str) or not value.strip():
+            raise self.error(key, f'must be a non-empty string, got {_fmt(value)}')
+        return value.strip()
+
+    def choice(self, key: str, value: Any, options: Sequence[str]) -> str:
+        if value not in options:
+            raise self.error(key, f"must be one of {', '.join(options)}, got {_fmt(value)}")
+        return value
+
+    def boolean(self, key: str, value: Any) -> bool:
+        if not isinstance(value, bool):
+            raise self.error(key, f'must be true or false, got {_fmt(value)}')
+        return value
+
+    def mapping(self, key: Optional[str], value: Any, allowed: Sequence[str]
+                ) -> Mapping[str, Any]:
+        if not isinstance(value, dict):
+            raise self.error(key, f'must be a mapping, got {_fmt(value)}')
+        for k in value:
+            if k not in allowed:
+                name = f'{key}.{k}' if key else str(k)
+                close = difflib.get_close_matches(str(k), allowed, n=1)
+                hint = f" (did you mean '{close[0]}'?)" if close else ''
+                raise self.error(None, f"unknown key '{name}'{hint}; "
+                                       f"allowed: {', '.join(allowed)}")
+        return value
+
+
+# ----------------------------------------------------------------------------------------
+# Parsing
+# ----------------------------------------------------------------------------------------
+
+def load_scene(name_or_path: Union[str, Path] = '') -> SceneSpec:
+    """
+    Load and validate a scene: a bundled scene name ('' = 'default') or a YAML path.
+
+    Returns a SceneSpec whose bodies are fully built (world coordinates). Raises SceneError
+    naming the file, body and key; nothing is half-loaded.
+    """
+    path = resolve_scene(name_or_path)
+    given = str(name_or_path).strip()
+    label = str(path) if (not given or not Path(given).expanduser().is_file()) else given
+    try:
+        text = path.read_text(encoding='utf-8')
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(f'{label}: cannot read: {exc}') from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise SceneError(f'{label}: invalid YAML: {exc}') from None
+    return parse_scene(data, label, path.resolve().parent)
+
+
+def parse_scene(data: Any, source: str = '<scene>',
+                base_dir: Union[str, Path, None] = None) -> SceneSpec:
+    """
+    Validate a scene given as already-parsed YAML data (a dict) and build its bodies.
+
+    `source` labels error messages; relative ``file`` paths resolve against `base_dir`
+    (default: the current directory).
+    """
+    where = _Where(source)
+    base = Path(base_dir) if base_dir is not None else Path.cwd()
+    if data is None:
+        raise where.error(None, 'is empty (expected a mapping with a bodies list)')
+    top = where.mapping(None, data, _TOP_KEYS)
+    description = top.get('description', '')
+    if not isinstance(description, str):
+        raise where.error('description', f'must be a string, got {_fmt(description)}')
+    colliders = _parse_colliders(where, top.get('colliders'))
+    raw_bodies = top.get('bodies')
+    if not isinstance(raw_bodies, list) or not raw_bodies:
+        raise where.error('bodies', f'must be a non-empty list, got {_fmt(raw_bodies)}')
+    bodies: List[BodySpec] = []
+    seen: Dict[str, int] = {}
+    total = 0
+    for i, raw in enumerate(raw_bodies):
+        for b in _parse_body(source, base, i, raw):
+            if b.name in seen:
+                raise _Where(source, b.name).error(
+                    'name', f'is used twice (bodies #{seen[b.name]} and #{i})')
+            seen[b.name] = i
+            total += b.n
+            if total > MAX_SCENE_POINTS:
+                raise _Where(source, b.name).error(
+                    None, f'the scene exceeds {MAX_SCENE_POINTS} particles')
+            bodies.append(b)
+    return SceneSpec(bodies=bodies, colliders=colliders, source=source,
+                     description=description.strip())
+
+
+def _parse_colliders(where: _Where, raw: Any) -> Dict[str, Any]:
+    out: Dict[str, Any] = {'ground': None, 'boxes': [], 'spheres': []}
+    if raw is None:
+        return out
+    c = where.mapping('colliders', raw, ('ground', 'boxes', 'spheres'))
+    g = c.get('ground')
+    if isinstance(g, bool):
+        out['ground'] = {'enabled': g}
+    elif g is not None:
+        gm = where.mapping('colliders.ground', g,
+                           ('enabled', 'height', 'friction', 'restitution'))
+        ground: Dict[str, Any] = {'enabled': True}
+        if 'enabled' in gm:
+            ground['enabled'] = where.boolean('colliders.ground.enabled', gm['enabled'])
+        if 'height' in gm:
+            ground['height'] = where.number('colliders.ground.height', gm['height'])
+        if 'friction' in gm:
+            ground['friction'] = where.number('colliders.ground.friction', gm['friction'],
+                                              ge=0.0)
+        if 'restitution' in gm:
+            ground['restitution'] = where.number('colliders.ground.restitution',
+                                                 gm['restitution'], ge=0.0, le=1.0)
+        out['ground'] = ground
+    boxes = c.get('boxes', [])
+    if not isinstance(boxes, list):
+        raise where.error('colliders.boxes', f'must be a list, got {_fmt(boxes)}')
+    for i, b in enumerate(boxes):
+        key = f'colliders.boxes[{i}]'
+        bm = where.mapping(key, b, ('lo', 'hi', 'center', 'size'))
+        if 'lo' in bm or 'hi' in bm:
+            if 'center' in bm or 'size' in bm:
+                raise where.error(key, 'takes either lo/hi or center/size, not both')
+            lo = where.vector(f'{key}.lo', bm.get('lo'), 3)
+            hi = where.vector(f'{key}.hi', bm.get('hi'), 3)
+        else:
+            centre = where.vector(f'{key}.center', bm.get('center'), 3)
+            size = where.vector(f'{key}.size', bm.get('size'), 3, gt=0.0)
+            lo, hi = centre - size / 2.0, centre + size / 2.0
+        if not np.all(hi > lo):
+            raise where.error(f'{key}.hi', f'must exceed lo in every axis, got lo '
+                                           f'{lo.tolist()} hi {hi.tolist()}')
+        out['boxes'].append({'lo': lo, 'hi': hi})
+    spheres = c.get('spheres', [])
+    if not isinstance(spheres, list):
+        raise where.error('colliders.spheres', f'must be a list, got {_fmt(spheres)}')
+    for i, s in enumerate(spheres):
+        key = f'colliders.spheres[{i}]'
+        sm = where.mapping(key, s, ('center', 'radius'))
+        out['spheres'].append({
+            'center': where.vector(f'{key}.center', sm.get('center'), 3),
+            'radius': where.number(f'{key}.radius', sm.get('radius'), gt=0.0)})
+    return out
+
+
+def _parse_overrides(w: _Where, b: Mapping[str, Any]) -> Dict[str, Any]:
+    ov: Dict[str, Any] = {}
+    if 'mode' in b:
+        ov['mode'] = w.choice('mode', b['mode'], MODES)
+    for key in ('alpha', 'beta', 'damping'):
+        if key in b:
+            ov[key] = w.number(key, b[key], ge=0.0, le=1.0)
+    if 'clusters' in b:
+        ov['clusters'] = w.integer('clusters', b['clusters'], ge=1)
+    if 'plasticity' in b:
+        p = w.mapping('plasticity', b['plasticity'], ('yield', 'creep', 'max'))
+        for key in ('yield', 'creep', 'max'):
+            if key in p:
+                ov[f'plasticity.{key}'] = w.number(f'plasticity.{key}', p[key], ge=0.0)
+    return ov
+
+
+def _orientation(w: _Where, raw: Any) -> np.ndarray:
+    if raw is None:
+        return np.eye(3)
+    if isinstance(raw, (list, tuple)) and len(raw) == 4:
+        q = w.vector('orientation', raw, 4)
+        if not np.linalg.norm(q) > 1e-12:
+            raise w.error('orientation', f'quaternion must be non-zero, got {_fmt(raw)}')
+        return shapes.quat_to_matrix(q)
+    if isinstance(raw, (list, tuple)) and len(raw) == 3:
+        return shapes.rpy_to_matrix(w.vector('orientation', raw, 3))
+    raise w.error('orientation', 'must be [roll, pitch, yaw] (radians) or a quaternion '
+                                 f'[x, y, z, w], got {_fmt(raw)}')
+
+
+def _resolve_file(w: _Where, base: Path, raw: Any) -> Path:
+    name = w.string('file', raw)
+    p = Path(name).expanduser()
+    if not p.is_absolute():
+        p = base / p
+    if not p.is_file():
+        raise w.error('file', f"'{name}' not found (looked for {p})")
+    return p
+
+
+def _load_mesh(w: _Where, path: Path) -> Tuple[np.ndarray, np.ndarray]:
+    """Vertices (V, 3) and faces (F, 3) of a mesh file, read with trimesh (lazily)."""
+    try:
+        import trimesh
+    except ImportError:
+        raise w.error('file', 'needs trimesh for mesh bodies '
+                              '(pip install trimesh, or the sm_ros[mesh] extra)') from None
+    try:
+        mesh = trimesh.load(str(path), force='mesh', process=True)
+    except Exception as exc:  # noqa: B902 - trimesh raises many kinds
+        raise w.error('file', f"'{path.name}' cannot be read as a mesh: {exc}") from None
+    faces = np.asarray(getattr(mesh, 'faces', np.zeros((0, 3))), dtype=np.int64)
+    if faces.ndim != 2 or len(faces) == 0:
+        raise w.error('file', f"'{path.name}' has no triangles "
+                              '(a point cloud? use shape: cloud)')
+    mesh.remove_unreferenced_vertices()
+    verts = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    if not np.all(np.isfinite(verts)):
+        raise w.error('file', f"'{path.name}' has non-finite vertices")
+    return verts, faces
+
+
+def _build_local(w: _Where, shape: str, b: Mapping[str, Any], base: Path
+                 ) -> Tuple[np.ndarray, Optional[np.ndarray], Optional[np.ndarray]]:
+    """Local points (N, 3), and for meshes faces and local surface vertices."""
+    spacing = None
+    if 'spacing' in b or shape in _LATTICE_SHAPES + ('sheet', 'rope') or (
+            shape == 'mesh' and b.get('fill', 'lattice') == 'lattice'):
+        spacing = w.number('spacing', b.get('spacing', DEFAULT_SPACING), gt=0.0)
+    faces = surf = None
+    try:
+        if shape == 'box':
+            pts = shapes.box_lattice(w.vector('size', b.get('size'), 3, gt=0.0), spacing)
+        elif shape == 'sphere':
+            pts = shapes.sphere_lattice(w.number('radius', b.get('radius'), gt=0.0), spacing)
+        elif shape in ('cylinder', 'capsule'):
+            radius = w.number('radius', b.get('radius'), gt=0.0)
+            length = w.number('length', b.get('length'),
+                              **({'gt': 0.0} if shape == 'cylinder' else {'ge': 0.0}))
+            fn = shapes.cylinder_lattice if shape == 'cylinder' else shapes.capsule_lattice
+            pts = fn(radius, length, spacing)
+        elif shape == 'sheet':
+            pts = shapes.sheet_lattice(w.vector('size', b.get('size'), 2, gt=0.0), spacing)
+        elif shape == 'rope':
+            pts = shapes.rope_points(w.number('length', b.get('length'), gt=0.0), spacing)
+        elif shape == 'mesh':
+            fill = w.choice('fill', b.get('fill', 'lattice'), ('lattice', 'vertices'))
+            verts, faces = _load_mesh(w, _resolve_file(w, base, b.get('file')))
+            verts = _scale_center(w, b, verts)
+            if fill == 'vertices':
+                pts, surf = verts, None
+            else:
+                pts, surf = shapes.mesh_lattice(verts, faces, spacing), verts
+        else:  # cloud
+            path = _resolve_file(w, base, b.get('file'))
+            pts = _scale_center(w, b, shapes.read_cloud_file(path))
+            voxel = None
+            if 'voxel' in b:
+                voxel = w.number('voxel', b['voxel'], gt=0.0)
+                pts = shapes.voxel_downsample(pts, voxel)
+            if 'max_points' in b:
+                cap = w.integer('max_points', b['max_points'], ge=1)
+                pts = shapes.voxel_downsample(pts, shapes.voxel_size_for(pts, cap))
+            if len(pts) > shapes.MAX_BODY_POINTS:
+                raise GeometryError(f'has {len(pts)} points (limit {shapes.MAX_BODY_POINTS}); '
+                                    'set max_points or voxel', key='max_points')
+    except GeometryError as exc:
+        key = exc.key or ('file' if shape in ('mesh', 'cloud') else 'spacing')
+        reason = f"'{b.get('file')}': {exc}" if key == 'file' else str(exc)
+        raise w.error(key, reason) from None
+    return pts, faces, surf
+
+
+def _scale_center(w: _Where, b: Mapping[str, Any], pts: np.ndarray) -> np.ndarray:
+    if 'scale' in b:
+        s = b['scale']
+        if isinstance(s, (list, tuple)):
+            pts = pts * w.vector('scale', s, 3, gt=0.0)
+        else:
+            pts = pts * w.number('scale', s, gt=0.0)
+    if w.boolean('center', b.get('center', False)):
+        pts = pts - (pts.min(axis=0) + pts.max(axis=0)) / 2.0
+    return pts
+
+
+def _pinned(w: _Where, raw: Any, points: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    if raw is None:
+        return np.zeros(0, dtype=np.int64)
+    regions = raw if isinstance(raw, list) else [raw]
+    mask = np.zeros(len(points), dtype=bool)
+    for i, r in enumerate(regions):
+        key = 'pinned' if not isinstance(raw, list) else f'pinned[{i}]'
+        rm = w.mapping(key, r, ('lo', 'hi'))
+        lo = w.vector(f'{key}.lo', rm.get('lo'), 3) + offset
+        hi = w.vector(f'{key}.hi', rm.get('hi'), 3) + offset
+        if not np.all(hi >= lo):
+            raise w.error(f'{key}.hi', f'must be >= lo in every axis, got lo '
+                                       f'{(lo - offset).tolist()} hi {(hi - offset).tolist()}')
+        inside = np.all((points >= lo) & (points <= hi), axis=1)
+        if not inside.any():
+            raise w.error(key, 'contains no particle of the body (the region is in world '
+                               'coordinates)')
+        mask |= inside
+    return np.flatnonzero(mask).astype(np.int64)
+
+
+def _parse_body(source: str, base: Path, index: int, raw: Any) -> List[BodySpec]:
+    """Validate and build one body entry (several with ``copies``)."""
+    pre = _Where(source, f'#{index}')
+    if not isinstance(raw, dict):
+        raise _Where(source).error(f'bodies[{index}]', f'must be a mapping, got {_fmt(raw)}')
+    name = raw.get('name', f'body{index}')
+    if not isinstance(name, str) or not name.strip() or any(c.isspace() for c in name):
+        raise pre.error('name', f'must be a non-empty string without spaces, got {_fmt(name)}')
+    w = _Where(source, name)
+    shape = raw.get('shape')
+    if shape is None:
+        raise w.error('shape', f"is required (one of {', '.join(SHAPES)})")
+    w.choice('shape', shape, SHAPES)
+    b = w.mapping(None, raw, _COMMON_KEYS + _SHAPE_KEYS[shape])
+    overrides = _parse_overrides(w, b)
+
+    # placement
+    position = w.vector('position', b.get('position', [0.0, 0.0, 0.0]), 3)
+    rot = _orientation(w, b.get('orientation'))
+
+    # geometry
+    local, faces, surf_local = _build_local(w, shape, b, base)
+    points = local @ rot.T + position
+    surf_world = None if surf_local is None else surf_local @ rot.T + position
+    n = len(points)
+
+    # masses
+    if 'mass' in b and 'density' in b:
+        raise w.error('density', 'and mass are exclusive: give one')
+    if 'density' in b:
+        density = w.number('density', b['density'], gt=0.0)
+        if shape in _LATTICE_SHAPES or (shape == 'mesh' and b.get('fill', 'lattice')
+                                        == 'lattice'):
+            spacing = w.number('spacing', b.get('spacing', DEFAULT_SPACING), gt=0.0)
+            masses = np.full(n, density * spacing ** 3)
+        else:
+            raise w.error('density', f'needs a volume lattice (box, sphere, cylinder, '
+                                     f'capsule, mesh with fill: lattice); shape {shape} '
+                                     'takes mass')
+    else:
+        mass = w.number('mass', b.get('mass', DEFAULT_MASS), gt=0.0)
+        masses = np.full(n, mass / n)
+
+    # velocities (linear + angular about the centre of mass)
+    v = w.vector('velocity', b['velocity'], 3) if 'velocity' in b else np.zeros(3)
+    omega = (w.vector('angular_velocity', b['angular_velocity'], 3)
+             if 'angular_velocity' in b else np.zeros(3))
+
+    # copies
+    offsets = [np.zeros(3)]
+    if 'copies' in b:
+        c = w.mapping('copies', b['copies'], ('count', 'step'))
+        cnt = c.get('count')
+        if not isinstance(cnt, list) or len(cnt) != 3:
+            raise w.error('copies.count', f'must be a list of 3 integers, got {_fmt(cnt)}')
+        counts = [w.integer('copies.count', k, ge=1) for k in cnt]
+        step = w.vector('copies.step', c.get('step'), 3)
+        offsets = [np.array([i, j, k]) * step for i in range(counts[0])
+                   for j in range(counts[1]) for k in range(counts[2])]
+        if len(offsets) * n > MAX_SCENE_POINTS:
+            raise w.error('copies.count', f'makes {len(offsets) * n} particles '
+                                          f'(limit {MAX_SCENE_POINTS})')
+
+    out = []
+    for ci, off in enumerate(offsets):
+        pts = points + off
+        bname = name if len(offsets) == 1 else f'{name}_{ci}'
+        vel = None
+        if np.any(v) or np.any(omega):
+            com = np.average(pts, axis=0, weights=masses)
+            vel = v + np.cross(omega, pts - com)
+        pinned = _pinned(w, b.get('pinned'), pts, off)
+        surface = None
+        if faces is not None:
+            surface = (Surface.direct(faces, pts) if surf_world is None
+                       else Surface.embedded(faces, surf_world + off, pts))
+        out.append(BodySpec(name=bname, points=np.ascontiguousarray(pts),
+                            masses=masses.copy(), velocities=vel, pinned=pinned,
+                            overrides=dict(overrides), surface=surface, shape=shape))
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# Into the solver
+# ----------------------------------------------------------------------------------------
+
+def _merged(defaults: Optional[Mapping[str, Any]]) -> Dict[str, Any]:
+    d = dict(NODE_DEFAULTS)
+    if defaults:
+        d.update(defaults)
+    return d
+
+
+def params_from(defaults: Optional[Mapping[str, Any]], overrides: Optional[Mapping[str, Any]]
+                ):
+    """
+    The core BodyParams for a body: its overrides over the node's parameters.
+
+    Keys are node-parameter names (see OVERRIDE_KEYS); missing ones fall back to
+    NODE_DEFAULTS. 'damping' is 0 unless given. Raises ValueError (from BodyParams.validate)
+    on bad values.
+    """
+    from sm_ros.core import BodyParams
+    d = _merged(defaults)
+    if overrides:
+        d.update(overrides)
+    params = BodyParams(mode=str(d['mode']), alpha=float(d['alpha']), beta=float(d['beta']),
+                        clusters=int(d['clusters']),
+                        plastic_yield=float(d['plasticity.yield']),
+                        plastic_creep=float(d['plasticity.creep']),
+                        plastic_max=float(d['plasticity.max']),
+                        damping=float(d.get('damping', 0.0)))
+    params.validate()
+    return params
+
+
+def ground_from(scene_ground: Optional[Mapping[str, Any]],
+                defaults: Optional[Mapping[str, Any]]):
+    """
+    The core Ground (or None when disabled) from a scene's ground and the node's parameters.
+
+    Rule: a scene that sets ``colliders.ground`` wins key by key (enabled, height, friction,
+    restitution); keys it leaves out, and scenes without a ground entry, use the node's
+    ``ground.*`` parameters.
+    """
+    from sm_ros.core import Ground
+    d = _merged(defaults)
+    g = {'enabled': bool(d['ground.enabled']), 'height': float(d['ground.height']),
+         'friction': float(d['ground.friction']),
+         'restitution': float(d['ground.restitution'])}
+    if scene_ground:
+        g.update(scene_ground)
+    if not g['enabled']:
+        return None
+    return Ground(height=g['height'], friction=g['friction'], restitution=g['restitution'])
+
+
+def add_spec_body(world, body: BodySpec, defaults: Optional[Mapping[str, Any]] = None,
+                  source: str = '<scene>') -> BodyMeta:
+    """
+    Add one BodySpec to a World; returns its BodyMeta. The world is unchanged on error.
+
+    Raises SceneError (naming the body) when the core refuses the body or its parameters.
+    """
+    try:
+        params = params_from(defaults, body.overrides)
+        world.add_body(body.points, masses=body.masses, params=params, name=body.name,
+                       velocities=body.velocities,
+                       pinned=body.pinned if len(body.pinned) else None)
+    except ValueError as exc:
+        raise _Where(source, body.name).error(None, str(exc)) from None
+    return BodyMeta(name=body.name, overrides=dict(body.overrides), surface=body.surface,
+                    shape=body.shape)
+
+
+def build_world(spec: SceneSpec, defaults: Optional[Mapping[str, Any]] = None):
+    """
+    A new sm_ros.core.World holding the scene: gravity from `defaults`, colliders (the
+    ground per :func:`ground_from`), and every body. Returns (world, metas) with metas in
+    the order of ``world.bodies``. Raises SceneError; no partial world is returned.
+    """
+    from sm_ros.core import Box, Sphere, World
+    d = _merged(defaults)
+    world = World(gravity=tuple(float(g) for g in d['gravity']))
+    world.set_colliders(
+        ground=ground_from(spec.colliders.get('ground'), d),
+        boxes=[Box(lo=tuple(b['lo']), hi=tuple(b['hi']))
+               for b in spec.colliders.get('boxes', [])],
+        spheres=[Sphere(center=tuple(s['center']), radius=float(s['radius']))
+                 for s in spec.colliders.get('spheres', [])])
+    metas = [add_spec_body(world, b, d, spec.source) for b in spec.bodies]
+    return world, metas
+
+
+def cloud_body_spec(points: np.ndarray, max_points: int, name: str = 'cloud',
+                    mass: float = DEFAULT_MASS) -> BodySpec:
+    """
+    A body from a point cloud (N, 3), voxel-downsampled to at most `max_points`.
+
+    The voxel edge is the smallest (by bisection) that leaves at most `max_points` voxel
+    centroids; the body sits where the points were, total mass `mass` shared equally.
+    Raises SceneError on empty, non-finite or badly shaped input.
+    """
+    w = _Where('cloud_in', name)
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise w.error('points', f'must have shape (N, 3), got {pts.shape}')
+    if len(pts) == 0:
+        raise w.error('points', 'is empty')
+    if not np.all(np.isfinite(pts)):
+        raise w.error('points', 'contain NaN or Inf')
+    if isinstance(max_points, bool) or int(max_points) < 1:
+        raise w.error('max_points', f'must be >= 1, got {max_points}')
+    w.number('mass', mass, gt=0.0)
+    voxel = shapes.voxel_size_for(pts, int(max_points))
+    if voxel > 0.0:
+        pts = shapes.voxel_downsample(pts, voxel)
+    return BodySpec(name=name, points=np.ascontiguousarray(pts),
+                    masses=np.full(len(pts), float(mass) / len(pts)), shape='cloud')

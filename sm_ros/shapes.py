@@ -1,0 +1,602 @@
+"""
+Geometry for scene bodies: lattices, file readers, voxel downsampling and surfaces.
+
+Everything here is plain NumPy and returns plain arrays; nothing imports rclpy, the solver
+core or trimesh (the mesh reader in :mod:`sm_ros.scene` imports trimesh lazily). Functions
+raise :class:`GeometryError` (a ``ValueError``) with a short reason; the scene loader adds
+the file, body and key to the message.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Optional, Sequence, Tuple
+
+import numpy as np
+
+#: Largest number of particles one body may have (guards against a tiny `spacing`).
+MAX_BODY_POINTS = 1_000_000
+
+_EPS = 1e-9
+
+
+class GeometryError(ValueError):
+    """
+    Bad geometry input (degenerate size, unreadable file, too many points).
+
+    `key` names the scene key at fault when it is not the file ('spacing', ...).
+    """
+
+    def __init__(self, message: str, key: Optional[str] = None):
+        """Keep the message and the optional scene key."""
+        super().__init__(message)
+        self.key = key
+
+
+# ----------------------------------------------------------------------------------------
+# Rotations
+# ----------------------------------------------------------------------------------------
+
+def quat_to_matrix(q: Sequence[float]) -> np.ndarray:
+    """
+    Rotation matrix of a quaternion given as ``(x, y, z, w)`` (the ROS order).
+
+    The quaternion is normalised; a zero quaternion raises GeometryError.
+    """
+    x, y, z, w = (float(c) for c in q)
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if not n > 1e-12:
+        raise GeometryError('quaternion has zero length')
+    x, y, z, w = x / n, y / n, z / n, w / n
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def rpy_to_matrix(rpy: Sequence[float]) -> np.ndarray:
+    """
+    Rotation matrix of roll, pitch, yaw in radians: R = Rz(yaw) Ry(pitch) Rx(roll) (REP 103).
+    """
+    r, p, y = (float(c) for c in rpy)
+    cr, sr, cp, sp, cy, sy = (math.cos(r), math.sin(r), math.cos(p), math.sin(p),
+                              math.cos(y), math.sin(y))
+    return np.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])
+
+
+# ----------------------------------------------------------------------------------------
+# Lattices
+# ----------------------------------------------------------------------------------------
+
+def _axis(extent: float, spacing: float) -> np.ndarray:
+    """Points from -extent/2 to +extent/2 at `spacing`, centred (one point if extent < spacing)."""
+    n = int(math.floor(extent / spacing + 1e-6)) + 1
+    return (np.arange(n) - (n - 1) / 2.0) * spacing
+
+
+def _check_count(count: float) -> None:
+    if count > MAX_BODY_POINTS:
+        raise GeometryError(
+            f'would make about {int(count)} particles (limit {MAX_BODY_POINTS}); '
+            'increase spacing', key='spacing')
+
+
+def _grid(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray) -> np.ndarray:
+    _check_count(float(len(xs)) * len(ys) * len(zs))
+    g = np.stack(np.meshgrid(xs, ys, zs, indexing='ij'), axis=-1)
+    return g.reshape(-1, 3).astype(np.float64)
+
+
+def box_lattice(size: Sequence[float], spacing: float) -> np.ndarray:
+    """
+    Cubic lattice filling a box of full extents `size` (m), centred on the origin.
+
+    Along each axis there are floor(size / spacing) + 1 points spanning the box symmetrically,
+    so `size` = (n - 1) * spacing gives exactly n points reaching the faces.
+    """
+    return _grid(_axis(size[0], spacing), _axis(size[1], spacing), _axis(size[2], spacing))
+
+
+def _symmetric_axis(half: float, spacing: float) -> np.ndarray:
+    k = int(math.floor(half / spacing + 1e-6))
+    return np.arange(-k, k + 1) * spacing
+
+
+def sphere_lattice(radius: float, spacing: float) -> np.ndarray:
+    """Lattice points (a node at the centre) inside a sphere of `radius`; at least the centre."""
+    a = _symmetric_axis(radius, spacing)
+    _check_count(len(a) ** 3 * math.pi / 6.0)
+    g = _grid(a, a, a)
+    return g[np.einsum('ij,ij->i', g, g) <= radius * radius * (1 + 1e-9)]
+
+
+def cylinder_lattice(radius: float, length: float, spacing: float) -> np.ndarray:
+    """Lattice points inside a cylinder along the local z axis (`length` end to end)."""
+    a = _symmetric_axis(radius, spacing)
+    z = _axis(length, spacing)
+    _check_count(len(a) ** 2 * len(z) * math.pi / 4.0)
+    g = _grid(a, a, z)
+    return g[g[:, 0] ** 2 + g[:, 1] ** 2 <= radius * radius * (1 + 1e-9)]
+
+
+def capsule_lattice(radius: float, length: float, spacing: float) -> np.ndarray:
+    """
+    Lattice points inside a capsule along local z.
+
+    `length` is the distance between the centres of the two hemispherical caps (0 gives a
+    sphere); the capsule's end-to-end length is `length` + 2 `radius`.
+    """
+    a = _symmetric_axis(radius, spacing)
+    z = _axis(length + 2.0 * radius, spacing)
+    _check_count(len(a) ** 2 * len(z) * math.pi / 4.0)
+    g = _grid(a, a, z)
+    zc = np.clip(g[:, 2], -length / 2.0, length / 2.0)
+    d2 = g[:, 0] ** 2 + g[:, 1] ** 2 + (g[:, 2] - zc) ** 2
+    return g[d2 <= radius * radius * (1 + 1e-9)]
+
+
+def sheet_lattice(size: Sequence[float], spacing: float) -> np.ndarray:
+    """A flat square grid in the local xy plane (z = 0), full extents `size` = (lx, ly)."""
+    return _grid(_axis(size[0], spacing), _axis(size[1], spacing), np.zeros(1))
+
+
+def rope_points(length: float, spacing: float) -> np.ndarray:
+    """Points on a line along the local x axis, centred, end to end `length`."""
+    x = _axis(length, spacing)
+    _check_count(len(x))
+    return np.stack([x, np.zeros_like(x), np.zeros_like(x)], axis=1)
+
+
+# ----------------------------------------------------------------------------------------
+# Meshes (arrays only; reading the file is done with trimesh in scene.py)
+# ----------------------------------------------------------------------------------------
+
+def _column_windings(vertices: np.ndarray, faces: np.ndarray, xs: np.ndarray,
+                     ys: np.ndarray, zs: np.ndarray, chunk_elems: int = 4_000_000
+                     ) -> np.ndarray:
+    """
+    Winding numbers (nx, ny, nz) of lattice points w.r.t. a closed triangle mesh.
+
+    Casts one ray per lattice column straight up (+z), slightly jittered in x and y so it
+    misses edges and vertices, and sums the signed crossings (sign of the triangle's n_z)
+    above each point: +-1 inside a closed mesh, 0 outside. Vectorised over columns and
+    faces in chunks; crossings are few, so their accumulation is cheap.
+    """
+    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    keep = np.abs(area) > 1e-300
+    a, b, c, area = a[keep], b[keep], c[keep], area[keep]
+    ext = float(np.max(np.ptp(tri.reshape(-1, 3), axis=0))) or 1.0
+    jit = ext * np.array([1.2345e-7, 2.7183e-7])
+    gx, gy = np.meshgrid(xs + jit[0], ys + jit[1], indexing='ij')
+    cols = np.stack([gx.ravel(), gy.ravel()], axis=1)           # (C, 2)
+    diff = np.zeros((len(cols), len(zs) + 1))
+    step = max(1, chunk_elems // max(1, len(a)))
+    for s0 in range(0, len(cols), step):
+        px = cols[s0:s0 + step, 0:1]
+        py = cols[s0:s0 + step, 1:2]
+        wa = (c[:, 0] - b[:, 0]) * (py - b[:, 1]) - (c[:, 1] - b[:, 1]) * (px - b[:, 0])
+        wb = (a[:, 0] - c[:, 0]) * (py - c[:, 1]) - (a[:, 1] - c[:, 1]) * (px - c[:, 0])
+        wc = (b[:, 0] - a[:, 0]) * (py - a[:, 1]) - (b[:, 1] - a[:, 1]) * (px - a[:, 0])
+        sgn = np.sign(area)
+        hit = (wa * sgn > 0) & (wb * sgn > 0) & (wc * sgn > 0)
+        ci, fi = np.nonzero(hit)
+        if len(ci) == 0:
+            continue
+        zc = (wa[ci, fi] * a[fi, 2] + wb[ci, fi] * b[fi, 2] + wc[ci, fi] * c[fi, 2]) / area[fi]
+        # points with z < zc (indices 0 .. k0-1 of the column) get the crossing's sign
+        k0 = np.searchsorted(zs, zc, side='left')
+        np.add.at(diff, (ci + s0, np.zeros_like(k0)), sgn[fi])
+        np.add.at(diff, (ci + s0, k0), -sgn[fi])
+    wind = np.cumsum(diff, axis=1)[:, :len(zs)]
+    return wind.reshape(len(xs), len(ys), len(zs))
+
+
+def mesh_lattice(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> np.ndarray:
+    """
+    Lattice points at `spacing` inside a closed triangle mesh (|winding number| > 0.5).
+
+    The lattice is aligned with the mesh's bounding box centre. A mesh thinner than the
+    spacing everywhere yields no points; then GeometryError asks for a smaller spacing.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    centre = (lo + hi) / 2.0
+    axes = [_symmetric_axis((hi[i] - lo[i]) / 2.0, spacing) + centre[i] for i in range(3)]
+    _check_count(float(len(axes[0])) * len(axes[1]) * len(axes[2]) * 0.5)
+    inside = np.abs(_column_windings(vertices, faces, *axes)) > 0.5
+    pts = _grid(*axes)[inside.ravel()]
+    if len(pts) == 0:
+        raise GeometryError(
+            f'no lattice point at spacing {spacing:g} lies inside the mesh (is it closed?); '
+            'decrease spacing or use fill: vertices', key='spacing')
+    return pts
+
+
+# ----------------------------------------------------------------------------------------
+# Surfaces that follow the particles
+# ----------------------------------------------------------------------------------------
+
+def knn(queries: np.ndarray, points: np.ndarray, k: int,
+        chunk_elems: int = 8_000_000) -> Tuple[np.ndarray, np.ndarray]:
+    """
+    Indices (Q, k) and distances (Q, k) of the k nearest `points` of every query, nearest
+    first. Brute force in chunks (no SciPy); meant for precomputation, not per step.
+    """
+    queries = np.asarray(queries, dtype=np.float64)
+    points = np.asarray(points, dtype=np.float64)
+    k = min(k, len(points))
+    idx = np.empty((len(queries), k), dtype=np.int64)
+    dist = np.empty((len(queries), k))
+    pn = np.einsum('ij,ij->i', points, points)
+    step = max(1, chunk_elems // max(1, len(points)))
+    for s in range(0, len(queries), step):
+        q = queries[s:s + step]
+        d2 = (np.einsum('ij,ij->i', q, q)[:, None] + pn[None, :] - 2.0 * q @ points.T)
+        if k < len(points):
+            part = np.argpartition(d2, k - 1, axis=1)[:, :k]
+        else:
+            part = np.broadcast_to(np.arange(len(points)), d2.shape).copy()
+        pd = np.take_along_axis(d2, part, axis=1)
+        order = np.argsort(pd, axis=1)
+        idx[s:s + step] = np.take_along_axis(part, order, axis=1)
+        dist[s:s + step] = np.sqrt(np.maximum(np.take_along_axis(pd, order, axis=1), 0.0))
+    return idx, dist
+
+
+class Surface:
+    """
+    A triangle surface whose vertices follow a body's particles.
+
+    Attributes:
+        faces: (F, 3) int32 triangle vertex indices.
+        rest_vertices: (V, 3) surface vertices in the rest pose (world frame).
+
+    Call :meth:`vertices` with the body's current positions x (N, 3) to get the deformed
+    vertices. Two kinds:
+
+    - *direct*: the vertices are the particles (a body made of a mesh's vertices);
+      ``vertices(x)`` returns ``x``.
+    - *embedded*: each vertex is an affine combination of its k nearest rest particles,
+      v = sum_j w_j x_j with sum_j w_j = 1 and sum_j w_j x0_j = v0. The weights are the
+      distance-weighted least-change correction of inverse-distance weights, precomputed
+      once, so the surface reproduces any affine motion (translation, rotation, linear
+      deformation) of the neighbourhood exactly and follows the particles smoothly.
+    """
+
+    def __init__(self, faces: np.ndarray, rest_vertices: np.ndarray,
+                 index: Optional[np.ndarray] = None, weights: Optional[np.ndarray] = None):
+        """Use :meth:`direct` or :meth:`embedded` rather than this constructor."""
+        self.faces = np.ascontiguousarray(faces, dtype=np.int32)
+        self.rest_vertices = np.asarray(rest_vertices, dtype=np.float64)
+        self.index = index
+        self.weights = weights
+
+    @classmethod
+    def direct(cls, faces: np.ndarray, rest_points: np.ndarray) -> 'Surface':
+        """Surface whose vertices are the particles themselves (faces index particles)."""
+        return cls(faces, rest_points)
+
+    @classmethod
+    def embedded(cls, faces: np.ndarray, rest_vertices: np.ndarray,
+                 rest_points: np.ndarray, k: int = 8) -> 'Surface':
+        """Surface embedded in the k nearest particles of each vertex (see class doc)."""
+        v0 = np.asarray(rest_vertices, dtype=np.float64)
+        x0 = np.asarray(rest_points, dtype=np.float64)
+        idx, dist = knn(v0, x0, k)
+        k = idx.shape[1]
+        # inverse-distance weights (a vertex on a particle takes it fully)
+        h = max(float(np.median(dist[:, 0])), 1e-12)
+        w0 = 1.0 / (dist + 1e-3 * h) ** 2
+        w0 /= w0.sum(axis=1, keepdims=True)
+        # affine reproduction: C w = b with C = [x0_j - v0; 1], b = [0, 0, 0, 1]
+        d = (x0[idx] - v0[:, None, :]) / h                   # (V, k, 3), scaled
+        c = np.concatenate([np.swapaxes(d, 1, 2), np.ones((len(v0), 1, k))], axis=1)
+        r = np.zeros((len(v0), 4))
+        r[:, 3] = 1.0
+        r -= np.einsum('vik,vk->vi', c, w0)
+        # minimise sum_j dw_j^2 / w0_j subject to C (w0 + dw) = b
+        cw = c * w0[:, None, :]
+        m = np.einsum('vik,vjk->vij', cw, c) + 1e-9 * np.eye(4)
+        lam = np.linalg.solve(m, r[..., None])[..., 0]
+        w = w0 + np.einsum('vik,vi->vk', cw, lam)
+        return cls(faces, v0, idx, w)
+
+    def vertices(self, x: np.ndarray) -> np.ndarray:
+        """Deformed surface vertices (V, 3) for current particle positions x (N, 3)."""
+        if self.index is None:
+            return np.asarray(x)
+        return np.einsum('vk,vkd->vd', self.weights, np.asarray(x)[self.index])
+
+
+# ----------------------------------------------------------------------------------------
+# Voxel downsampling
+# ----------------------------------------------------------------------------------------
+
+def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
+    """Centroids of the points in each occupied cubic voxel of edge `voxel` (m)."""
+    points = np.asarray(points, dtype=np.float64)
+    if voxel <= 0.0 or len(points) == 0:
+        return points.copy()
+    keys = np.floor((points - points.min(axis=0)) / voxel).astype(np.int64)
+    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    out = np.zeros((len(counts), 3))
+    np.add.at(out, inv, points)
+    return out / counts[:, None]
+
+
+def _voxel_count(points: np.ndarray, lo: np.ndarray, voxel: float) -> int:
+    keys = np.floor((points - lo) / voxel).astype(np.int64)
+    dims = keys.max(axis=0) + 1
+    if float(dims[0]) * dims[1] * dims[2] < 2 ** 62:
+        flat = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
+        return int(len(np.unique(flat)))
+    return int(len(np.unique(keys, axis=0)))
+
+
+def voxel_size_for(points: np.ndarray, max_points: int, iterations: int = 40) -> float:
+    """
+    Smallest voxel edge (found by bisection on a log scale) whose downsampling leaves at most
+    `max_points` points; 0.0 if the points already fit.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    if max_points < 1:
+        raise GeometryError(f'max_points must be >= 1, got {max_points}')
+    if len(points) <= max_points:
+        return 0.0
+    lo_pt = points.min(axis=0)
+    extent = float(np.max(points.max(axis=0) - lo_pt))
+    if extent <= 0.0:
+        return 1.0  # all points coincide: any voxel gives one point
+    hi = extent * 1.001                      # larger than the extent: a single voxel
+    lo = hi
+    while _voxel_count(points, lo_pt, lo) <= max_points:
+        lo /= 2.0
+        if lo < extent * 1e-9:                # only duplicates left: merge them
+            return lo
+    # invariant: count(lo) > max_points >= count(hi)
+    for _ in range(iterations):
+        mid = math.sqrt(lo * hi)
+        if _voxel_count(points, lo_pt, mid) <= max_points:
+            hi = mid
+        else:
+            lo = mid
+        if hi / lo < 1.0 + 1e-4:
+            break
+    return hi
+
+
+# ----------------------------------------------------------------------------------------
+# Point-cloud files: PLY, PCD, .npy (readers written here, no extra dependency)
+# ----------------------------------------------------------------------------------------
+
+_PLY_TYPES = {
+    'char': 'i1', 'int8': 'i1', 'uchar': 'u1', 'uint8': 'u1', 'short': 'i2', 'int16': 'i2',
+    'ushort': 'u2', 'uint16': 'u2', 'int': 'i4', 'int32': 'i4', 'uint': 'u4', 'uint32': 'u4',
+    'float': 'f4', 'float32': 'f4', 'double': 'f8', 'float64': 'f8',
+}
+
+
+def read_ply_points(path: Path) -> np.ndarray:
+    """
+    Vertex positions (N, 3) of a PLY file (ascii, binary_little_endian, binary_big_endian).
+
+    Reads the ``vertex`` element's x, y, z; other elements (faces) are ignored as long as
+    the vertex element comes first or the elements before it have no list properties.
+    """
+    data = Path(path).read_bytes()
+    end = data.find(b'end_header')
+    if not data.startswith(b'ply') or end < 0:
+        raise GeometryError('not a PLY file (no "ply" magic or no end_header)')
+    nl = data.find(b'\n', end)
+    body = data[nl + 1:] if nl >= 0 else b''
+    fmt = None
+    elements = []  # [name, count, [(prop, type or None for list)]]
+    for line in data[:end].decode('ascii', errors='replace').splitlines():
+        tok = line.split()
+        if not tok:
+            continue
+        if tok[0] == 'format':
+            fmt = tok[1] if len(tok) > 1 else None
+        elif tok[0] == 'element' and len(tok) == 3:
+            elements.append([tok[1], int(tok[2]), []])
+        elif tok[0] == 'property' and elements:
+            if tok[1] == 'list':
+                elements[-1][2].append((tok[-1], None))
+            elif len(tok) == 3 and tok[1] in _PLY_TYPES:
+                elements[-1][2].append((tok[2], _PLY_TYPES[tok[1]]))
+            else:
+                raise GeometryError(f'unsupported PLY property line: {line.strip()!r}')
+    if fmt not in ('ascii', 'binary_little_endian', 'binary_big_endian'):
+        raise GeometryError(f'unsupported PLY format {fmt!r}')
+    names = [e[0] for e in elements]
+    if 'vertex' not in names:
+        raise GeometryError('PLY file has no vertex element')
+    vi = names.index('vertex')
+    vprops = elements[vi][2]
+    pnames = [p for p, _ in vprops]
+    if not all(c in pnames for c in 'xyz'):
+        raise GeometryError('PLY vertex element lacks x, y or z')
+    if any(t is None for _, t in vprops):
+        raise GeometryError('PLY vertex element has list properties')
+    count = elements[vi][1]
+    if fmt == 'ascii':
+        lines = body.decode('ascii', errors='replace').splitlines()
+        skip = sum(e[1] for e in elements[:vi])
+        rows = [ln.split() for ln in lines[skip:skip + count]]
+        if len(rows) < count or any(len(r) < len(pnames) for r in rows):
+            raise GeometryError('PLY ascii data is shorter than its header says')
+        try:
+            arr = np.array([[float(r[pnames.index(c)]) for c in 'xyz'] for r in rows])
+        except ValueError as exc:
+            raise GeometryError(f'PLY ascii data is not numeric: {exc}') from None
+        return arr.reshape(-1, 3)
+    endian = '<' if fmt == 'binary_little_endian' else '>'
+    offset = 0
+    for e in elements[:vi]:
+        if any(t is None for _, t in e[2]):
+            raise GeometryError(f'PLY element {e[0]!r} before vertex has list properties')
+        offset += e[1] * sum(np.dtype(t).itemsize for _, t in e[2])
+    dt = np.dtype([(p, endian + t) for p, t in vprops])
+    if len(body) < offset + count * dt.itemsize:
+        raise GeometryError('PLY binary data is shorter than its header says')
+    rec = np.frombuffer(body, dtype=dt, count=count, offset=offset)
+    return np.stack([rec[c].astype(np.float64) for c in 'xyz'], axis=1)
+
+
+def lzf_decompress(data: bytes, out_len: int) -> bytes:
+    """Decompress LZF data (the codec of PCD ``binary_compressed``)."""
+    out = bytearray(out_len)
+    ip = op = 0
+    n = len(data)
+    try:
+        while ip < n:
+            ctrl = data[ip]
+            ip += 1
+            if ctrl < 32:                       # literal run of ctrl + 1 bytes
+                ln = ctrl + 1
+                if op + ln > out_len or ip + ln > n:
+                    raise GeometryError('corrupt LZF data (literal overruns)')
+                out[op:op + ln] = data[ip:ip + ln]
+                ip += ln
+                op += ln
+            else:                               # back reference
+                ln = ctrl >> 5
+                if ln == 7:
+                    ln += data[ip]
+                    ip += 1
+                ref = op - ((ctrl & 0x1F) << 8) - data[ip] - 1
+                ip += 1
+                ln += 2
+                if ref < 0 or op + ln > out_len:
+                    raise GeometryError('corrupt LZF data (bad back reference)')
+                if ref + ln <= op:
+                    out[op:op + ln] = out[ref:ref + ln]
+                    op += ln
+                else:
+                    for _ in range(ln):         # overlapping copy, byte by byte
+                        out[op] = out[ref]
+                        op += 1
+                        ref += 1
+    except IndexError:
+        raise GeometryError('corrupt LZF data (truncated)') from None
+    if op != out_len:
+        raise GeometryError(f'LZF data decompressed to {op} bytes, header says {out_len}')
+    return bytes(out)
+
+
+def read_pcd_points(path: Path) -> np.ndarray:
+    """
+    Positions (N, 3) of a PCD file (DATA ascii, binary or binary_compressed).
+
+    Fields other than x, y, z are skipped; organised clouds are flattened.
+    """
+    data = Path(path).read_bytes()
+    header = {}
+    pos = 0
+    while True:
+        nl = data.find(b'\n', pos)
+        if nl < 0:
+            raise GeometryError('PCD header has no DATA line')
+        line = data[pos:nl].decode('ascii', errors='replace').strip()
+        pos = nl + 1
+        if not line or line.startswith('#'):
+            continue
+        tok = line.split()
+        header[tok[0].upper()] = tok[1:]
+        if tok[0].upper() == 'DATA':
+            break
+    try:
+        fields = header['FIELDS']
+        sizes = [int(s) for s in header['SIZE']]
+        types = header['TYPE']
+        counts = [int(c) for c in header.get('COUNT', ['1'] * len(fields))]
+        npts = int(header['POINTS'][0]) if 'POINTS' in header else (
+            int(header['WIDTH'][0]) * int(header.get('HEIGHT', ['1'])[0]))
+        mode = header['DATA'][0].lower()
+    except (KeyError, IndexError, ValueError) as exc:
+        raise GeometryError(f'PCD header is incomplete or malformed ({exc})') from None
+    if not (len(fields) == len(sizes) == len(types) == len(counts)):
+        raise GeometryError('PCD FIELDS, SIZE, TYPE and COUNT differ in length')
+    if not all(c in fields for c in 'xyz'):
+        raise GeometryError('PCD file lacks an x, y or z field')
+    kinds = {'F': 'f', 'I': 'i', 'U': 'u'}
+    try:
+        dts = [np.dtype(f'<{kinds[t.upper()]}{s}') for t, s in zip(types, sizes)]
+    except (KeyError, TypeError):
+        raise GeometryError(f'PCD has an unsupported TYPE/SIZE: {types} {sizes}') from None
+    body = data[pos:]
+    if mode == 'ascii':
+        cols = []
+        for f, c in zip(fields, counts):
+            cols.extend([f] * c)
+        rows = body.decode('ascii', errors='replace').split('\n')
+        rows = [r.split() for r in rows if r.strip()][:npts]
+        if len(rows) < npts or any(len(r) < len(cols) for r in rows):
+            raise GeometryError('PCD ascii data is shorter than its header says')
+        try:
+            arr = np.array([[float(r[cols.index(c)]) for c in 'xyz'] for r in rows])
+        except ValueError as exc:
+            raise GeometryError(f'PCD ascii data is not numeric: {exc}') from None
+        return arr.reshape(-1, 3)
+    if mode == 'binary':
+        dt = np.dtype([(f, d, (c,)) if c > 1 else (f, d)
+                       for f, d, c in zip(fields, dts, counts)])
+        if len(body) < npts * dt.itemsize:
+            raise GeometryError('PCD binary data is shorter than its header says')
+        rec = np.frombuffer(body, dtype=dt, count=npts)
+        return np.stack([rec[c].astype(np.float64).reshape(npts) for c in 'xyz'], axis=1)
+    if mode == 'binary_compressed':
+        if len(body) < 8:
+            raise GeometryError('PCD binary_compressed data is truncated')
+        csize, usize = np.frombuffer(body[:8], dtype='<u4')
+        raw = lzf_decompress(body[8:8 + int(csize)], int(usize))
+        # column-major: all values of field 0, then field 1, ...
+        off = 0
+        cols = {}
+        for f, d, c in zip(fields, dts, counts):
+            nbytes = npts * c * d.itemsize
+            if off + nbytes > len(raw):
+                raise GeometryError('PCD binary_compressed data is shorter than its header')
+            cols[f] = np.frombuffer(raw, dtype=d, count=npts * c, offset=off)
+            off += nbytes
+        return np.stack([cols[c].astype(np.float64)[:npts] for c in 'xyz'], axis=1)
+    raise GeometryError(f'unsupported PCD DATA mode {mode!r}')
+
+
+def read_npy_points(path: Path) -> np.ndarray:
+    """Positions (N, 3) from a .npy array: shape (N, >= 3) (first three columns) or a
+    structured array with x, y, z fields."""
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except (ValueError, OSError) as exc:
+        raise GeometryError(f'cannot read .npy: {exc}') from None
+    if arr.dtype.names:
+        if not all(c in arr.dtype.names for c in 'xyz'):
+            raise GeometryError('structured .npy lacks an x, y or z field')
+        return np.stack([arr[c].astype(np.float64).reshape(-1) for c in 'xyz'], axis=1)
+    if arr.ndim != 2 or arr.shape[1] < 3 or not np.issubdtype(arr.dtype, np.number):
+        raise GeometryError(f'.npy must be a numeric (N, 3) array, got shape {arr.shape} '
+                            f'of {arr.dtype}')
+    return arr[:, :3].astype(np.float64)
+
+
+def read_cloud_file(path: Path) -> np.ndarray:
+    """Read a point-cloud file by extension (.ply, .pcd, .npy); non-finite rows dropped."""
+    ext = Path(path).suffix.lower()
+    readers = {'.ply': read_ply_points, '.pcd': read_pcd_points, '.npy': read_npy_points}
+    if ext not in readers:
+        raise GeometryError(f'unsupported cloud file type {ext!r} (use .ply, .pcd or .npy)')
+    pts = readers[ext](path)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts) == 0:
+        raise GeometryError('the cloud file has no finite point')
+    return pts
