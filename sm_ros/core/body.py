@@ -1,0 +1,398 @@
+"""A deformable body: its state, its precomputed rest data and its step (algorithm.md).
+
+The public methods validate their input and raise ``ValueError``; the private ``_step``
+drives the Numba kernels in ``kernels.py`` over buffers made when the body is built, so a
+step allocates nothing.  What a body computes is chosen when it is built: a rigid body has
+no A_qq, a linear body no 9x9 data, a body without plasticity no plastic state, a
+one-cluster body no membership lists.
+"""
+
+import numpy as np
+import numba
+
+from . import kernels as K
+from .clusters import build_memberships
+from .params import BodyParams
+
+_MODE_ID = {'rigid': 0, 'linear': 1, 'quadratic': 2}
+#: Bodies with at least this many cluster memberships run the multi-threaded kernels.
+PARALLEL_MIN_MEMBERSHIPS = 8192
+#: Relative eigenvalue cut-off of the A_qq / A~_qq pseudo-inverses.
+RCOND = 1e-10
+_EMPTY_I64 = np.zeros(0, dtype=np.int64)
+_EMPTY_I32 = np.zeros(0, dtype=np.int32)
+
+
+def _as_points(points, name='points'):
+    a = np.array(points, dtype=np.float64, order='C', copy=True)
+    if a.ndim != 2 or a.shape[1] != 3 or a.shape[0] == 0:
+        raise ValueError(f'{name} must be an (N, 3) array with N >= 1, got shape {a.shape}')
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f'{name} must be finite')
+    return a
+
+
+class Body:
+    """One shape-matched body; made by ``World.add_body``."""
+
+    def __init__(self, points, masses=1.0, params=None, name='body', velocities=None,
+                 pinned=None):
+        self.name = str(name)
+        x = _as_points(points)
+        n = len(x)
+        m = np.array(np.broadcast_to(np.asarray(masses, dtype=np.float64), (n,)), order='C')
+        if not np.all(np.isfinite(m)) or np.any(m <= 0.0):
+            raise ValueError('masses must be finite and > 0')
+        if velocities is None:
+            v = np.zeros_like(x)
+        else:
+            v = _as_points(velocities, 'velocities')
+            if v.shape != x.shape:
+                raise ValueError(f'velocities must have shape {x.shape}, got {v.shape}')
+        params = (params or BodyParams()).validate()
+        self._pinned = self._check_indices(pinned if pinned is not None else [], n, 'pinned')
+        self.n = n
+        self.m = m
+        self.m.flags.writeable = False
+        self.total_mass = float(m.sum())
+        self.x_init = x.copy()
+        self.x_init.flags.writeable = False
+        self._v_init = v.copy()
+        self._x = x
+        self._v = v
+        # rest positions about the mass centre: every kernel reads these (exact for any
+        # far-away placement)
+        self._c0 = (m @ x) / self.total_mass
+        self._x0 = np.ascontiguousarray(x - self._c0)
+        self._force = np.zeros(3)
+        self._torque = np.zeros(3)
+        self._grab_idx = _EMPTY_I64
+        self._grab_tgt = np.zeros((0, 3))
+        self._acc = np.zeros(3)
+        self._ang = np.zeros(3)
+        self._com = np.zeros(3)
+        self._i3 = np.zeros((3, 3))
+        self._i3inv = np.zeros((3, 3))
+        self._s3 = [np.zeros((3, 3)) for _ in range(4)]
+        self._m39 = np.zeros((3, 9))
+        self._n4 = np.zeros((4, 4))
+        self._v4 = np.zeros((4, 4))
+        self._w9 = [np.zeros((9, 9)) for _ in range(2)]
+        self._f9 = np.zeros(9)
+        self._accbuf = np.zeros(32)
+        self._shape_err = 0.0
+        # body-level match for poses of multi-cluster bodies
+        self._quat_body = np.array([1.0, 0.0, 0.0, 0.0])
+        self._params = params
+        self._build()
+        self._merge_kinematic()
+
+    # ------------------------------------------------------------------ build
+    @staticmethod
+    def _check_indices(idx, n, what):
+        a = np.asarray(idx)
+        if a.size == 0:
+            return _EMPTY_I64
+        if a.ndim != 1 or not np.issubdtype(a.dtype, np.integer):
+            raise ValueError(f'{what} must be a 1-D array of particle indices')
+        if a.min() < 0 or a.max() >= n:
+            raise ValueError(f'{what} indices must be in [0, {n}), got {a.min()}..{a.max()}')
+        return np.unique(a.astype(np.int64))
+
+    def _build(self):
+        """Precompute everything that depends on the rest shape and the parameters."""
+        p = self._params
+        n = self.n
+        x0, m = self._x0, self.m
+        mode = _MODE_ID[p.mode]
+        self._mode = mode
+        self._quad = mode == 2
+        self._need3 = mode == 1 or p.plastic
+        self._need9 = self._quad
+        if p.clusters == 1:
+            self._ptr, self._cl, nk = _EMPTY_I64, _EMPTY_I32, 1
+            w = m
+            member = np.zeros(n, dtype=np.int64)
+            rows = np.arange(n)
+        else:
+            self._ptr, self._cl, nk = build_memberships(x0, p.clusters)
+            counts = np.diff(self._ptr)
+            rows = np.repeat(np.arange(n), counts)
+            w = (m / counts)[rows]
+            member = self._cl.astype(np.int64)
+        self.num_clusters = nk
+        wsum = np.bincount(member, weights=w, minlength=nk)
+        cm0 = np.stack([np.bincount(member, weights=w * x0[rows, j], minlength=nk)
+                        for j in range(3)], axis=1) / wsum[:, None]
+        d = x0[rows] - cm0[member]
+        rms = np.sqrt(np.bincount(member, weights=w * np.einsum('ij,ij->i', d, d),
+                                  minlength=nk) / wsum)
+        self._wsum = wsum
+        self._cm0 = cm0
+        self._scale = np.where(rms > 0.0, rms, 1.0)
+        self._sp = np.tile(np.eye(3), (nk, 1, 1))
+        self._g = np.zeros((nk, 3, 3))
+        self._hv = np.zeros((nk, 3))
+        self._quat = np.tile([1.0, 0.0, 0.0, 0.0], (nk, 1))
+        self._sq = np.zeros((nk, 9))
+        self._mom3 = np.zeros((nk if self._need3 else 1, 3, 3))
+        self._mom9 = np.zeros((nk if self._need9 else 1, 9, 9))
+        self._aqq3 = np.zeros_like(self._mom3)
+        self._aqq9 = np.zeros_like(self._mom9)
+        self._changed = np.ones(nk, dtype=np.bool_)
+        self._refresh_rest(self._changed)
+        na = 30 if self._quad else 12
+        memberships = n if p.clusters == 1 else len(self._cl)
+        self._parallel = memberships >= PARALLEL_MIN_MEMBERSHIPS and numba.get_num_threads() > 1
+        nch = numba.get_num_threads() if self._parallel else 1
+        nch = max(1, min(nch, n))
+        self._part = np.zeros((nch, nk, na))
+        self._err = np.zeros(nch)
+        self._t = np.zeros((nk, 3, 9))
+        self._lm = np.zeros((nk, 3, 3))
+        self._lb = np.zeros((nk, 3))
+        self._ref = cm0 + self._c0
+        self._lin = np.zeros((nk, 13)) if p.damping > 0 else None
+        self._w3 = np.zeros((nk, 3)) if p.damping > 0 else None
+        self._dirty = True
+
+    def _refresh_rest(self, which):
+        """Plastic rest shape q = Sp (x0 - cm0) / s of the clusters in ``which``; A_qq."""
+        idx = np.nonzero(which)[0]
+        self._g[idx] = self._sp[idx] / self._scale[idx, None, None]
+        self._hv[idx] = -np.einsum('kij,kj->ki', self._g[idx], self._cm0[idx])
+        K.moments(self._x0, self.m, self._ptr, self._cl, self._g, self._hv, which,
+                  self._need3, self._need9, self._sq, self._mom3, self._mom9, self._f9)
+        K.invert_moments(which, self._need3, self._need9, self._mom3, self._mom9, self._aqq3,
+                         self._aqq9, self._s3[0], self._s3[1], self._w9[0], self._w9[1],
+                         RCOND)
+
+    def _merge_kinematic(self):
+        pins = self._pinned
+        grab = self._grab_idx
+        keep = ~np.isin(grab, pins)
+        self._kin_idx = np.concatenate([grab[keep], pins]).astype(np.int64)
+        self._kin_tgt = np.ascontiguousarray(
+            np.concatenate([self._grab_tgt[keep], self.x_init[pins]]), dtype=np.float64)
+        self._kin_prev = np.zeros_like(self._kin_tgt)
+
+    # ------------------------------------------------------------------ step
+    def _step(self, h, gravity, has_col, ground, boxes, spheres, thresh):
+        p = self._params
+        x, v = self._x, self._v
+        s3 = self._s3
+        if self._dirty:
+            acc = K.accumulate_parallel if self._parallel else K.accumulate_serial
+            acc(self._quad, x, self._x0, self.m, self._ptr, self._cl, self._g, self._hv,
+                self._ref, self._part)
+        nchanged = K.solve_clusters(
+            self._part, self._wsum, self._sq, self._ref, self._quat, self._aqq3, self._aqq9,
+            self._g, self._hv, self._scale, self._t, self._lm, self._lb, self._mode, p.beta,
+            p.plastic, self._sp, p.plastic_yield, p.plastic_creep, p.plastic_max, h,
+            self._changed, self._accbuf, s3[0], s3[1], s3[2], self._m39, self._n4, self._v4)
+        np.multiply(self._force, 1.0 / self.total_mass, out=self._acc)
+        self._acc += gravity
+        if self._torque.any():
+            np.dot(self._wsum, self._ref, out=self._com)
+            self._com /= self._wsum.sum()
+            K.inertia(x, self.m, self._com, self._i3)
+            K.pinv_sym(self._i3, self._i3inv, s3[0], s3[1], 1e-12)
+            np.dot(self._i3inv, self._torque, out=self._ang)
+        else:
+            self._ang[:] = 0.0
+        if p.damping > 0.0:
+            K.damp_rigid(x, v, self.m, self._ptr, self._cl, self._ref, p.damping, self._lin,
+                         self._w3, s3[0], s3[1], s3[2], s3[3])
+        kin = len(self._kin_idx) > 0
+        if kin:
+            K.gather_rows(x, self._kin_idx, self._kin_prev)
+        integ = K.integrate_parallel if self._parallel else K.integrate_serial
+        integ(self._quad, x, v, self._x0, self.m, self._ptr, self._cl, self._g, self._hv,
+              self._t, self._lm, self._lb, self._ref, p.alpha, h, self._acc, self._ang,
+              self._com, self._part, self._err, has_col, ground, boxes, spheres, thresh)
+        if kin:
+            K.apply_kinematic(self._quad, x, v, self._x0, self.m, self._ptr, self._cl,
+                              self._g, self._hv, self._ref, self._part, self._kin_idx,
+                              self._kin_tgt, self._kin_prev, h)
+        self._shape_err = float(np.sqrt(self._err.sum() / self.n))
+        self._dirty = False
+        if nchanged:
+            self._refresh_rest(self._changed)
+            self._dirty = True
+
+    # ------------------------------------------------------------------ state access
+    @property
+    def params(self) -> BodyParams:
+        """The body's parameters (immutable; change them with ``set_params``)."""
+        return self._params
+
+    @property
+    def x(self) -> np.ndarray:
+        """Positions (N, 3), read-only view (write with ``set_state``)."""
+        view = self._x.view()
+        view.flags.writeable = False
+        return view
+
+    @property
+    def v(self) -> np.ndarray:
+        """Velocities (N, 3), read-only view (write with ``set_state``)."""
+        view = self._v.view()
+        view.flags.writeable = False
+        return view
+
+    @property
+    def plastic_state(self) -> np.ndarray:
+        """Per-cluster plastic deformation S^P (clusters, 3, 3); identity when elastic."""
+        return self._sp.copy()
+
+    @property
+    def cluster_rotations(self) -> np.ndarray:
+        """Per-cluster rotations R of the last step's shape match (clusters, 3, 3)."""
+        out = np.zeros((self.num_clusters, 3, 3))
+        for k in range(self.num_clusters):
+            K.quat_to_mat(self._quat[k], out[k])
+        return out
+
+    def set_state(self, x=None, v=None):
+        """Overwrite positions and/or velocities (validated; all or nothing)."""
+        nx = None if x is None else _as_points(x, 'x')
+        nv = None if v is None else _as_points(v, 'v')
+        for a, what in ((nx, 'x'), (nv, 'v')):
+            if a is not None and a.shape != self._x.shape:
+                raise ValueError(f'{what} must have shape {self._x.shape}, got {a.shape}')
+        if nx is not None:
+            self._x[:] = nx
+        if nv is not None:
+            self._v[:] = nv
+        self._dirty = True
+
+    def set_params(self, params=None, **changes):
+        """Apply new parameters from the next step on; rebuild only what they reshape."""
+        new = (params if params is not None else self._params)
+        if not isinstance(new, BodyParams):
+            raise ValueError('params must be a BodyParams')
+        unknown = set(changes) - set(BodyParams.field_names())
+        if unknown:
+            raise ValueError(f'unknown body parameters: {sorted(unknown)}')
+        from dataclasses import replace
+        new = replace(new, **changes).validate()
+        old = self._params
+        self._params = new
+        if (new.mode != old.mode or new.clusters != old.clusters or new.plastic != old.plastic
+                or (new.damping > 0) != (old.damping > 0)):
+            self._build()
+
+    def set_wrench(self, force, torque=(0.0, 0.0, 0.0)):
+        """External force at the centre of mass and torque about it, held until replaced."""
+        f = np.asarray(force, dtype=float).reshape(-1)
+        t = np.asarray(torque, dtype=float).reshape(-1)
+        if f.shape != (3,) or t.shape != (3,) or not (np.all(np.isfinite(f))
+                                                       and np.all(np.isfinite(t))):
+            raise ValueError('force and torque must be 3 finite numbers each')
+        self._force[:] = f
+        self._torque[:] = t
+
+    def clear_wrench(self):
+        """Remove the external force and torque."""
+        self._force[:] = 0.0
+        self._torque[:] = 0.0
+
+    @property
+    def wrench(self):
+        """The held (force, torque) as copies."""
+        return self._force.copy(), self._torque.copy()
+
+    def set_kinematic(self, indices, targets):
+        """Make particles follow ``targets`` exactly (grabbed); replaces earlier ones."""
+        idx = np.asarray(indices)
+        tgt = np.asarray(targets, dtype=float)
+        if idx.ndim != 1 or (idx.size and not np.issubdtype(idx.dtype, np.integer)):
+            raise ValueError('indices must be a 1-D integer array')
+        if tgt.shape != (idx.size, 3) or not np.all(np.isfinite(tgt)):
+            raise ValueError(f'targets must be finite with shape ({idx.size}, 3)')
+        if idx.size and (idx.min() < 0 or idx.max() >= self.n):
+            raise ValueError(f'indices must be in [0, {self.n})')
+        if idx.size and len(np.unique(idx)) != idx.size:
+            raise ValueError('indices must be unique')
+        self._grab_idx = idx.astype(np.int64)
+        self._grab_tgt = np.ascontiguousarray(tgt)
+        self._merge_kinematic()
+
+    def clear_kinematic(self):
+        """Release every grabbed particle (pins stay)."""
+        self._grab_idx = _EMPTY_I64
+        self._grab_tgt = np.zeros((0, 3))
+        self._merge_kinematic()
+
+    @property
+    def kinematic_indices(self) -> np.ndarray:
+        """Indices of the particles that currently follow targets (grabbed and pinned)."""
+        return self._kin_idx.copy()
+
+    @property
+    def pinned(self) -> np.ndarray:
+        """Indices of the pinned particles."""
+        return self._pinned.copy()
+
+    def com(self) -> np.ndarray:
+        """Centre of mass of the current positions."""
+        return (self.m @ self._x) / self.total_mass
+
+    def rotation(self) -> np.ndarray:
+        """Proper rotation of the whole body's shape match (3, 3)."""
+        r = np.zeros((3, 3))
+        if self.num_clusters == 1:
+            K.quat_to_mat(self._quat[0], r)
+            return r
+        com = self.com()
+        apq = np.einsum('i,ij,ik->jk', self.m, self._x - com, self._x0)
+        K.extract_rotation(apq, self._quat_body, r, self._n4, self._v4)
+        return r
+
+    def goals(self) -> np.ndarray:
+        """Goal positions g_i for the current state (Eq. 12/18/22, averaged over clusters)."""
+        p = self._params
+        part = np.zeros((1,) + self._part.shape[1:])
+        ref, quat = self._ref.copy(), self._quat.copy()
+        t, lm, lb = np.zeros_like(self._t), np.zeros_like(self._lm), np.zeros_like(self._lb)
+        K.accumulate_serial(self._quad, self._x, self._x0, self.m, self._ptr, self._cl,
+                            self._g, self._hv, ref, part)
+        s3 = [np.zeros((3, 3)) for _ in range(3)]
+        K.solve_clusters(part, self._wsum, self._sq, ref, quat, self._aqq3, self._aqq9,
+                         self._g, self._hv, self._scale, t, lm, lb, self._mode, p.beta, False,
+                         self._sp.copy(), 0.0, 0.0, 0.0, 1.0, np.zeros(self.num_clusters,
+                                                                       dtype=np.bool_),
+                         np.zeros(32), s3[0], s3[1], s3[2], np.zeros((3, 9)),
+                         np.zeros((4, 4)), np.zeros((4, 4)))
+        g = self._x.copy()
+        K.integrate_serial(self._quad, g, np.zeros_like(g), self._x0, self.m, self._ptr,
+                           self._cl, self._g, self._hv, t, lm, lb, ref, 1.0, 1.0, np.zeros(3),
+                           np.zeros(3), np.zeros(3), part, np.zeros(1), False, np.zeros(4),
+                           np.zeros((0, 8)), np.zeros((0, 6)), 0.0)
+        return g
+
+    def shape_error_rms(self) -> float:
+        """RMS distance of the particles to their goals in the last step (m)."""
+        return self._shape_err
+
+    def momentum(self) -> np.ndarray:
+        """Linear momentum sum m v."""
+        return self.m @ self._v
+
+    def angular_momentum(self, about=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """Angular momentum sum m (x - about) x v."""
+        r = self._x - np.asarray(about, dtype=float)
+        return np.cross(r, self._v * self.m[:, None]).sum(axis=0)
+
+    def is_finite(self) -> bool:
+        """Whether every position and velocity is finite."""
+        return bool(np.isfinite(self._x).all() and np.isfinite(self._v).all())
+
+    def reset(self):
+        """Initial pose and velocities, rest shape, no plastic state, wrench or grabs."""
+        self._x[:] = self.x_init
+        self._v[:] = self._v_init
+        self.clear_wrench()
+        self.clear_kinematic()
+        self._quat_body[:] = (1.0, 0.0, 0.0, 0.0)
+        self._build()

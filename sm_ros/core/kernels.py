@@ -1,0 +1,978 @@
+"""Numba kernels of the solver: small linear algebra and the per-step passes.
+
+Everything jitted lives in this one module (Numba's cache does not notice edits to jitted
+functions in other files).  Public kernels never raise and assume clean, contiguous input;
+``sm_ros.core.body`` validates and owns every buffer, so nothing here allocates.
+
+Small dense linear algebra is written by hand (3x3, 4x4, 9x9).
+
+``numpy.linalg`` inside Numba needs SciPy's LAPACK and is slow for tiny matrices, so the
+solver uses these routines instead (algorithm.md, "Practical requirements").  Every routine
+writes into caller-provided buffers: nothing here allocates.
+
+"""
+
+import numpy as np
+from numba import njit, prange
+
+#: Fastmath flags used by every kernel (no ``nnan``/``ninf``: NaN checks must still work).
+FASTMATH = {'nsz', 'arcp', 'contract', 'afn', 'reassoc'}
+JIT = dict(cache=True, fastmath=FASTMATH, nogil=True)
+
+
+@njit(**JIT)
+def jacobi_eigh(a, v, max_sweeps=50):
+    """Diagonalise the symmetric matrix ``a`` in place by cyclic Jacobi rotations.
+
+    On return the diagonal of ``a`` holds the eigenvalues and the columns of ``v`` the
+    eigenvectors (``a_in = v diag(a) v^T``).  Works for any small n (used with 3, 4, 9).
+    """
+    n = a.shape[0]
+    for i in range(n):
+        for j in range(n):
+            v[i, j] = 1.0 if i == j else 0.0
+    for _ in range(max_sweeps):
+        off = 0.0
+        diag = 0.0
+        for i in range(n):
+            diag += a[i, i] * a[i, i]
+            for j in range(i + 1, n):
+                off += a[i, j] * a[i, j]
+        if off <= 1e-32 * diag or off == 0.0:
+            break
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                apq = a[p, q]
+                if apq == 0.0:
+                    continue
+                theta = (a[q, q] - a[p, p]) / (2.0 * apq)
+                if theta >= 0.0:
+                    t = 1.0 / (theta + np.sqrt(theta * theta + 1.0))
+                else:
+                    t = -1.0 / (-theta + np.sqrt(theta * theta + 1.0))
+                c = 1.0 / np.sqrt(t * t + 1.0)
+                s = t * c
+                for k in range(n):
+                    akp = a[k, p]
+                    akq = a[k, q]
+                    a[k, p] = c * akp - s * akq
+                    a[k, q] = s * akp + c * akq
+                for k in range(n):
+                    apk = a[p, k]
+                    aqk = a[q, k]
+                    a[p, k] = c * apk - s * aqk
+                    a[q, k] = s * apk + c * aqk
+                for k in range(n):
+                    vkp = v[k, p]
+                    vkq = v[k, q]
+                    v[k, p] = c * vkp - s * vkq
+                    v[k, q] = s * vkp + c * vkq
+
+
+@njit(**JIT)
+def pinv_sym(m, out, wa, wv, rcond):
+    """Pseudo-inverse of the symmetric positive semi-definite matrix ``m`` into ``out``.
+
+    Eigenvalues at or below ``rcond`` times the largest are treated as zero, so planar,
+    line-like and single-point clusters (singular A_qq) get the least-squares inverse.
+    ``wa`` and ``wv`` are n x n scratch buffers.
+    """
+    n = m.shape[0]
+    for i in range(n):
+        for j in range(n):
+            wa[i, j] = m[i, j]
+    jacobi_eigh(wa, wv, 50)
+    lmax = 0.0
+    for i in range(n):
+        if abs(wa[i, i]) > lmax:
+            lmax = abs(wa[i, i])
+    tol = rcond * lmax
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = 0.0
+    for k in range(n):
+        lam = wa[k, k]
+        if lam > tol and lam > 0.0:
+            inv = 1.0 / lam
+            for i in range(n):
+                vik = wv[i, k] * inv
+                for j in range(n):
+                    out[i, j] += vik * wv[j, k]
+
+
+@njit(**JIT)
+def quat_to_mat(q, r):
+    """Rotation matrix of the unit quaternion ``q`` = (w, x, y, z) into ``r`` (3x3)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    r[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    r[0, 1] = 2.0 * (x * y - w * z)
+    r[0, 2] = 2.0 * (x * z + w * y)
+    r[1, 0] = 2.0 * (x * y + w * z)
+    r[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    r[1, 2] = 2.0 * (y * z - w * x)
+    r[2, 0] = 2.0 * (x * z - w * y)
+    r[2, 1] = 2.0 * (y * z + w * x)
+    r[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+
+
+@njit(**JIT)
+def extract_rotation(a, q, r, n4, v4):
+    """Least-squares rotation of ``a`` (3x3): the proper R maximising tr(R^T a).
+
+    For det(a) > 0 this is the rotational factor of the polar decomposition a = R S
+    (algorithm.md, Eq. 11 erratum); for det(a) <= 0 it is the nearest *proper* rotation
+    (the SVD with the smallest singular vector flipped).  Horn's quaternion method: R's
+    quaternion is the top eigenvector of a symmetric 4x4 matrix, found by Jacobi, so it
+    never fails and is proper by construction.  Warm start: ``q`` (in/out) holds the
+    previous rotation; the problem is solved relative to it and, where the answer is not
+    unique (singular ``a``: planar, collinear, single or coincident points), the solution
+    closest to the previous rotation is kept.  ``r`` receives the matrix; ``n4``/``v4`` are
+    4x4 scratch buffers.
+    """
+    quat_to_mat(q, r)
+    # b = R0^T a: the match relative to the previous rotation; horn's S = b^T.
+    sxx = r[0, 0] * a[0, 0] + r[1, 0] * a[1, 0] + r[2, 0] * a[2, 0]
+    sxy = r[0, 0] * a[0, 1] + r[1, 0] * a[1, 1] + r[2, 0] * a[2, 1]
+    sxz = r[0, 0] * a[0, 2] + r[1, 0] * a[1, 2] + r[2, 0] * a[2, 2]
+    syx = r[0, 1] * a[0, 0] + r[1, 1] * a[1, 0] + r[2, 1] * a[2, 0]
+    syy = r[0, 1] * a[0, 1] + r[1, 1] * a[1, 1] + r[2, 1] * a[2, 1]
+    syz = r[0, 1] * a[0, 2] + r[1, 1] * a[1, 2] + r[2, 1] * a[2, 2]
+    szx = r[0, 2] * a[0, 0] + r[1, 2] * a[1, 0] + r[2, 2] * a[2, 0]
+    szy = r[0, 2] * a[0, 1] + r[1, 2] * a[1, 1] + r[2, 2] * a[2, 1]
+    szz = r[0, 2] * a[0, 2] + r[1, 2] * a[1, 2] + r[2, 2] * a[2, 2]
+    # b[i, j] = s_ij above (row i of R0^T times column j of a); Horn uses S = b^T,
+    # S_ab = b_ba.  Written out with S_ab -> b[b, a]:
+    Sxx, Syy, Szz = sxx, syy, szz
+    Sxy, Sxz = syx, szx
+    Syx, Syz = sxy, szy
+    Szx, Szy = sxz, syz
+    n4[0, 0] = Sxx + Syy + Szz
+    n4[0, 1] = Syz - Szy
+    n4[0, 2] = Szx - Sxz
+    n4[0, 3] = Sxy - Syx
+    n4[1, 1] = Sxx - Syy - Szz
+    n4[1, 2] = Sxy + Syx
+    n4[1, 3] = Szx + Sxz
+    n4[2, 2] = -Sxx + Syy - Szz
+    n4[2, 3] = Syz + Szy
+    n4[3, 3] = -Sxx - Syy + Szz
+    for i in range(4):
+        for j in range(i):
+            n4[i, j] = n4[j, i]
+    scale = 0.0
+    for i in range(4):
+        for j in range(4):
+            if abs(n4[i, j]) > scale:
+                scale = abs(n4[i, j])
+    if not (scale > 0.0) or not np.isfinite(scale):
+        # Zero or non-finite match: keep the previous rotation.
+        return
+    jacobi_eigh(n4, v4, 30)
+    lmax = n4[0, 0]
+    for k in range(1, 4):
+        if n4[k, k] > lmax:
+            lmax = n4[k, k]
+    tol = 1e-9 * scale
+    # Project e0 (no change) onto the top eigenspace: the closest optimal rotation.
+    u0 = 0.0
+    u1 = 0.0
+    u2 = 0.0
+    u3 = 0.0
+    for k in range(4):
+        if n4[k, k] >= lmax - tol:
+            c = v4[0, k]
+            u0 += c * v4[0, k]
+            u1 += c * v4[1, k]
+            u2 += c * v4[2, k]
+            u3 += c * v4[3, k]
+    nu = u0 * u0 + u1 * u1 + u2 * u2 + u3 * u3
+    if nu < 1e-12:
+        kbest = 0
+        for k in range(1, 4):
+            if n4[k, k] > n4[kbest, kbest]:
+                kbest = k
+        u0, u1, u2, u3 = v4[0, kbest], v4[1, kbest], v4[2, kbest], v4[3, kbest]
+        nu = u0 * u0 + u1 * u1 + u2 * u2 + u3 * u3
+    inv = 1.0 / np.sqrt(nu)
+    if u0 < 0.0:
+        inv = -inv
+    u0 *= inv
+    u1 *= inv
+    u2 *= inv
+    u3 *= inv
+    # q <- q0 (x) u  (R = R0 R_u)
+    w0, x0, y0, z0 = q[0], q[1], q[2], q[3]
+    w = w0 * u0 - x0 * u1 - y0 * u2 - z0 * u3
+    x = w0 * u1 + x0 * u0 + y0 * u3 - z0 * u2
+    y = w0 * u2 - x0 * u3 + y0 * u0 + z0 * u1
+    z = w0 * u3 + x0 * u2 - y0 * u1 + z0 * u0
+    nq = 1.0 / np.sqrt(w * w + x * x + y * y + z * z)
+    q[0] = w * nq
+    q[1] = x * nq
+    q[2] = y * nq
+    q[3] = z * nq
+    quat_to_mat(q, r)
+
+
+@njit(**JIT)
+def det3(a):
+    """Determinant of a 3x3 matrix."""
+    return (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1])
+            - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
+            + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
+
+
+@njit(**JIT)
+def matmul(a, b, out):
+    """``out = a @ b`` for small matrices (no aliasing between ``out`` and inputs)."""
+    n, k = a.shape
+    m = b.shape[1]
+    for i in range(n):
+        for j in range(m):
+            s = 0.0
+            for t in range(k):
+                s += a[i, t] * b[t, j]
+            out[i, j] = s
+
+
+@njit(**JIT)
+def norm2(m, wa, wv):
+    """Spectral norm (largest singular value) of the 3x3 matrix ``m``."""
+    for i in range(3):
+        for j in range(3):
+            s = 0.0
+            for t in range(3):
+                s += m[t, i] * m[t, j]
+            wa[i, j] = s
+    jacobi_eigh(wa, wv, 50)
+    lmax = 0.0
+    for i in range(3):
+        if wa[i, i] > lmax:
+            lmax = wa[i, i]
+    return np.sqrt(lmax)
+
+
+# ---------------------------------------------------------------------------------------
+# Per-particle helpers
+# ---------------------------------------------------------------------------------------
+
+@njit(**JIT)
+def _contact_velocity(vx, vy, vz, nx, ny, nz, mu, e, thresh):
+    """Velocity after a contact with unit normal n: restitution e, Coulomb friction mu."""
+    vn = vx * nx + vy * ny + vz * nz
+    if vn >= 0.0:
+        return vx, vy, vz
+    tx = vx - vn * nx
+    ty = vy - vn * ny
+    tz = vz - vn * nz
+    vn_new = -e * vn if -vn > thresh else 0.0
+    dvn = vn_new - vn
+    tl = np.sqrt(tx * tx + ty * ty + tz * tz)
+    if tl > 0.0:
+        f = 1.0 - mu * dvn / tl
+        if f < 0.0:
+            f = 0.0
+        tx *= f
+        ty *= f
+        tz *= f
+    return tx + vn_new * nx, ty + vn_new * ny, tz + vn_new * nz
+
+
+@njit(**JIT)
+def collide_point(px, py, pz, vx, vy, vz, ground, boxes, spheres, thresh):
+    """Project a particle out of the static colliders and correct its velocity.
+
+    ``ground`` = [enabled, height, friction, restitution] (plane z = height, normal +z);
+    ``boxes`` rows = [lo(3), hi(3), friction, restitution] (axis-aligned, solid);
+    ``spheres`` rows = [centre(3), radius, friction, restitution] (solid).
+    """
+    if ground[0] > 0.5 and pz < ground[1]:
+        pz = ground[1]
+        vx, vy, vz = _contact_velocity(vx, vy, vz, 0.0, 0.0, 1.0, ground[2], ground[3], thresh)
+    for b in range(boxes.shape[0]):
+        if (px > boxes[b, 0] and px < boxes[b, 3] and py > boxes[b, 1] and py < boxes[b, 4]
+                and pz > boxes[b, 2] and pz < boxes[b, 5]):
+            best = px - boxes[b, 0]
+            axis = 0
+            sgn = -1.0
+            d = boxes[b, 3] - px
+            if d < best:
+                best, axis, sgn = d, 0, 1.0
+            d = py - boxes[b, 1]
+            if d < best:
+                best, axis, sgn = d, 1, -1.0
+            d = boxes[b, 4] - py
+            if d < best:
+                best, axis, sgn = d, 1, 1.0
+            d = pz - boxes[b, 2]
+            if d < best:
+                best, axis, sgn = d, 2, -1.0
+            d = boxes[b, 5] - pz
+            if d < best:
+                best, axis, sgn = d, 2, 1.0
+            nx = sgn if axis == 0 else 0.0
+            ny = sgn if axis == 1 else 0.0
+            nz = sgn if axis == 2 else 0.0
+            if axis == 0:
+                px = boxes[b, 3] if sgn > 0.0 else boxes[b, 0]
+            elif axis == 1:
+                py = boxes[b, 4] if sgn > 0.0 else boxes[b, 1]
+            else:
+                pz = boxes[b, 5] if sgn > 0.0 else boxes[b, 2]
+            vx, vy, vz = _contact_velocity(vx, vy, vz, nx, ny, nz, boxes[b, 6], boxes[b, 7],
+                                           thresh)
+    for s in range(spheres.shape[0]):
+        dx = px - spheres[s, 0]
+        dy = py - spheres[s, 1]
+        dz = pz - spheres[s, 2]
+        rad = spheres[s, 3]
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 < rad * rad:
+            d = np.sqrt(d2)
+            if d > 0.0:
+                nx, ny, nz = dx / d, dy / d, dz / d
+            else:
+                nx, ny, nz = 0.0, 0.0, 1.0
+            px = spheres[s, 0] + rad * nx
+            py = spheres[s, 1] + rad * ny
+            pz = spheres[s, 2] + rad * nz
+            vx, vy, vz = _contact_velocity(vx, vy, vz, nx, ny, nz, spheres[s, 4],
+                                           spheres[s, 5], thresh)
+    return px, py, pz, vx, vy, vz
+
+
+@njit(**JIT)
+def _qhat(g, hv, c, a0, a1, a2):
+    """q-hat = G_c x0 + h_c: the (plastic, scaled) rest offset of a particle in cluster c."""
+    return (g[c, 0, 0] * a0 + g[c, 0, 1] * a1 + g[c, 0, 2] * a2 + hv[c, 0],
+            g[c, 1, 0] * a0 + g[c, 1, 1] * a1 + g[c, 1, 2] * a2 + hv[c, 1],
+            g[c, 2, 0] * a0 + g[c, 2, 1] * a1 + g[c, 2, 2] * a2 + hv[c, 2])
+
+
+@njit(**JIT)
+def quad_features(q0, q1, q2, f):
+    """q~ = [qx, qy, qz, qx^2, qy^2, qz^2, qx qy, qy qz, qz qx] (Eq. 19) into ``f``."""
+    f[0] = q0
+    f[1] = q1
+    f[2] = q2
+    f[3] = q0 * q0
+    f[4] = q1 * q1
+    f[5] = q2 * q2
+    f[6] = q0 * q1
+    f[7] = q1 * q2
+    f[8] = q2 * q0
+
+
+@njit(**JIT)
+def _acc_lin(a, w, d0, d1, d2, q0, q1, q2):
+    """Add one particle's w (x - ref) and w (x - ref) q^T to the accumulator row ``a``."""
+    d0 *= w
+    d1 *= w
+    d2 *= w
+    a[0] += d0
+    a[1] += d1
+    a[2] += d2
+    a[3] += d0 * q0
+    a[4] += d0 * q1
+    a[5] += d0 * q2
+    a[6] += d1 * q0
+    a[7] += d1 * q1
+    a[8] += d1 * q2
+    a[9] += d2 * q0
+    a[10] += d2 * q1
+    a[11] += d2 * q2
+
+
+@njit(**JIT)
+def _acc_quad(a, w, d0, d1, d2, q0, q1, q2):
+    """Quadratic accumulator: w (x - ref) and w (x - ref) q~^T (3 + 27 entries)."""
+    d0 *= w
+    d1 *= w
+    d2 *= w
+    a[0] += d0
+    a[1] += d1
+    a[2] += d2
+    f3 = q0 * q0
+    f4 = q1 * q1
+    f5 = q2 * q2
+    f6 = q0 * q1
+    f7 = q1 * q2
+    f8 = q2 * q0
+    a[3] += d0 * q0
+    a[4] += d0 * q1
+    a[5] += d0 * q2
+    a[6] += d0 * f3
+    a[7] += d0 * f4
+    a[8] += d0 * f5
+    a[9] += d0 * f6
+    a[10] += d0 * f7
+    a[11] += d0 * f8
+    a[12] += d1 * q0
+    a[13] += d1 * q1
+    a[14] += d1 * q2
+    a[15] += d1 * f3
+    a[16] += d1 * f4
+    a[17] += d1 * f5
+    a[18] += d1 * f6
+    a[19] += d1 * f7
+    a[20] += d1 * f8
+    a[21] += d2 * q0
+    a[22] += d2 * q1
+    a[23] += d2 * q2
+    a[24] += d2 * f3
+    a[25] += d2 * f4
+    a[26] += d2 * f5
+    a[27] += d2 * f6
+    a[28] += d2 * f7
+    a[29] += d2 * f8
+
+
+@njit(**JIT)
+def _goal_quad(t, c, q0, q1, q2):
+    """T_c q~ (3x9 times the quadratic features of q-hat); the caller adds the centre."""
+    f3 = q0 * q0
+    f4 = q1 * q1
+    f5 = q2 * q2
+    f6 = q0 * q1
+    f7 = q1 * q2
+    f8 = q2 * q0
+    out0 = (t[c, 0, 0] * q0 + t[c, 0, 1] * q1 + t[c, 0, 2] * q2 + t[c, 0, 3] * f3
+            + t[c, 0, 4] * f4 + t[c, 0, 5] * f5 + t[c, 0, 6] * f6 + t[c, 0, 7] * f7
+            + t[c, 0, 8] * f8)
+    out1 = (t[c, 1, 0] * q0 + t[c, 1, 1] * q1 + t[c, 1, 2] * q2 + t[c, 1, 3] * f3
+            + t[c, 1, 4] * f4 + t[c, 1, 5] * f5 + t[c, 1, 6] * f6 + t[c, 1, 7] * f7
+            + t[c, 1, 8] * f8)
+    out2 = (t[c, 2, 0] * q0 + t[c, 2, 1] * q1 + t[c, 2, 2] * q2 + t[c, 2, 3] * f3
+            + t[c, 2, 4] * f4 + t[c, 2, 5] * f5 + t[c, 2, 6] * f6 + t[c, 2, 7] * f7
+            + t[c, 2, 8] * f8)
+    return out0, out1, out2
+
+
+# ---------------------------------------------------------------------------------------
+# Accumulation pass (Eq. 7-9): per cluster sum w (x - ref) and sum w (x - ref) q^T.
+# ``part`` is (chunks, clusters, 12 or 30): every chunk owns its slot, reduced in
+# ``solve_clusters``.  ref is the previous centre of mass, so large coordinates do not
+# cancel (A_pq = sum w (x - ref) q^T - (cm - ref)(sum w q)^T).
+# ---------------------------------------------------------------------------------------
+
+@njit(**JIT)
+def _acc_chunk(c, nch, quad, x, x0, m, ptr, cl, g, hv, ref, part):
+    n = x.shape[0]
+    start = (c * n) // nch
+    end = ((c + 1) * n) // nch
+    pc = part[c]
+    for k in range(pc.shape[0]):
+        for j in range(pc.shape[1]):
+            pc[k, j] = 0.0
+    single = ptr.shape[0] == 0
+    for i in range(start, end):
+        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+        if single:
+            j0, j1, w = 0, 1, m[i]
+        else:
+            j0, j1 = ptr[i], ptr[i + 1]
+            w = m[i] / (j1 - j0)
+        for j in range(j0, j1):
+            k = 0 if single else cl[j]
+            q0, q1, q2 = _qhat(g, hv, k, a0, a1, a2)
+            d0 = x[i, 0] - ref[k, 0]
+            d1 = x[i, 1] - ref[k, 1]
+            d2 = x[i, 2] - ref[k, 2]
+            if quad:
+                _acc_quad(pc[k], w, d0, d1, d2, q0, q1, q2)
+            else:
+                _acc_lin(pc[k], w, d0, d1, d2, q0, q1, q2)
+
+
+@njit(**JIT)
+def accumulate_serial(quad, x, x0, m, ptr, cl, g, hv, ref, part):
+    """Accumulation pass, one thread."""
+    nch = part.shape[0]
+    for c in range(nch):
+        _acc_chunk(c, nch, quad, x, x0, m, ptr, cl, g, hv, ref, part)
+
+
+@njit(parallel=True, **JIT)
+def accumulate_parallel(quad, x, x0, m, ptr, cl, g, hv, ref, part):
+    """Accumulation pass, one chunk per thread."""
+    nch = part.shape[0]
+    for c in prange(nch):
+        _acc_chunk(c, nch, quad, x, x0, m, ptr, cl, g, hv, ref, part)
+
+
+# ---------------------------------------------------------------------------------------
+# Integration pass (Eq. 13-14) fused with the colliders and with the accumulation for the
+# next step, so that a step reads and writes every particle once.
+# ---------------------------------------------------------------------------------------
+
+@njit(**JIT)
+def _int_chunk(c, nch, quad, x, v, x0, m, ptr, cl, g, hv, t, lm, lb, ref, alpha, h, acc,
+               ang, com, part, err, has_col, ground, boxes, spheres, thresh):
+    n = x.shape[0]
+    start = (c * n) // nch
+    end = ((c + 1) * n) // nch
+    pc = part[c]
+    for k in range(pc.shape[0]):
+        for j in range(pc.shape[1]):
+            pc[k, j] = 0.0
+    single = ptr.shape[0] == 0
+    ah = alpha / h
+    e2 = 0.0
+    for i in range(start, end):
+        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+        if single:
+            j0, j1 = 0, 1
+        else:
+            j0, j1 = ptr[i], ptr[i + 1]
+        # goal: mean over the particle's clusters (Eq. 12, 18, 22; mass-weighted average)
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        for j in range(j0, j1):
+            k = 0 if single else cl[j]
+            if quad:
+                q0, q1, q2 = _qhat(g, hv, k, a0, a1, a2)
+                o0, o1, o2 = _goal_quad(t, k, q0, q1, q2)
+                g0 += o0 + ref[k, 0]
+                g1 += o1 + ref[k, 1]
+                g2 += o2 + ref[k, 2]
+            else:
+                g0 += lm[k, 0, 0] * a0 + lm[k, 0, 1] * a1 + lm[k, 0, 2] * a2 + lb[k, 0]
+                g1 += lm[k, 1, 0] * a0 + lm[k, 1, 1] * a1 + lm[k, 1, 2] * a2 + lb[k, 1]
+                g2 += lm[k, 2, 0] * a0 + lm[k, 2, 1] * a1 + lm[k, 2, 2] * a2 + lb[k, 2]
+        if not single:
+            inv = 1.0 / (j1 - j0)
+            g0 *= inv
+            g1 *= inv
+            g2 *= inv
+        p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
+        e0 = g0 - p0
+        e1 = g1 - p1
+        ee = g2 - p2
+        e2 += e0 * e0 + e1 * e1 + ee * ee
+        r0 = p0 - com[0]
+        r1 = p1 - com[1]
+        r2 = p2 - com[2]
+        v0 = v[i, 0] + ah * e0 + h * (acc[0] + ang[1] * r2 - ang[2] * r1)
+        v1 = v[i, 1] + ah * e1 + h * (acc[1] + ang[2] * r0 - ang[0] * r2)
+        v2 = v[i, 2] + ah * ee + h * (acc[2] + ang[0] * r1 - ang[1] * r0)
+        p0 += h * v0
+        p1 += h * v1
+        p2 += h * v2
+        if has_col:
+            p0, p1, p2, v0, v1, v2 = collide_point(p0, p1, p2, v0, v1, v2, ground, boxes,
+                                                   spheres, thresh)
+        x[i, 0] = p0
+        x[i, 1] = p1
+        x[i, 2] = p2
+        v[i, 0] = v0
+        v[i, 1] = v1
+        v[i, 2] = v2
+        # accumulation for the next step (reference: this step's centres)
+        w = m[i] if single else m[i] / (j1 - j0)
+        for j in range(j0, j1):
+            k = 0 if single else cl[j]
+            q0, q1, q2 = _qhat(g, hv, k, a0, a1, a2)
+            if quad:
+                _acc_quad(pc[k], w, p0 - ref[k, 0], p1 - ref[k, 1], p2 - ref[k, 2],
+                          q0, q1, q2)
+            else:
+                _acc_lin(pc[k], w, p0 - ref[k, 0], p1 - ref[k, 1], p2 - ref[k, 2],
+                         q0, q1, q2)
+    err[c] = e2
+
+
+@njit(**JIT)
+def integrate_serial(quad, x, v, x0, m, ptr, cl, g, hv, t, lm, lb, ref, alpha, h, acc, ang,
+                     com, part, err, has_col, ground, boxes, spheres, thresh):
+    """Integration pass, one thread."""
+    nch = part.shape[0]
+    for c in range(nch):
+        _int_chunk(c, nch, quad, x, v, x0, m, ptr, cl, g, hv, t, lm, lb, ref, alpha, h, acc,
+                   ang, com, part, err, has_col, ground, boxes, spheres, thresh)
+
+
+@njit(parallel=True, **JIT)
+def integrate_parallel(quad, x, v, x0, m, ptr, cl, g, hv, t, lm, lb, ref, alpha, h, acc, ang,
+                       com, part, err, has_col, ground, boxes, spheres, thresh):
+    """Integration pass, one chunk per thread."""
+    nch = part.shape[0]
+    for c in prange(nch):
+        _int_chunk(c, nch, quad, x, v, x0, m, ptr, cl, g, hv, t, lm, lb, ref, alpha, h, acc,
+                   ang, com, part, err, has_col, ground, boxes, spheres, thresh)
+
+
+# ---------------------------------------------------------------------------------------
+# Per-cluster solve: centre of mass, A_pq, rotation, goal transform, plasticity.
+# ---------------------------------------------------------------------------------------
+
+@njit(**JIT)
+def _cap_plastic(sp, c_max, m3, wa, wv):
+    """Sp <- Sp / cbrt(det Sp), then pulled towards I until ||Sp - I||_2 <= c_max (Eq. 27).
+
+    The write-up's cap ``I + c_max (Sp - I)/||Sp - I||`` followed by the volume
+    normalisation can land slightly above c_max again; bisecting on the blend
+    t in [0, 1] of ``normalise(I + t (Sp - I))`` keeps both det Sp = 1 and the cap exact.
+    """
+    for i in range(3):
+        for j in range(3):
+            m3[i, j] = sp[i, j] - (1.0 if i == j else 0.0)
+    if norm2(m3, wa, wv) <= c_max:
+        return
+    lo = 0.0
+    hi = 1.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        for i in range(3):
+            for j in range(3):
+                wa[i, j] = (1.0 if i == j else 0.0) + mid * (sp[i, j] - (1.0 if i == j else 0.0))
+        dt = det3(wa)
+        ok = False
+        if dt > 0.0:
+            s = 1.0 / np.cbrt(dt)
+            for i in range(3):
+                for j in range(3):
+                    m3[i, j] = wa[i, j] * s - (1.0 if i == j else 0.0)
+            ok = norm2(m3, wa, wv) <= c_max
+        if ok:
+            lo = mid
+        else:
+            hi = mid
+    for i in range(3):
+        for j in range(3):
+            wa[i, j] = (1.0 if i == j else 0.0) + lo * (sp[i, j] - (1.0 if i == j else 0.0))
+    s = 1.0 / np.cbrt(det3(wa))
+    for i in range(3):
+        for j in range(3):
+            sp[i, j] = wa[i, j] * s
+
+
+@njit(**JIT)
+def solve_clusters(part, wsum, sq, ref, quat, aqq3, aqq9, g, hv, scale, t, lm, lb, mode, beta,
+                   plastic, sp, c_yield, c_creep, c_max, h, changed, acc, m3a, m3b, m3c, m39,
+                   n4, v4):
+    """Reduce the accumulators and build every cluster's goal transform.
+
+    ``mode``: 0 rigid, 1 linear, 2 quadratic.  Outputs: ``ref`` <- centre of mass x_cm,
+    ``quat`` <- rotation of A_pq, ``t`` (3x9; linear modes use the 3x3 block) and, for the
+    rigid/linear modes, the affine goal map ``lm x0 + lb``.  With ``plastic`` the plastic
+    state ``sp`` is updated (Eq. 24-27) and ``changed`` marks clusters whose rest shape
+    must be refreshed.  Returns the number of changed clusters.
+    """
+    nch = part.shape[0]
+    nk = part.shape[1]
+    na = part.shape[2]
+    nq = 9 if mode == 2 else 3
+    nchanged = 0
+    for k in range(nk):
+        changed[k] = False
+        for a in range(na):
+            s = 0.0
+            for c in range(nch):
+                s += part[c, k, a]
+            acc[a] = s
+        inv_w = 1.0 / wsum[k]
+        d0 = acc[0] * inv_w
+        d1 = acc[1] * inv_w
+        d2 = acc[2] * inv_w
+        # A_pq-hat (3 x nq) = sum w (x - cm) q^T, stored in m39
+        for i in range(3):
+            di = d0 if i == 0 else (d1 if i == 1 else d2)
+            for j in range(nq):
+                m39[i, j] = acc[3 + i * nq + j] - di * sq[k, j]
+        ref[k, 0] += d0
+        ref[k, 1] += d1
+        ref[k, 2] += d2
+        for i in range(3):
+            for j in range(3):
+                m3a[i, j] = m39[i, j]
+        extract_rotation(m3a, quat[k], m3b, n4, v4)   # m3b = R
+        s_k = scale[k]
+        if mode == 2:
+            for i in range(3):
+                for j in range(9):
+                    s = 0.0
+                    for u in range(9):
+                        s += m39[i, u] * aqq9[k, u, j]
+                    rt = s_k * m3b[i, j] if j < 3 else 0.0
+                    t[k, i, j] = beta * s + (1.0 - beta) * rt
+        else:
+            if mode == 1:
+                matmul(m3a, aqq3[k], m3c)             # A * s = A_pq-hat A_qq-hat
+                dt = det3(m3c) / (s_k * s_k * s_k)
+                if dt > 1e-9 and np.isfinite(dt):
+                    f = 1.0 / np.cbrt(dt)             # A' = A / cbrt(det A)  (Eq. 18 erratum)
+                    for i in range(3):
+                        for j in range(3):
+                            t[k, i, j] = beta * f * m3c[i, j] + (1.0 - beta) * s_k * m3b[i, j]
+                else:                                 # inverted or flat: fall back to R
+                    for i in range(3):
+                        for j in range(3):
+                            t[k, i, j] = s_k * m3b[i, j]
+            else:
+                for i in range(3):
+                    for j in range(3):
+                        t[k, i, j] = s_k * m3b[i, j]
+            # affine goal map in rest coordinates: goal = T (G x0 + h) + cm
+            for i in range(3):
+                for j in range(3):
+                    lm[k, i, j] = (t[k, i, 0] * g[k, 0, j] + t[k, i, 1] * g[k, 1, j]
+                                   + t[k, i, 2] * g[k, 2, j])
+                lb[k, i] = (t[k, i, 0] * hv[k, 0] + t[k, i, 1] * hv[k, 1]
+                            + t[k, i, 2] * hv[k, 2] + ref[k, i])
+        if plastic:
+            # A = A_pq A_qq (linear part), its polar decomposition A = R_A S (Eq. 24-25)
+            matmul(m3a, aqq3[k], m3c)
+            for i in range(3):
+                for j in range(3):
+                    m3c[i, j] /= s_k
+            for i in range(4):
+                acc[i] = quat[k, i]
+            extract_rotation(m3c, acc[:4], m3b, n4, v4)
+            # S - I (symmetrised) into m3a
+            for i in range(3):
+                for j in range(3):
+                    s = 0.0
+                    for u in range(3):
+                        s += m3b[u, i] * m3c[u, j]
+                    m3a[i, j] = s
+            for i in range(3):
+                for j in range(i, 3):
+                    avg = 0.5 * (m3a[i, j] + m3a[j, i])
+                    m3a[i, j] = avg
+                    m3a[j, i] = avg
+                m3a[i, i] -= 1.0
+            for i in range(3):
+                for j in range(3):
+                    m3b[i, j] = m3a[i, j]
+            nrm = norm2(m3b, n4[:3, :3], v4[:3, :3])
+            if nrm > c_yield and c_creep > 0.0 and np.isfinite(nrm):
+                tc = h * c_creep
+                if tc > 1.0:
+                    tc = 1.0
+                # Sp <- (I + h c_creep (S - I)) Sp
+                for i in range(3):
+                    for j in range(3):
+                        s = 0.0
+                        for u in range(3):
+                            s += ((1.0 if i == u else 0.0) + tc * m3a[i, u]) * sp[k, u, j]
+                        m3c[i, j] = s
+                dt = det3(m3c)
+                if dt > 1e-12 and np.isfinite(dt):
+                    f = 1.0 / np.cbrt(dt)
+                    for i in range(3):
+                        for j in range(3):
+                            m3c[i, j] *= f
+                    _cap_plastic(m3c, c_max, m3a, n4[:3, :3], v4[:3, :3])
+                    for i in range(3):
+                        for j in range(3):
+                            sp[k, i, j] = m3c[i, j]
+                    changed[k] = True
+                    nchanged += 1
+    return nchanged
+
+
+# ---------------------------------------------------------------------------------------
+# Rest-shape moments (A_qq, A~_qq): at build time and when the plastic state changes.
+# ---------------------------------------------------------------------------------------
+
+@njit(**JIT)
+def moments(x0, m, ptr, cl, g, hv, which, need3, need9, sq, mom3, mom9, f9):
+    """sum w q, sum w q q^T (3x3) and sum w q~ q~^T (9x9) for the clusters in ``which``."""
+    nk = g.shape[0]
+    for k in range(nk):
+        if which[k]:
+            for i in range(9):
+                sq[k, i] = 0.0
+                for j in range(9):
+                    if need9:
+                        mom9[k, i, j] = 0.0
+            for i in range(3):
+                for j in range(3):
+                    if need3:
+                        mom3[k, i, j] = 0.0
+    single = ptr.shape[0] == 0
+    n = x0.shape[0]
+    for i in range(n):
+        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+        if single:
+            j0, j1, w = 0, 1, m[i]
+        else:
+            j0, j1 = ptr[i], ptr[i + 1]
+            w = m[i] / (j1 - j0)
+        for j in range(j0, j1):
+            k = 0 if single else cl[j]
+            if not which[k]:
+                continue
+            q0, q1, q2 = _qhat(g, hv, k, a0, a1, a2)
+            quad_features(q0, q1, q2, f9)
+            for u in range(9):
+                sq[k, u] += w * f9[u]
+            if need3:
+                for u in range(3):
+                    for z in range(3):
+                        mom3[k, u, z] += w * f9[u] * f9[z]
+            if need9:
+                for u in range(9):
+                    wu = w * f9[u]
+                    for z in range(u, 9):
+                        mom9[k, u, z] += wu * f9[z]
+    if need9:
+        for k in range(nk):
+            if which[k]:
+                for u in range(9):
+                    for z in range(u):
+                        mom9[k, u, z] = mom9[k, z, u]
+
+
+@njit(**JIT)
+def invert_moments(which, need3, need9, mom3, mom9, aqq3, aqq9, w3a, w3b, w9a, w9b, rcond):
+    """A_qq = (sum w q q^T)^+ and A~_qq = (sum w q~ q~^T)^+ (robust pseudo-inverses)."""
+    for k in range(which.shape[0]):
+        if which[k]:
+            if need3:
+                pinv_sym(mom3[k], aqq3[k], w3a, w3b, rcond)
+            if need9:
+                pinv_sym(mom9[k], aqq9[k], w9a, w9b, rcond)
+
+
+# ---------------------------------------------------------------------------------------
+# Kinematic particles, torque, damping, body pose
+# ---------------------------------------------------------------------------------------
+
+@njit(**JIT)
+def gather_rows(src, idx, out):
+    """out[p] = src[idx[p]] (used to remember kinematic particles' start positions)."""
+    for p in range(idx.shape[0]):
+        for j in range(3):
+            out[p, j] = src[idx[p], j]
+
+
+@njit(**JIT)
+def apply_kinematic(quad, x, v, x0, m, ptr, cl, g, hv, ref, part, idx, tgt, prev, h):
+    """Kinematic particles land exactly on their targets with velocity (target - prev)/h.
+
+    The accumulators for the next step already hold these particles' integrated
+    positions: their contribution is swapped for the one at the target.
+    """
+    single = ptr.shape[0] == 0
+    for p in range(idx.shape[0]):
+        i = idx[p]
+        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+        if single:
+            j0, j1, w = 0, 1, m[i]
+        else:
+            j0, j1 = ptr[i], ptr[i + 1]
+            w = m[i] / (j1 - j0)
+        for j in range(j0, j1):
+            k = 0 if single else cl[j]
+            q0, q1, q2 = _qhat(g, hv, k, a0, a1, a2)
+            d0 = tgt[p, 0] - x[i, 0]
+            d1 = tgt[p, 1] - x[i, 1]
+            d2 = tgt[p, 2] - x[i, 2]
+            if quad:
+                _acc_quad(part[0, k], w, d0, d1, d2, q0, q1, q2)
+            else:
+                _acc_lin(part[0, k], w, d0, d1, d2, q0, q1, q2)
+        for j in range(3):
+            v[i, j] = (tgt[p, j] - prev[p, j]) / h
+            x[i, j] = tgt[p, j]
+
+
+@njit(**JIT)
+def inertia(x, m, com, out):
+    """Inertia tensor about ``com``: sum m (|r|^2 I - r r^T)."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = 0.0
+    for i in range(x.shape[0]):
+        r0 = x[i, 0] - com[0]
+        r1 = x[i, 1] - com[1]
+        r2 = x[i, 2] - com[2]
+        w = m[i]
+        rr = r0 * r0 + r1 * r1 + r2 * r2
+        out[0, 0] += w * (rr - r0 * r0)
+        out[1, 1] += w * (rr - r1 * r1)
+        out[2, 2] += w * (rr - r2 * r2)
+        out[0, 1] -= w * r0 * r1
+        out[0, 2] -= w * r0 * r2
+        out[1, 2] -= w * r1 * r2
+    out[1, 0] = out[0, 1]
+    out[2, 0] = out[0, 2]
+    out[2, 1] = out[1, 2]
+
+
+@njit(**JIT)
+def damp_rigid(x, v, m, ptr, cl, ref, k_damp, lin, w3, m3a, m3b, m3c, m3d):
+    """Damp velocities towards each cluster's rigid motion (v_cm + w x r), never the motion.
+
+    Per cluster: v_cm = sum w v / W, L = sum w r x v, I = sum w (|r|^2 - r r^T),
+    omega = I^+ L; each particle moves a fraction ``k_damp`` towards the mean of its
+    clusters' rigid velocities.  Linear and angular momentum of every cluster are kept.
+    ``lin`` (K, 13) and ``w3`` (K, 3) are scratch buffers.
+    """
+    nk = ref.shape[0]
+    for k in range(nk):
+        for j in range(13):
+            lin[k, j] = 0.0
+    single = ptr.shape[0] == 0
+    n = x.shape[0]
+    for i in range(n):
+        if single:
+            j0, j1, w = 0, 1, m[i]
+        else:
+            j0, j1 = ptr[i], ptr[i + 1]
+            w = m[i] / (j1 - j0)
+        for j in range(j0, j1):
+            k = 0 if single else cl[j]
+            r0 = x[i, 0] - ref[k, 0]
+            r1 = x[i, 1] - ref[k, 1]
+            r2 = x[i, 2] - ref[k, 2]
+            v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
+            rr = r0 * r0 + r1 * r1 + r2 * r2
+            lin[k, 0] += w
+            lin[k, 1] += w * v0
+            lin[k, 2] += w * v1
+            lin[k, 3] += w * v2
+            lin[k, 4] += w * (r1 * v2 - r2 * v1)
+            lin[k, 5] += w * (r2 * v0 - r0 * v2)
+            lin[k, 6] += w * (r0 * v1 - r1 * v0)
+            lin[k, 7] += w * (rr - r0 * r0)
+            lin[k, 8] += w * (rr - r1 * r1)
+            lin[k, 9] += w * (rr - r2 * r2)
+            lin[k, 10] -= w * r0 * r1
+            lin[k, 11] -= w * r1 * r2
+            lin[k, 12] -= w * r2 * r0
+    for k in range(nk):
+        wk = lin[k, 0]
+        for j in range(1, 4):
+            lin[k, j] /= wk
+        m3a[0, 0] = lin[k, 7]
+        m3a[1, 1] = lin[k, 8]
+        m3a[2, 2] = lin[k, 9]
+        m3a[0, 1] = m3a[1, 0] = lin[k, 10]
+        m3a[1, 2] = m3a[2, 1] = lin[k, 11]
+        m3a[2, 0] = m3a[0, 2] = lin[k, 12]
+        pinv_sym(m3a, m3b, m3c, m3d, 1e-12)
+        for i in range(3):
+            w3[k, i] = m3b[i, 0] * lin[k, 4] + m3b[i, 1] * lin[k, 5] + m3b[i, 2] * lin[k, 6]
+    for i in range(n):
+        if single:
+            j0, j1 = 0, 1
+        else:
+            j0, j1 = ptr[i], ptr[i + 1]
+        t0 = 0.0
+        t1 = 0.0
+        t2 = 0.0
+        for j in range(j0, j1):
+            k = 0 if single else cl[j]
+            r0 = x[i, 0] - ref[k, 0]
+            r1 = x[i, 1] - ref[k, 1]
+            r2 = x[i, 2] - ref[k, 2]
+            t0 += lin[k, 1] + w3[k, 1] * r2 - w3[k, 2] * r1
+            t1 += lin[k, 2] + w3[k, 2] * r0 - w3[k, 0] * r2
+            t2 += lin[k, 3] + w3[k, 0] * r1 - w3[k, 1] * r0
+        inv = 1.0 / (j1 - j0)
+        v[i, 0] += k_damp * (t0 * inv - v[i, 0])
+        v[i, 1] += k_damp * (t1 * inv - v[i, 1])
+        v[i, 2] += k_damp * (t2 * inv - v[i, 2])
