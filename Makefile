@@ -1,0 +1,29 @@
+# Two commands for a fresh machine (no ROS installation needed):
+#   make run    start the node on the default scene (ARGS='--ros-args -p alpha:=0.9' passes on)
+#   make test   run the whole test suite
+# Each creates .venv (ROS 2 Jazzy client libraries as Python wheels, numpy, numba, ...) if it
+# is missing, and reinstalls only when setup.py or package.xml changes.
+
+PYTHON ?= python3
+VENV := .venv
+STAMP := $(VENV)/.installed-stamp
+ARGS ?=
+PYTEST_ARGS ?=
+
+.PHONY: run test venv clean
+
+venv: $(STAMP)
+
+$(STAMP): setup.py setup.cfg package.xml
+	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/python -m pip install --quiet -e '.[ros,test]'
+	touch $(STAMP)
+
+run: $(STAMP)
+	$(VENV)/bin/sim_node $(ARGS)
+
+test: $(STAMP)
+	$(VENV)/bin/python -m pytest -q test $(PYTEST_ARGS)
+
+clean:
+	rm -rf $(VENV) build install log .pytest_cache

@@ -1,0 +1,62 @@
+"""Packaging for sm_ros: a ROS 2 Jazzy node simulating deformable objects (shape matching)."""
+
+from glob import glob
+import os
+
+from setuptools import find_packages
+from setuptools import setup
+
+package_name = 'sm_ros'
+
+ROS_WHEELS = [
+    'ros-jazzy-rclpy[fastrtps]',
+    'ros-jazzy-sensor-msgs',
+    'ros-jazzy-std-msgs',
+    'ros-jazzy-geometry-msgs',
+    'ros-jazzy-diagnostic-msgs',
+    'ros-jazzy-std-srvs',
+    'ros-jazzy-visualization-msgs',
+    'ros-jazzy-rosgraph-msgs',
+]
+
+
+def config_files(sub):
+    """Return the files directly under config/<sub> (data_files entries are per folder)."""
+    return sorted(p for p in glob(os.path.join('config', sub, '*')) if os.path.isfile(p))
+
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', config_files('')),
+        ('share/' + package_name + '/config/scenes', config_files('scenes')),
+    ],
+    package_data={package_name: ['config/*.yaml', 'config/*.xml', 'config/scenes/*']},
+    include_package_data=True,
+    install_requires=['setuptools', 'numpy', 'numba', 'pyyaml'],
+    extras_require={
+        'ros': ROS_WHEELS,
+        'mesh': ['trimesh'],
+        'plot': ['matplotlib'],
+        'test': [
+            'pytest', 'hypothesis', 'psutil', 'trimesh', 'matplotlib',
+            'colcon-core', 'colcon-python-setup-py', 'colcon-ros', 'catkin_pkg',
+        ],
+        'bench': ['matplotlib', 'psutil', 'pypbd'],
+    },
+    zip_safe=True,
+    maintainer='sm_ros maintainers',
+    maintainer_email='sm-ros@example.org',
+    description='Meshless shape matching (Mueller et al. 2005) deformable bodies as a ROS 2 node',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'sim_node = sm_ros.node:main',
+        ],
+    },
+)

@@ -1,0 +1,146 @@
+"""
+Timing and error figures of the node, and the DiagnosticArray that reports them.
+
+diagnostic_updater is not on PyPI; interface.md fixes the keys, so a small accumulator
+(``TickStats``) and one function that builds the status are enough. Values are plain
+decimal strings; the level is compared as ``DiagnosticStatus.OK/WARN/ERROR`` (bytes).
+"""
+
+from typing import Iterable, List, Optional
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+HARDWARE_ID = 'sm_ros'
+
+#: Every key of the solver status, in the order it is published (interface.md, plus the
+#: last three, which are sm_ros extras).
+KEYS = ('points', 'bodies', 'clusters', 'mode', 'step_ms_mean', 'step_ms_max',
+        'publish_ms_mean', 'tick_ms_max', 'rate_target_hz', 'rate_achieved_hz',
+        'real_time_factor', 'overruns', 'shape_error_rms_m', 'momentum_drift',
+        'momentum_drift_measured', 'nonfinite_resets', 'refused_messages')
+
+
+class TickStats:
+    """
+    Timing figures accumulated between two diagnostics reports.
+
+    ``step_ms`` is one ``world.step(dt)`` (one substep); ``tick_ms`` is a whole tick
+    (pending changes, substeps, checks and publishing); ``publish_ms`` is building and
+    publishing the messages of one tick.
+    """
+
+    def __init__(self, now: float):
+        """Start an empty window at steady time ``now`` (seconds)."""
+        self.overruns_total = 0
+        self.nonfinite_total = 0
+        self.reset_window(now)
+
+    def reset_window(self, now: float) -> None:
+        """Forget the window's figures (not the totals) and start a new window at ``now``."""
+        self.window_start = now
+        self.ticks = 0
+        self.steps = 0
+        self.step_s_sum = 0.0
+        self.step_s_max = 0.0
+        self.publish_s_sum = 0.0
+        self.publishes = 0
+        self.tick_s_max = 0.0
+        self.sim_s = 0.0
+        self.overruns = 0
+        self.nonfinite: List[str] = []
+
+    def add_step(self, seconds: float) -> None:
+        """Record one world.step."""
+        self.steps += 1
+        self.step_s_sum += seconds
+        if seconds > self.step_s_max:
+            self.step_s_max = seconds
+
+    def add_publish(self, seconds: float) -> None:
+        """Record the publishing of one tick."""
+        self.publishes += 1
+        self.publish_s_sum += seconds
+
+    def add_tick(self, seconds: float, sim_seconds: float, period: float) -> bool:
+        """Record one tick; returns True when it overran ``period``."""
+        self.ticks += 1
+        self.sim_s += sim_seconds
+        if seconds > self.tick_s_max:
+            self.tick_s_max = seconds
+        if seconds > period:
+            self.overruns += 1
+            self.overruns_total += 1
+            return True
+        return False
+
+    def add_nonfinite(self, names: Iterable[str]) -> None:
+        """Record bodies that went non-finite and were reset."""
+        names = list(names)
+        self.nonfinite.extend(names)
+        self.nonfinite_total += len(names)
+
+
+def fmt(value: float) -> str:
+    """Format a number as a plain decimal string (no exponent, no 'nan')."""
+    value = float(value)
+    if value != value or value in (float('inf'), float('-inf')):
+        return '0'
+    text = f'{value:.6f}'.rstrip('0').rstrip('.')
+    return text if text not in ('', '-0') else '0'
+
+
+def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, bodies: int,
+                  clusters: int, mode: str, rate_target_hz: float, shape_error_rms_m: float,
+                  momentum_drift: Optional[float], refused_messages: int,
+                  paused: bool = False) -> DiagnosticStatus:
+    """
+    Build the '<node name>: solver' status for the window that ends at ``now``.
+
+    Level: ERROR when a body went non-finite in the window, else WARN when ticks overran,
+    else OK.
+    """
+    span = max(now - stats.window_start, 1e-9)
+    values = {
+        'points': str(int(points)),
+        'bodies': str(int(bodies)),
+        'clusters': str(int(clusters)),
+        'mode': mode,
+        'step_ms_mean': fmt(1e3 * stats.step_s_sum / stats.steps if stats.steps else 0.0),
+        'step_ms_max': fmt(1e3 * stats.step_s_max),
+        'publish_ms_mean': fmt(
+            1e3 * stats.publish_s_sum / stats.publishes if stats.publishes else 0.0),
+        'tick_ms_max': fmt(1e3 * stats.tick_s_max),
+        'rate_target_hz': fmt(rate_target_hz),
+        'rate_achieved_hz': fmt(stats.ticks / span),
+        'real_time_factor': fmt(stats.sim_s / span),
+        'overruns': str(stats.overruns_total),
+        'shape_error_rms_m': fmt(shape_error_rms_m),
+        'momentum_drift': fmt(momentum_drift or 0.0),
+        'momentum_drift_measured': 'true' if momentum_drift is not None else 'false',
+        'nonfinite_resets': str(stats.nonfinite_total),
+        'refused_messages': str(int(refused_messages)),
+    }
+    status = DiagnosticStatus()
+    status.name = f'{node_name}: solver'
+    status.hardware_id = HARDWARE_ID
+    if stats.nonfinite:
+        status.level = DiagnosticStatus.ERROR
+        names = ', '.join(f"'{n}'" for n in dict.fromkeys(stats.nonfinite))
+        status.message = f'body {names} went non-finite and was reset'
+    elif stats.overruns:
+        status.level = DiagnosticStatus.WARN
+        status.message = (f'{stats.overruns} of {stats.ticks} ticks overran the period '
+                          f'of {fmt(1e3 / rate_target_hz)} ms')
+    else:
+        status.level = DiagnosticStatus.OK
+        status.message = 'paused' if paused else 'running'
+    status.values = [KeyValue(key=k, value=values[k]) for k in KEYS]
+    return status
+
+
+def diagnostic_array(status: DiagnosticStatus, stamp) -> DiagnosticArray:
+    """Wrap one status in a DiagnosticArray stamped ``stamp``."""
+    msg = DiagnosticArray()
+    msg.header.stamp = stamp
+    msg.status = [status]
+    return msg
