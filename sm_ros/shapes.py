@@ -260,24 +260,28 @@ class Surface:
         rest_vertices: (V, 3) surface vertices in the rest pose (world frame).
 
     Call :meth:`vertices` with the body's current positions x (N, 3) to get the deformed
-    vertices. Two kinds:
+    vertices (vectorised, no loop over vertices). Two kinds:
 
     - *direct*: the vertices are the particles (a body made of a mesh's vertices);
       ``vertices(x)`` returns ``x``.
-    - *embedded*: each vertex is an affine combination of its k nearest rest particles,
-      v = sum_j w_j x_j with sum_j w_j = 1 and sum_j w_j x0_j = v0. The weights are the
-      distance-weighted least-change correction of inverse-distance weights, precomputed
-      once, so the surface reproduces any affine motion (translation, rotation, linear
-      deformation) of the neighbourhood exactly and follows the particles smoothly.
+    - *embedded*: each vertex is a fixed combination of its k nearest rest particles plus
+      a small constant offset, v = sum_j w_j x_j + r with sum_j w_j = 1 exactly. The
+      weights are the inverse-distance weights changed as little as possible so that
+      sum_j w_j x0_j = v0 (affine reproduction, solved in a least-squares sense), and r is
+      what remains (about zero unless the neighbours are coplanar), so the rest pose is
+      reproduced exactly, a translation exactly, and rotations and linear deformations of
+      the neighbourhood up to |r|. Precomputed once.
     """
 
     def __init__(self, faces: np.ndarray, rest_vertices: np.ndarray,
-                 index: Optional[np.ndarray] = None, weights: Optional[np.ndarray] = None):
+                 index: Optional[np.ndarray] = None, weights: Optional[np.ndarray] = None,
+                 offset: Optional[np.ndarray] = None):
         """Use :meth:`direct` or :meth:`embedded` rather than this constructor."""
         self.faces = np.ascontiguousarray(faces, dtype=np.int32)
         self.rest_vertices = np.asarray(rest_vertices, dtype=np.float64)
         self.index = index
         self.weights = weights
+        self.offset = offset
 
     @classmethod
     def direct(cls, faces: np.ndarray, rest_points: np.ndarray) -> 'Surface':
@@ -286,34 +290,37 @@ class Surface:
 
     @classmethod
     def embedded(cls, faces: np.ndarray, rest_vertices: np.ndarray,
-                 rest_points: np.ndarray, k: int = 8) -> 'Surface':
+                 rest_points: np.ndarray, k: int = 16) -> 'Surface':
         """Surface embedded in the k nearest particles of each vertex (see class doc)."""
         v0 = np.asarray(rest_vertices, dtype=np.float64)
         x0 = np.asarray(rest_points, dtype=np.float64)
         idx, dist = knn(v0, x0, k)
         k = idx.shape[1]
-        # inverse-distance weights (a vertex on a particle takes it fully)
+        # inverse-distance weights (a vertex on a particle takes it almost fully)
         h = max(float(np.median(dist[:, 0])), 1e-12)
-        w0 = 1.0 / (dist + 1e-3 * h) ** 2
+        w0 = 1.0 / (dist / h + 1e-3) ** 2
         w0 /= w0.sum(axis=1, keepdims=True)
-        # affine reproduction: C w = b with C = [x0_j - v0; 1], b = [0, 0, 0, 1]
-        d = (x0[idx] - v0[:, None, :]) / h                   # (V, k, 3), scaled
-        c = np.concatenate([np.swapaxes(d, 1, 2), np.ones((len(v0), 1, k))], axis=1)
-        r = np.zeros((len(v0), 4))
-        r[:, 3] = 1.0
-        r -= np.einsum('vik,vk->vi', c, w0)
-        # minimise sum_j dw_j^2 / w0_j subject to C (w0 + dw) = b
-        cw = c * w0[:, None, :]
-        m = np.einsum('vik,vjk->vij', cw, c) + 1e-9 * np.eye(4)
-        lam = np.linalg.solve(m, r[..., None])[..., 0]
-        w = w0 + np.einsum('vik,vi->vk', cw, lam)
-        return cls(faces, v0, idx, w)
+        w0 = np.maximum(w0, 1e-9)
+        # minimise rho |sum_j w_j d_j|^2 + sum_j (w_j - w0_j)^2 / w0_j  s.t.  sum_j w_j = 1,
+        # with d_j = (x0_j - v0) / h; KKT system [[rho D^T D + diag(1/w0), 1], [1^T, 0]]
+        rho = 1e8
+        d = (x0[idx] - v0[:, None, :]) / h                       # (V, k, 3)
+        kkt = np.zeros((len(v0), k + 1, k + 1))
+        kkt[:, :k, :k] = rho * np.einsum('vid,vjd->vij', d, d)
+        kkt[:, np.arange(k), np.arange(k)] += 1.0 / w0
+        kkt[:, :k, k] = 1.0
+        kkt[:, k, :k] = 1.0
+        rhs = np.concatenate([np.ones((len(v0), k)), np.ones((len(v0), 1))], axis=1)
+        w = np.linalg.solve(kkt, rhs[..., None])[:, :k, 0]
+        w /= w.sum(axis=1, keepdims=True)
+        offset = v0 - np.einsum('vk,vkd->vd', w, x0[idx])
+        return cls(faces, v0, idx, w, offset)
 
     def vertices(self, x: np.ndarray) -> np.ndarray:
         """Deformed surface vertices (V, 3) for current particle positions x (N, 3)."""
         if self.index is None:
             return np.asarray(x)
-        return np.einsum('vk,vkd->vd', self.weights, np.asarray(x)[self.index])
+        return np.einsum('vk,vkd->vd', self.weights, np.asarray(x)[self.index]) + self.offset
 
 
 # ----------------------------------------------------------------------------------------
