@@ -1,0 +1,1002 @@
+"""
+sim_node: a ROS 2 node that runs a shape-matching world and publishes it.
+
+The contract is shared/docs/interface.md (topics, services, parameters, diagnostics, bad
+input). Data path: scene file -> ``sm_ros.scene`` (bodies) -> ``sm_ros.core`` (World,
+steps) -> this module (messages). This module holds no physics.
+
+Threading: every callback is in the node's default (mutually exclusive) callback group, so
+a message, a service request or a parameter change is never handled in the middle of a
+tick. Parameter changes are validated when they are set and applied at the start of the
+next tick (between two steps); inputs are validated completely before they touch the
+state.
+"""
+
+from dataclasses import dataclass
+import math
+import os
+import sys
+import time
+from typing import Any, Dict, List, Optional, Sequence, Tuple
+
+from builtin_interfaces.msg import Time as TimeMsg
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, WrenchStamped
+import numpy as np
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
+                              ParameterException)
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, qos_profile_sensor_data, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType, SetParametersResult)
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import ColorRGBA, String
+from std_srvs.srv import SetBool, Trigger
+from visualization_msgs.msg import Marker, MarkerArray
+
+from sm_ros.cloud import CloudBuffer, CloudError, read_xyz
+from sm_ros.diagnostics import diagnostic_array, solver_status, TickStats
+
+NODE_NAME = 'sim_node'
+MODES = ('rigid', 'linear', 'quadratic')
+CLOUD_IN_MODES = ('replace', 'add')
+
+#: Inputs larger than this (m, N, N*m) are refused as out of range.
+MAX_COORDINATE = 1e6
+MAX_WRENCH = 1e9
+
+#: Node parameters that map to a body's BodyParams field (scene overrides use these names).
+BODY_FIELDS = {
+    'mode': 'mode',
+    'alpha': 'alpha',
+    'beta': 'beta',
+    'clusters': 'clusters',
+    'plasticity.yield': 'plastic_yield',
+    'plasticity.creep': 'plastic_creep',
+    'plasticity.max': 'plastic_max',
+}
+GROUND_KEYS = ('ground.enabled', 'ground.height', 'ground.friction', 'ground.restitution')
+#: The parameters ``sm_ros.scene.build_world`` takes as the scene's defaults.
+SCENE_DEFAULT_KEYS = tuple(BODY_FIELDS) + ('gravity',) + GROUND_KEYS
+
+# How often the same topic's refusal is logged (seconds).
+REFUSAL_LOG_PERIOD = 1.0
+
+
+class ConfigError(Exception):
+    """A start-up configuration the node cannot run with (bad scene or parameter file)."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """
+    One node parameter: name, default, description and range.
+
+    The ROS type follows the default's Python type. ``lo``/``hi`` become the descriptor's
+    (inclusive) range; ``positive`` additionally refuses ``lo`` itself (ranges in ROS are
+    inclusive); ``choices`` lists the values a string may take.
+    """
+
+    name: str
+    default: Any
+    description: str
+    lo: Optional[float] = None
+    hi: Optional[float] = None
+    positive: bool = False
+    choices: Tuple[str, ...] = ()
+    read_only: bool = False
+
+    @property
+    def type(self) -> int:
+        """The ParameterType of the default."""
+        d = self.default
+        if isinstance(d, bool):
+            return ParameterType.PARAMETER_BOOL
+        if isinstance(d, int):
+            return ParameterType.PARAMETER_INTEGER
+        if isinstance(d, float):
+            return ParameterType.PARAMETER_DOUBLE
+        if isinstance(d, str):
+            return ParameterType.PARAMETER_STRING
+        return ParameterType.PARAMETER_DOUBLE_ARRAY
+
+    @property
+    def type_name(self) -> str:
+        """The type as the README's parameter table writes it."""
+        return {ParameterType.PARAMETER_BOOL: 'bool',
+                ParameterType.PARAMETER_INTEGER: 'integer',
+                ParameterType.PARAMETER_DOUBLE: 'double',
+                ParameterType.PARAMETER_STRING: 'string',
+                ParameterType.PARAMETER_DOUBLE_ARRAY: 'double[3]'}[self.type]
+
+    def descriptor(self) -> ParameterDescriptor:
+        """The ParameterDescriptor ``ros2 param describe`` shows."""
+        text = self.description
+        if self.choices:
+            text += ' (one of: ' + ', '.join(self.choices) + ')'
+        if self.positive:
+            text += f' (must be > {self.lo:g})'
+        d = ParameterDescriptor(name=self.name, type=self.type, description=text,
+                                read_only=self.read_only)
+        if self.lo is not None and self.type == ParameterType.PARAMETER_DOUBLE:
+            d.floating_point_range = [FloatingPointRange(
+                from_value=float(self.lo), to_value=float(self.hi), step=0.0)]
+        elif self.lo is not None and self.type == ParameterType.PARAMETER_INTEGER:
+            d.integer_range = [IntegerRange(from_value=int(self.lo), to_value=int(self.hi),
+                                            step=1)]
+        return d
+
+    def check(self, value: Any) -> Optional[str]:
+        """Return why ``value`` is refused, or None (ranges beyond the descriptor's)."""
+        if self.type == ParameterType.PARAMETER_DOUBLE:
+            if not math.isfinite(value):
+                return f'{self.name} must be finite, got {value}'
+            if self.positive and value <= self.lo:
+                return f'{self.name} must be > {self.lo:g}, got {value}'
+        elif self.type == ParameterType.PARAMETER_INTEGER and self.positive:
+            if value <= self.lo:
+                return f'{self.name} must be > {self.lo}, got {value}'
+        elif self.type == ParameterType.PARAMETER_STRING and self.choices:
+            if value not in self.choices:
+                return f"{self.name} must be one of {', '.join(self.choices)}, got '{value}'"
+        elif self.type == ParameterType.PARAMETER_DOUBLE_ARRAY:
+            v = list(value)
+            if len(v) != 3:
+                return f'{self.name} must have 3 values, got {len(v)}'
+            if not all(math.isfinite(c) for c in v):
+                return f'{self.name} must be finite, got {v}'
+            if max(abs(c) for c in v) > MAX_COORDINATE:
+                return f'{self.name} components must be within +-{MAX_COORDINATE:g}, got {v}'
+        return None
+
+
+PARAMS: Tuple[Param, ...] = (
+    Param('scene', '', 'Scene YAML file, or the name of a bundled scene (default, rope, '
+          'sheet, plastic, mesh, many, paper_8_clusters); empty: default. Changing it '
+          'reloads the scene'),
+    Param('mode', 'linear', 'Deformation mode: rigid (sec. 3), linear (4.2) or quadratic '
+          '(4.3)', choices=MODES),
+    Param('alpha', 0.5, 'Stiffness alpha (1 = rigid)', 0.0, 1.0),
+    Param('beta', 0.5, 'Share beta of the linear/quadratic transform blended into the '
+          'rotation', 0.0, 1.0),
+    Param('plasticity.yield', 0.0, 'c_yield: plastic strain starts beyond this elastic '
+          'strain', 0.0, 1e3),
+    Param('plasticity.creep', 0.0, 'c_creep: rate at which strain beyond c_yield becomes '
+          'plastic (0 disables plasticity)', 0.0, 1e3),
+    Param('plasticity.max', 0.0, 'c_max: largest plastic strain', 0.0, 1e3),
+    Param('clusters', 1, 'Cubes per axis of the overlapping cluster grid (1 = one cluster '
+          'per body)', 1, 64),
+    Param('dt', 1.0 / 120.0, 'Time step h of one substep (s)', 0.0, 1.0, positive=True),
+    Param('substeps', 2, 'Steps of dt per tick', 1, 1000),
+    Param('rate', 60.0, 'Ticks (and published clouds) per second of wall time (Hz)',
+          0.0, 1000.0, positive=True),
+    Param('gravity', [0.0, 0.0, -9.81], 'Gravity (m/s^2), three values x, y, z'),
+    Param('ground.enabled', True, 'Whether the ground plane z = ground.height collides'),
+    Param('ground.height', 0.0, 'Height of the ground plane (m)', -1e6, 1e6),
+    Param('ground.friction', 0.5, 'Coulomb friction coefficient of the ground', 0.0, 10.0),
+    Param('ground.restitution', 0.0, 'Restitution of the ground (0 = no bounce)', 0.0, 1.0),
+    Param('grab_radius', 0.05, 'A gripper attaches the particles within this distance of '
+          'its first pose (m)', 0.0, 100.0, positive=True),
+    Param('force_timeout', 0.0, 'A force is cleared after this many seconds without a new '
+          'force message (0: held until replaced)', 0.0, 3600.0),
+    Param('frame_id', 'world', 'Frame of the published clouds, poses and markers'),
+    Param('publish_clock', False, 'Publish the simulation time on /clock'),
+    Param('diagnostics_rate', 1.0, 'Rate of /diagnostics (Hz; 0 disables)', 0.0, 100.0),
+    Param('max_points', 20000, 'Cap on the particles of a cloud_in body (voxel '
+          'downsampling)', 1, 10_000_000),
+    Param('cloud_in_mode', 'replace', 'A cloud_in body replaces the scene bodies or joins '
+          'them', choices=CLOUD_IN_MODES),
+)
+PARAM_BY_NAME: Dict[str, Param] = {p.name: p for p in PARAMS}
+
+
+# ----------------------------------------------------------------------------------------
+# Small pure helpers
+# ----------------------------------------------------------------------------------------
+
+def stamp_from_ns(ns: int) -> TimeMsg:
+    """Return a builtin_interfaces/Time for ``ns`` nanoseconds."""
+    return TimeMsg(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+
+
+def quaternion_from_matrix(r: np.ndarray) -> Tuple[float, float, float, float]:
+    """Return the unit quaternion (x, y, z, w) of a proper rotation matrix (Shepperd)."""
+    m = np.asarray(r, dtype=np.float64)
+    t = m[0, 0] + m[1, 1] + m[2, 2]
+    if t > 0.0:
+        s = 2.0 * math.sqrt(t + 1.0)
+        q = (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * math.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 1e-300))
+        q = s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * math.sqrt(max(1.0 + m[1, 1] - m[0, 0] - m[2, 2], 1e-300))
+        q = (m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s
+    else:
+        s = 2.0 * math.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 1e-300))
+        q = (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s
+    n = math.sqrt(sum(c * c for c in q)) or 1.0
+    x, y, z, w = (float(c) / n for c in q)
+    return (x, y, z, w) if w >= 0.0 else (-x, -y, -z, -w)
+
+
+def matrix_from_quaternion(x: float, y: float, z: float, w: float) -> np.ndarray:
+    """Return the rotation matrix of the quaternion (x, y, z, w); it is normalised first."""
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    x, y, z, w = x / n, y / n, z / n, w / n
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def scene_api():
+    """Return the scene module (kept behind a function so the node imports it lazily)."""
+    from sm_ros import scene
+    return scene
+
+
+def warm_up() -> float:
+    """
+    Compile the solver's Numba kernels on a throwaway world; return the seconds it took.
+
+    Covers every deformation mode, clusters, plasticity, colliders, wrenches and kinematic
+    particles, so the node's first tick does not pay for compilation. With Numba's on-disk
+    cache warm this takes a fraction of a second.
+    """
+    from sm_ros.core import BodyParams, Box, Ground, Sphere, World
+    t0 = time.perf_counter()
+    g = np.linspace(-0.05, 0.05, 3)
+    cube = np.stack(np.meshgrid(g, g, g, indexing='ij'), axis=-1).reshape(-1, 3)
+    world = World(gravity=(0.0, 0.0, -9.81))
+    world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.0),
+                        boxes=[Box(lo=(1.0, 1.0, 0.0), hi=(2.0, 2.0, 1.0))],
+                        spheres=[Sphere(center=(-1.0, -1.0, 0.0), radius=0.5)])
+    configs = [BodyParams(mode='rigid'), BodyParams(mode='linear'),
+               BodyParams(mode='quadratic', clusters=2, plastic_yield=0.01,
+                          plastic_creep=1.0, plastic_max=0.5),
+               BodyParams(mode='linear', clusters=2, plastic_creep=1.0, plastic_max=0.5)]
+    bodies = [world.add_body(cube + (0.3 * i, 0.0, 0.1), masses=0.01, params=p,
+                             name=f'warm{i}') for i, p in enumerate(configs)]
+    bodies[0].set_wrench((0.0, 0.0, 1.0), (0.0, 0.0, 0.1))
+    bodies[1].set_kinematic(np.array([0]), cube[:1] + (0.3, 0.0, 0.12))
+    for _ in range(2):
+        world.step(1.0 / 120.0)
+    for b in bodies:
+        b.com(), b.rotation(), b.shape_error_rms(), b.momentum(), b.is_finite()
+    return time.perf_counter() - t0
+
+
+def check_params_files(argv: Sequence[str]) -> Optional[str]:
+    """
+    Return why a ``--params-file`` in ``argv`` cannot be used, or None.
+
+    Checked before rclpy.init so that a missing or broken file gives one clear line
+    instead of rcl's multi-line error.
+    """
+    import yaml
+    args = list(argv)
+    for i, a in enumerate(args):
+        if a != '--params-file':
+            continue
+        if i + 1 >= len(args):
+            return '--params-file needs a file name'
+        path = args[i + 1]
+        if not os.path.isfile(path):
+            return f'params file {path}: no such file'
+        try:
+            with open(path, encoding='utf-8') as f:
+                data = yaml.safe_load(f)
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            return f'params file {path}: invalid YAML: {first}'
+        if not isinstance(data, dict):
+            return f'params file {path}: expected a mapping of node names to ros__parameters'
+    return None
+
+
+def _short_error(exc: BaseException) -> str:
+    """Return the first line of an exception's message without rcl's source locations."""
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return text.split(', at /')[0]
+
+
+@dataclass
+class _Attachment:
+    """The particles of one body held by one gripper, in the gripper's frame."""
+
+    body: str
+    indices: np.ndarray
+    local: np.ndarray
+    targets: Optional[np.ndarray] = None
+
+
+# ----------------------------------------------------------------------------------------
+# The node
+# ----------------------------------------------------------------------------------------
+
+class SimNode(Node):
+    """
+    The simulation node (interface.md).
+
+    Keyword arguments go to ``rclpy.node.Node`` (``context``, ``parameter_overrides``,
+    ``namespace``, ...). ``paused=True`` starts with the simulation paused (for tests and
+    embedding; the ``pause`` service does the same at run time).
+    """
+
+    def __init__(self, node_name: str = NODE_NAME, *, paused: bool = False, **kwargs):
+        """Declare the parameters, load the scene, create the interfaces, warm up."""
+        super().__init__(node_name, **kwargs)
+        self.paused = paused
+        self.timer_calls = 0
+        self.refused: Dict[str, int] = {}
+        self.last_refusal: Dict[str, str] = {}
+        self._refusal_logged: Dict[str, float] = {}
+        self._refusal_suppressed: Dict[str, int] = {}
+        self._pending: Dict[str, Any] = {}
+        self._pending_scene = None
+        self._prepared_scene = None
+        self._forces: Dict[str, float] = {}
+        self._grippers: Dict[str, List[_Attachment]] = {}
+        self._sim_ns = 0
+        self._momentum_ref = None
+        self._momentum_drift: Optional[float] = None
+        self._cloud_count = 0
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+
+        for p in PARAMS:
+            self.declare_parameter(p.name, p.default, p.descriptor())
+        self._p: Dict[str, Any] = {p.name: self._param_value(p.name) for p in PARAMS}
+        for p in PARAMS:
+            reason = p.check(self._p[p.name])
+            if reason:
+                raise ConfigError(f'parameter {reason}')
+        reason = self._check_body_params(self._p)
+        if reason:
+            raise ConfigError(f'parameter {reason}')
+
+        try:
+            self.warm_up_s = warm_up()
+        except ImportError as exc:
+            raise ConfigError(f'the solver core cannot be imported: {exc}') from None
+        self.world, self.metas, self.spec = self._build_scene(self._p['scene'], self._p)
+
+        self.cloud = CloudBuffer(self._p['frame_id'])
+        self._poses = PoseArray()
+        self._markers = MarkerArray()
+        self._marker_bodies: Tuple[str, ...] = ()
+        self._stats = TickStats(time.monotonic())
+
+        qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+        overrides = QoSOverridingOptions.with_default_policies()
+        self.pub_points = self.create_publisher(PointCloud2, 'points', qos,
+                                                qos_overriding_options=overrides)
+        self.pub_poses = self.create_publisher(PoseArray, 'poses', QoSProfile(depth=10),
+                                               qos_overriding_options=overrides)
+        self.pub_diagnostics = self.create_publisher(
+            DiagnosticArray, '/diagnostics', QoSProfile(depth=10),
+            qos_overriding_options=overrides)
+        self.pub_markers = self.create_publisher(MarkerArray, 'markers', qos,
+                                                 qos_overriding_options=overrides)
+        self.pub_clock = None
+        self._set_publish_clock(self._p['publish_clock'])
+
+        self.create_subscription(WrenchStamped, 'force', self.force_callback, 10)
+        self.create_subscription(PoseStamped, 'grab', self.grab_callback, 10)
+        self.create_subscription(String, 'release', self.release_callback, 10)
+        self.create_subscription(PointCloud2, 'cloud_in', self.cloud_in_callback,
+                                 qos_profile_sensor_data)
+
+        self.create_service(Trigger, '~/reset', self.reset_callback)
+        self.create_service(SetBool, '~/pause', self.pause_callback)
+        self.create_service(Trigger, '~/step', self.step_callback)
+
+        self.add_on_set_parameters_callback(self.validate_parameters_callback)
+        self.add_post_set_parameters_callback(self.parameters_set_callback)
+
+        self.tick_timer = self.create_timer(1.0 / self._p['rate'], self.timer_callback,
+                                            clock=self._steady)
+        self.diagnostics_timer = None
+        self._set_diagnostics_rate(self._p['diagnostics_rate'])
+        self.get_logger().info(
+            f"scene '{self._p['scene'] or 'default'}': {len(self.world.bodies)} bodies, "
+            f'{self.num_points} points; {self._p["rate"]:g} Hz x {self._p["substeps"]} '
+            f'steps of {self._p["dt"]:g} s; warm-up {self.warm_up_s:.2f} s')
+
+    # ------------------------------------------------------------------ properties
+
+    @property
+    def num_points(self) -> int:
+        """Total number of particles of all bodies."""
+        return int(sum(b.n for b in self.world.bodies))
+
+    @property
+    def sim_time(self) -> float:
+        """Simulation time in seconds (monotonic across resets and scene changes)."""
+        return self._sim_ns * 1e-9
+
+    @property
+    def grippers(self) -> Dict[str, List[_Attachment]]:
+        """The attached grippers: name -> attachments per body."""
+        return self._grippers
+
+    def _param_value(self, name: str) -> Any:
+        value = self.get_parameter(name).value
+        if PARAM_BY_NAME[name].type == ParameterType.PARAMETER_DOUBLE_ARRAY:
+            value = [float(v) for v in value]
+        return value
+
+    # ------------------------------------------------------------------ scenes
+
+    def _scene_defaults(self, values: Dict[str, Any]) -> Dict[str, Any]:
+        return {k: values[k] for k in SCENE_DEFAULT_KEYS}
+
+    def _build_scene(self, name: str, values: Dict[str, Any]):
+        """Load and build a scene; raise ConfigError with the loader's message."""
+        scene = scene_api()
+        try:
+            spec = scene.load_scene(name)
+            world, metas = scene.build_world(spec, self._scene_defaults(values))
+        except ValueError as exc:
+            raise ConfigError(f'scene: {exc}') from None
+        return world, metas, spec
+
+    def _check_body_params(self, values: Dict[str, Any]) -> Optional[str]:
+        """Return why the body parameters in ``values`` are refused by the core, or None."""
+        try:
+            scene_api().params_from(self._scene_defaults(values), None)
+        except ValueError as exc:
+            return str(exc)
+        return None
+
+    def _install_world(self, world, metas, spec=None, keep_state: bool = True) -> None:
+        """Swap in a new world; bodies unchanged by name and rest shape keep their state."""
+        if keep_state:
+            old = {b.name: b for b in self.world.bodies}
+            for b in world.bodies:
+                o = old.get(b.name)
+                if (o is not None and o.n == b.n and np.array_equal(o.x_init, b.x_init)
+                        and np.array_equal(o.m, b.m)):
+                    b.set_state(x=o.x, v=o.v)
+        self.world = world
+        self.metas = list(metas)
+        if spec is not None:
+            self.spec = spec
+        self._forces.clear()
+        self._grippers.clear()
+        self._momentum_ref = None
+
+    # ------------------------------------------------------------------ parameters
+
+    def validate_parameters_callback(self, params: List[Parameter]) -> SetParametersResult:
+        """Refuse bad values with a reason; prepare a scene reload (nothing is applied)."""
+        result = SetParametersResult(successful=True)
+        values = {p.name: self._param_value(p.name) for p in PARAMS}
+        changed = {}
+        for param in params:
+            spec = PARAM_BY_NAME.get(param.name)
+            if spec is None:
+                continue
+            value = param.value
+            if spec.type == ParameterType.PARAMETER_DOUBLE_ARRAY:
+                value = [float(v) for v in value]
+            reason = spec.check(value)
+            if reason:
+                return SetParametersResult(successful=False, reason=reason)
+            if param.name == 'frame_id' and not value.strip():
+                return SetParametersResult(successful=False, reason='frame_id must not be empty')
+            values[param.name] = value
+            changed[param.name] = value
+        if any(k in BODY_FIELDS for k in changed):
+            reason = self._check_body_params(values)
+            if reason:
+                return SetParametersResult(successful=False, reason=reason)
+        self._prepared_scene = None
+        if 'scene' in changed:
+            try:
+                self._prepared_scene = self._build_scene(changed['scene'], values)
+            except ConfigError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        return result
+
+    def parameters_set_callback(self, params: List[Parameter]) -> None:
+        """Queue accepted changes; the next tick applies them between two steps."""
+        for param in params:
+            if param.name not in PARAM_BY_NAME:
+                continue
+            if param.name == 'scene':
+                self._pending_scene = self._prepared_scene
+                self._prepared_scene = None
+            value = param.value
+            if PARAM_BY_NAME[param.name].type == ParameterType.PARAMETER_DOUBLE_ARRAY:
+                value = [float(v) for v in value]
+            self._pending[param.name] = value
+
+    def apply_pending(self) -> None:
+        """Apply queued parameter changes (called at the start of a tick)."""
+        if not self._pending and self._pending_scene is None:
+            return
+        pending, self._pending = self._pending, {}
+        scene, self._pending_scene = self._pending_scene, None
+        self._p.update(pending)
+        if scene is not None:
+            self._install_world(*scene)
+            body_changes = {}
+        else:
+            body_changes = {k: v for k, v in pending.items() if k in BODY_FIELDS}
+        if body_changes:
+            self._apply_body_params(body_changes)
+        if 'gravity' in pending:
+            self.world.gravity = np.asarray(pending['gravity'], dtype=np.float64)
+        if any(k in pending for k in GROUND_KEYS):
+            self.world.set_colliders(
+                ground=scene_api().ground_from(self.spec.colliders.get('ground'),
+                                               self._scene_defaults(self._p)),
+                boxes=self.world.boxes, spheres=self.world.spheres)
+        if 'rate' in pending:
+            self.tick_timer.timer_period_ns = int(round(1e9 / self._p['rate']))
+        if 'diagnostics_rate' in pending:
+            self._set_diagnostics_rate(self._p['diagnostics_rate'])
+        if 'publish_clock' in pending:
+            self._set_publish_clock(self._p['publish_clock'])
+        if 'frame_id' in pending:
+            self.cloud.frame_id = self._p['frame_id']
+
+    def _apply_body_params(self, changes: Dict[str, Any]) -> None:
+        """Set changed body parameters on every body that does not override them."""
+        for body, meta in zip(self.world.bodies, self.metas):
+            fields = {BODY_FIELDS[k]: v for k, v in changes.items()
+                      if k not in meta.overrides}
+            if not fields:
+                continue
+            try:
+                body.set_params(**fields)
+            except ValueError as exc:
+                self.get_logger().error(f"body '{body.name}': parameters not applied: {exc}")
+
+    def _set_diagnostics_rate(self, rate: float) -> None:
+        if rate <= 0.0:
+            if self.diagnostics_timer is not None:
+                self.destroy_timer(self.diagnostics_timer)
+                self.diagnostics_timer = None
+            return
+        if self.diagnostics_timer is None:
+            self.diagnostics_timer = self.create_timer(1.0 / rate, self.diagnostics_callback,
+                                                       clock=self._steady)
+        else:
+            self.diagnostics_timer.timer_period_ns = int(round(1e9 / rate))
+
+    def _set_publish_clock(self, on: bool) -> None:
+        if on and self.pub_clock is None:
+            self.pub_clock = self.create_publisher(
+                ClockMsg, '/clock', QoSProfile(depth=10),
+                qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        elif not on and self.pub_clock is not None:
+            self.destroy_publisher(self.pub_clock)
+            self.pub_clock = None
+
+    # ------------------------------------------------------------------ ticks
+
+    def timer_callback(self) -> None:
+        """Apply pending changes, then (unless paused) advance one tick and publish."""
+        self.timer_calls += 1
+        if self.paused:
+            self.apply_pending()
+        else:
+            self.tick()
+
+    def tick(self) -> None:
+        """Apply pending changes, advance ``substeps`` steps of ``dt``, check, publish once."""
+        t0 = time.perf_counter()
+        self.apply_pending()
+        world = self.world
+        stats = self._stats
+        dt = float(self._p['dt'])
+        substeps = int(self._p['substeps'])
+        self._expire_forces()
+        measure = self._conservative()
+        if measure:
+            p_before, scale_before = self._momentum()
+        for _ in range(substeps):
+            s = time.perf_counter()
+            world.step(dt)
+            stats.add_step(time.perf_counter() - s)
+        self._sim_ns += substeps * int(round(dt * 1e9))
+        reset = self._reset_nonfinite()
+        if measure and not reset:
+            self._track_momentum(p_before, scale_before)
+        else:
+            self._momentum_ref = None
+        tp = time.perf_counter()
+        self.publish()
+        stats.add_publish(time.perf_counter() - tp)
+        stats.add_tick(time.perf_counter() - t0, substeps * dt, 1.0 / self._p['rate'])
+
+    def _reset_nonfinite(self) -> List[str]:
+        """Reset every body whose state is no longer finite; return their names."""
+        names = [b.name for b in self.world.bodies if not b.is_finite()]
+        for name in names:
+            self.world.body(name).reset()
+            self._forces.pop(name, None)
+            self._drop_body_from_grippers(name)
+            self.get_logger().error(f"body '{name}' went non-finite and was reset",
+                                    throttle_duration_sec=1.0)
+        if names:
+            self._stats.add_nonfinite(names)
+        return names
+
+    def publish(self) -> None:
+        """Publish the cloud, poses, clock and markers of the current state."""
+        stamp = stamp_from_ns(self._sim_ns)
+        bodies = self.world.bodies
+        self.pub_points.publish(self.cloud.fill([b.x for b in bodies], stamp))
+        poses = self._poses
+        if len(poses.poses) != len(bodies):
+            poses.poses = [Pose() for _ in bodies]
+        poses.header.stamp = stamp
+        poses.header.frame_id = self._p['frame_id']
+        for pose, body in zip(poses.poses, bodies):
+            c = body.com()
+            pose.position.x, pose.position.y, pose.position.z = (float(c[0]), float(c[1]),
+                                                                 float(c[2]))
+            o = pose.orientation
+            o.x, o.y, o.z, o.w = quaternion_from_matrix(body.rotation())
+        self.pub_poses.publish(poses)
+        if self.pub_clock is not None:
+            self.pub_clock.publish(ClockMsg(clock=stamp))
+        if self.pub_markers.get_subscription_count() > 0:
+            markers = self._build_markers(stamp)
+            if markers is not None:
+                self.pub_markers.publish(markers)
+
+    def _build_markers(self, stamp) -> Optional[MarkerArray]:
+        """One TRIANGLE_LIST marker per body with a surface (DELETEALL when that set shrinks)."""
+        items = [(i, b, m) for i, (b, m) in enumerate(zip(self.world.bodies, self.metas))
+                 if getattr(m, 'surface', None) is not None]
+        names = tuple(b.name for _, b, _ in items)
+        out = []
+        if names != self._marker_bodies:
+            out.append(Marker(action=Marker.DELETEALL))
+            self._marker_bodies = names
+        if not items and len(out) == 0:
+            return None
+        for i, body, meta in items:
+            verts = meta.surface.vertices(body.x)
+            tri = np.asarray(verts, dtype=np.float64)[meta.surface.faces].reshape(-1, 3)
+            m = Marker()
+            m.header.stamp = stamp
+            m.header.frame_id = self._p['frame_id']
+            m.ns = body.name
+            m.id = i
+            m.type = Marker.TRIANGLE_LIST
+            m.action = Marker.ADD
+            m.pose.orientation.w = 1.0
+            m.scale.x = m.scale.y = m.scale.z = 1.0
+            m.color = ColorRGBA(r=0.85, g=0.45, b=0.2, a=1.0)
+            # Marker.points is a list of messages: one Point per triangle corner.
+            m.points = [Point(x=a, y=b_, z=c) for a, b_, c in tri.tolist()]
+            out.append(m)
+        self._markers.markers = out
+        return self._markers
+
+    # ------------------------------------------------------------------ momentum
+
+    def _conservative(self) -> bool:
+        """Whether no external force acts this tick (then momentum must be conserved)."""
+        world = self.world
+        if np.any(np.asarray(world.gravity) != 0.0) or self._forces or self._grippers:
+            return False
+        if world.boxes or world.spheres:
+            return False
+        if world.ground is not None:
+            h = world.ground.height
+            for b in world.bodies:
+                if b.n and float(b.x[:, 2].min()) <= h + 1e-6:
+                    return False
+        return True
+
+    def _momentum(self) -> Tuple[np.ndarray, float]:
+        p = np.zeros(3)
+        scale = 0.0
+        for b in self.world.bodies:
+            p += b.momentum()
+            scale += float(np.dot(b.m, np.linalg.norm(b.v, axis=1)))
+        return p, scale
+
+    def _track_momentum(self, p_before: np.ndarray, scale_before: float) -> None:
+        if self._momentum_ref is None:
+            self._momentum_ref = (p_before, scale_before)
+        p_ref, s_ref = self._momentum_ref
+        p_now, s_now = self._momentum()
+        denom = max(s_ref, s_now, 1e-300)
+        self._momentum_drift = float(np.linalg.norm(p_now - p_ref)) / denom \
+            if denom > 1e-300 else 0.0
+
+    # ------------------------------------------------------------------ diagnostics
+
+    def diagnostics_callback(self) -> None:
+        """Publish the solver status and start a new measurement window."""
+        self.pub_diagnostics.publish(diagnostic_array(self.solver_status(),
+                                                      stamp_from_ns(self._sim_ns)))
+        self._stats.reset_window(time.monotonic())
+
+    def solver_status(self):
+        """The '<node name>: solver' DiagnosticStatus of the current window."""
+        bodies = self.world.bodies
+        n = self.num_points
+        err2 = sum(b.n * float(b.shape_error_rms()) ** 2 for b in bodies)
+        modes = sorted({b.params.mode for b in bodies}) or [self._p['mode']]
+        return solver_status(
+            self.get_name(), self._stats, time.monotonic(), points=n, bodies=len(bodies),
+            clusters=sum(int(b.num_clusters) for b in bodies), mode=','.join(modes),
+            rate_target_hz=self._p['rate'],
+            shape_error_rms_m=math.sqrt(err2 / n) if n else 0.0,
+            momentum_drift=self._momentum_drift if self._momentum_ref is not None else None,
+            refused_messages=sum(self.refused.values()), paused=self.paused)
+
+    # ------------------------------------------------------------------ bad input
+
+    def refuse(self, topic: str, reason: str) -> None:
+        """Count a refused input and log it (warn, at most once a second per topic)."""
+        self.refused[topic] = self.refused.get(topic, 0) + 1
+        self.last_refusal[topic] = reason
+        now = time.monotonic()
+        last = self._refusal_logged.get(topic)
+        if last is not None and now - last < REFUSAL_LOG_PERIOD:
+            self._refusal_suppressed[topic] = self._refusal_suppressed.get(topic, 0) + 1
+            return
+        more = self._refusal_suppressed.pop(topic, 0)
+        tail = f' ({more} more refused since the last report)' if more else ''
+        self._refusal_logged[topic] = now
+        self.get_logger().warn(f'{topic}: refused: {reason}{tail}')
+
+    def _body_or_refuse(self, topic: str, name: str):
+        try:
+            return self.world.body(name)
+        except KeyError:
+            known = ', '.join(b.name for b in self.world.bodies)
+            self.refuse(topic, f"unknown body '{name}' (bodies: {known})")
+            return None
+
+    # ------------------------------------------------------------------ force
+
+    def force_callback(self, msg: WrenchStamped) -> None:
+        """Hold a wrench on one body (frame_id) or every body (empty); zero clears it."""
+        w = msg.wrench
+        f = np.array([w.force.x, w.force.y, w.force.z], dtype=np.float64)
+        t = np.array([w.torque.x, w.torque.y, w.torque.z], dtype=np.float64)
+        if not (np.isfinite(f).all() and np.isfinite(t).all()):
+            self.refuse('force', 'NaN or Inf in the wrench')
+            return
+        if np.abs(f).max() > MAX_WRENCH or np.abs(t).max() > MAX_WRENCH:
+            self.refuse('force', f'wrench component beyond +-{MAX_WRENCH:g} (out of range)')
+            return
+        name = msg.header.frame_id
+        if name:
+            body = self._body_or_refuse('force', name)
+            if body is None:
+                return
+            targets = [body]
+        else:
+            targets = list(self.world.bodies)
+        clear = not f.any() and not t.any()
+        now = time.monotonic()
+        for body in targets:
+            if clear:
+                body.clear_wrench()
+                self._forces.pop(body.name, None)
+            else:
+                body.set_wrench(f, t)
+                self._forces[body.name] = now
+
+    def _expire_forces(self) -> None:
+        timeout = self._p['force_timeout']
+        if timeout <= 0.0 or not self._forces:
+            return
+        now = time.monotonic()
+        for name in [n for n, t in self._forces.items() if now - t > timeout]:
+            del self._forces[name]
+            self.world.body(name).clear_wrench()
+
+    # ------------------------------------------------------------------ grab / release
+
+    def grab_callback(self, msg: PoseStamped) -> None:
+        """Attach particles to a named gripper (first pose) or move them with it."""
+        name = msg.header.frame_id
+        if not name:
+            self.refuse('grab', 'empty gripper name (header.frame_id)')
+            return
+        p = msg.pose.position
+        q = msg.pose.orientation
+        pos = np.array([p.x, p.y, p.z], dtype=np.float64)
+        quat = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
+        if not (np.isfinite(pos).all() and np.isfinite(quat).all()):
+            self.refuse('grab', f"NaN or Inf in the pose of gripper '{name}'")
+            return
+        if np.abs(pos).max() > MAX_COORDINATE:
+            self.refuse('grab', f"position of gripper '{name}' beyond +-{MAX_COORDINATE:g} m")
+            return
+        norm = float(np.linalg.norm(quat))
+        if not 1e-6 < norm < 1e6:
+            self.refuse('grab', f"orientation of gripper '{name}' is not a rotation "
+                        f'(quaternion norm {norm:g})')
+            return
+        rot = matrix_from_quaternion(*quat)
+        attachments = self._grippers.get(name)
+        if attachments is None:
+            radius = self._p['grab_radius']
+            attachments = []
+            for body in self.world.bodies:
+                d = body.x - pos
+                idx = np.flatnonzero(np.einsum('ij,ij->i', d, d) <= radius * radius)
+                if idx.size:
+                    attachments.append(_Attachment(body.name, idx, d[idx] @ rot))
+            if not attachments:
+                self.refuse('grab', f"no particle within grab_radius {radius:g} m of gripper "
+                            f"'{name}' at ({pos[0]:g}, {pos[1]:g}, {pos[2]:g})")
+                return
+            self._grippers[name] = attachments
+        self._apply_kinematics({a.body for a in attachments}, pose=(name, pos, rot))
+
+    def _apply_kinematics(self, body_names, pose=None) -> None:
+        """Give each named body the kinematic targets of all grippers holding it."""
+        if pose is not None:
+            name, pos, rot = pose
+            for a in self._grippers[name]:
+                a.targets = pos + a.local @ rot.T
+        for body_name in body_names:
+            body = self.world.body(body_name)
+            held = [a for atts in self._grippers.values() for a in atts if a.body == body_name]
+            if not held:
+                body.clear_kinematic()
+                continue
+            idx = np.concatenate([a.indices for a in held])
+            targets = np.concatenate([a.targets for a in held])
+            idx, first = np.unique(idx, return_index=True)
+            body.set_kinematic(idx, targets[first])
+
+    def release_callback(self, msg: String) -> None:
+        """Release one gripper by name, or all of them on an empty name."""
+        name = msg.data
+        if name and name not in self._grippers:
+            known = ', '.join(self._grippers) or 'none'
+            self.refuse('release', f"unknown gripper '{name}' (grippers: {known})")
+            return
+        names = [name] if name else list(self._grippers)
+        bodies = {a.body for n in names for a in self._grippers[n]}
+        for n in names:
+            del self._grippers[n]
+        self._apply_kinematics(bodies)
+
+    def _drop_body_from_grippers(self, body_name: str) -> None:
+        for name in list(self._grippers):
+            kept = [a for a in self._grippers[name] if a.body != body_name]
+            if kept:
+                self._grippers[name] = kept
+            else:
+                del self._grippers[name]
+
+    # ------------------------------------------------------------------ cloud_in
+
+    def cloud_in_callback(self, msg: PointCloud2) -> None:
+        """Build a body from a cloud; it replaces the scene's bodies or joins them."""
+        try:
+            points = read_xyz(msg)
+        except CloudError as exc:
+            self.refuse('cloud_in', str(exc))
+            return
+        if np.abs(points).max() > MAX_COORDINATE:
+            self.refuse('cloud_in', f'coordinates beyond +-{MAX_COORDINATE:g} m')
+            return
+        frame = msg.header.frame_id
+        if frame and frame != self._p['frame_id']:
+            self.get_logger().warn(
+                f"cloud_in: frame '{frame}' taken as '{self._p['frame_id']}' (no tf lookup)",
+                throttle_duration_sec=10.0)
+        scene = scene_api()
+        mode = self._p['cloud_in_mode']
+        existing = {b.name for b in self.world.bodies}
+        name = 'cloud_in'
+        if mode == 'add':
+            k = 1
+            while name in existing:
+                k += 1
+                name = f'cloud_in_{k}'
+        defaults = self._scene_defaults(self._p)
+        try:
+            body_spec = scene.cloud_body_spec(points, int(self._p['max_points']), name)
+            if mode == 'replace':
+                from sm_ros.core import World
+                world = World(gravity=tuple(float(g) for g in self.world.gravity))
+                world.set_colliders(ground=self.world.ground, boxes=self.world.boxes,
+                                    spheres=self.world.spheres)
+                meta = scene.add_spec_body(world, body_spec, defaults, 'cloud_in')
+                self._install_world(world, [meta], keep_state=False)
+            else:
+                meta = scene.add_spec_body(self.world, body_spec, defaults, 'cloud_in')
+                self.metas.append(meta)
+        except ValueError as exc:
+            self.refuse('cloud_in', str(exc))
+            return
+        self._cloud_count += 1
+        self.get_logger().info(f"cloud_in: body '{name}' from {points.shape[0]} points "
+                               f'({body_spec.n} particles), mode {mode}')
+
+    # ------------------------------------------------------------------ services
+
+    def reset_callback(self, request: Trigger.Request, response: Trigger.Response):
+        """Every body back to its initial state; grabs and forces released."""
+        self.world.reset()
+        self._forces.clear()
+        self._grippers.clear()
+        self._momentum_ref = None
+        response.success = True
+        response.message = f'reset {len(self.world.bodies)} bodies'
+        return response
+
+    def pause_callback(self, request: SetBool.Request, response: SetBool.Response):
+        """Pause (true) or resume (false) the simulation clock."""
+        self.paused = bool(request.data)
+        response.success = True
+        response.message = 'paused' if self.paused else 'running'
+        return response
+
+    def step_callback(self, request: Trigger.Request, response: Trigger.Response):
+        """While paused: advance exactly one tick and publish."""
+        if not self.paused:
+            response.success = False
+            response.message = 'not paused: call ~/pause with data: true first'
+            return response
+        self.tick()
+        response.success = True
+        response.message = f'sim time {self.sim_time:.6f} s'
+        return response
+
+
+# ----------------------------------------------------------------------------------------
+# Entry point
+# ----------------------------------------------------------------------------------------
+
+def _fail(message: str) -> int:
+    print(f'sim_node: error: {message}', file=sys.stderr)
+    return 2
+
+
+def main(args=None) -> int:
+    """Run sim_node until Ctrl-C; exit code 2 for a bad scene or parameter file."""
+    argv = sys.argv if args is None else args
+    reason = check_params_files(argv)
+    if reason:
+        return _fail(reason)
+    try:
+        rclpy.init(args=args)
+    except Exception as exc:  # noqa: B902 - rcl reports bad arguments as RCLError
+        return _fail(_short_error(exc))
+    node = None
+    code = 0
+    try:
+        node = SimNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ConfigError as exc:
+        code = _fail(str(exc))
+    except (InvalidParameterTypeException, InvalidParameterValueException,
+            ParameterException) as exc:
+        code = _fail(f'parameter: {_short_error(exc)}')
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())
