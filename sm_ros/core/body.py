@@ -161,8 +161,8 @@ class Body:
         idx = np.nonzero(which)[0]
         self._g[idx] = self._sp[idx] / self._scale[idx, None, None]
         self._hv[idx] = -np.einsum('kij,kj->ki', self._g[idx], self._cm0[idx])
-        K.moments(self._x0, self.m, self._ptr, self._cl, self._g, self._hv, which,
-                  self._need3, self._need9, self._sq, self._mom3, self._mom9, self._f9)
+        K.moments(self._x0, self.m, self._ptr, self._cl, self._g, self._hv, self._wsum,
+                  which, self._need3, self._need9, self._sq, self._mom3, self._mom9, self._f9)
         K.invert_moments(which, self._need3, self._need9, self._mom3, self._mom9, self._aqq3,
                          self._aqq9, self._s3[0], self._s3[1], self._w9[0], self._w9[1],
                          RCOND)

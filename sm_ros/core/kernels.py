@@ -533,9 +533,9 @@ def _int_chunk(c, nch, quad, x, v, x0, m, ptr, cl, g, hv, t, lm, lb, ref, alpha,
             if quad:
                 q0, q1, q2 = _qhat(g, hv, k, a0, a1, a2)
                 o0, o1, o2 = _goal_quad(t, k, q0, q1, q2)
-                g0 += o0 + ref[k, 0]
-                g1 += o1 + ref[k, 1]
-                g2 += o2 + ref[k, 2]
+                g0 += o0 + lb[k, 0]
+                g1 += o1 + lb[k, 1]
+                g2 += o2 + lb[k, 2]
             else:
                 g0 += lm[k, 0, 0] * a0 + lm[k, 0, 1] * a1 + lm[k, 0, 2] * a2 + lb[k, 0]
                 g1 += lm[k, 1, 0] * a0 + lm[k, 1, 1] * a1 + lm[k, 1, 2] * a2 + lb[k, 1]
@@ -696,6 +696,12 @@ def solve_clusters(part, wsum, sq, ref, quat, aqq3, aqq9, g, hv, scale, t, lm, l
                         s += m39[i, u] * aqq9[k, u, j]
                     rt = s_k * m3b[i, j] if j < 3 else 0.0
                     t[k, i, j] = beta * s + (1.0 - beta) * rt
+            # centred features: goal = T (q~ - mean q~) + cm, so lb = cm - T mean q~
+            for i in range(3):
+                s = ref[k, i]
+                for j in range(9):
+                    s -= t[k, i, j] * sq[k, j] * inv_w
+                lb[k, i] = s
         else:
             if mode == 1:
                 matmul(m3a, aqq3[k], m3c)             # A * s = A_pq-hat A_qq-hat
@@ -777,8 +783,13 @@ def solve_clusters(part, wsum, sq, ref, quat, aqq3, aqq9, g, hv, scale, t, lm, l
 # ---------------------------------------------------------------------------------------
 
 @njit(**JIT)
-def moments(x0, m, ptr, cl, g, hv, which, need3, need9, sq, mom3, mom9, f9):
-    """sum w q, sum w q q^T (3x3) and sum w q~ q~^T (9x9) for the clusters in ``which``."""
+def moments(x0, m, ptr, cl, g, hv, wsum, which, need3, need9, sq, mom3, mom9, f9):
+    """sum w q~ and the centred moments sum w (q - mean)(q - mean)^T for ``which``.
+
+    The quadratic features q~ are centred per cluster (their squares have a non-zero
+    mean): the goals then share the cluster's centre of mass, which keeps linear momentum,
+    and an exactly quadratic deformation is reproduced.
+    """
     nk = g.shape[0]
     for k in range(nk):
         if which[k]:
@@ -817,12 +828,19 @@ def moments(x0, m, ptr, cl, g, hv, which, need3, need9, sq, mom3, mom9, f9):
                     wu = w * f9[u]
                     for z in range(u, 9):
                         mom9[k, u, z] += wu * f9[z]
-    if need9:
-        for k in range(nk):
-            if which[k]:
+    for k in range(nk):
+        if which[k]:
+            inv_w = 1.0 / wsum[k]
+            if need9:
                 for u in range(9):
+                    for z in range(u, 9):
+                        mom9[k, u, z] -= sq[k, u] * sq[k, z] * inv_w
                     for z in range(u):
                         mom9[k, u, z] = mom9[k, z, u]
+            if need3:
+                for u in range(3):
+                    for z in range(3):
+                        mom3[k, u, z] -= sq[k, u] * sq[k, z] * inv_w
 
 
 @njit(**JIT)

@@ -1,0 +1,224 @@
+"""Plain NumPy reference of one shape-matching step, written to be read (algorithm.md).
+
+This is the twin of the Numba kernels: the tests compare trajectories of both, and the
+benchmark uses it as the baseline.  It favours the textbook formulas over speed: centres
+of mass, A_pq, A_qq and the goals are computed cluster by cluster with NumPy, the rotation
+comes from an SVD (sign-corrected so it is proper), and A_qq from ``numpy.linalg.pinv``.
+Damping is not modelled here.
+"""
+
+import numpy as np
+
+from .clusters import build_memberships
+from .params import BodyParams
+
+RCOND = 1e-10
+
+
+def proper_rotation(a: np.ndarray) -> np.ndarray:
+    """The proper rotation R maximising tr(R^T a): SVD with the last singular flipped."""
+    u, _, vt = np.linalg.svd(a)
+    d = np.sign(np.linalg.det(u @ vt)) or 1.0
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
+def quadratic_terms(q: np.ndarray) -> np.ndarray:
+    """q~ = [x, y, z, x^2, y^2, z^2, xy, yz, zx] for every row of q (Eq. 19)."""
+    x, y, z = q[:, 0], q[:, 1], q[:, 2]
+    return np.stack([x, y, z, x * x, y * y, z * z, x * y, y * z, z * x], axis=1)
+
+
+def _spectral_norm(m: np.ndarray) -> float:
+    return float(np.linalg.norm(m, 2))
+
+
+def _unit_det(m: np.ndarray) -> np.ndarray:
+    return m / np.cbrt(np.linalg.det(m))
+
+
+def cap_plastic(sp: np.ndarray, c_max: float) -> np.ndarray:
+    """Volume-normalise S^P and pull it towards I until ||S^P - I||_2 <= c_max (Eq. 27)."""
+    eye = np.eye(3)
+    if _spectral_norm(sp - eye) <= c_max:
+        return sp
+    lo, hi = 0.0, 1.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        cand = eye + mid * (sp - eye)
+        ok = np.linalg.det(cand) > 0 and _spectral_norm(_unit_det(cand) - eye) <= c_max
+        lo, hi = (mid, hi) if ok else (lo, mid)
+    return _unit_det(eye + lo * (sp - eye))
+
+
+class ReferenceBody:
+    """One body stepped with NumPy; same inputs and semantics as ``sm_ros.core.Body``."""
+
+    def __init__(self, points, masses=1.0, params=None, pinned=None):
+        self.x = np.array(points, dtype=float)
+        self.v = np.zeros_like(self.x)
+        n = len(self.x)
+        self.m = np.broadcast_to(np.asarray(masses, dtype=float), (n,)).copy()
+        self.params = (params or BodyParams()).validate()
+        self.x_init = self.x.copy()
+        self.force = np.zeros(3)
+        self.torque = np.zeros(3)
+        self.pinned = np.asarray(pinned if pinned is not None else [], dtype=int)
+        self.grab_idx = np.zeros(0, dtype=int)
+        self.grab_tgt = np.zeros((0, 3))
+        # clusters: list of (particle indices, weights w = m / clusters per particle)
+        if self.params.clusters == 1:
+            members = [np.arange(n)]
+            counts = np.ones(n)
+        else:
+            x0 = self.x_init - (self.m @ self.x_init) / self.m.sum()
+            ptr, cl, nk = build_memberships(x0, self.params.clusters)
+            counts = np.diff(ptr)
+            rows = np.repeat(np.arange(n), counts)
+            members = [rows[cl == k] for k in range(nk)]
+        self.members = members
+        self.weights = [self.m[idx] / counts[idx] for idx in members]
+        self.counts = counts
+        self.cm0 = [w @ self.x_init[idx] / w.sum() for idx, w in zip(members, self.weights)]
+        self.sp = [np.eye(3) for _ in members]
+        self._rest()
+
+    def _rest(self):
+        """q = S^P (x0 - x0_cm) per cluster and the inverse moment matrices."""
+        self.q, self.aqq, self.aqq9 = [], [], []
+        for idx, w, cm0, sp in zip(self.members, self.weights, self.cm0, self.sp):
+            q = (self.x_init[idx] - cm0) @ sp.T
+            self.q.append(q)
+            self.aqq.append(np.linalg.pinv((w[:, None] * q).T @ q, rcond=RCOND,
+                                           hermitian=True))
+            qt = self._centred_terms(q, w)
+            self.aqq9.append(np.linalg.pinv((w[:, None] * qt).T @ qt, rcond=RCOND,
+                                            hermitian=True))
+
+    @staticmethod
+    def _centred_terms(q, w):
+        """q~ minus its weighted mean: goals then share the centre of mass."""
+        qt = quadratic_terms(q)
+        return qt - (w @ qt) / w.sum()
+
+    def set_wrench(self, force, torque=(0.0, 0.0, 0.0)):
+        self.force = np.asarray(force, dtype=float)
+        self.torque = np.asarray(torque, dtype=float)
+
+    def set_kinematic(self, indices, targets):
+        self.grab_idx = np.asarray(indices, dtype=int)
+        self.grab_tgt = np.asarray(targets, dtype=float)
+
+    def goals(self, h=None):
+        """Goals of every particle (mean over its clusters); updates S^P if ``h`` is given."""
+        p = self.params
+        goal_sum = np.zeros_like(self.x)
+        changed = False
+        for k, (idx, w, q) in enumerate(zip(self.members, self.weights, self.q)):
+            x = self.x[idx]
+            cm = w @ x / w.sum()                                   # Eq. 7
+            pk = x - cm
+            apq = (w[:, None] * pk).T @ q                          # Eq. 8
+            r = proper_rotation(apq)                               # Eq. 11 (erratum)
+            if p.mode == 'quadratic':
+                qt = self._centred_terms(q, w)
+                a9 = ((w[:, None] * pk).T @ qt) @ self.aqq9[k]     # Eq. 21 (erratum)
+                r9 = np.hstack([r, np.zeros((3, 6))])
+                goal = qt @ (p.beta * a9 + (1 - p.beta) * r9).T + cm   # Eq. 22
+            else:
+                t = r
+                if p.mode == 'linear':
+                    a = apq @ self.aqq[k]                          # Eq. 10
+                    det = np.linalg.det(a)
+                    if det > 1e-9:                                 # Eq. 18 (erratum)
+                        t = p.beta * a / np.cbrt(det) + (1 - p.beta) * r
+                goal = q @ t.T + cm                                # Eq. 12
+            goal_sum[idx] += goal
+            if h is not None and p.plastic:
+                changed |= self._plastic_update(k, apq, h)
+        return goal_sum / self.counts[:, None], changed
+
+    def _plastic_update(self, k, apq, h):
+        """Eq. 24-27 for cluster k; True if S^P changed."""
+        p = self.params
+        a = apq @ self.aqq[k]
+        ra = proper_rotation(a)
+        s = ra.T @ a
+        s = 0.5 * (s + s.T)
+        e = s - np.eye(3)
+        if np.max(np.abs(np.linalg.eigvalsh(e))) <= p.plastic_yield:
+            return False
+        sp = (np.eye(3) + min(h * p.plastic_creep, 1.0) * e) @ self.sp[k]
+        if np.linalg.det(sp) <= 1e-12:
+            return False
+        self.sp[k] = cap_plastic(_unit_det(sp), p.plastic_max)
+        return True
+
+    def step(self, h, gravity=(0.0, 0.0, 0.0), ground=None, boxes=(), spheres=()):
+        """Eq. 13-14, then colliders, then kinematic particles."""
+        p = self.params
+        goals, changed = self.goals(h)
+        m = self.m
+        acc = np.asarray(gravity, dtype=float) + self.force / m.sum()
+        com = m @ self.x / m.sum()
+        r = self.x - com
+        a_part = np.broadcast_to(acc, self.x.shape).copy()
+        if np.any(self.torque):
+            inertia = (m * (r * r).sum(1)).sum() * np.eye(3) - (m[:, None] * r).T @ r
+            ang = np.linalg.pinv(inertia, rcond=1e-12, hermitian=True) @ self.torque
+            a_part += np.cross(ang, r)
+        kin = np.concatenate([self.grab_idx[~np.isin(self.grab_idx, self.pinned)],
+                              self.pinned]).astype(int)
+        tgt = np.concatenate([self.grab_tgt[~np.isin(self.grab_idx, self.pinned)],
+                              self.x_init[self.pinned]])
+        x_prev = self.x[kin].copy()
+        self.v = self.v + p.alpha * (goals - self.x) / h + h * a_part   # Eq. 13
+        self.x = self.x + h * self.v                                  # Eq. 14
+        thresh = max(1e-3, 2.0 * np.linalg.norm(gravity) * h)
+        for i in range(len(self.x)):
+            self.x[i], self.v[i] = collide(self.x[i], self.v[i], ground, boxes, spheres,
+                                           thresh)
+        self.x[kin] = tgt
+        self.v[kin] = (tgt - x_prev) / h
+        if changed:
+            self._rest()
+
+
+def _contact(v, n, friction, restitution, thresh):
+    vn = v @ n
+    if vn >= 0:
+        return v
+    vt = v - vn * n
+    vn_new = -restitution * vn if -vn > thresh else 0.0
+    speed = np.linalg.norm(vt)
+    if speed > 0:
+        vt = vt * max(0.0, 1.0 - friction * (vn_new - vn) / speed)
+    return vt + vn_new * n
+
+
+def collide(x, v, ground, boxes, spheres, thresh):
+    """Project one particle out of the colliders and correct its velocity."""
+    x, v = x.copy(), v.copy()
+    if ground is not None and x[2] < ground.height:
+        x[2] = ground.height
+        v = _contact(v, np.array([0.0, 0.0, 1.0]), ground.friction, ground.restitution,
+                     thresh)
+    for b in boxes:
+        lo, hi = np.asarray(b.lo, dtype=float), np.asarray(b.hi, dtype=float)
+        if np.all(x > lo) and np.all(x < hi):
+            depth = np.concatenate([x - lo, hi - x])   # -x, +x faces interleaved below
+            order = [0, 3, 1, 4, 2, 5]
+            face = min(order, key=lambda f: depth[f])
+            axis, positive = face % 3, face >= 3
+            n = np.zeros(3)
+            n[axis] = 1.0 if positive else -1.0
+            x[axis] = hi[axis] if positive else lo[axis]
+            v = _contact(v, n, b.friction, b.restitution, thresh)
+    for s in spheres:
+        c = np.asarray(s.center, dtype=float)
+        d = x - c
+        dist = np.linalg.norm(d)
+        if dist < s.radius:
+            n = d / dist if dist > 0 else np.array([0.0, 0.0, 1.0])
+            x = c + s.radius * n
+            v = _contact(v, n, s.friction, s.restitution, thresh)
+    return x, v
