@@ -1,0 +1,181 @@
+"""``python -m sm_ros.bench``: speed, scaling, error against run time, the node end to end.
+
+Subcommands (each writes markdown + CSV tables and PNG plots into ``--out``):
+
+- ``scaling``   ms/step against N for rigid/linear/quadratic x 1/8/64 clusters, log-log
+  slope, quadratic/linear, the NumPy reference, pypbd, memory bandwidth;
+- ``accuracy``  work-precision: error at T = 2 s against ms of compute per simulated
+  second for a dt/substeps/mode/clusters sweep, one plot per scene;
+- ``node``      the ROS node publishing clouds at 30/60 Hz (needs rclpy);
+- ``soak``      hands over to ``sm_ros.soak:main`` when that module exists;
+- ``all``       scaling + accuracy + node (the default).
+
+``targets.md`` lists the issue's targets with the figures this run measured.
+"""
+
+import argparse
+import importlib
+import json
+from pathlib import Path
+import sys
+import time
+from typing import Any, Dict, List, Optional
+
+from . import common as C
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog='python -m sm_ros.bench', description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest='command')
+    from . import accuracy, node_bench, scaling
+    parts = {
+        'scaling': (scaling, 'ms/step against N, NumPy reference, pypbd, bandwidth'),
+        'accuracy': (accuracy, 'error against run time (work-precision)'),
+        'node': (node_bench, 'the node end to end (needs rclpy)'),
+    }
+    for name, (mod, helptext) in parts.items():
+        sp = sub.add_parser(name, help=helptext)
+        sp.add_argument('--out', default='bench_out', help='output directory')
+        mod.add_arguments(sp)
+    sp = sub.add_parser('all', help='scaling + accuracy + node with their default flags')
+    sp.add_argument('--out', default='bench_out', help='output directory')
+    sp.add_argument('--quick', action='store_true', help='tiny sizes (a smoke run)')
+    for mod, _ in parts.values():
+        mod.add_arguments(sp)
+    sub.add_parser('soak', help='long-running soak test (sm_ros.soak:main)', add_help=False)
+    return p
+
+
+def _run_soak(argv: List[str]) -> int:
+    try:
+        mod = importlib.import_module('sm_ros.soak')
+    except ImportError as exc:
+        print(f'soak: sm_ros.soak is not available ({exc})', file=sys.stderr)
+        return 2
+    main = getattr(mod, 'main', None)
+    if main is None:
+        print('soak: sm_ros.soak has no main()', file=sys.stderr)
+        return 2
+    rc = main(argv)
+    return int(rc or 0)
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    """Entry point; returns the exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ['soak']:
+        return _run_soak(argv[1:])
+    if not argv or argv[0] not in ('scaling', 'accuracy', 'node', 'all', '-h', '--help'):
+        argv = ['all'] + argv
+    args = _parser().parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    from . import accuracy, node_bench, scaling
+    cmd = 'python -m sm_ros.bench ' + ' '.join(argv)
+    info = C.machine_info()
+    findings: Dict[str, Any] = {'command': cmd, 'machine': info}
+    t0 = time.perf_counter()
+    if args.command == 'all' and getattr(args, 'quick', False):
+        _quick(args)
+    if args.command in ('scaling', 'all'):
+        findings['scaling'] = scaling.run(args, out)
+    if args.command in ('accuracy', 'all'):
+        findings['accuracy'] = accuracy.run(args, out)
+    if args.command in ('node', 'all'):
+        findings['node'] = node_bench.run(args, out)
+    findings['wall_s'] = time.perf_counter() - t0
+    _write_targets(findings, out)
+    (out / 'findings.json').write_text(json.dumps(findings, indent=1, default=str))
+    print((out / 'targets.md').read_text())
+    return 0
+
+
+def _quick(args):
+    """Shrink every size for a smoke run (used by the tests)."""
+    args.sizes = '1e3,4e3'
+    args.min_time = 0.02
+    args.numpy_sizes = '1e3'
+    args.numpy_clusters = '1'
+    args.pypbd_sizes = ''
+    args.bandwidth_mb = 8.0
+    args.accuracy_points = 125
+    args.scenes = 'rigid_spin,soft_drop'
+    args.dts = '30,60'
+    args.substeps = '1'
+    args.acc_modes = 'linear'
+    args.acc_clusters = '1'
+    args.ref_factor = 2
+    args.duration = 0.2
+    args.node_sizes = ''
+
+
+def _fmt_ms(v):
+    return '-' if v is None else f'{v:.3g} ms'
+
+
+def _write_targets(f: Dict[str, Any], out: Path):
+    """targets.md: each target of issue 5 beside the figure this run measured."""
+    t = C.Table('targets', ['target', 'goal', 'measured', 'met'],
+                'Targets (issue 5) and what this run measured')
+    sc = f.get('scaling') or {}
+    res = sc.get('scaling', [])
+
+    def pick(n_side, mode, k):
+        for r in res:
+            if r['N'] == n_side ** 3 and r['mode'] == mode and r['k'] == k:
+                return r
+        return None
+
+    r = pick(22, 'quadratic', 2)
+    t.add(target='paper scene: 10,648 points, 8 clusters, quadratic', goal='<= 1.0 ms/step',
+          measured=_fmt_ms(r and r['ms_median']), met=None if not r else r['ms_median'] <= 1.0)
+    if 'bw_fraction' in sc:
+        t.add(target=f'1 cluster, linear, {sc["bw_N"]} points: share of copy bandwidth',
+              goal='>= 60 %', measured=f'{100 * sc["bw_fraction"]:.0f} % (fastest step '
+                                      f'{100 * sc["bw_fraction_best"]:.0f} %)',
+              met=sc['bw_fraction'] >= 0.6)
+    r = pick(100, 'linear', 2)
+    t.add(target='8 clusters, linear, 1M points', goal='<= 20 ms/step',
+          measured=_fmt_ms(r and r['ms_median']), met=None if not r else r['ms_median'] <= 20)
+    rows = [x for x in sc.get('numpy', []) if x['N'] == 46 ** 3]
+    if rows:
+        worst = min(rows, key=lambda x: x['speedup_step'])
+        worst_g = min(rows, key=lambda x: x['speedup_goals'])
+        t.add(target='Numba / NumPy reference at 97,336 points', goal='>= 10x',
+              measured=f'{worst["speedup_step"]:.0f}x worst full step ({worst["mode"]}, '
+                       f'{worst["clusters"]} cl.); {worst_g["speedup_goals"]:.0f}x worst '
+                       'against the reference goals alone',
+              met=worst['speedup_goals'] >= 10)
+    else:
+        t.add(target='Numba / NumPy reference at 97,336 points', goal='>= 10x',
+              measured='not run', met=None)
+    rows = sc.get('pypbd', [])
+    if rows:
+        worst = min(rows, key=lambda x: x['speedup_rigid'])
+        t.add(target='faster than pypbd (10k, 100k; 1/8/64 clusters)', goal='>= 2x',
+              measured=f'{worst["speedup_rigid"]:.1f}x worst (rigid, N={worst["N"]}, '
+                       f'{worst["clusters"]} cl.)', met=worst['speedup_rigid'] >= 2)
+    else:
+        t.add(target='faster than pypbd', goal='>= 2x', measured='not run', met=None)
+    nd = f.get('node') or {}
+    row = nd.get('target')
+    if row:
+        t.add(target='node: 100k points at 60 Hz', goal='tick < 8.33 ms, 60 Hz',
+              measured=f'{row["rate_hz"]:.1f} Hz, tick {row["tick_ms_median"]:.2f} ms median '
+                       f'({row["tick_ms_p95"]:.2f} ms p95)',
+              met=row['rate_hz'] >= 57 and row['tick_ms_median'] < 1e3 / 120)
+    else:
+        t.add(target='node: 100k points at 60 Hz', goal='tick < 8.33 ms',
+              measured=nd.get('status', 'not run'), met=None)
+    t.write(out)
+    with open(out / 'targets.md', 'a') as fh:
+        m = f['machine']
+        fh.write(f'\nCommand: `{f["command"]}`  \nMachine: {m["cpu"]}, {m["cpus"]} CPUs, '
+                 f'Numba {m["numba"]} ({m["numba_threads"]} threads), NumPy {m["numpy"]}, '
+                 f'load average at start {m.get("loadavg_1min", "?")}; '
+                 f'wall time {f["wall_s"]:.0f} s.\n')
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,358 @@
+"""Part 1 of the benchmark: ms/step against N (the paper's Fig. 6 on this machine).
+
+Bodies are n x n x n lattices on the unit cube (the lattice pypbd's peer script builds),
+unit masses, gravity, no colliders, alpha = 1 (pypbd's stiffness 1), beta = 0.5. The
+cluster parameter is the number of cubes per axis: 1, 2, 4 give 1, 8, 64 clusters.
+
+In the same run: the NumPy reference (``sm_ros.core.reference``), the peer pypbd (one
+configuration per subprocess, its script in shared/peers), and the memory bandwidth of a
+streaming copy with the fraction of it the single-cluster linear step reaches.
+"""
+
+import argparse
+import os
+from pathlib import Path
+import sys
+import time
+from typing import Any, Dict, List, Optional
+
+import numpy as np
+
+from . import common as C
+
+DT = 0.005                      # pypbd's default step (its TimeManager), used for both
+GRAVITY = (0.0, 0.0, -9.81)
+MODES = ('rigid', 'linear', 'quadratic')
+CLUSTER_NAMES = {1: 1, 2: 8, 3: 27, 4: 64}
+
+
+def add_arguments(p: argparse.ArgumentParser):
+    """Flags of the ``scaling`` subcommand."""
+    p.add_argument('--sizes', default='1e3,1e4,1e5,1e6',
+                   help='particle counts (rounded to n^3 lattices), comma separated')
+    p.add_argument('--modes', default=','.join(MODES))
+    p.add_argument('--clusters', default='1,2,4', help='cubes per axis (1, 8, 64 clusters)')
+    p.add_argument('--min-time', type=float, default=0.3,
+                   help='seconds of timed steps per configuration (at least 3 samples)')
+    p.add_argument('--numpy-sizes', default='1e4,1e5',
+                   help='sizes for the NumPy reference ("" to skip)')
+    p.add_argument('--numpy-clusters', default='1,2')
+    p.add_argument('--pypbd-sizes', default='1e4,1e5', help='sizes for pypbd ("" to skip)')
+    p.add_argument('--pypbd-script', default=None,
+                   help='path of pypbd_shape_matching.py (default: shared/peers beside '
+                        'the repository, or $SM_ROS_PYPBD_SCRIPT)')
+    p.add_argument('--pypbd-steps', type=int, default=20)
+    p.add_argument('--bandwidth-mb', type=float, default=256.0,
+                   help='array size of the streaming copy (MB)')
+
+
+# ---------------------------------------------------------------------------------------
+# Memory bandwidth
+# ---------------------------------------------------------------------------------------
+
+def _numba_copy():
+    from numba import njit, prange
+
+    @njit(parallel=True, cache=False)
+    def pcopy(src, dst):
+        n = src.shape[0]
+        for i in prange(n):
+            dst[i] = src[i]
+    return pcopy
+
+
+def measure_bandwidth(mb: float) -> Dict[str, float]:
+    """Streaming copy bandwidth in GB/s (bytes read + bytes written, STREAM's convention)."""
+    n = int(mb * 1e6 / 8)
+    src = np.random.default_rng(0).random(n)
+    dst = np.empty_like(src)
+    moved = 2 * src.nbytes
+    t_np = C.time_calls(lambda: np.copyto(dst, src), min_time=0.5, min_reps=5)
+    pcopy = _numba_copy()
+    pcopy(src, dst)
+    t_nb = C.time_calls(lambda: pcopy(src, dst), min_time=0.5, min_reps=5)
+    return {'numpy_copy_GBps': moved / t_np.min() / 1e9,
+            'numba_parallel_copy_GBps': moved / t_nb.min() / 1e9,
+            'array_MB': src.nbytes / 1e6}
+
+
+def bytes_per_particle(body) -> int:
+    """Bytes one step moves per particle in the fused pass (single cluster, no collider).
+
+    Read x, v, x0 (3 float64 each) and m (float64); write x and v: 6 x 24 - 16 = 128 B
+    for float64. Counted from the arrays the body really holds.
+    """
+    x, v, x0, m = body._x, body._v, body._x0, body.m
+    row = lambda a: a.itemsize * (a.shape[1] if a.ndim > 1 else 1)   # noqa: E731
+    return 2 * row(x) + 2 * row(v) + row(x0) + row(m)
+
+
+# ---------------------------------------------------------------------------------------
+# sm_ros (Numba)
+# ---------------------------------------------------------------------------------------
+
+def build_world(n_side: int, mode: str, k: int, alpha: float = 1.0):
+    """A world with one n^3 lattice body (unit masses) and gravity; no colliders."""
+    from sm_ros.core import BodyParams, World
+    world = World(gravity=GRAVITY)
+    body = world.add_body(C.cube_lattice(n_side), masses=1.0, name='cube',
+                          params=BodyParams(mode=mode, alpha=alpha, beta=0.5, clusters=k))
+    return world, body
+
+
+def time_numba(n_side: int, mode: str, k: int, min_time: float) -> Dict[str, Any]:
+    """ms/step of ``World.step`` for one configuration (median and min of samples)."""
+    t0 = time.perf_counter()
+    world, body = build_world(n_side, mode, k)
+    build_s = time.perf_counter() - t0
+    for _ in range(3):
+        world.step(DT)
+    n = body.n
+    batch = max(1, min(50, int(2e5 // n)))
+    s = C.time_calls(lambda: world.step(DT), min_time=min_time, batch=batch)
+    memberships = len(body._cl) if len(getattr(body, '_cl', ())) else n
+    return dict(N=n, mode=mode, k=k, clusters=body.num_clusters, memberships=memberships,
+                ms_median=1e3 * float(np.median(s)), ms_min=1e3 * float(s.min()),
+                ns_per_particle=1e9 * float(np.median(s)) / n, build_s=build_s,
+                parallel=bool(getattr(body, '_parallel', False)),
+                bytes_per_particle=bytes_per_particle(body), finite=body.is_finite())
+
+
+# ---------------------------------------------------------------------------------------
+# NumPy reference
+# ---------------------------------------------------------------------------------------
+
+def time_numpy(n_side: int, mode: str, k: int, min_time: float) -> Optional[Dict[str, Any]]:
+    """ms/step of the NumPy reference body (full step, and the goals alone)."""
+    try:
+        from sm_ros.core.reference import ReferenceBody
+    except ImportError:
+        return None
+    from sm_ros.core import BodyParams
+    ref = ReferenceBody(C.cube_lattice(n_side), 1.0,
+                        BodyParams(mode=mode, alpha=1.0, beta=0.5, clusters=k))
+    ref.step(DT, GRAVITY)
+    s_step = C.time_calls(lambda: ref.step(DT, GRAVITY), min_time=min_time, min_reps=2,
+                          max_reps=20)
+    s_goal = C.time_calls(lambda: ref.goals(), min_time=min_time, min_reps=2, max_reps=20)
+    return dict(numpy_step_ms=1e3 * float(np.median(s_step)),
+                numpy_goals_ms=1e3 * float(np.median(s_goal)))
+
+
+# ---------------------------------------------------------------------------------------
+# pypbd peer
+# ---------------------------------------------------------------------------------------
+
+def find_pypbd_script(explicit: Optional[str]) -> Optional[Path]:
+    """The peer driver script: flag, $SM_ROS_PYPBD_SCRIPT, or shared/peers beside the repo."""
+    cands = []
+    if explicit:
+        cands.append(Path(explicit))
+    if os.environ.get('SM_ROS_PYPBD_SCRIPT'):
+        cands.append(Path(os.environ['SM_ROS_PYPBD_SCRIPT']))
+    repo = Path(__file__).resolve().parents[2]
+    cands += [repo.parent / 'shared' / 'peers' / 'pypbd_shape_matching.py',
+              repo / 'shared' / 'peers' / 'pypbd_shape_matching.py']
+    for c in cands:
+        if c.is_file():
+            return c
+    return None
+
+
+def time_pypbd(script: Path, n_side: int, k: int, steps: int) -> Optional[Dict[str, Any]]:
+    """Run the peer script for one configuration in its own process (it needs that)."""
+    cmd = [sys.executable, str(script), '--n', str(n_side), '--k', str(k), '--steps',
+           str(steps), '--warmup', '3']
+    timeout = 60 + 0.5 * n_side ** 3 / 1e3
+    return C.run_json_subprocess(cmd, timeout=timeout, cwd=str(script.parent))
+
+
+# ---------------------------------------------------------------------------------------
+# Driver
+# ---------------------------------------------------------------------------------------
+
+def run(args, out: Path) -> Dict[str, Any]:
+    """Run every part of the scaling benchmark; write tables and plots; return findings."""
+    sizes = sorted({C.lattice_side(s) for s in C.as_list(args.sizes)})
+    modes = [m for m in C.as_list(args.modes, str)]
+    ks = C.ints(args.clusters)
+    findings: Dict[str, Any] = {}
+
+    C.log('[scaling] memory bandwidth (streaming copy)')
+    bw = measure_bandwidth(args.bandwidth_mb)
+    bw_best = max(bw['numpy_copy_GBps'], bw['numba_parallel_copy_GBps'])
+    findings['bandwidth'] = bw
+
+    t = C.Table('scaling', ['N', 'mode', 'clusters', 'memberships', 'ms_median', 'ms_min',
+                            'ns_per_particle', 'parallel', 'build_s'],
+                'ms per step against N (World.step, dt = 5 ms, gravity, no colliders)')
+    results: List[Dict[str, Any]] = []
+    for n_side in sizes:
+        for mode in modes:
+            for k in ks:
+                C.log(f'[scaling] sm_ros N={n_side ** 3} {mode} k={k}')
+                r = time_numba(n_side, mode, k, args.min_time)
+                results.append(r)
+                t.add(N=r['N'], mode=mode, clusters=r['clusters'],
+                      memberships=r['memberships'], ms_median=r['ms_median'],
+                      ms_min=r['ms_min'], ns_per_particle=r['ns_per_particle'],
+                      parallel=r['parallel'], build_s=r['build_s'])
+    t.write(out)
+    findings['scaling'] = results
+
+    def pick(n, mode, k):
+        for r in results:
+            if r['N'] == n and r['mode'] == mode and r['k'] == k:
+                return r
+        return None
+
+    # slopes and quadratic/linear ratios
+    s = C.Table('scaling_summary', ['mode', 'clusters', 'slope_loglog', 'slope_upper_half',
+                                    'quad_over_linear_at_max_N'],
+                'log-log slope of ms/step against N, and quadratic / linear')
+    nmax = max(r['N'] for r in results) if results else 0
+    for mode in modes:
+        for k in ks:
+            rows = [r for r in results if r['mode'] == mode and r['k'] == k]
+            ns = [r['N'] for r in rows]
+            ms = [r['ms_median'] for r in rows]
+            upper = [(a, b) for a, b in zip(ns, ms) if a >= 1e4]
+            ratio = None
+            if mode == 'quadratic' and pick(nmax, 'linear', k) and pick(nmax, mode, k):
+                ratio = pick(nmax, mode, k)['ms_median'] / pick(nmax, 'linear', k)['ms_median']
+            s.add(mode=mode, clusters=CLUSTER_NAMES.get(k, k ** 3),
+                  slope_loglog=C.loglog_slope(ns, ms),
+                  slope_upper_half=C.loglog_slope(*zip(*upper)) if len(upper) > 1 else None,
+                  quad_over_linear_at_max_N=ratio)
+    s.write(out)
+    findings['summary'] = s.rows
+
+    # bandwidth fraction of the single-cluster linear step
+    b = C.Table('bandwidth', ['what', 'value', 'unit'],
+                'memory bandwidth and the fraction the single-cluster linear step reaches')
+    b.add(what='streaming copy, NumPy (1 thread)', value=bw['numpy_copy_GBps'], unit='GB/s')
+    b.add(what='streaming copy, Numba prange', value=bw['numba_parallel_copy_GBps'],
+          unit='GB/s')
+    lin1 = pick(nmax, 'linear', 1) if 1 in ks else None
+    if lin1:
+        bpp = lin1['bytes_per_particle']
+        achieved = bpp * lin1['N'] / (lin1['ms_median'] * 1e-3) / 1e9
+        achieved_best = bpp * lin1['N'] / (lin1['ms_min'] * 1e-3) / 1e9
+        b.add(what=f'bytes per particle per step (layout)', value=bpp, unit='B')
+        b.add(what=f'linear, 1 cluster, N={lin1["N"]}: ms/step (median)',
+              value=lin1['ms_median'], unit='ms')
+        b.add(what='  achieved (median step)', value=achieved, unit='GB/s')
+        b.add(what='  fraction of best copy bandwidth (median step)',
+              value=achieved / bw_best, unit='')
+        b.add(what='  fraction of best copy bandwidth (fastest step)',
+              value=achieved_best / bw_best, unit='')
+        findings['bw_fraction'] = achieved / bw_best
+        findings['bw_fraction_best'] = achieved_best / bw_best
+        findings['bw_N'] = lin1['N']
+    b.write(out)
+
+    # NumPy reference
+    np_sizes = sorted({C.lattice_side(x) for x in C.as_list(args.numpy_sizes)})
+    npt = C.Table('numpy_reference', ['N', 'mode', 'clusters', 'numba_ms', 'numpy_step_ms',
+                                      'numpy_goals_ms', 'speedup_step', 'speedup_goals'],
+                  'Numba step against the NumPy reference (sm_ros.core.reference)')
+    findings['numpy'] = []
+    for n_side in np_sizes:
+        for mode in modes:
+            for k in C.ints(args.numpy_clusters):
+                C.log(f'[scaling] numpy N={n_side ** 3} {mode} k={k}')
+                ref = time_numpy(n_side, mode, k, min(args.min_time, 1.0))
+                if ref is None:
+                    C.log('  sm_ros.core.reference not importable: skipped')
+                    break
+                ours = pick(n_side ** 3, mode, k) or time_numba(n_side, mode, k, args.min_time)
+                row = dict(N=n_side ** 3, mode=mode, clusters=CLUSTER_NAMES.get(k, k ** 3),
+                           numba_ms=ours['ms_median'], **ref,
+                           speedup_step=ref['numpy_step_ms'] / ours['ms_median'],
+                           speedup_goals=ref['numpy_goals_ms'] / ours['ms_median'])
+                npt.add(**row)
+                findings['numpy'].append(row)
+    npt.write(out)
+
+    # pypbd
+    pp_sizes = sorted({C.lattice_side(x) for x in C.as_list(args.pypbd_sizes)})
+    script = find_pypbd_script(args.pypbd_script) if pp_sizes else None
+    ppt = C.Table('pypbd', ['N', 'clusters', 'memberships_pypbd', 'memberships_ours',
+                            'pypbd_ms', 'ours_rigid_ms', 'ours_linear_ms', 'speedup_rigid',
+                            'speedup_linear'],
+                  'sm_ros against pypbd (same lattice and clusters, 1 iteration, dt 5 ms)')
+    findings['pypbd'] = []
+    if pp_sizes and script is None:
+        C.log('[scaling] pypbd peer script not found: skipped')
+    elif pp_sizes:
+        try:
+            import pypbd  # noqa: F401
+            have = True
+        except ImportError:
+            have = False
+            C.log('[scaling] pypbd not installed (pip install pypbd): skipped')
+        for n_side in (pp_sizes if have else []):
+            for k in ks:
+                C.log(f'[scaling] pypbd N={n_side ** 3} k={k}')
+                peer = time_pypbd(script, n_side, k, args.pypbd_steps)
+                if peer is None:
+                    continue
+                rig = pick(n_side ** 3, 'rigid', k) or time_numba(n_side, 'rigid', k,
+                                                                  args.min_time)
+                lin = pick(n_side ** 3, 'linear', k) or time_numba(n_side, 'linear', k,
+                                                                   args.min_time)
+                row = dict(N=n_side ** 3, clusters=peer['clusters'],
+                           memberships_pypbd=peer['memberships'],
+                           memberships_ours=rig['memberships'], pypbd_ms=peer['median_ms'],
+                           ours_rigid_ms=rig['ms_median'], ours_linear_ms=lin['ms_median'],
+                           speedup_rigid=peer['median_ms'] / rig['ms_median'],
+                           speedup_linear=peer['median_ms'] / lin['ms_median'])
+                ppt.add(**row)
+                findings['pypbd'].append(row)
+    ppt.write(out)
+
+    _plot(results, findings, bw_best, out)
+    return findings
+
+
+def _plot(results, findings, bw_best, out: Path):
+    plt = C.pyplot()
+    if plt is None or not results:
+        return
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+    colors = {'rigid': 'tab:blue', 'linear': 'tab:green', 'quadratic': 'tab:red'}
+    styles = {1: '-', 2: '--', 3: '-.', 4: ':'}
+    ax = axes[0]
+    for mode in MODES:
+        for k in sorted({r['k'] for r in results}):
+            rows = sorted((r for r in results if r['mode'] == mode and r['k'] == k),
+                          key=lambda r: r['N'])
+            if rows:
+                ax.loglog([r['N'] for r in rows], [r['ms_median'] for r in rows],
+                          styles.get(k, '-'), marker='o', ms=3, color=colors[mode],
+                          label=f'{mode}, {CLUSTER_NAMES.get(k, k ** 3)} cl.')
+    ns = np.array(sorted({r['N'] for r in results}), dtype=float)
+    bpp = results[0]['bytes_per_particle']
+    ax.loglog(ns, bpp * ns / (bw_best * 1e9) * 1e3, 'k:', lw=1,
+              label=f'memory bound ({bpp} B/particle)')
+    ax.set_xlabel('particles N')
+    ax.set_ylabel('ms / step')
+    ax.set_title('sm_ros World.step (Numba)')
+    ax.grid(True, which='both', alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    ax = axes[1]
+    for row in findings.get('numpy', []):
+        ax.loglog(row['N'], row['numpy_step_ms'], 's', color=colors[row['mode']], mfc='none')
+        ax.loglog(row['N'], row['numba_ms'], 'o', color=colors[row['mode']])
+    for row in findings.get('pypbd', []):
+        ax.loglog(row['N'], row['pypbd_ms'], '^', color='k', mfc='none')
+        ax.loglog(row['N'], row['ours_rigid_ms'], 'o', color=colors['rigid'])
+    ax.plot([], [], 's', color='gray', mfc='none', label='NumPy reference')
+    ax.plot([], [], '^', color='k', mfc='none', label='pypbd (1 iteration)')
+    ax.plot([], [], 'o', color='gray', label='sm_ros (Numba)')
+    ax.set_xlabel('particles N')
+    ax.set_ylabel('ms / step')
+    ax.set_title('against the NumPy reference and pypbd')
+    ax.grid(True, which='both', alpha=0.3)
+    ax.legend(fontsize=7)
+    C.save_figure(fig, out / 'bench_scaling.png')
