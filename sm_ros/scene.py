@@ -675,8 +675,7 @@ def params_from(defaults: Optional[Mapping[str, Any]], overrides: Optional[Mappi
                         plastic_creep=float(d['plasticity.creep']),
                         plastic_max=float(d['plasticity.max']),
                         damping=float(d.get('damping', 0.0)))
-    params.validate()
-    return params
+    return params.validate()
 
 
 def ground_from(scene_ground: Optional[Mapping[str, Any]],

@@ -1,0 +1,278 @@
+"""
+Run a scene headless and draw it: an animated GIF or a PNG strip of frames (no display).
+
+Usage::
+
+    python -m sm_ros.render SCENE [--seconds 3] [--out run.gif] [--fps 10] [--dt 0.008333]
+                            [--set mode=quadratic --set alpha=0.3 ...]
+
+SCENE is a bundled scene name or a YAML path. The output type follows the extension of
+``--out``: ``.gif`` (animated, via Pillow) or ``.png`` (``--frames`` panels side by side).
+The simulation uses the node's defaults (``sm_ros.scene.NODE_DEFAULTS``, ``--dt`` like the
+node's ``dt``); ``--set key=value`` changes a node parameter for the run. Drawing uses
+matplotlib's Agg backend, so it runs without a display.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Sequence
+
+import numpy as np
+
+from sm_ros.scene import build_world, load_scene, NODE_DEFAULTS, SceneError
+
+#: Default step, like the node's ``dt`` parameter (s).
+DEFAULT_DT = 1.0 / 120.0
+
+_COLOURS = ['#1f77b4', '#ff7f0e', '#2ca02c', '#d62728', '#9467bd', '#8c564b', '#e377c2',
+            '#7f7f7f', '#bcbd22', '#17becf']
+
+
+@dataclass
+class Recording:
+    """Positions of every body at each frame, plus what is needed to draw them."""
+
+    name: str
+    times: List[float]
+    frames: List[List[np.ndarray]]        # frame -> body -> (n_drawn, 3)
+    surfaces: List[List[Optional[np.ndarray]]]   # frame -> body -> (V, 3) or None
+    faces: List[Optional[np.ndarray]]
+    colliders: Dict[str, Any]
+    ground: Optional[float]
+    n_points: int
+    step_ms: float
+
+
+def _parse_value(text: str) -> Any:
+    import yaml
+    return yaml.safe_load(text)
+
+
+def simulate(scene: str, seconds: float = 3.0, fps: float = 10.0, dt: float = DEFAULT_DT,
+             params: Optional[Dict[str, Any]] = None, max_draw: int = 4000,
+             seed: int = 0) -> Recording:
+    """
+    Load `scene`, step it for `seconds` of simulated time with step `dt`, and record a frame
+    every 1/`fps` s. At most `max_draw` particles (a fixed random subset, shared fairly
+    among the bodies) are recorded for drawing; mesh surfaces are recorded whole.
+    """
+    defaults = dict(NODE_DEFAULTS)
+    defaults.update(params or {})
+    spec = load_scene(scene)
+    world, metas = build_world(spec, defaults)
+    rng = np.random.default_rng(seed)
+    total = max(1, spec.n_points)
+    picks = []
+    for b in world.bodies:
+        k = max(1, int(round(max_draw * b.n / total))) if total > max_draw else b.n
+        picks.append(np.sort(rng.choice(b.n, size=min(k, b.n), replace=False)))
+    per_frame = max(1, int(round(1.0 / (fps * dt))))
+    n_frames = int(round(seconds * fps)) + 1
+    rec = Recording(name=Path(str(scene)).stem or 'default', times=[], frames=[], surfaces=[],
+                    faces=[m.surface.faces if m.surface is not None else None for m in metas],
+                    colliders=spec.colliders, ground=None, n_points=spec.n_points,
+                    step_ms=0.0)
+    if world.ground is not None:
+        rec.ground = float(world.ground.height)
+    steps = 0
+    busy = 0.0
+    for f in range(n_frames):
+        if f:
+            t0 = time.perf_counter()
+            for _ in range(per_frame):
+                world.step(dt)
+            busy += time.perf_counter() - t0
+            steps += per_frame
+        rec.times.append(world.time)
+        rec.frames.append([b.x[p].copy() for b, p in zip(world.bodies, picks)])
+        rec.surfaces.append([m.surface.vertices(b.x).copy() if m.surface is not None else None
+                             for b, m in zip(world.bodies, metas)])
+    rec.step_ms = 1000.0 * busy / max(1, steps)
+    return rec
+
+
+def _limits(rec: Recording):
+    pts = np.concatenate([np.concatenate(fr, axis=0) for fr in rec.frames], axis=0)
+    lo = np.percentile(pts, 0.5, axis=0)
+    hi = np.percentile(pts, 99.5, axis=0)
+    for s in rec.colliders.get('spheres', []):
+        c, r = np.asarray(s['center']), s['radius']
+        lo, hi = np.minimum(lo, np.maximum(c - r, lo - 0.5)), np.maximum(hi, np.minimum(
+            c + r, hi + 0.5))
+    if rec.ground is not None:
+        lo[2] = min(lo[2], rec.ground)
+    centre = (lo + hi) / 2.0
+    half = np.maximum((hi - lo) / 2.0 * 1.08, 0.05)
+    half[:2] = max(half[0], half[1])
+    return centre - half, centre + half
+
+
+def _draw(ax, rec: Recording, i: int, lo: np.ndarray, hi: np.ndarray, title: bool = True):
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+    ax.cla()
+    ax.computed_zorder = False     # colliders first, bodies on top
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_zlim(lo[2], hi[2])
+    ax.set_box_aspect(hi - lo)
+    ax.set_axis_off()
+    if rec.ground is not None:
+        g = rec.ground
+        quad = [[(lo[0], lo[1], g), (hi[0], lo[1], g), (hi[0], hi[1], g), (lo[0], hi[1], g)]]
+        ax.add_collection3d(Poly3DCollection(quad, facecolor='#d9d9d9', edgecolor='#b0b0b0',
+                                             alpha=0.6, zorder=0))
+    for b in rec.colliders.get('boxes', []):
+        bl, bh = np.maximum(b['lo'], lo), np.minimum(b['hi'], hi)
+        if np.any(bh <= bl):
+            continue
+        c = np.array([[x, y, z] for x in (bl[0], bh[0]) for y in (bl[1], bh[1])
+                      for z in (bl[2], bh[2])])
+        quads = [c[[0, 1, 3, 2]], c[[4, 5, 7, 6]], c[[0, 1, 5, 4]], c[[2, 3, 7, 6]],
+                 c[[0, 2, 6, 4]], c[[1, 3, 7, 5]]]
+        ax.add_collection3d(Poly3DCollection(quads, facecolor='#9e9e9e', edgecolor='#707070',
+                                             alpha=0.35, zorder=1))
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0, np.pi, 12))
+    for s in rec.colliders.get('spheres', []):
+        c, r = np.asarray(s['center']), s['radius']
+        ax.plot_surface(c[0] + r * np.cos(u) * np.sin(v), c[1] + r * np.sin(u) * np.sin(v),
+                        np.maximum(c[2] + r * np.cos(v), lo[2]), color='#9e9e9e', alpha=0.35,
+                        linewidth=0, shade=True, zorder=1)
+    size = float(np.clip(6000.0 / max(1, sum(len(p) for p in rec.frames[i])), 0.4, 12.0))
+    for j, pts in enumerate(rec.frames[i]):
+        colour = _COLOURS[j % len(_COLOURS)]
+        surf = rec.surfaces[i][j]
+        if surf is not None:
+            tris = surf[rec.faces[j]]
+            ax.add_collection3d(Poly3DCollection(tris, facecolor=colour, edgecolor='#303030',
+                                                 linewidths=0.15, alpha=0.85, zorder=2))
+            continue
+        ax.scatter(pts[:, 0], pts[:, 1], pts[:, 2], s=size, c=colour, depthshade=True,
+                   linewidths=0, zorder=2)
+    if title:
+        ax.set_title(f'{rec.name}   t = {rec.times[i]:.2f} s', fontsize=9, pad=0)
+
+
+def write_gif(rec: Recording, out: Path, width: int = 400, height: int = 300,
+              colours: int = 48, elev: float = 22.0, azim: float = -60.0) -> None:
+    """Write an animated GIF of the recording (Pillow, palette of `colours`)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from PIL import Image
+    dpi = 100
+    fig = plt.figure(figsize=(width / dpi, height / dpi), dpi=dpi)
+    ax = fig.add_axes([0, 0, 1, 0.94], projection='3d')
+    ax.view_init(elev=elev, azim=azim)
+    lo, hi = _limits(rec)
+    images = []
+    for i in range(len(rec.frames)):
+        _draw(ax, rec, i, lo, hi)
+        fig.canvas.draw()
+        rgb = np.asarray(fig.canvas.buffer_rgba())[..., :3]
+        images.append(Image.fromarray(rgb.copy()))
+    plt.close(fig)
+    palette = images[len(images) // 2].quantize(colors=colours, method=Image.Quantize.MEDIANCUT)
+    frames = [im.quantize(palette=palette, dither=Image.Dither.NONE) for im in images]
+    duration = int(round(1000.0 * (rec.times[1] - rec.times[0]))) if len(rec.times) > 1 else 100
+    frames[0].save(out, save_all=True, append_images=frames[1:], duration=max(20, duration),
+                   loop=0, optimize=True, disposal=1)
+
+
+def write_strip(rec: Recording, out: Path, panels: int = 5, panel_w: int = 240,
+                panel_h: int = 220, elev: float = 22.0, azim: float = -60.0) -> None:
+    """Write a PNG strip: `panels` frames evenly spaced in time, side by side."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from PIL import Image
+    dpi = 100
+    idx = np.unique(np.linspace(0, len(rec.frames) - 1, panels).round().astype(int))
+    fig = plt.figure(figsize=(panel_w * len(idx) / dpi, panel_h / dpi), dpi=dpi)
+    lo, hi = _limits(rec)
+    for k, i in enumerate(idx):
+        ax = fig.add_axes([k / len(idx), 0, 1 / len(idx), 0.92], projection='3d')
+        ax.view_init(elev=elev, azim=azim)
+        _draw(ax, rec, int(i), lo, hi, title=False)
+        ax.set_title(f't = {rec.times[i]:.2f} s', fontsize=8, pad=0)
+    buf = io.BytesIO()
+    fig.savefig(buf, format='png', dpi=dpi)
+    plt.close(fig)
+    img = Image.open(io.BytesIO(buf.getvalue())).convert('RGB')
+    img.quantize(colors=128, method=Image.Quantize.MEDIANCUT).save(out, optimize=True)
+
+
+def render(scene: str, out: str, seconds: float = 3.0, fps: float = 10.0,
+           dt: float = DEFAULT_DT, params: Optional[Dict[str, Any]] = None,
+           frames: int = 5, max_draw: int = 4000, width: int = 400, height: int = 300,
+           elev: float = 22.0, azim: float = -60.0) -> Dict[str, float]:
+    """Simulate and write `out` (.gif or .png); return timing figures (seconds, ms)."""
+    path = Path(out)
+    kind = path.suffix.lower()
+    if kind not in ('.gif', '.png'):
+        raise ValueError(f'--out must end in .gif or .png, got {out!r}')
+    if not seconds > 0 or not fps > 0 or not dt > 0:
+        raise ValueError('seconds, fps and dt must be > 0')
+    t0 = time.perf_counter()
+    rec = simulate(scene, seconds=seconds, fps=fps, dt=dt, params=params, max_draw=max_draw)
+    t1 = time.perf_counter()
+    if kind == '.gif':
+        write_gif(rec, path, width=width, height=height, elev=elev, azim=azim)
+    else:
+        write_strip(rec, path, panels=frames, elev=elev, azim=azim)
+    t2 = time.perf_counter()
+    return {'points': rec.n_points, 'bodies': len(rec.faces), 'simulate_s': t1 - t0,
+            'draw_s': t2 - t1, 'step_ms': rec.step_ms, 'bytes': path.stat().st_size}
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Command line entry point (``python -m sm_ros.render``)."""
+    ap = argparse.ArgumentParser(prog='python -m sm_ros.render',
+                                 description='Run a scene headless and write a GIF or a '
+                                             'PNG strip.')
+    ap.add_argument('scene', nargs='?', default='',
+                    help="bundled scene name or YAML path (default: 'default')")
+    ap.add_argument('--seconds', type=float, default=3.0, help='simulated seconds (3)')
+    ap.add_argument('--out', default='run.gif', help='output .gif or .png (run.gif)')
+    ap.add_argument('--fps', type=float, default=10.0, help='frames per simulated second')
+    ap.add_argument('--dt', type=float, default=DEFAULT_DT, help='time step in s (1/120)')
+    ap.add_argument('--frames', type=int, default=5, help='panels of a .png strip (5)')
+    ap.add_argument('--max-draw', type=int, default=4000, help='particles drawn at most')
+    ap.add_argument('--size', default='400x300', help='GIF size WxH in pixels (400x300)')
+    ap.add_argument('--elev', type=float, default=22.0, help='view elevation (deg)')
+    ap.add_argument('--azim', type=float, default=-60.0, help='view azimuth (deg)')
+    ap.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
+                    help='node parameter for the run, e.g. mode=quadratic (repeatable)')
+    args = ap.parse_args(argv)
+    params: Dict[str, Any] = {}
+    for item in args.set:
+        key, sep, value = item.partition('=')
+        if not sep or key not in NODE_DEFAULTS:
+            ap.error(f'--set {item!r}: expected KEY=VALUE with KEY one of '
+                     f"{', '.join(NODE_DEFAULTS)}")
+        params[key] = _parse_value(value)
+    try:
+        width, height = (int(v) for v in args.size.lower().split('x'))
+    except ValueError:
+        ap.error(f'--size must be WxH, got {args.size!r}')
+    try:
+        figures = render(args.scene, args.out, seconds=args.seconds, fps=args.fps, dt=args.dt,
+                         params=params, frames=args.frames, max_draw=args.max_draw,
+                         width=width, height=height, elev=args.elev, azim=args.azim)
+    except (SceneError, ValueError) as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
+    print(f"{args.out}: {figures['points']} points in {figures['bodies']} bodies, "
+          f"{args.seconds:g} s simulated in {figures['simulate_s']:.2f} s "
+          f"({figures['step_ms']:.2f} ms/step), drawn in {figures['draw_s']:.2f} s, "
+          f"{figures['bytes'] / 1024:.0f} KiB")
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
