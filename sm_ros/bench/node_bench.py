@@ -1,17 +1,155 @@
-"""Part 3 of the benchmark: the node end to end (filled in when the node is ready)."""
+"""Part 3 of the benchmark: the node end to end.
+
+For each size and rate: sim_node runs in one process on a scene of one box of N points
+resting on the ground (mode and clusters from the flags, ``dt`` = 1 / (rate x substeps) so
+simulated time keeps up with wall time); a subscriber in a second process receives
+``points``. Reported: the achieved tick rate; the tick time split into step, cloud build
+(``CloudBuffer.fill``) and publish; the subscriber's receive rate and the latency from the
+node's publish call to the subscriber's callback (both processes read the same wall clock).
+"""
 
 import argparse
+import os
 from pathlib import Path
-from typing import Any, Dict
+import random
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Any, Dict, List, Optional
+
+import numpy as np
+
+from . import common as C
 
 
 def add_arguments(p: argparse.ArgumentParser):
     """Flags of the ``node`` subcommand."""
-    p.add_argument('--node-sizes', default='1e4,1e5')
-    p.add_argument('--node-rates', default='30,60')
-    p.add_argument('--node-seconds', type=float, default=3.0)
+    p.add_argument('--node-sizes', default='1e4,1e5', help='points ("" to skip the node)')
+    p.add_argument('--node-rates', default='30,60', help='tick rates in Hz')
+    p.add_argument('--node-seconds', type=float, default=4.0, help='measured seconds')
+    p.add_argument('--node-substeps', type=int, default=1)
+    p.add_argument('--node-mode', default='linear')
+    p.add_argument('--node-clusters', type=int, default=1)
+
+
+def node_ready() -> Optional[str]:
+    """None if the node can run here, else the reason it cannot."""
+    try:
+        import rclpy  # noqa: F401
+    except ImportError as exc:
+        return f'rclpy is not importable ({exc})'
+    try:
+        import sm_ros.node as n
+    except Exception as exc:  # noqa: BLE001 - any import failure means "not ready"
+        return f'sm_ros.node does not import ({type(exc).__name__}: {exc})'
+    if not hasattr(n, 'SimNode'):
+        return 'sm_ros.node has no SimNode'
+    return None
+
+
+def scene_yaml(points: int, path: Path):
+    """A scene with one box of about ``points`` particles resting on the ground."""
+    n = C.lattice_side(points)
+    spacing = 0.01
+    size = (n - 1) * spacing
+    path.write_text(
+        'description: benchmark box\n'
+        'bodies:\n'
+        '  - name: box\n'
+        '    shape: box\n'
+        f'    size: [{size:.6f}, {size:.6f}, {size:.6f}]\n'
+        f'    spacing: {spacing}\n'
+        '    mass: 1.0\n'
+        f'    position: [0.0, 0.0, {size / 2 + 0.001:.6f}]\n')
+    return n ** 3
+
+
+def _env() -> Dict[str, str]:
+    env = dict(os.environ)
+    env.setdefault('ROS_DOMAIN_ID', str(random.randint(101, 200)))
+    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    root = str(Path(__file__).resolve().parents[2])
+    env['PYTHONPATH'] = root + os.pathsep + env.get('PYTHONPATH', '')
+    return env
+
+
+def measure(points: int, rate: float, args, tmp: Path) -> Optional[Dict[str, Any]]:
+    """Run the node and a subscriber process for one (size, rate)."""
+    scene = tmp / f'bench_{points}.yaml'
+    scene_yaml(points, scene)
+    env = _env()
+    warm = 2.0 + points / 2e5
+    py = [sys.executable, '-m', 'sm_ros.bench.node_procs']
+    sub_seconds = args.node_seconds + warm + 10.0 + points / 1e5
+    sub = subprocess.Popen(py + ['sub', '--seconds', f'{sub_seconds:.1f}'], env=env,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(1.0)
+    node_res = C.run_json_subprocess(
+        py + ['node', '--scene', str(scene), '--rate', str(rate), '--seconds',
+              str(args.node_seconds), '--warmup', f'{warm:.1f}', '--substeps',
+              str(args.node_substeps), '--mode', args.node_mode, '--clusters',
+              str(args.node_clusters)], timeout=120 + points / 1e4, env=env)
+    try:
+        out, _ = sub.communicate(timeout=sub_seconds + 30)
+    except subprocess.TimeoutExpired:
+        sub.kill()
+        out = ''
+    if node_res is None:
+        return None
+    import json
+    lines = [ln for ln in out.splitlines() if ln.startswith('{')]
+    received = json.loads(lines[-1])['received'] if lines else []
+    sent = node_res['sent']
+    tick = np.array(node_res['tick_s']) * 1e3
+    steps = np.array(node_res['step_s']) * 1e3
+    fill = np.array(node_res['fill_s']) * 1e3
+    pub = np.array(node_res['publish_s']) * 1e3
+    lat = [t - sent[s] for s, t, _ in received if s in sent]
+    # the subscriber's rate over the node's measured window
+    in_window = [t for s, t, _ in received if s in sent]
+    rx_rate = (len(in_window) - 1) / (max(in_window) - min(in_window)) \
+        if len(in_window) > 2 else 0.0
+    sub_steps = max(1, int(args.node_substeps))
+    med = (lambda a: float(np.median(a)) if len(a) else float('nan'))   # noqa: E731
+    p95 = (lambda a: float(np.percentile(a, 95)) if len(a) else float('nan'))  # noqa: E731
+    return dict(points=node_res['points'], rate_hz_target=rate,
+                rate_hz=node_res['ticks'] / node_res['elapsed_s'],
+                tick_ms_median=med(tick), tick_ms_p95=p95(tick),
+                step_ms_median=med(steps) * sub_steps, fill_ms_median=med(fill),
+                publish_ms_median=med(pub), period_ms=1e3 / rate,
+                rx_rate_hz=rx_rate, rx_messages=len(lat),
+                latency_ms_median=1e3 * med(lat), latency_ms_p95=1e3 * p95(lat))
 
 
 def run(args, out: Path) -> Dict[str, Any]:
-    """Not yet measured."""
-    return {'status': 'not run'}
+    """Every (size, rate); write the table; return findings."""
+    sizes = [int(x) for x in C.as_list(args.node_sizes)]
+    if not sizes:
+        return {'status': 'skipped (no --node-sizes)'}
+    reason = node_ready()
+    if reason:
+        C.log(f'[node] not run: {reason}')
+        return {'status': f'not run: {reason}'}
+    rates = C.as_list(args.node_rates)
+    t = C.Table('node', ['points', 'rate_hz_target', 'rate_hz', 'tick_ms_median',
+                         'tick_ms_p95', 'step_ms_median', 'fill_ms_median',
+                         'publish_ms_median', 'period_ms', 'rx_rate_hz', 'latency_ms_median',
+                         'latency_ms_p95'],
+                f'sim_node end to end ({args.node_mode}, clusters {args.node_clusters}, '
+                f'{args.node_substeps} step(s) per tick, ground on)')
+    findings: Dict[str, Any] = {'rows': []}
+    with tempfile.TemporaryDirectory() as d:
+        for n in sizes:
+            for rate in rates:
+                C.log(f'[node] {n} points at {rate:g} Hz')
+                r = measure(n, rate, args, Path(d))
+                if r is None:
+                    continue
+                t.add(**{k: r[k] for k in t.columns})
+                findings['rows'].append(r)
+                if C.lattice_side(n) == 46 and rate == 60:
+                    findings['target'] = r
+    t.write(out)
+    findings['status'] = 'measured' if findings['rows'] else 'failed'
+    return findings
