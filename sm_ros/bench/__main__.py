@@ -93,7 +93,7 @@ def main(argv: Optional[List[str]] = None) -> int:
 
 def _quick(args):
     """Shrink every size for a smoke run (used by the tests)."""
-    args.sizes = '1e3,4e3'
+    args.sizes = '343,1e3'
     args.min_time = 0.02
     args.numpy_sizes = '1e3'
     args.numpy_clusters = '1'
