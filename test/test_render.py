@@ -1,0 +1,56 @@
+"""The headless render command: GIF and PNG strip, small files, clear errors."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+pytest.importorskip('matplotlib')
+Image = pytest.importorskip('PIL.Image')
+
+from sm_ros import render  # noqa: E402
+
+
+def test_gif_frames_and_size(tmp_path):
+    out = tmp_path / 'run.gif'
+    figures = render.render('rope', str(out), seconds=0.5, fps=10)
+    assert out.is_file() and figures['bytes'] == out.stat().st_size
+    assert out.stat().st_size < 300 * 1024
+    with Image.open(out) as im:
+        assert im.format == 'GIF' and im.size == (400, 300)
+        assert im.n_frames == 6
+    assert figures['points'] == 76 and figures['bodies'] == 1
+
+
+def test_png_strip(tmp_path):
+    out = tmp_path / 'strip.png'
+    render.render('mesh', str(out), seconds=0.4, fps=10, frames=3, params={'alpha': 0.9})
+    with Image.open(out) as im:
+        assert im.format == 'PNG' and im.size == (720, 220)
+
+
+def test_simulate_records_frames_and_surfaces():
+    rec = render.simulate('mesh', seconds=0.2, fps=10, max_draw=500)
+    assert len(rec.frames) == 3 and rec.times[-1] == pytest.approx(0.2)
+    assert sum(len(p) for p in rec.frames[0]) <= 500 + len(rec.frames[0])
+    assert all(s is not None for s in rec.surfaces[-1])
+
+
+def test_cli_errors(tmp_path, capsys):
+    assert render.main(['default', '--out', str(tmp_path / 'x.jpg')]) == 2
+    assert 'gif or .png' in capsys.readouterr().err
+    assert render.main(['no_such_scene', '--out', str(tmp_path / 'x.gif')]) == 2
+    assert 'bundled' in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        render.main(['default', '--set', 'speed=3'])
+
+
+def test_module_runs_headless(tmp_path):
+    out = tmp_path / 'cli.png'
+    env = {k: v for k, v in os.environ.items() if k not in ('DISPLAY', 'MPLBACKEND')}
+    res = subprocess.run([sys.executable, '-m', 'sm_ros.render', 'rope', '--seconds', '0.2',
+                          '--out', str(out), '--set', 'mode=quadratic'],
+                         capture_output=True, text=True, env=env, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert out.is_file() and 'points in 1 bodies' in res.stdout
