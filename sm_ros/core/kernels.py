@@ -342,6 +342,14 @@ def collide_point(px, py, pz, vx, vy, vz, ground, boxes, spheres, thresh):
 
 
 @njit(**JIT)
+def _collide_range(start, end, x, v, ground, boxes, spheres, thresh):
+    for i in range(start, end):
+        x[i, 0], x[i, 1], x[i, 2], v[i, 0], v[i, 1], v[i, 2] = collide_point(
+            x[i, 0], x[i, 1], x[i, 2], v[i, 0], v[i, 1], v[i, 2], ground, boxes, spheres,
+            thresh)
+
+
+@njit(**JIT)
 def _qhat(g, hv, c, a0, a1, a2):
     """q-hat = G_c x0 + h_c: the (plastic, scaled) rest offset of a particle in cluster c."""
     return (g[c, 0, 0] * a0 + g[c, 0, 1] * a1 + g[c, 0, 2] * a2 + hv[c, 0],
@@ -448,6 +456,100 @@ def _goal_quad(t, c, q0, q1, q2):
     return out0, out1, out2
 
 
+
+# ---------------------------------------------------------------------------------------
+# Single-cluster fast paths: no gather, every cluster constant and accumulator held in
+# registers (the general kernels below read-modify-write the per-cluster accumulators).
+# ---------------------------------------------------------------------------------------
+
+@njit(**JIT)
+def _acc_single(start, end, quad, x, x0, m, g, hv, ref, pc):
+    g00, g01, g02 = g[0, 0, 0], g[0, 0, 1], g[0, 0, 2]
+    g10, g11, g12 = g[0, 1, 0], g[0, 1, 1], g[0, 1, 2]
+    g20, g21, g22 = g[0, 2, 0], g[0, 2, 1], g[0, 2, 2]
+    h0, h1, h2 = hv[0, 0], hv[0, 1], hv[0, 2]
+    r0, r1, r2 = ref[0, 0], ref[0, 1], ref[0, 2]
+    if quad:
+        for i in range(start, end):
+            a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+            _acc_quad(pc[0], m[i], x[i, 0] - r0, x[i, 1] - r1, x[i, 2] - r2,
+                      g00 * a0 + g01 * a1 + g02 * a2 + h0,
+                      g10 * a0 + g11 * a1 + g12 * a2 + h1,
+                      g20 * a0 + g21 * a1 + g22 * a2 + h2)
+        return
+    s0 = s1 = s2 = 0.0
+    c00 = c01 = c02 = c10 = c11 = c12 = c20 = c21 = c22 = 0.0
+    for i in range(start, end):
+        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+        q0 = g00 * a0 + g01 * a1 + g02 * a2 + h0
+        q1 = g10 * a0 + g11 * a1 + g12 * a2 + h1
+        q2 = g20 * a0 + g21 * a1 + g22 * a2 + h2
+        w = m[i]
+        d0 = w * (x[i, 0] - r0)
+        d1 = w * (x[i, 1] - r1)
+        d2 = w * (x[i, 2] - r2)
+        s0 += d0
+        s1 += d1
+        s2 += d2
+        c00 += d0 * q0
+        c01 += d0 * q1
+        c02 += d0 * q2
+        c10 += d1 * q0
+        c11 += d1 * q1
+        c12 += d1 * q2
+        c20 += d2 * q0
+        c21 += d2 * q1
+        c22 += d2 * q2
+    a = pc[0]
+    a[0] += s0
+    a[1] += s1
+    a[2] += s2
+    a[3] += c00
+    a[4] += c01
+    a[5] += c02
+    a[6] += c10
+    a[7] += c11
+    a[8] += c12
+    a[9] += c20
+    a[10] += c21
+    a[11] += c22
+
+
+@njit(**JIT)
+def _int_single_lin(start, end, x, v, x0, lm, lb, alpha, h, acc, ang, com):
+    l00, l01, l02 = lm[0, 0, 0], lm[0, 0, 1], lm[0, 0, 2]
+    l10, l11, l12 = lm[0, 1, 0], lm[0, 1, 1], lm[0, 1, 2]
+    l20, l21, l22 = lm[0, 2, 0], lm[0, 2, 1], lm[0, 2, 2]
+    b0, b1, b2 = lb[0, 0], lb[0, 1], lb[0, 2]
+    w0, w1, w2 = ang[0], ang[1], ang[2]
+    # acc + ang x (p - com) = (acc - ang x com) + ang x p
+    ax = acc[0] - (w1 * com[2] - w2 * com[1])
+    ay = acc[1] - (w2 * com[0] - w0 * com[2])
+    az = acc[2] - (w0 * com[1] - w1 * com[0])
+    ah = alpha / h
+    e2 = 0.0
+    for i in range(start, end):
+        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+        p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
+        e0 = l00 * a0 + l01 * a1 + l02 * a2 + b0 - p0
+        e1 = l10 * a0 + l11 * a1 + l12 * a2 + b1 - p1
+        ee = l20 * a0 + l21 * a1 + l22 * a2 + b2 - p2
+        e2 += e0 * e0 + e1 * e1 + ee * ee
+        v0 = v[i, 0] + ah * e0 + h * (ax + w1 * p2 - w2 * p1)
+        v1 = v[i, 1] + ah * e1 + h * (ay + w2 * p0 - w0 * p2)
+        v2 = v[i, 2] + ah * ee + h * (az + w0 * p1 - w1 * p0)
+        p0 += h * v0
+        p1 += h * v1
+        p2 += h * v2
+        x[i, 0] = p0
+        x[i, 1] = p1
+        x[i, 2] = p2
+        v[i, 0] = v0
+        v[i, 1] = v1
+        v[i, 2] = v2
+    return e2
+
+
 # ---------------------------------------------------------------------------------------
 # Accumulation pass (Eq. 7-9): per cluster sum w (x - ref) and sum w (x - ref) q^T.
 # ``part`` is (chunks, clusters, 12 or 30): every chunk owns its slot, reduced in
@@ -456,24 +558,17 @@ def _goal_quad(t, c, q0, q1, q2):
 # ---------------------------------------------------------------------------------------
 
 @njit(**JIT)
-def _acc_chunk(c, nch, quad, x, x0, m, ptr, cl, g, hv, ref, part):
-    n = x.shape[0]
-    start = (c * n) // nch
-    end = ((c + 1) * n) // nch
-    pc = part[c]
-    for k in range(pc.shape[0]):
-        for j in range(pc.shape[1]):
-            pc[k, j] = 0.0
-    single = ptr.shape[0] == 0
+def _acc_range(start, end, quad, x, x0, m, ptr, cl, g, hv, ref, pc):
+    """Add particles start..end to the accumulators ``pc`` (clusters, 12 or 30)."""
+    if ptr.shape[0] == 0:
+        _acc_single(start, end, quad, x, x0, m, g, hv, ref, pc)
+        return
     for i in range(start, end):
         a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
-        if single:
-            j0, j1, w = 0, 1, m[i]
-        else:
-            j0, j1 = ptr[i], ptr[i + 1]
-            w = m[i] / (j1 - j0)
+        j0, j1 = ptr[i], ptr[i + 1]
+        w = m[i] / (j1 - j0)
         for j in range(j0, j1):
-            k = 0 if single else cl[j]
+            k = cl[j]
             q0, q1, q2 = _qhat(g, hv, k, a0, a1, a2)
             d0 = x[i, 0] - ref[k, 0]
             d1 = x[i, 1] - ref[k, 1]
@@ -482,6 +577,17 @@ def _acc_chunk(c, nch, quad, x, x0, m, ptr, cl, g, hv, ref, part):
                 _acc_quad(pc[k], w, d0, d1, d2, q0, q1, q2)
             else:
                 _acc_lin(pc[k], w, d0, d1, d2, q0, q1, q2)
+
+
+@njit(**JIT)
+def _acc_chunk(c, nch, quad, x, x0, m, ptr, cl, g, hv, ref, part):
+    n = x.shape[0]
+    pc = part[c]
+    for k in range(pc.shape[0]):
+        for j in range(pc.shape[1]):
+            pc[k, j] = 0.0
+    _acc_range((c * n) // nch, ((c + 1) * n) // nch, quad, x, x0, m, ptr, cl, g, hv, ref,
+               pc)
 
 
 @njit(**JIT)
@@ -505,17 +611,17 @@ def accumulate_parallel(quad, x, x0, m, ptr, cl, g, hv, ref, part):
 # next step, so that a step reads and writes every particle once.
 # ---------------------------------------------------------------------------------------
 
+#: Particles per block of the fused pass: integrated, then accumulated while in L1.
+BLOCK = 256
+
+
 @njit(**JIT)
-def _int_chunk(c, nch, quad, x, v, x0, m, ptr, cl, g, hv, t, lm, lb, ref, alpha, h, acc,
-               ang, com, part, err, has_col, ground, boxes, spheres, thresh):
-    n = x.shape[0]
-    start = (c * n) // nch
-    end = ((c + 1) * n) // nch
-    pc = part[c]
-    for k in range(pc.shape[0]):
-        for j in range(pc.shape[1]):
-            pc[k, j] = 0.0
+def _int_range(start, end, quad, x, v, x0, ptr, cl, g, hv, t, lm, lb, alpha, h, acc, ang,
+               com):
+    """Eq. 13-14 for particles start..end; returns sum |g - x|^2."""
     single = ptr.shape[0] == 0
+    if single and not quad:
+        return _int_single_lin(start, end, x, v, x0, lm, lb, alpha, h, acc, ang, com)
     ah = alpha / h
     e2 = 0.0
     for i in range(start, end):
@@ -559,26 +665,35 @@ def _int_chunk(c, nch, quad, x, v, x0, m, ptr, cl, g, hv, t, lm, lb, ref, alpha,
         p0 += h * v0
         p1 += h * v1
         p2 += h * v2
-        if has_col:
-            p0, p1, p2, v0, v1, v2 = collide_point(p0, p1, p2, v0, v1, v2, ground, boxes,
-                                                   spheres, thresh)
         x[i, 0] = p0
         x[i, 1] = p1
         x[i, 2] = p2
         v[i, 0] = v0
         v[i, 1] = v1
         v[i, 2] = v2
-        # accumulation for the next step (reference: this step's centres)
-        w = m[i] if single else m[i] / (j1 - j0)
-        for j in range(j0, j1):
-            k = 0 if single else cl[j]
-            q0, q1, q2 = _qhat(g, hv, k, a0, a1, a2)
-            if quad:
-                _acc_quad(pc[k], w, p0 - ref[k, 0], p1 - ref[k, 1], p2 - ref[k, 2],
-                          q0, q1, q2)
-            else:
-                _acc_lin(pc[k], w, p0 - ref[k, 0], p1 - ref[k, 1], p2 - ref[k, 2],
-                         q0, q1, q2)
+    return e2
+
+
+@njit(**JIT)
+def _int_chunk(c, nch, quad, x, v, x0, m, ptr, cl, g, hv, t, lm, lb, ref, alpha, h, acc,
+               ang, com, part, err, has_col, ground, boxes, spheres, thresh):
+    """Integrate a chunk block by block; collide and accumulate each block for the next
+    step while it is still in L1 (one pass over memory, short loops without spills)."""
+    n = x.shape[0]
+    start = (c * n) // nch
+    end = ((c + 1) * n) // nch
+    pc = part[c]
+    for k in range(pc.shape[0]):
+        for j in range(pc.shape[1]):
+            pc[k, j] = 0.0
+    e2 = 0.0
+    for bs in range(start, end, BLOCK):
+        be = min(bs + BLOCK, end)
+        e2 += _int_range(bs, be, quad, x, v, x0, ptr, cl, g, hv, t, lm, lb, alpha, h, acc,
+                         ang, com)
+        if has_col:
+            _collide_range(bs, be, x, v, ground, boxes, spheres, thresh)
+        _acc_range(bs, be, quad, x, x0, m, ptr, cl, g, hv, ref, pc)
     err[c] = e2
 
 
