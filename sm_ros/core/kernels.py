@@ -931,8 +931,11 @@ def moments(x0, m, ptr, cl, g, hv, wsum, which, need3, need9, sq, mom3, mom9, f9
             if not which[k]:
                 continue
             q0, q1, q2 = _qhat(g, hv, k, a0, a1, a2)
-            quad_features(q0, q1, q2, f9)
-            for u in range(9):
+            if need9:
+                quad_features(q0, q1, q2, f9)
+            else:                           # rigid/linear: no quadratic terms at all
+                f9[0], f9[1], f9[2] = q0, q1, q2
+            for u in range(9 if need9 else 3):
                 sq[k, u] += w * f9[u]
             if need3:
                 for u in range(3):
