@@ -389,7 +389,7 @@ def _parse_colliders(where: _Where, raw: Any) -> Dict[str, Any]:
         raise where.error('colliders.boxes', f'must be a list, got {_fmt(boxes)}')
     for i, b in enumerate(boxes):
         key = f'colliders.boxes[{i}]'
-        bm = where.mapping(key, b, ('lo', 'hi', 'center', 'size'))
+        bm = where.mapping(key, b, ('lo', 'hi', 'center', 'size', 'friction', 'restitution'))
         if 'lo' in bm or 'hi' in bm:
             if 'center' in bm or 'size' in bm:
                 raise where.error(key, 'takes either lo/hi or center/size, not both')
@@ -402,17 +402,25 @@ def _parse_colliders(where: _Where, raw: Any) -> Dict[str, Any]:
         if not np.all(hi > lo):
             raise where.error(f'{key}.hi', f'must exceed lo in every axis, got lo '
                                            f'{lo.tolist()} hi {hi.tolist()}')
-        out['boxes'].append({'lo': lo, 'hi': hi})
+        out['boxes'].append({'lo': lo, 'hi': hi, **_contact(where, key, bm)})
     spheres = c.get('spheres', [])
     if not isinstance(spheres, list):
         raise where.error('colliders.spheres', f'must be a list, got {_fmt(spheres)}')
     for i, s in enumerate(spheres):
         key = f'colliders.spheres[{i}]'
-        sm = where.mapping(key, s, ('center', 'radius'))
+        sm = where.mapping(key, s, ('center', 'radius', 'friction', 'restitution'))
         out['spheres'].append({
             'center': where.vector(f'{key}.center', sm.get('center'), 3),
-            'radius': where.number(f'{key}.radius', sm.get('radius'), gt=0.0)})
+            'radius': where.number(f'{key}.radius', sm.get('radius'), gt=0.0),
+            **_contact(where, key, sm)})
     return out
+
+
+def _contact(where: _Where, key: str, m: Mapping[str, Any]) -> Dict[str, float]:
+    """Friction (default 0.5) and restitution (default 0) of a box or sphere collider."""
+    return {'friction': where.number(f'{key}.friction', m.get('friction', 0.5), ge=0.0),
+            'restitution': where.number(f'{key}.restitution', m.get('restitution', 0.0),
+                                        ge=0.0, le=1.0)}
 
 
 def _parse_overrides(w: _Where, b: Mapping[str, Any]) -> Dict[str, Any]:
@@ -728,9 +736,11 @@ def build_world(spec: SceneSpec, defaults: Optional[Mapping[str, Any]] = None):
     world = World(gravity=tuple(float(g) for g in d['gravity']))
     world.set_colliders(
         ground=ground_from(spec.colliders.get('ground'), d),
-        boxes=[Box(lo=tuple(b['lo']), hi=tuple(b['hi']))
+        boxes=[Box(lo=tuple(b['lo']), hi=tuple(b['hi']), friction=b.get('friction', 0.5),
+                   restitution=b.get('restitution', 0.0))
                for b in spec.colliders.get('boxes', [])],
-        spheres=[Sphere(center=tuple(s['center']), radius=float(s['radius']))
+        spheres=[Sphere(center=tuple(s['center']), radius=float(s['radius']),
+                        friction=s.get('friction', 0.5), restitution=s.get('restitution', 0.0))
                  for s in spec.colliders.get('spheres', [])])
     metas = [add_spec_body(world, b, d, spec.source) for b in spec.bodies]
     return world, metas

@@ -184,6 +184,7 @@ def test_colliders_parse():
     assert c['ground'] == {'enabled': True, 'height': -0.5, 'friction': 0.2}
     assert np.allclose(c['boxes'][1]['lo'], -1) and np.allclose(c['boxes'][1]['hi'], 1)
     assert c['spheres'][0]['radius'] == 0.5
+    assert c['spheres'][0]['friction'] == 0.5 and c['boxes'][0]['restitution'] == 0.0
     data['colliders'] = {'ground': False}
     assert parse_scene(data).colliders['ground'] == {'enabled': False}
     assert parse_scene(sponge()).colliders['ground'] is None
@@ -308,6 +309,8 @@ TOP_BAD = [
     ('bodies: [{shape: box}]\ncolliders: {ground: {restitution: 2}}\n',
      'colliders.ground.restitution must be <= 1, got 2'),
     ('bodies: [{shape: box}]\ncolliders: {walls: []}\n', "unknown key 'colliders.walls'"),
+    ('bodies: [{shape: box}]\ncolliders: {spheres: [{center: [0, 0, 0], radius: 1, '
+     'friction: -1}]}\n', 'colliders.spheres[0].friction must be >= 0, got -1'),
     ('bodies: [{shape: box\n', 'invalid YAML'),
     ('bodies: [{shape: box}]\ndescription: 3\n', 'description must be a string'),
 ]
