@@ -327,32 +327,41 @@ class Surface:
 # Voxel downsampling
 # ----------------------------------------------------------------------------------------
 
+def _voxel_keys(points: np.ndarray, lo: np.ndarray, voxel: float) -> np.ndarray:
+    """One int64 key per point naming its voxel (flattened 3-D index, or rows if huge)."""
+    ijk = np.floor((points - lo) / voxel).astype(np.int64)
+    dims = ijk.max(axis=0) + 1
+    if float(dims[0]) * float(dims[1]) * float(dims[2]) < 2.0 ** 62:
+        return (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+    return np.unique(ijk, axis=0, return_inverse=True)[1].reshape(-1)
+
+
 def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     """Centroids of the points in each occupied cubic voxel of edge `voxel` (m)."""
     points = np.asarray(points, dtype=np.float64)
     if voxel <= 0.0 or len(points) == 0:
         return points.copy()
-    keys = np.floor((points - points.min(axis=0)) / voxel).astype(np.int64)
-    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    keys = _voxel_keys(points, points.min(axis=0), voxel)
+    _, inv, counts = np.unique(keys, return_inverse=True, return_counts=True)
     inv = inv.reshape(-1)
-    out = np.zeros((len(counts), 3))
-    np.add.at(out, inv, points)
+    out = np.stack([np.bincount(inv, weights=points[:, i], minlength=len(counts))
+                    for i in range(3)], axis=1)
     return out / counts[:, None]
 
 
 def _voxel_count(points: np.ndarray, lo: np.ndarray, voxel: float) -> int:
-    keys = np.floor((points - lo) / voxel).astype(np.int64)
-    dims = keys.max(axis=0) + 1
-    if float(dims[0]) * dims[1] * dims[2] < 2 ** 62:
-        flat = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
-        return int(len(np.unique(flat)))
-    return int(len(np.unique(keys, axis=0)))
+    keys = np.sort(_voxel_keys(points, lo, voxel))
+    return int(np.count_nonzero(np.diff(keys))) + 1
 
 
-def voxel_size_for(points: np.ndarray, max_points: int, iterations: int = 40) -> float:
+def voxel_size_for(points: np.ndarray, max_points: int, tolerance: float = 0.01) -> float:
     """
-    Smallest voxel edge (found by bisection on a log scale) whose downsampling leaves at most
-    `max_points` points; 0.0 if the points already fit.
+    A voxel edge whose downsampling leaves at most `max_points` points; 0.0 if the points
+    already fit.
+
+    Bisection on a log scale between a voxel that leaves too many points and one that
+    leaves few enough, until the two are within `tolerance` (relative) of each other; the
+    larger one is returned, so the cap always holds.
     """
     points = np.asarray(points, dtype=np.float64)
     if max_points < 1:
@@ -363,21 +372,27 @@ def voxel_size_for(points: np.ndarray, max_points: int, iterations: int = 40) ->
     extent = float(np.max(points.max(axis=0) - lo_pt))
     if extent <= 0.0:
         return 1.0  # all points coincide: any voxel gives one point
-    hi = extent * 1.001                      # larger than the extent: a single voxel
+    # first guess: the cap's share of the bounding box's volume (or area, or length)
+    span = np.sort(points.max(axis=0) - lo_pt)[::-1]
+    span = span[span > extent * 1e-6]
+    guess = float(np.prod(span) / max_points) ** (1.0 / len(span))
+    hi = min(max(guess, extent * 1e-9), extent * 1.001)
+    while _voxel_count(points, lo_pt, hi) > max_points:
+        hi *= 2.0
     lo = hi
-    while _voxel_count(points, lo_pt, lo) <= max_points:
+    while True:                               # invariant: count(lo) > max_points
         lo /= 2.0
         if lo < extent * 1e-9:                # only duplicates left: merge them
             return lo
-    # invariant: count(lo) > max_points >= count(hi)
-    for _ in range(iterations):
+        if _voxel_count(points, lo_pt, lo) > max_points:
+            break
+        hi = lo
+    while hi / lo > 1.0 + tolerance:
         mid = math.sqrt(lo * hi)
         if _voxel_count(points, lo_pt, mid) <= max_points:
             hi = mid
         else:
             lo = mid
-        if hi / lo < 1.0 + 1e-4:
-            break
     return hi
 
 
