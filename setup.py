@@ -1,6 +1,5 @@
 """Packaging for sm_ros: a ROS 2 Jazzy node simulating deformable objects (shape matching)."""
 
-from glob import glob
 import os
 
 from setuptools import find_packages
@@ -20,9 +19,14 @@ ROS_WHEELS = [
 ]
 
 
-def config_files(sub):
-    """Return the files directly under config/<sub> (data_files entries are per folder)."""
-    return sorted(p for p in glob(os.path.join('config', sub, '*')) if os.path.isfile(p))
+def config_data_files():
+    """Return data_files entries for everything under config/ (one entry per folder)."""
+    entries = []
+    for folder, _, files in sorted(os.walk('config')):
+        paths = sorted(os.path.join(folder, f) for f in files)
+        if paths:
+            entries.append((os.path.join('share', package_name, folder), paths))
+    return entries
 
 
 setup(
@@ -32,11 +36,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', config_files('')),
-        ('share/' + package_name + '/config/scenes', config_files('scenes')),
-    ],
-    package_data={package_name: ['config/*.yaml', 'config/*.xml', 'config/scenes/*']},
-    include_package_data=True,
+    ] + config_data_files(),
     install_requires=['setuptools', 'numpy', 'numba', 'pyyaml'],
     extras_require={
         'ros': ROS_WHEELS,

@@ -363,10 +363,10 @@ class SimNode(Node):
             raise ConfigError(f'parameter {reason}')
 
         try:
+            self.world, self.metas, self.spec = self._build_scene(self._p['scene'], self._p)
             self.warm_up_s = warm_up()
         except ImportError as exc:
             raise ConfigError(f'the solver core cannot be imported: {exc}') from None
-        self.world, self.metas, self.spec = self._build_scene(self._p['scene'], self._p)
 
         self.cloud = CloudBuffer(self._p['frame_id'])
         self._poses = PoseArray()

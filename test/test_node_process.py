@@ -1,0 +1,96 @@
+"""
+sim_node as a process: exit code 2 and one line for a bad scene or parameter file, a clean
+Ctrl-C (no traceback), and the first cloud seen by another process.
+"""
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+pytest.importorskip('rclpy', reason='ROS 2 wheels not installed (pip install -e .[ros])')
+
+SIM_NODE = os.path.join(os.path.dirname(sys.executable), 'sim_node')
+
+
+def sim_node_cmd(*args):
+    """The console script when installed, else the module."""
+    if os.path.exists(SIM_NODE):
+        return [SIM_NODE, *args]
+    return [sys.executable, '-m', 'sm_ros.node', *args]
+
+
+def run_fail(*args, timeout=120):
+    """Run sim_node expecting it to stop by itself; return (code, stderr lines)."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(201, 230)))
+    proc = subprocess.run(sim_node_cmd(*args), env=env, capture_output=True, text=True,
+                          timeout=timeout)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    return proc.returncode, lines
+
+
+@pytest.mark.parametrize('make_args, expected', [
+    (lambda tmp: ['--ros-args', '--params-file', str(tmp / 'missing.yaml')], 'no such file'),
+    (lambda tmp: ['--ros-args', '--params-file', _write(tmp / 'bad.yaml', 'a: [\n')],
+     'invalid YAML'),
+    (lambda tmp: ['--ros-args', '-p', f'scene:={tmp / "nope.yaml"}'], 'no such scene'),
+    (lambda tmp: ['--ros-args', '-p', 'scene:=' + _write(
+        tmp / 's.yaml', 'bodies:\n  - {name: sponge, shape: box, spacing: -1}\n')],
+     "body 'sponge'"),
+    (lambda tmp: ['--ros-args', '-p', 'alpha:=3.0'], 'alpha'),
+    (lambda tmp: ['--ros-args', '-p', 'mode:=cubic'], 'mode'),
+    (lambda tmp: ['--ros-args', '--params-file', _write(
+        tmp / 'p.yaml', 'sim_node:\n  ros__parameters:\n    rate: "fast"\n')], 'rate'),
+], ids=['missing params file', 'invalid params file', 'missing scene', 'invalid scene',
+        'alpha out of range', 'unknown mode', 'wrong type in params file'])
+def test_bad_configuration_exits_2_with_one_line(tmp_path, make_args, expected):
+    code, lines = run_fail(*make_args(tmp_path))
+    errors = [ln for ln in lines if ln.startswith('sim_node: error:')]
+    assert code == 2, lines
+    assert len(errors) == 1 and expected in errors[0], lines
+    assert not any('Traceback' in ln for ln in lines)
+
+
+def _write(path, text):
+    path.write_text(text)
+    return str(path)
+
+
+def test_first_cloud_then_clean_ctrl_c(warm, tmp_path):
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from sensor_msgs.msg import PointCloud2
+    domain = random.randint(201, 230)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    node = Node('probe', context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    got = []
+    node.create_subscription(PointCloud2, '/points', got.append, 10)
+    proc = subprocess.Popen(sim_node_cmd('--ros-args', '-p', 'rate:=30.0'), env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not got and time.monotonic() < deadline and proc.poll() is None:
+            ex.spin_once(timeout_sec=0.05)
+        assert got, 'no cloud from sim_node'
+        assert got[0].width > 100 and got[0].header.frame_id == 'world'
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    assert proc.returncode == 0, err
+    assert 'Traceback' not in err and 'Traceback' not in out
