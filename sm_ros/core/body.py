@@ -19,6 +19,10 @@ _MODE_ID = {'rigid': 0, 'linear': 1, 'quadratic': 2}
 PARALLEL_MIN_MEMBERSHIPS = 8192
 #: Relative eigenvalue cut-off of the A_qq / A~_qq pseudo-inverses.
 RCOND = 1e-10
+#: A multi-cluster body uses the set layout (``kernels.sets_*``) when its cluster
+#: memberships outnumber its set-cluster pairs by at least this factor (each pair costs
+#: about as much per step as this many memberships).
+SET_LAYOUT_MIN_RATIO = 8
 _EMPTY_I64 = np.zeros(0, dtype=np.int64)
 _EMPTY_I32 = np.zeros(0, dtype=np.int32)
 
@@ -30,6 +34,47 @@ def _as_points(points, name='points'):
     if not np.all(np.isfinite(a)):
         raise ValueError(f'{name} must be finite')
     return a
+
+
+class _SetLayout:
+    """Particles grouped by the set of clusters they belong to (see ``kernels.sets_*``).
+
+    ``sid`` (N,) set of each particle, ``ptr``/``cl`` the clusters of each set (CSR),
+    ``cnt`` their number, ``org`` (S, 3) a rest-space origin per set, ``y0`` (N, 3) the
+    rest offsets from it, ``phi`` (S, 10) sum m phi(y), ``ref`` (S, 3) the reference point
+    of the per-set sums, ``gm`` (S, 3, 10) the goal maps; scratch ``wk``, ``pm``.
+    """
+
+    def __init__(self, x0, m, ptr, cl, c0):
+        n = len(x0)
+        counts = np.diff(ptr)
+        rows = np.repeat(np.arange(n), counts)
+        pad = np.full((n, int(counts.max())), -1, dtype=np.int64)
+        pad[rows, np.arange(len(cl)) - ptr[rows]] = cl
+        uniq, sid = np.unique(pad, axis=0, return_inverse=True)
+        ns = len(uniq)
+        self.sid = np.ascontiguousarray(sid.reshape(-1), dtype=np.int32)
+        valid = uniq >= 0
+        self.cnt = valid.sum(axis=1).astype(np.float64)
+        self.ptr = np.zeros(ns + 1, dtype=np.int64)
+        np.cumsum(valid.sum(axis=1), out=self.ptr[1:])
+        self.cl = np.ascontiguousarray(uniq[valid], dtype=np.int32)
+        pop = np.bincount(self.sid, minlength=ns).astype(np.float64)
+        self.org = np.stack([np.bincount(self.sid, weights=x0[:, j], minlength=ns)
+                             for j in range(3)], axis=1) / pop[:, None]
+        self.y0 = np.ascontiguousarray(x0 - self.org[self.sid])
+        y = self.y0
+        phi = np.stack([np.ones(n), y[:, 0], y[:, 1], y[:, 2], y[:, 0] ** 2, y[:, 1] ** 2,
+                        y[:, 2] ** 2, y[:, 0] * y[:, 1], y[:, 1] * y[:, 2],
+                        y[:, 2] * y[:, 0]], axis=1)
+        self.phi = np.stack([np.bincount(self.sid, weights=m * phi[:, j], minlength=ns)
+                             for j in range(10)], axis=1)
+        self.ref = self.org + c0
+        self.gm = np.zeros((ns, 3, 10))
+        self.wk = np.zeros((2, 3, 10))
+        self.pm = np.zeros((9, 10))
+        self.pairs = len(self.cl)
+        self.part = None
 
 
 class Body:
@@ -146,8 +191,15 @@ class Body:
         self._parallel = memberships >= PARALLEL_MIN_MEMBERSHIPS and numba.get_num_threads() > 1
         nch = numba.get_num_threads() if self._parallel else 1
         nch = max(1, min(nch, n))
+        self._sets = None
+        if p.clusters > 1:
+            sets = _SetLayout(x0, m, self._ptr, self._cl, self._c0)
+            if sets.pairs * SET_LAYOUT_MIN_RATIO <= len(self._cl):
+                self._sets = sets
+                sets.part = np.zeros((nch, len(sets.cnt), 30 if self._quad else 12))
+                nch = 1                        # self._part: the reduced per-cluster sums
         self._part = np.zeros((nch, nk, na))
-        self._err = np.zeros(nch)
+        self._err = np.zeros(len(self._sets.part) if self._sets is not None else nch)
         self._t = np.zeros((nk, 3, 9))
         self._lm = np.zeros((nk, 3, 3))
         self._lb = np.zeros((nk, 3))
@@ -181,7 +233,16 @@ class Body:
         p = self._params
         x, v = self._x, self._v
         s3 = self._s3
-        if self._dirty:
+        sets = self._sets
+        if sets is not None:
+            if self._dirty:
+                acc = K.sets_accumulate_parallel if self._parallel else \
+                    K.sets_accumulate_serial
+                acc(self._quad, x, sets.y0, self.m, sets.sid, sets.ref, sets.part)
+            K.sets_reduce(sets.part, sets.ptr, sets.cl, sets.cnt, sets.phi, sets.ref,
+                          sets.org, self._g, self._hv, self._ref, self._quad, self._part,
+                          sets.wk, sets.pm)
+        elif self._dirty:
             acc = K.accumulate_parallel if self._parallel else K.accumulate_serial
             acc(self._quad, x, self._x0, self.m, self._ptr, self._cl, self._g, self._hv,
                 self._ref, self._part)
@@ -190,6 +251,9 @@ class Body:
             self._g, self._hv, self._scale, self._t, self._lm, self._lb, self._mode, p.beta,
             p.plastic, self._sp, p.plastic_yield, p.plastic_creep, p.plastic_max, h,
             self._changed, self._accbuf, s3[0], s3[1], s3[2], self._m39, self._n4, self._v4)
+        if sets is not None:
+            K.sets_maps(sets.ptr, sets.cl, sets.cnt, sets.org, self._g, self._hv, self._t,
+                        self._lm, self._lb, self._ref, self._quad, sets.gm, sets.ref, sets.pm)
         np.multiply(self._force, 1.0 / self.total_mass, out=self._acc)
         self._acc += gravity
         if self._torque.any():
@@ -206,11 +270,20 @@ class Body:
         kin = len(self._kin_idx) > 0
         if kin:
             K.gather_rows(x, self._kin_idx, self._kin_prev)
-        integ = K.integrate_parallel if self._parallel else K.integrate_serial
-        integ(self._quad, x, v, self._x0, self.m, self._ptr, self._cl, self._g, self._hv,
-              self._t, self._lm, self._lb, self._ref, p.alpha, h, self._acc, self._ang,
-              self._com, self._part, self._err, has_col, ground, boxes, spheres, thresh)
-        if kin:
+        if sets is not None:
+            integ = K.sets_integrate_parallel if self._parallel else K.sets_integrate_serial
+            integ(self._quad, x, v, sets.y0, self.m, sets.sid, sets.gm, sets.ref, p.alpha, h,
+                  self._acc, self._ang, self._com, sets.part, self._err, has_col, ground,
+                  boxes, spheres, thresh)
+        else:
+            integ = K.integrate_parallel if self._parallel else K.integrate_serial
+            integ(self._quad, x, v, self._x0, self.m, self._ptr, self._cl, self._g, self._hv,
+                  self._t, self._lm, self._lb, self._ref, p.alpha, h, self._acc, self._ang,
+                  self._com, self._part, self._err, has_col, ground, boxes, spheres, thresh)
+        if kin and sets is not None:
+            K.sets_kinematic(self._quad, x, v, sets.y0, self.m, sets.sid, sets.ref, sets.part,
+                             self._kin_idx, self._kin_tgt, self._kin_prev, h)
+        elif kin:
             K.apply_kinematic(self._quad, x, v, self._x0, self.m, self._ptr, self._cl,
                               self._g, self._hv, self._ref, self._part, self._kin_idx,
                               self._kin_tgt, self._kin_prev, h)
@@ -218,7 +291,8 @@ class Body:
         self._dirty = False
         if nchanged:
             self._refresh_rest(self._changed)
-            self._dirty = True
+            # the per-set sums do not depend on the rest shape; the per-cluster ones do
+            self._dirty = sets is None
 
     # ------------------------------------------------------------------ state access
     @property

@@ -1112,3 +1112,411 @@ def damp_rigid(x, v, m, ptr, cl, ref, k_damp, lin, w3, m3a, m3b, m3c, m3d):
         v[i, 0] += k_damp * (t0 * inv - v[i, 0])
         v[i, 1] += k_damp * (t1 * inv - v[i, 1])
         v[i, 2] += k_damp * (t2 * inv - v[i, 2])
+
+
+# ---------------------------------------------------------------------------------------
+# Multi-cluster bodies in the set layout.  Particles that belong to the same clusters form
+# a *set* (on the paper's cube grid, (k + 1)^3 sets for k^3 clusters).  Inside a set every
+# cluster's goal is a polynomial of the particle's rest offset y = x0 - o_s (degree 1 for
+# rigid/linear, degree 2 for quadratic), so the mean of its clusters' goals (Eq. 23,
+# algorithm.md note) is one 3 x 4 (3 x 10) matrix M_s per set, and the sums each cluster
+# needs (Eq. 7-9, 21) follow from per-set sums U_s = sum m (x - r_s) phi(y)^T with
+# phi(y) = [1, y, y0^2, y1^2, y2^2, y0 y1, y1 y2, y2 y0].  A step then reads and writes each
+# particle once and costs about as much per particle as a single-cluster body, whatever
+# the number of clusters per particle; the per-cluster work moves to the few set-cluster
+# pairs (``sets_reduce``, ``sets_maps``).  ``part`` is (chunks, sets, 3 * nphi).
+# ---------------------------------------------------------------------------------------
+
+@njit(**JIT)
+def _feature_map(g, hv, k, o0, o1, o2, quad, pm):
+    """Cluster k's features in set coordinates: q~ = P phi(y) with P into ``pm`` (9 x 10).
+
+    q-hat = G_k (y + o) + h_k = G_k y + b; the quadratic rows expand q-hat_a q-hat_c.
+    """
+    for a in range(3):
+        pm[a, 0] = g[k, a, 0] * o0 + g[k, a, 1] * o1 + g[k, a, 2] * o2 + hv[k, a]
+        pm[a, 1] = g[k, a, 0]
+        pm[a, 2] = g[k, a, 1]
+        pm[a, 3] = g[k, a, 2]
+    if not quad:
+        return
+    for a in range(3):
+        for l in range(4, 10):
+            pm[a, l] = 0.0
+    for r in range(6):
+        a = r if r < 3 else r - 3                  # features 3..8: q0^2, q1^2, q2^2,
+        c = r if r < 3 else (r - 2) % 3            # q0 q1, q1 q2, q2 q0
+        ba = pm[a, 0]
+        bc = pm[c, 0]
+        row = 3 + r
+        pm[row, 0] = ba * bc
+        for j in range(3):
+            pm[row, 1 + j] = ba * g[k, c, j] + bc * g[k, a, j]
+            pm[row, 4 + j] = g[k, a, j] * g[k, c, j]
+        pm[row, 7] = g[k, a, 0] * g[k, c, 1] + g[k, a, 1] * g[k, c, 0]
+        pm[row, 8] = g[k, a, 1] * g[k, c, 2] + g[k, a, 2] * g[k, c, 1]
+        pm[row, 9] = g[k, a, 2] * g[k, c, 0] + g[k, a, 0] * g[k, c, 2]
+
+
+@njit(**JIT)
+def sets_reduce(part, sptr, scl, scnt, sphi, sref, sorg, g, hv, ref, quad, out, wk, pm):
+    """Per-cluster accumulators ``out`` (1, clusters, 12 or 30) from the per-set sums.
+
+    sum_{i in s} w (x - ref_k) phi^T = (U_s + (r_s - ref_k) Phi_s^T) / n_s (w = m / n_s),
+    then mapped to cluster k's features by its P.  ``wk`` (2, 3, 10), ``pm`` (9, 10).
+    """
+    nch = part.shape[0]
+    ns = part.shape[1]
+    nphi = 10 if quad else 4
+    nq = 9 if quad else 3
+    for k in range(out.shape[1]):
+        for a in range(out.shape[2]):
+            out[0, k, a] = 0.0
+    u = wk[0]
+    vb = wk[1]
+    for s in range(ns):
+        for a in range(3):
+            for l in range(nphi):
+                acc = 0.0
+                for c in range(nch):
+                    acc += part[c, s, a * nphi + l]
+                u[a, l] = acc
+        inv_n = 1.0 / scnt[s]
+        for j in range(sptr[s], sptr[s + 1]):
+            k = scl[j]
+            _feature_map(g, hv, k, sorg[s, 0], sorg[s, 1], sorg[s, 2], quad, pm)
+            for a in range(3):
+                dr = sref[s, a] - ref[k, a]
+                for l in range(nphi):
+                    vb[a, l] = inv_n * (u[a, l] + dr * sphi[s, l])
+                out[0, k, a] += vb[a, 0]
+                for jj in range(nq):
+                    acc = 0.0
+                    for l in range(nphi):
+                        acc += vb[a, l] * pm[jj, l]
+                    out[0, k, 3 + a * nq + jj] += acc
+
+
+@njit(**JIT)
+def sets_maps(sptr, scl, scnt, sorg, g, hv, t, lm, lb, ref, quad, gm, sref, pm):
+    """Goal maps ``gm`` (sets, 3, 10): mean over the set's clusters of each goal polynomial.
+
+    Also ``sref`` <- mean of the set's cluster centres (the reference point of the per-set
+    sums of the next step).
+    """
+    ns = gm.shape[0]
+    nphi = 10 if quad else 4
+    for s in range(ns):
+        for a in range(3):
+            sref[s, a] = 0.0
+            for l in range(nphi):
+                gm[s, a, l] = 0.0
+        o0, o1, o2 = sorg[s, 0], sorg[s, 1], sorg[s, 2]
+        for j in range(sptr[s], sptr[s + 1]):
+            k = scl[j]
+            for a in range(3):
+                sref[s, a] += ref[k, a]
+            if quad:
+                # goal_k = T_k q~ + lb_k = (T_k P) phi + lb_k
+                _feature_map(g, hv, k, o0, o1, o2, True, pm)
+                for a in range(3):
+                    for l in range(10):
+                        acc = 0.0
+                        for jj in range(9):
+                            acc += t[k, a, jj] * pm[jj, l]
+                        gm[s, a, l] += acc
+                    gm[s, a, 0] += lb[k, a]
+            else:
+                # goal_k = lm_k x0 + lb_k with x0 = y + o
+                for a in range(3):
+                    gm[s, a, 0] += (lm[k, a, 0] * o0 + lm[k, a, 1] * o1 + lm[k, a, 2] * o2
+                                    + lb[k, a])
+                    gm[s, a, 1] += lm[k, a, 0]
+                    gm[s, a, 2] += lm[k, a, 1]
+                    gm[s, a, 3] += lm[k, a, 2]
+        inv_n = 1.0 / scnt[s]
+        for a in range(3):
+            sref[s, a] *= inv_n
+            for l in range(nphi):
+                gm[s, a, l] *= inv_n
+
+
+@njit(**JIT)
+def _sets_int_range(start, end, quad, x, v, y0, sid, gm, alpha, h, acc, ang, com):
+    """Eq. 13-14 for particles start..end with the set goal maps; returns sum |g - x|^2."""
+    ah = alpha / h
+    ax, ay, az = acc[0], acc[1], acc[2]
+    w0, w1, w2 = ang[0], ang[1], ang[2]
+    c0, c1, c2 = com[0], com[1], com[2]
+    e2 = 0.0
+    for i in range(start, end):
+        s = sid[i]
+        y_0, y_1, y_2 = y0[i, 0], y0[i, 1], y0[i, 2]
+        g0 = gm[s, 0, 0] + gm[s, 0, 1] * y_0 + gm[s, 0, 2] * y_1 + gm[s, 0, 3] * y_2
+        g1 = gm[s, 1, 0] + gm[s, 1, 1] * y_0 + gm[s, 1, 2] * y_1 + gm[s, 1, 3] * y_2
+        g2 = gm[s, 2, 0] + gm[s, 2, 1] * y_0 + gm[s, 2, 2] * y_1 + gm[s, 2, 3] * y_2
+        if quad:
+            f4 = y_0 * y_0
+            f5 = y_1 * y_1
+            f6 = y_2 * y_2
+            f7 = y_0 * y_1
+            f8 = y_1 * y_2
+            f9 = y_2 * y_0
+            g0 += (gm[s, 0, 4] * f4 + gm[s, 0, 5] * f5 + gm[s, 0, 6] * f6 + gm[s, 0, 7] * f7
+                   + gm[s, 0, 8] * f8 + gm[s, 0, 9] * f9)
+            g1 += (gm[s, 1, 4] * f4 + gm[s, 1, 5] * f5 + gm[s, 1, 6] * f6 + gm[s, 1, 7] * f7
+                   + gm[s, 1, 8] * f8 + gm[s, 1, 9] * f9)
+            g2 += (gm[s, 2, 4] * f4 + gm[s, 2, 5] * f5 + gm[s, 2, 6] * f6 + gm[s, 2, 7] * f7
+                   + gm[s, 2, 8] * f8 + gm[s, 2, 9] * f9)
+        p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
+        e0 = g0 - p0
+        e1 = g1 - p1
+        ee = g2 - p2
+        e2 += e0 * e0 + e1 * e1 + ee * ee
+        r0 = p0 - c0
+        r1 = p1 - c1
+        r2 = p2 - c2
+        v0 = v[i, 0] + ah * e0 + h * (ax + w1 * r2 - w2 * r1)
+        v1 = v[i, 1] + ah * e1 + h * (ay + w2 * r0 - w0 * r2)
+        v2 = v[i, 2] + ah * ee + h * (az + w0 * r1 - w1 * r0)
+        p0 += h * v0
+        p1 += h * v1
+        p2 += h * v2
+        x[i, 0] = p0
+        x[i, 1] = p1
+        x[i, 2] = p2
+        v[i, 0] = v0
+        v[i, 1] = v1
+        v[i, 2] = v2
+    return e2
+
+
+@njit(**JIT)
+def _sets_acc_lin(start, end, x, y0, m, sid, sref, pc):
+    """U_s += m (x - r_s) [1, y]^T for particles start..end, runs of one set in registers."""
+    i = start
+    while i < end:
+        s = sid[i]
+        r0, r1, r2 = sref[s, 0], sref[s, 1], sref[s, 2]
+        a00 = a01 = a02 = a03 = 0.0
+        a10 = a11 = a12 = a13 = 0.0
+        a20 = a21 = a22 = a23 = 0.0
+        while i < end and sid[i] == s:
+            w = m[i]
+            d0 = w * (x[i, 0] - r0)
+            d1 = w * (x[i, 1] - r1)
+            d2 = w * (x[i, 2] - r2)
+            y_0, y_1, y_2 = y0[i, 0], y0[i, 1], y0[i, 2]
+            a00 += d0
+            a01 += d0 * y_0
+            a02 += d0 * y_1
+            a03 += d0 * y_2
+            a10 += d1
+            a11 += d1 * y_0
+            a12 += d1 * y_1
+            a13 += d1 * y_2
+            a20 += d2
+            a21 += d2 * y_0
+            a22 += d2 * y_1
+            a23 += d2 * y_2
+            i += 1
+        pc[s, 0] += a00
+        pc[s, 1] += a01
+        pc[s, 2] += a02
+        pc[s, 3] += a03
+        pc[s, 4] += a10
+        pc[s, 5] += a11
+        pc[s, 6] += a12
+        pc[s, 7] += a13
+        pc[s, 8] += a20
+        pc[s, 9] += a21
+        pc[s, 10] += a22
+        pc[s, 11] += a23
+
+
+@njit(**JIT)
+def _sets_acc_quad(start, end, x, y0, m, sid, sref, pc):
+    """U_s += m (x - r_s) phi(y)^T (3 x 10) for particles start..end."""
+    i = start
+    while i < end:
+        s = sid[i]
+        r0, r1, r2 = sref[s, 0], sref[s, 1], sref[s, 2]
+        a00 = a01 = a02 = a03 = a04 = a05 = a06 = a07 = a08 = a09 = 0.0
+        a10 = a11 = a12 = a13 = a14 = a15 = a16 = a17 = a18 = a19 = 0.0
+        a20 = a21 = a22 = a23 = a24 = a25 = a26 = a27 = a28 = a29 = 0.0
+        while i < end and sid[i] == s:
+            w = m[i]
+            d0 = w * (x[i, 0] - r0)
+            d1 = w * (x[i, 1] - r1)
+            d2 = w * (x[i, 2] - r2)
+            y_0, y_1, y_2 = y0[i, 0], y0[i, 1], y0[i, 2]
+            f4 = y_0 * y_0
+            f5 = y_1 * y_1
+            f6 = y_2 * y_2
+            f7 = y_0 * y_1
+            f8 = y_1 * y_2
+            f9 = y_2 * y_0
+            a00 += d0
+            a01 += d0 * y_0
+            a02 += d0 * y_1
+            a03 += d0 * y_2
+            a04 += d0 * f4
+            a05 += d0 * f5
+            a06 += d0 * f6
+            a07 += d0 * f7
+            a08 += d0 * f8
+            a09 += d0 * f9
+            a10 += d1
+            a11 += d1 * y_0
+            a12 += d1 * y_1
+            a13 += d1 * y_2
+            a14 += d1 * f4
+            a15 += d1 * f5
+            a16 += d1 * f6
+            a17 += d1 * f7
+            a18 += d1 * f8
+            a19 += d1 * f9
+            a20 += d2
+            a21 += d2 * y_0
+            a22 += d2 * y_1
+            a23 += d2 * y_2
+            a24 += d2 * f4
+            a25 += d2 * f5
+            a26 += d2 * f6
+            a27 += d2 * f7
+            a28 += d2 * f8
+            a29 += d2 * f9
+            i += 1
+        pc[s, 0] += a00
+        pc[s, 1] += a01
+        pc[s, 2] += a02
+        pc[s, 3] += a03
+        pc[s, 4] += a04
+        pc[s, 5] += a05
+        pc[s, 6] += a06
+        pc[s, 7] += a07
+        pc[s, 8] += a08
+        pc[s, 9] += a09
+        pc[s, 10] += a10
+        pc[s, 11] += a11
+        pc[s, 12] += a12
+        pc[s, 13] += a13
+        pc[s, 14] += a14
+        pc[s, 15] += a15
+        pc[s, 16] += a16
+        pc[s, 17] += a17
+        pc[s, 18] += a18
+        pc[s, 19] += a19
+        pc[s, 20] += a20
+        pc[s, 21] += a21
+        pc[s, 22] += a22
+        pc[s, 23] += a23
+        pc[s, 24] += a24
+        pc[s, 25] += a25
+        pc[s, 26] += a26
+        pc[s, 27] += a27
+        pc[s, 28] += a28
+        pc[s, 29] += a29
+
+
+@njit(**JIT)
+def _sets_acc_range(start, end, quad, x, y0, m, sid, sref, pc):
+    if quad:
+        _sets_acc_quad(start, end, x, y0, m, sid, sref, pc)
+    else:
+        _sets_acc_lin(start, end, x, y0, m, sid, sref, pc)
+
+
+@njit(**JIT)
+def _sets_acc_chunk(c, nch, quad, x, y0, m, sid, sref, part):
+    n = x.shape[0]
+    pc = part[c]
+    for s in range(pc.shape[0]):
+        for j in range(pc.shape[1]):
+            pc[s, j] = 0.0
+    _sets_acc_range((c * n) // nch, ((c + 1) * n) // nch, quad, x, y0, m, sid, sref, pc)
+
+
+@njit(**JIT)
+def sets_accumulate_serial(quad, x, y0, m, sid, sref, part):
+    """Per-set sums of the current state (when it was changed outside a step), one thread."""
+    nch = part.shape[0]
+    for c in range(nch):
+        _sets_acc_chunk(c, nch, quad, x, y0, m, sid, sref, part)
+
+
+@njit(parallel=True, **JIT)
+def sets_accumulate_parallel(quad, x, y0, m, sid, sref, part):
+    """Per-set sums of the current state, one chunk per thread."""
+    nch = part.shape[0]
+    for c in prange(nch):
+        _sets_acc_chunk(c, nch, quad, x, y0, m, sid, sref, part)
+
+
+@njit(**JIT)
+def _sets_int_chunk(c, nch, quad, x, v, y0, m, sid, gm, sref, alpha, h, acc, ang, com, part,
+                    err, has_col, ground, boxes, spheres, thresh):
+    """Integrate, collide and accumulate a chunk block by block (one pass over memory)."""
+    n = x.shape[0]
+    start = (c * n) // nch
+    end = ((c + 1) * n) // nch
+    pc = part[c]
+    for s in range(pc.shape[0]):
+        for j in range(pc.shape[1]):
+            pc[s, j] = 0.0
+    e2 = 0.0
+    for bs in range(start, end, BLOCK):
+        be = min(bs + BLOCK, end)
+        e2 += _sets_int_range(bs, be, quad, x, v, y0, sid, gm, alpha, h, acc, ang, com)
+        if has_col:
+            _collide_range(bs, be, x, v, ground, boxes, spheres, thresh)
+        _sets_acc_range(bs, be, quad, x, y0, m, sid, sref, pc)
+    err[c] = e2
+
+
+@njit(**JIT)
+def sets_integrate_serial(quad, x, v, y0, m, sid, gm, sref, alpha, h, acc, ang, com, part,
+                          err, has_col, ground, boxes, spheres, thresh):
+    """Fused step pass of a set-layout body, one thread."""
+    nch = part.shape[0]
+    for c in range(nch):
+        _sets_int_chunk(c, nch, quad, x, v, y0, m, sid, gm, sref, alpha, h, acc, ang, com,
+                        part, err, has_col, ground, boxes, spheres, thresh)
+
+
+@njit(parallel=True, **JIT)
+def sets_integrate_parallel(quad, x, v, y0, m, sid, gm, sref, alpha, h, acc, ang, com, part,
+                            err, has_col, ground, boxes, spheres, thresh):
+    """Fused step pass of a set-layout body, one chunk per thread."""
+    nch = part.shape[0]
+    for c in prange(nch):
+        _sets_int_chunk(c, nch, quad, x, v, y0, m, sid, gm, sref, alpha, h, acc, ang, com,
+                        part, err, has_col, ground, boxes, spheres, thresh)
+
+
+@njit(**JIT)
+def sets_kinematic(quad, x, v, y0, m, sid, sref, part, idx, tgt, prev, h):
+    """Kinematic particles onto their targets; their per-set sums moved to the target."""
+    pc = part[0]
+    for p in range(idx.shape[0]):
+        i = idx[p]
+        s = sid[i]
+        w = m[i]
+        y_0, y_1, y_2 = y0[i, 0], y0[i, 1], y0[i, 2]
+        nphi = 10 if quad else 4
+        for a in range(3):
+            d = w * (tgt[p, a] - x[i, a])
+            pc[s, a * nphi] += d
+            pc[s, a * nphi + 1] += d * y_0
+            pc[s, a * nphi + 2] += d * y_1
+            pc[s, a * nphi + 3] += d * y_2
+            if quad:
+                pc[s, a * nphi + 4] += d * y_0 * y_0
+                pc[s, a * nphi + 5] += d * y_1 * y_1
+                pc[s, a * nphi + 6] += d * y_2 * y_2
+                pc[s, a * nphi + 7] += d * y_0 * y_1
+                pc[s, a * nphi + 8] += d * y_1 * y_2
+                pc[s, a * nphi + 9] += d * y_2 * y_0
+        for a in range(3):
+            v[i, a] = (tgt[p, a] - prev[p, a]) / h
+            x[i, a] = tgt[p, a]
