@@ -15,8 +15,12 @@ from .clusters import build_memberships
 from .params import BodyParams
 
 _MODE_ID = {'rigid': 0, 'linear': 1, 'quadratic': 2}
-#: Bodies with at least this many cluster memberships run the multi-threaded kernels.
-PARALLEL_MIN_MEMBERSHIPS = 8192
+#: Bodies with at least this much work per step (particles, or cluster memberships on the
+#: membership path) run the multi-threaded kernels.  Below it a step takes well under a
+#: millisecond on one thread, and on a loaded machine (other nodes on the same cores) the
+#: threads' fork/join waits cost far more than they save: on 2 shared cores, 100k particles
+#: took 1.5 ms/step (median) on one thread and 13 ms on two (benchmarks.md).
+PARALLEL_MIN_WORK = 262144
 #: Relative eigenvalue cut-off of the A_qq / A~_qq pseudo-inverses.
 RCOND = 1e-10
 #: A multi-cluster body uses the set layout (``kernels.sets_*``) when its cluster
@@ -187,17 +191,19 @@ class Body:
         self._changed = np.ones(nk, dtype=np.bool_)
         self._refresh_rest(self._changed)
         na = 30 if self._quad else 12
-        memberships = n if p.clusters == 1 else len(self._cl)
-        self._parallel = memberships >= PARALLEL_MIN_MEMBERSHIPS and numba.get_num_threads() > 1
-        nch = numba.get_num_threads() if self._parallel else 1
-        nch = max(1, min(nch, n))
         self._sets = None
         if p.clusters > 1:
             sets = _SetLayout(x0, m, self._ptr, self._cl, self._c0)
             if sets.pairs * SET_LAYOUT_MIN_RATIO <= len(self._cl):
                 self._sets = sets
-                sets.part = np.zeros((nch, len(sets.cnt), 30 if self._quad else 12))
-                nch = 1                        # self._part: the reduced per-cluster sums
+        # work per step: one unit per particle (one cluster, set layout) or per membership
+        work = len(self._cl) if p.clusters > 1 and self._sets is None else n
+        self._parallel = work >= PARALLEL_MIN_WORK and numba.get_num_threads() > 1
+        nch = numba.get_num_threads() if self._parallel else 1
+        nch = max(1, min(nch, n))
+        if self._sets is not None:
+            self._sets.part = np.zeros((nch, len(self._sets.cnt), na))
+            nch = 1                            # self._part: the reduced per-cluster sums
         self._part = np.zeros((nch, nk, na))
         self._err = np.zeros(len(self._sets.part) if self._sets is not None else nch)
         self._t = np.zeros((nk, 3, 9))
