@@ -53,6 +53,9 @@ OVERRIDE_KEYS = ('mode', 'alpha', 'beta', 'clusters', 'plasticity.yield', 'plast
 MODES = ('rigid', 'linear', 'quadratic')
 SHAPES = ('box', 'sphere', 'cylinder', 'capsule', 'sheet', 'rope', 'mesh', 'cloud')
 
+#: Largest `clusters` (cubes per axis), as the core and the node's parameter allow.
+MAX_CLUSTERS = 64
+
 #: Largest total number of particles a scene may have.
 MAX_SCENE_POINTS = 2_000_000
 
@@ -243,7 +246,7 @@ class _Where:
             raise self.error(key, f'must be <= {_fmt(le)}, got {_fmt(value)}')
         return v
 
-    def integer(self, key: str, value: Any, *, ge: int = 1) -> int:
+    def integer(self, key: str, value: Any, *, ge: int = 1, le: Optional[int] = None) -> int:
         if isinstance(value, bool) or not isinstance(value, int):
             if isinstance(value, float) and value.is_integer():
                 value = int(value)
@@ -251,6 +254,8 @@ class _Where:
                 raise self.error(key, f'must be an integer, got {_fmt(value)}')
         if value < ge:
             raise self.error(key, f'must be >= {ge}, got {value}')
+        if le is not None and value > le:
+            raise self.error(key, f'must be <= {le}, got {value}')
         return int(value)
 
     def vector(self, key: str, value: Any, n: int, *, gt: Optional[float] = None
@@ -431,7 +436,7 @@ def _parse_overrides(w: _Where, b: Mapping[str, Any]) -> Dict[str, Any]:
         if key in b:
             ov[key] = w.number(key, b[key], ge=0.0, le=1.0)
     if 'clusters' in b:
-        ov['clusters'] = w.integer('clusters', b['clusters'], ge=1)
+        ov['clusters'] = w.integer('clusters', b['clusters'], ge=1, le=MAX_CLUSTERS)
     if 'plasticity' in b:
         p = w.mapping('plasticity', b['plasticity'], ('yield', 'creep', 'max'))
         for key in ('yield', 'creep', 'max'):

@@ -209,6 +209,7 @@ BAD = [
                         "got 'soft'"),
     (dict(clusters=0), "body 'sponge': clusters must be >= 1, got 0"),
     (dict(clusters=1.5), "body 'sponge': clusters must be an integer, got 1.5"),
+    (dict(clusters=65), "body 'sponge': clusters must be <= 64, got 65"),
     (dict(plasticity={'creep': -1}), "body 'sponge': plasticity.creep must be >= 0, got -1"),
     (dict(plasticity={'yeild': 1}), "body 'sponge': unknown key 'plasticity.yeild'"),
     (dict(mass=-1), "body 'sponge': mass must be > 0, got -1"),

@@ -5,6 +5,7 @@ import pytest
 import yaml
 
 from sm_ros.core import BodyParams, World
+from sm_ros.shapes import voxel_size_for
 from sm_ros.scene import (add_spec_body, build_world, BodySpec, cloud_body_spec, ground_from,
                           load_scene, NODE_DEFAULTS, params_from, parse_scene, resolve_scene,
                           SceneError)
@@ -149,7 +150,8 @@ def test_cloud_body_joins_world_where_the_points_were():
     body = world.body('seen')
     assert meta.name == 'seen' and meta.surface is None
     assert 0 < body.n <= 500
-    assert np.allclose(body.com(), pts.mean(axis=0), atol=0.02)
+    voxel = voxel_size_for(pts, 500)
+    assert np.allclose(body.com(), pts.mean(axis=0), atol=voxel / 2)
     run(world, 0.5)
     assert body.is_finite() and body.com()[2] < 0.5
 
