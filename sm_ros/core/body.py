@@ -27,6 +27,8 @@ RCOND = 1e-10
 #: memberships outnumber its set-cluster pairs by at least this factor (each pair costs
 #: about as much per step as this many memberships).
 SET_LAYOUT_MIN_RATIO = 8
+#: Single-cluster quadratic bodies use the set layout too (one set).
+SINGLE_QUADRATIC_SETS = True
 _EMPTY_I64 = np.zeros(0, dtype=np.int64)
 _EMPTY_I32 = np.zeros(0, dtype=np.int32)
 
@@ -206,6 +208,11 @@ class Body:
             sets = _SetLayout(x0, m, self._ptr, self._cl, self._c0)
             if sets.pairs * SET_LAYOUT_MIN_RATIO <= len(self._cl):
                 self._sets = sets
+        elif self._quad and SINGLE_QUADRATIC_SETS:
+            # one set: the quadratic goal as one polynomial of x0 (27 multiply-adds less
+            # per particle than features-then-transform)
+            self._sets = _SetLayout(x0, m, np.arange(n + 1, dtype=np.int64),
+                                    np.zeros(n, dtype=np.int32), self._c0)
         # work per step: one unit per particle (one cluster, set layout) or per membership
         work = len(self._cl) if p.clusters > 1 and self._sets is None else n
         self._parallel = work >= PARALLEL_MIN_WORK and numba.get_num_threads() > 1
