@@ -439,13 +439,25 @@ class SimNode(Node):
         return {k: values[k] for k in SCENE_DEFAULT_KEYS}
 
     def _build_scene(self, name: str, values: Dict[str, Any]):
-        """Load and build a scene; raise ConfigError with the loader's message."""
+        """
+        Load and build a scene; raise ConfigError with the loader's message.
+
+        The scene is built twice: the first world takes one step and is dropped, so that
+        every kernel specialisation the real world needs is compiled or loaded from the
+        cache before the first tick (a copy would not do: its arrays' types differ).
+        """
         scene = scene_api()
+        defaults = self._scene_defaults(values)
         try:
             spec = scene.load_scene(name)
-            world, metas = scene.build_world(spec, self._scene_defaults(values))
+            throwaway, _ = scene.build_world(spec, defaults)
+            world, metas = scene.build_world(spec, defaults)
         except ValueError as exc:
             raise ConfigError(f'scene: {exc}') from None
+        try:
+            throwaway.step(float(values['dt']))
+        except Exception as exc:  # noqa: B902 - warming must never stop a good scene
+            self.get_logger().warn(f'scene warm-up step failed: {exc}')
         return world, metas, spec
 
     def _check_body_params(self, values: Dict[str, Any]) -> Optional[str]:
@@ -910,10 +922,16 @@ class SimNode(Node):
                 k += 1
                 name = f'cloud_in_{k}'
         defaults = self._scene_defaults(self._p)
+        from sm_ros.core import World
         try:
             body_spec = scene.cloud_body_spec(points, int(self._p['max_points']), name)
+            # a throwaway copy takes one step first, so the first tick pays no compilation
+            scratch = World(gravity=tuple(float(g) for g in self.world.gravity))
+            scratch.set_colliders(ground=self.world.ground, boxes=self.world.boxes,
+                                  spheres=self.world.spheres)
+            scene.add_spec_body(scratch, body_spec, defaults, 'cloud_in')
+            scratch.step(float(self._p['dt']))
             if mode == 'replace':
-                from sm_ros.core import World
                 world = World(gravity=tuple(float(g) for g in self.world.gravity))
                 world.set_colliders(ground=self.world.ground, boxes=self.world.boxes,
                                     spheres=self.world.spheres)
