@@ -225,7 +225,7 @@ class CloudBuffer:
 
     @property
     def frame_id(self) -> str:
-        """Frame of the published cloud."""
+        """Return the frame of the published cloud."""
         return self.msg.header.frame_id
 
     @frame_id.setter
@@ -234,12 +234,12 @@ class CloudBuffer:
 
     @property
     def xyz(self) -> np.ndarray:
-        """The (N, 3) float32 view of the positions in the message buffer."""
+        """Return the (N, 3) float32 view of the positions in the message buffer."""
         return self._xyz
 
     @property
     def body(self) -> np.ndarray:
-        """The (N,) uint32 view of the body index column in the message buffer."""
+        """Return the (N,) uint32 view of the body index column in the message buffer."""
         return self._body
 
     def _resize(self, sizes: Tuple[int, ...]) -> None:

@@ -23,6 +23,8 @@ from builtin_interfaces.msg import Time as TimeMsg
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, WrenchStamped
 import numpy as np
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType, SetParametersResult)
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
@@ -30,18 +32,15 @@ from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterVal
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, qos_profile_sensor_data, ReliabilityPolicy
+from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType, SetParametersResult)
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import PointCloud2
+from sm_ros.cloud import CloudBuffer, CloudError, read_xyz
+from sm_ros.diagnostics import diagnostic_array, solver_status, TickStats
 from std_msgs.msg import ColorRGBA, String
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker, MarkerArray
-
-from sm_ros.cloud import CloudBuffer, CloudError, read_xyz
-from sm_ros.diagnostics import diagnostic_array, solver_status, TickStats
 
 NODE_NAME = 'sim_node'
 MODES = ('rigid', 'linear', 'quadratic')
@@ -93,8 +92,8 @@ class Param:
     read_only: bool = False
 
     @property
-    def type(self) -> int:
-        """The ParameterType of the default."""
+    def ros_type(self) -> int:
+        """Return the ParameterType of the default."""
         d = self.default
         if isinstance(d, bool):
             return ParameterType.PARAMETER_BOOL
@@ -108,44 +107,44 @@ class Param:
 
     @property
     def type_name(self) -> str:
-        """The type as the README's parameter table writes it."""
+        """Return the type as the README's parameter table writes it."""
         return {ParameterType.PARAMETER_BOOL: 'bool',
                 ParameterType.PARAMETER_INTEGER: 'integer',
                 ParameterType.PARAMETER_DOUBLE: 'double',
                 ParameterType.PARAMETER_STRING: 'string',
-                ParameterType.PARAMETER_DOUBLE_ARRAY: 'double[3]'}[self.type]
+                ParameterType.PARAMETER_DOUBLE_ARRAY: 'double[3]'}[self.ros_type]
 
     def descriptor(self) -> ParameterDescriptor:
-        """The ParameterDescriptor ``ros2 param describe`` shows."""
+        """Return the ParameterDescriptor that ``ros2 param describe`` shows."""
         text = self.description
         if self.choices:
             text += ' (one of: ' + ', '.join(self.choices) + ')'
         if self.positive:
             text += f' (must be > {self.lo:g})'
-        d = ParameterDescriptor(name=self.name, type=self.type, description=text,
+        d = ParameterDescriptor(name=self.name, type=self.ros_type, description=text,
                                 read_only=self.read_only)
-        if self.lo is not None and self.type == ParameterType.PARAMETER_DOUBLE:
+        if self.lo is not None and self.ros_type == ParameterType.PARAMETER_DOUBLE:
             d.floating_point_range = [FloatingPointRange(
                 from_value=float(self.lo), to_value=float(self.hi), step=0.0)]
-        elif self.lo is not None and self.type == ParameterType.PARAMETER_INTEGER:
+        elif self.lo is not None and self.ros_type == ParameterType.PARAMETER_INTEGER:
             d.integer_range = [IntegerRange(from_value=int(self.lo), to_value=int(self.hi),
                                             step=1)]
         return d
 
     def check(self, value: Any) -> Optional[str]:
         """Return why ``value`` is refused, or None (ranges beyond the descriptor's)."""
-        if self.type == ParameterType.PARAMETER_DOUBLE:
+        if self.ros_type == ParameterType.PARAMETER_DOUBLE:
             if not math.isfinite(value):
                 return f'{self.name} must be finite, got {value}'
             if self.positive and value <= self.lo:
                 return f'{self.name} must be > {self.lo:g}, got {value}'
-        elif self.type == ParameterType.PARAMETER_INTEGER and self.positive:
+        elif self.ros_type == ParameterType.PARAMETER_INTEGER and self.positive:
             if value <= self.lo:
                 return f'{self.name} must be > {self.lo}, got {value}'
-        elif self.type == ParameterType.PARAMETER_STRING and self.choices:
+        elif self.ros_type == ParameterType.PARAMETER_STRING and self.choices:
             if value not in self.choices:
                 return f"{self.name} must be one of {', '.join(self.choices)}, got '{value}'"
-        elif self.type == ParameterType.PARAMETER_DOUBLE_ARRAY:
+        elif self.ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY:
             v = list(value)
             if len(v) != 3:
                 return f'{self.name} must have 3 values, got {len(v)}'
@@ -414,22 +413,22 @@ class SimNode(Node):
 
     @property
     def num_points(self) -> int:
-        """Total number of particles of all bodies."""
+        """Return the total number of particles of all bodies."""
         return int(sum(b.n for b in self.world.bodies))
 
     @property
     def sim_time(self) -> float:
-        """Simulation time in seconds (monotonic across resets and scene changes)."""
+        """Return the simulation time in seconds (monotonic across resets and scenes)."""
         return self._sim_ns * 1e-9
 
     @property
     def grippers(self) -> Dict[str, List[_Attachment]]:
-        """The attached grippers: name -> attachments per body."""
+        """Return the attached grippers: name -> attachments per body."""
         return self._grippers
 
     def _param_value(self, name: str) -> Any:
         value = self.get_parameter(name).value
-        if PARAM_BY_NAME[name].type == ParameterType.PARAMETER_DOUBLE_ARRAY:
+        if PARAM_BY_NAME[name].ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY:
             value = [float(v) for v in value]
         return value
 
@@ -497,7 +496,7 @@ class SimNode(Node):
             if spec is None:
                 continue
             value = param.value
-            if spec.type == ParameterType.PARAMETER_DOUBLE_ARRAY:
+            if spec.ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY:
                 value = [float(v) for v in value]
             reason = spec.check(value)
             if reason:
@@ -527,7 +526,7 @@ class SimNode(Node):
                 self._pending_scene = self._prepared_scene
                 self._prepared_scene = None
             value = param.value
-            if PARAM_BY_NAME[param.name].type == ParameterType.PARAMETER_DOUBLE_ARRAY:
+            if PARAM_BY_NAME[param.name].ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY:
                 value = [float(v) for v in value]
             self._pending[param.name] = value
 
@@ -740,7 +739,7 @@ class SimNode(Node):
         self._stats.reset_window(time.monotonic())
 
     def solver_status(self):
-        """The '<node name>: solver' DiagnosticStatus of the current window."""
+        """Return the '<node name>: solver' DiagnosticStatus of the current window."""
         bodies = self.world.bodies
         n = self.num_points
         err2 = sum(b.n * float(b.shape_error_rms()) ** 2 for b in bodies)
@@ -851,7 +850,7 @@ class SimNode(Node):
                 if idx.size:
                     attachments.append(_Attachment(body.name, idx, d[idx] @ rot))
             if not attachments:
-                self.refuse('grab', f"no particle within grab_radius {radius:g} m of gripper "
+                self.refuse('grab', f'no particle within grab_radius {radius:g} m of gripper '
                             f"'{name}' at ({pos[0]:g}, {pos[1]:g}, {pos[2]:g})")
                 return
             self._grippers[name] = attachments

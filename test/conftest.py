@@ -107,7 +107,7 @@ class RosHarness:
     # -------------------------------------------------------------- topics and services
 
     def publisher(self, msg_type, topic, qos=10):
-        """A probe publisher on ``topic`` (relative to the namespace), matched to the node."""
+        """Return a probe publisher on ``topic`` (relative to the namespace), matched."""
         key = (msg_type, topic)
         if key not in self._publishers:
             pub = self.probe.create_publisher(msg_type, topic, qos)
@@ -159,7 +159,7 @@ def warm():
 
 @pytest.fixture
 def ros(warm):
-    """A RosHarness for one test; everything is destroyed afterwards."""
+    """Yield a RosHarness for one test; everything is destroyed afterwards."""
     harness = RosHarness()
     try:
         yield harness

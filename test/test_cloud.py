@@ -8,11 +8,11 @@ import pytest
 
 pytest.importorskip('sensor_msgs.msg', reason='ROS message wheels not installed')
 
-from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
+from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402, I100
 from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
-
 from sm_ros.cloud import (CloudBuffer, CloudError, create_cloud, dtype_from_fields,  # noqa
                           POINT_STEP, read_xyz, structured_view)
+
 
 F32, F64, I16, U8, U32 = (PointField.FLOAT32, PointField.FLOAT64, PointField.INT16,
                           PointField.UINT8, PointField.UINT32)

@@ -12,18 +12,18 @@ import pytest
 
 pytest.importorskip('rclpy', reason='ROS 2 wheels not installed (pip install -e .[ros])')
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402, I100
 from geometry_msgs.msg import PoseArray, PoseStamped, WrenchStamped  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
-from std_srvs.srv import SetBool, Trigger  # noqa: E402
-from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
-
 from sm_ros.cloud import create_cloud, read_xyz, structured_view  # noqa: E402
 from sm_ros.diagnostics import KEYS  # noqa: E402
 from sm_ros.node import (matrix_from_quaternion, quaternion_from_matrix,  # noqa: E402
                          SimNode)
+from std_msgs.msg import String  # noqa: E402
+from std_srvs.srv import SetBool, Trigger  # noqa: E402
+from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
+
 
 ZERO_G = [0.0, 0.0, 0.0]
 INTERFACE_KEYS = ('points', 'bodies', 'clusters', 'mode', 'step_ms_mean', 'step_ms_max',
@@ -32,7 +32,7 @@ INTERFACE_KEYS = ('points', 'bodies', 'clusters', 'mode', 'step_ms_mean', 'step_
 
 
 def wrench(frame='', force=(0.0, 0.0, 0.0), torque=(0.0, 0.0, 0.0)):
-    """A WrenchStamped."""
+    """Return a WrenchStamped."""
     msg = WrenchStamped()
     msg.header.frame_id = frame
     w = msg.wrench
@@ -42,7 +42,7 @@ def wrench(frame='', force=(0.0, 0.0, 0.0), torque=(0.0, 0.0, 0.0)):
 
 
 def pose(gripper, position, quaternion=(0.0, 0.0, 0.0, 1.0)):
-    """A PoseStamped for a gripper."""
+    """Return a PoseStamped for a gripper."""
     msg = PoseStamped()
     msg.header.frame_id = gripper
     p, q = msg.pose.position, msg.pose.orientation
@@ -52,7 +52,7 @@ def pose(gripper, position, quaternion=(0.0, 0.0, 0.0, 1.0)):
 
 
 def diag_values(status):
-    """KeyValue list -> dict."""
+    """Return the KeyValue list of a status as a dict."""
     return {kv.key: kv.value for kv in status.values}
 
 

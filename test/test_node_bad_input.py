@@ -1,6 +1,8 @@
 """
-sim_node bad input (interface.md, 'Bad input'): every rule refused with a reason, the
-state unchanged, one throttled warn line naming the topic; non-finite bodies recover.
+Check sim_node's handling of bad input (interface.md, 'Bad input').
+
+Every rule refused with a reason, the state unchanged, one throttled warn line naming the
+topic; non-finite bodies recover.
 """
 
 import array
@@ -11,15 +13,15 @@ import pytest
 
 pytest.importorskip('rclpy', reason='ROS 2 wheels not installed (pip install -e .[ros])')
 
-from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402, I100
 from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
 from rcl_interfaces.msg import Log  # noqa: E402
 from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
+from sm_ros.cloud import create_cloud, read_xyz  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
-from sm_ros.cloud import create_cloud, read_xyz  # noqa: E402
-
 from test_node import pose, wrench  # noqa: E402
+
 
 NAN, INF = float('nan'), float('inf')
 
@@ -53,7 +55,7 @@ def assert_unchanged(node, before):
 
 @pytest.fixture
 def node(ros, two_body_scene):
-    """A paused node on the two-body scene that has a held force and a gripper already."""
+    """Return a paused node on the two-body scene with a held force and a gripper."""
     n = ros.start(two_body_scene, grab_radius=0.03)
     assert ros.send(WrenchStamped, 'force', wrench('soft', (0.0, 0.0, 1.0)),
                     until=lambda: 'soft' in n._forces)

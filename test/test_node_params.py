@@ -1,6 +1,8 @@
 """
-sim_node parameters: each one changes what it should, between two steps; bad values are
-refused with a reason and change nothing.
+Check sim_node's parameters.
+
+Each one changes what it should, between two steps; bad values are refused with a reason
+and change nothing.
 """
 
 import math
@@ -10,13 +12,13 @@ import pytest
 
 pytest.importorskip('rclpy', reason='ROS 2 wheels not installed (pip install -e .[ros])')
 
-from rcl_interfaces.msg import ParameterType  # noqa: E402
+from rcl_interfaces.msg import ParameterType  # noqa: E402, I100
 from rcl_interfaces.srv import DescribeParameters, SetParameters  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
-
 from sm_ros.cloud import create_cloud  # noqa: E402
 from sm_ros.node import PARAMS  # noqa: E402
+
 
 INTERFACE_PARAMS = ('mode', 'alpha', 'beta', 'plasticity.yield', 'plasticity.creep',
                     'plasticity.max', 'clusters', 'dt', 'substeps', 'rate', 'gravity',
@@ -31,7 +33,7 @@ def set_param(node, name, value):
 
 
 def refused(node, name, value, reason=None):
-    """Assert the value is refused (with ``reason`` in the message) and nothing changed."""
+    """Check that a value is not accepted, with ``reason`` in the message, and changes nothing."""
     before = node.get_parameter(name).value
     result = set_param(node, name, value)
     assert not result.successful, f'{name}={value!r} was accepted'

@@ -1,6 +1,8 @@
 """
-sim_node as a process: exit code 2 and one line for a bad scene or parameter file, a clean
-Ctrl-C (no traceback), and the first cloud seen by another process.
+Check sim_node as a process.
+
+Exit code 2 and one line for a bad scene or parameter file, a clean Ctrl-C (no
+traceback), and the first cloud seen by another process.
 """
 
 import os
@@ -18,7 +20,7 @@ SIM_NODE = os.path.join(os.path.dirname(sys.executable), 'sim_node')
 
 
 def sim_node_cmd(*args):
-    """The console script when installed, else the module."""
+    """Return the command: the console script when installed, else the module."""
     if os.path.exists(SIM_NODE):
         return [SIM_NODE, *args]
     return [sys.executable, '-m', 'sm_ros.node', *args]

@@ -1,6 +1,8 @@
 """
-The package: package.xml and setup.py agree, the README tables and config/sim_node.yaml
-match the node, the Fast DDS profile is valid, and colcon builds an installable tree.
+Check the package.
+
+package.xml and setup.py agree, the README tables and config/sim_node.yaml match the
+node, the Fast DDS profile is valid, and colcon builds an installable tree.
 """
 
 import ast
@@ -10,7 +12,7 @@ import re
 import shutil
 import subprocess
 import sys
-import xml.etree.ElementTree as ET
+from xml.etree import ElementTree
 
 import pytest
 import yaml
@@ -25,7 +27,7 @@ ROS_MSG_PACKAGES = ('rclpy', 'std_msgs', 'std_srvs', 'geometry_msgs', 'sensor_ms
 
 
 def setup_kwargs():
-    """The keyword arguments of setup() in setup.py, evaluated without running it."""
+    """Return the keyword arguments of setup() in setup.py, without running it."""
     tree = ast.parse((ROOT / 'setup.py').read_text())
     names = {}
     for node in tree.body:
@@ -123,7 +125,7 @@ def readme_table(heading):
             rows.append([c.strip().strip('`') for c in cells])
         elif rows:
             break
-    return [r for r in rows[2:]]
+    return rows[2:]
 
 
 def _value_text(value):
@@ -161,7 +163,7 @@ def test_readme_parameter_table_matches_the_node():
 
 @pytest.fixture
 def graph(ros, cube_scene):
-    """The topics and services of a running node, names relative to its namespace."""
+    """Return the topics and services of a running node, relative to its namespace."""
     node = ros.start(cube_scene, publish_clock=True)
     ns = ros.namespace + '/'
 
@@ -183,11 +185,11 @@ def graph(ros, cube_scene):
 
 def test_readme_topic_and_service_tables_match_the_node(graph):
     pubs, subs, srvs = graph
-    assert dict((r[0], r[1]) for r in readme_table('### Topics published')) == {
+    assert {r[0]: r[1] for r in readme_table('### Topics published')} == {
         k: v.replace('/msg/', '/') for k, v in pubs.items()}
-    assert dict((r[0], r[1]) for r in readme_table('### Topics subscribed')) == {
+    assert {r[0]: r[1] for r in readme_table('### Topics subscribed')} == {
         k: v.replace('/msg/', '/') for k, v in subs.items()}
-    assert dict((r[0], r[1]) for r in readme_table('### Services')) == {
+    assert {r[0]: r[1] for r in readme_table('### Services')} == {
         k: v.replace('/srv/', '/') for k, v in srvs.items()}
 
 
@@ -218,7 +220,7 @@ def test_config_sim_node_yaml_has_every_parameter_at_its_default():
 
 
 def test_fastdds_profile_gives_large_shm_segments():
-    root = ET.parse(ROOT / 'config' / 'fastdds_shm.xml').getroot()
+    root = ElementTree.parse(ROOT / 'config' / 'fastdds_shm.xml').getroot()
     ns = {'f': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
     shm = [t for t in root.iterfind('.//f:transport_descriptor', ns)
            if t.findtext('f:type', namespaces=ns) == 'SHM']

@@ -1,4 +1,4 @@
-"""
+r"""
 Measure how PointCloud2 messages of sm_ros's layout cross a process boundary.
 
 A publisher (this process) sends clouds of ``--points`` points at ``--rate`` for
@@ -116,7 +116,7 @@ def main(argv=None) -> int:
         proc.stdout.readline()
         result = publisher(args.points, args.rate, args.seconds)
         out = json.loads(proc.communicate(timeout=60)[0].strip().splitlines()[-1])
-        print(f"| {args.points:,} | {args.rate:g} | {profile} | {rel} | "
+        print(f'| {args.points:,} | {args.rate:g} | {profile} | {rel} | '
               f"{out['received']}/{result['sent']} | {out['median_ms']:.1f} | "
               f"{out['p95_ms']:.1f} | {result['publish_ms_mean']:.1f} |", flush=True)
     return 0
