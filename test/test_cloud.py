@@ -164,3 +164,54 @@ class TestCloudBuffer:
         from builtin_interfaces.msg import Time
         msg = CloudBuffer().fill([np.zeros((1, 3))], Time(sec=3, nanosec=5))
         assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (3, 5)
+
+
+# ----------------------------------------------------------------------------------------
+# Property: any layout is read right, any corruption is a CloudError (never another error)
+# ----------------------------------------------------------------------------------------
+
+hypothesis = pytest.importorskip('hypothesis')
+st = hypothesis.strategies
+SIZES = {PointField.INT16: 2, PointField.INT32: 4, PointField.FLOAT32: 4,
+         PointField.FLOAT64: 8}
+
+
+@st.composite
+def layouts(draw):
+    """Draw points and a random layout: field order, types, gaps, endianness, rows."""
+    n = draw(st.integers(1, 30))
+    height = draw(st.sampled_from([h for h in (1, 2, 3) if n % h == 0]))
+    names = draw(st.permutations(['x', 'y', 'z', 'rgb']))
+    fields, offset = [], 0
+    for name in names:
+        offset += draw(st.integers(0, 5))
+        datatype = draw(st.sampled_from(sorted(SIZES)))
+        fields.append(field(name, offset, datatype))
+        offset += SIZES[datatype]
+    point_step = offset + draw(st.integers(0, 7))
+    rng = np.random.default_rng(draw(st.integers(0, 2**16)))
+    pts = np.round(rng.uniform(-100, 100, (n, 3)))          # exact in every datatype
+    return pts, fields, point_step, draw(st.booleans()), height
+
+
+@hypothesis.settings(max_examples=150, deadline=None)
+@hypothesis.given(layouts(), st.integers(0, 3), st.integers(-9, 9))
+def test_random_layouts_and_corruptions(layout, corruption, amount):
+    pts, fields, point_step, bigendian, height = layout
+    msg = create_cloud(pts, fields=fields, point_step=point_step, is_bigendian=bigendian,
+                       height=height)
+    if corruption == 0:
+        np.testing.assert_array_equal(read_xyz(roundtrip(msg)), pts)
+        return
+    if corruption == 1:
+        cut = max(0, len(msg.data) + amount) if amount else len(msg.data) - 1
+        msg.data = array.array('B', bytes(msg.data)[:cut])
+    elif corruption == 2:
+        msg.width = max(0, msg.width + amount)
+    else:
+        msg.point_step = max(0, msg.point_step + amount)
+    try:
+        got = read_xyz(msg)
+    except CloudError:
+        return
+    assert got.shape[1] == 3 and np.isfinite(got).all()
