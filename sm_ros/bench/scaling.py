@@ -111,7 +111,10 @@ def time_numba(n_side: int, mode: str, k: int, min_time: float) -> Dict[str, Any
     batch = max(1, min(50, int(2e5 // n)))
     s = C.time_calls(lambda: world.step(DT), min_time=min_time, batch=batch)
     memberships = len(body._cl) if len(getattr(body, '_cl', ())) else n
+    layout = 'single' if k == 1 else ('sets' if getattr(body, '_sets', None) is not None
+                                      else 'memberships')
     return dict(N=n, mode=mode, k=k, clusters=body.num_clusters, memberships=memberships,
+                layout=layout,
                 ms_median=1e3 * float(np.median(s)), ms_min=1e3 * float(s.min()),
                 ns_per_particle=1e9 * float(np.median(s)) / n, build_s=build_s,
                 parallel=bool(getattr(body, '_parallel', False)),
@@ -183,8 +186,8 @@ def run(args, out: Path) -> Dict[str, Any]:
     bw_best = max(bw['numpy_copy_GBps'], bw['numba_parallel_copy_GBps'])
     findings['bandwidth'] = bw
 
-    t = C.Table('scaling', ['N', 'mode', 'clusters', 'memberships', 'ms_median', 'ms_min',
-                            'ns_per_particle', 'parallel', 'build_s'],
+    t = C.Table('scaling', ['N', 'mode', 'clusters', 'memberships', 'layout', 'ms_median',
+                            'ms_min', 'ns_per_particle', 'parallel', 'build_s'],
                 'ms per step against N (World.step, dt = 5 ms, gravity, no colliders)')
     results: List[Dict[str, Any]] = []
     for n_side in sizes:
@@ -194,7 +197,8 @@ def run(args, out: Path) -> Dict[str, Any]:
                 r = time_numba(n_side, mode, k, args.min_time)
                 results.append(r)
                 t.add(N=r['N'], mode=mode, clusters=r['clusters'],
-                      memberships=r['memberships'], ms_median=r['ms_median'],
+                      memberships=r['memberships'], layout=r['layout'],
+                      ms_median=r['ms_median'],
                       ms_min=r['ms_min'], ns_per_particle=r['ns_per_particle'],
                       parallel=r['parallel'], build_s=r['build_s'])
     t.write(out)
