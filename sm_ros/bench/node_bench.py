@@ -31,6 +31,10 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument('--node-substeps', type=int, default=1)
     p.add_argument('--node-mode', default='linear')
     p.add_argument('--node-clusters', type=int, default=1)
+    p.add_argument('--node-dds-profile', default=None,
+                   help='Fast DDS profile for both processes (default: the repository\'s '
+                        'config/fastdds_shm.xml, as the README recommends for large clouds; '
+                        '"" for the DDS defaults)')
 
 
 def node_ready() -> Optional[str]:
@@ -65,10 +69,27 @@ def scene_yaml(points: int, path: Path):
     return n ** 3
 
 
-def _env() -> Dict[str, str]:
+def dds_profile(flag: Optional[str]) -> Optional[str]:
+    """The Fast DDS profile file to use, or None for the DDS defaults."""
+    if flag == '':
+        return None
+    if flag:
+        return str(Path(flag).resolve())
+    if os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE'):
+        return os.environ['FASTRTPS_DEFAULT_PROFILES_FILE']
+    cand = Path(__file__).resolve().parents[2] / 'config' / 'fastdds_shm.xml'
+    return str(cand) if cand.is_file() else None
+
+
+def _env(profile: Optional[str]) -> Dict[str, str]:
     env = dict(os.environ)
     env.setdefault('ROS_DOMAIN_ID', str(random.randint(101, 200)))
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    if profile:
+        env['RMW_IMPLEMENTATION'] = 'rmw_fastrtps_cpp'
+        env['FASTRTPS_DEFAULT_PROFILES_FILE'] = profile
+    else:
+        env.pop('FASTRTPS_DEFAULT_PROFILES_FILE', None)
     root = str(Path(__file__).resolve().parents[2])
     env['PYTHONPATH'] = root + os.pathsep + env.get('PYTHONPATH', '')
     return env
@@ -78,7 +99,7 @@ def measure(points: int, rate: float, args, tmp: Path) -> Optional[Dict[str, Any
     """Run the node and a subscriber process for one (size, rate)."""
     scene = tmp / f'bench_{points}.yaml'
     scene_yaml(points, scene)
-    env = _env()
+    env = _env(dds_profile(args.node_dds_profile))
     warm = 2.0 + points / 2e5
     py = [sys.executable, '-m', 'sm_ros.bench.node_procs']
     sub_seconds = args.node_seconds + warm + 10.0 + points / 1e5
@@ -117,7 +138,9 @@ def measure(points: int, rate: float, args, tmp: Path) -> Optional[Dict[str, Any
                 rate_hz=node_res['ticks'] / node_res['elapsed_s'],
                 tick_ms_median=med(tick), tick_ms_p95=p95(tick),
                 step_ms_median=med(steps) * sub_steps, fill_ms_median=med(fill),
-                publish_ms_median=med(pub), period_ms=1e3 / rate,
+                publish_ms_median=med(pub),
+                other_ms_median=med(tick) - med(steps) * sub_steps - med(fill) - med(pub),
+                period_ms=1e3 / rate,
                 rx_rate_hz=rx_rate, rx_messages=len(lat),
                 latency_ms_median=1e3 * med(lat), latency_ms_p95=1e3 * p95(lat))
 
@@ -134,10 +157,11 @@ def run(args, out: Path) -> Dict[str, Any]:
     rates = C.as_list(args.node_rates)
     t = C.Table('node', ['points', 'rate_hz_target', 'rate_hz', 'tick_ms_median',
                          'tick_ms_p95', 'step_ms_median', 'fill_ms_median',
-                         'publish_ms_median', 'period_ms', 'rx_rate_hz', 'latency_ms_median',
-                         'latency_ms_p95'],
+                         'publish_ms_median', 'other_ms_median', 'period_ms', 'rx_rate_hz',
+                         'latency_ms_median', 'latency_ms_p95'],
                 f'sim_node end to end ({args.node_mode}, clusters {args.node_clusters}, '
-                f'{args.node_substeps} step(s) per tick, ground on)')
+                f'{args.node_substeps} step(s) per tick, ground on, DDS profile: '
+                f'{Path(dds_profile(args.node_dds_profile) or "defaults").name})')
     findings: Dict[str, Any] = {'rows': []}
     with tempfile.TemporaryDirectory() as d:
         for n in sizes:
