@@ -6,7 +6,7 @@ import pytest
 from sm_ros.core import BodyParams, Box, Ground, Sphere, World
 from sm_ros.core import kernels as K
 from sm_ros.core.reference import (ReferenceBody, cap_plastic, collide, proper_rotation,
-                                   quadratic_terms)
+                                   quadratic_terms, volume_preserving)
 
 RNG = np.random.default_rng
 
@@ -129,6 +129,37 @@ def test_rotation_warm_start_keeps_continuity_for_collinear_match():
     a = np.outer(r_prev @ line, line)            # the line was carried by r_prev
     r, _ = _rot(a, q)
     np.testing.assert_allclose(r, r_prev, atol=1e-9)
+
+
+def test_volume_preserving_kernel_matches_reference():
+    rng = RNG(12)
+    out = np.zeros((3, 9))
+    for trial in range(200):
+        a = random_rotation(trial) @ np.diag(rng.uniform(0.05, 4.0, 3)) @ random_rotation(
+            trial + 500)
+        ok = K.volume_preserving(a, out, np.zeros((3, 3)), np.zeros((3, 3)), 2.0)
+        ref = volume_preserving(a, 2.0)
+        assert ok == (ref is not None)
+        np.testing.assert_allclose(out[:, :3], ref, atol=1e-9)
+        if np.all(np.linalg.svd(ref, compute_uv=False) < 2.0 - 1e-9) and np.all(
+                np.linalg.svd(ref, compute_uv=False) > 0.5 + 1e-9):
+            assert abs(np.linalg.det(ref) - 1.0) < 1e-9
+    assert not K.volume_preserving(np.diag([1.0, 1.0, -1.0]), out, np.zeros((3, 3)),
+                                   np.zeros((3, 3)), 2.0)
+
+
+def test_linear_body_dropped_on_ground_stays_bounded():
+    """Eq. 18's uniform a / cbrt(det a) made this body bounce itself to 5x its size."""
+    x0 = lattice(5, 5, 5, 0.04) @ random_rotation(3).T + [0.0, 0.0, 1.0]
+    world = World()
+    world.set_colliders(ground=Ground())
+    body = world.add_body(x0, 0.004, BodyParams(mode='linear', alpha=0.4, beta=0.5))
+    size = np.ptp(x0, axis=0).max()
+    worst = 0.0
+    for _ in range(600):
+        world.step(1.0 / 120.0)
+        worst = max(worst, np.ptp(body.x, axis=0).max() / size)
+    assert worst < 2.0
 
 
 def test_cap_plastic_keeps_det_and_cap():
@@ -313,6 +344,7 @@ def test_alpha_one_rigid_lands_on_goals_and_recovers_rest_shape():
 
 
 def test_linear_volume_preserving_matrix_has_det_one_and_flat_falls_back():
+    """Eq. 18 with the closest det-1 transform (see kernels.volume_preserving)."""
     x0 = lattice(4, 4, 4, 0.1)
     world = World(gravity=(0, 0, 0))
     body = world.add_body(x0, 1.0, BodyParams(mode='linear', alpha=0.5, beta=1.0))
@@ -321,7 +353,15 @@ def test_linear_volume_preserving_matrix_has_det_one_and_flat_falls_back():
     g = body.goals()
     fit = np.linalg.lstsq(np.c_[x0, np.ones(len(x0))], g, rcond=None)[0][:3].T
     assert abs(np.linalg.det(fit) - 1.0) < 1e-9
-    np.testing.assert_allclose(fit, stretch / np.cbrt(np.linalg.det(stretch)), atol=1e-9)
+    np.testing.assert_allclose(fit, volume_preserving(stretch), atol=1e-9)
+    # the closest unit-determinant stretch: x_i - s_i = lam / x_i for one lam
+    x = np.diag(fit)
+    lam = (x - np.diag(stretch)) * x
+    np.testing.assert_allclose(lam, lam[0], atol=1e-9)
+    # a flattened body (det A -> 0) gets bounded goals, not A / cbrt(det A)
+    body.set_state(x0 * [1.0, 1.0, 1e-3])
+    fit = np.linalg.lstsq(np.c_[x0, np.ones(len(x0))], body.goals(), rcond=None)[0][:3].T
+    assert np.linalg.norm(fit, 2) <= 2.0 + 1e-9
     # mirrored (det A < 0): no volume-preserving scaling exists -> the rotation R
     body.set_state(x0 * [-1.0, 1.0, 1.0])
     fit = np.linalg.lstsq(np.c_[x0, np.ones(len(x0))], body.goals(), rcond=None)[0][:3].T

@@ -236,6 +236,94 @@ def matmul(a, b, out):
 
 
 @njit(**JIT)
+def _logprod(s0, s1, s2, lam):
+    """log prod_i (s_i + sqrt(s_i^2 + 4 lam)) / 2."""
+    return (np.log(0.5 * (s0 + np.sqrt(max(s0 * s0 + 4.0 * lam, 0.0))))
+            + np.log(0.5 * (s1 + np.sqrt(max(s1 * s1 + 4.0 * lam, 0.0))))
+            + np.log(0.5 * (s2 + np.sqrt(max(s2 * s2 + 4.0 * lam, 0.0)))))
+
+
+#: Largest stretch (and 1 / smallest) of the volume-preserving linear transform A'.
+STRETCH_LIMIT = 2.0
+
+
+@njit(**JIT)
+def volume_preserving(a, out, wa, wv, limit):
+    """A' = the det-1 matrix closest to ``a`` (3x3) with its singular vectors, into ``out``.
+
+    Eq. 18 divides A by cbrt(det A).  That uniform rescaling is not the minimiser of any
+    energy: a body flattened on impact (det A -> 0) gets goals far outside it, and the
+    goal forces pump energy into a bouncing linear body until it flies apart.  Instead
+    the singular values s_i of A are replaced by the closest x_i (least squares) with
+    prod x_i = 1, i.e. x_i = (s_i + sqrt(s_i^2 + 4 lam)) / 2 with lam found by Newton's
+    method (safeguarded by bisection), and then limited to [1 / limit, limit] so no goal shape is stretched without
+    bound.  ``out[:, :3]`` receives A V diag(x / s) V^T.  Returns False (no volume-
+    preserving transform exists) for det A <= 0 or a flat A: the caller falls back to R.
+    """
+    for i in range(3):
+        for j in range(3):
+            s = 0.0
+            for u in range(3):
+                s += a[u, i] * a[u, j]
+            wa[i, j] = s
+    dt = det3(a)
+    if not (dt > 1e-9) or not np.isfinite(dt):
+        return False
+    jacobi_eigh(wa, wv, 50)
+    s0 = np.sqrt(max(wa[0, 0], 0.0))
+    s1 = np.sqrt(max(wa[1, 1], 0.0))
+    s2 = np.sqrt(max(wa[2, 2], 0.0))
+    smin = min(s0, min(s1, s2))
+    if not (smin > 0.0):
+        return False
+    # f(lam) = sum log x_i(lam) is increasing: bracket its root, then safeguarded Newton
+    lo = -0.25 * smin * smin
+    hi = 0.0
+    if _logprod(s0, s1, s2, 0.0) < 0.0:
+        lo, hi = 0.0, 1.0            # at lam = 1 every x_i >= 1
+    ok = _logprod(s0, s1, s2, lo) <= 0.0
+    lam = 0.5 * (lo + hi)
+    x0 = x1 = x2 = 1.0
+    for _ in range(100):
+        if not ok:
+            break
+        r0 = np.sqrt(max(s0 * s0 + 4.0 * lam, 0.0))
+        r1 = np.sqrt(max(s1 * s1 + 4.0 * lam, 0.0))
+        r2 = np.sqrt(max(s2 * s2 + 4.0 * lam, 0.0))
+        x0 = 0.5 * (s0 + r0)
+        x1 = 0.5 * (s1 + r1)
+        x2 = 0.5 * (s2 + r2)
+        f = np.log(x0) + np.log(x1) + np.log(x2)
+        if abs(f) < 1e-14 or hi - lo < 1e-15 * (1.0 + abs(lam)):
+            break
+        if f < 0.0:
+            lo = lam
+        else:
+            hi = lam
+        fp = 0.0
+        if r0 > 0.0 and r1 > 0.0 and r2 > 0.0:
+            fp = 1.0 / (x0 * r0) + 1.0 / (x1 * r1) + 1.0 / (x2 * r2)
+        step = lam - f / fp if fp > 0.0 else lo - 1.0
+        lam = step if lo < step < hi else 0.5 * (lo + hi)
+    if not ok:                       # no root in reach: the uniform rescaling of Eq. 18
+        c = 1.0 / np.cbrt(s0 * s1 * s2)
+        x0, x1, x2 = s0 * c, s1 * c, s2 * c
+    x0 = min(max(x0, 1.0 / limit), limit) / s0
+    x1 = min(max(x1, 1.0 / limit), limit) / s1
+    x2 = min(max(x2, 1.0 / limit), limit) / s2
+    # out = a V diag(x / s) V^T
+    for i in range(3):
+        for j in range(3):
+            s = 0.0
+            for u in range(3):
+                vv = (wv[u, 0] * x0 * wv[j, 0] + wv[u, 1] * x1 * wv[j, 1]
+                      + wv[u, 2] * x2 * wv[j, 2])
+                s += a[i, u] * vv
+            out[i, j] = s
+    return True
+
+
+@njit(**JIT)
 def norm2(m, wa, wv):
     """Spectral norm (largest singular value) of the 3x3 matrix ``m``."""
     for i in range(3):
@@ -820,12 +908,14 @@ def solve_clusters(part, wsum, sq, ref, quat, aqq3, aqq9, g, hv, scale, t, lm, l
         else:
             if mode == 1:
                 matmul(m3a, aqq3[k], m3c)             # A * s = A_pq-hat A_qq-hat
-                dt = det3(m3c) / (s_k * s_k * s_k)
-                if dt > 1e-9 and np.isfinite(dt):
-                    f = 1.0 / np.cbrt(dt)             # A' = A / cbrt(det A)  (Eq. 18 erratum)
+                for i in range(3):
+                    for j in range(3):
+                        m3c[i, j] /= s_k
+                # A' = volume-preserving A (Eq. 18), written into t's 3x3 block
+                if volume_preserving(m3c, t[k], n4[:3, :3], v4[:3, :3], STRETCH_LIMIT):
                     for i in range(3):
                         for j in range(3):
-                            t[k, i, j] = beta * f * m3c[i, j] + (1.0 - beta) * s_k * m3b[i, j]
+                            t[k, i, j] = s_k * (beta * t[k, i, j] + (1.0 - beta) * m3b[i, j])
                 else:                                 # inverted or flat: fall back to R
                     for i in range(3):
                         for j in range(3):

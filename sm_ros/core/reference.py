@@ -28,6 +28,36 @@ def quadratic_terms(q: np.ndarray) -> np.ndarray:
     return np.stack([x, y, z, x * x, y * y, z * z, x * y, y * z, z * x], axis=1)
 
 
+STRETCH_LIMIT = 2.0
+
+
+def volume_preserving(a: np.ndarray, limit: float = STRETCH_LIMIT):
+    """The det-1 matrix closest to ``a`` with its singular vectors; None if det a <= 0.
+
+    Singular values s_i -> x_i = (s_i + sqrt(s_i^2 + 4 lam)) / 2 with prod x_i = 1
+    (least squares under the constraint), then limited to [1 / limit, limit].  Eq. 18's
+    uniform a / cbrt(det a) pumps energy into bodies flattened on impact.
+    """
+    if not np.linalg.det(a) > 1e-9:
+        return None
+    u, s, vt = np.linalg.svd(a)
+    lo, hi = -0.25 * s.min() ** 2, 1.0
+
+    def x_of(lam):
+        return 0.5 * (s + np.sqrt(np.maximum(s * s + 4.0 * lam, 0.0)))
+
+    if np.prod(x_of(lo)) > 1.0:        # no root: the uniform rescaling of Eq. 18
+        x = s / np.cbrt(np.prod(s))
+    else:
+        while np.prod(x_of(hi)) < 1.0:
+            hi *= 2.0
+        for _ in range(200):           # bisection: slow but obviously right
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if np.prod(x_of(mid)) < 1.0 else (lo, mid)
+        x = x_of(0.5 * (lo + hi))
+    return u @ np.diag(np.clip(x, 1.0 / limit, limit)) @ vt
+
+
 def _spectral_norm(m: np.ndarray) -> float:
     return float(np.linalg.norm(m, 2))
 
@@ -128,9 +158,9 @@ class ReferenceBody:
                 t = r
                 if p.mode == 'linear':
                     a = apq @ self.aqq[k]                          # Eq. 10
-                    det = np.linalg.det(a)
-                    if det > 1e-9:                                 # Eq. 18 (erratum)
-                        t = p.beta * a / np.cbrt(det) + (1 - p.beta) * r
+                    a_vol = volume_preserving(a)                   # Eq. 18 (see there)
+                    if a_vol is not None:
+                        t = p.beta * a_vol + (1 - p.beta) * r
                 goal = q @ t.T + cm                                # Eq. 12
             goal_sum[idx] += goal
             if h is not None and p.plastic:
