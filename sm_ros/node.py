@@ -21,7 +21,7 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 from builtin_interfaces.msg import Time as TimeMsg
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, WrenchStamped
+from geometry_msgs.msg import Pose, PoseArray, PoseStamped, WrenchStamped
 import numpy as np
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
@@ -38,9 +38,10 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import PointCloud2
 from sm_ros.cloud import CloudBuffer, CloudError, read_xyz
 from sm_ros.diagnostics import diagnostic_array, solver_status, TickStats
-from std_msgs.msg import ColorRGBA, String
+from sm_ros.markers import MarkerBuffer
+from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
-from visualization_msgs.msg import Marker, MarkerArray
+from visualization_msgs.msg import MarkerArray
 
 NODE_NAME = 'sim_node'
 MODES = ('rigid', 'linear', 'quadratic')
@@ -369,8 +370,7 @@ class SimNode(Node):
 
         self.cloud = CloudBuffer(self._p['frame_id'])
         self._poses = PoseArray()
-        self._markers = MarkerArray()
-        self._marker_bodies: Tuple[str, ...] = ()
+        self._markers = MarkerBuffer()
         self._stats = TickStats(time.monotonic())
 
         qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
@@ -667,35 +667,18 @@ class SimNode(Node):
             if markers is not None:
                 self.pub_markers.publish(markers)
 
-    def _build_markers(self, stamp) -> Optional[MarkerArray]:
-        """One TRIANGLE_LIST marker per body with a surface (DELETEALL when that set shrinks)."""
-        items = [(i, b, m) for i, (b, m) in enumerate(zip(self.world.bodies, self.metas))
-                 if getattr(m, 'surface', None) is not None]
-        names = tuple(b.name for _, b, _ in items)
-        out = []
-        if names != self._marker_bodies:
-            out.append(Marker(action=Marker.DELETEALL))
-            self._marker_bodies = names
-        if not items and len(out) == 0:
-            return None
-        for i, body, meta in items:
-            verts = meta.surface.vertices(body.x)
-            tri = np.asarray(verts, dtype=np.float64)[meta.surface.faces].reshape(-1, 3)
-            m = Marker()
-            m.header.stamp = stamp
-            m.header.frame_id = self._p['frame_id']
-            m.ns = body.name
-            m.id = i
-            m.type = Marker.TRIANGLE_LIST
-            m.action = Marker.ADD
-            m.pose.orientation.w = 1.0
-            m.scale.x = m.scale.y = m.scale.z = 1.0
-            m.color = ColorRGBA(r=0.85, g=0.45, b=0.2, a=1.0)
-            # Marker.points is a list of messages: one Point per triangle corner.
-            m.points = [Point(x=a, y=b_, z=c) for a, b_, c in tri.tolist()]
-            out.append(m)
-        self._markers.markers = out
-        return self._markers
+    def _build_markers(self, stamp) -> Optional[bytes]:
+        """Return the serialised MarkerArray of the bodies with a surface, or None."""
+        surfaces = []
+        for i, (body, meta) in enumerate(zip(self.world.bodies, self.metas)):
+            surface = getattr(meta, 'surface', None)
+            if surface is None or len(surface.faces) == 0:
+                continue
+            verts = np.asarray(surface.vertices(body.x), dtype=np.float64)
+            surfaces.append((body.name, i, verts[surface.faces].reshape(-1, 3)))
+        if not surfaces and self._markers.key in (None, ()):
+            return None            # nothing to show, and nothing shown that must go
+        return self._markers.fill(surfaces, self._p['frame_id'], stamp.sec, stamp.nanosec)
 
     # ------------------------------------------------------------------ momentum
 

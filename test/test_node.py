@@ -519,3 +519,25 @@ def test_default_scene_runs_without_arguments(ros):
     for _ in range(5):
         node.tick()
     assert node.world.bodies[0].com()[2] < z0          # it drops
+
+
+def test_marker_buffer_serialises_in_place():
+    from rclpy.serialization import deserialize_message
+    from sm_ros.markers import MarkerBuffer
+    buf = MarkerBuffer()
+    rng = np.random.default_rng(9)
+    a, b = rng.random((6, 3)), rng.random((3, 3))
+    first = deserialize_message(buf.fill([('a', 0, a), ('b', 2, b)], 'map', 4, 5), MarkerArray)
+    assert [m.action for m in first.markers] == [Marker.DELETEALL, Marker.ADD, Marker.ADD]
+    a2 = rng.random((6, 3))
+    later = deserialize_message(buf.fill([('a', 0, a2), ('b', 2, b)], 'map', 6, 7),
+                                MarkerArray)
+    assert [m.action for m in later.markers] == [Marker.ADD, Marker.ADD]
+    m = later.markers[0]
+    assert (m.ns, m.id, m.type, m.header.frame_id) == ('a', 0, Marker.TRIANGLE_LIST, 'map')
+    assert (m.header.stamp.sec, m.header.stamp.nanosec) == (6, 7)
+    np.testing.assert_array_equal([[p.x, p.y, p.z] for p in m.points], a2)
+    np.testing.assert_array_equal([[p.x, p.y, p.z] for p in later.markers[1].points], b)
+    rebuilds = buf.rebuilds
+    gone = deserialize_message(buf.fill([('b', 2, b)], 'map', 8, 0), MarkerArray)
+    assert gone.markers[0].action == Marker.DELETEALL and buf.rebuilds > rebuilds

@@ -297,10 +297,10 @@ def test_colcon_build_install_tree(tmp_path):
 # ----------------------------------------------------------------------------------------
 
 STYLE_FILES = ['setup.py', 'sm_ros/__init__.py', 'sm_ros/node.py', 'sm_ros/cloud.py',
-               'sm_ros/diagnostics.py', 'test/conftest.py', 'test/test_cloud.py',
-               'test/test_node.py', 'test/test_node_params.py', 'test/test_node_bad_input.py',
-               'test/test_node_process.py', 'test/test_package.py', 'tools/startup_time.py',
-               'tools/cloud_transport.py']
+               'sm_ros/diagnostics.py', 'sm_ros/markers.py', 'test/conftest.py',
+               'test/test_cloud.py', 'test/test_node.py', 'test/test_node_params.py',
+               'test/test_node_bad_input.py', 'test/test_node_process.py',
+               'test/test_package.py', 'tools/startup_time.py', 'tools/cloud_transport.py']
 
 
 def test_flake8_house_style():
