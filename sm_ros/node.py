@@ -13,6 +13,7 @@ state.
 """
 
 from dataclasses import dataclass
+import functools
 import math
 import os
 import sys
@@ -306,6 +307,25 @@ def _short_error(exc: BaseException) -> str:
     """Return the first line of an exception's message without rcl's source locations."""
     text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
     return text.split(', at /')[0]
+
+
+def guarded(topic: str):
+    """
+    Wrap a message callback so that no input can raise out of it.
+
+    The checks in the callbacks refuse every bad input the node knows of; anything else
+    that raises (a bug, or a case nobody foresaw) is refused the same way, logged with its
+    type, and the node goes on.
+    """
+    def wrap(callback):
+        @functools.wraps(callback)
+        def safe(self, msg):
+            try:
+                callback(self, msg)
+            except Exception as exc:  # noqa: B902 - a message must never stop the node
+                self.refuse(topic, f'unexpected {type(exc).__name__}: {exc}')
+        return safe
+    return wrap
 
 
 @dataclass
@@ -761,6 +781,7 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------ force
 
+    @guarded('force')
     def force_callback(self, msg: WrenchStamped) -> None:
         """Hold a wrench on one body (frame_id) or every body (empty); zero clears it."""
         w = msg.wrench
@@ -801,6 +822,7 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------ grab / release
 
+    @guarded('grab')
     def grab_callback(self, msg: PoseStamped) -> None:
         """Attach particles to a named gripper (first pose) or move them with it."""
         name = msg.header.frame_id
@@ -856,6 +878,7 @@ class SimNode(Node):
             idx, first = np.unique(idx, return_index=True)
             body.set_kinematic(idx, targets[first])
 
+    @guarded('release')
     def release_callback(self, msg: String) -> None:
         """Release one gripper by name, or all of them on an empty name."""
         name = msg.data
@@ -879,6 +902,7 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------ cloud_in
 
+    @guarded('cloud_in')
     def cloud_in_callback(self, msg: PointCloud2) -> None:
         """Build a body from a cloud; it replaces the scene's bodies or joins them."""
         try:

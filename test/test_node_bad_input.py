@@ -19,6 +19,7 @@ from rcl_interfaces.msg import Log  # noqa: E402
 from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
 from sm_ros.cloud import create_cloud, read_xyz  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
 
 from test_node import pose, wrench  # noqa: E402
 
@@ -234,3 +235,14 @@ def test_non_finite_body_is_reset_and_reported(ros, two_body_scene):
     node.tick()
     assert node.solver_status().level == DiagnosticStatus.OK
     assert not np.array_equal(stiff.x, stiff_next)
+
+
+def test_unforeseen_error_in_a_callback_is_refused_not_fatal(ros, node, monkeypatch):
+    def broken(*args, **kwargs):
+        raise RuntimeError('boom')
+    monkeypatch.setattr(node.world.body('soft'), 'set_wrench', broken)
+    reason = ros.refusal(node, 'force', lambda: ros.publisher(WrenchStamped, 'force').publish(
+        wrench('soft', (0.0, 1.0, 0.0))))
+    assert 'RuntimeError' in reason and 'boom' in reason
+    node.tick()                                      # still running
+    assert ros.call(Trigger, 'sim_node/reset').success
