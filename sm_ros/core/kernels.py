@@ -571,13 +571,12 @@ def _acc_single(start, end, quad, x, x0, m, g, hv, ref, pc):
                       g10 * a0 + g11 * a1 + g12 * a2 + h1,
                       g20 * a0 + g21 * a1 + g22 * a2 + h2)
         return
+    # sum w d q^T = (sum w d x0^T) G^T + (sum w d) h^T: accumulate in rest coordinates
+    # (9 multiply-adds per particle less) and map once per block
     s0 = s1 = s2 = 0.0
     c00 = c01 = c02 = c10 = c11 = c12 = c20 = c21 = c22 = 0.0
     for i in range(start, end):
         a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
-        q0 = g00 * a0 + g01 * a1 + g02 * a2 + h0
-        q1 = g10 * a0 + g11 * a1 + g12 * a2 + h1
-        q2 = g20 * a0 + g21 * a1 + g22 * a2 + h2
         w = m[i]
         d0 = w * (x[i, 0] - r0)
         d1 = w * (x[i, 1] - r1)
@@ -585,28 +584,28 @@ def _acc_single(start, end, quad, x, x0, m, g, hv, ref, pc):
         s0 += d0
         s1 += d1
         s2 += d2
-        c00 += d0 * q0
-        c01 += d0 * q1
-        c02 += d0 * q2
-        c10 += d1 * q0
-        c11 += d1 * q1
-        c12 += d1 * q2
-        c20 += d2 * q0
-        c21 += d2 * q1
-        c22 += d2 * q2
+        c00 += d0 * a0
+        c01 += d0 * a1
+        c02 += d0 * a2
+        c10 += d1 * a0
+        c11 += d1 * a1
+        c12 += d1 * a2
+        c20 += d2 * a0
+        c21 += d2 * a1
+        c22 += d2 * a2
     a = pc[0]
     a[0] += s0
     a[1] += s1
     a[2] += s2
-    a[3] += c00
-    a[4] += c01
-    a[5] += c02
-    a[6] += c10
-    a[7] += c11
-    a[8] += c12
-    a[9] += c20
-    a[10] += c21
-    a[11] += c22
+    a[3] += g00 * c00 + g01 * c01 + g02 * c02 + h0 * s0
+    a[4] += g10 * c00 + g11 * c01 + g12 * c02 + h1 * s0
+    a[5] += g20 * c00 + g21 * c01 + g22 * c02 + h2 * s0
+    a[6] += g00 * c10 + g01 * c11 + g02 * c12 + h0 * s1
+    a[7] += g10 * c10 + g11 * c11 + g12 * c12 + h1 * s1
+    a[8] += g20 * c10 + g21 * c11 + g22 * c12 + h2 * s1
+    a[9] += g00 * c20 + g01 * c21 + g02 * c22 + h0 * s2
+    a[10] += g10 * c20 + g11 * c21 + g12 * c22 + h1 * s2
+    a[11] += g20 * c20 + g21 * c21 + g22 * c22 + h2 * s2
 
 
 @njit(**JIT)
@@ -622,6 +621,26 @@ def _int_single_lin(start, end, x, v, x0, lm, lb, alpha, h, acc, ang, com):
     az = acc[2] - (w0 * com[1] - w1 * com[0])
     ah = alpha / h
     e2 = 0.0
+    if w0 == 0.0 and w1 == 0.0 and w2 == 0.0:
+        # no torque: a uniform acceleration (6 multiply-adds per particle less)
+        hx, hy, hz = h * ax, h * ay, h * az
+        for i in range(start, end):
+            a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+            p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
+            e0 = l00 * a0 + l01 * a1 + l02 * a2 + b0 - p0
+            e1 = l10 * a0 + l11 * a1 + l12 * a2 + b1 - p1
+            ee = l20 * a0 + l21 * a1 + l22 * a2 + b2 - p2
+            e2 += e0 * e0 + e1 * e1 + ee * ee
+            v0 = v[i, 0] + ah * e0 + hx
+            v1 = v[i, 1] + ah * e1 + hy
+            v2 = v[i, 2] + ah * ee + hz
+            x[i, 0] = p0 + h * v0
+            x[i, 1] = p1 + h * v1
+            x[i, 2] = p2 + h * v2
+            v[i, 0] = v0
+            v[i, 1] = v1
+            v[i, 2] = v2
+        return e2
     for i in range(start, end):
         a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
         p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
