@@ -35,6 +35,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.signals import install_signal_handlers, SignalHandlerOptions
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import PointCloud2
 from sm_ros.cloud import CloudBuffer, CloudError, read_xyz
@@ -1000,13 +1001,17 @@ def main(args=None) -> int:
     if reason:
         return _fail(reason)
     try:
-        rclpy.init(args=args)
+        # No rclpy signal handlers while starting: Ctrl-C during the (possibly long, cold
+        # Numba cache) warm-up raises KeyboardInterrupt right away; rclpy's handlers take
+        # over once the node exists, for a clean shutdown of the spinning node.
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # noqa: B902 - rcl reports bad arguments as RCLError
         return _fail(_short_error(exc))
     node = None
     code = 0
     try:
         node = SimNode()
+        install_signal_handlers(SignalHandlerOptions.ALL)
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -96,3 +96,17 @@ def test_first_cloud_then_clean_ctrl_c(warm, tmp_path):
         rclpy.try_shutdown(context=ctx)
     assert proc.returncode == 0, err
     assert 'Traceback' not in err and 'Traceback' not in out
+
+
+@pytest.mark.parametrize('delay', [0.3, 1.5])
+def test_ctrl_c_during_start_up_is_clean(delay):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(201, 230)))
+    proc = subprocess.Popen(sim_node_cmd(), env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        proc.wait(timeout=delay)           # a start-up still in progress (imports, warm-up)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert 'Traceback' not in err + out
