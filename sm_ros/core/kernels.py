@@ -1382,53 +1382,98 @@ def sets_maps(sptr, scl, scnt, sorg, g, hv, t, lm, lb, ref, quad, gm, sref, pm):
 
 
 @njit(**JIT)
-def _sets_int_range(start, end, quad, x, v, y0, sid, gm, alpha, h, acc, ang, com):
-    """Eq. 13-14 for particles start..end with the set goal maps; returns sum |g - x|^2."""
-    ah = alpha / h
-    ax, ay, az = acc[0], acc[1], acc[2]
-    w0, w1, w2 = ang[0], ang[1], ang[2]
-    c0, c1, c2 = com[0], com[1], com[2]
+def _sets_int_lin(start, end, x, v, y0, sid, gm, ah, h, ax, ay, az, w0, w1, w2):
+    """Rigid/linear goals: each run of one set with its 3 x 4 map in registers.
+
+    ``ax, ay, az`` is the uniform acceleration (acc - ang x com), ``w`` the angular one.
+    """
+    torque = w0 != 0.0 or w1 != 0.0 or w2 != 0.0
+    e2 = 0.0
+    i = start
+    while i < end:
+        s = sid[i]
+        m00, m01, m02, m03 = gm[s, 0, 0], gm[s, 0, 1], gm[s, 0, 2], gm[s, 0, 3]
+        m10, m11, m12, m13 = gm[s, 1, 0], gm[s, 1, 1], gm[s, 1, 2], gm[s, 1, 3]
+        m20, m21, m22, m23 = gm[s, 2, 0], gm[s, 2, 1], gm[s, 2, 2], gm[s, 2, 3]
+        j = i + 1
+        while j < end and sid[j] == s:
+            j += 1
+        for k in range(i, j):
+            y_0, y_1, y_2 = y0[k, 0], y0[k, 1], y0[k, 2]
+            p0, p1, p2 = x[k, 0], x[k, 1], x[k, 2]
+            e0 = m00 + m01 * y_0 + m02 * y_1 + m03 * y_2 - p0
+            e1 = m10 + m11 * y_0 + m12 * y_1 + m13 * y_2 - p1
+            ee = m20 + m21 * y_0 + m22 * y_1 + m23 * y_2 - p2
+            e2 += e0 * e0 + e1 * e1 + ee * ee
+            if torque:
+                v0 = v[k, 0] + ah * e0 + h * (ax + w1 * p2 - w2 * p1)
+                v1 = v[k, 1] + ah * e1 + h * (ay + w2 * p0 - w0 * p2)
+                v2 = v[k, 2] + ah * ee + h * (az + w0 * p1 - w1 * p0)
+            else:
+                v0 = v[k, 0] + ah * e0 + h * ax
+                v1 = v[k, 1] + ah * e1 + h * ay
+                v2 = v[k, 2] + ah * ee + h * az
+            x[k, 0] = p0 + h * v0
+            x[k, 1] = p1 + h * v1
+            x[k, 2] = p2 + h * v2
+            v[k, 0] = v0
+            v[k, 1] = v1
+            v[k, 2] = v2
+        i = j
+    return e2
+
+
+@njit(**JIT)
+def _sets_int_quad(start, end, x, v, y0, sid, gm, ah, h, ax, ay, az, w0, w1, w2):
+    """Quadratic goals: gm[s] (3 x 10) times phi(y)."""
     e2 = 0.0
     for i in range(start, end):
         s = sid[i]
         y_0, y_1, y_2 = y0[i, 0], y0[i, 1], y0[i, 2]
-        g0 = gm[s, 0, 0] + gm[s, 0, 1] * y_0 + gm[s, 0, 2] * y_1 + gm[s, 0, 3] * y_2
-        g1 = gm[s, 1, 0] + gm[s, 1, 1] * y_0 + gm[s, 1, 2] * y_1 + gm[s, 1, 3] * y_2
-        g2 = gm[s, 2, 0] + gm[s, 2, 1] * y_0 + gm[s, 2, 2] * y_1 + gm[s, 2, 3] * y_2
-        if quad:
-            f4 = y_0 * y_0
-            f5 = y_1 * y_1
-            f6 = y_2 * y_2
-            f7 = y_0 * y_1
-            f8 = y_1 * y_2
-            f9 = y_2 * y_0
-            g0 += (gm[s, 0, 4] * f4 + gm[s, 0, 5] * f5 + gm[s, 0, 6] * f6 + gm[s, 0, 7] * f7
-                   + gm[s, 0, 8] * f8 + gm[s, 0, 9] * f9)
-            g1 += (gm[s, 1, 4] * f4 + gm[s, 1, 5] * f5 + gm[s, 1, 6] * f6 + gm[s, 1, 7] * f7
-                   + gm[s, 1, 8] * f8 + gm[s, 1, 9] * f9)
-            g2 += (gm[s, 2, 4] * f4 + gm[s, 2, 5] * f5 + gm[s, 2, 6] * f6 + gm[s, 2, 7] * f7
-                   + gm[s, 2, 8] * f8 + gm[s, 2, 9] * f9)
+        f4 = y_0 * y_0
+        f5 = y_1 * y_1
+        f6 = y_2 * y_2
+        f7 = y_0 * y_1
+        f8 = y_1 * y_2
+        f9 = y_2 * y_0
+        g0 = (gm[s, 0, 0] + gm[s, 0, 1] * y_0 + gm[s, 0, 2] * y_1 + gm[s, 0, 3] * y_2
+              + gm[s, 0, 4] * f4 + gm[s, 0, 5] * f5 + gm[s, 0, 6] * f6 + gm[s, 0, 7] * f7
+              + gm[s, 0, 8] * f8 + gm[s, 0, 9] * f9)
+        g1 = (gm[s, 1, 0] + gm[s, 1, 1] * y_0 + gm[s, 1, 2] * y_1 + gm[s, 1, 3] * y_2
+              + gm[s, 1, 4] * f4 + gm[s, 1, 5] * f5 + gm[s, 1, 6] * f6 + gm[s, 1, 7] * f7
+              + gm[s, 1, 8] * f8 + gm[s, 1, 9] * f9)
+        g2 = (gm[s, 2, 0] + gm[s, 2, 1] * y_0 + gm[s, 2, 2] * y_1 + gm[s, 2, 3] * y_2
+              + gm[s, 2, 4] * f4 + gm[s, 2, 5] * f5 + gm[s, 2, 6] * f6 + gm[s, 2, 7] * f7
+              + gm[s, 2, 8] * f8 + gm[s, 2, 9] * f9)
         p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
         e0 = g0 - p0
         e1 = g1 - p1
         ee = g2 - p2
         e2 += e0 * e0 + e1 * e1 + ee * ee
-        r0 = p0 - c0
-        r1 = p1 - c1
-        r2 = p2 - c2
-        v0 = v[i, 0] + ah * e0 + h * (ax + w1 * r2 - w2 * r1)
-        v1 = v[i, 1] + ah * e1 + h * (ay + w2 * r0 - w0 * r2)
-        v2 = v[i, 2] + ah * ee + h * (az + w0 * r1 - w1 * r0)
-        p0 += h * v0
-        p1 += h * v1
-        p2 += h * v2
-        x[i, 0] = p0
-        x[i, 1] = p1
-        x[i, 2] = p2
+        v0 = v[i, 0] + ah * e0 + h * (ax + w1 * p2 - w2 * p1)
+        v1 = v[i, 1] + ah * e1 + h * (ay + w2 * p0 - w0 * p2)
+        v2 = v[i, 2] + ah * ee + h * (az + w0 * p1 - w1 * p0)
+        x[i, 0] = p0 + h * v0
+        x[i, 1] = p1 + h * v1
+        x[i, 2] = p2 + h * v2
         v[i, 0] = v0
         v[i, 1] = v1
         v[i, 2] = v2
     return e2
+
+
+@njit(**JIT)
+def _sets_int_range(start, end, quad, x, v, y0, sid, gm, alpha, h, acc, ang, com):
+    """Eq. 13-14 for particles start..end with the set goal maps; returns sum |g - x|^2."""
+    w0, w1, w2 = ang[0], ang[1], ang[2]
+    # acc + ang x (p - com) = (acc - ang x com) + ang x p
+    ax = acc[0] - (w1 * com[2] - w2 * com[1])
+    ay = acc[1] - (w2 * com[0] - w0 * com[2])
+    az = acc[2] - (w0 * com[1] - w1 * com[0])
+    if quad:
+        return _sets_int_quad(start, end, x, v, y0, sid, gm, alpha / h, h, ax, ay, az,
+                              w0, w1, w2)
+    return _sets_int_lin(start, end, x, v, y0, sid, gm, alpha / h, h, ax, ay, az, w0, w1, w2)
 
 
 @njit(**JIT)
