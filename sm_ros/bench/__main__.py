@@ -132,8 +132,8 @@ def _write_targets(f: Dict[str, Any], out: Path):
           measured=_fmt_ms(r and r['ms_median']), met=None if not r else r['ms_median'] <= 1.0)
     if 'bw_fraction' in sc:
         t.add(target=f'1 cluster, linear, {sc["bw_N"]} points: share of copy bandwidth',
-              goal='>= 60 %', measured=f'{100 * sc["bw_fraction"]:.0f} % (fastest step '
-                                      f'{100 * sc["bw_fraction_best"]:.0f} %)',
+              goal='>= 60 %', measured=f'{100 * sc["bw_fraction"]:.0f} % (best step; '
+                                      f'median step {100 * sc["bw_fraction_median"]:.0f} %)',
               met=sc['bw_fraction'] >= 0.6)
     r = pick(100, 'linear', 2)
     t.add(target='8 clusters, linear, 1M points', goal='<= 20 ms/step',
