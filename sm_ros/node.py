@@ -425,6 +425,7 @@ class SimNode(Node):
                                             clock=self._steady)
         self.diagnostics_timer = None
         self._set_diagnostics_rate(self._p['diagnostics_rate'])
+        self._stats.reset_window(time.monotonic())
         self.get_logger().info(
             f"scene '{self._p['scene'] or 'default'}': {len(self.world.bodies)} bodies, "
             f'{self.num_points} points; {self._p["rate"]:g} Hz x {self._p["substeps"]} '
@@ -710,6 +711,8 @@ class SimNode(Node):
             return False
         if world.boxes or world.spheres:
             return False
+        if any(len(b.pinned) for b in world.bodies):
+            return False                                  # pins hold bodies in place
         if world.ground is not None:
             h = world.ground.height
             for b in world.bodies:
