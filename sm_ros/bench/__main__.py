@@ -142,11 +142,11 @@ def _write_targets(f: Dict[str, Any], out: Path):
     if rows:
         worst = min(rows, key=lambda x: x['speedup_step'])
         worst_g = min(rows, key=lambda x: x['speedup_goals'])
-        t.add(target='Numba / NumPy reference at 97,336 points', goal='>= 10x',
-              measured=f'{worst["speedup_step"]:.0f}x worst full step ({worst["mode"]}, '
-                       f'{worst["clusters"]} cl.); {worst_g["speedup_goals"]:.0f}x worst '
-                       'against the reference goals alone',
-              met=worst['speedup_goals'] >= 10)
+        t.add(target='Numba / NumPy reference step at 97,336 points', goal='>= 10x',
+              measured=f'{worst["speedup_step"]:.0f}x worst ({worst["mode"]}, '
+                       f'{worst["clusters"]} cl.); against the reference\'s goals alone '
+                       f'(no per-particle Python loop) {worst_g["speedup_goals"]:.0f}x worst',
+              met=worst['speedup_step'] >= 10)
     else:
         t.add(target='Numba / NumPy reference at 97,336 points', goal='>= 10x',
               measured='not run', met=None)

@@ -41,7 +41,9 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument('--pypbd-script', default=None,
                    help='path of pypbd_shape_matching.py (default: shared/peers beside '
                         'the repository, or $SM_ROS_PYPBD_SCRIPT)')
-    p.add_argument('--pypbd-steps', type=int, default=20)
+    p.add_argument('--pypbd-steps', type=int, default=30)
+    p.add_argument('--pypbd-threads', default='1,2',
+                   help='OMP_NUM_THREADS settings for pypbd (its best is compared)')
     p.add_argument('--bandwidth-mb', type=float, default=256.0,
                    help='array size of the streaming copy (MB)')
 
@@ -211,12 +213,16 @@ def find_pypbd_script(explicit: Optional[str]) -> Optional[Path]:
     return None
 
 
-def time_pypbd(script: Path, n_side: int, k: int, steps: int) -> Optional[Dict[str, Any]]:
+def time_pypbd(script: Path, n_side: int, k: int, steps: int,
+               threads: Optional[int] = None) -> Optional[Dict[str, Any]]:
     """Run the peer script for one configuration in its own process (it needs that)."""
     cmd = [sys.executable, str(script), '--n', str(n_side), '--k', str(k), '--steps',
            str(steps), '--warmup', '3']
     timeout = 60 + 0.5 * n_side ** 3 / 1e3
-    return C.run_json_subprocess(cmd, timeout=timeout, cwd=str(script.parent))
+    env = dict(os.environ)
+    if threads:
+        env['OMP_NUM_THREADS'] = str(threads)
+    return C.run_json_subprocess(cmd, timeout=timeout, cwd=str(script.parent), env=env)
 
 
 # ---------------------------------------------------------------------------------------
@@ -341,9 +347,11 @@ def run(args, out: Path) -> Dict[str, Any]:
     pp_sizes = sorted({C.lattice_side(x) for x in C.as_list(args.pypbd_sizes)})
     script = find_pypbd_script(args.pypbd_script) if pp_sizes else None
     ppt = C.Table('pypbd', ['N', 'clusters', 'memberships_pypbd', 'memberships_ours',
-                            'pypbd_ms', 'ours_rigid_ms', 'ours_linear_ms', 'speedup_rigid',
+                            'pypbd_1thread_ms', 'pypbd_2threads_ms', 'pypbd_best_ms',
+                            'ours_rigid_ms', 'ours_linear_ms', 'speedup_rigid',
                             'speedup_linear'],
-                  'sm_ros against pypbd (same lattice and clusters, 1 iteration, dt 5 ms)')
+                  'sm_ros against pypbd (same lattice and clusters, 1 iteration, dt 5 ms; '
+                  'medians; speedup = pypbd at its best thread count / ours)')
     findings['pypbd'] = []
     if pp_sizes and script is None:
         C.log('[scaling] pypbd peer script not found: skipped')
@@ -356,17 +364,25 @@ def run(args, out: Path) -> Dict[str, Any]:
             C.log('[scaling] pypbd not installed (pip install pypbd): skipped')
         for n_side in (pp_sizes if have else []):
             for k in ks:
-                C.log(f'[scaling] pypbd N={n_side ** 3} k={k}')
-                peer = time_pypbd(script, n_side, k, args.pypbd_steps)
-                if peer is None:
+                per = {}
+                for thr in C.ints(args.pypbd_threads):
+                    C.log(f'[scaling] pypbd N={n_side ** 3} k={k} OMP_NUM_THREADS={thr}')
+                    peer = time_pypbd(script, n_side, k, args.pypbd_steps, thr)
+                    if peer is not None:
+                        per[thr] = peer
+                if not per:
                     continue
+                peer = min(per.values(), key=lambda r: r['median_ms'])
                 rig = pick(n_side ** 3, 'rigid', k) or time_numba(n_side, 'rigid', k,
                                                                   args.min_time)
                 lin = pick(n_side ** 3, 'linear', k) or time_numba(n_side, 'linear', k,
                                                                    args.min_time)
                 row = dict(N=n_side ** 3, clusters=peer['clusters'],
                            memberships_pypbd=peer['memberships'],
-                           memberships_ours=rig['memberships'], pypbd_ms=peer['median_ms'],
+                           memberships_ours=rig['memberships'],
+                           pypbd_1thread_ms=per[1]['median_ms'] if 1 in per else None,
+                           pypbd_2threads_ms=per[2]['median_ms'] if 2 in per else None,
+                           pypbd_best_ms=peer['median_ms'],
                            ours_rigid_ms=rig['ms_median'], ours_linear_ms=lin['ms_median'],
                            speedup_rigid=peer['median_ms'] / rig['ms_median'],
                            speedup_linear=peer['median_ms'] / lin['ms_median'])
@@ -408,7 +424,7 @@ def _plot(results, findings, bw_best, out: Path):
         ax.loglog(row['N'], row['numpy_step_ms'], 's', color=colors[row['mode']], mfc='none')
         ax.loglog(row['N'], row['numba_ms'], 'o', color=colors[row['mode']])
     for row in findings.get('pypbd', []):
-        ax.loglog(row['N'], row['pypbd_ms'], '^', color='k', mfc='none')
+        ax.loglog(row['N'], row['pypbd_best_ms'], '^', color='k', mfc='none')
         ax.loglog(row['N'], row['ours_rigid_ms'], 'o', color=colors['rigid'])
     ax.plot([], [], 's', color='gray', mfc='none', label='NumPy reference')
     ax.plot([], [], '^', color='k', mfc='none', label='pypbd (1 iteration)')
