@@ -127,6 +127,7 @@ class Body:
         self._x0 = np.ascontiguousarray(x - self._c0)
         self._force = np.zeros(3)
         self._torque = np.zeros(3)
+        self._has_torque = False
         self._grab_idx = _EMPTY_I64
         self._grab_tgt = np.zeros((0, 3))
         self._acc = np.zeros(3)
@@ -162,6 +163,7 @@ class Body:
 
     def _build(self):
         """Precompute everything that depends on the rest shape and the parameters."""
+        self.shape_error_rms()                 # keep the last step's figure across a rebuild
         p = self._params
         n = self.n
         x0, m = self._x0, self.m
@@ -279,7 +281,7 @@ class Body:
                         self._lm, self._lb, self._ref, self._quad, sets.gm, sets.ref, sets.pm)
         np.multiply(self._force, 1.0 / self.total_mass, out=self._acc)
         self._acc += gravity
-        if self._torque.any():
+        if self._has_torque:
             np.dot(self._wsum, self._ref, out=self._com)
             self._com /= self._wsum.sum()
             K.inertia(x, self.m, self._com, self._i3)
@@ -310,7 +312,7 @@ class Body:
             K.apply_kinematic(self._quad, x, v, self._x0, self.m, self._ptr, self._cl,
                               self._g, self._hv, self._ref, self._part, self._kin_idx,
                               self._kin_tgt, self._kin_prev, h)
-        self._shape_err = float(np.sqrt(self._err.sum() / self.n))
+        self._shape_err = None                 # computed from self._err when asked
         self._dirty = False
         if nchanged:
             self._refresh_rest(self._changed)
@@ -388,11 +390,13 @@ class Body:
             raise ValueError('force and torque must be 3 finite numbers each')
         self._force[:] = f
         self._torque[:] = t
+        self._has_torque = bool(t.any())
 
     def clear_wrench(self):
         """Remove the external force and torque."""
         self._force[:] = 0.0
         self._torque[:] = 0.0
+        self._has_torque = False
 
     @property
     def wrench(self):
@@ -470,6 +474,8 @@ class Body:
 
     def shape_error_rms(self) -> float:
         """RMS distance of the particles to their goals in the last step (m)."""
+        if self._shape_err is None:
+            self._shape_err = float(np.sqrt(self._err.sum() / self.n))
         return self._shape_err
 
     def momentum(self) -> np.ndarray:
