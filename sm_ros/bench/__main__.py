@@ -17,6 +17,7 @@ import argparse
 import importlib
 import json
 from pathlib import Path
+import shlex
 import sys
 import time
 from typing import Any, Dict, List, Optional
@@ -72,7 +73,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     from . import accuracy, node_bench, scaling
-    cmd = 'python -m sm_ros.bench ' + ' '.join(argv)
+    cmd = 'python -m sm_ros.bench ' + shlex.join(argv)
     info = C.machine_info()
     findings: Dict[str, Any] = {'command': cmd, 'machine': info}
     t0 = time.perf_counter()
