@@ -876,6 +876,21 @@ def _cap_plastic(sp, c_max, m3, wa, wv):
 
 
 @njit(**JIT)
+def _add_null_projector(aqq, out, wa, wv):
+    """out += the projector onto the null space of the symmetric PSD ``aqq`` (3x3)."""
+    for i in range(3):
+        for j in range(3):
+            wa[i, j] = aqq[i, j]
+    jacobi_eigh(wa, wv, 50)
+    lmax = max(wa[0, 0], max(wa[1, 1], wa[2, 2]))
+    for e in range(3):
+        if not (wa[e, e] > 1e-13 * lmax):
+            for i in range(3):
+                for j in range(3):
+                    out[i, j] += wv[i, e] * wv[j, e]
+
+
+@njit(**JIT)
 def solve_clusters(part, wsum, sq, ref, quat, aqq3, aqq9, g, hv, scale, t, lm, lb, mode, beta,
                    plastic, sp, c_yield, c_creep, c_max, h, changed, acc, m3a, m3b, m3c, m39,
                    n4, v4):
@@ -978,6 +993,10 @@ def solve_clusters(part, wsum, sq, ref, quat, aqq3, aqq9, g, hv, scale, t, lm, l
                     m3a[i, j] = avg
                     m3a[j, i] = avg
                 m3a[i, i] -= 1.0
+            # A is blind along directions the rest shape does not span (flat, line-like,
+            # single-point clusters: A_qq is a pseudo-inverse): S = I there, not 0, or
+            # such a cluster flows plastically at rest
+            _add_null_projector(aqq3[k], m3a, n4[:3, :3], v4[:3, :3])
             for i in range(3):
                 for j in range(3):
                     m3b[i, j] = m3a[i, j]
