@@ -1,4 +1,5 @@
-"""Smoke test of ``python -m sm_ros.bench``: it runs on tiny sizes and writes its tables.
+"""
+Smoke test of ``python -m sm_ros.bench``: it runs on tiny sizes and writes its tables.
 
 Nothing here times anything or checks a speed: the benchmark's figures are in
 doc/benchmarks.md, measured on purpose, never asserted by the test suite.
@@ -6,13 +7,13 @@ doc/benchmarks.md, measured on purpose, never asserted by the test suite.
 
 import csv
 import importlib.util
+from pathlib import Path
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
-from sm_ros.bench import common as C
+from sm_ros.bench import common as bc
 from sm_ros.bench.__main__ import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,11 +64,11 @@ def test_soak_hook():
 
 
 def test_helpers():
-    assert C.lattice_side(1e6) == 100
-    assert C.lattice_side(1e4) == 22
-    assert C.lattice_side(1e5) == 46
-    assert abs(C.loglog_slope([1, 10, 100], [2, 20, 200]) - 1.0) < 1e-12
-    t = C.Table('t', ['a', 'b'], 'title')
+    assert bc.lattice_side(1e6) == 100
+    assert bc.lattice_side(1e4) == 22
+    assert bc.lattice_side(1e5) == 46
+    assert abs(bc.loglog_slope([1, 10, 100], [2, 20, 200]) - 1.0) < 1e-12
+    t = bc.Table('t', ['a', 'b'], 'title')
     t.add(a=1, b=0.5)
     with pytest.raises(KeyError):
         t.add(c=1)

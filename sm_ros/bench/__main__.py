@@ -1,4 +1,5 @@
-"""``python -m sm_ros.bench``: speed, scaling, error against run time, the node end to end.
+"""
+``python -m sm_ros.bench``: speed, scaling, error against run time, the node end to end.
 
 Subcommands (each writes markdown + CSV tables and PNG plots into ``--out``):
 
@@ -22,7 +23,7 @@ import sys
 import time
 from typing import Any, Dict, List, Optional
 
-from . import common as C
+from . import common as bc
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -74,7 +75,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     from . import accuracy, node_bench, scaling
     cmd = 'python -m sm_ros.bench ' + shlex.join(argv)
-    info = C.machine_info()
+    info = bc.machine_info()
     findings: Dict[str, Any] = {'command': cmd, 'machine': info}
     t0 = time.perf_counter()
     if args.command == 'all' and getattr(args, 'quick', False):
@@ -117,8 +118,8 @@ def _fmt_ms(v):
 
 def _write_targets(f: Dict[str, Any], out: Path):
     """targets.md: each target of issue 5 beside the figure this run measured."""
-    t = C.Table('targets', ['target', 'goal', 'measured', 'met'],
-                'Targets (issue 5) and what this run measured')
+    t = bc.Table('targets', ['target', 'goal', 'measured', 'met'],
+                 'Targets (issue 5) and what this run measured')
     sc = f.get('scaling') or {}
     res = sc.get('scaling', [])
 
@@ -133,8 +134,9 @@ def _write_targets(f: Dict[str, Any], out: Path):
           measured=_fmt_ms(r and r['ms_median']), met=None if not r else r['ms_median'] <= 1.0)
     if 'bw_fraction' in sc:
         t.add(target=f'1 cluster, linear, {sc["bw_N"]} points: share of copy bandwidth',
-              goal='>= 60 %', measured=f'{100 * sc["bw_fraction"]:.0f} % (best step; '
-                                      f'median step {100 * sc["bw_fraction_median"]:.0f} %)',
+              goal='>= 60 %',
+              measured=(f'{100 * sc["bw_fraction"]:.0f} % (best step; '
+                        f'median step {100 * sc["bw_fraction_median"]:.0f} %)'),
               met=sc['bw_fraction'] >= 0.6)
     r = pick(100, 'linear', 2)
     t.add(target='8 clusters, linear, 1M points', goal='<= 20 ms/step',

@@ -1,4 +1,5 @@
-"""Part 2 of the benchmark: error against run time (work-precision).
+"""
+Part 2 of the benchmark: error against run time (work-precision).
 
 Four scenes, each simulated for T seconds (2 s by default) with a sweep of frame rate
 (dt = 1/30 ... 1/960 s), substeps per frame, mode and clusters:
@@ -40,14 +41,14 @@ from typing import Any, Callable, Dict, List, Optional
 
 import numpy as np
 
-from . import common as C
+from . import common as bc
 
 SCENES = ('rigid_spin', 'soft_drop', 'pinned_beam', 'plastic_press')
 BUDGETS = (0.1, 0.03, 0.01, 0.003, 0.001)
 
 
 def add_arguments(p: argparse.ArgumentParser):
-    """Flags of the ``accuracy`` subcommand."""
+    """Add the flags of the ``accuracy`` subcommand."""
     p.add_argument('--scenes', default=','.join(SCENES))
     p.add_argument('--accuracy-points', type=int, default=1000,
                    help='particles per body (approximate)')
@@ -86,8 +87,8 @@ class Scene:
 
 
 def _cube(points: int, side: float, origin=(0.0, 0.0, 0.0)) -> np.ndarray:
-    n = C.lattice_side(points)
-    return C.cube_lattice(n, side, origin)
+    n = bc.lattice_side(points)
+    return bc.cube_lattice(n, side, origin)
 
 
 def _rot(axis_angle) -> np.ndarray:
@@ -101,7 +102,7 @@ def _rot(axis_angle) -> np.ndarray:
 
 
 def make_scenes(points: int) -> Dict[str, Scene]:
-    """The four scenes at about ``points`` particles each."""
+    """Build the four scenes at about ``points`` particles each."""
     from sm_ros.core import BodyParams, Ground, World
 
     side = 0.2
@@ -133,7 +134,7 @@ def make_scenes(points: int) -> Dict[str, Scene]:
 
     beam_len, beam_w = 0.6, 0.1
     spacing = (beam_len * beam_w * beam_w / points) ** (1.0 / 3.0)
-    beam_pts = C.box_lattice((beam_len, beam_w, beam_w), spacing, (0.0, -0.05, 0.5))
+    beam_pts = bc.box_lattice((beam_len, beam_w, beam_w), spacing, (0.0, -0.05, 0.5))
     pinned = np.nonzero(beam_pts[:, 0] <= beam_pts[:, 0].min() + 1e-9)[0]
 
     def beam_build(p):
@@ -168,19 +169,20 @@ def make_scenes(points: int) -> Dict[str, Scene]:
         return world, body, driver
 
     g_imp = 9.81 * 2.0            # momentum scale: M g T (M = 1 kg in every scene)
-    soft = dict(mode='linear', alpha=0.3, beta=0.5, clusters=2)
+    soft = {'mode': 'linear', 'alpha': 0.3, 'beta': 0.5, 'clusters': 2}
     return {
         'rigid_spin': Scene('rigid_spin', spin_build,
-                            dict(mode='rigid', alpha=1.0, beta=0.0, clusters=1), side,
+                            {'mode': 'rigid', 'alpha': 1.0, 'beta': 0.0, 'clusters': 1}, side,
                             sweep_modes=['rigid'], exact=spin_exact, conserved=True),
         'soft_drop': Scene('soft_drop', drop_build, soft, side, p_scale=g_imp,
                            l_scale=g_imp * side),
         'pinned_beam': Scene('pinned_beam', beam_build,
-                             dict(mode='linear', alpha=0.5, beta=0.5, clusters=2), beam_len,
+                             {'mode': 'linear', 'alpha': 0.5, 'beta': 0.5, 'clusters': 2},
+                             beam_len,
                              p_scale=g_imp, l_scale=g_imp * beam_len),
         'plastic_press': Scene('plastic_press', press_build,
-                               dict(mode='linear', alpha=0.5, beta=0.3, clusters=2,
-                                    plastic_yield=0.05, plastic_creep=2.0, plastic_max=0.3),
+                               {'mode': 'linear', 'alpha': 0.5, 'beta': 0.3, 'clusters': 2,
+                                'plastic_yield': 0.05, 'plastic_creep': 2.0, 'plastic_max': 0.3},
                                side, p_scale=g_imp, l_scale=g_imp * side),
     }
 
@@ -224,9 +226,9 @@ def simulate(scene: Scene, params: Dict[str, Any], rate: float, substeps: int,
             times[steps] = clock() - t0
             steps += 1
     cost = float(np.median(times)) * steps if steps else 0.0
-    return dict(x=np.array(body.x), p=body.momentum(), L=body.angular_momentum(),
-                vol=volume_proxy(body.x, body.m), p0=p0, L0=l0, vol0=vol0, m=body.m,
-                finite=body.is_finite(), cost_s=cost, steps=steps, t=frames / rate)
+    return {'x': np.array(body.x), 'p': body.momentum(), 'L': body.angular_momentum(),
+            'vol': volume_proxy(body.x, body.m), 'p0': p0, 'L0': l0, 'vol0': vol0, 'm': body.m,
+            'finite': body.is_finite(), 'cost_s': cost, 'steps': steps, 't': frames / rate}
 
 
 def _metrics(scene: Scene, run: Dict[str, Any], ref: Optional[Dict[str, Any]],
@@ -241,36 +243,36 @@ def _metrics(scene: Scene, run: Dict[str, Any], ref: Optional[Dict[str, Any]],
         p_err = np.linalg.norm(run['p'] - ref['p']) / scene.p_scale
         l_err = np.linalg.norm(run['L'] - ref['L']) / scene.l_scale
         v_err = run['vol'] / ref['vol'] - 1.0
-    return dict(err_rms=err if run['finite'] else float('inf'), p_drift=float(p_err),
-                L_drift=float(l_err), vol_drift=float(v_err))
+    return {'err_rms': err if run['finite'] else float('inf'), 'p_drift': float(p_err),
+            'L_drift': float(l_err), 'vol_drift': float(v_err)}
 
 
 def run(args, out: Path) -> Dict[str, Any]:
     """Sweep every scene; write tables and one plot per scene; return findings."""
     scenes = make_scenes(args.accuracy_points)
-    names = [s for s in C.as_list(args.scenes, str) if s]
-    rates = C.as_list(args.dts)
-    subs = C.ints(args.substeps)
-    modes = C.as_list(args.acc_modes, str)
-    ks = C.ints(args.acc_clusters)
+    names = [s for s in bc.as_list(args.scenes, str) if s]
+    rates = bc.as_list(args.dts)
+    subs = bc.ints(args.substeps)
+    modes = bc.as_list(args.acc_modes, str)
+    ks = bc.ints(args.acc_clusters)
     finest = max(rates)
-    t = C.Table('accuracy', ['scene', 'mode', 'clusters', 'rate_hz', 'substeps', 'dt_ms',
-                             'N', 'err_rms', 'p_drift', 'L_drift', 'vol_drift',
-                             'ms_per_sim_s', 'ms_per_step'],
-                'Error at T against compute (err_rms: RMS position error / body size)')
-    cheap = C.Table('accuracy_budget', ['scene', 'budget', 'cheapest', 'err_rms',
-                                        'ms_per_sim_s'],
-                    'Cheapest configuration per error budget (RMS error / body size at T)')
+    t = bc.Table('accuracy', ['scene', 'mode', 'clusters', 'rate_hz', 'substeps', 'dt_ms',
+                              'N', 'err_rms', 'p_drift', 'L_drift', 'vol_drift',
+                              'ms_per_sim_s', 'ms_per_step'],
+                 'Error at T against compute (err_rms: RMS position error / body size)')
+    cheap = bc.Table('accuracy_budget', ['scene', 'budget', 'cheapest', 'err_rms',
+                                         'ms_per_sim_s'],
+                     'Cheapest configuration per error budget (RMS error / body size at T)')
     findings: Dict[str, Any] = {}
     for name in names:
         scene = scenes[name]
         ref = None
         if scene.exact is None:
-            C.log(f'[accuracy] {name}: reference run (dt = 1/{finest * args.ref_factor:g} s)')
+            bc.log(f'[accuracy] {name}: reference run (dt = 1/{finest * args.ref_factor:g} s)')
             ref = simulate(scene, scene.nominal, finest, args.ref_factor, args.duration,
                            args.alpha_scaling)
             if not ref['finite']:
-                C.log(f'[accuracy] {name}: reference is not finite; skipped')
+                bc.log(f'[accuracy] {name}: reference is not finite; skipped')
                 continue
         rows = []
         sweep_modes = scene.sweep_modes or modes
@@ -281,7 +283,7 @@ def run(args, out: Path) -> Dict[str, Any]:
                     for s in subs:
                         if rate * s > finest * (1 + 1e-9) and s > 1:
                             continue
-                        C.log(f'[accuracy] {name} {mode} k={k} 1/dt={rate:g} x{s}')
+                        bc.log(f'[accuracy] {name} {mode} k={k} 1/dt={rate:g} x{s}')
                         r = simulate(scene, params, rate, s, args.duration,
                                      args.alpha_scaling)
                         ex = scene.exact(None, r['t']) if scene.exact is not None else None
@@ -313,7 +315,7 @@ def run(args, out: Path) -> Dict[str, Any]:
 
 
 def _plot(name: str, scene: Scene, rows: List[Dict[str, Any]], out: Path):
-    plt = C.pyplot()
+    plt = bc.pyplot()
     if plt is None or not rows:
         return
     fig, ax = plt.subplots(figsize=(6.4, 4.6))
@@ -337,4 +339,4 @@ def _plot(name: str, scene: Scene, rows: List[Dict[str, Any]], out: Path):
     ax.set_ylabel('RMS position error at T / body size')
     ax.grid(True, which='both', alpha=0.3)
     ax.legend(fontsize=6, ncol=2)
-    C.save_figure(fig, out / f'bench_accuracy_{name}.png')
+    bc.save_figure(fig, out / f'bench_accuracy_{name}.png')

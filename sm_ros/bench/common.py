@@ -1,4 +1,5 @@
-"""Shared helpers of the benchmark: lattices, timers, tables, plots and machine facts.
+"""
+Shared helpers of the benchmark: lattices, timers, tables, plots and machine facts.
 
 Nothing here imports rclpy; matplotlib is imported lazily (Agg backend) so that the
 tables can be written where it is missing.
@@ -40,7 +41,8 @@ def box_lattice(size: Sequence[float], spacing: float, origin=(0.0, 0.0, 0.0)) -
 
 def time_calls(fn, *, min_time: float = 0.25, min_reps: int = 3, max_reps: int = 200,
                batch: int = 1) -> np.ndarray:
-    """Seconds per call of ``fn()`` (one sample per batch of ``batch`` calls).
+    """
+    Seconds per call of ``fn()`` (one sample per batch of ``batch`` calls).
 
     Runs at least ``min_reps`` batches and keeps going until ``min_time`` seconds have
     passed (at most ``max_reps`` batches). The machine is shared: callers report the
@@ -108,7 +110,7 @@ class Table:
         self.rows.append(row)
 
     def markdown(self) -> str:
-        """The table as GitHub markdown."""
+        """Return the table as GitHub markdown."""
         lines = []
         if self.title:
             lines += [f'### {self.title}', '']
@@ -192,7 +194,7 @@ def _cpu_name() -> str:
 
 
 def command_line() -> str:
-    """The command line of this run, as one would type it."""
+    """Return the command line of this run, as one would type it."""
     args = ' '.join(_quote(a) for a in sys.argv[1:])
     return f'python -m sm_ros.bench {args}'.strip()
 

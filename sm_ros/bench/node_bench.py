@@ -1,4 +1,5 @@
-"""Part 3 of the benchmark: the node end to end.
+"""
+Part 3 of the benchmark: the node end to end.
 
 For each size and rate: sim_node runs in one process on a scene of one box of N points
 resting on the ground (mode and clusters from the flags, ``dt`` = 1 / (rate x substeps) so
@@ -16,15 +17,15 @@ import subprocess
 import sys
 import tempfile
 import time
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, Optional
 
 import numpy as np
 
-from . import common as C
+from . import common as bc
 
 
 def add_arguments(p: argparse.ArgumentParser):
-    """Flags of the ``node`` subcommand."""
+    """Add the flags of the ``node`` subcommand."""
     p.add_argument('--node-sizes', default='1e4,1e5', help='points ("" to skip the node)')
     p.add_argument('--node-rates', default='30,60', help='tick rates in Hz')
     p.add_argument('--node-seconds', type=float, default=4.0, help='measured seconds')
@@ -32,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument('--node-mode', default='linear')
     p.add_argument('--node-clusters', type=int, default=1)
     p.add_argument('--node-dds-profile', default=None,
-                   help='Fast DDS profile for both processes (default: the repository\'s '
+                   help="Fast DDS profile for both processes (default: the repository's "
                         'config/fastdds_shm.xml, as the README recommends for large clouds; '
                         '"" for the DDS defaults)')
 
@@ -53,8 +54,8 @@ def node_ready() -> Optional[str]:
 
 
 def scene_yaml(points: int, path: Path):
-    """A scene with one box of about ``points`` particles resting on the ground."""
-    n = C.lattice_side(points)
+    """Write a scene with one box of about ``points`` particles resting on the ground."""
+    n = bc.lattice_side(points)
     spacing = 0.01
     size = (n - 1) * spacing
     path.write_text(
@@ -70,7 +71,7 @@ def scene_yaml(points: int, path: Path):
 
 
 def dds_profile(flag: Optional[str]) -> Optional[str]:
-    """The Fast DDS profile file to use, or None for the DDS defaults."""
+    """Return the Fast DDS profile file to use, or None for the DDS defaults."""
     if flag == '':
         return None
     if flag:
@@ -106,7 +107,7 @@ def measure(points: int, rate: float, args, tmp: Path) -> Optional[Dict[str, Any
     sub = subprocess.Popen(py + ['sub', '--seconds', f'{sub_seconds:.1f}'], env=env,
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(1.0)
-    node_res = C.run_json_subprocess(
+    node_res = bc.run_json_subprocess(
         py + ['node', '--scene', str(scene), '--rate', str(rate), '--seconds',
               str(args.node_seconds), '--warmup', f'{warm:.1f}', '--substeps',
               str(args.node_substeps), '--mode', args.node_mode, '--clusters',
@@ -134,45 +135,45 @@ def measure(points: int, rate: float, args, tmp: Path) -> Optional[Dict[str, Any
     sub_steps = max(1, int(args.node_substeps))
     med = (lambda a: float(np.median(a)) if len(a) else float('nan'))   # noqa: E731
     p95 = (lambda a: float(np.percentile(a, 95)) if len(a) else float('nan'))  # noqa: E731
-    return dict(points=node_res['points'], rate_hz_target=rate,
-                rate_hz=node_res['ticks'] / node_res['elapsed_s'],
-                tick_ms_median=med(tick), tick_ms_p95=p95(tick),
-                step_ms_median=med(steps) * sub_steps, fill_ms_median=med(fill),
-                publish_ms_median=med(pub),
-                other_ms_median=med(tick) - med(steps) * sub_steps - med(fill) - med(pub),
-                period_ms=1e3 / rate,
-                rx_rate_hz=rx_rate, rx_messages=len(lat),
-                latency_ms_median=1e3 * med(lat), latency_ms_p95=1e3 * p95(lat))
+    return {'points': node_res['points'], 'rate_hz_target': rate,
+            'rate_hz': node_res['ticks'] / node_res['elapsed_s'],
+            'tick_ms_median': med(tick), 'tick_ms_p95': p95(tick),
+            'step_ms_median': med(steps) * sub_steps, 'fill_ms_median': med(fill),
+            'publish_ms_median': med(pub),
+            'other_ms_median': med(tick) - med(steps) * sub_steps - med(fill) - med(pub),
+            'period_ms': 1e3 / rate,
+            'rx_rate_hz': rx_rate, 'rx_messages': len(lat),
+            'latency_ms_median': 1e3 * med(lat), 'latency_ms_p95': 1e3 * p95(lat)}
 
 
 def run(args, out: Path) -> Dict[str, Any]:
     """Every (size, rate); write the table; return findings."""
-    sizes = [int(x) for x in C.as_list(args.node_sizes)]
+    sizes = [int(x) for x in bc.as_list(args.node_sizes)]
     if not sizes:
         return {'status': 'skipped (no --node-sizes)'}
     reason = node_ready()
     if reason:
-        C.log(f'[node] not run: {reason}')
+        bc.log(f'[node] not run: {reason}')
         return {'status': f'not run: {reason}'}
-    rates = C.as_list(args.node_rates)
-    t = C.Table('node', ['points', 'rate_hz_target', 'rate_hz', 'tick_ms_median',
-                         'tick_ms_p95', 'step_ms_median', 'fill_ms_median',
-                         'publish_ms_median', 'other_ms_median', 'period_ms', 'rx_rate_hz',
-                         'latency_ms_median', 'latency_ms_p95'],
-                f'sim_node end to end ({args.node_mode}, clusters {args.node_clusters}, '
-                f'{args.node_substeps} step(s) per tick, ground on, DDS profile: '
-                f'{Path(dds_profile(args.node_dds_profile) or "defaults").name})')
+    rates = bc.as_list(args.node_rates)
+    t = bc.Table('node', ['points', 'rate_hz_target', 'rate_hz', 'tick_ms_median',
+                          'tick_ms_p95', 'step_ms_median', 'fill_ms_median',
+                          'publish_ms_median', 'other_ms_median', 'period_ms', 'rx_rate_hz',
+                          'latency_ms_median', 'latency_ms_p95'],
+                 f'sim_node end to end ({args.node_mode}, clusters {args.node_clusters}, '
+                 f'{args.node_substeps} step(s) per tick, ground on, DDS profile: '
+                 f'{Path(dds_profile(args.node_dds_profile) or "defaults").name})')
     findings: Dict[str, Any] = {'rows': []}
     with tempfile.TemporaryDirectory() as d:
         for n in sizes:
             for rate in rates:
-                C.log(f'[node] {n} points at {rate:g} Hz')
+                bc.log(f'[node] {n} points at {rate:g} Hz')
                 r = measure(n, rate, args, Path(d))
                 if r is None:
                     continue
                 t.add(**{k: r[k] for k in t.columns})
                 findings['rows'].append(r)
-                if C.lattice_side(n) == 46 and rate == 60:
+                if bc.lattice_side(n) == 46 and rate == 60:
                     findings['target'] = r
     t.write(out)
     findings['status'] = 'measured' if findings['rows'] else 'failed'

@@ -1,4 +1,5 @@
-"""The two processes of the node benchmark (run by ``node_bench``; one JSON line each).
+"""
+The two processes of the node benchmark (run by ``node_bench``; one JSON line each).
 
 ``python -m sm_ros.bench.node_procs node --scene S --rate R --seconds T``
     runs sim_node in this process and records, per tick, the time of the step(s), of the

@@ -1,4 +1,5 @@
-"""Part 1 of the benchmark: ms/step against N (the paper's Fig. 6 on this machine).
+"""
+Part 1 of the benchmark: ms/step against N (the paper's Fig. 6 on this machine).
 
 Bodies are n x n x n lattices on the unit cube (the lattice pypbd's peer script builds),
 unit masses, gravity, no colliders, alpha = 1 (pypbd's stiffness 1), beta = 0.5. The
@@ -18,7 +19,7 @@ from typing import Any, Dict, List, Optional
 
 import numpy as np
 
-from . import common as C
+from . import common as bc
 
 DT = 0.005                      # pypbd's default step (its TimeManager), used for both
 GRAVITY = (0.0, 0.0, -9.81)
@@ -27,7 +28,7 @@ CLUSTER_NAMES = {1: 1, 2: 8, 3: 27, 4: 64}
 
 
 def add_arguments(p: argparse.ArgumentParser):
-    """Flags of the ``scaling`` subcommand."""
+    """Add the flags of the ``scaling`` subcommand."""
     p.add_argument('--sizes', default='1e3,1e4,1e5,1e6',
                    help='particle counts (rounded to n^3 lattices), comma separated')
     p.add_argument('--modes', default=','.join(MODES))
@@ -69,17 +70,18 @@ def measure_bandwidth(mb: float) -> Dict[str, float]:
     src = np.random.default_rng(0).random(n)
     dst = np.empty_like(src)
     moved = 2 * src.nbytes
-    t_np = C.time_calls(lambda: np.copyto(dst, src), min_time=0.5, min_reps=5)
+    t_np = bc.time_calls(lambda: np.copyto(dst, src), min_time=0.5, min_reps=5)
     pcopy = _numba_copy()
     pcopy(src, dst)
-    t_nb = C.time_calls(lambda: pcopy(src, dst), min_time=0.5, min_reps=5)
+    t_nb = bc.time_calls(lambda: pcopy(src, dst), min_time=0.5, min_reps=5)
     return {'numpy_copy_GBps': moved / t_np.min() / 1e9,
             'numba_parallel_copy_GBps': moved / t_nb.min() / 1e9,
             'array_MB': src.nbytes / 1e6}
 
 
 def bandwidth_fraction(n_side: int, mb: float, rounds: int = 8) -> Dict[str, Any]:
-    """Copies and single-cluster linear steps, interleaved; best of each; the ratios.
+    """
+    Time copies and single-cluster linear steps in alternation; best of each; ratios.
 
     The machine is shared: measuring the copy and the step in alternation, and taking the
     best of each, compares them under the same load. The body is timed as ``World.step``
@@ -128,7 +130,8 @@ def bandwidth_fraction(n_side: int, mb: float, rounds: int = 8) -> Dict[str, Any
 
 
 def bytes_per_particle(body) -> int:
-    """Bytes one step moves per particle in the fused pass (single cluster, no collider).
+    """
+    Bytes one step moves per particle in the fused pass (single cluster, no collider).
 
     Read x, v, x0 (3 float64 each) and m (float64); write x and v: 6 x 24 - 16 = 128 B
     for float64. Counted from the arrays the body really holds.
@@ -143,10 +146,10 @@ def bytes_per_particle(body) -> int:
 # ---------------------------------------------------------------------------------------
 
 def build_world(n_side: int, mode: str, k: int, alpha: float = 1.0):
-    """A world with one n^3 lattice body (unit masses) and gravity; no colliders."""
+    """Build a world with one n^3 lattice body (unit masses) and gravity; no colliders."""
     from sm_ros.core import BodyParams, World
     world = World(gravity=GRAVITY)
-    body = world.add_body(C.cube_lattice(n_side), masses=1.0, name='cube',
+    body = world.add_body(bc.cube_lattice(n_side), masses=1.0, name='cube',
                           params=BodyParams(mode=mode, alpha=alpha, beta=0.5, clusters=k))
     return world, body
 
@@ -160,16 +163,16 @@ def time_numba(n_side: int, mode: str, k: int, min_time: float) -> Dict[str, Any
         world.step(DT)
     n = body.n
     batch = max(1, min(50, int(2e5 // n)))
-    s = C.time_calls(lambda: world.step(DT), min_time=min_time, batch=batch)
+    s = bc.time_calls(lambda: world.step(DT), min_time=min_time, batch=batch)
     memberships = len(body._cl) if len(getattr(body, '_cl', ())) else n
     layout = 'single' if k == 1 else ('sets' if getattr(body, '_sets', None) is not None
                                       else 'memberships')
-    return dict(N=n, mode=mode, k=k, clusters=body.num_clusters, memberships=memberships,
-                layout=layout,
-                ms_median=1e3 * float(np.median(s)), ms_min=1e3 * float(s.min()),
-                ns_per_particle=1e9 * float(np.median(s)) / n, build_s=build_s,
-                parallel=bool(getattr(body, '_parallel', False)),
-                bytes_per_particle=bytes_per_particle(body), finite=body.is_finite())
+    return {'N': n, 'mode': mode, 'k': k, 'clusters': body.num_clusters,
+            'memberships': memberships, 'layout': layout,
+            'ms_median': 1e3 * float(np.median(s)), 'ms_min': 1e3 * float(s.min()),
+            'ns_per_particle': 1e9 * float(np.median(s)) / n, 'build_s': build_s,
+            'parallel': bool(getattr(body, '_parallel', False)),
+            'bytes_per_particle': bytes_per_particle(body), 'finite': body.is_finite()}
 
 
 # ---------------------------------------------------------------------------------------
@@ -183,14 +186,14 @@ def time_numpy(n_side: int, mode: str, k: int, min_time: float) -> Optional[Dict
     except ImportError:
         return None
     from sm_ros.core import BodyParams
-    ref = ReferenceBody(C.cube_lattice(n_side), 1.0,
+    ref = ReferenceBody(bc.cube_lattice(n_side), 1.0,
                         BodyParams(mode=mode, alpha=1.0, beta=0.5, clusters=k))
     ref.step(DT, GRAVITY)
-    s_step = C.time_calls(lambda: ref.step(DT, GRAVITY), min_time=min_time, min_reps=2,
-                          max_reps=20)
-    s_goal = C.time_calls(lambda: ref.goals(), min_time=min_time, min_reps=2, max_reps=20)
-    return dict(numpy_step_ms=1e3 * float(np.median(s_step)),
-                numpy_goals_ms=1e3 * float(np.median(s_goal)))
+    s_step = bc.time_calls(lambda: ref.step(DT, GRAVITY), min_time=min_time, min_reps=2,
+                           max_reps=20)
+    s_goal = bc.time_calls(lambda: ref.goals(), min_time=min_time, min_reps=2, max_reps=20)
+    return {'numpy_step_ms': 1e3 * float(np.median(s_step)),
+            'numpy_goals_ms': 1e3 * float(np.median(s_goal))}
 
 
 # ---------------------------------------------------------------------------------------
@@ -198,7 +201,7 @@ def time_numpy(n_side: int, mode: str, k: int, min_time: float) -> Optional[Dict
 # ---------------------------------------------------------------------------------------
 
 def find_pypbd_script(explicit: Optional[str]) -> Optional[Path]:
-    """The peer driver script: flag, $SM_ROS_PYPBD_SCRIPT, or shared/peers beside the repo."""
+    """Find the peer script: flag, $SM_ROS_PYPBD_SCRIPT, or shared/peers beside the repo."""
     cands = []
     if explicit:
         cands.append(Path(explicit))
@@ -222,7 +225,7 @@ def time_pypbd(script: Path, n_side: int, k: int, steps: int,
     env = dict(os.environ)
     if threads:
         env['OMP_NUM_THREADS'] = str(threads)
-    return C.run_json_subprocess(cmd, timeout=timeout, cwd=str(script.parent), env=env)
+    return bc.run_json_subprocess(cmd, timeout=timeout, cwd=str(script.parent), env=env)
 
 
 # ---------------------------------------------------------------------------------------
@@ -231,24 +234,24 @@ def time_pypbd(script: Path, n_side: int, k: int, steps: int,
 
 def run(args, out: Path) -> Dict[str, Any]:
     """Run every part of the scaling benchmark; write tables and plots; return findings."""
-    sizes = sorted({C.lattice_side(s) for s in C.as_list(args.sizes)})
-    modes = [m for m in C.as_list(args.modes, str)]
-    ks = C.ints(args.clusters)
+    sizes = sorted({bc.lattice_side(s) for s in bc.as_list(args.sizes)})
+    modes = list(bc.as_list(args.modes, str))
+    ks = bc.ints(args.clusters)
     findings: Dict[str, Any] = {}
 
-    C.log('[scaling] memory bandwidth (streaming copy)')
+    bc.log('[scaling] memory bandwidth (streaming copy)')
     bw = measure_bandwidth(args.bandwidth_mb)
     bw_best = max(bw['numpy_copy_GBps'], bw['numba_parallel_copy_GBps'])
     findings['bandwidth'] = bw
 
-    t = C.Table('scaling', ['N', 'mode', 'clusters', 'memberships', 'layout', 'ms_median',
-                            'ms_min', 'ns_per_particle', 'parallel', 'build_s'],
-                'ms per step against N (World.step, dt = 5 ms, gravity, no colliders)')
+    t = bc.Table('scaling', ['N', 'mode', 'clusters', 'memberships', 'layout', 'ms_median',
+                             'ms_min', 'ns_per_particle', 'parallel', 'build_s'],
+                 'ms per step against N (World.step, dt = 5 ms, gravity, no colliders)')
     results: List[Dict[str, Any]] = []
     for n_side in sizes:
         for mode in modes:
             for k in ks:
-                C.log(f'[scaling] sm_ros N={n_side ** 3} {mode} k={k}')
+                bc.log(f'[scaling] sm_ros N={n_side ** 3} {mode} k={k}')
                 r = time_numba(n_side, mode, k, args.min_time)
                 results.append(r)
                 t.add(N=r['N'], mode=mode, clusters=r['clusters'],
@@ -266,9 +269,9 @@ def run(args, out: Path) -> Dict[str, Any]:
         return None
 
     # slopes and quadratic/linear ratios
-    s = C.Table('scaling_summary', ['mode', 'clusters', 'slope_loglog', 'slope_upper_half',
-                                    'quad_over_linear_at_max_N'],
-                'log-log slope of ms/step against N, and quadratic / linear')
+    s = bc.Table('scaling_summary', ['mode', 'clusters', 'slope_loglog', 'slope_upper_half',
+                                     'quad_over_linear_at_max_N'],
+                 'log-log slope of ms/step against N, and quadratic / linear')
     nmax = max(r['N'] for r in results) if results else 0
     for mode in modes:
         for k in ks:
@@ -280,19 +283,19 @@ def run(args, out: Path) -> Dict[str, Any]:
             if mode == 'quadratic' and pick(nmax, 'linear', k) and pick(nmax, mode, k):
                 ratio = pick(nmax, mode, k)['ms_median'] / pick(nmax, 'linear', k)['ms_median']
             s.add(mode=mode, clusters=CLUSTER_NAMES.get(k, k ** 3),
-                  slope_loglog=C.loglog_slope(ns, ms),
-                  slope_upper_half=C.loglog_slope(*zip(*upper)) if len(upper) > 1 else None,
+                  slope_loglog=bc.loglog_slope(ns, ms),
+                  slope_upper_half=bc.loglog_slope(*zip(*upper)) if len(upper) > 1 else None,
                   quad_over_linear_at_max_N=ratio)
     s.write(out)
     findings['summary'] = s.rows
 
     # bandwidth fraction of the single-cluster linear step, interleaved with the copies
-    b = C.Table('bandwidth', ['what', 'value', 'unit'],
-                'memory bandwidth and the fraction the single-cluster linear step reaches '
-                '(copies and steps interleaved, best of each)')
+    b = bc.Table('bandwidth', ['what', 'value', 'unit'],
+                 'memory bandwidth and the fraction the single-cluster linear step reaches '
+                 '(copies and steps interleaved, best of each)')
     if 1 in ks and 'linear' in modes:
-        C.log(f'[scaling] bandwidth fraction, linear, 1 cluster, N={nmax} (interleaved)')
-        inter = bandwidth_fraction(C.lattice_side(nmax), args.bandwidth_mb)
+        bc.log(f'[scaling] bandwidth fraction, linear, 1 cluster, N={nmax} (interleaved)')
+        inter = bandwidth_fraction(bc.lattice_side(nmax), args.bandwidth_mb)
         for key, label in (('numpy_copy_GBps', 'streaming copy, NumPy (1 thread)'),
                            ('numba_parallel_copy_GBps', 'streaming copy, Numba prange')):
             b.add(what=label, value=inter[key], unit='GB/s')
@@ -321,18 +324,18 @@ def run(args, out: Path) -> Dict[str, Any]:
     b.write(out)
 
     # NumPy reference
-    np_sizes = sorted({C.lattice_side(x) for x in C.as_list(args.numpy_sizes)})
-    npt = C.Table('numpy_reference', ['N', 'mode', 'clusters', 'numba_ms', 'numpy_step_ms',
-                                      'numpy_goals_ms', 'speedup_step', 'speedup_goals'],
-                  'Numba step against the NumPy reference (sm_ros.core.reference)')
+    np_sizes = sorted({bc.lattice_side(x) for x in bc.as_list(args.numpy_sizes)})
+    npt = bc.Table('numpy_reference', ['N', 'mode', 'clusters', 'numba_ms', 'numpy_step_ms',
+                                       'numpy_goals_ms', 'speedup_step', 'speedup_goals'],
+                   'Numba step against the NumPy reference (sm_ros.core.reference)')
     findings['numpy'] = []
     for n_side in np_sizes:
         for mode in modes:
-            for k in C.ints(args.numpy_clusters):
-                C.log(f'[scaling] numpy N={n_side ** 3} {mode} k={k}')
+            for k in bc.ints(args.numpy_clusters):
+                bc.log(f'[scaling] numpy N={n_side ** 3} {mode} k={k}')
                 ref = time_numpy(n_side, mode, k, min(args.min_time, 1.0))
                 if ref is None:
-                    C.log('  sm_ros.core.reference not importable: skipped')
+                    bc.log('  sm_ros.core.reference not importable: skipped')
                     break
                 ours = pick(n_side ** 3, mode, k) or time_numba(n_side, mode, k, args.min_time)
                 row = dict(N=n_side ** 3, mode=mode, clusters=CLUSTER_NAMES.get(k, k ** 3),
@@ -344,29 +347,29 @@ def run(args, out: Path) -> Dict[str, Any]:
     npt.write(out)
 
     # pypbd
-    pp_sizes = sorted({C.lattice_side(x) for x in C.as_list(args.pypbd_sizes)})
+    pp_sizes = sorted({bc.lattice_side(x) for x in bc.as_list(args.pypbd_sizes)})
     script = find_pypbd_script(args.pypbd_script) if pp_sizes else None
-    ppt = C.Table('pypbd', ['N', 'clusters', 'memberships_pypbd', 'memberships_ours',
-                            'pypbd_1thread_ms', 'pypbd_2threads_ms', 'pypbd_best_ms',
-                            'ours_rigid_ms', 'ours_linear_ms', 'speedup_rigid',
-                            'speedup_linear'],
-                  'sm_ros against pypbd (same lattice and clusters, 1 iteration, dt 5 ms; '
-                  'medians; speedup = pypbd at its best thread count / ours)')
+    ppt = bc.Table('pypbd', ['N', 'clusters', 'memberships_pypbd', 'memberships_ours',
+                             'pypbd_1thread_ms', 'pypbd_2threads_ms', 'pypbd_best_ms',
+                             'ours_rigid_ms', 'ours_linear_ms', 'speedup_rigid',
+                             'speedup_linear'],
+                   'sm_ros against pypbd (same lattice and clusters, 1 iteration, dt 5 ms; '
+                   'medians; speedup = pypbd at its best thread count / ours)')
     findings['pypbd'] = []
     if pp_sizes and script is None:
-        C.log('[scaling] pypbd peer script not found: skipped')
+        bc.log('[scaling] pypbd peer script not found: skipped')
     elif pp_sizes:
         try:
             import pypbd  # noqa: F401
             have = True
         except ImportError:
             have = False
-            C.log('[scaling] pypbd not installed (pip install pypbd): skipped')
+            bc.log('[scaling] pypbd not installed (pip install pypbd): skipped')
         for n_side in (pp_sizes if have else []):
             for k in ks:
                 per = {}
-                for thr in C.ints(args.pypbd_threads):
-                    C.log(f'[scaling] pypbd N={n_side ** 3} k={k} OMP_NUM_THREADS={thr}')
+                for thr in bc.ints(args.pypbd_threads):
+                    bc.log(f'[scaling] pypbd N={n_side ** 3} k={k} OMP_NUM_THREADS={thr}')
                     peer = time_pypbd(script, n_side, k, args.pypbd_steps, thr)
                     if peer is not None:
                         per[thr] = peer
@@ -377,15 +380,15 @@ def run(args, out: Path) -> Dict[str, Any]:
                                                                   args.min_time)
                 lin = pick(n_side ** 3, 'linear', k) or time_numba(n_side, 'linear', k,
                                                                    args.min_time)
-                row = dict(N=n_side ** 3, clusters=peer['clusters'],
-                           memberships_pypbd=peer['memberships'],
-                           memberships_ours=rig['memberships'],
-                           pypbd_1thread_ms=per[1]['median_ms'] if 1 in per else None,
-                           pypbd_2threads_ms=per[2]['median_ms'] if 2 in per else None,
-                           pypbd_best_ms=peer['median_ms'],
-                           ours_rigid_ms=rig['ms_median'], ours_linear_ms=lin['ms_median'],
-                           speedup_rigid=peer['median_ms'] / rig['ms_median'],
-                           speedup_linear=peer['median_ms'] / lin['ms_median'])
+                row = {'N': n_side ** 3, 'clusters': peer['clusters'],
+                       'memberships_pypbd': peer['memberships'],
+                       'memberships_ours': rig['memberships'],
+                       'pypbd_1thread_ms': per[1]['median_ms'] if 1 in per else None,
+                       'pypbd_2threads_ms': per[2]['median_ms'] if 2 in per else None,
+                       'pypbd_best_ms': peer['median_ms'],
+                       'ours_rigid_ms': rig['ms_median'], 'ours_linear_ms': lin['ms_median'],
+                       'speedup_rigid': peer['median_ms'] / rig['ms_median'],
+                       'speedup_linear': peer['median_ms'] / lin['ms_median']}
                 ppt.add(**row)
                 findings['pypbd'].append(row)
     ppt.write(out)
@@ -395,7 +398,7 @@ def run(args, out: Path) -> Dict[str, Any]:
 
 
 def _plot(results, findings, bw_best, out: Path):
-    plt = C.pyplot()
+    plt = bc.pyplot()
     if plt is None or not results:
         return
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
@@ -434,4 +437,4 @@ def _plot(results, findings, bw_best, out: Path):
     ax.set_title('against the NumPy reference and pypbd')
     ax.grid(True, which='both', alpha=0.3)
     ax.legend(fontsize=7)
-    C.save_figure(fig, out / 'bench_scaling.png')
+    bc.save_figure(fig, out / 'bench_scaling.png')
