@@ -197,6 +197,8 @@ class Body:
         self._g = np.zeros((nk, 3, 3))
         self._hv = np.zeros((nk, 3))
         self._quat = np.tile([1.0, 0.0, 0.0, 0.0], (nk, 1))
+        self._apq = np.zeros((nk, 3, 3))
+        self._q4 = np.zeros(4)
         self._sq = np.zeros((nk, 9))
         self._mom3 = np.zeros((nk if self._need3 else 1, 3, 3))
         self._mom9 = np.zeros((nk if self._need9 else 1, 9, 9))
@@ -271,11 +273,16 @@ class Body:
             acc = K.accumulate_parallel if self._parallel else K.accumulate_serial
             acc(self._quad, x, self._x0, self.m, self._ptr, self._cl, self._g, self._hv,
                 self._ref, self._part)
-        nchanged = K.solve_clusters(
+        K.solve_clusters(
             self._part, self._wsum, self._sq, self._ref, self._quat, self._aqq3, self._aqq9,
             self._g, self._hv, self._scale, self._t, self._lm, self._lb, self._mode, p.beta,
-            p.plastic, self._sp, p.plastic_yield, p.plastic_creep, p.plastic_max, h,
-            self._changed, self._accbuf, s3[0], s3[1], s3[2], self._m39, self._n4, self._v4)
+            self._apq, self._accbuf, s3[0], s3[1], s3[2], self._m39, self._n4, self._v4)
+        nchanged = 0
+        if p.plastic:
+            nchanged = K.plastic_update(
+                self._apq, self._aqq3, self._scale, self._quat, self._sp, p.plastic_yield,
+                p.plastic_creep, p.plastic_max, h, self._changed, self._q4, s3[0], s3[1],
+                s3[2], self._n4, self._v4)
         if sets is not None:
             K.sets_maps(sets.ptr, sets.cl, sets.cnt, sets.org, self._g, self._hv, self._t,
                         self._lm, self._lb, self._ref, self._quad, sets.gm, sets.ref, sets.pm)
@@ -460,11 +467,9 @@ class Body:
                             self._g, self._hv, ref, part)
         s3 = [np.zeros((3, 3)) for _ in range(3)]
         K.solve_clusters(part, self._wsum, self._sq, ref, quat, self._aqq3, self._aqq9,
-                         self._g, self._hv, self._scale, t, lm, lb, self._mode, p.beta, False,
-                         self._sp.copy(), 0.0, 0.0, 0.0, 1.0, np.zeros(self.num_clusters,
-                                                                       dtype=np.bool_),
-                         np.zeros(32), s3[0], s3[1], s3[2], np.zeros((3, 9)),
-                         np.zeros((4, 4)), np.zeros((4, 4)))
+                         self._g, self._hv, self._scale, t, lm, lb, self._mode, p.beta,
+                         np.zeros_like(self._apq), np.zeros(32), s3[0], s3[1], s3[2],
+                         np.zeros((3, 9)), np.zeros((4, 4)), np.zeros((4, 4)))
         g = self._x.copy()
         K.integrate_serial(self._quad, g, np.zeros_like(g), self._x0, self.m, self._ptr,
                            self._cl, self._g, self._hv, t, lm, lb, ref, 1.0, 1.0, np.zeros(3),

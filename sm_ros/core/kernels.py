@@ -892,23 +892,20 @@ def _add_null_projector(aqq, out, wa, wv):
 
 @njit(**JIT)
 def solve_clusters(part, wsum, sq, ref, quat, aqq3, aqq9, g, hv, scale, t, lm, lb, mode, beta,
-                   plastic, sp, c_yield, c_creep, c_max, h, changed, acc, m3a, m3b, m3c, m39,
-                   n4, v4):
+                   apq, acc, m3a, m3b, m3c, m39, n4, v4):
     """Reduce the accumulators and build every cluster's goal transform.
 
     ``mode``: 0 rigid, 1 linear, 2 quadratic.  Outputs: ``ref`` <- centre of mass x_cm,
     ``quat`` <- rotation of A_pq, ``t`` (3x9; linear modes use the 3x3 block) and, for the
-    rigid/linear modes, the affine goal map ``lm x0 + lb``.  With ``plastic`` the plastic
-    state ``sp`` is updated (Eq. 24-27) and ``changed`` marks clusters whose rest shape
-    must be refreshed.  Returns the number of changed clusters.
+    rigid/linear modes, the affine goal map ``lm x0 + lb``; ``apq`` (clusters, 3, 3)
+    <- A_pq-hat for ``plastic_update``.  Plasticity is a kernel of its own, so a scene
+    without it neither runs nor compiles it.
     """
     nch = part.shape[0]
     nk = part.shape[1]
     na = part.shape[2]
     nq = 9 if mode == 2 else 3
-    nchanged = 0
     for k in range(nk):
-        changed[k] = False
         for a in range(na):
             s = 0.0
             for c in range(nch):
@@ -929,6 +926,7 @@ def solve_clusters(part, wsum, sq, ref, quat, aqq3, aqq9, g, hv, scale, t, lm, l
         for i in range(3):
             for j in range(3):
                 m3a[i, j] = m39[i, j]
+                apq[k, i, j] = m39[i, j]
         extract_rotation(m3a, quat[k], m3b, n4, v4)   # m3b = R
         s_k = scale[k]
         if mode == 2:
@@ -971,59 +969,75 @@ def solve_clusters(part, wsum, sq, ref, quat, aqq3, aqq9, g, hv, scale, t, lm, l
                                    + t[k, i, 2] * g[k, 2, j])
                 lb[k, i] = (t[k, i, 0] * hv[k, 0] + t[k, i, 1] * hv[k, 1]
                             + t[k, i, 2] * hv[k, 2] + ref[k, i])
-        if plastic:
-            # A = A_pq A_qq (linear part), its polar decomposition A = R_A S (Eq. 24-25)
-            matmul(m3a, aqq3[k], m3c)
-            for i in range(3):
-                for j in range(3):
-                    m3c[i, j] /= s_k
-            for i in range(4):
-                acc[i] = quat[k, i]
-            extract_rotation(m3c, acc[:4], m3b, n4, v4)
-            # S - I (symmetrised) into m3a
+
+
+@njit(**JIT)
+def plastic_update(apq, aqq3, scale, quat, sp, c_yield, c_creep, c_max, h, changed, q4, m3a,
+                   m3b, m3c, n4, v4):
+    """Plasticity (Eq. 24-27) of every cluster from this step's A_pq-hat (``apq``).
+
+    Updates the plastic state ``sp``; ``changed`` marks the clusters whose rest shape
+    must be refreshed.  Returns the number of changed clusters.
+    """
+    nchanged = 0
+    for k in range(apq.shape[0]):
+        changed[k] = False
+        s_k = scale[k]
+        for i in range(3):
+            for j in range(3):
+                m3a[i, j] = apq[k, i, j]
+        # A = A_pq A_qq (linear part), its polar decomposition A = R_A S (Eq. 24-25)
+        matmul(m3a, aqq3[k], m3c)
+        for i in range(3):
+            for j in range(3):
+                m3c[i, j] /= s_k
+        for i in range(4):
+            q4[i] = quat[k, i]
+        extract_rotation(m3c, q4, m3b, n4, v4)
+        # S - I (symmetrised) into m3a
+        for i in range(3):
+            for j in range(3):
+                s = 0.0
+                for u in range(3):
+                    s += m3b[u, i] * m3c[u, j]
+                m3a[i, j] = s
+        for i in range(3):
+            for j in range(i, 3):
+                avg = 0.5 * (m3a[i, j] + m3a[j, i])
+                m3a[i, j] = avg
+                m3a[j, i] = avg
+            m3a[i, i] -= 1.0
+        # A is blind along directions the rest shape does not span (flat, line-like,
+        # single-point clusters: A_qq is a pseudo-inverse): S = I there, not 0, or
+        # such a cluster flows plastically at rest
+        _add_null_projector(aqq3[k], m3a, n4[:3, :3], v4[:3, :3])
+        for i in range(3):
+            for j in range(3):
+                m3b[i, j] = m3a[i, j]
+        nrm = norm2(m3b, n4[:3, :3], v4[:3, :3])
+        if nrm > c_yield and c_creep > 0.0 and np.isfinite(nrm):
+            tc = h * c_creep
+            if tc > 1.0:
+                tc = 1.0
+            # Sp <- (I + h c_creep (S - I)) Sp
             for i in range(3):
                 for j in range(3):
                     s = 0.0
                     for u in range(3):
-                        s += m3b[u, i] * m3c[u, j]
-                    m3a[i, j] = s
-            for i in range(3):
-                for j in range(i, 3):
-                    avg = 0.5 * (m3a[i, j] + m3a[j, i])
-                    m3a[i, j] = avg
-                    m3a[j, i] = avg
-                m3a[i, i] -= 1.0
-            # A is blind along directions the rest shape does not span (flat, line-like,
-            # single-point clusters: A_qq is a pseudo-inverse): S = I there, not 0, or
-            # such a cluster flows plastically at rest
-            _add_null_projector(aqq3[k], m3a, n4[:3, :3], v4[:3, :3])
-            for i in range(3):
-                for j in range(3):
-                    m3b[i, j] = m3a[i, j]
-            nrm = norm2(m3b, n4[:3, :3], v4[:3, :3])
-            if nrm > c_yield and c_creep > 0.0 and np.isfinite(nrm):
-                tc = h * c_creep
-                if tc > 1.0:
-                    tc = 1.0
-                # Sp <- (I + h c_creep (S - I)) Sp
+                        s += ((1.0 if i == u else 0.0) + tc * m3a[i, u]) * sp[k, u, j]
+                    m3c[i, j] = s
+            dt = det3(m3c)
+            if dt > 1e-12 and np.isfinite(dt):
+                f = 1.0 / np.cbrt(dt)
                 for i in range(3):
                     for j in range(3):
-                        s = 0.0
-                        for u in range(3):
-                            s += ((1.0 if i == u else 0.0) + tc * m3a[i, u]) * sp[k, u, j]
-                        m3c[i, j] = s
-                dt = det3(m3c)
-                if dt > 1e-12 and np.isfinite(dt):
-                    f = 1.0 / np.cbrt(dt)
-                    for i in range(3):
-                        for j in range(3):
-                            m3c[i, j] *= f
-                    _cap_plastic(m3c, c_max, m3a, n4[:3, :3], v4[:3, :3])
-                    for i in range(3):
-                        for j in range(3):
-                            sp[k, i, j] = m3c[i, j]
-                    changed[k] = True
-                    nchanged += 1
+                        m3c[i, j] *= f
+                _cap_plastic(m3c, c_max, m3a, n4[:3, :3], v4[:3, :3])
+                for i in range(3):
+                    for j in range(3):
+                        sp[k, i, j] = m3c[i, j]
+                changed[k] = True
+                nchanged += 1
     return nchanged
 
 
