@@ -2,7 +2,9 @@
 #   make run    start the node on the default scene (ARGS='--ros-args -p alpha:=0.9' passes on)
 #   make test   run the whole test suite
 # Each creates .venv (ROS 2 Jazzy client libraries as Python wheels, numpy, numba, ...) if it
-# is missing, and reinstalls only when setup.py or package.xml changes.
+# is missing, compiles the solver kernels once (python -m sm_ros.warmup: Numba's on-disk
+# cache, so the node starts in seconds), and reinstalls only when setup.py or package.xml
+# changes.
 
 PYTHON ?= python3
 VENV := .venv
@@ -17,6 +19,7 @@ venv: $(STAMP)
 $(STAMP): setup.py setup.cfg package.xml
 	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/python -m pip install --quiet -e '.[ros,test]'
+	$(VENV)/bin/python -m sm_ros.warmup
 	touch $(STAMP)
 
 run: $(STAMP)

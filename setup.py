@@ -60,6 +60,7 @@ setup(
     entry_points={
         'console_scripts': [
             'sim_node = sm_ros.node:main',
+            'warmup = sm_ros.warmup:main',
         ],
     },
 )

@@ -81,7 +81,8 @@ def test_setup_py_dependencies_and_entry_point():
     assert set(extras['test']) >= {'pytest', 'hypothesis', 'psutil', 'trimesh', 'matplotlib'}
     assert extras['mesh'] == ['trimesh'] and extras['plot'] == ['matplotlib']
     assert set(extras['bench']) == {'matplotlib', 'psutil', 'pypbd'}
-    assert kw['entry_points']['console_scripts'] == ['sim_node = sm_ros.node:main']
+    assert kw['entry_points']['console_scripts'] == ['sim_node = sm_ros.node:main',
+                                                     'warmup = sm_ros.warmup:main']
     assert kw['license'] == 'Apache-2.0'
 
 
@@ -108,6 +109,7 @@ def test_ci_runs_make_test():
     assert "pip install --quiet -e '.[ros,test]'" in mk
     assert '$(VENV)/bin/python -m pytest -q test' in mk
     assert '$(VENV)/bin/sim_node $(ARGS)' in mk
+    assert '$(VENV)/bin/python -m sm_ros.warmup' in mk   # kernels compiled at set-up
 
 
 # ----------------------------------------------------------------------------------------
@@ -274,6 +276,7 @@ def test_colcon_build_install_tree(tmp_path):
     prefix = tmp_path / 'install' / 'sm_ros'
     exe = prefix / 'lib' / 'sm_ros' / 'sim_node'
     assert exe.is_file() and os.access(exe, os.X_OK)
+    assert os.access(prefix / 'lib' / 'sm_ros' / 'warmup', os.X_OK)   # ros2 run sm_ros warmup
     assert (prefix / 'share' / 'ament_index' / 'resource_index' / 'packages' /
             'sm_ros').is_file()
     assert (prefix / 'share' / 'sm_ros' / 'package.xml').is_file()
