@@ -67,6 +67,11 @@ GROUND_KEYS = ('ground.enabled', 'ground.height', 'ground.friction', 'ground.res
 #: The parameters ``sm_ros.scene.build_world`` takes as the scene's defaults.
 SCENE_DEFAULT_KEYS = tuple(BODY_FIELDS) + ('gravity',) + GROUND_KEYS
 
+#: Parameters that set a timer's rate, and the lowest rate whose period rclpy can hold
+#: (int64 nanoseconds: 1e-9 Hz is 31 years; 1e-13 Hz made every later tick raise).
+TIMER_RATES = ('rate', 'diagnostics_rate')
+MIN_TIMER_RATE = 1e-9
+
 # How often the same topic's refusal is logged (seconds).
 REFUSAL_LOG_PERIOD = 1.0
 
@@ -148,6 +153,9 @@ class Param:
                 return f'{self.name} must be > {self.lo:g}, got {value}'
             if self.lo is not None and not self.lo <= value <= self.hi:
                 return f'{self.name} must be in [{self.lo:g}, {self.hi:g}], got {value}'
+            if self.name in TIMER_RATES and 0.0 < value < MIN_TIMER_RATE:
+                return (f'{self.name} must be 0 or >= {MIN_TIMER_RATE:g} Hz (a timer period '
+                        f'fits in int64 nanoseconds), got {value}')
         elif self.ros_type == ParameterType.PARAMETER_INTEGER and self.positive:
             if value <= self.lo:
                 return f'{self.name} must be > {self.lo}, got {value}'
