@@ -175,6 +175,51 @@ def time_numba(n_side: int, mode: str, k: int, min_time: float) -> Dict[str, Any
             'bytes_per_particle': bytes_per_particle(body), 'finite': body.is_finite()}
 
 
+def time_size(n_side: int, modes, ks, min_time: float) -> List[Dict[str, Any]]:
+    """
+    Time every (mode, clusters) configuration of one size, interleaved.
+
+    All bodies are built first, then stepped round-robin (a batch of steps each per round)
+    so that the load of a shared machine falls on every configuration alike and their
+    ratios (quadratic / linear, clusters) hold within the run.
+    """
+    cfgs = []
+    for mode in modes:
+        for k in ks:
+            t0 = time.perf_counter()
+            world, body = build_world(n_side, mode, k)
+            build_s = time.perf_counter() - t0
+            for _ in range(3):
+                world.step(DT)
+            cfgs.append((mode, k, world, body, build_s, []))
+    n = n_side ** 3
+    batch = max(1, min(50, int(2e5 // n)))
+    clock = time.perf_counter
+    t_end = clock() + min_time * len(cfgs)
+    rounds = 0
+    while rounds < 5 or (clock() < t_end and rounds < 400):
+        for mode, k, world, body, build_s, samples in cfgs:
+            t0 = clock()
+            for _ in range(batch):
+                world.step(DT)
+            samples.append((clock() - t0) / batch)
+        rounds += 1
+    out = []
+    for mode, k, world, body, build_s, samples in cfgs:
+        s = np.asarray(samples)
+        memberships = len(body._cl) if len(getattr(body, '_cl', ())) else n
+        layout = 'single' if k == 1 else ('sets' if getattr(body, '_sets', None) is not None
+                                          else 'memberships')
+        out.append({'N': n, 'mode': mode, 'k': k, 'clusters': body.num_clusters,
+                    'memberships': memberships, 'layout': layout,
+                    'ms_median': 1e3 * float(np.median(s)), 'ms_min': 1e3 * float(s.min()),
+                    'ns_per_particle': 1e9 * float(np.median(s)) / n, 'build_s': build_s,
+                    'parallel': bool(getattr(body, '_parallel', False)),
+                    'bytes_per_particle': bytes_per_particle(body),
+                    'finite': body.is_finite(), 'rounds': rounds})
+    return out
+
+
 # ---------------------------------------------------------------------------------------
 # NumPy reference
 # ---------------------------------------------------------------------------------------
@@ -246,19 +291,18 @@ def run(args, out: Path) -> Dict[str, Any]:
 
     t = bc.Table('scaling', ['N', 'mode', 'clusters', 'memberships', 'layout', 'ms_median',
                              'ms_min', 'ns_per_particle', 'parallel', 'build_s'],
-                 'ms per step against N (World.step, dt = 5 ms, gravity, no colliders)')
+                 'ms per step against N (World.step, dt = 5 ms, gravity, no colliders; the '
+                 'configurations of one N timed round-robin)')
     results: List[Dict[str, Any]] = []
     for n_side in sizes:
-        for mode in modes:
-            for k in ks:
-                bc.log(f'[scaling] sm_ros N={n_side ** 3} {mode} k={k}')
-                r = time_numba(n_side, mode, k, args.min_time)
-                results.append(r)
-                t.add(N=r['N'], mode=mode, clusters=r['clusters'],
-                      memberships=r['memberships'], layout=r['layout'],
-                      ms_median=r['ms_median'],
-                      ms_min=r['ms_min'], ns_per_particle=r['ns_per_particle'],
-                      parallel=r['parallel'], build_s=r['build_s'])
+        bc.log(f'[scaling] sm_ros N={n_side ** 3}: {len(modes) * len(ks)} configurations, '
+               'interleaved')
+        for r in time_size(n_side, modes, ks, args.min_time):
+            results.append(r)
+            t.add(N=r['N'], mode=r['mode'], clusters=r['clusters'],
+                  memberships=r['memberships'], layout=r['layout'], ms_median=r['ms_median'],
+                  ms_min=r['ms_min'], ns_per_particle=r['ns_per_particle'],
+                  parallel=r['parallel'], build_s=r['build_s'])
     t.write(out)
     findings['scaling'] = results
 
