@@ -41,6 +41,7 @@ from sensor_msgs.msg import PointCloud2
 from sm_ros.cloud import CloudBuffer, CloudError, read_xyz
 from sm_ros.diagnostics import diagnostic_array, solver_status, TickStats
 from sm_ros.markers import MarkerBuffer
+from sm_ros.warmup import warm_up
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
@@ -258,37 +259,6 @@ def scene_api():
     """Return the scene module (kept behind a function so the node imports it lazily)."""
     from sm_ros import scene
     return scene
-
-
-def warm_up() -> float:
-    """
-    Compile the solver's Numba kernels on a throwaway world; return the seconds it took.
-
-    Covers every deformation mode, clusters, plasticity, colliders, wrenches and kinematic
-    particles, so the node's first tick does not pay for compilation. With Numba's on-disk
-    cache warm this takes a fraction of a second.
-    """
-    from sm_ros.core import BodyParams, Box, Ground, Sphere, World
-    t0 = time.perf_counter()
-    g = np.linspace(-0.05, 0.05, 3)
-    cube = np.stack(np.meshgrid(g, g, g, indexing='ij'), axis=-1).reshape(-1, 3)
-    world = World(gravity=(0.0, 0.0, -9.81))
-    world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.0),
-                        boxes=[Box(lo=(1.0, 1.0, 0.0), hi=(2.0, 2.0, 1.0))],
-                        spheres=[Sphere(center=(-1.0, -1.0, 0.0), radius=0.5)])
-    configs = [BodyParams(mode='rigid'), BodyParams(mode='linear'),
-               BodyParams(mode='quadratic', clusters=2, plastic_yield=0.01,
-                          plastic_creep=1.0, plastic_max=0.5),
-               BodyParams(mode='linear', clusters=2, plastic_creep=1.0, plastic_max=0.5)]
-    bodies = [world.add_body(cube + (0.3 * i, 0.0, 0.1), masses=0.01, params=p,
-                             name=f'warm{i}') for i, p in enumerate(configs)]
-    bodies[0].set_wrench((0.0, 0.0, 1.0), (0.0, 0.0, 0.1))
-    bodies[1].set_kinematic(np.array([0]), cube[:1] + (0.3, 0.0, 0.12))
-    for _ in range(2):
-        world.step(1.0 / 120.0)
-    for b in bodies:
-        b.com(), b.rotation(), b.shape_error_rms(), b.momentum(), b.is_finite()
-    return time.perf_counter() - t0
 
 
 def check_params_files(argv: Sequence[str]) -> Optional[str]:
