@@ -72,6 +72,9 @@ SCENE_DEFAULT_KEYS = tuple(BODY_FIELDS) + ('gravity',) + GROUND_KEYS
 #: (int64 nanoseconds: 1e-9 Hz is 31 years; 1e-13 Hz made every later tick raise).
 TIMER_RATES = ('rate', 'diagnostics_rate')
 MIN_TIMER_RATE = 1e-9
+#: Shortest step: below it alpha (g - x) / h turns the rounding noise of positions into
+#: absurd speeds (dt = 1e-300 s flung bodies to 1e298 m, beyond the float32 of the cloud).
+MIN_DT = 1e-9
 
 # How often the same topic's refusal is logged (seconds).
 REFUSAL_LOG_PERIOD = 1.0
@@ -154,6 +157,8 @@ class Param:
                 return f'{self.name} must be > {self.lo:g}, got {value}'
             if self.lo is not None and not self.lo <= value <= self.hi:
                 return f'{self.name} must be in [{self.lo:g}, {self.hi:g}], got {value}'
+            if self.name == 'dt' and 0.0 < value < MIN_DT:
+                return f'dt must be >= {MIN_DT:g} s, got {value}'
             if self.name in TIMER_RATES and 0.0 < value < MIN_TIMER_RATE:
                 return (f'{self.name} must be 0 or >= {MIN_TIMER_RATE:g} Hz (a timer period '
                         f'fits in int64 nanoseconds), got {value}')
