@@ -451,7 +451,7 @@ def make_parameter(name, value):
 
 def expected_ok(node, name, param) -> bool:
     """Oracle: whether interface.md lets ``param`` through (None: either is right)."""
-    from sm_ros.node import MIN_TIMER_RATE, PARAM_BY_NAME, TIMER_RATES
+    from sm_ros.node import MIN_DT, MIN_TIMER_RATE, PARAM_BY_NAME, TIMER_RATES
     spec = PARAM_BY_NAME[name]
     if param.type_.value != spec.ros_type:
         return False
@@ -465,6 +465,8 @@ def expected_ok(node, name, param) -> bool:
             return False
         if name in TIMER_RATES and 0.0 < value < MIN_TIMER_RATE:
             return False                  # the timer period would not fit in int64 ns
+        if name == 'dt' and 0.0 < value < MIN_DT:
+            return False                  # rounding noise / dt: absurd speeds
         return not (spec.positive and value <= spec.lo)
     if spec.ros_type == ParameterType.PARAMETER_INTEGER:
         return spec.lo <= value <= spec.hi and not (spec.positive and value <= spec.lo)
