@@ -179,9 +179,11 @@ def time_size(n_side: int, modes, ks, min_time: float) -> List[Dict[str, Any]]:
     """
     Time every (mode, clusters) configuration of one size, interleaved.
 
-    All bodies are built first, then stepped round-robin (a batch of steps each per round)
-    so that the load of a shared machine falls on every configuration alike and their
-    ratios (quadratic / linear, clusters) hold within the run.
+    All bodies are built first, then stepped round-robin so that the load of a shared
+    machine falls on every configuration alike and their ratios (quadratic / linear,
+    clusters) hold within the run. Each turn makes one untimed step (the body's arrays
+    back in cache, as in a simulation loop that steps one body) and then times a batch of
+    steps one by one.
     """
     cfgs = []
     for mode in modes:
@@ -193,16 +195,17 @@ def time_size(n_side: int, modes, ks, min_time: float) -> List[Dict[str, Any]]:
                 world.step(DT)
             cfgs.append((mode, k, world, body, build_s, []))
     n = n_side ** 3
-    batch = max(1, min(50, int(2e5 // n)))
+    batch = max(3, min(50, int(2e6 // n)))
     clock = time.perf_counter
     t_end = clock() + min_time * len(cfgs)
     rounds = 0
-    while rounds < 5 or (clock() < t_end and rounds < 400):
+    while rounds < 3 or (clock() < t_end and rounds < 400):
         for mode, k, world, body, build_s, samples in cfgs:
-            t0 = clock()
+            world.step(DT)
             for _ in range(batch):
+                t0 = clock()
                 world.step(DT)
-            samples.append((clock() - t0) / batch)
+                samples.append(clock() - t0)
         rounds += 1
     out = []
     for mode, k, world, body, build_s, samples in cfgs:
@@ -420,10 +423,8 @@ def run(args, out: Path) -> Dict[str, Any]:
                 if not per:
                     continue
                 peer = min(per.values(), key=lambda r: r['median_ms'])
-                rig = pick(n_side ** 3, 'rigid', k) or time_numba(n_side, 'rigid', k,
-                                                                  args.min_time)
-                lin = pick(n_side ** 3, 'linear', k) or time_numba(n_side, 'linear', k,
-                                                                   args.min_time)
+                # ours timed again right after the peer, under the same load
+                rig, lin = time_size(n_side, ['rigid', 'linear'], [k], args.min_time)
                 row = {'N': n_side ** 3, 'clusters': peer['clusters'],
                        'memberships_pypbd': peer['memberships'],
                        'memberships_ours': rig['memberships'],
