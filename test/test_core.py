@@ -527,3 +527,50 @@ def test_world_refuses_bad_dt_and_gravity():
         world.gravity = (0.0, float('nan'), 0.0)
     assert world.time == 0.0 and np.all(world.gravity == [0, 0, -9.81])
     np.testing.assert_array_equal(body.x, body.x_init)
+
+
+# ---------------------------------------------------------------- layouts and threads
+
+def _run_layout(monkeypatch, mode, clusters, **consts):
+    from sm_ros.core import body as body_mod
+    for name, value in consts.items():
+        monkeypatch.setattr(body_mod, name, value)
+    x0 = lattice(7, 6, 5, 0.05, jitter=0.2, seed=4) + [0.0, 0.0, 0.1]
+    world = World()
+    world.set_colliders(ground=Ground(friction=0.4))
+    body = world.add_body(x0, RNG(3).uniform(0.5, 2.0, len(x0)),
+                          BodyParams(mode=mode, alpha=0.6, beta=0.5, clusters=clusters,
+                                     plastic_yield=0.02, plastic_creep=2.0, plastic_max=0.3))
+    body.set_state(deformed(x0 - x0.mean(0)) + x0.mean(0))
+    body.set_wrench((0.1, 0.0, 0.0), (0.0, 0.0, 0.01))
+    for step in range(30):
+        if step == 10:
+            body.set_kinematic(np.array([1, 2]), body.x[[1, 2]] + 0.01)
+        world.step(1.0 / 120.0)
+    return body
+
+
+@pytest.mark.parametrize('mode', ['rigid', 'linear', 'quadratic'])
+@pytest.mark.parametrize('clusters', [1, 2, 4])
+def test_set_layout_matches_membership_layout(monkeypatch, mode, clusters):
+    """Particles grouped by their cluster set give the same trajectory as the plain
+    per-membership kernels."""
+    sets = _run_layout(monkeypatch, mode, clusters, SET_LAYOUT_MIN_RATIO=0.0)
+    plain = _run_layout(monkeypatch, mode, clusters, SET_LAYOUT_MIN_RATIO=float('inf'),
+                        SINGLE_QUADRATIC_SETS=False)
+    assert (sets._sets is not None) == (clusters > 1 or mode == 'quadratic')
+    assert plain._sets is None
+    np.testing.assert_allclose(sets.x, plain.x, atol=1e-11)
+    np.testing.assert_allclose(sets.plastic_state, plain.plastic_state, atol=1e-11)
+
+
+@pytest.mark.parametrize('mode,clusters', [('linear', 1), ('quadratic', 1), ('linear', 2),
+                                           ('quadratic', 4)])
+def test_parallel_kernels_match_serial(monkeypatch, mode, clusters):
+    import numba
+    if numba.get_num_threads() < 2:
+        pytest.skip('one Numba thread: the parallel kernels are never chosen')
+    par = _run_layout(monkeypatch, mode, clusters, PARALLEL_MIN_WORK=0)
+    ser = _run_layout(monkeypatch, mode, clusters, PARALLEL_MIN_WORK=10 ** 12)
+    assert par._parallel and not ser._parallel
+    np.testing.assert_allclose(par.x, ser.x, atol=1e-11)
