@@ -36,12 +36,13 @@ What every case asserts (the issue's list):
   on a 1e-6 kg speck legitimately flings it far apart while it acts), plus the swing its
   relative speed at that moment allows (``swing``: no energy is created, a body with
   internal motion may still swing out as far as that motion carries it);
-- after the load stops, the shape error (``Body.shape_error_rms``, RMS distance to the
+- after the load stops, the shape error (``shape_error``: mass-weighted RMS distance to the
   goals) stays bounded: never above ``ERROR_BOUND`` times the largest error seen while the
   load acted (or at the start) plus the swing, plus rounding at the body's coordinates
-  (what float64 cannot resolve at 1e11 m); with damping and
-  alpha > 0 it also decays (undamped shape matching is an undamped oscillator, algorithm.md
-  Eq. 15-17: the error of an elastic vibration does not decay, it stays bounded);
+  (what float64 cannot resolve at 1e11 m); with damping and alpha > 0 it also decays, by
+  half within 10 / alpha steps (undamped shape matching is an undamped oscillator,
+  algorithm.md Eq. 15-17: the error of an elastic vibration does not decay, it stays
+  bounded);
 - det S^P = 1 for every cluster's plastic state, within the cap c_max; S^P = I without
   plasticity.
 
@@ -294,6 +295,19 @@ def relative_speed(body) -> float:
     return float(np.sqrt((v ** 2).sum(axis=1).max()))
 
 
+def shape_error(body) -> float:
+    """
+    Mass-weighted RMS distance of the particles to their goals (m).
+
+    Weighted by mass, its square is the elastic energy over the stiffness, which damping
+    can only lower. ``Body.shape_error_rms`` counts every particle alike: with a mass ratio
+    of 1e12 the light particles are moved about by the heavy ones at no energy cost, and
+    that error can grow for a while after the load stops while the energy decays.
+    """
+    d = body.x - body.goals()
+    return float(np.sqrt(body.m @ np.einsum('ij,ij->i', d, d) / body.m.sum()))
+
+
 def run_case(case: dict, seed: int = 0) -> dict:
     """Drive one case; assert finiteness and the plastic state; return the figures."""
     world, body = build(case, seed)
@@ -307,14 +321,15 @@ def run_case(case: dict, seed: int = 0) -> dict:
     err_load = 0.0
     err_stop = None
     err_after = []
-    for step in range(STEPS):
+    steps = case_steps(case)
+    for step in range(steps):
         if loaded and step == LOAD_STEPS:
             world.gravity = (0.0, 0.0, 0.0)
             world.set_colliders()
             body.clear_wrench()
         world.step(case['dt'])
         assert body.is_finite(), f'non-finite state at step {step}'
-        err = body.shape_error_rms()
+        err = shape_error(body)
         assert np.isfinite(err)
         if loaded and step < LOAD_STEPS:
             err_load = max(err_load, err)
@@ -332,11 +347,26 @@ def run_case(case: dict, seed: int = 0) -> dict:
         if step % 50 == 49:
             check_plastic_state(body, case)
     check_plastic_state(body, case)
-    # rounding at the body's coordinates: what no float64 solver can resolve
-    rounding = 64.0 * EPS * (np.abs(body.x).max() + e_ref)
+    # rounding at the body's coordinates, what no float64 solver resolves: a 5 cm body at
+    # 4e12 m (1e6 N on 1e-6 kg) is rounded by 5e-4 m every step; in modes without
+    # stiffness (flows) those errors add up as a random walk of the velocity
+    rounding = 64.0 * EPS * (np.abs(body.x).max() + e_ref) * (
+        steps ** 1.5 if flows(case) else steps)
     return {'e_ref': e_ref, 'worst_extent': worst_extent, 'err_load': err_load,
             'err_stop': err_stop, 'err_after': np.array(err_after), 'rounding': rounding,
             'swing': swing(case, u_ref, 0.0)}
+
+
+def decays(case: dict) -> bool:
+    """Return whether the shape error must decay after the load (else stay bounded)."""
+    return case['damping'] > 0.0 and case['alpha'] > 0.0 and spin_free(case)
+
+
+def case_steps(case: dict) -> int:
+    """Return the steps to run: more where a soft body must decay (tau ~ 1 / alpha)."""
+    if decays(case):
+        return max(STEPS, LOAD_STEPS + int(10.0 / case['alpha']))
+    return STEPS
 
 
 def spin_free(case: dict) -> bool:
@@ -369,7 +399,7 @@ def test_stability_matrix(case):
     base = max(r['err_load'], r['err_stop']) + r['swing']
     assert after.max() <= ERROR_BOUND * base + r['rounding'], (
         f'shape error after the load {after.max():.3g} m > {ERROR_BOUND} x {base:.3g} m')
-    if case['damping'] > 0.0 and case['alpha'] > 0.0 and spin_free(case):
+    if decays(case):
         tail = after[-10:].max()
         assert tail <= 0.5 * r['err_stop'] + r['rounding'], (
             f"shape error does not decay: {r['err_stop']:.3g} -> {tail:.3g} m")
