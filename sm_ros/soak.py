@@ -6,10 +6,13 @@ runs, each in a process of its own, all on this host (``ROS_AUTOMATIC_DISCOVERY_
 LOCALHOST`` and a ROS domain of its own):
 
 - ``node``: sim_node at ``--rate`` Hz on one box of ``--points`` particles resting on the
-  ground; it records every tick (duration, wall time), the resident memory at the start and
-  at the end of the measured window, the refused messages per topic, and checks that every
-  parameter change it accepted took effect at the next tick (the node's parameter, the
-  bodies' parameters, gravity and ground);
+  ground (damping 0.05 as in the bundled scenes: undamped, the random alpha changes pump
+  energy into it, parametric resonance of Eq. 13-14, and it flies off within a minute);
+  it records every tick (duration, wall time), the resident memory at the start and at
+  the end of the measured window, the refused messages per topic, where the box is and its
+  fastest particle (about once a second), and checks that every parameter change it
+  accepted took effect at the next tick (the node's parameter, the bodies' parameters,
+  gravity and ground);
 - ``driver``: sends ``--forces`` force messages per second (2 % of them bad: NaN, an unknown
   body), changes parameters at ``--param-rate`` Hz through the parameter service (alpha,
   beta, gravity, ground friction, plastic yield, force timeout; every tenth change out of
@@ -70,7 +73,7 @@ def box_side(points: int) -> int:
     return max(2, int(round(points ** (1.0 / 3.0))))
 
 
-def scene_yaml(points: int, path: Path) -> int:
+def scene_yaml(points: int, path: Path, damping: float = 0.05) -> int:
     """Write the soak scene (one box on the ground); return its number of particles."""
     n = box_side(points)
     size = (n - 1) * SPACING
@@ -82,6 +85,7 @@ def scene_yaml(points: int, path: Path) -> int:
         f'    size: [{size:.6f}, {size:.6f}, {size:.6f}]\n'
         f'    spacing: {SPACING}\n'
         '    mass: 1.0\n'
+        f'    damping: {damping}\n'
         f'    position: [0.0, 0.0, {size / 2 + 0.001:.6f}]\n')
     return n ** 3
 
@@ -106,6 +110,7 @@ def _body_field_ok(node, name: str, value: Any) -> bool:
 
 def run_node(a) -> Dict[str, Any]:
     """Run sim_node; measure ticks, memory, refusals and parameter application."""
+    import numpy as np
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
@@ -122,12 +127,18 @@ def run_node(a) -> Dict[str, Any]:
 
     tick0 = node.tick
 
+    trace = []
+
     def tick():
         t = time.perf_counter()
         tick0()
         if measuring[0]:
             rec['tick'].append(time.perf_counter() - t)
             rec['start'].append(t)
+        if len(rec['tick']) % 60 == 1 and node.world.bodies:     # where the box is, ~1 Hz
+            b = node.world.bodies[0]
+            trace.append([round(time.monotonic(), 3)] + [round(float(c), 4) for c in b.com()]
+                         + [round(float(np.abs(b.v).max()), 4)])
     node.tick = tick
 
     set0 = node.parameters_set_callback
@@ -206,6 +217,8 @@ def run_node(a) -> Dict[str, Any]:
            'params_superseded': rec['superseded'], 'params_mismatch': rec['mismatch'],
            'refused_all_run': dict(node.refused), 'received_all_run': received,
            'last_refusal': dict(node.last_refusal),
+           'com_end': [[b.name] + [round(float(c), 4) for c in b.com()]
+                       for b in node.world.bodies], 'com_trace': trace,
            'finite': all(b.is_finite() for b in node.world.bodies)}
     node.destroy_node()
     rclpy.try_shutdown()
@@ -546,6 +559,12 @@ def report(fig: Dict[str, Any]) -> str:
         f"{fig['params_accepted']} accepted, mismatches {len(fig['params_mismatch'])} -> "
         f"{'all applied' if fig['every_accepted_parameter_applied'] else 'NOT all applied'}",
     ]
+    run = fig.get('node_all_run') or {}
+    if run.get('com_trace'):
+        fastest = max(r[4] for r in run['com_trace'])
+        end = run['com_trace'][-1]
+        lines.append(f'  box centre at the end ({end[1]:.3g}, {end[2]:.3g}, {end[3]:.3g}) m, '
+                     f'fastest particle seen {fastest:.3g} m/s')
     for i, s in enumerate(fig['subscribers']):
         if s is None:
             lines.append(f'  subscriber {i}: no result')
@@ -600,7 +619,7 @@ def orchestrate(a) -> int:
     limit = 3.0 * a.seconds + a.start_timeout + 120.0
     with tempfile.TemporaryDirectory(prefix='sm_ros_soak_') as tmp:
         scene = Path(tmp) / 'soak.yaml'
-        expect = scene_yaml(a.points, scene)
+        expect = scene_yaml(a.points, scene, a.damping)
         node_p = subprocess.Popen(
             py + ['_node', '--scene', str(scene), '--rate', str(a.rate), '--seconds',
                   str(a.seconds), '--lead', str(a.lead), '--subscribers', str(a.subscribers),
@@ -634,7 +653,8 @@ def orchestrate(a) -> int:
     fig = summarise(node_res, outs['driver'][1],
                     [outs[f'sub{i}'][1] for i in range(a.subscribers)], a)
     fig['node_all_run'] = {k: final.get(k) for k in ('refused_all_run', 'received_all_run',
-                                                     'last_refusal')}
+                                                     'last_refusal', 'com_end',
+                                                     'com_trace')}
     fig['crashed'] = {k: {'exit': rc, 'stderr_tail': err[-500:]}
                       for k, (rc, err) in crashed.items()}
     print(report(fig))
@@ -656,6 +676,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument('--param-rate', type=float, default=50.0,
                    help='parameter changes per second')
     p.add_argument('--subscribers', type=int, default=2, help='cloud subscriber processes')
+    p.add_argument('--damping', type=float, default=0.05,
+                   help='damping of the box, as in the bundled scenes (0: alpha changed at '
+                        '50 Hz pumps energy into the undamped box until it flies off)')
     p.add_argument('--lead', type=float, default=3.0,
                    help='seconds the node runs before measuring (the others connect)')
     p.add_argument('--start-timeout', type=float, default=180.0,
