@@ -412,6 +412,30 @@ def test_plasticity_yield_creep_cap_and_volume():
     assert ext[0] > 1.05 and ext[2] < 0.95
 
 
+@pytest.mark.parametrize('shape', ['sheet', 'rope'])
+def test_plasticity_of_flat_and_line_bodies_matches_reference(shape):
+    """A_qq is singular for flat and line-like bodies: the unspanned directions count as
+    unstretched in both implementations (no plastic creep at rest)."""
+    x0 = lattice(6, 5, 1, 0.1) if shape == 'sheet' else lattice(8, 1, 1, 0.1)
+    params = BodyParams(mode='linear', alpha=0.5, beta=0.5, plastic_yield=0.01,
+                        plastic_creep=3.0, plastic_max=0.4)
+    world = World(gravity=(0.0, 0.0, 0.0))
+    body = world.add_body(x0, 1.0, params)
+    ref = ReferenceBody(x0, 1.0, params)
+    for _ in range(100):                      # at rest: nothing may creep
+        world.step(0.01)
+    np.testing.assert_allclose(body.plastic_state[0], np.eye(3), atol=1e-12)
+    start = x0 * [1.3, 1.0, 1.0]             # stretched along a spanned direction
+    body.set_state(start)
+    ref.x = start.copy()
+    for step in range(30):
+        world.step(0.01)
+        ref.step(0.01)
+        assert np.abs(body.x - ref.x).max() < 1e-9, step
+    assert body.plastic_state[0][0, 0] > 1.0
+    np.testing.assert_allclose(body.plastic_state, np.array(ref.sp), atol=1e-9)
+
+
 def test_no_particle_below_ground_and_rest_on_ground():
     x0 = lattice(5, 5, 5, 0.05) + [0, 0, 0.5]
     world = World()

@@ -175,6 +175,11 @@ class ReferenceBody:
         s = ra.T @ a
         s = 0.5 * (s + s.T)
         e = s - np.eye(3)
+        # directions the rest shape does not span (flat, line-like, one-point clusters:
+        # A_qq is a pseudo-inverse there) count as unstretched, S = I, not S = 0
+        lam, vec = np.linalg.eigh(self.aqq[k])
+        null = vec[:, ~(lam > 1e-13 * lam.max())]
+        e = e + null @ null.T
         if np.max(np.abs(np.linalg.eigvalsh(e))) <= p.plastic_yield:
             return False
         sp = (np.eye(3) + min(h * p.plastic_creep, 1.0) * e) @ self.sp[k]
