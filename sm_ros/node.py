@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import functools
 import math
 import os
+import signal
 import sys
 import time
 from typing import Any, Dict, List, Optional, Sequence, Tuple
@@ -1002,8 +1003,27 @@ def main(args=None) -> int:
         return _fail(_short_error(exc))
     node = None
     code = 0
+    interrupted = []
+
+    def on_sigint(signum, frame):
+        # Remembered as well as raised: a KeyboardInterrupt raised while LLVM calls back
+        # into Python (Numba writing its cache) is printed and dropped by ctypes.
+        interrupted.append(signum)
+        raise KeyboardInterrupt
+
+    def drop_interrupts(unraisable):
+        # ... and reported through sys.unraisablehook: no traceback for a Ctrl-C
+        if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+            sys.__unraisablehook__(unraisable)
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    sys.unraisablehook = drop_interrupts
     try:
         node = SimNode()
+        signal.signal(signal.SIGINT, previous)
+        sys.unraisablehook = sys.__unraisablehook__
+        if interrupted:
+            raise KeyboardInterrupt
         install_signal_handlers(SignalHandlerOptions.ALL)
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
