@@ -16,7 +16,6 @@ from dataclasses import dataclass
 import functools
 import math
 import os
-import signal
 import sys
 import time
 from typing import Any, Dict, List, Optional, Sequence, Tuple
@@ -1003,26 +1002,22 @@ def main(args=None) -> int:
         return _fail(_short_error(exc))
     node = None
     code = 0
-    interrupted = []
+    dropped = []
 
-    def on_sigint(signum, frame):
-        # Remembered as well as raised: a KeyboardInterrupt raised while LLVM calls back
-        # into Python (Numba writing its cache) is printed and dropped by ctypes.
-        interrupted.append(signum)
-        raise KeyboardInterrupt
-
-    def drop_interrupts(unraisable):
-        # ... and reported through sys.unraisablehook: no traceback for a Ctrl-C
-        if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+    def note_dropped_interrupt(unraisable):
+        # A Ctrl-C that lands while LLVM calls back into Python (Numba writing its cache
+        # during a cold warm-up) is raised in a ctypes callback, which drops it: remember
+        # it (quietly) and stop once the node is built.
+        if isinstance(unraisable.exc_value, KeyboardInterrupt):
+            dropped.append(unraisable)
+        else:
             sys.__unraisablehook__(unraisable)
 
-    previous = signal.signal(signal.SIGINT, on_sigint)
-    sys.unraisablehook = drop_interrupts
+    sys.unraisablehook = note_dropped_interrupt
     try:
         node = SimNode()
-        signal.signal(signal.SIGINT, previous)
         sys.unraisablehook = sys.__unraisablehook__
-        if interrupted:
+        if dropped:
             raise KeyboardInterrupt
         install_signal_handlers(SignalHandlerOptions.ALL)
         rclpy.spin(node)
