@@ -16,7 +16,9 @@ from dataclasses import dataclass
 import functools
 import math
 import os
+import signal
 import sys
+import threading
 import time
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
@@ -1002,25 +1004,49 @@ def main(args=None) -> int:
         return _fail(_short_error(exc))
     node = None
     code = 0
-    dropped = []
+    starting = threading.Event()
+    starting.set()
+    interrupted = threading.Event()
 
-    def note_dropped_interrupt(unraisable):
-        # A Ctrl-C that lands while LLVM calls back into Python (Numba writing its cache
-        # during a cold warm-up) is raised in a ctypes callback, which drops it: remember
-        # it (quietly) and stop once the node is built.
-        if isinstance(unraisable.exc_value, KeyboardInterrupt):
-            dropped.append(unraisable)
-        else:
+    def on_sigint(signum, frame):
+        interrupted.set()
+        raise KeyboardInterrupt
+
+    def start_up_watchdog():
+        # A Ctrl-C during the cold warm-up can be raised where it is dropped (inside an
+        # LLVM -> ctypes callback while Numba writes its cache): if the start-up is still
+        # running a little after the Ctrl-C, leave at once (nothing is spinning yet).
+        interrupted.wait()
+        time.sleep(2.0)
+        if starting.is_set():
+            os._exit(0)
+
+    def quiet_dropped_interrupt(unraisable):
+        # ctypes reports the dropped KeyboardInterrupt with a traceback: not for a Ctrl-C
+        if not isinstance(unraisable.exc_value, KeyboardInterrupt):
             sys.__unraisablehook__(unraisable)
 
-    sys.unraisablehook = note_dropped_interrupt
+    signal.signal(signal.SIGINT, on_sigint)
+    sys.unraisablehook = quiet_dropped_interrupt
+    threading.Thread(target=start_up_watchdog, daemon=True).start()
     try:
-        node = SimNode()
+        try:
+            node = SimNode()
+        except Exception:  # noqa: B902 - a dropped Ctrl-C can leave Numba mid-compile
+            if interrupted.is_set():
+                raise KeyboardInterrupt from None
+            raise
+        starting.clear()
         sys.unraisablehook = sys.__unraisablehook__
-        if dropped:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        if interrupted.is_set():
             raise KeyboardInterrupt
         install_signal_handlers(SignalHandlerOptions.ALL)
-        rclpy.spin(node)
+        try:
+            rclpy.spin(node)
+        except Exception:  # noqa: B902 - the executor may fail once Ctrl-C shut rcl down
+            if rclpy.ok():
+                raise
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ConfigError as exc:
