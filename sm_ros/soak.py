@@ -279,6 +279,18 @@ def run_driver(a) -> Dict[str, Any]:
              'params_unanswered': 0, 'grabs_sent': 0, 'releases_sent': 0}
     last_accepted: Dict[str, Any] = {}
     pending = []
+
+    def collect_answers(check_expected: bool):
+        """Count the answered parameter changes; remember the accepted values."""
+        for item in [p for p in pending if p[0].done()]:
+            pending.remove(item)
+            future, name, value, good = item
+            ok = bool(future.result().results[0].successful)
+            stats['params_accepted' if ok else 'params_refused'] += 1
+            if ok:
+                last_accepted[name] = value
+            if check_expected and ok != good:
+                stats['params_unexpected'].append([name, repr(value), ok])
     deadline = time.monotonic() + a.connect_timeout
     while not (set_client.service_is_ready() and pub_force.get_subscription_count() > 0):
         if time.monotonic() > deadline:
@@ -346,15 +358,7 @@ def run_driver(a) -> Dict[str, Any]:
                     holding = True
                     last_release = now
             next_grab += 0.05
-        for item in [p for p in pending if p[0].done()]:
-            pending.remove(item)
-            future, name, value, good = item
-            ok = bool(future.result().results[0].successful)
-            stats['params_accepted' if ok else 'params_refused'] += 1
-            if ok:
-                last_accepted[name] = value
-            if ok != good:
-                stats['params_unexpected'].append([name, repr(value), ok])
+        collect_answers(check_expected=True)
         ex.spin_once(timeout_sec=max(0.0, min(next_force, next_param, next_grab)
                                      - time.monotonic()))
         for _ in range(4):                 # take what else is ready (responses, poses)
@@ -362,13 +366,7 @@ def run_driver(a) -> Dict[str, Any]:
     wait_end = time.monotonic() + 15.0
     while pending and time.monotonic() < wait_end:
         ex.spin_once(timeout_sec=0.05)
-        for item in [p for p in pending if p[0].done()]:
-            pending.remove(item)
-            future, name, value, good = item
-            ok = bool(future.result().results[0].successful)
-            stats['params_accepted' if ok else 'params_refused'] += 1
-            if ok:
-                last_accepted[name] = value
+        collect_answers(check_expected=False)
     stats['params_unanswered'] = len(pending)
     # the node's parameters now: the last accepted value of each
     req = GetParameters.Request()
