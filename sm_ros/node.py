@@ -43,40 +43,18 @@ from sensor_msgs.msg import PointCloud2
 from sm_ros.cloud import CloudBuffer, CloudError, read_xyz
 from sm_ros.diagnostics import diagnostic_array, solver_status, TickStats
 from sm_ros.markers import MarkerBuffer
+from sm_ros.params import (BODY_FIELDS, BY_NAME, GROUND_KEYS, MAX_COORDINATE, Param,
+                           SCENE_DEFAULT_KEYS)
+from sm_ros.params import NODE_PARAMS as PARAMS
 from sm_ros.warmup import warm_up
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
 NODE_NAME = 'sim_node'
-MODES = ('rigid', 'linear', 'quadratic')
-CLOUD_IN_MODES = ('replace', 'add')
 
-#: Inputs larger than this (m, N, N*m) are refused as out of range.
-MAX_COORDINATE = 1e6
+#: Inputs larger than this (N, N*m) are refused as out of range.
 MAX_WRENCH = 1e9
-
-#: Node parameters that map to a body's BodyParams field (scene overrides use these names).
-BODY_FIELDS = {
-    'mode': 'mode',
-    'alpha': 'alpha',
-    'beta': 'beta',
-    'clusters': 'clusters',
-    'plasticity.yield': 'plastic_yield',
-    'plasticity.creep': 'plastic_creep',
-    'plasticity.max': 'plastic_max',
-}
-GROUND_KEYS = ('ground.enabled', 'ground.height', 'ground.friction', 'ground.restitution')
-#: The parameters ``sm_ros.scene.build_world`` takes as the scene's defaults.
-SCENE_DEFAULT_KEYS = tuple(BODY_FIELDS) + ('gravity',) + GROUND_KEYS
-
-#: Parameters that set a timer's rate, and the lowest rate whose period rclpy can hold
-#: (int64 nanoseconds: 1e-9 Hz is 31 years; 1e-13 Hz made every later tick raise).
-TIMER_RATES = ('rate', 'diagnostics_rate')
-MIN_TIMER_RATE = 1e-9
-#: Shortest step: below it alpha (g - x) / h turns the rounding noise of positions into
-#: absurd speeds (dt = 1e-300 s flung bodies to 1e298 m, beyond the float32 of the cloud).
-MIN_DT = 1e-9
 
 # How often the same topic's refusal is logged (seconds).
 REFUSAL_LOG_PERIOD = 1.0
@@ -86,139 +64,21 @@ class ConfigError(Exception):
     """A start-up configuration the node cannot run with (bad scene or parameter file)."""
 
 
-@dataclass(frozen=True)
-class Param:
-    """
-    One node parameter: name, default, description and range.
-
-    The ROS type follows the default's Python type. ``lo``/``hi`` become the descriptor's
-    (inclusive) range; ``positive`` additionally refuses ``lo`` itself (ranges in ROS are
-    inclusive); ``choices`` lists the values a string may take.
-    """
-
-    name: str
-    default: Any
-    description: str
-    lo: Optional[float] = None
-    hi: Optional[float] = None
-    positive: bool = False
-    choices: Tuple[str, ...] = ()
-    read_only: bool = False
-
-    @property
-    def ros_type(self) -> int:
-        """Return the ParameterType of the default."""
-        d = self.default
-        if isinstance(d, bool):
-            return ParameterType.PARAMETER_BOOL
-        if isinstance(d, int):
-            return ParameterType.PARAMETER_INTEGER
-        if isinstance(d, float):
-            return ParameterType.PARAMETER_DOUBLE
-        if isinstance(d, str):
-            return ParameterType.PARAMETER_STRING
-        return ParameterType.PARAMETER_DOUBLE_ARRAY
-
-    @property
-    def type_name(self) -> str:
-        """Return the type as the README's parameter table writes it."""
-        return {ParameterType.PARAMETER_BOOL: 'bool',
-                ParameterType.PARAMETER_INTEGER: 'integer',
-                ParameterType.PARAMETER_DOUBLE: 'double',
-                ParameterType.PARAMETER_STRING: 'string',
-                ParameterType.PARAMETER_DOUBLE_ARRAY: 'double[3]'}[self.ros_type]
-
-    def descriptor(self) -> ParameterDescriptor:
-        """Return the ParameterDescriptor that ``ros2 param describe`` shows."""
-        text = self.description
-        if self.choices:
-            text += ' (one of: ' + ', '.join(self.choices) + ')'
-        if self.positive:
-            text += f' (must be > {self.lo:g})'
-        d = ParameterDescriptor(name=self.name, type=self.ros_type, description=text,
-                                read_only=self.read_only)
-        if self.lo is not None and self.ros_type == ParameterType.PARAMETER_DOUBLE:
-            d.floating_point_range = [FloatingPointRange(
-                from_value=float(self.lo), to_value=float(self.hi), step=0.0)]
-        elif self.lo is not None and self.ros_type == ParameterType.PARAMETER_INTEGER:
-            d.integer_range = [IntegerRange(from_value=int(self.lo), to_value=int(self.hi),
-                                            step=1)]
-        return d
-
-    def check(self, value: Any) -> Optional[str]:
-        """
-        Return why ``value`` is refused, or None (ranges beyond the descriptor's).
-
-        The range is checked exactly: rclpy lets a double within a relative 1e-6 of an
-        end through (ground.restitution 1.0000005 then failed every tick in the core).
-        """
-        if self.ros_type == ParameterType.PARAMETER_DOUBLE:
-            if not math.isfinite(value):
-                return f'{self.name} must be finite, got {value}'
-            if self.positive and value <= self.lo:
-                return f'{self.name} must be > {self.lo:g}, got {value}'
-            if self.lo is not None and not self.lo <= value <= self.hi:
-                return f'{self.name} must be in [{self.lo:g}, {self.hi:g}], got {value}'
-            if self.name == 'dt' and 0.0 < value < MIN_DT:
-                return f'dt must be >= {MIN_DT:g} s, got {value}'
-            if self.name in TIMER_RATES and 0.0 < value < MIN_TIMER_RATE:
-                return (f'{self.name} must be 0 or >= {MIN_TIMER_RATE:g} Hz (a timer period '
-                        f'fits in int64 nanoseconds), got {value}')
-        elif self.ros_type == ParameterType.PARAMETER_INTEGER and self.positive:
-            if value <= self.lo:
-                return f'{self.name} must be > {self.lo}, got {value}'
-        elif self.ros_type == ParameterType.PARAMETER_STRING and self.choices:
-            if value not in self.choices:
-                return f"{self.name} must be one of {', '.join(self.choices)}, got '{value}'"
-        elif self.ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY:
-            v = list(value)
-            if len(v) != 3:
-                return f'{self.name} must have 3 values, got {len(v)}'
-            if not all(math.isfinite(c) for c in v):
-                return f'{self.name} must be finite, got {v}'
-            if max(abs(c) for c in v) > MAX_COORDINATE:
-                return f'{self.name} components must be within +-{MAX_COORDINATE:g}, got {v}'
-        return None
-
-
-PARAMS: Tuple[Param, ...] = (
-    Param('scene', '', 'Scene YAML file, or the name of a bundled scene (default, rope, '
-          'sheet, plastic, mesh, many, paper_8_clusters); empty: default. Changing it '
-          'reloads the scene'),
-    Param('mode', 'linear', 'Deformation mode: rigid (sec. 3), linear (4.2) or quadratic '
-          '(4.3)', choices=MODES),
-    Param('alpha', 0.5, 'Stiffness alpha (1 = rigid)', 0.0, 1.0),
-    Param('beta', 0.5, 'Share beta of the linear/quadratic transform blended into the '
-          'rotation', 0.0, 1.0),
-    Param('plasticity.yield', 0.0, 'c_yield: plastic strain starts beyond this elastic '
-          'strain', 0.0, 1e3),
-    Param('plasticity.creep', 0.0, 'c_creep: rate at which strain beyond c_yield becomes '
-          'plastic (0 disables plasticity)', 0.0, 1e3),
-    Param('plasticity.max', 0.0, 'c_max: largest plastic strain', 0.0, 1e3),
-    Param('clusters', 1, 'Cubes per axis of the overlapping cluster grid (1 = one cluster '
-          'per body)', 1, 64),
-    Param('dt', 1.0 / 120.0, 'Time step h of one substep (s)', 0.0, 1.0, positive=True),
-    Param('substeps', 2, 'Steps of dt per tick', 1, 1000),
-    Param('rate', 60.0, 'Ticks (and published clouds) per second of wall time (Hz)',
-          0.0, 1000.0, positive=True),
-    Param('gravity', [0.0, 0.0, -9.81], 'Gravity (m/s^2), three values x, y, z'),
-    Param('ground.enabled', True, 'Whether the ground plane z = ground.height collides'),
-    Param('ground.height', 0.0, 'Height of the ground plane (m)', -1e6, 1e6),
-    Param('ground.friction', 0.5, 'Coulomb friction coefficient of the ground', 0.0, 10.0),
-    Param('ground.restitution', 0.0, 'Restitution of the ground (0 = no bounce)', 0.0, 1.0),
-    Param('grab_radius', 0.05, 'A gripper attaches the particles within this distance of '
-          'its first pose (m)', 0.0, 100.0, positive=True),
-    Param('force_timeout', 0.0, 'A force is cleared after this many seconds without a new '
-          'force message (0: held until replaced)', 0.0, 3600.0),
-    Param('frame_id', 'world', 'Frame of the published clouds, poses and markers'),
-    Param('publish_clock', False, 'Publish the simulation time on /clock'),
-    Param('diagnostics_rate', 1.0, 'Rate of /diagnostics (Hz; 0 disables)', 0.0, 100.0),
-    Param('max_points', 20000, 'Cap on the particles of a cloud_in body (voxel '
-          'downsampling)', 1, 10_000_000),
-    Param('cloud_in_mode', 'replace', 'A cloud_in body replaces the scene bodies or joins '
-          'them', choices=CLOUD_IN_MODES),
-)
-PARAM_BY_NAME: Dict[str, Param] = {p.name: p for p in PARAMS}
+def descriptor(p: Param) -> ParameterDescriptor:
+    """Return the ParameterDescriptor of a table row (what ``ros2 param describe`` shows)."""
+    text = p.description
+    if p.choices:
+        text += ' (one of: ' + ', '.join(p.choices) + ')'
+    if p.positive:
+        text += f' (must be > {p.lo:g})'
+    d = ParameterDescriptor(name=p.name, type=p.ros_type, description=text,
+                            read_only=p.read_only)
+    if p.lo is not None and p.ros_type == ParameterType.PARAMETER_DOUBLE:
+        d.floating_point_range = [FloatingPointRange(
+            from_value=float(p.lo), to_value=float(p.hi), step=0.0)]
+    elif p.lo is not None and p.ros_type == ParameterType.PARAMETER_INTEGER:
+        d.integer_range = [IntegerRange(from_value=int(p.lo), to_value=int(p.hi), step=1)]
+    return d
 
 
 # ----------------------------------------------------------------------------------------
@@ -365,7 +225,7 @@ class SimNode(Node):
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
 
         for p in PARAMS:
-            self.declare_parameter(p.name, p.default, p.descriptor())
+            self.declare_parameter(p.name, p.default, descriptor(p))
         self._p: Dict[str, Any] = {p.name: self._param_value(p.name) for p in PARAMS}
         for p in PARAMS:
             reason = p.check(self._p[p.name])
@@ -442,7 +302,7 @@ class SimNode(Node):
 
     def _param_value(self, name: str) -> Any:
         value = self.get_parameter(name).value
-        if PARAM_BY_NAME[name].ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY:
+        if BY_NAME[name].ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY:
             value = [float(v) for v in value]
         return value
 
@@ -506,8 +366,8 @@ class SimNode(Node):
         values = {p.name: self._param_value(p.name) for p in PARAMS}
         changed = {}
         for param in params:
-            spec = PARAM_BY_NAME.get(param.name)
-            if spec is None:
+            spec = BY_NAME.get(param.name)
+            if spec is None or not spec.node:
                 continue
             value = param.value
             if spec.ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY:
@@ -515,8 +375,6 @@ class SimNode(Node):
             reason = spec.check(value)
             if reason:
                 return SetParametersResult(successful=False, reason=reason)
-            if param.name == 'frame_id' and not value.strip():
-                return SetParametersResult(successful=False, reason='frame_id must not be empty')
             values[param.name] = value
             changed[param.name] = value
         if any(k in BODY_FIELDS for k in changed):
@@ -534,13 +392,13 @@ class SimNode(Node):
     def parameters_set_callback(self, params: List[Parameter]) -> None:
         """Queue accepted changes; the next tick applies them between two steps."""
         for param in params:
-            if param.name not in PARAM_BY_NAME:
+            if param.name not in BY_NAME or not BY_NAME[param.name].node:
                 continue
             if param.name == 'scene':
                 self._pending_scene = self._prepared_scene
                 self._prepared_scene = None
             value = param.value
-            if PARAM_BY_NAME[param.name].ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY:
+            if BY_NAME[param.name].ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY:
                 value = [float(v) for v in value]
             self._pending[param.name] = value
 

@@ -8,7 +8,7 @@ Usage::
 
 SCENE is a bundled scene name or a YAML path. The output type follows the extension of
 ``--out``: ``.gif`` (animated, via Pillow) or ``.png`` (``--frames`` panels side by side).
-The simulation uses the node's defaults (``sm_ros.scene.NODE_DEFAULTS``, ``--dt`` like the
+The simulation uses the node's defaults (``sm_ros.params.scene_defaults()``, ``--dt`` like the
 node's ``dt``); ``--set key=value`` changes a node parameter for the run. Drawing uses
 matplotlib's Agg backend, so it runs without a display.
 """
@@ -25,7 +25,8 @@ from typing import Any, Dict, List, Optional, Sequence
 
 import numpy as np
 
-from sm_ros.scene import build_world, load_scene, NODE_DEFAULTS, SceneError
+from sm_ros.params import scene_defaults
+from sm_ros.scene import build_world, load_scene, SceneError
 
 #: Default step, like the node's ``dt`` parameter (s).
 DEFAULT_DT = 1.0 / 120.0
@@ -62,7 +63,7 @@ def simulate(scene: str, seconds: float = 3.0, fps: float = 10.0, dt: float = DE
     every 1/`fps` s. At most `max_draw` particles (a fixed random subset, shared fairly
     among the bodies) are recorded for drawing; mesh surfaces are recorded whole.
     """
-    defaults = dict(NODE_DEFAULTS)
+    defaults = scene_defaults()
     defaults.update(params or {})
     spec = load_scene(scene)
     world, metas = build_world(spec, defaults)
@@ -252,9 +253,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     params: Dict[str, Any] = {}
     for item in args.set:
         key, sep, value = item.partition('=')
-        if not sep or key not in NODE_DEFAULTS:
+        if not sep or key not in scene_defaults():
             ap.error(f'--set {item!r}: expected KEY=VALUE with KEY one of '
-                     f"{', '.join(NODE_DEFAULTS)}")
+                     f"{', '.join(scene_defaults())}")
         params[key] = _parse_value(value)
     try:
         width, height = (int(v) for v in args.size.lower().split('x'))

@@ -25,36 +25,10 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 import numpy as np
 import yaml
 
-from sm_ros import shapes
+from sm_ros import params, shapes
 from sm_ros.shapes import GeometryError, Surface
 
-#: The node parameters a scene's bodies inherit (and their defaults when the caller gives
-#: none, e.g. the render command). Keys use the node's parameter names.
-NODE_DEFAULTS: Dict[str, Any] = {
-    'mode': 'linear',
-    'alpha': 0.5,
-    'beta': 0.5,
-    'clusters': 1,
-    'plasticity.yield': 0.0,
-    'plasticity.creep': 0.0,
-    'plasticity.max': 0.0,
-    'gravity': (0.0, 0.0, -9.81),
-    'ground.enabled': True,
-    'ground.height': 0.0,
-    'ground.friction': 0.5,
-    'ground.restitution': 0.0,
-}
-
-#: Keys a body may override, in node-parameter naming ('damping' has no node parameter:
-#: it is 0 unless a body sets it).
-OVERRIDE_KEYS = ('mode', 'alpha', 'beta', 'clusters', 'plasticity.yield', 'plasticity.creep',
-                 'plasticity.max', 'damping')
-
-MODES = ('rigid', 'linear', 'quadratic')
 SHAPES = ('box', 'sphere', 'cylinder', 'capsule', 'sheet', 'rope', 'mesh', 'cloud')
-
-#: Largest `clusters` (cubes per axis), as the core and the node's parameter allow.
-MAX_CLUSTERS = 64
 
 #: Largest total number of particles a scene may have.
 MAX_SCENE_POINTS = 2_000_000
@@ -63,8 +37,8 @@ DEFAULT_SPACING = 0.05      # m
 DEFAULT_MASS = 1.0          # kg, per body
 
 _COMMON_KEYS = ('name', 'shape', 'position', 'orientation', 'mass', 'density', 'velocity',
-                'angular_velocity', 'pinned', 'mode', 'alpha', 'beta', 'clusters', 'damping',
-                'plasticity', 'copies')
+                'angular_velocity', 'pinned', 'copies') + tuple(
+                    dict.fromkeys(k.split('.', 1)[0] for k in params.OVERRIDE_KEYS))
 _SHAPE_KEYS = {
     'box': ('size', 'spacing'),
     'sphere': ('radius', 'spacing'),
@@ -98,7 +72,7 @@ class BodySpec:
         masses: (N,) particle masses (kg).
         velocities: (N, 3) initial velocities (m/s) or None for rest.
         pinned: indices of particles held fixed (int64, possibly empty).
-        overrides: parameter overrides in node naming (subset of OVERRIDE_KEYS).
+        overrides: parameter overrides in node naming (subset of ``sm_ros.params.OVERRIDE_KEYS``).
         surface: a :class:`sm_ros.shapes.Surface` for bodies from a mesh file, else None.
         shape: the shape keyword it was made from ('box', 'mesh', 'cloud', ...).
     """
@@ -429,20 +403,36 @@ def _contact(where: _Where, key: str, m: Mapping[str, Any]) -> Dict[str, float]:
 
 
 def _parse_overrides(w: _Where, b: Mapping[str, Any]) -> Dict[str, Any]:
+    """Return the parameter overrides a body sets, validated with the parameter table."""
     ov: Dict[str, Any] = {}
-    if 'mode' in b:
-        ov['mode'] = w.choice('mode', b['mode'], MODES)
-    for key in ('alpha', 'beta', 'damping'):
-        if key in b:
-            ov[key] = w.number(key, b[key], ge=0.0, le=1.0)
-    if 'clusters' in b:
-        ov['clusters'] = w.integer('clusters', b['clusters'], ge=1, le=MAX_CLUSTERS)
-    if 'plasticity' in b:
-        p = w.mapping('plasticity', b['plasticity'], ('yield', 'creep', 'max'))
-        for key in ('yield', 'creep', 'max'):
-            if key in p:
-                ov[f'plasticity.{key}'] = w.number(f'plasticity.{key}', p[key], ge=0.0)
+    groups: Dict[str, List[str]] = {}
+    for key in params.OVERRIDE_KEYS:
+        group, _, sub = key.rpartition('.')
+        if group:
+            groups.setdefault(group, []).append(sub)
+    for group, subs in groups.items():
+        if group in b:
+            w.mapping(group, b[group], subs)
+    for key in params.OVERRIDE_KEYS:
+        group, _, sub = key.rpartition('.')
+        source = b.get(group, {}) if group else b
+        if sub in source:
+            ov[key] = _override(w, params.BY_NAME[key], source[sub])
     return ov
+
+
+def _override(w: _Where, p: 'params.Param', value: Any) -> Any:
+    """Validate one override against its row of the parameter table."""
+    if p.choices:
+        return w.choice(p.name, value, p.choices)
+    if p.type_name == 'integer':
+        return w.integer(p.name, value, ge=int(p.lo), le=int(p.hi))
+    if p.type_name == 'double':
+        if p.positive:
+            return w.number(p.name, value, gt=p.lo, le=p.hi)
+        return w.number(p.name, value, ge=p.lo, le=p.hi)
+    raise TypeError(f'parameter {p.name}: a scene override of type {p.type_name} is not '
+                    'supported')
 
 
 def _orientation(w: _Where, raw: Any) -> np.ndarray:
@@ -663,7 +653,7 @@ def _parse_body(source: str, base: Path, index: int, raw: Any) -> List[BodySpec]
 # ----------------------------------------------------------------------------------------
 
 def _merged(defaults: Optional[Mapping[str, Any]]) -> Dict[str, Any]:
-    d = dict(NODE_DEFAULTS)
+    d = params.scene_defaults()
     if defaults:
         d.update(defaults)
     return d
@@ -674,21 +664,16 @@ def params_from(defaults: Optional[Mapping[str, Any]], overrides: Optional[Mappi
     """
     The core BodyParams for a body: its overrides over the node's parameters.
 
-    Keys are node-parameter names (see OVERRIDE_KEYS); missing ones fall back to
-    NODE_DEFAULTS. 'damping' is 0 unless given. Raises ValueError (from BodyParams.validate)
-    on bad values.
+    Keys are node-parameter names (see ``sm_ros.params.OVERRIDE_KEYS``); missing ones fall back to the
+    table's defaults (``sm_ros.params.scene_defaults``). Every key with a ``core_field`` in
+    the parameter table sets that BodyParams field. Raises ValueError (from
+    BodyParams.validate) on bad values.
     """
     from sm_ros.core import BodyParams
-    d = _merged(defaults)
+    d = dict(params.defaults([k for k in params.BODY_FIELDS]), **_merged(defaults))
     if overrides:
         d.update(overrides)
-    params = BodyParams(mode=str(d['mode']), alpha=float(d['alpha']), beta=float(d['beta']),
-                        clusters=int(d['clusters']),
-                        plastic_yield=float(d['plasticity.yield']),
-                        plastic_creep=float(d['plasticity.creep']),
-                        plastic_max=float(d['plasticity.max']),
-                        damping=float(d.get('damping', 0.0)))
-    return params.validate()
+    return BodyParams(**{field: d[key] for key, field in params.BODY_FIELDS.items()}).validate()
 
 
 def ground_from(scene_ground: Optional[Mapping[str, Any]],

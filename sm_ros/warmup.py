@@ -47,9 +47,9 @@ def warm_up() -> float:
 
 def warm_scene(name: str) -> float:
     """Build a scene with the node's default parameters and step it (its own variants)."""
-    from sm_ros.scene import NODE_DEFAULTS, build_world, load_scene
+    from sm_ros.scene import build_world, load_scene
     t0 = time.perf_counter()
-    world, _ = build_world(load_scene(name), NODE_DEFAULTS)
+    world, _ = build_world(load_scene(name))
     world.step(1.0 / 120.0)
     return time.perf_counter() - t0
 

@@ -451,8 +451,8 @@ def make_parameter(name, value):
 
 def expected_ok(node, name, param) -> bool:
     """Oracle: whether interface.md lets ``param`` through (None: either is right)."""
-    from sm_ros.node import MIN_DT, MIN_TIMER_RATE, PARAM_BY_NAME, TIMER_RATES
-    spec = PARAM_BY_NAME[name]
+    from sm_ros.params import BY_NAME, MIN_DT, MIN_TIMER_RATE, TIMER_RATES
+    spec = BY_NAME[name]
     if param.type_.value != spec.ros_type:
         return False
     value = param.value

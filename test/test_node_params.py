@@ -17,7 +17,7 @@ from rcl_interfaces.srv import DescribeParameters, SetParameters  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from sm_ros.cloud import create_cloud  # noqa: E402
-from sm_ros.node import PARAMS  # noqa: E402
+from sm_ros.params import NODE_PARAMS as PARAMS  # noqa: E402
 
 
 INTERFACE_PARAMS = ('mode', 'alpha', 'beta', 'plasticity.yield', 'plasticity.creep',

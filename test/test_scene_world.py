@@ -5,11 +5,14 @@ import pytest
 import yaml
 
 from sm_ros.core import BodyParams, World
+from sm_ros.params import scene_defaults
 from sm_ros.shapes import voxel_size_for
 from sm_ros.scene import (add_spec_body, build_world, BodySpec, cloud_body_spec, ground_from,
-                          load_scene, NODE_DEFAULTS, params_from, parse_scene, resolve_scene,
+                          load_scene, params_from, parse_scene, resolve_scene,
                           SceneError)
 
+#: The node's defaults for the values a scene is built with.
+NODE_DEFAULTS = scene_defaults()
 #: The node's default step (parameter dt); the tests step like the node does.
 DT = 1.0 / 120.0
 BUNDLED = ('default', 'paper_8_clusters', 'plastic', 'sheet', 'rope', 'many', 'mesh')

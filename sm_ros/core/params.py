@@ -5,7 +5,10 @@ import math
 
 import numpy as np
 
-MODES = ('rigid', 'linear', 'quadratic')
+# The one parameter table (plain Python, no ROS, no NumPy) gives the modes and the range of
+# every BodyParams field, so that the core refuses exactly what the node and the scene
+# loader refuse.
+from sm_ros.params import core_range, MAX_CLUSTERS, MODES
 
 
 def _finite(name: str, value, lo=None, hi=None, lo_open=False) -> float:
@@ -47,18 +50,11 @@ class BodyParams:
             raise ValueError(f'mode must be one of {", ".join(MODES)}, got {self.mode!r}')
         if isinstance(self.clusters, bool) or not isinstance(self.clusters, (int, np.integer)):
             raise ValueError(f'clusters must be an integer >= 1, got {self.clusters!r}')
-        if self.clusters < 1 or self.clusters > 64:
-            raise ValueError(f'clusters must be in [1, 64], got {self.clusters!r}')
-        return replace(
-            self,
-            clusters=int(self.clusters),
-            alpha=_finite('alpha', self.alpha, 0.0, 1.0),
-            beta=_finite('beta', self.beta, 0.0, 1.0),
-            plastic_yield=_finite('plastic_yield', self.plastic_yield, 0.0),
-            plastic_creep=_finite('plastic_creep', self.plastic_creep, 0.0),
-            plastic_max=_finite('plastic_max', self.plastic_max, 0.0),
-            damping=_finite('damping', self.damping, 0.0, 1.0),
-        )
+        if self.clusters < 1 or self.clusters > MAX_CLUSTERS:
+            raise ValueError(f'clusters must be in [1, {MAX_CLUSTERS}], got {self.clusters!r}')
+        numbers = ('alpha', 'beta', 'plastic_yield', 'plastic_creep', 'plastic_max', 'damping')
+        return replace(self, clusters=int(self.clusters),
+                       **{f: _finite(f, getattr(self, f), *core_range(f)) for f in numbers})
 
     @property
     def plastic(self) -> bool:
