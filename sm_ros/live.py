@@ -1,0 +1,415 @@
+"""
+Live view in Foxglove: a WebSocket server inside the node, no ROS installation needed.
+
+``FoxgloveView(port)`` starts the Foxglove SDK's WebSocket server (``pip install
+'.[viz]'``) and streams, as Foxglove's own message types (protobuf):
+
+=================  =====================  ==============================================
+channel            schema                 content
+=================  =====================  ==============================================
+``/points``        foxglove.PointCloud    every particle, the bytes of the published
+                                          PointCloud2 as they are (x, y, z float32 and
+                                          the body index uint32, 16 bytes a point); the
+                                          ``body`` field is listed first so that the 3D
+                                          panel colours the points by body by default
+``/poses``         foxglove.PosesInFrame  one pose (centre of mass, rotation) per body
+``/surfaces``      foxglove.SceneUpdate   the deformed mesh surfaces (triangle lists)
+``/colliders``     foxglove.SceneUpdate   ground, boxes, spheres (and what
+                                          ``COLLIDER_ENTITIES`` learns to draw)
+``/contacts``      foxglove.SceneUpdate   contact forces as arrows
+``/diagnostics``   JSON                   the solver's figures as numbers (Plot panel)
+=================  =====================  ==============================================
+
+Cost: each ``log_*`` method first asks the channel whether a client is subscribed
+(``Channel.has_sinks``) and returns at once when none is, so a node without a connected
+Foxglove pays a few hundred nanoseconds per channel and tick. The point cloud is not
+re-encoded: the protobuf message is a small header (stamp, frame, fields) followed by the
+cloud's bytes, joined into one ``bytes`` object (the one copy of the cloud the stream
+makes; the server queues that object).
+
+The module is ROS-free: it takes NumPy arrays and the cloud's raw bytes.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from typing import Any, Callable, Dict, Iterable, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+#: Default port of ``foxglove.port``. 0 (off) is the node's default; 8765 is Foxglove's
+#: own default port, the one ``make run`` passes and the app's connection dialog proposes.
+FOXGLOVE_DEFAULT_PORT = 8765
+
+#: PackedElementFieldNumericType values of foxglove.PackedElementField.
+_UINT32 = 5
+_FLOAT32 = 7
+
+#: Colour of the surfaces and colliders (RGBA in [0, 1]).
+SURFACE_RGBA = (0.85, 0.45, 0.2, 0.9)
+COLLIDER_RGBA = (0.55, 0.6, 0.65, 0.5)
+GROUND_RGBA = (0.4, 0.4, 0.4, 0.35)
+CONTACT_RGBA = (0.9, 0.1, 0.1, 1.0)
+#: Side of the square drawn for the (infinite) ground plane (m).
+GROUND_SIDE = 20.0
+
+
+class VizUnavailable(RuntimeError):
+    """foxglove-sdk is not installed (``pip install 'sm_ros[viz]'``)."""
+
+
+def _foxglove():
+    try:
+        import foxglove
+    except ImportError as exc:  # pragma: no cover - depends on the install
+        raise VizUnavailable(
+            "the Foxglove live view needs foxglove-sdk: pip install -e '.[viz]'") from exc
+    return foxglove
+
+
+# ----------------------------------------------------------------------------------------
+# Protobuf encoding of foxglove.PointCloud around the cloud's own bytes
+# ----------------------------------------------------------------------------------------
+
+def _varint(n: int) -> bytes:
+    out = bytearray()
+    n = int(n)
+    if n < 0:
+        n += 1 << 64
+    while True:
+        b = n & 0x7F
+        n >>= 7
+        if n:
+            out.append(b | 0x80)
+        else:
+            out.append(b)
+            return bytes(out)
+
+
+def _key(field: int, wire: int) -> bytes:
+    return _varint((field << 3) | wire)
+
+
+def _len_field(field: int, payload: bytes) -> bytes:
+    return _key(field, 2) + _varint(len(payload)) + payload
+
+
+def _timestamp(ns: int) -> bytes:
+    sec, nsec = divmod(int(ns), 1_000_000_000)
+    body = (_key(1, 0) + _varint(sec) if sec else b'') + \
+        (_key(2, 0) + _varint(nsec) if nsec else b'')
+    return body
+
+
+def _packed_field(name: str, offset: int, numeric_type: int) -> bytes:
+    body = _len_field(1, name.encode('utf-8'))
+    if offset:
+        body += _key(2, 5) + struct.pack('<I', offset)
+    body += _key(3, 0) + _varint(numeric_type)
+    return body
+
+
+#: The published cloud's layout with ``body`` listed first (Foxglove colours a cloud by
+#: its first field when it has no colour field).
+CLOUD_FIELDS = (('body', 12, _UINT32), ('x', 0, _FLOAT32), ('y', 4, _FLOAT32),
+                ('z', 8, _FLOAT32))
+CLOUD_POINT_STEP = 16
+
+
+def point_cloud_header(stamp_ns: int, frame_id: str, nbytes: int,
+                       fields=CLOUD_FIELDS, point_step: int = CLOUD_POINT_STEP) -> bytes:
+    """
+    Return the protobuf bytes of a foxglove.PointCloud up to (not including) its data.
+
+    Appending ``nbytes`` bytes of point data gives the whole message. The pose is the
+    identity (orientation w = 1), as the points are in ``frame_id``.
+    """
+    out = [_len_field(1, _timestamp(stamp_ns))]
+    if frame_id:
+        out.append(_len_field(2, frame_id.encode('utf-8')))
+    identity = _len_field(1, b'') + _len_field(2, _key(4, 1) + struct.pack('<d', 1.0))
+    out.append(_len_field(3, identity))
+    out.append(_key(4, 5) + struct.pack('<I', point_step))
+    for name, offset, numeric_type in fields:
+        out.append(_len_field(5, _packed_field(name, offset, numeric_type)))
+    if nbytes:
+        out.append(_key(6, 2) + _varint(nbytes))
+    return b''.join(out)
+
+
+def encode_point_cloud(data, stamp_ns: int, frame_id: str) -> bytes:
+    """Return a foxglove.PointCloud (protobuf) holding ``data`` (the cloud's raw bytes)."""
+    view = memoryview(data).cast('B')
+    return b''.join((point_cloud_header(stamp_ns, frame_id, view.nbytes), view))
+
+
+# ----------------------------------------------------------------------------------------
+# Scene entities
+# ----------------------------------------------------------------------------------------
+
+def body_rgba(index: int, count: int) -> Tuple[float, float, float, float]:
+    """Return a distinct colour for body ``index`` of ``count`` (hue wheel)."""
+    import colorsys
+    h = (index / max(count, 1)) % 1.0
+    r, g, b = colorsys.hsv_to_rgb(h, 0.65, 0.95)
+    return (r, g, b, 1.0)
+
+
+def _ground_entity(fg, ground, frame_id) -> Any:
+    m = fg.messages
+    pose = m.Pose(position=m.Vector3(x=0.0, y=0.0, z=float(ground.height) - 0.0005),
+                  orientation=m.Quaternion(w=1.0))
+    return [m.CubePrimitive(pose=pose, size=m.Vector3(x=GROUND_SIDE, y=GROUND_SIDE, z=0.001),
+                            color=m.Color(r=GROUND_RGBA[0], g=GROUND_RGBA[1],
+                                          b=GROUND_RGBA[2], a=GROUND_RGBA[3]))], 'cubes'
+
+
+def _box_entity(fg, box, frame_id) -> Any:
+    m = fg.messages
+    lo, hi = np.asarray(box.lo, float), np.asarray(box.hi, float)
+    c, s = (lo + hi) / 2.0, hi - lo
+    pose = m.Pose(position=m.Vector3(x=c[0], y=c[1], z=c[2]), orientation=m.Quaternion(w=1.0))
+    return [m.CubePrimitive(pose=pose, size=m.Vector3(x=s[0], y=s[1], z=s[2]),
+                            color=m.Color(r=COLLIDER_RGBA[0], g=COLLIDER_RGBA[1],
+                                          b=COLLIDER_RGBA[2], a=COLLIDER_RGBA[3]))], 'cubes'
+
+
+def _sphere_entity(fg, sphere, frame_id) -> Any:
+    m = fg.messages
+    c = np.asarray(sphere.center, float)
+    d = 2.0 * float(sphere.radius)
+    pose = m.Pose(position=m.Vector3(x=c[0], y=c[1], z=c[2]), orientation=m.Quaternion(w=1.0))
+    return [m.SpherePrimitive(pose=pose, size=m.Vector3(x=d, y=d, z=d),
+                              color=m.Color(r=COLLIDER_RGBA[0], g=COLLIDER_RGBA[1],
+                                            b=COLLIDER_RGBA[2], a=COLLIDER_RGBA[3]))], 'spheres'
+
+
+#: Collider class name -> function(foxglove, collider, frame_id) returning
+#: (primitives, SceneEntity keyword). A new collider kind is drawn by adding one entry.
+COLLIDER_ENTITIES: Dict[str, Callable] = {
+    'Ground': _ground_entity,
+    'Box': _box_entity,
+    'Sphere': _sphere_entity,
+}
+
+
+def world_colliders(world) -> List[Tuple[str, Any]]:
+    """Return (id, collider) for every collider of a core World (ground, boxes, spheres)."""
+    out = []
+    if getattr(world, 'ground', None) is not None:
+        out.append(('ground', world.ground))
+    for i, b in enumerate(getattr(world, 'boxes', ()) or ()):
+        out.append((getattr(b, 'name', None) or f'box{i}', b))
+    for i, s in enumerate(getattr(world, 'spheres', ()) or ()):
+        out.append((getattr(s, 'name', None) or f'sphere{i}', s))
+    for i, c in enumerate(getattr(world, 'colliders', ()) or ()):
+        out.append((getattr(c, 'name', None) or f'collider{i}', c))
+    return out
+
+
+def _timestamp_msg(fg, ns: int):
+    sec, nsec = divmod(int(ns), 1_000_000_000)
+    return fg.messages.Timestamp(sec=sec, nsec=nsec)
+
+
+class FoxgloveView:
+    """
+    A Foxglove WebSocket server and its channels (see the module docstring).
+
+    ``port`` 0 picks a free port (tests); ``host`` defaults to the loopback interface
+    (pass ``0.0.0.0`` to be reachable from other machines).
+    """
+
+    def __init__(self, port: int = FOXGLOVE_DEFAULT_PORT, host: str = '127.0.0.1',
+                 name: str = 'sm_ros', frame_id: str = 'world'):
+        """Start the server; raises VizUnavailable without foxglove-sdk, OSError if busy."""
+        fg = _foxglove()
+        from foxglove.channels import PosesInFrameChannel, SceneUpdateChannel
+        from foxglove.messages import PointCloud
+        self._fg = fg
+        self.frame_id = frame_id
+        self.context = fg.Context()
+        try:
+            self.server = fg.start_server(name=name, host=host, port=int(port),
+                                          context=self.context)
+        except Exception as exc:  # noqa: BLE001 - the SDK raises its own error type
+            raise OSError(f'Foxglove server on {host}:{port}: {exc}') from exc
+        self.host = host
+        self.points = fg.Channel('/points', schema=PointCloud.get_schema(),
+                                 message_encoding='protobuf', context=self.context)
+        self.poses = PosesInFrameChannel('/poses', context=self.context)
+        self.surfaces = SceneUpdateChannel('/surfaces', context=self.context)
+        self.colliders = SceneUpdateChannel('/colliders', context=self.context)
+        self.contacts = SceneUpdateChannel('/contacts', context=self.context)
+        self.diagnostics = fg.Channel('/diagnostics', context=self.context)
+        self.messages_logged = 0
+        self._collider_key = None
+
+    # ------------------------------------------------------------------ info
+
+    @property
+    def port(self) -> int:
+        """Return the port the server listens on."""
+        return int(self.server.port)
+
+    @property
+    def url(self) -> str:
+        """Return the ws:// address to connect Foxglove to."""
+        host = 'localhost' if self.host in ('127.0.0.1', '0.0.0.0', '') else self.host
+        return f'ws://{host}:{self.port}'
+
+    @property
+    def app_url(self) -> str:
+        """Return a link that opens the Foxglove web app connected to this server."""
+        return self.server.app_url()
+
+    def wants_cloud(self) -> bool:
+        """Return True while a client is subscribed to ``/points``."""
+        return self.points.has_sinks()
+
+    def wants_any(self) -> bool:
+        """Return True while a client is subscribed to any channel."""
+        return any(c.has_sinks() for c in (self.points, self.poses, self.surfaces,
+                                           self.colliders, self.contacts, self.diagnostics))
+
+    # ------------------------------------------------------------------ logging
+
+    def log_cloud(self, data, stamp_ns: int) -> bool:
+        """Send the cloud's raw bytes (16 bytes a point, the published layout)."""
+        if not self.points.has_sinks():
+            return False
+        self.points.log(encode_point_cloud(data, stamp_ns, self.frame_id), log_time=stamp_ns)
+        self.messages_logged += 1
+        return True
+
+    def log_poses(self, positions: np.ndarray, quaternions: np.ndarray,
+                  stamp_ns: int) -> bool:
+        """Send one pose per body: positions (B, 3), quaternions (B, 4) as x, y, z, w."""
+        if not self.poses.has_sinks():
+            return False
+        m = self._fg.messages
+        poses = [m.Pose(position=m.Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
+                        orientation=m.Quaternion(x=float(q[0]), y=float(q[1]),
+                                                 z=float(q[2]), w=float(q[3])))
+                 for p, q in zip(np.asarray(positions), np.asarray(quaternions))]
+        self.poses.log(m.PosesInFrame(timestamp=_timestamp_msg(self._fg, stamp_ns),
+                                      frame_id=self.frame_id, poses=poses), log_time=stamp_ns)
+        self.messages_logged += 1
+        return True
+
+    def log_surfaces(self, surfaces: Sequence[Tuple[str, np.ndarray]], stamp_ns: int,
+                     count: Optional[int] = None) -> bool:
+        """Send the deformed surfaces: [(body name, triangle corners (3F, 3))]."""
+        if not self.surfaces.has_sinks():
+            return False
+        m = self._fg.messages
+        ts = _timestamp_msg(self._fg, stamp_ns)
+        entities = []
+        for i, (name, corners) in enumerate(surfaces):
+            pts = [m.Point3(x=float(a), y=float(b), z=float(c))
+                   for a, b, c in np.asarray(corners, dtype=np.float64)]
+            r, g, b, a = SURFACE_RGBA
+            tri = m.TriangleListPrimitive(pose=m.Pose(orientation=m.Quaternion(w=1.0)),
+                                          points=pts, color=m.Color(r=r, g=g, b=b, a=a))
+            entities.append(m.SceneEntity(timestamp=ts, frame_id=self.frame_id,
+                                          id=f'surface/{name}', triangles=[tri]))
+        self.surfaces.log(m.SceneUpdate(entities=entities), log_time=stamp_ns)
+        self.messages_logged += 1
+        return True
+
+    def log_colliders(self, colliders: Iterable[Tuple[str, Any]], stamp_ns: int,
+                      moving: bool = False) -> bool:
+        """
+        Send the colliders [(id, collider)] (see ``world_colliders``).
+
+        Static colliders are sent once per subscription change (the entities persist in
+        the client); pass ``moving=True`` when a collider moved this tick.
+        """
+        if not self.colliders.has_sinks():
+            self._collider_key = None
+            return False
+        colliders = list(colliders)
+        key = tuple((cid, repr(c)) for cid, c in colliders)
+        if key == self._collider_key and not moving:
+            return False
+        m = self._fg.messages
+        ts = _timestamp_msg(self._fg, stamp_ns)
+        entities = []
+        for cid, c in colliders:
+            draw = COLLIDER_ENTITIES.get(type(c).__name__)
+            if draw is None:
+                continue
+            prims, kind = draw(self._fg, c, self.frame_id)
+            entities.append(m.SceneEntity(timestamp=ts, frame_id=self.frame_id,
+                                          id=f'collider/{cid}', **{kind: prims}))
+        deletions = [m.SceneEntityDeletion(timestamp=ts,
+                                           type=m.SceneEntityDeletionType.All)]
+        self.colliders.log(m.SceneUpdate(deletions=deletions, entities=entities),
+                           log_time=stamp_ns)
+        self._collider_key = key
+        self.messages_logged += 1
+        return True
+
+    def log_contacts(self, points: np.ndarray, forces: np.ndarray, stamp_ns: int,
+                     metres_per_newton: float = 0.01) -> bool:
+        """Send contact forces as arrows: points (K, 3) where forces (K, 3) act."""
+        if not self.contacts.has_sinks():
+            return False
+        m = self._fg.messages
+        ts = _timestamp_msg(self._fg, stamp_ns)
+        arrows = []
+        r, g, b, a = CONTACT_RGBA
+        for p, f in zip(np.asarray(points, float), np.asarray(forces, float)):
+            length = float(np.linalg.norm(f)) * metres_per_newton
+            if not length > 0.0:
+                continue
+            q = _quaternion_x_to(f)
+            arrows.append(m.ArrowPrimitive(
+                pose=m.Pose(position=m.Vector3(x=p[0], y=p[1], z=p[2]),
+                            orientation=m.Quaternion(x=q[0], y=q[1], z=q[2], w=q[3])),
+                shaft_length=0.8 * length, shaft_diameter=0.1 * length,
+                head_length=0.2 * length, head_diameter=0.2 * length,
+                color=m.Color(r=r, g=g, b=b, a=a)))
+        entity = m.SceneEntity(timestamp=ts, frame_id=self.frame_id, id='contacts',
+                               arrows=arrows)
+        self.contacts.log(m.SceneUpdate(entities=[entity]), log_time=stamp_ns)
+        self.messages_logged += 1
+        return True
+
+    def log_diagnostics(self, values: Dict[str, Any], stamp_ns: int) -> bool:
+        """Send the solver's figures (numbers where they are numbers) as one JSON message."""
+        if not self.diagnostics.has_sinks():
+            return False
+        out: Dict[str, Any] = {}
+        for k, v in values.items():
+            try:
+                f = float(v)
+                out[k] = f if math.isfinite(f) else None
+            except (TypeError, ValueError):
+                out[k] = v
+        out['stamp'] = stamp_ns / 1e9
+        self.diagnostics.log(out, log_time=stamp_ns)
+        self.messages_logged += 1
+        return True
+
+    def close(self) -> None:
+        """Stop the server (clients are disconnected)."""
+        try:
+            self.server.stop()
+        except Exception:  # noqa: BLE001 - stopping twice is harmless
+            pass
+
+
+def _quaternion_x_to(v: np.ndarray) -> Tuple[float, float, float, float]:
+    """Return the shortest rotation (x, y, z, w) taking +x onto the direction of ``v``."""
+    n = float(np.linalg.norm(v))
+    d = np.asarray(v, float) / n
+    c = float(d[0])
+    if c < -0.999999:
+        return (0.0, 0.0, 1.0, 0.0)
+    axis = np.array([0.0, -d[2], d[1]])
+    w = 1.0 + c
+    q = np.array([axis[0], axis[1], axis[2], w])
+    q /= np.linalg.norm(q)
+    return tuple(float(x) for x in q)
