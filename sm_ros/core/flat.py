@@ -1,0 +1,116 @@
+"""World-level flat (structure-of-arrays) state for the passes that span bodies.
+
+Contact between bodies (``contact.py``) and kinematic colliders work on every particle of
+the world at once, so they read one set of arrays instead of one per body:
+
+* ``X``, ``V`` (3, N) float64, C-contiguous: positions and velocities; body ``b`` holds
+  columns ``off[b]:off[b + 1]``;
+* ``W`` (N,) inverse mass, 0 for pinned and grabbed (kinematic) particles (infinite mass);
+* ``B`` (N,) int32 body index of each particle; ``R`` (N,) contact radius (metres);
+* ``X0`` (3, N) rest positions (``Body.x_init``), for the self-collision rest-distance test.
+
+Until the World owns these arrays itself (the fused world step), ``World.step`` runs the
+bodies' own steps, then ``gather`` copies every body's ``_x``/``_v`` into ``X``/``V``, the
+world-level passes move particles and mark the bodies they touched in ``touched``, and
+``scatter`` copies only those bodies back and flags them ``_dirty`` (their per-cluster sums,
+fused into the integration pass, must be recomputed from the moved positions).  Both
+copies are one compiled call each and allocate nothing; ``bench contact`` prints their
+cost.  When the World owns ``X``/``V``, ``gather``/``scatter`` become no-ops and only the
+``_dirty`` flags remain.
+"""
+
+import numpy as np
+from numba import njit
+from numba.typed import List
+
+from .kernels import JIT
+
+
+@njit(**JIT)
+def gather_state(xs, vs, off, X, V):
+    """X[:, off[b] + i] = xs[b][i] (and V from vs) for every body b."""
+    # streams each body's (n, 3) rows into the (3, N) columns
+    for b in range(len(xs)):
+        x = xs[b]
+        v = vs[b]
+        o = off[b]
+        for i in range(x.shape[0]):
+            X[0, o + i] = x[i, 0]
+            X[1, o + i] = x[i, 1]
+            X[2, o + i] = x[i, 2]
+            V[0, o + i] = v[i, 0]
+            V[1, o + i] = v[i, 1]
+            V[2, o + i] = v[i, 2]
+
+
+@njit(**JIT)
+def scatter_state(xs, vs, off, X, V, touched):
+    """xs[b][i] = X[:, off[b] + i] (and vs from V) for the bodies with ``touched[b]``."""
+    for b in range(len(xs)):
+        if not touched[b]:
+            continue
+        x = xs[b]
+        v = vs[b]
+        o = off[b]
+        for i in range(x.shape[0]):
+            x[i, 0] = X[0, o + i]
+            x[i, 1] = X[1, o + i]
+            x[i, 2] = X[2, o + i]
+            v[i, 0] = V[0, o + i]
+            v[i, 1] = V[1, o + i]
+            v[i, 2] = V[2, o + i]
+
+
+class FlatState:
+    """The flat arrays of a list of bodies (rebuilt when bodies are added or removed)."""
+
+    def __init__(self, bodies):
+        self.bodies = list(bodies)
+        nb = len(self.bodies)
+        counts = np.array([b.n for b in self.bodies], dtype=np.int64)
+        self.off = np.zeros(nb + 1, dtype=np.int64)
+        np.cumsum(counts, out=self.off[1:])
+        n = int(self.off[-1])
+        self.n = n
+        self.X = np.zeros((3, n))
+        self.V = np.zeros((3, n))
+        self.W = np.zeros(n)
+        self.B = np.repeat(np.arange(nb, dtype=np.int32), counts)
+        self.R = np.zeros(n)
+        self.X0 = np.zeros((3, n))
+        self.touched = np.zeros(max(nb, 1), dtype=np.uint8)
+        self._xs = List()
+        self._vs = List()
+        for b in self.bodies:
+            self._xs.append(b._x)
+            self._vs.append(b._v)
+        for k, b in enumerate(self.bodies):
+            self.X0[:, self.off[k]:self.off[k + 1]] = b.x_init.T
+        self._kin_seen = [None] * nb
+        self.refresh_masses()
+
+    def refresh_masses(self):
+        """W from the bodies' masses; 0 for pinned/grabbed particles (cheap if unchanged)."""
+        for k, b in enumerate(self.bodies):
+            kin = b._kin_idx
+            if kin is self._kin_seen[k]:
+                continue
+            o0, o1 = self.off[k], self.off[k + 1]
+            self.W[o0:o1] = 1.0 / b.m
+            if len(kin):
+                self.W[o0 + kin] = 0.0
+            self._kin_seen[k] = kin
+
+    def gather(self):
+        """Copy every body's positions and velocities into X, V; clear ``touched``."""
+        self.refresh_masses()
+        gather_state(self._xs, self._vs, self.off, self.X, self.V)
+        self.touched[:] = 0
+
+    def scatter(self):
+        """Copy the touched bodies back and flag them for a fresh accumulation."""
+        if not self.touched.any():
+            return
+        scatter_state(self._xs, self._vs, self.off, self.X, self.V, self.touched)
+        for k in np.flatnonzero(self.touched):
+            self.bodies[k]._dirty = True
