@@ -223,7 +223,7 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, iters, touched, co
             dz = X[2, i] - X[2, j]
             d2 = dx * dx + dy * dy + dz * dz
             rr = R[i] + R[j]
-            if d2 >= rr * rr:
+            if not d2 < rr * rr:       # apart, or NaN (a body that blew up: left alone)
                 continue
             d = np.sqrt(d2)
             if d > 1e-9 * rr:

@@ -89,6 +89,19 @@ class FlatState:
         self._kin_seen = [None] * nb
         self.refresh_masses()
 
+    def __getstate__(self):
+        state = self.__dict__.copy()           # the typed lists do not pickle: rebuilt
+        del state['_xs'], state['_vs']
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._xs = List()
+        self._vs = List()
+        for b in self.bodies:
+            self._xs.append(b._x)
+            self._vs.append(b._v)
+
     def refresh_masses(self):
         """W from the bodies' masses; 0 for pinned/grabbed particles (cheap if unchanged)."""
         for k, b in enumerate(self.bodies):
