@@ -20,9 +20,12 @@ ROS_WHEELS = [
 
 
 def config_data_files():
-    """Return data_files entries for everything under config/ (one entry per folder)."""
+    """Return data_files entries for everything under config/ and launch/ (per folder)."""
     entries = []
-    for folder, _, files in sorted(os.walk('config')):
+    walked = [w for top in ('config', 'launch') for w in sorted(os.walk(top))]
+    for folder, _, files in walked:
+        if '__pycache__' in folder:
+            continue
         paths = sorted(os.path.join(folder, f) for f in files)
         if paths:
             entries.append((os.path.join('share', package_name, folder), paths))

@@ -6,7 +6,11 @@ Usage::
     python -m sm_ros.render SCENE [--seconds 3] [--out run.gif] [--fps 10] [--dt 0.008333]
                             [--set mode=quadratic --set alpha=0.3 ...]
 
-SCENE is a bundled scene name or a YAML path. The output type follows the extension of
+SCENE is a bundled scene name or a YAML path, or a recording (a rosbag2 MCAP folder made
+by the node's ``~/record`` service or ``ros2 bag record``, or its ``.mcap`` file): then the
+recorded ``points`` clouds are drawn (``--seconds`` from the start of the recording, frames
+picked every 1/``--fps`` s of the clouds' stamps; ``--topic`` picks the cloud topic,
+default: the first PointCloud2 topic) and nothing is simulated. The output type follows the extension of
 ``--out``: ``.gif`` (animated, via Pillow) or ``.png`` (``--frames`` panels side by side).
 The simulation uses the node's defaults (``sm_ros.params.scene_defaults()``, ``--dt`` like the
 node's ``dt``); ``--set key=value`` changes a node parameter for the run. Drawing uses
@@ -83,7 +87,8 @@ def simulate(scene: str, seconds: float = 3.0, fps: float = 10.0, dt: float = DE
         rec.ground = float(world.ground.height)
     steps = 0
     busy = 0.0
-    for f in range(n_frames):
+    from sm_ros.progress import bar
+    for f in bar(iterable=range(n_frames), total=n_frames, desc='simulate', unit='frame'):
         if f:
             t0 = time.perf_counter()
             for _ in range(per_frame):
@@ -96,6 +101,109 @@ def simulate(scene: str, seconds: float = 3.0, fps: float = 10.0, dt: float = DE
                              for b, m in zip(world.bodies, metas)])
     rec.step_ms = 1000.0 * busy / max(1, steps)
     return rec
+
+
+def is_recording(path: str) -> bool:
+    """Return True if ``path`` is a rosbag2 folder with an .mcap file, or an .mcap file."""
+    p = Path(str(path))
+    return (p.is_file() and p.suffix == '.mcap') or \
+        (p.is_dir() and any(p.glob('*.mcap')))
+
+
+def _cloud_columns(msg) -> np.ndarray:
+    """Return a structured view (x, y, z[, body]) over a decoded PointCloud2's data."""
+    kinds = {1: 'i1', 2: 'u1', 3: 'i2', 4: 'u2', 5: 'i4', 6: 'u4', 7: 'f4', 8: 'f8'}
+    order = '>' if msg.is_bigendian else '<'
+    names, formats, offsets = [], [], []
+    for f in msg.fields:
+        if f.name in ('x', 'y', 'z', 'body') and f.datatype in kinds:
+            names.append(f.name)
+            formats.append(order + kinds[f.datatype])
+            offsets.append(f.offset)
+    dtype = np.dtype({'names': names, 'formats': formats, 'offsets': offsets,
+                      'itemsize': msg.point_step})
+    n = msg.width * msg.height
+    return np.frombuffer(bytes(msg.data), dtype=dtype, count=n)
+
+
+def load_recording(bag: str, seconds: Optional[float] = None, fps: float = 10.0,
+                   max_draw: int = 4000, topic: Optional[str] = None,
+                   seed: int = 0) -> Recording:
+    """
+    Read the point clouds of a recording into a Recording (no simulation, no ROS).
+
+    Decoding uses the message definitions stored in the file (``mcap_ros2``); a recording
+    cut short by a crash is read up to its last complete chunk.
+    """
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap_ros2.decoder import DecoderFactory
+    from sm_ros.record import mcap_path
+    factory = DecoderFactory()
+    schemas, channels = {}, {}
+    frames_raw = []
+    t0 = None
+    period = 1e9 / fps
+    next_t = None
+    with open(mcap_path(bag), 'rb') as f:
+        try:
+            for rec in StreamReader(f, record_size_limit=None).records:
+                if isinstance(rec, Schema):
+                    schemas[rec.id] = rec
+                elif isinstance(rec, Channel):
+                    channels[rec.id] = rec
+                elif isinstance(rec, Message):
+                    ch = channels[rec.channel_id]
+                    sc = schemas.get(ch.schema_id)
+                    if sc is None or sc.name not in ('sensor_msgs/msg/PointCloud2',
+                                                     'sensor_msgs/PointCloud2'):
+                        continue
+                    if topic is None:
+                        topic = ch.topic
+                    if ch.topic != topic:
+                        continue
+                    if t0 is None:
+                        t0 = next_t = rec.log_time
+                    if seconds is not None and rec.log_time - t0 > seconds * 1e9 + 1:
+                        break
+                    if rec.log_time + 1 >= next_t:
+                        frames_raw.append((rec.log_time, sc, rec.data))
+                        next_t += period * max(1, int((rec.log_time - next_t) // period) + 1)
+        except Exception:  # noqa: BLE001 - a file cut short: keep what was read
+            pass
+    if not frames_raw:
+        raise ValueError(f'{bag}: no PointCloud2 messages'
+                         + (f" on '{topic}'" if topic else ''))
+    rng = np.random.default_rng(seed)
+    out = Recording(name=Path(str(bag)).stem, times=[], frames=[], surfaces=[], faces=[],
+                    colliders={}, ground=None, n_points=0, step_ms=0.0)
+    picks_key, picks = None, []
+    for stamp, sc, data in frames_raw:
+        msg = factory.decoder_for('cdr', sc)(data)
+        cols = _cloud_columns(msg)
+        xyz = np.stack([cols['x'], cols['y'], cols['z']], axis=1).astype(np.float64)
+        body = cols['body'] if 'body' in cols.dtype.names else np.zeros(len(cols), np.uint32)
+        counts = tuple(np.bincount(body).tolist()) if len(body) else ()
+        if counts != picks_key:
+            total = max(1, len(body))
+            picks = []
+            for j, n in enumerate(counts):
+                idx = np.flatnonzero(body == j)
+                k = max(1, int(round(max_draw * n / total))) if total > max_draw else n
+                picks.append(np.sort(rng.choice(idx, size=min(k, n), replace=False))
+                             if n else idx)
+            picks_key = counts
+        out.times.append((stamp - frames_raw[0][0]) * 1e-9)
+        out.frames.append([xyz[p] for p in picks])
+        out.surfaces.append([None] * len(picks))
+        out.n_points = max(out.n_points, len(body))
+    out.faces = [None] * max(len(fr) for fr in out.frames)
+    # every frame lists every body (a body that appeared later is empty before)
+    for fr, sf in zip(out.frames, out.surfaces):
+        while len(fr) < len(out.faces):
+            fr.append(np.zeros((0, 3)))
+            sf.append(None)
+    return out
 
 
 def _limits(rec: Recording):
@@ -172,7 +280,9 @@ def write_gif(rec: Recording, out: Path, width: int = 400, height: int = 300,
     ax.view_init(elev=elev, azim=azim)
     lo, hi = _limits(rec)
     images = []
-    for i in range(len(rec.frames)):
+    from sm_ros.progress import bar
+    for i in bar(iterable=range(len(rec.frames)), total=len(rec.frames), desc='draw',
+                 unit='frame'):
         _draw(ax, rec, i, lo, hi)
         fig.canvas.draw()
         rgb = np.asarray(fig.canvas.buffer_rgba())[..., :3]
@@ -211,16 +321,21 @@ def write_strip(rec: Recording, out: Path, panels: int = 5, panel_w: int = 240,
 def render(scene: str, out: str, seconds: float = 3.0, fps: float = 10.0,
            dt: float = DEFAULT_DT, params: Optional[Dict[str, Any]] = None,
            frames: int = 5, max_draw: int = 4000, width: int = 400, height: int = 300,
-           elev: float = 22.0, azim: float = -60.0) -> Dict[str, float]:
-    """Simulate and write `out` (.gif or .png); return timing figures (seconds, ms)."""
+           elev: float = 22.0, azim: float = -60.0,
+           topic: Optional[str] = None) -> Dict[str, float]:
+    """Simulate (or read a recording) and write `out`; return timing figures."""
     path = Path(out)
     kind = path.suffix.lower()
     if kind not in ('.gif', '.png'):
         raise ValueError(f'--out must end in .gif or .png, got {out!r}')
-    if not seconds > 0 or not fps > 0 or not dt > 0:
+    if not (seconds is None or seconds > 0) or not fps > 0 or not dt > 0:
         raise ValueError('seconds, fps and dt must be > 0')
     t0 = time.perf_counter()
-    rec = simulate(scene, seconds=seconds, fps=fps, dt=dt, params=params, max_draw=max_draw)
+    if is_recording(scene):
+        rec = load_recording(scene, seconds=seconds, fps=fps, max_draw=max_draw, topic=topic)
+    else:
+        rec = simulate(scene, seconds=seconds, fps=fps, dt=dt, params=params,
+                       max_draw=max_draw)
     t1 = time.perf_counter()
     if kind == '.gif':
         write_gif(rec, path, width=width, height=height, elev=elev, azim=azim)
@@ -228,6 +343,7 @@ def render(scene: str, out: str, seconds: float = 3.0, fps: float = 10.0,
         write_strip(rec, path, panels=frames, elev=elev, azim=azim)
     t2 = time.perf_counter()
     return {'points': rec.n_points, 'bodies': len(rec.faces), 'simulate_s': t1 - t0,
+            'frames': len(rec.frames),
             'draw_s': t2 - t1, 'step_ms': rec.step_ms, 'bytes': path.stat().st_size}
 
 
@@ -237,8 +353,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                                  description='Run a scene headless and write a GIF or a '
                                              'PNG strip.')
     ap.add_argument('scene', nargs='?', default='',
-                    help="bundled scene name or YAML path (default: 'default')")
-    ap.add_argument('--seconds', type=float, default=3.0, help='simulated seconds (3)')
+                    help="bundled scene name, YAML path or recording (rosbag2 MCAP folder "
+                         "or .mcap file) (default: 'default')")
+    ap.add_argument('--seconds', type=float, default=None,
+                    help='simulated seconds (3); of a recording: from its start (all)')
+    ap.add_argument('--topic', default=None,
+                    help='cloud topic of a recording (default: the first PointCloud2 one)')
     ap.add_argument('--out', default='run.gif', help='output .gif or .png (run.gif)')
     ap.add_argument('--fps', type=float, default=10.0, help='frames per simulated second')
     ap.add_argument('--dt', type=float, default=DEFAULT_DT, help='time step in s (1/120)')
@@ -261,15 +381,24 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         width, height = (int(v) for v in args.size.lower().split('x'))
     except ValueError:
         ap.error(f'--size must be WxH, got {args.size!r}')
+    recording = is_recording(args.scene)
+    seconds = args.seconds if args.seconds is not None else (None if recording else 3.0)
     try:
-        figures = render(args.scene, args.out, seconds=args.seconds, fps=args.fps, dt=args.dt,
+        figures = render(args.scene, args.out, seconds=seconds, fps=args.fps, dt=args.dt,
                          params=params, frames=args.frames, max_draw=args.max_draw,
-                         width=width, height=height, elev=args.elev, azim=args.azim)
-    except (SceneError, ValueError) as exc:
+                         width=width, height=height, elev=args.elev, azim=args.azim,
+                         topic=args.topic)
+    except (SceneError, ValueError, ImportError) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
+    if recording:
+        print(f"{args.out}: {figures['points']} points in {figures['bodies']} bodies, "
+              f"{figures['frames']} frames read from {args.scene} in "
+              f"{figures['simulate_s']:.2f} s, drawn in {figures['draw_s']:.2f} s, "
+              f"{figures['bytes'] / 1024:.0f} KiB")
+        return 0
     print(f"{args.out}: {figures['points']} points in {figures['bodies']} bodies, "
-          f"{args.seconds:g} s simulated in {figures['simulate_s']:.2f} s "
+          f"{seconds:g} s simulated in {figures['simulate_s']:.2f} s "
           f"({figures['step_ms']:.2f} ms/step), drawn in {figures['draw_s']:.2f} s, "
           f"{figures['bytes'] / 1024:.0f} KiB")
     return 0

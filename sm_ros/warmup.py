@@ -7,14 +7,107 @@ README's ``make run`` / ``make test`` run it when they create the environment.
 """
 
 import argparse
+import importlib
+import os
+import pkgutil
 import sys
 import time
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 
+#: Seconds a cold compile of every kernel takes on 2 cores (measured: see doc/benchmarks.md
+#: and the README; the node and ``warmup`` quote it in their cold-start line).
+COLD_COMPILE_S = 60.0
 
-def warm_up() -> float:
+
+def _core_kernels():
+    """Return the cached Numba dispatchers defined in sm_ros.core's modules."""
+    from numba.core.registry import CPUDispatcher
+    import sm_ros.core as core
+    out = []
+    for info in pkgutil.walk_packages(core.__path__, core.__name__ + '.'):
+        mod = importlib.import_module(info.name)
+        for value in vars(mod).values():
+            files = getattr(getattr(value, '_cache', None), '_cache_file', None)
+            if isinstance(value, CPUDispatcher) and files is not None \
+                    and value.__module__ == mod.__name__:
+                out.append(value)
+    return out
+
+
+def _stamp_path(kernels) -> str:
+    return os.path.join(kernels[0]._cache._cache_file._cache_path, 'sm_ros_warm.json')
+
+
+def _sources_stamp() -> dict:
+    """Return what Numba's cache depends on: the core's source files and Numba's version."""
+    import numba
+    import sm_ros.core as core
+    root = os.path.dirname(core.__file__)
+    files = {}
+    for folder, _, names in os.walk(root):
+        for name in names:
+            if name.endswith('.py'):
+                st = os.stat(os.path.join(folder, name))
+                files[os.path.relpath(os.path.join(folder, name), root)] = \
+                    [st.st_mtime_ns, st.st_size]
+    return {'numba': numba.__version__, 'python': sys.version.split()[0], 'files': files}
+
+
+def cold_kernels() -> Optional[int]:
+    """
+    Return how many solver kernels the next start compiles: 0 when Numba's on-disk cache
+    was filled by a warm-up since the core's sources last changed, else the number of
+    cached kernels in ``sm_ros.core``; None when it cannot be told.
+
+    The warm-up leaves a stamp (the core's source files' times and sizes, Numba's version)
+    in Numba's cache folder; Numba recompiles exactly when these change.
+    """
+    try:
+        import json
+        kernels = _core_kernels()
+        if not kernels:
+            return 0
+        path = _stamp_path(kernels)
+        try:
+            with open(path, encoding='utf-8') as f:
+                if json.load(f) == _sources_stamp():
+                    return 0
+        except (OSError, ValueError):
+            pass
+        return len(kernels)
+    except Exception:  # noqa: BLE001 - internals of Numba: unknown rather than wrong
+        return None
+
+
+def mark_warm() -> None:
+    """Record that the cache matches the current sources (after a complete warm-up)."""
+    try:
+        import json
+        kernels = _core_kernels()
+        if kernels:
+            path = _stamp_path(kernels)
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+            tmp = path + f'.{os.getpid()}'
+            with open(tmp, 'w', encoding='utf-8') as f:
+                json.dump(_sources_stamp(), f)
+            os.replace(tmp, path)
+    except Exception:  # noqa: BLE001 - a read-only cache only loses the cold-start note
+        pass
+
+
+def cold_start_note() -> Optional[str]:
+    """Return the one line to log before a cold compile, or None when the cache is warm."""
+    n = cold_kernels()
+    if not n:
+        return None
+    return (f'compiling {n} solver kernels (cold Numba cache): about {COLD_COMPILE_S:.0f} s '
+            'on 2 cores, once per install; `ros2 run sm_ros warmup` (or '
+            '`python -m sm_ros.warmup`) does it ahead of time')
+
+
+def warm_up(on_stage: Optional[Callable[[str], None]] = None) -> float:
     """
     Compile the solver's Numba kernels on a throwaway world; return the seconds it took.
 
@@ -40,9 +133,18 @@ def warm_up() -> float:
     bodies[1].set_kinematic(np.array([0]), cube[:1] + (0.3, 0.0, 0.12))
     for _ in range(2):
         world.step(1.0 / 120.0)
+    if on_stage is not None:
+        on_stage('world step')
     for b in bodies:
         b.com(), b.rotation(), b.shape_error_rms(), b.momentum(), b.is_finite()
+        if on_stage is not None:
+            on_stage(b.params.mode)
+    mark_warm()
     return time.perf_counter() - t0
+
+
+#: Stages ``warm_up`` reports to ``on_stage`` (one world step, then one per body).
+WARM_UP_STAGES = 5
 
 
 def warm_scene(name: str) -> float:
@@ -60,10 +162,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument('scenes', nargs='*', default=['default'],
                     help="bundled scene names or YAML paths (default: 'default')")
     args = ap.parse_args(argv)
-    print('sm_ros: compiling the solver kernels (once per install)...', flush=True)
-    total = warm_up()
-    for name in args.scenes:
-        total += warm_scene(name)
+    from sm_ros.progress import bar
+    note = cold_start_note()
+    print('sm_ros: ' + (note or 'loading the solver kernels from the cache'), flush=True)
+    with bar(total=WARM_UP_STAGES + len(args.scenes), desc='warmup', unit='stage') as pb:
+        total = warm_up(on_stage=lambda _: pb.update())
+        for name in args.scenes:
+            pb.set_postfix_str(name)
+            total += warm_scene(name)
+            pb.update()
     print(f'sm_ros: kernels ready ({total:.1f} s)', flush=True)
     return 0
 

@@ -282,6 +282,8 @@ def test_colcon_build_install_tree(tmp_path):
     assert (prefix / 'share' / 'sm_ros' / 'package.xml').is_file()
     assert (prefix / 'share' / 'sm_ros' / 'config' / 'sim_node.yaml').is_file()
     assert (prefix / 'share' / 'sm_ros' / 'config' / 'scenes' / 'default.yaml').is_file()
+    assert (prefix / 'share' / 'sm_ros' / 'config' / 'sim.rviz').is_file()
+    assert (prefix / 'share' / 'sm_ros' / 'launch' / 'sim.launch.py').is_file()
     # the installed executable imports the installed package and finds the bundled scenes
     site = next((prefix / 'lib').glob('python3*/site-packages'))
     env = dict(os.environ, PYTHONPATH=f'{site}{os.pathsep}' + os.environ.get('PYTHONPATH', ''),

@@ -4,6 +4,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 pytest.importorskip('matplotlib')
@@ -54,3 +55,33 @@ def test_module_runs_headless(tmp_path):
                          capture_output=True, text=True, env=env, timeout=300)
     assert res.returncode == 0, res.stderr
     assert out.is_file() and 'points in 1 bodies' in res.stdout
+
+
+def test_gif_from_a_recording(tmp_path):
+    """A recorded run (rosbag2 MCAP) is drawn from its clouds: frames at --fps of the stamps."""
+    pytest.importorskip('mcap_ros2', reason="reading recordings needs the 'record' extra")
+    pytest.importorskip('rclpy', reason='the test serialises clouds with rclpy')
+    from rclpy.serialization import serialize_message
+    from sm_ros.cloud import CloudBuffer
+    from sm_ros.record import BagRecorder
+    buf = CloudBuffer('world')
+    bag = tmp_path / 'run'
+    with BagRecorder(bag) as rec:
+        for i in range(31):        # 60 Hz for 0.5 s: a box falling, a sphere at rest
+            t = i / 60.0
+            box = np.stack(np.meshgrid(*[np.linspace(0, 0.1, 5)] * 3), -1).reshape(-1, 3)
+            box[:, 2] += 1.0 - 4.9 * t * t
+            rec.write('/points', 'sensor_msgs/msg/PointCloud2',
+                      serialize_message(buf.fill([box, np.zeros((10, 3))])),
+                      1_000_000_000 + round(t * 1e9))
+    out = tmp_path / 'rec.gif'
+    assert render.main([str(bag), '--out', str(out), '--fps', '10']) == 0
+    from PIL import Image
+    with Image.open(out) as im:
+        assert im.n_frames == 6          # t = 0, 0.1, ..., 0.5 s
+    loaded = render.load_recording(str(bag), fps=10.0, max_draw=50)
+    assert [round(t, 3) for t in loaded.times] == [0.0, 0.1, 0.2, 0.3, 0.4, 0.5]
+    assert [len(b) for b in loaded.frames[0]] == [46, 4]     # shared fairly: 125 + 10 -> 50
+    top = max(loaded.frames[3][0][:, 2])
+    assert top == pytest.approx(1.1 - 4.9 * 0.3 ** 2, abs=1e-6)
+    assert render.main([str(bag), '--out', str(out), '--topic', '/none']) == 2

@@ -1,0 +1,62 @@
+"""Cold-start detection and the warm-up's progress (no compilation in these tests)."""
+
+import os
+from pathlib import Path
+import shutil
+import subprocess
+import sys
+
+ROOT = Path(__file__).resolve().parent.parent
+PROBE = 'from sm_ros import warmup; print(warmup.cold_kernels()); print(warmup.cold_start_note())'
+
+
+def _probe(pkg_root: Path):
+    env = dict(os.environ, PYTHONPATH=str(pkg_root), NUMBA_DISABLE_JIT='0')
+    env.pop('NUMBA_CACHE_DIR', None)
+    out = subprocess.run([sys.executable, '-c', PROBE], cwd=pkg_root, env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    n, note = out.stdout.strip().splitlines()
+    return int(n), note
+
+
+def test_fresh_copy_is_cold_warm_cache_is_not_and_an_edit_makes_it_cold(tmp_path, warm):
+    # the worktree's cache is warm (the fixture ran the warm-up)
+    assert _probe(ROOT) == (0, 'None')
+    # a fresh install has no cache: every cached kernel is cold
+    fresh = tmp_path / 'fresh'
+    shutil.copytree(ROOT / 'sm_ros', fresh / 'sm_ros',
+                    ignore=shutil.ignore_patterns('__pycache__'))
+    n, note = _probe(fresh)
+    assert n >= 10
+    assert note.startswith(f'compiling {n} solver kernels (cold Numba cache): about ')
+    assert 'ros2 run sm_ros warmup' in note
+    # a warm cache copied along (times kept) is warm; one core file edited makes it cold
+    edited = tmp_path / 'edited'
+    shutil.copytree(ROOT / 'sm_ros', edited / 'sm_ros')
+    assert _probe(edited) == (0, 'None')
+    target = edited / 'sm_ros' / 'core' / 'world.py'
+    target.write_text(target.read_text() + '\n# edited\n')
+    assert _probe(edited)[0] == n
+
+
+def test_progress_is_quiet_when_not_a_terminal(tmp_path):
+    from sm_ros import progress
+    with open(tmp_path / 'log', 'w') as f:
+        assert not progress.enabled(f)
+        b = progress.bar(total=3, stream=f)
+        assert list(progress.bar(iterable=[1, 2], stream=f)) == [1, 2]
+        b.update(2)
+        b.close()
+    assert (tmp_path / 'log').read_text() == ''
+
+
+def test_warmup_command_prints_no_control_characters_into_a_pipe(warm):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    out = subprocess.run([sys.executable, '-m', 'sm_ros.warmup'], cwd=ROOT, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert '\r' not in out.stdout + out.stderr and '\x1b' not in out.stdout + out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[0] == 'sm_ros: loading the solver kernels from the cache'
+    assert lines[-1].startswith('sm_ros: kernels ready (')
