@@ -1,0 +1,95 @@
+"""
+Body poses for publishing: centre of mass and the whole body's shape-match rotation.
+
+``Body.rotation()`` of a body with several clusters sums ``m (x - c) x0^T`` with NumPy
+``einsum`` over every particle (about 4 ms at 100k particles); ``BodyPose.pose(body)``
+gets the same rotation from one compiled pass (``com_apq``: the mass-weighted sums
+``sum m x`` and ``sum m x x0^T`` together) and the core's own rotation extraction
+(``extract_rotation``, warm-started from the previous answer like the core does). A
+body with one cluster takes the rotation the solver already found in its step
+(``Body.rotation()`` reads it). Nothing here changes the bodies.
+"""
+
+from typing import Dict, Tuple
+
+from numba import njit
+import numpy as np
+
+from sm_ros.core.kernels import extract_rotation
+
+
+@njit(cache=True, fastmath=False)
+def com_apq(x, m, x0, com, apq):
+    """
+    One pass over the particles: ``com`` = sum m x / sum m and ``apq`` = sum m x x0^T.
+
+    ``x0`` are the rest positions minus their centre of mass (so sum m x0 = 0 and
+    ``apq`` equals sum m (x - com) x0^T). The loop body is 12 multiply-adds per particle
+    into scalar accumulators (reduction over i; the compiler vectorises it when x and x0
+    are contiguous rows).
+    """
+    sm = 0.0
+    cx = cy = cz = 0.0
+    a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
+    for i in range(x.shape[0]):
+        mi = m[i]
+        px, py, pz = mi * x[i, 0], mi * x[i, 1], mi * x[i, 2]
+        qx, qy, qz = x0[i, 0], x0[i, 1], x0[i, 2]
+        sm += mi
+        cx += px
+        cy += py
+        cz += pz
+        a00 += px * qx
+        a01 += px * qy
+        a02 += px * qz
+        a10 += py * qx
+        a11 += py * qy
+        a12 += py * qz
+        a20 += pz * qx
+        a21 += pz * qy
+        a22 += pz * qz
+    com[0], com[1], com[2] = cx / sm, cy / sm, cz / sm
+    apq[0, 0], apq[0, 1], apq[0, 2] = a00, a01, a02
+    apq[1, 0], apq[1, 1], apq[1, 2] = a10, a11, a12
+    apq[2, 0], apq[2, 1], apq[2, 2] = a20, a21, a22
+
+
+def com_apq_numpy(x, m, x0):
+    """The NumPy twin of ``com_apq`` (tests)."""
+    com = (m @ x) / m.sum()
+    return com, (x * m[:, None]).T @ x0
+
+
+class BodyPose:
+    """Per-body scratch (centred rest shape, warm-start quaternion) for ``pose``."""
+
+    def __init__(self):
+        """Start with no body seen."""
+        self._state: Dict[int, Tuple[object, np.ndarray, np.ndarray]] = {}
+        self._com = np.zeros(3)
+        self._apq = np.zeros((3, 3))
+        self._r = np.zeros((3, 3))
+        self._n4 = np.zeros((4, 4))
+        self._v4 = np.zeros((4, 4))
+
+    def pose(self, body) -> Tuple[np.ndarray, np.ndarray]:
+        """Return (centre of mass (3,), rotation (3, 3)) of ``body``'s current state."""
+        if int(body.num_clusters) == 1:
+            return np.asarray(body.com(), dtype=np.float64), body.rotation()
+        entry = self._state.get(id(body))
+        if entry is None or entry[0] is not body:
+            rest = np.asarray(body.x_init, dtype=np.float64)
+            m = np.asarray(body.m, dtype=np.float64)
+            x0 = np.ascontiguousarray(rest - (m @ rest) / m.sum())
+            entry = (body, x0, np.array([1.0, 0.0, 0.0, 0.0]))
+            self._state[id(body)] = entry
+        _, x0, quat = entry
+        com_apq(body.x, body.m, x0, self._com, self._apq)
+        extract_rotation(self._apq, quat, self._r, self._n4, self._v4)
+        return self._com.copy(), self._r.copy()
+
+    def forget(self, keep=()) -> None:
+        """Drop the scratch of bodies not in ``keep`` (after a scene change)."""
+        ids = {id(b) for b in keep}
+        for k in [k for k in self._state if k not in ids]:
+            del self._state[k]
