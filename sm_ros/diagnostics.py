@@ -1,14 +1,16 @@
 """
 Timing and error figures of the node, and the DiagnosticArray that reports them.
 
-diagnostic_updater is not on PyPI; interface.md fixes the keys, so a small accumulator
-(``TickStats``) and one function that builds the status are enough. Values are plain
-decimal strings; the level is compared as ``DiagnosticStatus.OK/WARN/ERROR`` (bytes).
+diagnostic_updater is not on PyPI; doc/interface.md fixes the keys, so a small accumulator
+(``sm_ros.stats.TickStats``, no ROS) and one function that builds the status are enough.
+Values are plain decimal strings; the level is compared as
+``DiagnosticStatus.OK/WARN/ERROR`` (bytes).
 """
 
-from typing import Iterable, List, Optional
+from typing import Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from sm_ros.stats import TickStats
 
 HARDWARE_ID = 'sm_ros'
 
@@ -18,66 +20,6 @@ KEYS = ('points', 'bodies', 'clusters', 'mode', 'step_ms_mean', 'step_ms_max',
         'publish_ms_mean', 'tick_ms_max', 'rate_target_hz', 'rate_achieved_hz',
         'real_time_factor', 'overruns', 'shape_error_rms_m', 'momentum_drift',
         'momentum_drift_measured', 'nonfinite_resets', 'refused_messages')
-
-
-class TickStats:
-    """
-    Timing figures accumulated between two diagnostics reports.
-
-    ``step_ms`` is one ``world.step(dt)`` (one substep); ``tick_ms`` is a whole tick
-    (pending changes, substeps, checks and publishing); ``publish_ms`` is building and
-    publishing the messages of one tick.
-    """
-
-    def __init__(self, now: float):
-        """Start an empty window at steady time ``now`` (seconds)."""
-        self.overruns_total = 0
-        self.nonfinite_total = 0
-        self.reset_window(now)
-
-    def reset_window(self, now: float) -> None:
-        """Forget the window's figures (not the totals) and start a new window at ``now``."""
-        self.window_start = now
-        self.ticks = 0
-        self.steps = 0
-        self.step_s_sum = 0.0
-        self.step_s_max = 0.0
-        self.publish_s_sum = 0.0
-        self.publishes = 0
-        self.tick_s_max = 0.0
-        self.sim_s = 0.0
-        self.overruns = 0
-        self.nonfinite: List[str] = []
-
-    def add_step(self, seconds: float) -> None:
-        """Record one world.step."""
-        self.steps += 1
-        self.step_s_sum += seconds
-        if seconds > self.step_s_max:
-            self.step_s_max = seconds
-
-    def add_publish(self, seconds: float) -> None:
-        """Record the publishing of one tick."""
-        self.publishes += 1
-        self.publish_s_sum += seconds
-
-    def add_tick(self, seconds: float, sim_seconds: float, period: float) -> bool:
-        """Record one tick; returns True when it overran ``period``."""
-        self.ticks += 1
-        self.sim_s += sim_seconds
-        if seconds > self.tick_s_max:
-            self.tick_s_max = seconds
-        if seconds > period:
-            self.overruns += 1
-            self.overruns_total += 1
-            return True
-        return False
-
-    def add_nonfinite(self, names: Iterable[str]) -> None:
-        """Record bodies that went non-finite and were reset."""
-        names = list(names)
-        self.nonfinite.extend(names)
-        self.nonfinite_total += len(names)
 
 
 def fmt(value: float) -> str:

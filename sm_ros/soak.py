@@ -97,7 +97,7 @@ def scene_yaml(points: int, path: Path, damping: float = 0.05) -> int:
 def _body_field_ok(node, name: str, value: Any) -> bool:
     """Whether an applied parameter shows in the world (bodies, gravity, ground)."""
     import numpy as np
-    from sm_ros.node import BODY_FIELDS
+    from sm_ros.params import BODY_FIELDS
     world = node.world
     if name in BODY_FIELDS:
         return all(getattr(b.params, BODY_FIELDS[name]) == value for b in world.bodies)
@@ -156,7 +156,7 @@ def run_node(a) -> Dict[str, Any]:
     node._post_set_parameters_callbacks = [
         parameters_set if cb == set0 else cb for cb in node._post_set_parameters_callbacks]
 
-    apply0 = node.apply_pending
+    apply0 = node.sim.apply_pending
 
     def apply_pending():
         pending = dict(latest)
@@ -168,7 +168,7 @@ def run_node(a) -> Dict[str, Any]:
                 rec['applied'] += 1
             else:
                 rec['mismatch'].append([name, repr(value), repr(node._p.get(name))])
-    node.apply_pending = apply_pending
+    node.sim.apply_pending = apply_pending
 
     received: Dict[str, int] = {}
     for sub in node.subscriptions:                  # count what arrives, per topic

@@ -18,8 +18,8 @@ from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from sm_ros.cloud import create_cloud, read_xyz, structured_view  # noqa: E402
 from sm_ros.diagnostics import KEYS  # noqa: E402
-from sm_ros.node import (matrix_from_quaternion, quaternion_from_matrix,  # noqa: E402
-                         SimNode)
+from sm_ros.node import SimNode  # noqa: E402
+from sm_ros.rotations import matrix_from_quaternion, quaternion_from_matrix  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402

@@ -280,6 +280,19 @@ def test_scene_reload_and_bad_scene(ros, cube_scene, two_body_scene, scene_file)
     assert [b.name for b in node.world.bodies] == ['soft', 'stiff']
 
 
+def test_body_parameter_set_right_after_a_scene_change_is_applied(ros, cube_scene,
+                                                                  two_body_scene):
+    """Set scene, then alpha, then tick: the new scene's bodies have the new alpha."""
+    node = ros.start(cube_scene)
+    assert set_param(node, 'scene', two_body_scene).successful
+    assert set_param(node, 'alpha', 0.8).successful
+    assert set_param(node, 'mode', 'quadratic').successful
+    node.tick()
+    soft, stiff = node.world.body('soft'), node.world.body('stiff')
+    assert (soft.params.alpha, soft.params.mode) == (0.8, 'quadratic')
+    assert (stiff.params.alpha, stiff.params.mode) == (0.9, 'rigid')    # the scene's own
+
+
 def test_scene_reload_keeps_state_of_unchanged_bodies(ros, two_body_scene):
     node = ros.start(two_body_scene)
     for _ in range(5):

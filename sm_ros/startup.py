@@ -1,0 +1,135 @@
+"""
+Start-up and shutdown of sim_node: argument checks, Ctrl-C at any moment, exit codes.
+
+A cold start compiles the solver's kernels (or loads them from Numba's cache), which can
+take a while; a Ctrl-C then must end the process cleanly, whenever it comes. ``run`` takes
+care of that and of the exit code: 0 after Ctrl-C or an external shutdown, 2 (with one
+``sim_node: error: ...`` line) for a bad scene, parameter or parameter file.
+"""
+
+import os
+import signal
+import sys
+import threading
+import time
+from typing import Optional, Sequence
+
+import rclpy
+from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
+                              ParameterException)
+from rclpy.executors import ExternalShutdownException
+from rclpy.signals import install_signal_handlers, SignalHandlerOptions
+from sm_ros.sim import ConfigError
+
+
+def check_params_files(argv: Sequence[str]) -> Optional[str]:
+    """
+    Return why a ``--params-file`` in ``argv`` cannot be used, or None.
+
+    Checked before rclpy.init so that a missing or broken file gives one clear line
+    instead of rcl's multi-line error.
+    """
+    import yaml
+    args = list(argv)
+    for i, a in enumerate(args):
+        if a != '--params-file':
+            continue
+        if i + 1 >= len(args):
+            return '--params-file needs a file name'
+        path = args[i + 1]
+        if not os.path.isfile(path):
+            return f'params file {path}: no such file'
+        try:
+            with open(path, encoding='utf-8') as f:
+                data = yaml.safe_load(f)
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            return f'params file {path}: invalid YAML: {first}'
+        if not isinstance(data, dict):
+            return f'params file {path}: expected a mapping of node names to ros__parameters'
+    return None
+
+
+def _short_error(exc: BaseException) -> str:
+    """Return the first line of an exception's message without rcl's source locations."""
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return text.split(', at /')[0]
+
+
+def _fail(message: str) -> int:
+    print(f'sim_node: error: {message}', file=sys.stderr)
+    return 2
+
+
+def run(node_class, args=None) -> int:
+    """Start ``node_class()`` and spin it until Ctrl-C; exit code 2 for a bad configuration."""
+    argv = sys.argv if args is None else args
+    reason = check_params_files(argv)
+    if reason:
+        return _fail(reason)
+    try:
+        # No rclpy signal handlers while starting: Ctrl-C during the (possibly long, cold
+        # Numba cache) warm-up raises KeyboardInterrupt right away; rclpy's handlers take
+        # over once the node exists, for a clean shutdown of the spinning node.
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as exc:  # noqa: B902 - rcl reports bad arguments as RCLError
+        return _fail(_short_error(exc))
+    node = None
+    code = 0
+    starting = threading.Event()
+    starting.set()
+    interrupted = threading.Event()
+
+    def on_sigint(signum, frame):
+        interrupted.set()
+        raise KeyboardInterrupt
+
+    def start_up_watchdog():
+        # A Ctrl-C during the cold warm-up can be raised where it is dropped (inside an
+        # LLVM -> ctypes callback while Numba writes its cache): if the start-up is still
+        # running a little after the Ctrl-C, leave at once (nothing is spinning yet).
+        interrupted.wait()
+        time.sleep(2.0)
+        if starting.is_set():
+            os._exit(0)
+
+    def quiet_dropped_interrupt(unraisable):
+        # ctypes reports the dropped KeyboardInterrupt with a traceback: not for a Ctrl-C
+        if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+            sys.__unraisablehook__(unraisable)
+
+    signal.signal(signal.SIGINT, on_sigint)
+    sys.unraisablehook = quiet_dropped_interrupt
+    threading.Thread(target=start_up_watchdog, daemon=True).start()
+    try:
+        try:
+            node = node_class()
+        except Exception:  # noqa: B902 - a dropped Ctrl-C can leave Numba mid-compile
+            if interrupted.is_set():
+                raise KeyboardInterrupt from None
+            raise
+        starting.clear()
+        sys.unraisablehook = sys.__unraisablehook__
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        if interrupted.is_set():
+            raise KeyboardInterrupt
+        install_signal_handlers(SignalHandlerOptions.ALL)
+        try:
+            rclpy.spin(node)
+        except Exception:  # noqa: B902 - the executor may fail once Ctrl-C shut rcl down
+            if rclpy.ok():
+                raise
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ConfigError as exc:
+        code = _fail(str(exc))
+    except (InvalidParameterTypeException, InvalidParameterValueException,
+            ParameterException) as exc:
+        code = _fail(f'parameter: {_short_error(exc)}')
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+

@@ -1,0 +1,134 @@
+"""
+Tick statistics (no ROS): timing figures of a diagnostics window and momentum drift.
+
+``sm_ros.diagnostics`` turns them into the ``/diagnostics`` status; ``sm_ros.sim`` fills
+them while it ticks.
+"""
+
+from typing import Iterable, List, Optional, Tuple
+
+import numpy as np
+
+
+class TickStats:
+    """
+    Timing figures accumulated between two diagnostics reports.
+
+    ``step_ms`` is one ``world.step(dt)`` (one substep); ``tick_ms`` is a whole tick
+    (pending changes, substeps, checks and publishing); ``publish_ms`` is building and
+    publishing the messages of one tick.
+    """
+
+    def __init__(self, now: float):
+        """Start an empty window at steady time ``now`` (seconds)."""
+        self.overruns_total = 0
+        self.nonfinite_total = 0
+        self.reset_window(now)
+
+    def reset_window(self, now: float) -> None:
+        """Forget the window's figures (not the totals) and start a new window at ``now``."""
+        self.window_start = now
+        self.ticks = 0
+        self.steps = 0
+        self.step_s_sum = 0.0
+        self.step_s_max = 0.0
+        self.publish_s_sum = 0.0
+        self.publishes = 0
+        self.tick_s_max = 0.0
+        self.sim_s = 0.0
+        self.overruns = 0
+        self.nonfinite: List[str] = []
+
+    def add_step(self, seconds: float) -> None:
+        """Record one world.step."""
+        self.steps += 1
+        self.step_s_sum += seconds
+        if seconds > self.step_s_max:
+            self.step_s_max = seconds
+
+    def add_publish(self, seconds: float) -> None:
+        """Record the publishing of one tick."""
+        self.publishes += 1
+        self.publish_s_sum += seconds
+
+    def add_tick(self, seconds: float, sim_seconds: float, period: float) -> bool:
+        """Record one tick; returns True when it overran ``period``."""
+        self.ticks += 1
+        self.sim_s += sim_seconds
+        if seconds > self.tick_s_max:
+            self.tick_s_max = seconds
+        if seconds > period:
+            self.overruns += 1
+            self.overruns_total += 1
+            return True
+        return False
+
+    def add_nonfinite(self, names: Iterable[str]) -> None:
+        """Record bodies that went non-finite and were reset."""
+        names = list(names)
+        self.nonfinite.extend(names)
+        self.nonfinite_total += len(names)
+
+
+class MomentumDrift:
+    """
+    Relative change of the total linear momentum over ticks in which no external force acts.
+
+    ``drift`` is None until such a tick was measured; ``forget()`` starts over (a new
+    world, a reset, a tick with an external force or a non-finite body).
+    """
+
+    def __init__(self):
+        """Start with nothing measured."""
+        self.reference: Optional[Tuple[np.ndarray, float]] = None
+        self._drift = 0.0
+
+    @property
+    def drift(self) -> Optional[float]:
+        """Return |p - p_ref| / (sum of m |v|), or None when nothing was measured."""
+        return self._drift if self.reference is not None else None
+
+    def forget(self) -> None:
+        """Drop the reference momentum."""
+        self.reference = None
+
+    @staticmethod
+    def conservative(world, held: bool) -> bool:
+        """
+        Return whether no external force acts on ``world`` this tick.
+
+        ``held``: a force or a gripper acts. Gravity, colliders, pins and bodies touching
+        the ground count as external forces too.
+        """
+        if np.any(np.asarray(world.gravity) != 0.0) or held:
+            return False
+        if world.boxes or world.spheres:
+            return False
+        if any(len(b.pinned) for b in world.bodies):
+            return False                                  # pins hold bodies in place
+        if world.ground is not None:
+            height = world.ground.height
+            for b in world.bodies:
+                if b.n and float(b.x[:, 2].min()) <= height + 1e-6:
+                    return False
+        return True
+
+    @staticmethod
+    def measure(world) -> Tuple[np.ndarray, float]:
+        """Return the total momentum and its scale (sum of m |v|)."""
+        p = np.zeros(3)
+        scale = 0.0
+        for b in world.bodies:
+            p += b.momentum()
+            scale += float(np.dot(b.m, np.linalg.norm(b.v, axis=1)))
+        return p, scale
+
+    def track(self, world, before: Tuple[np.ndarray, float]) -> None:
+        """Update the drift after a conservative tick that started with ``before``."""
+        if self.reference is None:
+            self.reference = before
+        p_ref, s_ref = self.reference
+        p_now, s_now = self.measure(world)
+        denom = max(s_ref, s_now, 1e-300)
+        self._drift = float(np.linalg.norm(p_now - p_ref)) / denom \
+            if denom > 1e-300 else 0.0
