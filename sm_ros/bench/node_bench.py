@@ -2,9 +2,11 @@
 Part 3 of the benchmark: the node end to end.
 
 For each size and rate: sim_node runs in one process on a scene of one box of N points
-resting on the ground (mode and clusters from the flags, ``dt`` = 1 / (rate x substeps) so
-simulated time keeps up with wall time); a subscriber in a second process receives
-``points``. Reported: the achieved tick rate; the tick time split into step, cloud build
+resting on the ground (mode, clusters, damping and substeps from the flags; by default
+what users run: linear, 8 clusters, damping 0.05, 2 substeps; ``dt`` = 1 / (rate x
+substeps) so simulated time keeps up with wall time); a subscriber in a second process
+receives ``points``. ``--node-count N`` runs N such nodes side by side, each in its own
+namespace (``/sim_<i>``) with its own subscriber process: a scene split over processes. Reported: the achieved tick rate; the tick time split into step, cloud build
 (``CloudBuffer.fill``) and publish; the subscriber's receive rate and the latency from the
 node's publish call to the subscriber's callback (both processes read the same wall clock).
 """
@@ -17,7 +19,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from typing import Any, Dict, Optional
+from typing import Any, Dict, List, Optional
 
 import numpy as np
 
@@ -29,9 +31,13 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument('--node-sizes', default='1e4,1e5', help='points ("" to skip the node)')
     p.add_argument('--node-rates', default='30,60', help='tick rates in Hz')
     p.add_argument('--node-seconds', type=float, default=4.0, help='measured seconds')
-    p.add_argument('--node-substeps', type=int, default=1)
+    p.add_argument('--node-substeps', type=int, default=2)
     p.add_argument('--node-mode', default='linear')
-    p.add_argument('--node-clusters', type=int, default=1)
+    p.add_argument('--node-clusters', type=int, default=2,
+                   help="the node's clusters parameter (cubes per axis: 2 = 8 clusters)")
+    p.add_argument('--node-damping', type=float, default=0.05)
+    p.add_argument('--node-count', type=int, default=1,
+                   help='nodes side by side (namespaces sim_0, sim_1, ...)')
     p.add_argument('--node-dds-profile', default=None,
                    help="Fast DDS profile for both processes (default: the repository's "
                         'config/fastdds_shm.xml, as the README recommends for large clouds; '
@@ -53,7 +59,7 @@ def node_ready() -> Optional[str]:
     return None
 
 
-def scene_yaml(points: int, path: Path):
+def scene_yaml(points: int, path: Path, damping: float = 0.0):
     """Write a scene with one box of about ``points`` particles resting on the ground."""
     n = bc.lattice_side(points)
     spacing = 0.01
@@ -66,6 +72,7 @@ def scene_yaml(points: int, path: Path):
         f'    size: [{size:.6f}, {size:.6f}, {size:.6f}]\n'
         f'    spacing: {spacing}\n'
         '    mass: 1.0\n'
+        f'    damping: {float(damping)}\n'
         f'    position: [0.0, 0.0, {size / 2 + 0.001:.6f}]\n')
     return n ** 3
 
@@ -97,31 +104,76 @@ def _env(profile: Optional[str]) -> Dict[str, str]:
 
 
 def measure(points: int, rate: float, args, tmp: Path) -> Optional[Dict[str, Any]]:
-    """Run the node and a subscriber process for one (size, rate)."""
+    """Run the node(s) and one subscriber process per node for one (size, rate)."""
+    rows = measure_many(points, rate, args, tmp)
+    if not rows:
+        return None
+    if len(rows) == 1:
+        return rows[0]
+    out = dict(rows[0])
+    for k in out:
+        if isinstance(out[k], float) and k not in ('rate_hz_target', 'period_ms'):
+            out[k] = min(r[k] for r in rows) if k in ('rate_hz', 'rx_rate_hz') \
+                else max(r[k] for r in rows)
+    out['nodes'] = len(rows)
+    out['per_node'] = rows
+    return out
+
+
+def measure_many(points: int, rate: float, args, tmp: Path) -> List[Dict[str, Any]]:
+    """Start ``--node-count`` nodes (and their subscribers) at once; one row per node."""
+    import json
+    count = max(1, int(getattr(args, 'node_count', 1)))
     scene = tmp / f'bench_{points}.yaml'
-    scene_yaml(points, scene)
+    scene_yaml(points, scene, getattr(args, 'node_damping', 0.0))
     env = _env(dds_profile(args.node_dds_profile))
-    warm = 2.0 + points / 2e5
+    warm = 2.0 + count * points / 2e5
     py = [sys.executable, '-m', 'sm_ros.bench.node_procs']
-    sub_seconds = args.node_seconds + warm + 10.0 + points / 1e5
-    sub = subprocess.Popen(py + ['sub', '--seconds', f'{sub_seconds:.1f}'], env=env,
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    sub_seconds = args.node_seconds + warm + 10.0 + count * points / 1e5
+    spaces = ['' if count == 1 else f'/sim_{i}' for i in range(count)]
+    subs = [subprocess.Popen(py + ['sub', '--seconds', f'{sub_seconds:.1f}', '--namespace', ns],
+                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             text=True) for ns in spaces]
     time.sleep(1.0)
-    node_res = bc.run_json_subprocess(
+    nodes = [subprocess.Popen(
         py + ['node', '--scene', str(scene), '--rate', str(rate), '--seconds',
               str(args.node_seconds), '--warmup', f'{warm:.1f}', '--substeps',
               str(args.node_substeps), '--mode', args.node_mode, '--clusters',
-              str(args.node_clusters)], timeout=120 + points / 1e4, env=env)
-    try:
-        out, _ = sub.communicate(timeout=sub_seconds + 30)
-    except subprocess.TimeoutExpired:
-        sub.kill()
-        out = ''
-    if node_res is None:
-        return None
-    import json
-    lines = [ln for ln in out.splitlines() if ln.startswith('{')]
-    received = json.loads(lines[-1])['received'] if lines else []
+              str(args.node_clusters), '--namespace', ns],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for ns in spaces]
+    results = []
+    for proc in nodes:
+        try:
+            out, err = proc.communicate(timeout=120 + count * points / 1e4)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = '', 'timeout'
+        lines = [ln for ln in out.splitlines() if ln.startswith('{')]
+        if proc.returncode != 0 or not lines:
+            bc.log(f'[node] a node failed: {(err or out).strip().splitlines()[-1:]}')
+            results.append(None)
+        else:
+            results.append(json.loads(lines[-1]))
+    received_all = []
+    for sub in subs:
+        try:
+            out, _ = sub.communicate(timeout=sub_seconds + 30)
+        except subprocess.TimeoutExpired:
+            sub.kill()
+            out = ''
+        lines = [ln for ln in out.splitlines() if ln.startswith('{')]
+        received_all.append(json.loads(lines[-1])['received'] if lines else [])
+    rows = []
+    for node_res, received, ns in zip(results, received_all, spaces):
+        if node_res is not None:
+            row = _row(node_res, received, rate, args)
+            row['namespace'] = ns or '/'
+            rows.append(row)
+    return rows
+
+
+def _row(node_res, received, rate, args) -> Dict[str, Any]:
+    """Turn one node's and its subscriber's records into a table row."""
     sent = node_res['sent']
     tick = np.array(node_res['tick_s']) * 1e3
     steps = np.array(node_res['step_s']) * 1e3
@@ -161,8 +213,13 @@ def run(args, out: Path) -> Dict[str, Any]:
                           'publish_ms_median', 'other_ms_median', 'period_ms', 'rx_rate_hz',
                           'latency_ms_median', 'latency_ms_p95'],
                  f'sim_node end to end ({args.node_mode}, clusters {args.node_clusters}, '
-                 f'{args.node_substeps} step(s) per tick, ground on, DDS profile: '
+                 f'damping {getattr(args, "node_damping", 0.0):g}, '
+                 f'{args.node_substeps} step(s) per tick, '
+                 f'{max(1, int(getattr(args, "node_count", 1)))} node(s) side by side '
+                 '(worst node shown), ground on, DDS profile: '
                  f'{Path(dds_profile(args.node_dds_profile) or "defaults").name})')
+    each = bc.Table('node_each', ['namespace'] + t.columns,
+                    'Every node of the side-by-side runs (--node-count > 1)')
     findings: Dict[str, Any] = {'rows': []}
     with tempfile.TemporaryDirectory() as d:
         for n in sizes:
@@ -173,8 +230,12 @@ def run(args, out: Path) -> Dict[str, Any]:
                     continue
                 t.add(**{k: r[k] for k in t.columns})
                 findings['rows'].append(r)
+                for row in r.get('per_node', []):
+                    each.add(**{k: row[k] for k in each.columns})
                 if bc.lattice_side(n) == 46 and rate == 60:
                     findings['target'] = r
     t.write(out)
+    if each.rows:
+        each.write(out)
     findings['status'] = 'measured' if findings['rows'] else 'failed'
     return findings

@@ -26,7 +26,7 @@ def _node(a) -> dict:
                  Parameter('dt', value=1.0 / (a.rate * a.substeps)),
                  Parameter('substeps', value=int(a.substeps)),
                  Parameter('mode', value=a.mode), Parameter('clusters', value=int(a.clusters))]
-    node = SimNode(parameter_overrides=overrides)
+    node = SimNode(parameter_overrides=overrides, namespace=a.namespace or None)
     rec = {'step': [], 'fill': [], 'publish': [], 'tick': [], 'sent': {}}
     measuring = [False]
 
@@ -77,13 +77,12 @@ def _node(a) -> dict:
     while time.monotonic() < t_end_warm:
         ex.spin_once(timeout_sec=0.05)
     measuring[0] = True
-    calls0 = len(rec['sent'])
     t0 = time.monotonic()
     t_end = t0 + a.seconds
     while time.monotonic() < t_end:
         ex.spin_once(timeout_sec=0.05)
     elapsed = time.monotonic() - t0
-    ticks = len(rec['sent']) - calls0
+    ticks = len(rec['tick'])
     out = {'points': node.num_points, 'rate_target': a.rate, 'substeps': a.substeps,
            'elapsed_s': elapsed, 'ticks': ticks,
            'step_s': rec['step'], 'fill_s': rec['fill'], 'publish_s': rec['publish'],
@@ -101,7 +100,7 @@ def _sub(a) -> dict:
     from sensor_msgs.msg import PointCloud2
 
     rclpy.init()
-    node = Node('bench_points_sub')
+    node = Node('bench_points_sub', namespace=a.namespace or None)
     got = []
 
     def cb(msg):
@@ -130,6 +129,7 @@ def main(argv=None) -> int:
     p.add_argument('--clusters', type=int, default=1)
     p.add_argument('--seconds', type=float, default=3.0)
     p.add_argument('--warmup', type=float, default=1.0)
+    p.add_argument('--namespace', default='', help='namespace of the node / subscriber')
     a = p.parse_args(argv)
     res = _node(a) if a.role == 'node' else _sub(a)
     sys.stdout.write(json.dumps(res) + '\n')
