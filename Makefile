@@ -1,6 +1,7 @@
 # Two commands for a fresh machine (no ROS installation needed):
 #   make run    start the node on the default scene (ARGS='--ros-args -p alpha:=0.9' passes on)
 #   make test   run the whole test suite
+# and `make lint` checks every Python file with ruff (configured in pyproject.toml).
 # Each creates .venv (ROS 2 Jazzy client libraries as Python wheels, numpy, numba, ...) if it
 # is missing, compiles the solver kernels once (python -m sm_ros.warmup: Numba's on-disk
 # cache, so the node starts in seconds), and reinstalls only when setup.py or package.xml
@@ -12,7 +13,7 @@ STAMP := $(VENV)/.installed-stamp
 ARGS ?=
 PYTEST_ARGS ?=
 
-.PHONY: run test venv clean
+.PHONY: run test lint venv clean
 
 venv: $(STAMP)
 
@@ -27,6 +28,9 @@ run: $(STAMP)
 
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest -q test $(PYTEST_ARGS)
+
+lint: $(STAMP)
+	$(VENV)/bin/python -m ruff check .
 
 clean:
 	rm -rf $(VENV) build install log .pytest_cache

@@ -10,8 +10,9 @@ SCENE is a bundled scene name or a YAML path, or a recording (a rosbag2 MCAP fol
 by the node's ``~/record`` service or ``ros2 bag record``, or its ``.mcap`` file): then the
 recorded ``points`` clouds are drawn (``--seconds`` from the start of the recording, frames
 picked every 1/``--fps`` s of the clouds' stamps; ``--topic`` picks the cloud topic,
-default: the first PointCloud2 topic) and nothing is simulated. The output type follows the extension of
-``--out``: ``.gif`` (animated, via Pillow) or ``.png`` (``--frames`` panels side by side).
+default: the first PointCloud2 topic) and nothing is simulated. The output type follows the
+extension of ``--out``: ``.gif`` (animated, via Pillow) or ``.png`` (``--frames`` panels
+side by side).
 The simulation uses the node's defaults (``sm_ros.params.scene_defaults()``, ``--dt`` like the
 node's ``dt``); ``--set key=value`` changes a node parameter for the run. Drawing uses
 matplotlib's Agg backend, so it runs without a display.

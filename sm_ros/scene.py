@@ -664,13 +664,13 @@ def params_from(defaults: Optional[Mapping[str, Any]], overrides: Optional[Mappi
     """
     The core BodyParams for a body: its overrides over the node's parameters.
 
-    Keys are node-parameter names (see ``sm_ros.params.OVERRIDE_KEYS``); missing ones fall back to the
-    table's defaults (``sm_ros.params.scene_defaults``). Every key with a ``core_field`` in
-    the parameter table sets that BodyParams field. Raises ValueError (from
+    Keys are node-parameter names (see ``sm_ros.params.OVERRIDE_KEYS``); missing ones fall
+    back to the table's defaults (``sm_ros.params.scene_defaults``). Every key with a
+    ``core_field`` in the parameter table sets that BodyParams field. Raises ValueError (from
     BodyParams.validate) on bad values.
     """
     from sm_ros.core import BodyParams
-    d = dict(params.defaults([k for k in params.BODY_FIELDS]), **_merged(defaults))
+    d = dict(params.defaults(list(params.BODY_FIELDS)), **_merged(defaults))
     if overrides:
         d.update(overrides)
     return BodyParams(**{field: d[key] for key, field in params.BODY_FIELDS.items()}).validate()

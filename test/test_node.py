@@ -378,7 +378,7 @@ def test_cloud_in_add_twice_gets_new_names(ros, cube_scene):
     pts = np.random.default_rng(8).uniform(0.0, 0.1, (30, 3))
     for k in (2, 3):
         assert ros.send(PointCloud2, 'cloud_in', create_cloud(pts),
-                        until=lambda: len(node.world.bodies) == k)
+                        until=lambda k=k: len(node.world.bodies) == k)
     assert [b.name for b in node.world.bodies] == ['cube', 'cloud_in', 'cloud_in_2']
 
 

@@ -293,25 +293,3 @@ def test_colcon_build_install_tree(tmp_path):
     assert str(site) in subprocess.run(
         [sys.executable, '-c', 'import sm_ros, sys; print(sm_ros.__file__)'], env=env,
         cwd=tmp_path, capture_output=True, text=True).stdout
-
-
-# ----------------------------------------------------------------------------------------
-# House style (ament's linters) on the package's node-side files
-# ----------------------------------------------------------------------------------------
-
-STYLE_FILES = ['setup.py', 'sm_ros/__init__.py', 'sm_ros/node.py', 'sm_ros/cloud.py',
-               'sm_ros/diagnostics.py', 'sm_ros/markers.py', 'test/conftest.py',
-               'test/test_cloud.py', 'test/test_node.py', 'test/test_node_params.py',
-               'test/test_node_bad_input.py', 'test/test_node_process.py',
-               'test/test_package.py', 'tools/startup_time.py', 'tools/cloud_transport.py']
-
-
-def test_flake8_house_style():
-    main = pytest.importorskip('ament_flake8.main', reason='ament_flake8 not installed')
-    rc, errors = main.main_with_errors(argv=[str(ROOT / f) for f in STYLE_FILES])
-    assert rc == 0, f'{len(errors)} flake8 errors:\n' + '\n'.join(errors)
-
-
-def test_pep257_docstrings():
-    main = pytest.importorskip('ament_pep257.main', reason='ament_pep257 not installed')
-    assert main.main(argv=[str(ROOT / f) for f in STYLE_FILES]) == 0

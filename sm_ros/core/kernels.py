@@ -256,9 +256,10 @@ def volume_preserving(a, out, wa, wv, limit):
     goal forces pump energy into a bouncing linear body until it flies apart.  Instead
     the singular values s_i of A are replaced by the closest x_i (least squares) with
     prod x_i = 1, i.e. x_i = (s_i + sqrt(s_i^2 + 4 lam)) / 2 with lam found by Newton's
-    method (safeguarded by bisection), and then limited to [1 / limit, limit] so no goal shape is stretched without
-    bound.  ``out[:, :3]`` receives A V diag(x / s) V^T.  Returns False (no volume-
-    preserving transform exists) for det A <= 0 or a flat A: the caller falls back to R.
+    method (safeguarded by bisection), and then limited to [1 / limit, limit] so no goal
+    shape is stretched without bound.  ``out[:, :3]`` receives A V diag(x / s) V^T.
+    Returns False (no volume-preserving transform exists) for det A <= 0 or a flat A: the
+    caller falls back to R.
     """
     for i in range(3):
         for j in range(3):

@@ -83,6 +83,7 @@ class Ground:
     restitution: float = 0.0
 
     def row(self):
+        """Return the validated row the kernels read."""
         _finite('ground.height', self.height)
         _finite('ground.friction', self.friction, 0.0)
         _finite('ground.restitution', self.restitution, 0.0, 1.0)
@@ -99,6 +100,7 @@ class Box:
     restitution: float = 0.0
 
     def row(self):
+        """Return the validated row the kernels read."""
         lo, hi = _vec3('box.lo', self.lo), _vec3('box.hi', self.hi)
         if np.any(hi <= lo):
             raise ValueError(f'box.hi must be > box.lo on every axis, got {lo} .. {hi}')
@@ -117,6 +119,7 @@ class Sphere:
     restitution: float = 0.0
 
     def row(self):
+        """Return the validated row the kernels read."""
         c = _vec3('sphere.center', self.center)
         _finite('sphere.radius', self.radius, 0.0, lo_open=True)
         _finite('sphere.friction', self.friction, 0.0)

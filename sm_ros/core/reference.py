@@ -131,10 +131,12 @@ class ReferenceBody:
         return qt - (w @ qt) / w.sum()
 
     def set_wrench(self, force, torque=(0.0, 0.0, 0.0)):
+        """Hold a force at the centre of mass and a torque about it (like Body)."""
         self.force = np.asarray(force, dtype=float)
         self.torque = np.asarray(torque, dtype=float)
 
     def set_kinematic(self, indices, targets):
+        """Hold the particles ``indices`` at ``targets`` (like Body)."""
         self.grab_idx = np.asarray(indices, dtype=int)
         self.grab_tgt = np.asarray(targets, dtype=float)
 
