@@ -6,7 +6,8 @@ resting on the ground (mode, clusters, damping and substeps from the flags; by d
 what users run: linear, 8 clusters, damping 0.05, 2 substeps; ``dt`` = 1 / (rate x
 substeps) so simulated time keeps up with wall time); a subscriber in a second process
 receives ``points``. ``--node-count N`` runs N such nodes side by side, each in its own
-namespace (``/sim_<i>``) with its own subscriber process: a scene split over processes. Reported: the achieved tick rate; the tick time split into step, cloud build
+namespace (``/sim_<i>``) with its own subscriber process: a scene split over processes.
+Reported: the achieved tick rate; the tick time split into step, cloud build
 (``CloudBuffer.fill``) and publish; the subscriber's receive rate and the latency from the
 node's publish call to the subscriber's callback (both processes read the same wall clock).
 """
