@@ -199,6 +199,10 @@ TABLE: Tuple[Param, ...] = (
     Param('damping', 0.0, "Fraction of each particle's velocity relative to its clusters' "
           'rigid motion removed per step (momentum-preserving; not in the paper)', '',
           0.0, 1.0, node=False, scene_override=True, core_field='damping'),
+    Param('material_dt', 1.0 / 120.0, 'Step (s) at which alpha, beta, damping and the '
+          'plastic creep fraction are defined; other steps convert them so the material '
+          'does not depend on dt or substeps (0: act per step as given)', 's', 0.0, 1.0,
+          scene_override=True, core_field='material_dt'),
 )
 
 #: Every row by name.

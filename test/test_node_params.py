@@ -24,7 +24,7 @@ INTERFACE_PARAMS = ('mode', 'alpha', 'beta', 'plasticity.yield', 'plasticity.cre
                     'plasticity.max', 'clusters', 'dt', 'substeps', 'rate', 'gravity',
                     'ground.enabled', 'ground.height', 'ground.friction', 'ground.restitution',
                     'grab_radius', 'force_timeout', 'scene', 'frame_id', 'publish_clock',
-                    'diagnostics_rate', 'max_points', 'cloud_in_mode')
+                    'diagnostics_rate', 'max_points', 'cloud_in_mode', 'material_dt')
 
 
 def set_param(node, name, value):

@@ -210,6 +210,7 @@ def simulate(scene: Scene, params: Dict[str, Any], rate: float, substeps: int,
     params = dict(params)
     if alpha_scaling == 'h2' and params['alpha'] < 1.0:
         params['alpha'] = min(1.0, params['alpha'] * (h / ALPHA_H0) ** 2)
+    params.setdefault('material_dt', 0.0)     # this sweep converts alpha itself
     world, body, driver = scene.build(params)
     p0, l0 = body.momentum(), body.angular_momentum()
     vol0 = volume_proxy(body.x, body.m)

@@ -146,6 +146,7 @@ class Body:
         # body-level match for poses of multi-cluster bodies
         self._quat_body = np.array([1.0, 0.0, 0.0, 0.0])
         self._params = params
+        self._at_step = (None, None, None)
         self._build()
         self._merge_kinematic()
 
@@ -204,6 +205,9 @@ class Body:
         self._mom9 = np.zeros((nk if self._need9 else 1, 9, 9))
         self._aqq3 = np.zeros_like(self._mom3)
         self._aqq9 = np.zeros_like(self._mom9)
+        # linear mode: the unit-determinant frames of A_qq (kernels.unit_det_frames)
+        self._nmat = np.zeros((nk if mode == 1 else 1, 3, 3))
+        self._cdet = np.zeros(nk if mode == 1 else 1)
         self._changed = np.ones(nk, dtype=np.bool_)
         self._refresh_rest(self._changed)
         na = 30 if self._quad else 12
@@ -245,6 +249,9 @@ class Body:
         K.invert_moments(which, self._need3, self._need9, self._mom3, self._mom9, self._aqq3,
                          self._aqq9, self._s3[0], self._s3[1], self._w9[0], self._w9[1],
                          RCOND)
+        if self._mode == 1:
+            K.unit_det_frames(which, self._mom3, self._nmat, self._cdet, self._s3[0],
+                              self._s3[1], RCOND)
 
     def _merge_kinematic(self):
         pins = self._pinned
@@ -257,7 +264,10 @@ class Body:
 
     # ------------------------------------------------------------------ step
     def _step(self, h, gravity, has_col, ground, boxes, spheres, thresh):
-        p = self._params
+        if self._at_step[0] != h or self._at_step[1] is not self._params:
+            self._at_step = (h, self._params, self._params.at_step(h))
+        p = self._at_step[2]                   # the material's coefficients at this step
+        plastic = self._params.plastic
         x, v = self._x, self._v
         s3 = self._s3
         sets = self._sets
@@ -276,13 +286,14 @@ class Body:
         K.solve_clusters(
             self._part, self._wsum, self._sq, self._ref, self._quat, self._aqq3, self._aqq9,
             self._g, self._hv, self._scale, self._t, self._lm, self._lb, self._mode, p.beta,
-            self._apq, self._accbuf, s3[0], s3[1], s3[2], self._m39, self._n4, self._v4)
+            self._apq, self._accbuf, s3[0], s3[1], s3[2], self._m39, self._n4, self._v4,
+            self._nmat, self._cdet)
         nchanged = 0
-        if p.plastic:
+        if plastic:
             nchanged = K.plastic_update(
-                self._apq, self._aqq3, self._scale, self._quat, self._sp, p.plastic_yield,
-                p.plastic_creep, p.plastic_max, h, self._changed, self._q4, s3[0], s3[1],
-                s3[2], self._n4, self._v4)
+                self._apq, self._aqq3, self._scale, self._quat, self._sp,
+                self._params.plastic_yield, p.creep, self._params.plastic_max, h,
+                self._changed, self._q4, s3[0], s3[1], s3[2], self._n4, self._v4)
         if sets is not None:
             K.sets_maps(sets.ptr, sets.cl, sets.cnt, sets.org, self._g, self._hv, self._t,
                         self._lm, self._lb, self._ref, self._quad, sets.gm, sets.ref, sets.pm)
@@ -469,7 +480,8 @@ class Body:
         K.solve_clusters(part, self._wsum, self._sq, ref, quat, self._aqq3, self._aqq9,
                          self._g, self._hv, self._scale, t, lm, lb, self._mode, p.beta,
                          np.zeros_like(self._apq), np.zeros(32), s3[0], s3[1], s3[2],
-                         np.zeros((3, 9)), np.zeros((4, 4)), np.zeros((4, 4)))
+                         np.zeros((3, 9)), np.zeros((4, 4)), np.zeros((4, 4)), self._nmat,
+                         self._cdet)
         g = self._x.copy()
         K.integrate_serial(self._quad, g, np.zeros_like(g), self._x0, self.m, self._ptr,
                            self._cl, self._g, self._hv, t, lm, lb, ref, 1.0, 1.0, np.zeros(3),

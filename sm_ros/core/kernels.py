@@ -325,6 +325,197 @@ def volume_preserving(a, out, wa, wv, limit):
 
 
 @njit(**JIT)
+def _logx(s, r, minus):
+    """log of x = (s + r) / 2, or of the minus root (s - r) / 2 = -mu / ((s + r) / 2)."""
+    return np.log(0.5 * (s - r)) if minus else np.log(0.5 * (s + r))
+
+
+@njit(**JIT)
+def _unit_det_sum(s0, s1, s2, mu, kmin):
+    """sum_i log x_i(mu) with the minus root for index ``kmin`` (-1: plus roots only)."""
+    r0 = np.sqrt(max(s0 * s0 + 4.0 * mu, 0.0))
+    r1 = np.sqrt(max(s1 * s1 + 4.0 * mu, 0.0))
+    r2 = np.sqrt(max(s2 * s2 + 4.0 * mu, 0.0))
+    return _logx(s0, r0, kmin == 0) + _logx(s1, r1, kmin == 1) + _logx(s2, r2, kmin == 2)
+
+
+@njit(**JIT)
+def nearest_unit_det(f, out, wa, wv):
+    """C = argmin ||C - f||_F over det C = 1 (3x3), into ``out``; False if det f <= 0.
+
+    C shares f's singular vectors; its singular values x_i solve x_i^2 - s_i x_i = mu with
+    prod x_i = 1.  On the plus roots x_i = (s_i + sqrt(s_i^2 + 4 mu)) / 2 the product grows
+    with mu from mu = -s_min^2 / 4 (safeguarded Newton); when it is above 1 already there,
+    the root is on the minus root of the smallest s (a strongly flattened f; bisection).
+    ``out`` = f V diag(x / s) V^T, so f out^T is symmetric to rounding whatever the
+    accuracy of V.  NumPy twin: ``reference.nearest_unit_det``.
+    """
+    for i in range(3):
+        for j in range(3):
+            s = 0.0
+            for u in range(3):
+                s += f[u, i] * f[u, j]
+            wa[i, j] = s
+    d = det3(f)
+    if not (d > 0.0) or not np.isfinite(d):
+        return False
+    jacobi_eigh(wa, wv, 50)
+    s0 = np.sqrt(max(wa[0, 0], 0.0))
+    s1 = np.sqrt(max(wa[1, 1], 0.0))
+    s2 = np.sqrt(max(wa[2, 2], 0.0))
+    smin = min(s0, min(s1, s2))
+    if not (smin > 0.0):
+        return False
+    kmin = 0 if smin == s0 else (1 if smin == s1 else 2)
+    lo = -0.25 * smin * smin
+    x0 = x1 = x2 = 1.0
+    if _unit_det_sum(s0, s1, s2, lo, -1) <= 0.0:
+        hi = 0.0
+        if _unit_det_sum(s0, s1, s2, 0.0, -1) < 0.0:
+            lo, hi = 0.0, 1.0            # at mu = 1 every x_i >= 1
+        mu = 0.5 * (lo + hi)
+        for _ in range(100):
+            r0 = np.sqrt(max(s0 * s0 + 4.0 * mu, 0.0))
+            r1 = np.sqrt(max(s1 * s1 + 4.0 * mu, 0.0))
+            r2 = np.sqrt(max(s2 * s2 + 4.0 * mu, 0.0))
+            x0 = 0.5 * (s0 + r0)
+            x1 = 0.5 * (s1 + r1)
+            x2 = 0.5 * (s2 + r2)
+            fv = np.log(x0) + np.log(x1) + np.log(x2)
+            if abs(fv) < 1e-15 or hi - lo < 1e-16 * (1.0 + abs(mu)):
+                break
+            if fv < 0.0:
+                lo = mu
+            else:
+                hi = mu
+            fp = 0.0
+            if r0 > 0.0 and r1 > 0.0 and r2 > 0.0:
+                fp = 1.0 / (x0 * r0) + 1.0 / (x1 * r1) + 1.0 / (x2 * r2)
+            step = mu - fv / fp if fp > 0.0 else lo - 1.0
+            mu = step if lo < step < hi else 0.5 * (lo + hi)
+    else:
+        hi = 0.0                         # minus root of the smallest: sum falls to -inf
+        for _ in range(200):
+            mu = 0.5 * (lo + hi)
+            if not (lo < mu < hi):
+                break
+            if _unit_det_sum(s0, s1, s2, mu, kmin) > 0.0:
+                lo = mu
+            else:
+                hi = mu
+        mu = 0.5 * (lo + hi)
+        r0 = np.sqrt(max(s0 * s0 + 4.0 * mu, 0.0))
+        r1 = np.sqrt(max(s1 * s1 + 4.0 * mu, 0.0))
+        r2 = np.sqrt(max(s2 * s2 + 4.0 * mu, 0.0))
+        x0 = 0.5 * (s0 - r0) if kmin == 0 else 0.5 * (s0 + r0)
+        x1 = 0.5 * (s1 - r1) if kmin == 1 else 0.5 * (s1 + r1)
+        x2 = 0.5 * (s2 - r2) if kmin == 2 else 0.5 * (s2 + r2)
+    x0 /= s0
+    x1 /= s1
+    x2 /= s2
+    for i in range(3):
+        for j in range(3):
+            s = 0.0
+            for u in range(3):
+                vv = (wv[u, 0] * x0 * wv[j, 0] + wv[u, 1] * x1 * wv[j, 1]
+                      + wv[u, 2] * x2 * wv[j, 2])
+                s += f[i, u] * vv
+            out[i, j] = s
+    return True
+
+
+@njit(**JIT)
+def _stretch_ok(b, r, t, w, wa, wv, limit):
+    """Whether R + t (B - R) has every singular value in [1 / limit, limit]."""
+    for i in range(3):
+        for j in range(3):
+            w[i, j] = r[i, j] + t * (b[i, j] - r[i, j])
+    for i in range(3):
+        for j in range(3):
+            s = 0.0
+            for u in range(3):
+                s += w[u, i] * w[u, j]
+            wa[i, j] = s
+    jacobi_eigh(wa, wv, 50)
+    lo2 = 1.0 / (limit * limit)
+    hi2 = limit * limit
+    for i in range(3):
+        if not (lo2 <= wa[i, i] <= hi2):
+            return False
+    return True
+
+
+@njit(**JIT)
+def unit_det_match(apq, nmat, c_s, r, out, w1, w2, wa, wv, limit):
+    """The linear mode's B = argmin sum w ||p - B q||^2 over det B = 1, into ``out``.
+
+    ``apq`` = A_pq-hat (q in units of the cluster scale s), ``nmat`` = det(M)^(1/3) M^-1
+    with M^2 = A_qq-hat (unit determinant, ``unit_det_frames``), ``c_s`` = s det(A_qq-hat)^(1/3).
+    With C = B M the energy is ||C - A_pq M^-1||^2 + const and det C = det M: C is the
+    nearest unit-determinant matrix to F = A_pq-hat N / c_s, scaled back, and B = C N.
+    Stationarity makes A_pq B^T symmetric: no torque, and the goals derive from an energy.
+    Stretches beyond [1 / limit, limit] are pulled back to R + t (B - R), which keeps
+    A_pq B^T symmetric.  Returns False (use R) if det F <= 0.  Twin:
+    ``reference.unit_det_match``.
+    """
+    inv = 1.0 / c_s
+    for i in range(3):
+        for j in range(3):
+            w1[i, j] = (apq[i, 0] * nmat[0, j] + apq[i, 1] * nmat[1, j]
+                        + apq[i, 2] * nmat[2, j]) * inv
+    if not nearest_unit_det(w1, w2, wa, wv):
+        return False
+    matmul(w2, nmat, out)
+    if _stretch_ok(out, r, 1.0, w1, wa, wv, limit):
+        return True
+    lo = 0.0
+    hi = 1.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if _stretch_ok(out, r, mid, w1, wa, wv, limit):
+            lo = mid
+        else:
+            hi = mid
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = r[i, j] + lo * (out[i, j] - r[i, j])
+    return True
+
+
+@njit(**JIT)
+def unit_det_frames(which, mom3, nmat, cdet, wa, wv, rcond):
+    """Per cluster: N = (A_qq-hat / c)^(-1/2) and c = det(A_qq-hat)^(1/3) (linear mode).
+
+    A cluster whose A_qq-hat is singular (flat, line-like: eigenvalue at or below
+    ``rcond`` times the largest) gets c = 0: its linear goal is the rotation.
+    """
+    for k in range(which.shape[0]):
+        if not which[k]:
+            continue
+        for i in range(3):
+            for j in range(3):
+                wa[i, j] = mom3[k, i, j]
+        jacobi_eigh(wa, wv, 50)
+        l0, l1, l2 = wa[0, 0], wa[1, 1], wa[2, 2]
+        lmax = max(l0, max(l1, l2))
+        if not (min(l0, min(l1, l2)) > rcond * lmax) or not (lmax > 0.0):
+            cdet[k] = 0.0
+            for i in range(3):
+                for j in range(3):
+                    nmat[k, i, j] = 0.0
+            continue
+        c = np.cbrt(l0 * l1 * l2)
+        cdet[k] = c
+        e0 = np.sqrt(c / l0)
+        e1 = np.sqrt(c / l1)
+        e2 = np.sqrt(c / l2)
+        for i in range(3):
+            for j in range(3):
+                nmat[k, i, j] = (wv[i, 0] * e0 * wv[j, 0] + wv[i, 1] * e1 * wv[j, 1]
+                                 + wv[i, 2] * e2 * wv[j, 2])
+
+
+@njit(**JIT)
 def norm2(m, wa, wv):
     """Spectral norm (largest singular value) of the 3x3 matrix ``m``."""
     for i in range(3):
@@ -905,14 +1096,14 @@ def _add_null_projector(aqq, out, wa, wv):
 
 @njit(**JIT)
 def solve_clusters(part, wsum, sq, ref, quat, aqq3, aqq9, g, hv, scale, t, lm, lb, mode, beta,
-                   apq, acc, m3a, m3b, m3c, m39, n4, v4):
+                   apq, acc, m3a, m3b, m3c, m39, n4, v4, nmat, cdet):
     """Reduce the accumulators and build every cluster's goal transform.
 
     ``mode``: 0 rigid, 1 linear, 2 quadratic.  Outputs: ``ref`` <- centre of mass x_cm,
     ``quat`` <- rotation of A_pq, ``t`` (3x9; linear modes use the 3x3 block) and, for the
     rigid/linear modes, the affine goal map ``lm x0 + lb``; ``apq`` (clusters, 3, 3)
-    <- A_pq-hat for ``plastic_update``.  Plasticity is a kernel of its own, so a scene
-    without it neither runs nor compiles it.
+    <- A_pq-hat for ``plastic_update``; ``nmat``/``cdet``: ``unit_det_frames`` (linear).
+    Plasticity is a kernel of its own, so a scene without it neither runs nor compiles it.
     """
     nch = part.shape[0]
     nk = part.shape[1]
@@ -959,15 +1150,17 @@ def solve_clusters(part, wsum, sq, ref, quat, aqq3, aqq9, g, hv, scale, t, lm, l
         else:
             if mode == 1:
                 matmul(m3a, aqq3[k], m3c)             # A * s = A_pq-hat A_qq-hat
-                for i in range(3):
-                    for j in range(3):
-                        m3c[i, j] /= s_k
-                # A' = volume-preserving A (Eq. 18), written into t's 3x3 block
-                if volume_preserving(m3c, t[k], n4[:3, :3], v4[:3, :3], STRETCH_LIMIT):
+                dt = det3(m3c) / (s_k * s_k * s_k)
+                # B = the unit-determinant minimiser (Eq. 18, see unit_det_match), written
+                # into t's 3x3 block; inverted, flat or line-like (det A <= 0): R
+                if (dt > 1e-9 and np.isfinite(dt) and cdet[k] > 0.0
+                        and unit_det_match(m3a, nmat[k], s_k * cdet[k], m3b, m3c,
+                                           m39[:, 3:6], m39[:, 6:9], n4[:3, :3], v4[:3, :3],
+                                           STRETCH_LIMIT)):
                     for i in range(3):
                         for j in range(3):
-                            t[k, i, j] = s_k * (beta * t[k, i, j] + (1.0 - beta) * m3b[i, j])
-                else:                                 # inverted or flat: fall back to R
+                            t[k, i, j] = s_k * (beta * m3c[i, j] + (1.0 - beta) * m3b[i, j])
+                else:
                     for i in range(3):
                         for j in range(3):
                             t[k, i, j] = s_k * m3b[i, j]

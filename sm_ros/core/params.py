@@ -2,13 +2,41 @@
 
 from dataclasses import dataclass, fields, replace
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 # The one parameter table (plain Python, no ROS, no NumPy) gives the modes and the range of
 # every BodyParams field, so that the core refuses exactly what the node and the scene
 # loader refuse.
-from sm_ros.params import core_range, MAX_CLUSTERS, MODES
+from sm_ros.params import BY_NAME, core_range, MAX_CLUSTERS, MODES
+
+#: The step at which ``alpha``, ``beta``, ``damping`` and the creep fraction are defined
+#: by default (the node's default ``dt``): at this step they act exactly as given.
+MATERIAL_DT = BY_NAME['material_dt'].default
+
+
+class StepParams(NamedTuple):
+    """The per-step coefficients of a material at one step h (``BodyParams.at_step``)."""
+
+    alpha: float
+    beta: float
+    damping: float
+    creep: float            # rate c such that min(h c, 1) is the creep fraction of one step
+
+
+def _stiffness_at(a0: float, r: float) -> float:
+    """A per-step stiffness a0 given at h0, at the step h = r h0 (compliance kept)."""
+    if a0 >= 1.0:
+        return 1.0
+    return a0 * r * r / (1.0 - a0 + a0 * r * r)
+
+
+def _fraction_at(f0: float, r: float) -> float:
+    """A fraction removed per step of h0, at the step r h0 (same decay per second)."""
+    if f0 >= 1.0:
+        return 1.0
+    return -math.expm1(r * math.log1p(-f0))
 
 
 def _finite(name: str, value, lo=None, hi=None, lo_open=False) -> float:
@@ -33,6 +61,11 @@ class BodyParams:
     plasticity is on when ``plastic_creep > 0`` (§4.5); ``damping`` removes that fraction
     of each particle's velocity relative to its clusters' rigid motion per step (not part
     of the paper; momentum-preserving; 0 = off).
+
+    ``alpha``, ``beta``, ``damping`` and the creep fraction min(h c_creep, 1) are the
+    material's values at the step ``material_dt`` (s); ``at_step(h)`` converts them to the
+    step actually taken so the simulated object does not depend on the step.  0 turns the
+    conversion off (every value acts per step as given, the paper's semantics).
     """
 
     mode: str = 'linear'
@@ -43,6 +76,7 @@ class BodyParams:
     plastic_creep: float = 0.0
     plastic_max: float = 0.0
     damping: float = 0.0
+    material_dt: float = MATERIAL_DT
 
     def validate(self) -> 'BodyParams':
         """Return a normalised copy; raise ValueError naming the bad field."""
@@ -52,9 +86,38 @@ class BodyParams:
             raise ValueError(f'clusters must be an integer >= 1, got {self.clusters!r}')
         if self.clusters < 1 or self.clusters > MAX_CLUSTERS:
             raise ValueError(f'clusters must be in [1, {MAX_CLUSTERS}], got {self.clusters!r}')
-        numbers = ('alpha', 'beta', 'plastic_yield', 'plastic_creep', 'plastic_max', 'damping')
+        numbers = ('alpha', 'beta', 'plastic_yield', 'plastic_creep', 'plastic_max', 'damping',
+                   'material_dt')
         return replace(self, clusters=int(self.clusters),
                        **{f: _finite(f, getattr(self, f), *core_range(f)) for f in numbers})
+
+    def at_step(self, h: float) -> StepParams:
+        """The per-step coefficients that give this material at the step ``h`` (s).
+
+        Goal pull: v += alpha (g - x) / h is, for a fixed goal, the implicit (backward
+        Euler) spring x+ = y + k h^2 / (1 + k h^2) (g - y) with compliance 1 / k: so
+        alpha / (1 - alpha) = k h^2.  Keeping k (stiffness per unit mass, 1/s^2) fixed:
+        alpha(h) = a0 r^2 / (1 - a0 + a0 r^2) with r = h / h0.  alpha = 1 (zero compliance,
+        rigid) and alpha = 0 (free) are fixed points, alpha(h) <= 1 at every step (nothing
+        is clipped) and for h -> 0 alpha(h) / h^2 -> k: a finite stiffness, so the motion
+        converges to that of an ODE as the step shrinks.  ``beta``: the goal is
+        alpha (beta G_A + (1 - beta) G_R); the deformations the A (or quadratic) field can
+        follow are held by alpha (1 - beta) alone, converted the same way, and beta(h) =
+        1 - alpha_1(h) / alpha(h).  ``damping`` and the creep fraction f = min(h0 c, 1) are
+        fractions removed per step: (1 - d(h)) = (1 - d0)^r, the same decay per second.
+        """
+        h0 = self.material_dt
+        if not h0 > 0.0 or h == h0:
+            return StepParams(self.alpha, self.beta, self.damping, self.plastic_creep)
+        r = h / h0
+        alpha = _stiffness_at(self.alpha, r)
+        beta = self.beta
+        if alpha > 0.0 and 0.0 < beta < 1.0:
+            beta = min(1.0, max(0.0, 1.0 - _stiffness_at(self.alpha * (1.0 - self.beta), r)
+                                       / alpha))
+        damping = _fraction_at(self.damping, r)
+        creep = _fraction_at(min(h0 * self.plastic_creep, 1.0), r) / h
+        return StepParams(alpha, beta, damping, creep)
 
     @property
     def plastic(self) -> bool:
@@ -127,4 +190,4 @@ class Sphere:
         return [*c, float(self.radius), float(self.friction), float(self.restitution)]
 
 
-__all__ = ['BodyParams', 'Ground', 'Box', 'Sphere', 'MODES']
+__all__ = ['BodyParams', 'StepParams', 'MATERIAL_DT', 'Ground', 'Box', 'Sphere', 'MODES']

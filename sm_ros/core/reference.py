@@ -31,12 +31,51 @@ def quadratic_terms(q: np.ndarray) -> np.ndarray:
 STRETCH_LIMIT = 2.0
 
 
+def _unit_det_values(s: np.ndarray) -> np.ndarray:
+    """The x (prod x = 1) closest to the singular values s in least squares.
+
+    Stationary points of sum (x_i - s_i)^2 + 2 mu (sum log x_i) satisfy x_i^2 - s_i x_i = mu:
+    x_i = (s_i + sqrt(s_i^2 + 4 mu)) / 2, and for the smallest s_k also the minus root.
+    On the plus branch prod x grows with mu from mu = -s_min^2 / 4; if the product is
+    already above 1 there, the root lies on the minus branch of the smallest value
+    (x_k falls from s_k / 2 to 0 as mu rises to 0).  Bisection: slow but obviously right.
+    """
+    k = int(np.argmin(s))
+    lo0 = -0.25 * s[k] ** 2
+
+    def x_of(mu, minus):
+        r = np.sqrt(np.maximum(s * s + 4.0 * mu, 0.0))
+        x = 0.5 * (s + r)
+        if minus:
+            x[k] = 0.5 * (s[k] - r[k])
+        return x
+
+    if np.prod(x_of(lo0, False)) <= 1.0:
+        lo, hi = lo0, 1.0
+        while np.prod(x_of(hi, False)) < 1.0:
+            hi *= 2.0
+        while hi - lo > 1e-15 * max(1.0, abs(lo)):
+            mid = 0.5 * (lo + hi)
+            if not lo < mid < hi:
+                break
+            lo, hi = (mid, hi) if np.prod(x_of(mid, False)) < 1.0 else (lo, mid)
+        return x_of(0.5 * (lo + hi), False)
+    lo, hi = lo0, 0.0                  # minus branch: product > 1 at lo, -> 0 at hi
+    while hi - lo > 1e-15 * abs(lo0):
+        mid = 0.5 * (lo + hi)
+        if not lo < mid < hi:
+            break
+        lo, hi = (mid, hi) if np.prod(x_of(mid, True)) > 1.0 else (lo, mid)
+    return x_of(0.5 * (lo + hi), True)
+
+
 def volume_preserving(a: np.ndarray, limit: float = STRETCH_LIMIT):
     """The det-1 matrix closest to ``a`` with its singular vectors; None if det a <= 0.
 
     Singular values s_i -> x_i = (s_i + sqrt(s_i^2 + 4 lam)) / 2 with prod x_i = 1
     (least squares under the constraint), then limited to [1 / limit, limit].  Eq. 18's
-    uniform a / cbrt(det a) pumps energy into bodies flattened on impact.
+    uniform a / cbrt(det a) pumps energy into bodies flattened on impact.  (The linear
+    mode no longer uses this rule; see ``unit_det_match``.)
     """
     if not np.linalg.det(a) > 1e-9:
         return None
@@ -56,6 +95,55 @@ def volume_preserving(a: np.ndarray, limit: float = STRETCH_LIMIT):
             lo, hi = (mid, hi) if np.prod(x_of(mid)) < 1.0 else (lo, mid)
         x = x_of(0.5 * (lo + hi))
     return u @ np.diag(np.clip(x, 1.0 / limit, limit)) @ vt
+
+
+def nearest_unit_det(f: np.ndarray) -> np.ndarray:
+    """argmin ||C - f||_F over det C = 1, for det f > 0 (same singular vectors as f)."""
+    u, s, vt = np.linalg.svd(f)
+    return u @ np.diag(_unit_det_values(s)) @ vt
+
+
+def stretch_limited(b: np.ndarray, r: np.ndarray, limit: float = STRETCH_LIMIT) -> np.ndarray:
+    """R + t (B - R) with the largest t in [0, 1] whose singular values lie in [1/L, L].
+
+    Any blend of B and R keeps A_pq T^T symmetric (no torque); t = 1 (B itself) unless
+    the body is stretched or flattened beyond ``limit`` (a safeguard, rarely binding).
+    """
+    def inside(t):
+        sv = np.linalg.svd(r + t * (b - r), compute_uv=False)
+        return sv.max() <= limit and sv.min() >= 1.0 / limit
+
+    if inside(1.0):
+        return b
+    lo, hi = 0.0, 1.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if inside(mid) else (lo, mid)
+    return r + lo * (b - r)
+
+
+def unit_det_match(apq: np.ndarray, aqq: np.ndarray, r: np.ndarray,
+                   limit: float = STRETCH_LIMIT):
+    """The linear mode's B: argmin sum w ||p - B q||^2 over det B = 1 (None: use R).
+
+    With E(B) = tr(B A_qq B^T) - 2 tr(B A_pq^T) + const, write A_qq = M^2 (M symmetric
+    positive definite) and C = B M: E = ||C - A_pq M^-1||_F^2 + const and det C = det M.
+    So C is the matrix of determinant det M closest to F = A_pq M^-1 (``nearest_unit_det``
+    after scaling by det M^(1/3)) and B = C M^-1.  Stationarity gives B A_qq B^T - A_pq B^T
+    = mu I: A_pq B^T is symmetric, the goals exert no torque on the cluster and, being an
+    energy minimiser, do no net work over a closed path.  Safeguards kept from the former
+    rule: det A <= 1e-9 (A = A_pq A_qq^-1: inverted, flat or line-like cluster) -> None, and
+    stretches beyond [1/limit, limit] pulled back towards R (``stretch_limited``).
+    """
+    a = apq @ np.linalg.pinv(aqq, rcond=RCOND, hermitian=True)
+    if not np.linalg.det(a) > 1e-9:
+        return None
+    lam, vec = np.linalg.eigh(aqq)
+    c = np.cbrt(np.prod(lam))                       # det(A_qq)^(1/3) = det(M)^(2/3)
+    n = vec @ np.diag((lam / c) ** -0.5) @ vec.T    # det(M)^(1/3) M^-1, unit determinant
+    f = apq @ n / c                                 # F / det(M)^(1/3)
+    b = nearest_unit_det(f) @ n
+    return stretch_limited(b, r, limit)
 
 
 def _spectral_norm(m: np.ndarray) -> float:
@@ -114,12 +202,12 @@ class ReferenceBody:
 
     def _rest(self):
         """q = S^P (x0 - x0_cm) per cluster and the inverse moment matrices."""
-        self.q, self.aqq, self.aqq9 = [], [], []
+        self.q, self.aqq, self.aqq9, self.mom = [], [], [], []
         for idx, w, cm0, sp in zip(self.members, self.weights, self.cm0, self.sp):
             q = (self.x_init[idx] - cm0) @ sp.T
             self.q.append(q)
-            self.aqq.append(np.linalg.pinv((w[:, None] * q).T @ q, rcond=RCOND,
-                                           hermitian=True))
+            self.mom.append((w[:, None] * q).T @ q)
+            self.aqq.append(np.linalg.pinv(self.mom[-1], rcond=RCOND, hermitian=True))
             qt = self._centred_terms(q, w)
             self.aqq9.append(np.linalg.pinv((w[:, None] * qt).T @ qt, rcond=RCOND,
                                             hermitian=True))
@@ -141,8 +229,13 @@ class ReferenceBody:
         self.grab_tgt = np.asarray(targets, dtype=float)
 
     def goals(self, h=None):
-        """Goals of every particle (mean over its clusters); updates S^P if ``h`` is given."""
+        """Goals of every particle (mean over its clusters); updates S^P if ``h`` is given.
+
+        ``beta`` is the material's at the step ``h`` (``BodyParams.at_step``); as given
+        without ``h``.
+        """
         p = self.params
+        beta = p.beta if h is None else p.at_step(h).beta
         goal_sum = np.zeros_like(self.x)
         changed = False
         for k, (idx, w, q) in enumerate(zip(self.members, self.weights, self.q)):
@@ -155,14 +248,13 @@ class ReferenceBody:
                 qt = self._centred_terms(q, w)
                 a9 = ((w[:, None] * pk).T @ qt) @ self.aqq9[k]     # Eq. 21 (erratum)
                 r9 = np.hstack([r, np.zeros((3, 6))])
-                goal = qt @ (p.beta * a9 + (1 - p.beta) * r9).T + cm   # Eq. 22
+                goal = qt @ (beta * a9 + (1 - beta) * r9).T + cm   # Eq. 22
             else:
                 t = r
                 if p.mode == 'linear':
-                    a = apq @ self.aqq[k]                          # Eq. 10
-                    a_vol = volume_preserving(a)                   # Eq. 18 (see there)
-                    if a_vol is not None:
-                        t = p.beta * a_vol + (1 - p.beta) * r
+                    b = unit_det_match(apq, self.mom[k], r)        # Eq. 18 (see there)
+                    if b is not None:
+                        t = beta * b + (1 - beta) * r
                 goal = q @ t.T + cm                                # Eq. 12
             goal_sum[idx] += goal
             if h is not None and p.plastic:
@@ -184,7 +276,7 @@ class ReferenceBody:
         e = e + null @ null.T
         if np.max(np.abs(np.linalg.eigvalsh(e))) <= p.plastic_yield:
             return False
-        sp = (np.eye(3) + min(h * p.plastic_creep, 1.0) * e) @ self.sp[k]
+        sp = (np.eye(3) + min(h * p.at_step(h).creep, 1.0) * e) @ self.sp[k]
         if np.linalg.det(sp) <= 1e-12:
             return False
         self.sp[k] = cap_plastic(_unit_det(sp), p.plastic_max)
@@ -192,7 +284,7 @@ class ReferenceBody:
 
     def step(self, h, gravity=(0.0, 0.0, 0.0), ground=None, boxes=(), spheres=()):
         """Eq. 13-14, then colliders, then kinematic particles."""
-        p = self.params
+        p = self.params.at_step(h)             # the material's coefficients at this step
         goals, changed = self.goals(h)
         m = self.m
         acc = np.asarray(gravity, dtype=float) + self.force / m.sum()
