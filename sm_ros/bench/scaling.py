@@ -6,7 +6,7 @@ unit masses, gravity, no colliders, alpha = 1 (pypbd's stiffness 1), beta = 0.5.
 cluster parameter is the number of cubes per axis: 1, 2, 4 give 1, 8, 64 clusters.
 
 In the same run: the NumPy reference (``sm_ros.core.reference``), the peer pypbd (one
-configuration per subprocess, its script in shared/peers), and the memory bandwidth of a
+configuration per subprocess: ``sm_ros.bench.pypbd_driver``), and the memory bandwidth of a
 streaming copy with the fraction of it the single-cluster linear step reaches.
 """
 
@@ -39,9 +39,6 @@ def add_arguments(p: argparse.ArgumentParser):
                    help='sizes for the NumPy reference ("" to skip)')
     p.add_argument('--numpy-clusters', default='1,2')
     p.add_argument('--pypbd-sizes', default='1e4,1e5', help='sizes for pypbd ("" to skip)')
-    p.add_argument('--pypbd-script', default=None,
-                   help='path of pypbd_shape_matching.py (default: shared/peers beside '
-                        'the repository, or $SM_ROS_PYPBD_SCRIPT)')
     p.add_argument('--pypbd-steps', type=int, default=30)
     p.add_argument('--pypbd-threads', default='1,2',
                    help='OMP_NUM_THREADS settings for pypbd (its best is compared)')
@@ -248,32 +245,18 @@ def time_numpy(n_side: int, mode: str, k: int, min_time: float) -> Optional[Dict
 # pypbd peer
 # ---------------------------------------------------------------------------------------
 
-def find_pypbd_script(explicit: Optional[str]) -> Optional[Path]:
-    """Find the peer script: flag, $SM_ROS_PYPBD_SCRIPT, or shared/peers beside the repo."""
-    cands = []
-    if explicit:
-        cands.append(Path(explicit))
-    if os.environ.get('SM_ROS_PYPBD_SCRIPT'):
-        cands.append(Path(os.environ['SM_ROS_PYPBD_SCRIPT']))
-    repo = Path(__file__).resolve().parents[2]
-    cands += [repo.parent / 'shared' / 'peers' / 'pypbd_shape_matching.py',
-              repo / 'shared' / 'peers' / 'pypbd_shape_matching.py']
-    for c in cands:
-        if c.is_file():
-            return c
-    return None
-
-
-def time_pypbd(script: Path, n_side: int, k: int, steps: int,
+def time_pypbd(n_side: int, k: int, steps: int,
                threads: Optional[int] = None) -> Optional[Dict[str, Any]]:
-    """Run the peer script for one configuration in its own process (it needs that)."""
-    cmd = [sys.executable, str(script), '--n', str(n_side), '--k', str(k), '--steps',
-           str(steps), '--warmup', '3']
+    """Run the pypbd driver for one configuration in its own process (pypbd needs that)."""
+    cmd = [sys.executable, '-m', 'sm_ros.bench.pypbd_driver', '--n', str(n_side), '--k',
+           str(k), '--steps', str(steps), '--warmup', '3']
     timeout = 60 + 0.5 * n_side ** 3 / 1e3
     env = dict(os.environ)
+    repo = str(Path(__file__).resolve().parents[2])
+    env['PYTHONPATH'] = os.pathsep.join(filter(None, [repo, env.get('PYTHONPATH')]))
     if threads:
         env['OMP_NUM_THREADS'] = str(threads)
-    return bc.run_json_subprocess(cmd, timeout=timeout, cwd=str(script.parent), env=env)
+    return bc.run_json_subprocess(cmd, timeout=timeout, env=env)
 
 
 # ---------------------------------------------------------------------------------------
@@ -395,7 +378,6 @@ def run(args, out: Path) -> Dict[str, Any]:
 
     # pypbd
     pp_sizes = sorted({bc.lattice_side(x) for x in bc.as_list(args.pypbd_sizes)})
-    script = find_pypbd_script(args.pypbd_script) if pp_sizes else None
     ppt = bc.Table('pypbd', ['N', 'clusters', 'memberships_pypbd', 'memberships_ours',
                              'pypbd_1thread_ms', 'pypbd_2threads_ms', 'pypbd_best_ms',
                              'ours_rigid_ms', 'ours_linear_ms', 'speedup_rigid',
@@ -403,9 +385,7 @@ def run(args, out: Path) -> Dict[str, Any]:
                    'sm_ros against pypbd (same lattice and clusters, 1 iteration, dt 5 ms; '
                    'medians; speedup = pypbd at its best thread count / ours)')
     findings['pypbd'] = []
-    if pp_sizes and script is None:
-        bc.log('[scaling] pypbd peer script not found: skipped')
-    elif pp_sizes:
+    if pp_sizes:
         try:
             import pypbd  # noqa: F401
             have = True
@@ -417,7 +397,7 @@ def run(args, out: Path) -> Dict[str, Any]:
                 per = {}
                 for thr in bc.ints(args.pypbd_threads):
                     bc.log(f'[scaling] pypbd N={n_side ** 3} k={k} OMP_NUM_THREADS={thr}')
-                    peer = time_pypbd(script, n_side, k, args.pypbd_steps, thr)
+                    peer = time_pypbd(n_side, k, args.pypbd_steps, thr)
                     if peer is not None:
                         per[thr] = peer
                 if not per:
