@@ -11,8 +11,8 @@ unit, description, whether a scene body may override it, and the field of the co
   ranges and builds ``BodyParams`` through ``core_field``;
 * ``sm_ros.core.params`` takes ``MODES``, the cluster limit and the range of every
   ``BodyParams`` field from here, so the core refuses exactly what the node refuses;
-* ``config/sim_node.yaml``, the README's parameter table and the overrides table of
-  ``doc/scenes.md`` are generated from it: ``python -m sm_ros.params --write``
+* ``config/sim_node.yaml``, the parameter table of ``doc/interface.md`` and the overrides
+  table of ``doc/scenes.md`` are generated from it: ``python -m sm_ros.params --write``
   (``--check`` exits 1 when a generated file is stale; ``test/test_params.py`` runs it).
 
 Why the table lives here and not in ``sm_ros.core``: the core must stay importable without
@@ -254,7 +254,7 @@ END = '<!-- end of generated table -->'
 
 
 def value_text(value: Any) -> str:
-    """Return a default as the README writes it (1/120 for dt)."""
+    """Return a default as the docs write it (1/120 for dt)."""
     if isinstance(value, bool):
         return 'true' if value else 'false'
     if isinstance(value, str):
@@ -303,8 +303,8 @@ def sim_node_yaml() -> str:
     return '\n'.join(lines) + '\n'
 
 
-def readme_table() -> str:
-    """Return the README's parameter table (markdown)."""
+def interface_table() -> str:
+    """Return the parameter table of doc/interface.md (markdown)."""
     rows = ['| name | type | default | range | meaning | unit | scene body may set |',
             '| --- | --- | --- | --- | --- | --- | --- |']
     for p in NODE_PARAMS:
@@ -340,11 +340,12 @@ def _spliced(text: str, table: str, where: str) -> str:
 
 def generated_files(root: Path = ROOT) -> Dict[Path, str]:
     """Return {path: the text it must have} for every file generated from the table."""
-    readme = root / 'README.md'
+    interface = root / 'doc' / 'interface.md'
     scenes = root / 'doc' / 'scenes.md'
     return {
         root / 'config' / 'sim_node.yaml': sim_node_yaml(),
-        readme: _spliced(readme.read_text(encoding='utf-8'), readme_table(), 'README.md'),
+        interface: _spliced(interface.read_text(encoding='utf-8'), interface_table(),
+                            'doc/interface.md'),
         scenes: _spliced(scenes.read_text(encoding='utf-8'), overrides_table(),
                          'doc/scenes.md'),
     }

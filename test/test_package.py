@@ -1,7 +1,7 @@
 """
 Check the package.
 
-package.xml and setup.py agree, the README tables and config/sim_node.yaml match the
+package.xml and setup.py agree, doc/interface.md and config/sim_node.yaml match the
 node, the Fast DDS profile is valid, and colcon builds an installable tree.
 """
 
@@ -113,12 +113,15 @@ def test_ci_runs_make_test():
 
 
 # ----------------------------------------------------------------------------------------
-# README and config/sim_node.yaml against the node
+# doc/interface.md, the README and config/sim_node.yaml against the node
 # ----------------------------------------------------------------------------------------
 
 def readme_table(heading):
-    """Rows (lists of cells, backticks stripped) of the first table after ``heading``."""
-    text = (ROOT / 'README.md').read_text()
+    """Rows (cells, backticks stripped) of the first table after ``heading`` in the contract.
+
+    The contract is doc/interface.md (the README links to it and sums it up).
+    """
+    text = (ROOT / 'doc' / 'interface.md').read_text()
     start = text.index(heading)
     rows = []
     for line in text[start:].splitlines()[1:]:
@@ -153,7 +156,7 @@ def _range_text(p):
 
 def test_readme_parameter_table_matches_the_node():
     from sm_ros.params import NODE_PARAMS as PARAMS
-    rows = readme_table('### Parameters')
+    rows = readme_table('## Parameters')
     assert [r[0] for r in rows] == [p.name for p in PARAMS]
     for row, p in zip(rows, PARAMS):
         assert row[1] == p.type_name, p.name
@@ -186,11 +189,11 @@ def graph(ros, cube_scene):
 
 def test_readme_topic_and_service_tables_match_the_node(graph):
     pubs, subs, srvs = graph
-    assert {r[0]: r[1] for r in readme_table('### Topics published')} == {
+    assert {r[0]: r[1] for r in readme_table('## Topics published')} == {
         k: v.replace('/msg/', '/') for k, v in pubs.items()}
-    assert {r[0]: r[1] for r in readme_table('### Topics subscribed')} == {
+    assert {r[0]: r[1] for r in readme_table('## Topics subscribed')} == {
         k: v.replace('/msg/', '/') for k, v in subs.items()}
-    assert {r[0]: r[1] for r in readme_table('### Services')} == {
+    assert {r[0]: r[1] for r in readme_table('## Services')} == {
         k: v.replace('/srv/', '/') for k, v in srvs.items()}
 
 
@@ -198,11 +201,19 @@ def test_readme_starts_with_the_two_commands():
     text = (ROOT / 'README.md').read_text()
     first_block = text[text.index('```'):text.index('```', text.index('```') + 3)]
     assert 'make run' in first_block and 'make test' in first_block
-    for doc in ('doc/core_api.md', 'doc/scenes.md', 'doc/benchmarks.md'):
+    for doc in ('doc/interface.md', 'doc/architecture.md', 'doc/core_api.md',
+                'doc/scenes.md', 'doc/benchmarks.md'):
         assert doc in text
     for phrase in ('colcon build', 'source install/setup.bash', 'ros2 run sm_ros sim_node',
                    'ros2 param set /sim_node alpha 0.9', 'FASTRTPS_DEFAULT_PROFILES_FILE'):
         assert phrase in text, phrase
+
+
+def test_interface_lists_every_diagnostics_key():
+    pytest.importorskip('diagnostic_msgs')
+    from sm_ros.diagnostics import KEYS
+    text = (ROOT / 'doc' / 'interface.md').read_text()
+    assert [k for k in KEYS if f'`{k}`' not in text] == []
 
 
 def test_config_sim_node_yaml_has_every_parameter_at_its_default():
@@ -217,6 +228,23 @@ def test_config_sim_node_yaml_has_every_parameter_at_its_default():
     for p in PARAMS:
         i = next(k for k, ln in enumerate(text) if ln.strip().startswith(p.name + ':'))
         assert text[i - 1].strip().startswith('#'), f'{p.name} has no comment'
+
+
+def test_no_file_points_outside_the_repository():
+    outside = ('shared' '/', '..' '/shared')            # split so that this file passes
+    found = []
+    paths = []
+    for folder, dirs, names in os.walk(ROOT):
+        dirs[:] = [d for d in dirs if d not in ('.venv', '.git', 'build', 'install', 'log',
+                                                '__pycache__', '.pytest_cache')]
+        paths += [Path(folder) / n for n in names]
+    for path in paths:
+        if path.suffix not in ('.py', '.md', '.yaml', '.cfg', '.toml', '.xml'):
+            continue
+        for number, line in enumerate(path.read_text(errors='replace').splitlines(), 1):
+            if any(o in line for o in outside):
+                found.append(f'{path.relative_to(ROOT)}:{number}: {line.strip()}')
+    assert found == []
 
 
 def test_fastdds_profile_gives_large_shm_segments():

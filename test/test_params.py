@@ -24,7 +24,7 @@ def test_generated_files_are_up_to_date():
 
 
 def test_a_changed_row_makes_the_generated_files_stale(tmp_path, monkeypatch):
-    for rel in ('README.md', 'doc/scenes.md', 'config/sim_node.yaml'):
+    for rel in ('doc/interface.md', 'doc/scenes.md', 'config/sim_node.yaml'):
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(params.ROOT / rel, tmp_path / rel)
     assert params.stale_files(tmp_path) == []
@@ -34,7 +34,7 @@ def test_a_changed_row_makes_the_generated_files_stale(tmp_path, monkeypatch):
     monkeypatch.setattr(params, 'TABLE', changed)
     monkeypatch.setattr(params, 'NODE_PARAMS', tuple(p for p in changed if p.node))
     stale = {p.name for p in params.stale_files(tmp_path)}
-    assert stale == {'README.md', 'scenes.md', 'sim_node.yaml'}
+    assert stale == {'interface.md', 'scenes.md', 'sim_node.yaml'}
 
 
 def test_check_mode_names_the_regenerate_command(tmp_path, monkeypatch, capsys):
