@@ -1,7 +1,7 @@
 """A deformable body: its state, its precomputed rest data and its step (algorithm.md).
 
 The public methods validate their input and raise ``ValueError``; the private ``_step``
-drives the Numba kernels in ``kernels.py`` over buffers made when the body is built, so a
+drives the Numba kernels in ``kernels/`` over buffers made when the body is built, so a
 step allocates nothing.  What a body computes is chosen when it is built: a rigid body has
 no A_qq, a linear body no 9x9 data, a body without plasticity no plastic state, a
 one-cluster body no membership lists.
@@ -194,13 +194,13 @@ class Body:
         self._wsum = wsum
         self._cm0 = cm0
         self._scale = np.where(rms > 0.0, rms, 1.0)
-        self._sp = np.tile(np.eye(3), (nk, 1, 1))
-        self._g = np.zeros((nk, 3, 3))
-        self._hv = np.zeros((nk, 3))
+        self._s_plastic = np.tile(np.eye(3), (nk, 1, 1))
+        self._rest_lin = np.zeros((nk, 3, 3))
+        self._rest_off = np.zeros((nk, 3))
         self._quat = np.tile([1.0, 0.0, 0.0, 0.0], (nk, 1))
         self._apq = np.zeros((nk, 3, 3))
         self._q4 = np.zeros(4)
-        self._sq = np.zeros((nk, 9))
+        self._sum_q = np.zeros((nk, 9))
         self._mom3 = np.zeros((nk if self._need3 else 1, 3, 3))
         self._mom9 = np.zeros((nk if self._need9 else 1, 9, 9))
         self._aqq3 = np.zeros_like(self._mom3)
@@ -231,9 +231,9 @@ class Body:
             nch = 1                            # self._part: the reduced per-cluster sums
         self._part = np.zeros((nch, nk, na))
         self._err = np.zeros(len(self._sets.part) if self._sets is not None else nch)
-        self._t = np.zeros((nk, 3, 9))
-        self._lm = np.zeros((nk, 3, 3))
-        self._lb = np.zeros((nk, 3))
+        self._trans = np.zeros((nk, 3, 9))
+        self._goal_lin = np.zeros((nk, 3, 3))
+        self._goal_off = np.zeros((nk, 3))
         self._ref = cm0 + self._c0
         self._lin = np.zeros((nk, 13)) if p.damping > 0 else None
         self._w3 = np.zeros((nk, 3)) if p.damping > 0 else None
@@ -242,16 +242,18 @@ class Body:
     def _refresh_rest(self, which):
         """Plastic rest shape q = Sp (x0 - cm0) / s of the clusters in ``which``; A_qq."""
         idx = np.nonzero(which)[0]
-        self._g[idx] = self._sp[idx] / self._scale[idx, None, None]
-        self._hv[idx] = -np.einsum('kij,kj->ki', self._g[idx], self._cm0[idx])
-        K.moments(self._x0, self.m, self._ptr, self._cl, self._g, self._hv, self._wsum,
-                  which, self._need3, self._need9, self._sq, self._mom3, self._mom9, self._f9)
-        K.invert_moments(which, self._need3, self._need9, self._mom3, self._mom9, self._aqq3,
-                         self._aqq9, self._s3[0], self._s3[1], self._w9[0], self._w9[1],
-                         RCOND)
+        self._rest_lin[idx] = self._s_plastic[idx] / self._scale[idx, None, None]
+        self._rest_off[idx] = -np.einsum('kij,kj->ki', self._rest_lin[idx], self._cm0[idx])
+        K.moments(x0=self._x0, mass=self.m, ptr=self._ptr, cl=self._cl, rest_lin=self._rest_lin,
+                  rest_off=self._rest_off, wsum=self._wsum, which=which, need3=self._need3,
+                  need9=self._need9, sum_q=self._sum_q, mom3=self._mom3, mom9=self._mom9,
+                  f9=self._f9)
+        K.invert_moments(which=which, need3=self._need3, need9=self._need9, mom3=self._mom3,
+                         mom9=self._mom9, aqq3=self._aqq3, aqq9=self._aqq9, w3a=self._s3[0],
+                         w3b=self._s3[1], w9a=self._w9[0], w9b=self._w9[1], rcond=RCOND)
         if self._mode == 1:
-            K.unit_det_frames(which, self._mom3, self._nmat, self._cdet, self._s3[0],
-                              self._s3[1], RCOND)
+            K.unit_det_frames(which=which, mom3=self._mom3, nmat=self._nmat, cdet=self._cdet,
+                              wa=self._s3[0], wv=self._s3[1], rcond=RCOND)
 
     def _merge_kinematic(self):
         pins = self._pinned
@@ -275,61 +277,75 @@ class Body:
             if self._dirty:
                 acc = K.sets_accumulate_parallel if self._parallel else \
                     K.sets_accumulate_serial
-                acc(self._quad, x, sets.y0, self.m, sets.sid, sets.ref, sets.part)
-            K.sets_reduce(sets.part, sets.ptr, sets.cl, sets.cnt, sets.phi, sets.ref,
-                          sets.org, self._g, self._hv, self._ref, self._quad, self._part,
-                          sets.wk, sets.pm)
+                acc(quad=self._quad, x=x, y0=sets.y0, mass=self.m, sid=sets.sid, sref=sets.ref,
+                    part=sets.part)
+            K.sets_reduce(part=sets.part, sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sphi=sets.phi,
+                          sref=sets.ref, sorg=sets.org, rest_lin=self._rest_lin,
+                          rest_off=self._rest_off, ref=self._ref, quad=self._quad, out=self._part,
+                          wk=sets.wk, pm=sets.pm)
         elif self._dirty:
             acc = K.accumulate_parallel if self._parallel else K.accumulate_serial
-            acc(self._quad, x, self._x0, self.m, self._ptr, self._cl, self._g, self._hv,
-                self._ref, self._part)
-        K.solve_clusters(
-            self._part, self._wsum, self._sq, self._ref, self._quat, self._aqq3, self._aqq9,
-            self._g, self._hv, self._scale, self._t, self._lm, self._lb, self._mode, p.beta,
-            self._apq, self._accbuf, s3[0], s3[1], s3[2], self._m39, self._n4, self._v4,
-            self._nmat, self._cdet)
+            acc(quad=self._quad, x=x, x0=self._x0, mass=self.m, ptr=self._ptr, cl=self._cl,
+                rest_lin=self._rest_lin, rest_off=self._rest_off, ref=self._ref, part=self._part)
+        K.solve_clusters(part=self._part, wsum=self._wsum, sum_q=self._sum_q, ref=self._ref,
+                         quat=self._quat, aqq3=self._aqq3, aqq9=self._aqq9,
+                         rest_lin=self._rest_lin, rest_off=self._rest_off, scale=self._scale,
+                         trans=self._trans, goal_lin=self._goal_lin, goal_off=self._goal_off,
+                         mode=self._mode, beta=p.beta, apq=self._apq, acc=self._accbuf, m3a=s3[0],
+                         m3b=s3[1], m3c=s3[2], m39=self._m39, n4=self._n4, v4=self._v4,
+                         nmat=self._nmat, cdet=self._cdet)
         nchanged = 0
         if plastic:
-            nchanged = K.plastic_update(
-                self._apq, self._aqq3, self._scale, self._quat, self._sp,
-                self._params.plastic_yield, p.creep, self._params.plastic_max, h,
-                self._changed, self._q4, s3[0], s3[1], s3[2], self._n4, self._v4)
+            nchanged = K.plastic_update(apq=self._apq, aqq3=self._aqq3, scale=self._scale,
+                                        quat=self._quat, s_plastic=self._s_plastic,
+                                        c_yield=self._params.plastic_yield, c_creep=p.creep,
+                                        c_max=self._params.plastic_max, h=h, changed=self._changed,
+                                        q4=self._q4, m3a=s3[0], m3b=s3[1], m3c=s3[2], n4=self._n4,
+                                        v4=self._v4)
         if sets is not None:
-            K.sets_maps(sets.ptr, sets.cl, sets.cnt, sets.org, self._g, self._hv, self._t,
-                        self._lm, self._lb, self._ref, self._quad, sets.gm, sets.ref, sets.pm)
+            K.sets_maps(sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sorg=sets.org,
+                        rest_lin=self._rest_lin, rest_off=self._rest_off, trans=self._trans,
+                        goal_lin=self._goal_lin, goal_off=self._goal_off, ref=self._ref,
+                        quad=self._quad, gm=sets.gm, sref=sets.ref, pm=sets.pm)
         np.multiply(self._force, 1.0 / self.total_mass, out=self._acc)
         self._acc += gravity
         if self._has_torque:
             np.dot(self._wsum, self._ref, out=self._com)
             self._com /= self._wsum.sum()
             K.inertia(x, self.m, self._com, self._i3)
-            K.pinv_sym(self._i3, self._i3inv, s3[0], s3[1], 1e-12)
+            K.pinv_sym(mat=self._i3, out=self._i3inv, wa=s3[0], wv=s3[1], rcond=1e-12)
             np.dot(self._i3inv, self._torque, out=self._ang)
         else:
             self._ang[:] = 0.0
         if p.damping > 0.0:
-            K.damp_rigid(x, v, self.m, self._ptr, self._cl, self._ref, p.damping, self._lin,
-                         self._w3, s3[0], s3[1], s3[2], s3[3])
+            K.damp_rigid(x=x, v=v, mass=self.m, ptr=self._ptr, cl=self._cl, ref=self._ref,
+                         k_damp=p.damping, lin=self._lin, w3=self._w3, m3a=s3[0], m3b=s3[1],
+                         m3c=s3[2], m3d=s3[3])
         kin = len(self._kin_idx) > 0
         if kin:
             K.gather_rows(x, self._kin_idx, self._kin_prev)
         if sets is not None:
             integ = K.sets_integrate_parallel if self._parallel else K.sets_integrate_serial
-            integ(self._quad, x, v, sets.y0, self.m, sets.sid, sets.gm, sets.ref, p.alpha, h,
-                  self._acc, self._ang, self._com, sets.part, self._err, has_col, ground,
-                  boxes, spheres, thresh)
+            integ(quad=self._quad, x=x, v=v, y0=sets.y0, mass=self.m, sid=sets.sid, gm=sets.gm,
+                  sref=sets.ref, alpha=p.alpha, h=h, acc=self._acc, ang=self._ang, com=self._com,
+                  part=sets.part, err=self._err, has_col=has_col, ground=ground, boxes=boxes,
+                  spheres=spheres, thresh=thresh)
         else:
             integ = K.integrate_parallel if self._parallel else K.integrate_serial
-            integ(self._quad, x, v, self._x0, self.m, self._ptr, self._cl, self._g, self._hv,
-                  self._t, self._lm, self._lb, self._ref, p.alpha, h, self._acc, self._ang,
-                  self._com, self._part, self._err, has_col, ground, boxes, spheres, thresh)
+            integ(quad=self._quad, x=x, v=v, x0=self._x0, mass=self.m, ptr=self._ptr, cl=self._cl,
+                  rest_lin=self._rest_lin, rest_off=self._rest_off, trans=self._trans,
+                  goal_lin=self._goal_lin, goal_off=self._goal_off, ref=self._ref, alpha=p.alpha,
+                  h=h, acc=self._acc, ang=self._ang, com=self._com, part=self._part, err=self._err,
+                  has_col=has_col, ground=ground, boxes=boxes, spheres=spheres, thresh=thresh)
         if kin and sets is not None:
-            K.sets_kinematic(self._quad, x, v, sets.y0, self.m, sets.sid, sets.ref, sets.part,
-                             self._kin_idx, self._kin_tgt, self._kin_prev, h)
+            K.sets_kinematic(quad=self._quad, x=x, v=v, y0=sets.y0, mass=self.m, sid=sets.sid,
+                             sref=sets.ref, part=sets.part, idx=self._kin_idx, tgt=self._kin_tgt,
+                             prev=self._kin_prev, h=h)
         elif kin:
-            K.apply_kinematic(self._quad, x, v, self._x0, self.m, self._ptr, self._cl,
-                              self._g, self._hv, self._ref, self._part, self._kin_idx,
-                              self._kin_tgt, self._kin_prev, h)
+            K.apply_kinematic(quad=self._quad, x=x, v=v, x0=self._x0, mass=self.m, ptr=self._ptr,
+                              cl=self._cl, rest_lin=self._rest_lin, rest_off=self._rest_off,
+                              ref=self._ref, part=self._part, idx=self._kin_idx, tgt=self._kin_tgt,
+                              prev=self._kin_prev, h=h)
         self._shape_err = None                 # computed from self._err when asked
         self._dirty = False
         if nchanged:
@@ -360,7 +376,7 @@ class Body:
     @property
     def plastic_state(self) -> np.ndarray:
         """Per-cluster plastic deformation S^P (clusters, 3, 3); identity when elastic."""
-        return self._sp.copy()
+        return self._s_plastic.copy()
 
     @property
     def cluster_rotations(self) -> np.ndarray:
@@ -465,7 +481,7 @@ class Body:
             return r
         com = self.com()
         apq = np.einsum('i,ij,ik->jk', self.m, self._x - com, self._x0)
-        K.extract_rotation(apq, self._quat_body, r, self._n4, self._v4)
+        K.extract_rotation(mat=apq, quat=self._quat_body, rot=r, n4=self._n4, v4=self._v4)
         return r
 
     def goals(self) -> np.ndarray:
@@ -473,20 +489,27 @@ class Body:
         p = self._params
         part = np.zeros((1,) + self._part.shape[1:])
         ref, quat = self._ref.copy(), self._quat.copy()
-        t, lm, lb = np.zeros_like(self._t), np.zeros_like(self._lm), np.zeros_like(self._lb)
-        K.accumulate_serial(self._quad, self._x, self._x0, self.m, self._ptr, self._cl,
-                            self._g, self._hv, ref, part)
+        trans, goal_lin = np.zeros_like(self._trans), np.zeros_like(self._goal_lin)
+        goal_off = np.zeros_like(self._goal_off)
+        K.accumulate_serial(quad=self._quad, x=self._x, x0=self._x0, mass=self.m, ptr=self._ptr,
+                            cl=self._cl, rest_lin=self._rest_lin, rest_off=self._rest_off, ref=ref,
+                            part=part)
         s3 = [np.zeros((3, 3)) for _ in range(3)]
-        K.solve_clusters(part, self._wsum, self._sq, ref, quat, self._aqq3, self._aqq9,
-                         self._g, self._hv, self._scale, t, lm, lb, self._mode, p.beta,
-                         np.zeros_like(self._apq), np.zeros(32), s3[0], s3[1], s3[2],
-                         np.zeros((3, 9)), np.zeros((4, 4)), np.zeros((4, 4)), self._nmat,
-                         self._cdet)
+        K.solve_clusters(part=part, wsum=self._wsum, sum_q=self._sum_q, ref=ref, quat=quat,
+                         aqq3=self._aqq3, aqq9=self._aqq9, rest_lin=self._rest_lin,
+                         rest_off=self._rest_off, scale=self._scale, trans=trans,
+                         goal_lin=goal_lin, goal_off=goal_off, mode=self._mode, beta=p.beta,
+                         apq=np.zeros_like(self._apq), acc=np.zeros(32), m3a=s3[0], m3b=s3[1],
+                         m3c=s3[2], m39=np.zeros((3, 9)), n4=np.zeros((4, 4)), v4=np.zeros((4, 4)),
+                         nmat=self._nmat, cdet=self._cdet)
         g = self._x.copy()
-        K.integrate_serial(self._quad, g, np.zeros_like(g), self._x0, self.m, self._ptr,
-                           self._cl, self._g, self._hv, t, lm, lb, ref, 1.0, 1.0, np.zeros(3),
-                           np.zeros(3), np.zeros(3), part, np.zeros(1), False, np.zeros(4),
-                           np.zeros((0, 8)), np.zeros((0, 6)), 0.0)
+        K.integrate_serial(quad=self._quad, x=g, v=np.zeros_like(g), x0=self._x0, mass=self.m,
+                           ptr=self._ptr, cl=self._cl, rest_lin=self._rest_lin,
+                           rest_off=self._rest_off, trans=trans, goal_lin=goal_lin,
+                           goal_off=goal_off, ref=ref, alpha=1.0, h=1.0, acc=np.zeros(3),
+                           ang=np.zeros(3), com=np.zeros(3), part=part, err=np.zeros(1),
+                           has_col=False, ground=np.zeros(4), boxes=np.zeros((0, 8)),
+                           spheres=np.zeros((0, 6)), thresh=0.0)
         return g
 
     def shape_error_rms(self) -> float:

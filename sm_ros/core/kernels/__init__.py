@@ -1,0 +1,53 @@
+"""Numba kernels of the solver, one file per part of the method (algorithm.md numbering).
+
+=================  ==========================================================  ============
+file               what it computes                                            equations
+=================  ==========================================================  ============
+``linalg.py``      hand-written 3x3 / 4x4 / 9x9 eigen-solver, pseudo-inverse    (support)
+``rotation.py``    R of the polar decomposition of A_pq (Horn's quaternion)     11
+``goals.py``       per-cluster sums -> x_cm, A_pq, A, goal transforms; A_qq    7-12, 18-22
+``integrate.py``   per-particle passes: goals averaged over clusters,          7-9, 13-14,
+                   Eq. 13-14, accumulation of the next step's sums              23
+``sets.py``        the same passes for particles grouped by cluster sets       7-9, 13-14,
+                                                                               21, 23
+``plasticity.py``  plastic state update and its caps                            24-27
+``colliders.py``   static ground, boxes, spheres (projection, friction)         (collisions)
+``damping.py``     damping towards each cluster's rigid motion                  (damping)
+``jit.py``         compile options; a Numba cache stamp shared by all files     -
+=================  ==========================================================  ============
+
+Public kernels never raise and assume clean, contiguous input; ``sm_ros.core.body``
+validates and owns every buffer, so nothing here allocates.  ``x``, ``v`` and ``h`` are
+the paper's positions, velocities and time step; ``rest_lin`` / ``rest_off`` the map
+q-hat = rest_lin x0 + rest_off from rest positions (about the body's mass centre) to a
+cluster's plastic, scaled rest offsets; ``trans`` the goal transform T (3 x 3 or 3 x 9),
+``goal_lin`` / ``goal_off`` the affine goal map g = goal_lin x0 + goal_off of the
+rigid/linear modes.  Everything is re-exported here: ``from sm_ros.core import kernels``.
+"""
+
+from .colliders import _collide_range, _contact_velocity, collide_point
+from .damping import damp_rigid
+from .goals import (STRETCH_LIMIT, _goal_quad, _logprod, _logx, _qhat, _stretch_ok,
+                    _unit_det_sum, invert_moments, moments, nearest_unit_det, quad_features,
+                    solve_clusters, unit_det_frames, unit_det_match, volume_preserving)
+from .integrate import (BLOCK, accumulate_parallel, accumulate_serial,
+                        advance, apply_kinematic, gather_rows, inertia, integrate_parallel,
+                        integrate_serial)
+from .jit import FASTMATH, JIT
+from .linalg import det3, jacobi_eigh, matmul, norm2, pinv_sym
+from .plasticity import _add_null_projector, _cap_plastic, plastic_update
+from .rotation import extract_rotation, quat_to_mat
+from .sets import (sets_accumulate_parallel, sets_accumulate_serial,
+                   sets_integrate_parallel, sets_integrate_serial, sets_kinematic, sets_maps,
+                   sets_reduce)
+
+__all__ = ['FASTMATH', 'JIT', '_collide_range', '_contact_velocity', 'collide_point', 'damp_rigid',
+           'STRETCH_LIMIT', '_goal_quad', '_logprod', '_qhat', 'invert_moments', 'moments',
+           'quad_features', 'solve_clusters', 'volume_preserving', 'nearest_unit_det',
+           'unit_det_match', 'unit_det_frames', '_logx', '_stretch_ok', '_unit_det_sum', 'BLOCK',
+           'accumulate_parallel', 'accumulate_serial', 'advance', 'apply_kinematic', 'gather_rows',
+           'inertia', 'integrate_parallel', 'integrate_serial', 'det3', 'jacobi_eigh', 'matmul',
+           'norm2', 'pinv_sym', '_add_null_projector', '_cap_plastic', 'plastic_update',
+           'extract_rotation', 'quat_to_mat', 'sets_accumulate_parallel', 'sets_accumulate_serial',
+           'sets_integrate_parallel', 'sets_integrate_serial', 'sets_kinematic', 'sets_maps',
+           'sets_reduce']

@@ -1,0 +1,424 @@
+"""Per-particle passes of the membership layout: Eq. 13-14 with goals averaged over clusters.
+
+One step reads and writes every particle once: ``integrate_*`` computes each particle's
+goal as the mean of its clusters' goals (Eq. 23 and the note on it: a mass-weighted
+average, not a sum), applies Eq. 13-14 (``advance``), the colliders, and adds the particle
+to the per-cluster sums of Eq. 7-9 for the next step, block by block while the block is in
+L1.  ``accumulate_*`` recomputes those sums when the state was changed outside a step.
+``part`` is (chunks, clusters, 12 or 30): every chunk owns its slot, reduced in
+``goals.solve_clusters``; ref is the previous centre of mass, so large coordinates do not
+cancel (A_pq = sum w (x - ref) q^T - (cm - ref)(sum w q)^T).  Single-cluster bodies take
+fast paths that keep every cluster constant and accumulator in registers.
+"""
+
+from numba import njit, prange
+
+from .jit import JIT
+from .colliders import _collide_range
+from .goals import _goal_quad, _qhat
+
+
+@njit(**JIT)
+def _acc_lin(row, w, d0, d1, d2, q0, q1, q2):
+    """Add one particle's w (x - ref) and w (x - ref) q^T to the accumulator row ``a``."""
+    d0 *= w
+    d1 *= w
+    d2 *= w
+    row[0] += d0
+    row[1] += d1
+    row[2] += d2
+    row[3] += d0 * q0
+    row[4] += d0 * q1
+    row[5] += d0 * q2
+    row[6] += d1 * q0
+    row[7] += d1 * q1
+    row[8] += d1 * q2
+    row[9] += d2 * q0
+    row[10] += d2 * q1
+    row[11] += d2 * q2
+
+
+@njit(**JIT)
+def _acc_quad(row, w, d0, d1, d2, q0, q1, q2):
+    """Quadratic accumulator: w (x - ref) and w (x - ref) q~^T (3 + 27 entries)."""
+    d0 *= w
+    d1 *= w
+    d2 *= w
+    row[0] += d0
+    row[1] += d1
+    row[2] += d2
+    f3 = q0 * q0
+    f4 = q1 * q1
+    f5 = q2 * q2
+    f6 = q0 * q1
+    f7 = q1 * q2
+    f8 = q2 * q0
+    row[3] += d0 * q0
+    row[4] += d0 * q1
+    row[5] += d0 * q2
+    row[6] += d0 * f3
+    row[7] += d0 * f4
+    row[8] += d0 * f5
+    row[9] += d0 * f6
+    row[10] += d0 * f7
+    row[11] += d0 * f8
+    row[12] += d1 * q0
+    row[13] += d1 * q1
+    row[14] += d1 * q2
+    row[15] += d1 * f3
+    row[16] += d1 * f4
+    row[17] += d1 * f5
+    row[18] += d1 * f6
+    row[19] += d1 * f7
+    row[20] += d1 * f8
+    row[21] += d2 * q0
+    row[22] += d2 * q1
+    row[23] += d2 * q2
+    row[24] += d2 * f3
+    row[25] += d2 * f4
+    row[26] += d2 * f5
+    row[27] += d2 * f6
+    row[28] += d2 * f7
+    row[29] += d2 * f8
+
+
+@njit(**JIT)
+def _acc_single(start, end, quad, x, x0, mass, rest_lin, rest_off, ref, sums):
+    g00, g01, g02 = rest_lin[0, 0, 0], rest_lin[0, 0, 1], rest_lin[0, 0, 2]
+    g10, g11, g12 = rest_lin[0, 1, 0], rest_lin[0, 1, 1], rest_lin[0, 1, 2]
+    g20, g21, g22 = rest_lin[0, 2, 0], rest_lin[0, 2, 1], rest_lin[0, 2, 2]
+    h0, h1, h2 = rest_off[0, 0], rest_off[0, 1], rest_off[0, 2]
+    r0, r1, r2 = ref[0, 0], ref[0, 1], ref[0, 2]
+    if quad:
+        for i in range(start, end):
+            a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+            _acc_quad(row=sums[0], w=mass[i], d0=x[i, 0] - r0, d1=x[i, 1] - r1, d2=x[i, 2] - r2,
+                      q0=g00 * a0 + g01 * a1 + g02 * a2 + h0,
+                      q1=g10 * a0 + g11 * a1 + g12 * a2 + h1,
+                      q2=g20 * a0 + g21 * a1 + g22 * a2 + h2)
+        return
+    # sum w d q^T = (sum w d x0^T) G^T + (sum w d) h^T: accumulate in rest coordinates
+    # (9 multiply-adds per particle less) and map once per block
+    s0 = s1 = s2 = 0.0
+    c00 = c01 = c02 = c10 = c11 = c12 = c20 = c21 = c22 = 0.0
+    for i in range(start, end):
+        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+        w = mass[i]
+        d0 = w * (x[i, 0] - r0)
+        d1 = w * (x[i, 1] - r1)
+        d2 = w * (x[i, 2] - r2)
+        s0 += d0
+        s1 += d1
+        s2 += d2
+        c00 += d0 * a0
+        c01 += d0 * a1
+        c02 += d0 * a2
+        c10 += d1 * a0
+        c11 += d1 * a1
+        c12 += d1 * a2
+        c20 += d2 * a0
+        c21 += d2 * a1
+        c22 += d2 * a2
+    row = sums[0]
+    row[0] += s0
+    row[1] += s1
+    row[2] += s2
+    row[3] += g00 * c00 + g01 * c01 + g02 * c02 + h0 * s0
+    row[4] += g10 * c00 + g11 * c01 + g12 * c02 + h1 * s0
+    row[5] += g20 * c00 + g21 * c01 + g22 * c02 + h2 * s0
+    row[6] += g00 * c10 + g01 * c11 + g02 * c12 + h0 * s1
+    row[7] += g10 * c10 + g11 * c11 + g12 * c12 + h1 * s1
+    row[8] += g20 * c10 + g21 * c11 + g22 * c12 + h2 * s1
+    row[9] += g00 * c20 + g01 * c21 + g02 * c22 + h0 * s2
+    row[10] += g10 * c20 + g11 * c21 + g12 * c22 + h1 * s2
+    row[11] += g20 * c20 + g21 * c21 + g22 * c22 + h2 * s2
+
+
+@njit(**JIT)
+def advance(x, v, i, p0, p1, p2, g0, g1, g2, alpha_h, h, dv0, dv1, dv2):
+    """Eq. 13-14 for particle ``i`` at ``p`` (= x[i]) towards its goal g; returns |g - p|^2.
+
+    v <- v + (alpha / h) (g - p) + dv, then x <- p + h v, where dv is h times the external
+    acceleration.  Every integration loop calls this; it is inlined into them.  The caller
+    loads ``p`` where the loop needs it first, so that the fast-math reassociation sees
+    the same expressions whatever the loop (the results stay bit-identical).
+    """
+    e0 = g0 - p0
+    e1 = g1 - p1
+    e2 = g2 - p2
+    err = e0 * e0 + e1 * e1 + e2 * e2
+    v0 = v[i, 0] + alpha_h * e0 + dv0
+    v1 = v[i, 1] + alpha_h * e1 + dv1
+    v2 = v[i, 2] + alpha_h * e2 + dv2
+    x[i, 0] = p0 + h * v0
+    x[i, 1] = p1 + h * v1
+    x[i, 2] = p2 + h * v2
+    v[i, 0] = v0
+    v[i, 1] = v1
+    v[i, 2] = v2
+    return err
+
+
+@njit(**JIT)
+def _int_single_lin(start, end, x, v, x0, goal_lin, goal_off, alpha, h, acc, ang, com):
+    """Eq. 13-14 for a one-cluster rigid/linear body, its goal map held in registers."""
+    l00, l01, l02 = goal_lin[0, 0, 0], goal_lin[0, 0, 1], goal_lin[0, 0, 2]
+    l10, l11, l12 = goal_lin[0, 1, 0], goal_lin[0, 1, 1], goal_lin[0, 1, 2]
+    l20, l21, l22 = goal_lin[0, 2, 0], goal_lin[0, 2, 1], goal_lin[0, 2, 2]
+    b0, b1, b2 = goal_off[0, 0], goal_off[0, 1], goal_off[0, 2]
+    w0, w1, w2 = ang[0], ang[1], ang[2]
+    # acc + ang x (p - com) = (acc - ang x com) + ang x p
+    ax = acc[0] - (w1 * com[2] - w2 * com[1])
+    ay = acc[1] - (w2 * com[0] - w0 * com[2])
+    az = acc[2] - (w0 * com[1] - w1 * com[0])
+    alpha_h = alpha / h
+    err2 = 0.0
+    if w0 == 0.0 and w1 == 0.0 and w2 == 0.0:
+        # no torque: a uniform acceleration (6 multiply-adds per particle less)
+        hx, hy, hz = h * ax, h * ay, h * az
+        for i in range(start, end):
+            a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+            p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
+            err2 += advance(x=x, v=v, i=i, p0=p0, p1=p1, p2=p2,
+                            g0=l00 * a0 + l01 * a1 + l02 * a2 + b0,
+                            g1=l10 * a0 + l11 * a1 + l12 * a2 + b1,
+                            g2=l20 * a0 + l21 * a1 + l22 * a2 + b2,
+                            alpha_h=alpha_h, h=h, dv0=hx, dv1=hy, dv2=hz)
+        return err2
+    for i in range(start, end):
+        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+        p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
+        err2 += advance(x=x, v=v, i=i, p0=p0, p1=p1, p2=p2,
+                        g0=l00 * a0 + l01 * a1 + l02 * a2 + b0,
+                        g1=l10 * a0 + l11 * a1 + l12 * a2 + b1,
+                        g2=l20 * a0 + l21 * a1 + l22 * a2 + b2,
+                        alpha_h=alpha_h, h=h, dv0=h * (ax + w1 * p2 - w2 * p1),
+                        dv1=h * (ay + w2 * p0 - w0 * p2), dv2=h * (az + w0 * p1 - w1 * p0))
+    return err2
+
+
+@njit(**JIT)
+def _acc_range(start, end, quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, sums):
+    """Add particles start..end to the accumulators ``pc`` (clusters, 12 or 30)."""
+    if ptr.shape[0] == 0:
+        _acc_single(start=start, end=end, quad=quad, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
+                    rest_off=rest_off, ref=ref, sums=sums)
+        return
+    for i in range(start, end):
+        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+        j0, j1 = ptr[i], ptr[i + 1]
+        w = mass[i] / (j1 - j0)
+        for j in range(j0, j1):
+            k = cl[j]
+            q0, q1, q2 = _qhat(rest_lin=rest_lin, rest_off=rest_off, k=k, a0=a0, a1=a1, a2=a2)
+            d0 = x[i, 0] - ref[k, 0]
+            d1 = x[i, 1] - ref[k, 1]
+            d2 = x[i, 2] - ref[k, 2]
+            if quad:
+                _acc_quad(row=sums[k], w=w, d0=d0, d1=d1, d2=d2, q0=q0, q1=q1, q2=q2)
+            else:
+                _acc_lin(row=sums[k], w=w, d0=d0, d1=d1, d2=d2, q0=q0, q1=q1, q2=q2)
+
+
+@njit(**JIT)
+def _acc_chunk(chunk, nchunks, quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, part):
+    n = x.shape[0]
+    sums = part[chunk]
+    for k in range(sums.shape[0]):
+        for j in range(sums.shape[1]):
+            sums[k, j] = 0.0
+    _acc_range(start=(chunk * n) // nchunks, end=((chunk + 1) * n) // nchunks, quad=quad, x=x,
+               x0=x0, mass=mass, ptr=ptr, cl=cl, rest_lin=rest_lin, rest_off=rest_off, ref=ref,
+               sums=sums)
+
+
+@njit(**JIT)
+def accumulate_serial(quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, part):
+    """Accumulation pass, one thread."""
+    nchunks = part.shape[0]
+    for chunk in range(nchunks):
+        _acc_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
+                   rest_lin=rest_lin, rest_off=rest_off, ref=ref, part=part)
+
+
+@njit(parallel=True, **JIT)
+def accumulate_parallel(quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, part):
+    """Accumulation pass, one chunk per thread."""
+    nchunks = part.shape[0]
+    for chunk in prange(nchunks):
+        _acc_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
+                   rest_lin=rest_lin, rest_off=rest_off, ref=ref, part=part)
+
+
+#: Particles per block of the fused pass: integrated, then accumulated while in L1.
+BLOCK = 256
+
+
+@njit(**JIT)
+def _int_range(start, end, quad, x, v, x0, ptr, cl, rest_lin, rest_off, trans, goal_lin, goal_off,
+               alpha, h, acc, ang, com):
+    """Eq. 13-14 for particles start..end; returns sum |g - x|^2."""
+    single = ptr.shape[0] == 0
+    if single and not quad:
+        return _int_single_lin(start=start, end=end, x=x, v=v, x0=x0, goal_lin=goal_lin,
+                               goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=ang, com=com)
+    alpha_h = alpha / h
+    err2 = 0.0
+    for i in range(start, end):
+        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+        if single:
+            j0, j1 = 0, 1
+        else:
+            j0, j1 = ptr[i], ptr[i + 1]
+        # goal: mean over the particle's clusters (Eq. 12, 18, 22; mass-weighted average)
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        for j in range(j0, j1):
+            k = 0 if single else cl[j]
+            if quad:
+                q0, q1, q2 = _qhat(rest_lin=rest_lin, rest_off=rest_off, k=k, a0=a0, a1=a1, a2=a2)
+                o0, o1, o2 = _goal_quad(trans=trans, k=k, q0=q0, q1=q1, q2=q2)
+                g0 += o0 + goal_off[k, 0]
+                g1 += o1 + goal_off[k, 1]
+                g2 += o2 + goal_off[k, 2]
+            else:
+                g0 += (goal_lin[k, 0, 0] * a0 + goal_lin[k, 0, 1] * a1 + goal_lin[k, 0, 2] * a2
+                       + goal_off[k, 0])
+                g1 += (goal_lin[k, 1, 0] * a0 + goal_lin[k, 1, 1] * a1 + goal_lin[k, 1, 2] * a2
+                       + goal_off[k, 1])
+                g2 += (goal_lin[k, 2, 0] * a0 + goal_lin[k, 2, 1] * a1 + goal_lin[k, 2, 2] * a2
+                       + goal_off[k, 2])
+        if not single:
+            inv = 1.0 / (j1 - j0)
+            g0 *= inv
+            g1 *= inv
+            g2 *= inv
+        p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
+        r0 = p0 - com[0]
+        r1 = p1 - com[1]
+        r2 = p2 - com[2]
+        err2 += advance(x=x, v=v, i=i, p0=p0, p1=p1, p2=p2, g0=g0, g1=g1, g2=g2,
+                        alpha_h=alpha_h, h=h,
+                        dv0=h * (acc[0] + ang[1] * r2 - ang[2] * r1),
+                        dv1=h * (acc[1] + ang[2] * r0 - ang[0] * r2),
+                        dv2=h * (acc[2] + ang[0] * r1 - ang[1] * r0))
+    return err2
+
+
+@njit(**JIT)
+def _int_chunk(chunk, nchunks, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, goal_lin,
+               goal_off, ref, alpha, h, acc, ang, com, part, err, has_col, ground, boxes, spheres,
+               thresh):
+    """Integrate a chunk block by block; collide and accumulate each block for the next
+    step while it is still in L1 (one pass over memory, short loops without spills)."""
+    n = x.shape[0]
+    start = (chunk * n) // nchunks
+    end = ((chunk + 1) * n) // nchunks
+    sums = part[chunk]
+    for k in range(sums.shape[0]):
+        for j in range(sums.shape[1]):
+            sums[k, j] = 0.0
+    err2 = 0.0
+    for bs in range(start, end, BLOCK):
+        be = min(bs + BLOCK, end)
+        err2 += _int_range(start=bs, end=be, quad=quad, x=x, v=v, x0=x0, ptr=ptr, cl=cl,
+                           rest_lin=rest_lin, rest_off=rest_off, trans=trans, goal_lin=goal_lin,
+                           goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=ang, com=com)
+        if has_col:
+            _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes, spheres=spheres,
+                           thresh=thresh)
+        _acc_range(start=bs, end=be, quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
+                   rest_lin=rest_lin, rest_off=rest_off, ref=ref, sums=sums)
+    err[chunk] = err2
+
+
+@njit(**JIT)
+def integrate_serial(quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, goal_lin, goal_off,
+                     ref, alpha, h, acc, ang, com, part, err, has_col, ground, boxes, spheres,
+                     thresh):
+    """Integration pass, one thread."""
+    nchunks = part.shape[0]
+    for chunk in range(nchunks):
+        _int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v, x0=x0, mass=mass, ptr=ptr,
+                   cl=cl, rest_lin=rest_lin, rest_off=rest_off, trans=trans, goal_lin=goal_lin,
+                   goal_off=goal_off, ref=ref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
+                   part=part, err=err, has_col=has_col, ground=ground, boxes=boxes,
+                   spheres=spheres, thresh=thresh)
+
+
+@njit(parallel=True, **JIT)
+def integrate_parallel(quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, goal_lin,
+                       goal_off, ref, alpha, h, acc, ang, com, part, err, has_col, ground, boxes,
+                       spheres, thresh):
+    """Integration pass, one chunk per thread."""
+    nchunks = part.shape[0]
+    for chunk in prange(nchunks):
+        _int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v, x0=x0, mass=mass, ptr=ptr,
+                   cl=cl, rest_lin=rest_lin, rest_off=rest_off, trans=trans, goal_lin=goal_lin,
+                   goal_off=goal_off, ref=ref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
+                   part=part, err=err, has_col=has_col, ground=ground, boxes=boxes,
+                   spheres=spheres, thresh=thresh)
+
+
+@njit(**JIT)
+def gather_rows(src, idx, out):
+    """out[p] = src[idx[p]] (used to remember kinematic particles' start positions)."""
+    for p in range(idx.shape[0]):
+        for j in range(3):
+            out[p, j] = src[idx[p], j]
+
+
+@njit(**JIT)
+def apply_kinematic(quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, ref, part, idx, tgt, prev,
+                    h):
+    """Kinematic particles land exactly on their targets with velocity (target - prev)/h.
+
+    The accumulators for the next step already hold these particles' integrated
+    positions: their contribution is swapped for the one at the target.
+    """
+    single = ptr.shape[0] == 0
+    for p in range(idx.shape[0]):
+        i = idx[p]
+        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+        if single:
+            j0, j1, w = 0, 1, mass[i]
+        else:
+            j0, j1 = ptr[i], ptr[i + 1]
+            w = mass[i] / (j1 - j0)
+        for j in range(j0, j1):
+            k = 0 if single else cl[j]
+            q0, q1, q2 = _qhat(rest_lin=rest_lin, rest_off=rest_off, k=k, a0=a0, a1=a1, a2=a2)
+            d0 = tgt[p, 0] - x[i, 0]
+            d1 = tgt[p, 1] - x[i, 1]
+            d2 = tgt[p, 2] - x[i, 2]
+            if quad:
+                _acc_quad(row=part[0, k], w=w, d0=d0, d1=d1, d2=d2, q0=q0, q1=q1, q2=q2)
+            else:
+                _acc_lin(row=part[0, k], w=w, d0=d0, d1=d1, d2=d2, q0=q0, q1=q1, q2=q2)
+        for j in range(3):
+            v[i, j] = (tgt[p, j] - prev[p, j]) / h
+            x[i, j] = tgt[p, j]
+
+
+@njit(**JIT)
+def inertia(x, mass, com, out):
+    """Inertia tensor about ``com``: sum m (|r|^2 I - r r^T)."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = 0.0
+    for i in range(x.shape[0]):
+        r0 = x[i, 0] - com[0]
+        r1 = x[i, 1] - com[1]
+        r2 = x[i, 2] - com[2]
+        w = mass[i]
+        rr = r0 * r0 + r1 * r1 + r2 * r2
+        out[0, 0] += w * (rr - r0 * r0)
+        out[1, 1] += w * (rr - r1 * r1)
+        out[2, 2] += w * (rr - r2 * r2)
+        out[0, 1] -= w * r0 * r1
+        out[0, 2] -= w * r0 * r2
+        out[1, 2] -= w * r1 * r2
+    out[1, 0] = out[0, 1]
+    out[2, 0] = out[0, 2]
+    out[2, 1] = out[1, 2]

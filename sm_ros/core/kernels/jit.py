@@ -1,0 +1,104 @@
+"""Compilation options shared by every kernel, and a Numba cache that sees across files.
+
+Numba's on-disk cache (``cache=True``) keys a compiled function on the source of the file
+that defines it (its "source stamp") and on its own bytecode, but not on the jitted
+functions it calls.  A kernel in ``integrate.py`` that calls ``colliders._collide_range``
+would keep running the old collider code from the cache after ``colliders.py`` was edited
+(that is why the kernels used to live in one file).  ``KernelCacheLocator`` closes the gap:
+every function defined in this package gets one shared source stamp, the SHA-256 of all
+the package's ``.py`` files, so an edit to any kernel file makes Numba discard and
+recompile every cached kernel on first use.  It is registered, before any kernel is
+decorated, in front of Numba's own locators and wraps the one Numba would have chosen
+(``NUMBA_CACHE_DIR``, ``__pycache__`` or the user-wide cache directory); only the stamp
+differs.  Jitted modules of ``sm_ros/core`` that call kernels (``pose.py``, ...) are stamped
+with their own source plus the package's stamp.  ``test/test_kernel_cache.py`` checks this
+end to end.
+"""
+
+import functools
+import hashlib
+import os
+
+from numba.core import caching
+
+# Numba's registry of cache locators (renamed from ``_CacheImpl`` in Numba 0.58).
+_CACHE_IMPL = getattr(caching, 'CacheImpl', None) or getattr(caching, '_CacheImpl')
+
+#: Fastmath flags used by every kernel (no ``nnan``/``ninf``: NaN checks must still work).
+FASTMATH = {'nsz', 'arcp', 'contract', 'afn', 'reassoc'}
+#: Options of every kernel: cached on disk, fast math as above, the GIL released.
+JIT = dict(cache=True, fastmath=FASTMATH, nogil=True)
+
+_KERNEL_DIR = os.path.dirname(os.path.abspath(__file__))
+#: Directories whose modules share one cache stamp (this package; tests add their own).
+SHARED_STAMP_DIRS = {_KERNEL_DIR}
+#: Directories whose jitted modules call kernels (``sm_ros/core``: pose, contact, ...): each
+#: module is stamped with its own source and the kernel package's stamp.
+DEPENDENT_DIRS = {os.path.dirname(_KERNEL_DIR): _KERNEL_DIR}
+
+
+@functools.lru_cache(maxsize=None)
+def _hash_files(stats):
+    digest = hashlib.sha256()
+    for path, _mtime, _size in stats:
+        digest.update(os.path.basename(path).encode())
+        with open(path, 'rb') as f:
+            digest.update(hashlib.sha256(f.read()).digest())
+    return digest.hexdigest()
+
+
+def source_stamp(directory):
+    """SHA-256 over every ``.py`` file of ``directory`` (re-read when one changes)."""
+    paths = sorted(os.path.join(directory, name) for name in os.listdir(directory)
+                   if name.endswith('.py'))
+    stats = []
+    for path in paths:
+        st = os.stat(path)
+        stats.append((path, st.st_mtime_ns, st.st_size))
+    return _hash_files(tuple(stats))
+
+
+class KernelCacheLocator(caching._CacheLocator):
+    """Numba's usual cache place for a function, stamped with its whole directory."""
+
+    def __init__(self, inner, directory, py_file=None):
+        self._inner = inner
+        self._directory = directory
+        self._py_file = py_file
+
+    def ensure_cache_path(self):
+        self._inner.ensure_cache_path()
+
+    def get_cache_path(self):
+        return self._inner.get_cache_path()
+
+    def get_source_stamp(self):
+        if self._py_file is None:
+            return source_stamp(self._directory)
+        st = os.stat(self._py_file)
+        return (_hash_files(((self._py_file, st.st_mtime_ns, st.st_size),)),
+                source_stamp(self._directory))
+
+    def get_disambiguator(self):
+        return self._inner.get_disambiguator()
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        own = os.path.dirname(os.path.abspath(py_file))
+        if own in SHARED_STAMP_DIRS:
+            directory, single = own, None
+        elif own in DEPENDENT_DIRS:
+            directory, single = DEPENDENT_DIRS[own], os.path.abspath(py_file)
+        else:
+            return None
+        for other in _CACHE_IMPL._locator_classes:
+            if other is cls:
+                continue
+            inner = other.from_function(py_func, py_file)
+            if inner is not None:
+                return cls(inner, directory, single)
+        return None
+
+
+if KernelCacheLocator not in _CACHE_IMPL._locator_classes:
+    _CACHE_IMPL._locator_classes.insert(0, KernelCacheLocator)

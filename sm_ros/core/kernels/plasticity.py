@@ -1,0 +1,141 @@
+"""Plasticity (Eq. 24-27, with the erratum of Eq. 26).
+
+From this step's A = A_pq A_qq: its symmetric factor S (polar decomposition, Eq. 24-25);
+if ||S - I||_2 > c_yield the plastic state creeps, S^P <- (I + h c_creep (S - I)) S^P,
+normalised to det S^P = 1 and capped at ||S^P - I||_2 <= c_max (Eq. 27, tested on S^P).
+A cluster whose S^P changed gets its rest shape and A_qq refreshed by ``goals.moments``.
+"""
+
+import numpy as np
+from numba import njit
+
+from .jit import JIT
+from .linalg import det3, jacobi_eigh, matmul, norm2
+from .rotation import extract_rotation
+
+
+@njit(**JIT)
+def _cap_plastic(s_plastic, c_max, m3, wa, wv):
+    """Sp <- Sp / cbrt(det Sp), then pulled towards I until ||Sp - I||_2 <= c_max (Eq. 27).
+
+    The write-up's cap ``I + c_max (Sp - I)/||Sp - I||`` followed by the volume
+    normalisation can land slightly above c_max again; bisecting on the blend
+    t in [0, 1] of ``normalise(I + t (Sp - I))`` keeps both det Sp = 1 and the cap exact.
+    """
+    for i in range(3):
+        for j in range(3):
+            m3[i, j] = s_plastic[i, j] - (1.0 if i == j else 0.0)
+    if norm2(m3, wa, wv) <= c_max:
+        return
+    lo = 0.0
+    hi = 1.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        for i in range(3):
+            for j in range(3):
+                wa[i, j] = ((1.0 if i == j else 0.0)
+                            + mid * (s_plastic[i, j] - (1.0 if i == j else 0.0)))
+        det = det3(wa)
+        ok = False
+        if det > 0.0:
+            inv_cbrt = 1.0 / np.cbrt(det)
+            for i in range(3):
+                for j in range(3):
+                    m3[i, j] = wa[i, j] * inv_cbrt - (1.0 if i == j else 0.0)
+            ok = norm2(m3, wa, wv) <= c_max
+        if ok:
+            lo = mid
+        else:
+            hi = mid
+    for i in range(3):
+        for j in range(3):
+            wa[i, j] = (1.0 if i == j else 0.0) + lo * (s_plastic[i, j] - (1.0 if i == j else 0.0))
+    inv_cbrt = 1.0 / np.cbrt(det3(wa))
+    for i in range(3):
+        for j in range(3):
+            s_plastic[i, j] = wa[i, j] * inv_cbrt
+
+
+@njit(**JIT)
+def _add_null_projector(aqq, out, wa, wv):
+    """out += the projector onto the null space of the symmetric PSD ``aqq`` (3x3)."""
+    for i in range(3):
+        for j in range(3):
+            wa[i, j] = aqq[i, j]
+    jacobi_eigh(wa, wv, 50)
+    lmax = max(wa[0, 0], max(wa[1, 1], wa[2, 2]))
+    for e in range(3):
+        if not (wa[e, e] > 1e-13 * lmax):
+            for i in range(3):
+                for j in range(3):
+                    out[i, j] += wv[i, e] * wv[j, e]
+
+
+@njit(**JIT)
+def plastic_update(apq, aqq3, scale, quat, s_plastic, c_yield, c_creep, c_max, h, changed, q4, m3a,
+                   m3b, m3c, n4, v4):
+    """Plasticity (Eq. 24-27) of every cluster from this step's A_pq-hat (``apq``).
+
+    Updates the plastic state ``sp``; ``changed`` marks the clusters whose rest shape
+    must be refreshed.  Returns the number of changed clusters.
+    """
+    nchanged = 0
+    for k in range(apq.shape[0]):
+        changed[k] = False
+        s_k = scale[k]
+        for i in range(3):
+            for j in range(3):
+                m3a[i, j] = apq[k, i, j]
+        # A = A_pq A_qq (linear part), its polar decomposition A = R_A S (Eq. 24-25)
+        matmul(m3a, aqq3[k], m3c)
+        for i in range(3):
+            for j in range(3):
+                m3c[i, j] /= s_k
+        for i in range(4):
+            q4[i] = quat[k, i]
+        extract_rotation(mat=m3c, quat=q4, rot=m3b, n4=n4, v4=v4)
+        # S - I (symmetrised) into m3a
+        for i in range(3):
+            for j in range(3):
+                s = 0.0
+                for u in range(3):
+                    s += m3b[u, i] * m3c[u, j]
+                m3a[i, j] = s
+        for i in range(3):
+            for j in range(i, 3):
+                avg = 0.5 * (m3a[i, j] + m3a[j, i])
+                m3a[i, j] = avg
+                m3a[j, i] = avg
+            m3a[i, i] -= 1.0
+        # A is blind along directions the rest shape does not span (flat, line-like,
+        # single-point clusters: A_qq is a pseudo-inverse): S = I there, not 0, or
+        # such a cluster flows plastically at rest
+        _add_null_projector(aqq3[k], m3a, n4[:3, :3], v4[:3, :3])
+        for i in range(3):
+            for j in range(3):
+                m3b[i, j] = m3a[i, j]
+        nrm = norm2(m3b, n4[:3, :3], v4[:3, :3])
+        if nrm > c_yield and c_creep > 0.0 and np.isfinite(nrm):
+            tc = h * c_creep
+            if tc > 1.0:
+                tc = 1.0
+            # Sp <- (I + h c_creep (S - I)) Sp
+            for i in range(3):
+                for j in range(3):
+                    s = 0.0
+                    for u in range(3):
+                        s += ((1.0 if i == u else 0.0) + tc * m3a[i, u]) * s_plastic[k, u, j]
+                    m3c[i, j] = s
+            det = det3(m3c)
+            if det > 1e-12 and np.isfinite(det):
+                inv_cbrt = 1.0 / np.cbrt(det)
+                for i in range(3):
+                    for j in range(3):
+                        m3c[i, j] *= inv_cbrt
+                _cap_plastic(s_plastic=m3c, c_max=c_max, m3=m3a, wa=n4[:3, :3], wv=v4[:3, :3])
+                for i in range(3):
+                    for j in range(3):
+                        s_plastic[k, i, j] = m3c[i, j]
+                changed[k] = True
+                nchanged += 1
+    return nchanged
