@@ -22,7 +22,7 @@ import os
 from numba.core import caching
 
 # Numba's registry of cache locators (renamed from ``_CacheImpl`` in Numba 0.58).
-_CACHE_IMPL = getattr(caching, 'CacheImpl', None) or getattr(caching, '_CacheImpl')
+_CACHE_IMPL = getattr(caching, 'CacheImpl', None) or caching._CacheImpl
 
 #: Fastmath flags used by every kernel (no ``nnan``/``ninf``: NaN checks must still work).
 FASTMATH = {'nsz', 'arcp', 'contract', 'afn', 'reassoc'}
@@ -67,12 +67,15 @@ class KernelCacheLocator(caching._CacheLocator):
         self._py_file = py_file
 
     def ensure_cache_path(self):
+        """Create the wrapped locator's cache directory."""
         self._inner.ensure_cache_path()
 
     def get_cache_path(self):
+        """The wrapped locator's cache directory."""
         return self._inner.get_cache_path()
 
     def get_source_stamp(self):
+        """The package's stamp (with the module's own hash for a dependent module)."""
         if self._py_file is None:
             return source_stamp(self._directory)
         st = os.stat(self._py_file)
@@ -80,10 +83,12 @@ class KernelCacheLocator(caching._CacheLocator):
                 source_stamp(self._directory))
 
     def get_disambiguator(self):
+        """The wrapped locator's disambiguator (the function's line number)."""
         return self._inner.get_disambiguator()
 
     @classmethod
     def from_function(cls, py_func, py_file):
+        """A locator for functions of the stamped directories, else None."""
         own = os.path.dirname(os.path.abspath(py_file))
         if own in SHARED_STAMP_DIRS:
             directory, single = own, None
