@@ -28,7 +28,7 @@ def test_quick_run_writes_tables(tmp_path):
     out = tmp_path / 'bench'
     assert main(['all', '--quick', '--out', str(out)]) == 0
     for name in ('scaling', 'scaling_summary', 'bandwidth', 'numpy_reference', 'pypbd',
-                 'accuracy', 'accuracy_budget', 'targets'):
+                 'accuracy', 'accuracy_budget', 'accuracy_order', 'targets'):
         assert (out / f'{name}.csv').is_file(), name
         assert (out / f'{name}.md').read_text().startswith('### '), name
     rows = _rows(out / 'scaling.csv')
