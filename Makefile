@@ -1,5 +1,6 @@
 # Two commands for a fresh machine (no ROS installation needed):
-#   make run    start the node on the default scene (ARGS='--ros-args -p alpha:=0.9' passes on)
+#   make run    start the node on the default scene with the Foxglove live view on port
+#               FOXGLOVE_PORT (8765; 0: off) (ARGS='--ros-args -p alpha:=0.9' passes on)
 #   make test   run the whole test suite
 # and `make lint` checks every Python file with ruff (configured in pyproject.toml).
 # Each creates .venv (ROS 2 Jazzy client libraries as Python wheels, numpy, numba, ...) if it
@@ -12,6 +13,7 @@ VENV := .venv
 STAMP := $(VENV)/.installed-stamp
 ARGS ?=
 PYTEST_ARGS ?=
+FOXGLOVE_PORT ?= 8765
 
 .PHONY: run test lint venv clean
 
@@ -19,12 +21,15 @@ venv: $(STAMP)
 
 $(STAMP): setup.py setup.cfg package.xml
 	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
-	$(VENV)/bin/python -m pip install --quiet -e '.[ros,test]'
+	$(VENV)/bin/python -m pip install --quiet -e '.[ros,viz,record,progress,test]'
 	$(VENV)/bin/python -m sm_ros.warmup
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(VENV)/bin/sim_node $(ARGS)
+	@if [ "$(FOXGLOVE_PORT)" != "0" ]; then \
+	  echo "Live view: open Foxglove (https://app.foxglove.dev or the desktop app), 'Open connection'," \
+	       "Foxglove WebSocket, ws://localhost:$(FOXGLOVE_PORT)"; fi
+	$(VENV)/bin/sim_node --ros-args -p foxglove.port:=$(FOXGLOVE_PORT) $(ARGS)
 
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest -q test $(PYTEST_ARGS)

@@ -15,11 +15,14 @@ from sm_ros.stats import TickStats
 HARDWARE_ID = 'sm_ros'
 
 #: Every key of the solver status, in the order it is published (interface.md, plus the
-#: last three, which are sm_ros extras).
+#: sm_ros extras from momentum_drift_measured on). A tick's time splits into the steps
+#: (step_ms_mean x substeps), publishing (publish_ms_mean: building and sending what is
+#: consumed) and the rest (other_ms_mean: parameter changes, checks, momentum).
 KEYS = ('points', 'bodies', 'clusters', 'mode', 'step_ms_mean', 'step_ms_max',
         'publish_ms_mean', 'tick_ms_max', 'rate_target_hz', 'rate_achieved_hz',
         'real_time_factor', 'overruns', 'shape_error_rms_m', 'momentum_drift',
-        'momentum_drift_measured', 'nonfinite_resets', 'refused_messages')
+        'momentum_drift_measured', 'nonfinite_resets', 'refused_messages', 'tick_ms_mean',
+        'other_ms_mean', 'recording', 'recorder_messages', 'recorder_dropped')
 
 
 def fmt(value: float) -> str:
@@ -34,14 +37,20 @@ def fmt(value: float) -> str:
 def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, bodies: int,
                   clusters: int, mode: str, rate_target_hz: float, shape_error_rms_m: float,
                   momentum_drift: Optional[float], refused_messages: int,
-                  paused: bool = False) -> DiagnosticStatus:
+                  paused: bool = False, recording: str = '', recorder_messages: int = 0,
+                  recorder_dropped: int = 0, recorder_dropped_window: int = 0
+                  ) -> DiagnosticStatus:
     """
     Build the '<node name>: solver' status for the window that ends at ``now``.
 
-    Level: ERROR when a body went non-finite in the window, else WARN when ticks overran,
-    else OK.
+    Level: ERROR when a body went non-finite in the window, else WARN when ticks overran
+    or the recorder dropped messages in the window, else OK. ``recording`` is the folder
+    being recorded into ('' when not recording); ``recorder_*`` count over the recording.
     """
     span = max(now - stats.window_start, 1e-9)
+    tick_ms = 1e3 * stats.tick_s_sum / stats.ticks if stats.ticks else 0.0
+    step_ms = 1e3 * stats.step_s_sum / stats.ticks if stats.ticks else 0.0
+    publish_ms = 1e3 * stats.publish_s_sum / stats.ticks if stats.ticks else 0.0
     values = {
         'points': str(int(points)),
         'bodies': str(int(bodies)),
@@ -61,6 +70,11 @@ def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, 
         'momentum_drift_measured': 'true' if momentum_drift is not None else 'false',
         'nonfinite_resets': str(stats.nonfinite_total),
         'refused_messages': str(int(refused_messages)),
+        'tick_ms_mean': fmt(tick_ms),
+        'other_ms_mean': fmt(max(0.0, tick_ms - step_ms - publish_ms)),
+        'recording': recording,
+        'recorder_messages': str(int(recorder_messages)),
+        'recorder_dropped': str(int(recorder_dropped)),
     }
     status = DiagnosticStatus()
     status.name = f'{node_name}: solver'
@@ -73,6 +87,10 @@ def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, 
         status.level = DiagnosticStatus.WARN
         status.message = (f'{stats.overruns} of {stats.ticks} ticks overran the period '
                           f'of {fmt(1e3 / rate_target_hz)} ms')
+    elif recorder_dropped_window:
+        status.level = DiagnosticStatus.WARN
+        status.message = (f'the recorder dropped {int(recorder_dropped_window)} messages '
+                          '(the disk did not keep up)')
     else:
         status.level = DiagnosticStatus.OK
         status.message = 'paused' if paused else 'running'

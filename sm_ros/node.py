@@ -14,36 +14,45 @@ state.
 """
 
 import functools
+import os
 import sys
 import time
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List, Optional, Tuple
 
 from builtin_interfaces.msg import Time as TimeMsg
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose, PoseArray, PoseStamped, WrenchStamped
 import numpy as np
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType, SetParametersResult)
+                                ParameterEvent, ParameterType, SetParametersResult)
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import PointCloud2
 from sm_ros.cloud import CloudBuffer, CloudError, read_xyz
+from sm_ros.core.pose import BodyPose
 from sm_ros.diagnostics import diagnostic_array, solver_status
 from sm_ros.inputs import checked_points, InputError
 from sm_ros.markers import MarkerBuffer
 from sm_ros.params import BY_NAME, NODE_PARAMS, Param
 from sm_ros.rotations import quaternion_from_matrix
 from sm_ros.sim import ConfigError, Simulation  # noqa: F401 - ConfigError: for start-up
-from sm_ros.warmup import warm_up
+from sm_ros.warmup import cold_start_note, warm_up
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
 NODE_NAME = 'sim_node'
+#: Message types as recordings name them.
+POINTS_TYPE = 'sensor_msgs/msg/PointCloud2'
+POSES_TYPE = 'geometry_msgs/msg/PoseArray'
+MARKERS_TYPE = 'visualization_msgs/msg/MarkerArray'
+DIAGNOSTICS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'
+EVENTS_TYPE = 'rcl_interfaces/msg/ParameterEvent'
 #: How often the same topic's refusal is logged (seconds).
 REFUSAL_LOG_PERIOD = 1.0
 
@@ -120,7 +129,15 @@ class SimNode(Node):
             self.declare_parameter(p.name, p.default, descriptor(p))
         values = {p.name: _plain(self.get_parameter(p.name).value) for p in NODE_PARAMS}
         self.sim = Simulation(values, log=self.get_logger())
+        note = cold_start_note()
+        if note:
+            self.get_logger().info(note)
         self.warm_up_s = warm_up()
+        self.live = None          # sm_ros.live.FoxgloveView while foxglove.port != 0
+        self.recorder = None      # sm_ros.record.BagRecorder while recording
+        self._recorder_dropped_reported = 0
+        self._poser = BodyPose()
+        self._pose_key: Tuple[int, ...] = ()
 
         self.cloud = CloudBuffer(values['frame_id'])
         self._poses = PoseArray()
@@ -142,6 +159,7 @@ class SimNode(Node):
         self.create_service(Trigger, '~/reset', self.reset_callback)
         self.create_service(SetBool, '~/pause', self.pause_callback)
         self.create_service(Trigger, '~/step', self.step_callback)
+        self.create_service(SetBool, '~/record', self.record_callback)
         self.add_on_set_parameters_callback(self.validate_parameters_callback)
         self.add_post_set_parameters_callback(self.parameters_set_callback)
 
@@ -158,6 +176,13 @@ class SimNode(Node):
                            lambda c: self._set_publish_clock(c['publish_clock']))
         self.sim.on_change(['frame_id'], lambda c: setattr(self.cloud, 'frame_id',
                                                            c['frame_id']))
+        self.sim.on_change(['foxglove.port', 'foxglove.host'], lambda c: self._start_live())
+        self.sim.on_change(['frame_id'], lambda c: self.live is not None and setattr(
+            self.live, 'frame_id', c['frame_id']))
+        self.sim.on_change(['record.path'], lambda c: self._record_path_changed())
+        self._start_live()
+        if values['record.path']:
+            self._start_recording(values['record.path'])
         self.sim.stats.reset_window(time.monotonic())
         self.get_logger().info(
             f"scene '{values['scene'] or 'default'}': {len(self.world.bodies)} bodies, "
@@ -188,6 +213,10 @@ class SimNode(Node):
         """Refuse bad values with a reason; prepare a scene reload (nothing is applied)."""
         changes = {p.name: _plain(p.value) for p in params
                    if p.name in BY_NAME and BY_NAME[p.name].node}
+        path = changes.get('record.path')
+        if path and os.path.exists(path):
+            return SetParametersResult(successful=False, reason=(
+                f"record.path: '{path}' exists already (recordings are never overwritten)"))
         reason = self.sim.check(changes)
         if reason:
             return SetParametersResult(successful=False, reason=reason)
@@ -197,6 +226,12 @@ class SimNode(Node):
         """Queue accepted changes; the next tick applies them between two steps."""
         self.sim.queue({p.name: _plain(p.value) for p in params
                         if p.name in BY_NAME and BY_NAME[p.name].node})
+        if self.recorder is not None:
+            event = ParameterEvent(node=self.get_fully_qualified_name(),
+                                   changed_parameters=[p.to_parameter_msg() for p in params])
+            event.stamp = self.get_clock().now().to_msg()
+            self.recorder.write('/parameter_events', EVENTS_TYPE, serialize_message(event),
+                                time.time_ns(), self.sim.sim_ns)
 
     def apply_pending(self) -> None:
         """Apply queued parameter changes (the start of every tick does this)."""
@@ -235,31 +270,95 @@ class SimNode(Node):
         self.sim.tick()
 
     def publish(self) -> None:
-        """Publish the cloud, poses, clock and markers of the current state."""
-        stamp = stamp_from_ns(self.sim.sim_ns)
+        """
+        Send what is consumed (cloud, poses, markers, clock, live view).
+
+        Each output is built only when a ROS subscriber, the Foxglove view or the
+        recorder takes it (``get_subscription_count``, ``Channel.has_sinks``). While
+        recording, a message is serialised once and the same bytes go to the publisher
+        and the recorder.
+        """
+        ns = self.sim.sim_ns
+        stamp = stamp_from_ns(ns)
         bodies = self.world.bodies
-        self.pub_points.publish(self.cloud.fill([b.x for b in bodies], stamp))
+        live, rec = self.live, self.recorder
+        wall = time.time_ns() if rec is not None else 0
+        ros_points = self.pub_points.get_subscription_count() > 0
+        live_points = live is not None and live.wants_cloud()
+        if ros_points or live_points or rec is not None:
+            msg = self.cloud.fill([b.x for b in bodies], stamp)
+            self._send(self.pub_points, msg, ros_points, POINTS_TYPE, wall, ns)
+            if live_points:
+                live.log_cloud(self.cloud.msg.data, ns)
+        ros_poses = self.pub_poses.get_subscription_count() > 0
+        live_poses = live is not None and live.poses.has_sinks()
+        if ros_poses or live_poses or rec is not None:
+            coms, quats = self.body_poses()
+            if ros_poses or rec is not None:
+                self._send(self.pub_poses, self._pose_array(coms, quats, stamp), ros_poses,
+                           POSES_TYPE, wall, ns)
+            if live_poses:
+                live.log_poses(coms, quats, ns)
+        if self.pub_clock is not None:
+            self.pub_clock.publish(ClockMsg(clock=stamp))
+        ros_markers = self.pub_markers.get_subscription_count() > 0
+        live_surfaces = live is not None and live.surfaces.has_sinks()
+        if ros_markers or live_surfaces or rec is not None:
+            surfaces = self._surfaces()
+            if ros_markers or rec is not None:
+                markers = self._build_markers(stamp, surfaces)
+                if markers is not None:
+                    if ros_markers:
+                        self.pub_markers.publish(markers)
+                    if rec is not None:
+                        rec.write(self.pub_markers.topic_name, MARKERS_TYPE, markers, wall, ns)
+            if live_surfaces:
+                live.log_surfaces([(name, corners) for name, _, corners in surfaces], ns)
+        if live is not None:
+            from sm_ros.live import world_colliders
+            live.log_colliders(world_colliders(self.world), ns)
+
+    def _send(self, pub, msg, to_ros: bool, msgtype: str, wall: int, ns: int) -> None:
+        """Publish ``msg`` if ``to_ros``; record it (serialised once for both) if recording."""
+        if self.recorder is None:
+            if to_ros:
+                pub.publish(msg)
+            return
+        data = serialize_message(msg)
+        if to_ros:
+            pub.publish(data)
+        self.recorder.write(pub.topic_name, msgtype, data, wall, ns)
+
+    def body_poses(self) -> Tuple[np.ndarray, np.ndarray]:
+        """Return every body's centre of mass (B, 3) and rotation as quaternions (B, 4)."""
+        bodies = self.world.bodies
+        key = tuple(id(b) for b in bodies)
+        if key != self._pose_key:
+            self._poser.forget(keep=bodies)
+            self._pose_key = key
+        coms = np.empty((len(bodies), 3))
+        quats = np.empty((len(bodies), 4))
+        for i, body in enumerate(bodies):
+            com, rot = self._poser.pose(body)
+            coms[i] = com
+            quats[i] = quaternion_from_matrix(rot)
+        return coms, quats
+
+    def _pose_array(self, coms: np.ndarray, quats: np.ndarray, stamp) -> PoseArray:
         poses = self._poses
-        if len(poses.poses) != len(bodies):
-            poses.poses = [Pose() for _ in bodies]
+        if len(poses.poses) != len(coms):
+            poses.poses = [Pose() for _ in coms]
         poses.header.stamp = stamp
         poses.header.frame_id = self.sim.params['frame_id']
-        for pose, body in zip(poses.poses, bodies):
-            c = body.com()
+        for pose, c, q in zip(poses.poses, coms, quats):
             p = pose.position
             p.x, p.y, p.z = float(c[0]), float(c[1]), float(c[2])
             o = pose.orientation
-            o.x, o.y, o.z, o.w = quaternion_from_matrix(body.rotation())
-        self.pub_poses.publish(poses)
-        if self.pub_clock is not None:
-            self.pub_clock.publish(ClockMsg(clock=stamp))
-        if self.pub_markers.get_subscription_count() > 0:
-            markers = self._build_markers(stamp)
-            if markers is not None:
-                self.pub_markers.publish(markers)
+            o.x, o.y, o.z, o.w = float(q[0]), float(q[1]), float(q[2]), float(q[3])
+        return poses
 
-    def _build_markers(self, stamp) -> Optional[bytes]:
-        """Return the serialised MarkerArray of the bodies with a surface, or None."""
+    def _surfaces(self) -> List[Tuple[str, int, np.ndarray]]:
+        """Return (body name, body index, triangle corners (3F, 3)) of the mesh bodies."""
         surfaces = []
         for i, (body, meta) in enumerate(zip(self.world.bodies, self.metas)):
             surface = getattr(meta, 'surface', None)
@@ -267,6 +366,12 @@ class SimNode(Node):
                 continue
             verts = np.asarray(surface.vertices(body.x), dtype=np.float64)
             surfaces.append((body.name, i, verts[surface.faces].reshape(-1, 3)))
+        return surfaces
+
+    def _build_markers(self, stamp, surfaces=None) -> Optional[bytes]:
+        """Return the serialised MarkerArray of the bodies with a surface, or None."""
+        if surfaces is None:
+            surfaces = self._surfaces()
         if not surfaces and self._markers.key in (None, ()):
             return None            # nothing to show, and nothing shown that must go
         return self._markers.fill(surfaces, self.sim.params['frame_id'], stamp.sec,
@@ -276,15 +381,117 @@ class SimNode(Node):
 
     def diagnostics_callback(self) -> None:
         """Publish the solver status and start a new measurement window."""
-        self.pub_diagnostics.publish(diagnostic_array(self.solver_status(),
-                                                      stamp_from_ns(self.sim.sim_ns)))
+        status = self.solver_status()
+        ns = self.sim.sim_ns
+        wall = time.time_ns()
+        self._send(self.pub_diagnostics, diagnostic_array(status, stamp_from_ns(ns)), True,
+                   DIAGNOSTICS_TYPE, wall, ns)
+        if self.live is not None:
+            self.live.log_diagnostics({kv.key: kv.value for kv in status.values}, ns)
+        rec = self.recorder
+        if rec is not None:
+            self._recorder_dropped_reported = rec.dropped
+            if rec.error:
+                self.get_logger().error(f'recording into {rec.path} failed: {rec.error}; '
+                                        'stopped', throttle_duration_sec=60.0)
         self.sim.stats.reset_window(time.monotonic())
 
     def solver_status(self):
         """Return the '<node name>: solver' DiagnosticStatus of the current window."""
+        rec = self.recorder
+        recorder = {} if rec is None else {
+            'recording': str(rec.path), 'recorder_messages': rec.written,
+            'recorder_dropped': rec.dropped,
+            'recorder_dropped_window': rec.dropped - self._recorder_dropped_reported}
         return solver_status(self.get_name(), self.sim.stats, time.monotonic(),
                              refused_messages=sum(self.refused.values()), paused=self.paused,
-                             **self.sim.status_values())
+                             **recorder, **self.sim.status_values())
+
+    # ------------------------------------------------------------------ live view, recording
+
+    def _start_live(self) -> None:
+        """(Re)start the Foxglove live view on ``foxglove.port`` (0: stop it)."""
+        if self.live is not None:
+            self.live.close()
+            self.live = None
+        port = int(self.sim.params['foxglove.port'])
+        if port == 0:
+            return
+        try:
+            from sm_ros.live import FoxgloveView
+            self.live = FoxgloveView(port=port, host=self.sim.params['foxglove.host'],
+                                     name=self.get_fully_qualified_name(),
+                                     frame_id=self.sim.params['frame_id'])
+        except (ImportError, RuntimeError, OSError) as exc:
+            self.get_logger().error(f'foxglove.port {port}: no live view: {exc}')
+            return
+        self.get_logger().info(f'Foxglove live view on {self.live.url}: open Foxglove '
+                               f'(app or {self.live.app_url}) and connect to it')
+
+    def _start_recording(self, path: str) -> str:
+        """Start recording into ``path``; raise (FileExistsError, ...) with a reason."""
+        from sm_ros.record import BagRecorder
+        self.recorder = BagRecorder(path)
+        self._recorder_dropped_reported = 0
+        self.get_logger().info(f'recording into {path} (rosbag2, MCAP)')
+        return path
+
+    def stop_recording(self) -> Optional[dict]:
+        """Stop recording (close the file, write metadata.yaml); return the metadata."""
+        rec, self.recorder = self.recorder, None
+        if rec is None:
+            return None
+        meta = rec.close()['rosbag2_bagfile_information']
+        self.get_logger().info(f"recorded {meta['message_count']} messages into {rec.path}"
+                               + (f' ({rec.dropped} dropped)' if rec.dropped else ''))
+        return meta
+
+    def _record_path_changed(self) -> None:
+        self.stop_recording()
+        path = self.sim.params['record.path']
+        if path:
+            try:
+                self._start_recording(path)
+            except Exception as exc:  # noqa: B902 - any failure: log it, keep running
+                self.get_logger().error(f'record.path: not recording: {exc}')
+
+    def record_callback(self, request: SetBool.Request, response: SetBool.Response):
+        """Start (true: into record.path, or sm_ros_<date>_<time>) or stop recording."""
+        if not request.data:
+            meta = self.stop_recording()
+            response.success = meta is not None
+            response.message = 'not recording' if meta is None else \
+                f"stopped: {meta['message_count']} messages"
+            return response
+        if self.recorder is not None:
+            response.success = False
+            response.message = f'already recording into {self.recorder.path}'
+            return response
+        path = self.sim.params['record.path'] or time.strftime('sm_ros_%Y%m%d_%H%M%S')
+        if not self.sim.params['record.path']:
+            base, k = path, 1
+            while os.path.exists(path):
+                k += 1
+                path = f'{base}_{k}'
+        try:
+            self._start_recording(path)
+        except Exception as exc:  # noqa: B902 - the reason goes back to the caller
+            response.success = False
+            response.message = f'not recording: {exc}'
+            return response
+        response.success = True
+        response.message = f'recording into {os.path.abspath(path)}'
+        return response
+
+    def destroy_node(self):
+        """Close the recording (a readable file) and the live view, then the node."""
+        try:
+            self.stop_recording()
+        finally:
+            if self.live is not None:
+                self.live.close()
+                self.live = None
+        return super().destroy_node()
 
     # ------------------------------------------------------------------ inputs
 

@@ -196,6 +196,13 @@ TABLE: Tuple[Param, ...] = (
           'downsampling)', '', 1, 10_000_000),
     Param('cloud_in_mode', 'replace', 'A cloud_in body replaces the scene bodies or joins '
           'them', choices=CLOUD_IN_MODES),
+    Param('foxglove.port', 0, "Port of the Foxglove live view (WebSocket; needs the 'viz' "
+          "extra); 0: off. Foxglove's own default is 8765 (make run uses it)", '', 0, 65535),
+    Param('foxglove.host', '127.0.0.1', 'Interface the Foxglove live view listens on '
+          '(0.0.0.0: every interface, reachable from other machines)', nonempty=True),
+    Param('record.path', '', "Record the published topics into this rosbag2 folder (MCAP; "
+          "needs the 'record' extra; it must not exist yet); '': not recording. The "
+          '~/record service starts and stops recordings too'),
     Param('damping', 0.0, "Fraction of each particle's velocity relative to its clusters' "
           'rigid motion removed per step (momentum-preserving; not in the paper)', '',
           0.0, 1.0, node=False, scene_override=True, core_field='damping'),

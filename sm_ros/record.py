@@ -243,11 +243,15 @@ class BagRecorder:
 
     # ------------------------------------------------------------------ producer side
 
-    def write(self, topic: str, msgtype: str, data, stamp_ns: int) -> bool:
+    def write(self, topic: str, msgtype: str, data, stamp_ns: int,
+              publish_ns: Optional[int] = None) -> bool:
         """
         Queue one serialised (CDR) message; return False if it was dropped.
 
-        ``data`` must not change afterwards (``bytes`` from ``serialize_message``).
+        ``stamp_ns`` is the log time (the time it was recorded, as ``ros2 bag record``
+        stores it; replay follows it); ``publish_ns`` the message's own time (the node
+        gives its simulation time; default: ``stamp_ns``). ``data`` must not change
+        afterwards (``bytes`` from ``serialize_message``).
         """
         if self._closed:
             return False
@@ -258,7 +262,8 @@ class BagRecorder:
                 return False
             self._queued_bytes += n
         try:
-            self._queue.put_nowait((topic, msgtype, data, int(stamp_ns)))
+            self._queue.put_nowait((topic, msgtype, data, int(stamp_ns),
+                                    int(stamp_ns if publish_ns is None else publish_ns)))
         except queue.Full:
             with self._lock:
                 self._queued_bytes -= n
@@ -304,7 +309,7 @@ class BagRecorder:
             if item is not None and item[0] is None:
                 break
             if item is not None:
-                topic, msgtype, data, stamp = item
+                topic, msgtype, data, stamp, pub = item
                 with self._lock:
                     self._queued_bytes -= len(data)
                 if self.error is None:
@@ -312,7 +317,7 @@ class BagRecorder:
                         cid = self._channel(topic, msgtype)
                         seq = self.counts[topic]
                         self._writer.add_message(channel_id=cid, log_time=stamp, data=data,
-                                                 publish_time=stamp, sequence=seq)
+                                                 publish_time=pub, sequence=seq)
                         self.counts[topic] = seq + 1
                         self.written += 1
                         if self.start_ns is None or stamp < self.start_ns:
@@ -346,7 +351,7 @@ class BagRecorder:
         if self._closed:
             return self._metadata()
         self._closed = True
-        self._queue.put((None, None, None, 0))
+        self._queue.put((None, None, None, 0, 0))
         self._thread.join(timeout)
         meta = self._metadata()
         info = meta['rosbag2_bagfile_information']
@@ -385,10 +390,11 @@ def mcap_path(bag) -> Path:
     return files[0]
 
 
-def iter_raw(bag, topics: Optional[Sequence[str]] = None
+def iter_raw(bag, topics: Optional[Sequence[str]] = None, publish_time: bool = False
              ) -> Iterator[Tuple[str, str, int, bytes]]:
     """
-    Yield (topic, schema name, log time ns, CDR bytes) in file order.
+    Yield (topic, schema name, log time ns, CDR bytes) in file order (with
+    ``publish_time``: (topic, schema name, log time, CDR bytes, publish time)).
 
     Reads records one after the other (no index needed), so a file that was cut short by
     a crash is read up to its last complete chunk.
@@ -409,7 +415,10 @@ def iter_raw(bag, topics: Optional[Sequence[str]] = None
                 elif isinstance(rec, Message):
                     topic, schema = channels[rec.channel_id]
                     if topics is None or topic in topics:
-                        yield topic, schema, rec.log_time, rec.data
+                        if publish_time:
+                            yield topic, schema, rec.log_time, rec.data, rec.publish_time
+                        else:
+                            yield topic, schema, rec.log_time, rec.data
         except (McapError, EOFError, ValueError, OSError, KeyError):
             return   # a file cut short: everything before the cut was yielded
 
@@ -445,7 +454,7 @@ def repair(bag) -> dict:
         w.start(profile='ros2', library='sm_ros repair')
         sids: Dict[str, int] = {}
         cids: Dict[str, int] = {}
-        for topic, schema, stamp, data in iter_raw(src):
+        for topic, schema, stamp, data, pub in iter_raw(src, publish_time=True):
             if topic not in cids:
                 if schema not in sids:
                     sids[schema] = w.register_schema(schema, 'ros2msg',
@@ -454,7 +463,7 @@ def repair(bag) -> dict:
                                                  metadata=chan_meta.get(topic, {}))
                 topics[topic] = schema
                 counts[topic] = 0
-            w.add_message(cids[topic], log_time=stamp, data=data, publish_time=stamp,
+            w.add_message(cids[topic], log_time=stamp, data=data, publish_time=pub,
                           sequence=counts[topic])
             counts[topic] += 1
             start = stamp if start is None else min(start, stamp)

@@ -9,10 +9,10 @@ Usage::
 SCENE is a bundled scene name or a YAML path, or a recording (a rosbag2 MCAP folder made
 by the node's ``~/record`` service or ``ros2 bag record``, or its ``.mcap`` file): then the
 recorded ``points`` clouds are drawn (``--seconds`` from the start of the recording, frames
-picked every 1/``--fps`` s of the clouds' stamps; ``--topic`` picks the cloud topic,
-default: the first PointCloud2 topic) and nothing is simulated. The output type follows the
-extension of ``--out``: ``.gif`` (animated, via Pillow) or ``.png`` (``--frames`` panels
-side by side).
+picked every 1/``--fps`` s of the clouds' simulation time (MCAP publish time); ``--topic``
+picks the cloud topic, default: the first PointCloud2 topic) and nothing is simulated. The
+output type follows the extension of ``--out``: ``.gif`` (animated, via Pillow) or ``.png``
+(``--frames`` panels side by side).
 The simulation uses the node's defaults (``sm_ros.params.scene_defaults()``, ``--dt`` like the
 node's ``dt``); ``--set key=value`` changes a node parameter for the run. Drawing uses
 matplotlib's Agg backend, so it runs without a display.
@@ -163,13 +163,14 @@ def load_recording(bag: str, seconds: Optional[float] = None, fps: float = 10.0,
                         topic = ch.topic
                     if ch.topic != topic:
                         continue
+                    t = rec.publish_time     # the simulation time the node stamped
                     if t0 is None:
-                        t0 = next_t = rec.log_time
-                    if seconds is not None and rec.log_time - t0 > seconds * 1e9 + 1:
+                        t0 = next_t = t
+                    if seconds is not None and t - t0 > seconds * 1e9 + 1:
                         break
-                    if rec.log_time + 1 >= next_t:
-                        frames_raw.append((rec.log_time, sc, rec.data))
-                        next_t += period * max(1, int((rec.log_time - next_t) // period) + 1)
+                    if t + 1 >= next_t:
+                        frames_raw.append((t, sc, rec.data))
+                        next_t += period * max(1, int((t - next_t) // period) + 1)
         except Exception:  # noqa: BLE001 - a file cut short: keep what was read
             pass
     if not frames_raw:

@@ -35,6 +35,7 @@ class TickStats:
         self.publish_s_sum = 0.0
         self.publishes = 0
         self.tick_s_max = 0.0
+        self.tick_s_sum = 0.0
         self.sim_s = 0.0
         self.overruns = 0
         self.nonfinite: List[str] = []
@@ -54,6 +55,7 @@ class TickStats:
     def add_tick(self, seconds: float, sim_seconds: float, period: float) -> bool:
         """Record one tick; returns True when it overran ``period``."""
         self.ticks += 1
+        self.tick_s_sum += seconds
         self.sim_s += sim_seconds
         if seconds > self.tick_s_max:
             self.tick_s_max = seconds
@@ -76,21 +78,34 @@ class MomentumDrift:
 
     ``drift`` is None until such a tick was measured; ``forget()`` starts over (a new
     world, a reset, a tick with an external force or a non-finite body).
+
+    The momentum is summed when it is needed, not every tick: once when a run of
+    conservative ticks starts (the reference) and when ``drift`` is read (the node reads
+    it for /diagnostics, once a second by default). ``world`` is a function returning the
+    current world; without it ``track`` sums at every tick, as before.
     """
 
-    def __init__(self):
-        """Start with nothing measured."""
+    def __init__(self, world=None):
+        """Start with nothing measured; ``world()`` returns the world ``drift`` measures."""
         self.reference: Optional[Tuple[np.ndarray, float]] = None
         self._drift = 0.0
+        self._world = world
+        self._stale = False
+        self.sums = 0       # how many times the momentum was summed (tests, benchmarks)
 
     @property
     def drift(self) -> Optional[float]:
         """Return |p - p_ref| / (sum of m |v|), or None when nothing was measured."""
-        return self._drift if self.reference is not None else None
+        if self.reference is None:
+            return None
+        if self._stale and self._world is not None:
+            self._update(self._world())
+        return self._drift
 
     def forget(self) -> None:
         """Drop the reference momentum."""
         self.reference = None
+        self._stale = False
 
     @staticmethod
     def conservative(world, held: bool) -> bool:
@@ -113,9 +128,9 @@ class MomentumDrift:
                     return False
         return True
 
-    @staticmethod
-    def measure(world) -> Tuple[np.ndarray, float]:
+    def measure(self, world) -> Tuple[np.ndarray, float]:
         """Return the total momentum and its scale (sum of m |v|)."""
+        self.sums += 1
         p = np.zeros(3)
         scale = 0.0
         for b in world.bodies:
@@ -123,12 +138,24 @@ class MomentumDrift:
             scale += float(np.dot(b.m, np.linalg.norm(b.v, axis=1)))
         return p, scale
 
-    def track(self, world, before: Tuple[np.ndarray, float]) -> None:
-        """Update the drift after a conservative tick that started with ``before``."""
+    def needs_reference(self) -> bool:
+        """Return True when the next conservative tick must measure its start."""
+        return self.reference is None
+
+    def track(self, world, before: Optional[Tuple[np.ndarray, float]]) -> None:
+        """After a conservative tick that started with ``before`` (None: the reference is
+        already there): the drift is measured now, or on reading ``drift``."""
         if self.reference is None:
             self.reference = before
+        if self._world is not None:
+            self._stale = True
+        else:
+            self._update(world)
+
+    def _update(self, world) -> None:
         p_ref, s_ref = self.reference
         p_now, s_now = self.measure(world)
         denom = max(s_ref, s_now, 1e-300)
         self._drift = float(np.linalg.norm(p_now - p_ref)) / denom \
             if denom > 1e-300 else 0.0
+        self._stale = False

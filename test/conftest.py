@@ -222,3 +222,8 @@ def cube_scene(scene_file):
 def two_body_scene(scene_file):
     """Path of TWO_BODY_SCENE."""
     return scene_file(TWO_BODY_SCENE)
+
+
+def pytest_configure(config):
+    """Register the ``slow`` marker (end-to-end tests; ``make test`` still runs them)."""
+    config.addinivalue_line('markers', 'slow: a slow end-to-end test (still run by make test)')

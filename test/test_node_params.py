@@ -12,7 +12,8 @@ import pytest
 
 pytest.importorskip('rclpy', reason='ROS 2 wheels not installed (pip install -e .[ros])')
 
-from rcl_interfaces.msg import ParameterType  # noqa: E402, I100
+from geometry_msgs.msg import PoseArray  # noqa: E402, I100
+from rcl_interfaces.msg import ParameterType  # noqa: E402
 from rcl_interfaces.srv import DescribeParameters, SetParameters  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
@@ -25,6 +26,8 @@ INTERFACE_PARAMS = ('mode', 'alpha', 'beta', 'plasticity.yield', 'plasticity.cre
                     'ground.enabled', 'ground.height', 'ground.friction', 'ground.restitution',
                     'grab_radius', 'force_timeout', 'scene', 'frame_id', 'publish_clock',
                     'diagnostics_rate', 'max_points', 'cloud_in_mode', 'material_dt')
+#: Parameters sm_ros adds to the interface (live view and recording).
+EXTRA_PARAMS = ('foxglove.port', 'foxglove.host', 'record.path')
 
 
 def set_param(node, name, value):
@@ -51,14 +54,15 @@ def refused(node, name, value, reason=None):
 
 def test_every_interface_parameter_is_declared_with_a_description(ros, cube_scene):
     node = ros.start(cube_scene)
-    assert {p.name for p in PARAMS} == set(INTERFACE_PARAMS)
+    assert {p.name for p in PARAMS} == set(INTERFACE_PARAMS) | set(EXTRA_PARAMS)
     for p in PARAMS:
         d = node.describe_parameter(p.name)
         assert d.description, p.name
         if d.type == ParameterType.PARAMETER_DOUBLE and p.name not in ('ground.height',):
             assert d.floating_point_range, p.name
         if d.type == ParameterType.PARAMETER_INTEGER:
-            assert d.integer_range and d.integer_range[0].from_value == 1, p.name
+            lowest = 0 if p.name == 'foxglove.port' else 1
+            assert d.integer_range and d.integer_range[0].from_value == lowest, p.name
     assert node.describe_parameter('alpha').floating_point_range[0].to_value == 1.0
     assert node.get_parameter('gravity').type_ == Parameter.Type.DOUBLE_ARRAY
 
@@ -315,11 +319,12 @@ def test_bundled_scene_by_name(ros):
 def test_frame_id(ros, cube_scene):
     node = ros.start(cube_scene)
     clouds = ros.subscribe(PointCloud2, 'points')
+    poses = ros.subscribe(PoseArray, 'poses')     # poses are built only when consumed
     assert set_param(node, 'frame_id', 'map').successful
     node.tick()
-    assert ros.spin_until(lambda: clouds)
+    assert ros.spin_until(lambda: clouds and poses)
     assert clouds[-1].header.frame_id == 'map'
-    assert node._poses.header.frame_id == 'map'
+    assert poses[-1].header.frame_id == 'map'
     refused(node, 'frame_id', '', 'empty')
 
 

@@ -106,9 +106,11 @@ def test_ci_runs_make_test():
     assert 'make test' in ci
     assert os.access(ROOT / '.ci' / 'run', os.X_OK)
     mk = (ROOT / 'Makefile').read_text()
-    assert "pip install --quiet -e '.[ros,test]'" in mk
+    assert "pip install --quiet -e '.[ros,viz,record,progress,test]'" in mk
     assert '$(VENV)/bin/python -m pytest -q test' in mk
-    assert '$(VENV)/bin/sim_node $(ARGS)' in mk
+    # make run starts the live view and prints where to connect
+    assert '$(VENV)/bin/sim_node --ros-args -p foxglove.port:=$(FOXGLOVE_PORT) $(ARGS)' in mk
+    assert 'FOXGLOVE_PORT ?= 8765' in mk and 'ws://localhost:$(FOXGLOVE_PORT)' in mk
     assert '$(VENV)/bin/python -m sm_ros.warmup' in mk   # kernels compiled at set-up
 
 

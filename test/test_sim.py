@@ -222,6 +222,23 @@ def test_momentum_drift_is_measured_without_external_force(cube):
     assert cube.status_values()['momentum_drift'] is None
 
 
+def test_momentum_is_summed_once_per_run_and_when_read(cube):
+    """Not twice per tick: once for the reference, then only when the drift is read."""
+    body = cube.world.body('cube')
+    body.set_state(v=np.tile([0.1, 0.0, 0.0], (27, 1)) + np.linspace(0, 0.05, 27)[:, None])
+    p0 = body.momentum().copy()
+    for _ in range(50):
+        cube.tick()
+    assert cube.momentum.sums == 1
+    drift = cube.momentum.drift
+    assert cube.momentum.sums == 2
+    scale = float(np.dot(body.m, np.linalg.norm(body.v, axis=1)))
+    assert drift == pytest.approx(np.linalg.norm(body.momentum() - p0) / scale, abs=1e-15)
+    assert cube.momentum.drift == drift and cube.momentum.sums == 2     # not summed again
+    cube.tick()
+    assert cube.status_values()['momentum_drift'] is not None and cube.momentum.sums == 3
+
+
 def test_hooks_see_ticks_and_changes(cube):
     ticks, changes = [], []
     cube.add_tick_listener(lambda sim: ticks.append(sim.sim_ns))
