@@ -22,9 +22,7 @@ import pytest
 
 pytest.importorskip('rclpy', reason='ROS 2 wheels not installed (pip install -e .[ros])')
 
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import PoseArray  # noqa: E402
-from rcl_interfaces.msg import SetParametersResult  # noqa: E402, F401
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from sm_ros.cloud import read_xyz, structured_view  # noqa: E402
