@@ -57,9 +57,9 @@ def test_scaling_subcommand_as_a_process(tmp_path):
 
 
 def test_soak_hook_hands_over_its_arguments(monkeypatch):
-    import sm_ros.soak
+    import sm_ros.bench.soak
     seen = []
-    monkeypatch.setattr(sm_ros.soak, 'main', lambda argv: seen.append(list(argv)) or 7)
+    monkeypatch.setattr(sm_ros.bench.soak, 'main', lambda argv: seen.append(list(argv)) or 7)
     assert main(['soak', '--seconds', '1']) == 7        # its exit code comes back
     assert seen == [['--seconds', '1']]
 

@@ -1,7 +1,7 @@
 """
-A 5-second soak of sim_node (issue 6, endurance; ``sm_ros.soak``).
+A 5-second soak of sim_node (issue 6, endurance; ``sm_ros.bench.soak``).
 
-The same processes as ``python -m sm_ros.soak --seconds 60`` (node, driver with 1,000 force
+The same processes as ``python -m sm_ros.bench.soak --seconds 60`` (node, driver with 1,000 force
 messages/s, parameter changes at 50 Hz and grab/release, two cloud subscribers), for 5
 measured seconds and with a 27,000-point box instead of 100,000 (a 2-core CI machine runs
 all five processes). Asserted: no process crashed, the state stayed finite, resident memory
@@ -18,7 +18,7 @@ import pytest
 
 pytest.importorskip('rclpy', reason='ROS 2 wheels not installed (pip install -e .[ros])')
 
-from sm_ros import soak  # noqa: E402
+from sm_ros.bench import soak  # noqa: E402
 
 RSS_GROWTH_MB = 64.0
 POINTS = 27_000

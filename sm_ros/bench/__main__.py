@@ -8,14 +8,13 @@ Subcommands (each writes markdown + CSV tables and PNG plots into ``--out``):
 - ``accuracy``  work-precision: error at T = 2 s against ms of compute per simulated
   second for a dt/substeps/mode/clusters sweep, one plot per scene;
 - ``node``      the ROS node publishing clouds at 30/60 Hz (needs rclpy);
-- ``soak``      hands over to ``sm_ros.soak:main`` when that module exists;
+- ``soak``      hands over to ``sm_ros.bench.soak:main`` (the soak test);
 - ``all``       scaling + accuracy + node (the default).
 
 ``targets.md`` lists the issue's targets with the figures this run measured.
 """
 
 import argparse
-import importlib
 import json
 from pathlib import Path
 import shlex
@@ -45,22 +44,13 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument('--quick', action='store_true', help='tiny sizes (a smoke run)')
     for mod, _ in parts.values():
         mod.add_arguments(sp)
-    sub.add_parser('soak', help='long-running soak test (sm_ros.soak:main)', add_help=False)
+    sub.add_parser('soak', help='long-running soak test (sm_ros.bench.soak)', add_help=False)
     return p
 
 
 def _run_soak(argv: List[str]) -> int:
-    try:
-        mod = importlib.import_module('sm_ros.soak')
-    except ImportError as exc:
-        print(f'soak: sm_ros.soak is not available ({exc})', file=sys.stderr)
-        return 2
-    main = getattr(mod, 'main', None)
-    if main is None:
-        print('soak: sm_ros.soak has no main()', file=sys.stderr)
-        return 2
-    rc = main(argv)
-    return int(rc or 0)
+    from sm_ros.bench import soak
+    return int(soak.main(argv) or 0)
 
 
 def main(argv: Optional[List[str]] = None) -> int:

@@ -13,7 +13,7 @@ import platform
 import subprocess
 import sys
 import time
-from typing import Any, Dict, Iterable, List, Optional, Sequence
+from typing import Any, Dict, List, Optional, Sequence
 
 import numpy as np
 
@@ -193,16 +193,6 @@ def _cpu_name() -> str:
     return platform.processor() or 'unknown'
 
 
-def command_line() -> str:
-    """Return the command line of this run, as one would type it."""
-    args = ' '.join(_quote(a) for a in sys.argv[1:])
-    return f'python -m sm_ros.bench {args}'.strip()
-
-
-def _quote(a: str) -> str:
-    return a if a and all(c.isalnum() or c in '-_=./,:' for c in a) else repr(a)
-
-
 def run_json_subprocess(cmd: List[str], timeout: float, cwd: Optional[str] = None,
                         env: Optional[Dict[str, str]] = None) -> Optional[Dict[str, Any]]:
     """Run ``cmd``; return the JSON object on its last stdout line, or None on failure."""
@@ -243,8 +233,3 @@ def ints(text: str) -> List[int]:
     """'1,2,4' -> [1, 2, 4] (accepts 1e3-style numbers)."""
     return [int(float(t)) for t in as_list(text, str)]
 
-
-def chunks(seq: Iterable[Any], n: int) -> List[List[Any]]:
-    """Split ``seq`` into lists of at most n items."""
-    seq = list(seq)
-    return [seq[i:i + n] for i in range(0, len(seq), n)]

@@ -13,18 +13,15 @@ node's publish call to the subscriber's callback (both processes read the same w
 """
 
 import argparse
-import os
 from pathlib import Path
-import random
 import subprocess
-import sys
 import tempfile
 import time
 from typing import Any, Dict, List, Optional
 
 import numpy as np
 
-from . import common as bc
+from . import common as bc, harness
 
 
 def add_arguments(p: argparse.ArgumentParser):
@@ -60,50 +57,6 @@ def node_ready() -> Optional[str]:
     return None
 
 
-def scene_yaml(points: int, path: Path, damping: float = 0.0):
-    """Write a scene with one box of about ``points`` particles resting on the ground."""
-    n = bc.lattice_side(points)
-    spacing = 0.01
-    size = (n - 1) * spacing
-    path.write_text(
-        'description: benchmark box\n'
-        'bodies:\n'
-        '  - name: box\n'
-        '    shape: box\n'
-        f'    size: [{size:.6f}, {size:.6f}, {size:.6f}]\n'
-        f'    spacing: {spacing}\n'
-        '    mass: 1.0\n'
-        f'    damping: {float(damping)}\n'
-        f'    position: [0.0, 0.0, {size / 2 + 0.001:.6f}]\n')
-    return n ** 3
-
-
-def dds_profile(flag: Optional[str]) -> Optional[str]:
-    """Return the Fast DDS profile file to use, or None for the DDS defaults."""
-    if flag == '':
-        return None
-    if flag:
-        return str(Path(flag).resolve())
-    if os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE'):
-        return os.environ['FASTRTPS_DEFAULT_PROFILES_FILE']
-    cand = Path(__file__).resolve().parents[2] / 'config' / 'fastdds_shm.xml'
-    return str(cand) if cand.is_file() else None
-
-
-def _env(profile: Optional[str]) -> Dict[str, str]:
-    env = dict(os.environ)
-    env.setdefault('ROS_DOMAIN_ID', str(random.randint(101, 200)))
-    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    if profile:
-        env['RMW_IMPLEMENTATION'] = 'rmw_fastrtps_cpp'
-        env['FASTRTPS_DEFAULT_PROFILES_FILE'] = profile
-    else:
-        env.pop('FASTRTPS_DEFAULT_PROFILES_FILE', None)
-    root = str(Path(__file__).resolve().parents[2])
-    env['PYTHONPATH'] = root + os.pathsep + env.get('PYTHONPATH', '')
-    return env
-
-
 def measure(points: int, rate: float, args, tmp: Path) -> Optional[Dict[str, Any]]:
     """Run the node(s) and one subscriber process per node for one (size, rate)."""
     rows = measure_many(points, rate, args, tmp)
@@ -126,22 +79,20 @@ def measure_many(points: int, rate: float, args, tmp: Path) -> List[Dict[str, An
     import json
     count = max(1, int(getattr(args, 'node_count', 1)))
     scene = tmp / f'bench_{points}.yaml'
-    scene_yaml(points, scene, getattr(args, 'node_damping', 0.0))
-    env = _env(dds_profile(args.node_dds_profile))
+    harness.box_scene(bc.lattice_side(points) ** 3, scene, getattr(args, 'node_damping', 0.0))
+    env = harness.ros_env(profile=harness.dds_profile(args.node_dds_profile))
     warm = 2.0 + count * points / 2e5
-    py = [sys.executable, '-m', 'sm_ros.bench.node_procs']
     sub_seconds = args.node_seconds + warm + 10.0 + count * points / 1e5
     spaces = ['' if count == 1 else f'/sim_{i}' for i in range(count)]
-    subs = [subprocess.Popen(py + ['sub', '--seconds', f'{sub_seconds:.1f}', '--namespace', ns],
-                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                             text=True) for ns in spaces]
+    procs = 'sm_ros.bench.node_procs'
+    subs = [harness.spawn(procs, ['sub', '--seconds', f'{sub_seconds:.1f}', '--namespace', ns],
+                          env) for ns in spaces]
     time.sleep(1.0)
-    nodes = [subprocess.Popen(
-        py + ['node', '--scene', str(scene), '--rate', str(rate), '--seconds',
-              str(args.node_seconds), '--warmup', f'{warm:.1f}', '--substeps',
-              str(args.node_substeps), '--mode', args.node_mode, '--clusters',
-              str(args.node_clusters), '--namespace', ns],
-        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for ns in spaces]
+    nodes = [harness.spawn(
+        procs, ['node', '--scene', str(scene), '--rate', str(rate), '--seconds',
+                str(args.node_seconds), '--warmup', f'{warm:.1f}', '--substeps',
+                str(args.node_substeps), '--mode', args.node_mode, '--clusters',
+                str(args.node_clusters), '--namespace', ns], env) for ns in spaces]
     results = []
     for proc in nodes:
         try:
@@ -218,7 +169,7 @@ def run(args, out: Path) -> Dict[str, Any]:
                  f'{args.node_substeps} step(s) per tick, '
                  f'{max(1, int(getattr(args, "node_count", 1)))} node(s) side by side '
                  '(worst node shown), ground on, DDS profile: '
-                 f'{Path(dds_profile(args.node_dds_profile) or "defaults").name})')
+                 f'{Path(harness.dds_profile(args.node_dds_profile) or "defaults").name})')
     each = bc.Table('node_each', ['namespace'] + t.columns,
                     'Every node of the side-by-side runs (--node-count > 1)')
     findings: Dict[str, Any] = {'rows': []}

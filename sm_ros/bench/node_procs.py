@@ -14,41 +14,26 @@ import json
 import sys
 import time
 
+from . import harness
+
 
 def _node(a) -> dict:
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.parameter import Parameter
-    from sm_ros.node import SimNode
-
-    rclpy.init()
-    overrides = [Parameter('scene', value=a.scene), Parameter('rate', value=float(a.rate)),
-                 Parameter('dt', value=1.0 / (a.rate * a.substeps)),
-                 Parameter('substeps', value=int(a.substeps)),
-                 Parameter('mode', value=a.mode), Parameter('clusters', value=int(a.clusters))]
-    node = SimNode(parameter_overrides=overrides, namespace=a.namespace or None)
+    node, ex = harness.start_sim_node(
+        {'scene': a.scene, 'rate': float(a.rate), 'dt': 1.0 / (a.rate * a.substeps),
+         'substeps': int(a.substeps), 'mode': a.mode, 'clusters': int(a.clusters)},
+        a.namespace)
     rec = {'step': [], 'fill': [], 'publish': [], 'tick': [], 'sent': {}}
     measuring = [False]
+    harness.time_ticks(node, lambda start, s: measuring[0] and rec['tick'].append(s))
 
-    tick0 = node.tick
+    step0 = node.world.step
 
-    def tick():
+    def step(dt):
         t = time.perf_counter()
-        tick0()
+        step0(dt)
         if measuring[0]:
-            rec['tick'].append(time.perf_counter() - t)
-    node.tick = tick
-
-    def wrap_world():
-        step0 = node.world.step
-
-        def step(dt):
-            t = time.perf_counter()
-            step0(dt)
-            if measuring[0]:
-                rec['step'].append(time.perf_counter() - t)
-        node.world.step = step
-    wrap_world()
+            rec['step'].append(time.perf_counter() - t)
+    node.world.step = step
 
     fill0 = node.cloud.fill
 
@@ -71,8 +56,6 @@ def _node(a) -> dict:
             rec['publish'].append(time.perf_counter() - t)
     node.pub_points.publish = publish
 
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
     t_end_warm = time.monotonic() + a.warmup
     while time.monotonic() < t_end_warm:
         ex.spin_once(timeout_sec=0.05)
@@ -88,33 +71,18 @@ def _node(a) -> dict:
            'step_s': rec['step'], 'fill_s': rec['fill'], 'publish_s': rec['publish'],
            'tick_s': rec['tick'], 'sent': {str(k): v for k, v in rec['sent'].items()}}
     node.destroy_node()
+    import rclpy
     rclpy.try_shutdown()
     return out
 
 
 def _sub(a) -> dict:
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import PointCloud2
-
-    rclpy.init()
-    node = Node('bench_points_sub', namespace=a.namespace or None)
     got = []
 
-    def cb(msg):
-        got.append((msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
-                    time.time(), msg.width * msg.height))
-    node.create_subscription(PointCloud2, 'points', cb,
-                             QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE))
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    t_end = time.monotonic() + a.seconds
-    while time.monotonic() < t_end:
-        ex.spin_once(timeout_sec=0.05)
-    node.destroy_node()
-    rclpy.try_shutdown()
+    def on_cloud(msg, now):
+        got.append((msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec, now,
+                    msg.width * msg.height))
+    harness.spin_points(on_cloud, a.seconds, namespace=a.namespace, name='bench_points_sub')
     return {'received': [[str(s), t, n] for s, t, n in got]}
 
 
