@@ -98,9 +98,31 @@ def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, 
     return status
 
 
-def diagnostic_array(status: DiagnosticStatus, stamp) -> DiagnosticArray:
-    """Wrap one status in a DiagnosticArray stamped ``stamp``."""
+def contact_status(node_name: str, per_body) -> DiagnosticStatus:
+    """
+    Build the '<node name>: contacts' status from per-body contact figures.
+
+    ``per_body`` is ``{body: (contacts, deepest m)}`` of the last step
+    (``World.contact_stats``); keys ``<body>.contacts`` (particle-collider contacts of the
+    collider pass plus body-body pairs) and ``<body>.penetration_max_m``.
+    """
+    status = DiagnosticStatus()
+    status.name = f'{node_name}: contacts'
+    status.hardware_id = HARDWARE_ID
+    status.level = DiagnosticStatus.OK
+    total = sum(int(n) for n, _ in per_body.values())
+    status.message = f'{total} contacts'
+    values = []
+    for name, (n, depth) in per_body.items():
+        values.append(KeyValue(key=f'{name}.contacts', value=str(int(n))))
+        values.append(KeyValue(key=f'{name}.penetration_max_m', value=fmt(depth)))
+    status.values = values
+    return status
+
+
+def diagnostic_array(status, stamp) -> DiagnosticArray:
+    """Wrap one status (or a list of them) in a DiagnosticArray stamped ``stamp``."""
     msg = DiagnosticArray()
     msg.header.stamp = stamp
-    msg.status = [status]
+    msg.status = list(status) if isinstance(status, (list, tuple)) else [status]
     return msg

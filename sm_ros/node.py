@@ -35,7 +35,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import PointCloud2
 from sm_ros.cloud import CloudBuffer, CloudError, read_xyz
 from sm_ros.core.pose import BodyPose
-from sm_ros.diagnostics import diagnostic_array, solver_status
+from sm_ros.diagnostics import contact_status, diagnostic_array, solver_status
 from sm_ros.inputs import checked_points, InputError
 from sm_ros.markers import MarkerBuffer
 from sm_ros.params import BY_NAME, NODE_PARAMS, Param
@@ -52,6 +52,7 @@ POINTS_TYPE = 'sensor_msgs/msg/PointCloud2'
 POSES_TYPE = 'geometry_msgs/msg/PoseArray'
 MARKERS_TYPE = 'visualization_msgs/msg/MarkerArray'
 DIAGNOSTICS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'
+WRENCH_TYPE = 'geometry_msgs/msg/WrenchStamped'
 EVENTS_TYPE = 'rcl_interfaces/msg/ParameterEvent'
 #: How often the same topic's refusal is logged (seconds).
 REFUSAL_LOG_PERIOD = 1.0
@@ -148,12 +149,16 @@ class SimNode(Node):
         self.pub_diagnostics = self._publisher(DiagnosticArray, '/diagnostics',
                                                QoSProfile(depth=10))
         self.pub_markers = self._publisher(MarkerArray, 'markers', qos)
+        self.pub_collider_wrench = self._publisher(WrenchStamped, 'collider_wrench',
+                                                   QoSProfile(depth=10))
         self.pub_clock = None
         self._set_publish_clock(values['publish_clock'])
 
         self.create_subscription(WrenchStamped, 'force', self.force_callback, 10)
         self.create_subscription(PoseStamped, 'grab', self.grab_callback, 10)
         self.create_subscription(String, 'release', self.release_callback, 10)
+        self.create_subscription(PoseStamped, 'collider_pose', self.collider_pose_callback,
+                                 10)
         self.create_subscription(PointCloud2, 'cloud_in', self.cloud_in_callback,
                                  qos_profile_sensor_data)
         self.create_service(Trigger, '~/reset', self.reset_callback)
@@ -314,6 +319,17 @@ class SimNode(Node):
                         rec.write(self.pub_markers.topic_name, MARKERS_TYPE, markers, wall, ns)
             if live_surfaces:
                 live.log_surfaces([(name, corners) for name, _, corners in surfaces], ns)
+        wrenches = self.sim.collider_wrenches
+        ros_wrench = bool(wrenches) and self.pub_collider_wrench.get_subscription_count() > 0
+        if ros_wrench or (wrenches and rec is not None):
+            for name, (force, torque) in wrenches.items():
+                msg = WrenchStamped()
+                msg.header.stamp = stamp
+                msg.header.frame_id = name
+                f, t = msg.wrench.force, msg.wrench.torque
+                f.x, f.y, f.z = (float(v) for v in force)
+                t.x, t.y, t.z = (float(v) for v in torque)
+                self._send(self.pub_collider_wrench, msg, ros_wrench, WRENCH_TYPE, wall, ns)
         if live is not None:
             from sm_ros.live import world_colliders
             live.log_colliders(world_colliders(self.world), ns)
@@ -384,7 +400,11 @@ class SimNode(Node):
         status = self.solver_status()
         ns = self.sim.sim_ns
         wall = time.time_ns()
-        self._send(self.pub_diagnostics, diagnostic_array(status, stamp_from_ns(ns)), True,
+        statuses = [status]
+        contacts = self.world.contact_stats()
+        if any(n for n, _ in contacts.values()):
+            statuses.append(contact_status(self.get_name(), contacts))
+        self._send(self.pub_diagnostics, diagnostic_array(statuses, stamp_from_ns(ns)), True,
                    DIAGNOSTICS_TYPE, wall, ns)
         if self.live is not None:
             self.live.log_diagnostics({kv.key: kv.value for kv in status.values}, ns)
@@ -520,6 +540,12 @@ class SimNode(Node):
         """Attach particles to a named gripper (first pose) or move them with it."""
         p, q = msg.pose.position, msg.pose.orientation
         self.sim.grab(msg.header.frame_id, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w))
+
+    @guarded('collider_pose')
+    def collider_pose_callback(self, msg: PoseStamped) -> None:
+        """Move the kinematic collider named by frame_id to the pose by the next tick's end."""
+        p, q = msg.pose.position, msg.pose.orientation
+        self.sim.move_collider(msg.header.frame_id, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w))
 
     @guarded('release')
     def release_callback(self, msg: String) -> None:

@@ -99,8 +99,10 @@ class SceneSpec:
 
     Attributes:
         bodies: the bodies, in file order (copies expanded).
-        colliders: ``{'ground': None or dict, 'boxes': [{'lo', 'hi'}], 'spheres':
-            [{'center', 'radius'}]}``; ground None means "use the node's ground
+        colliders: ``{'ground': None or dict, 'boxes': [{'lo', 'hi', ...}], 'spheres':
+            [{'center', 'radius', ...}], 'capsules': [{'center', 'radius', 'length',
+            ...}]}`` (each with friction, restitution, kinematic and, when given, name,
+            orientation (x, y, z, w) and path); ground None means "use the node's ground
             parameters", a dict holds the keys the scene set (enabled, height, friction,
             restitution).
         source: the file it came from (or a label for scenes built in code).
@@ -340,11 +342,15 @@ def parse_scene(data: Any, source: str = '<scene>',
                      description=description.strip())
 
 
+#: Keys every box, sphere and capsule collider may have beside its geometry.
+_COLLIDER_KEYS = ('name', 'orientation', 'kinematic', 'path', 'friction', 'restitution')
+
+
 def _parse_colliders(where: _Where, raw: Any) -> Dict[str, Any]:
-    out: Dict[str, Any] = {'ground': None, 'boxes': [], 'spheres': []}
+    out: Dict[str, Any] = {'ground': None, 'boxes': [], 'spheres': [], 'capsules': []}
     if raw is None:
         return out
-    c = where.mapping('colliders', raw, ('ground', 'boxes', 'spheres'))
+    c = where.mapping('colliders', raw, ('ground', 'boxes', 'spheres', 'capsules'))
     g = c.get('ground')
     if isinstance(g, bool):
         out['ground'] = {'enabled': g}
@@ -363,35 +369,108 @@ def _parse_colliders(where: _Where, raw: Any) -> Dict[str, Any]:
             ground['restitution'] = where.number('colliders.ground.restitution',
                                                  gm['restitution'], ge=0.0, le=1.0)
         out['ground'] = ground
-    boxes = c.get('boxes', [])
-    if not isinstance(boxes, list):
-        raise where.error('colliders.boxes', f'must be a list, got {_fmt(boxes)}')
-    for i, b in enumerate(boxes):
-        key = f'colliders.boxes[{i}]'
-        bm = where.mapping(key, b, ('lo', 'hi', 'center', 'size', 'friction', 'restitution'))
-        if 'lo' in bm or 'hi' in bm:
-            if 'center' in bm or 'size' in bm:
-                raise where.error(key, 'takes either lo/hi or center/size, not both')
-            lo = where.vector(f'{key}.lo', bm.get('lo'), 3)
-            hi = where.vector(f'{key}.hi', bm.get('hi'), 3)
-        else:
-            centre = where.vector(f'{key}.center', bm.get('center'), 3)
-            size = where.vector(f'{key}.size', bm.get('size'), 3, gt=0.0)
-            lo, hi = centre - size / 2.0, centre + size / 2.0
-        if not np.all(hi > lo):
-            raise where.error(f'{key}.hi', f'must exceed lo in every axis, got lo '
-                                           f'{lo.tolist()} hi {hi.tolist()}')
-        out['boxes'].append({'lo': lo, 'hi': hi, **_contact(where, key, bm)})
-    spheres = c.get('spheres', [])
-    if not isinstance(spheres, list):
-        raise where.error('colliders.spheres', f'must be a list, got {_fmt(spheres)}')
-    for i, s in enumerate(spheres):
-        key = f'colliders.spheres[{i}]'
-        sm = where.mapping(key, s, ('center', 'radius', 'friction', 'restitution'))
-        out['spheres'].append({
-            'center': where.vector(f'{key}.center', sm.get('center'), 3),
-            'radius': where.number(f'{key}.radius', sm.get('radius'), gt=0.0),
-            **_contact(where, key, sm)})
+    names: Dict[str, str] = {}
+    for kind in ('boxes', 'spheres', 'capsules'):
+        items = c.get(kind, [])
+        if not isinstance(items, list):
+            raise where.error(f'colliders.{kind}', f'must be a list, got {_fmt(items)}')
+        for i, item in enumerate(items):
+            key = f'colliders.{kind}[{i}]'
+            if kind == 'boxes':
+                entry = _parse_box(where, key, item)
+            elif kind == 'spheres':
+                sm = where.mapping(key, item, ('center', 'radius') + _COLLIDER_KEYS)
+                entry = {'center': where.vector(f'{key}.center', sm.get('center'), 3),
+                         'radius': where.number(f'{key}.radius', sm.get('radius'), gt=0.0),
+                         **_collider_extras(where, key, sm)}
+            else:
+                cm = where.mapping(key, item, ('center', 'radius', 'length') + _COLLIDER_KEYS)
+                entry = {'center': where.vector(f'{key}.center', cm.get('center'), 3),
+                         'radius': where.number(f'{key}.radius', cm.get('radius'), gt=0.0),
+                         'length': where.number(f'{key}.length', cm.get('length', 0.0),
+                                                ge=0.0),
+                         **_collider_extras(where, key, cm)}
+            name = entry.get('name')
+            if name is not None:
+                if name in names:
+                    raise where.error(f'{key}.name', f"'{name}' is already the name of "
+                                                     f'{names[name]}')
+                names[name] = key
+            out[kind].append(entry)
+    return out
+
+
+def _parse_box(where: _Where, key: str, b: Any) -> Dict[str, Any]:
+    bm = where.mapping(key, b, ('lo', 'hi', 'center', 'size') + _COLLIDER_KEYS)
+    if 'lo' in bm or 'hi' in bm:
+        if 'center' in bm or 'size' in bm:
+            raise where.error(key, 'takes either lo/hi or center/size, not both')
+        lo = where.vector(f'{key}.lo', bm.get('lo'), 3)
+        hi = where.vector(f'{key}.hi', bm.get('hi'), 3)
+    else:
+        centre = where.vector(f'{key}.center', bm.get('center'), 3)
+        size = where.vector(f'{key}.size', bm.get('size'), 3, gt=0.0)
+        lo, hi = centre - size / 2.0, centre + size / 2.0
+    if not np.all(hi > lo):
+        raise where.error(f'{key}.hi', f'must exceed lo in every axis, got lo '
+                                       f'{lo.tolist()} hi {hi.tolist()}')
+    return {'lo': lo, 'hi': hi, **_collider_extras(where, key, bm)}
+
+
+def _collider_quat(where: _Where, key: str, raw: Any) -> np.ndarray:
+    """A unit quaternion (x, y, z, w) from [roll, pitch, yaw] or a quaternion."""
+    if isinstance(raw, (list, tuple)) and len(raw) == 4:
+        q = where.vector(key, raw, 4)
+        n = float(np.linalg.norm(q))
+        if not n > 1e-12:
+            raise where.error(key, f'quaternion must be non-zero, got {_fmt(raw)}')
+        return q / n
+    if isinstance(raw, (list, tuple)) and len(raw) == 3:
+        r, p, y = where.vector(key, raw, 3)
+        cr, sr = math.cos(r / 2), math.sin(r / 2)
+        cp, sp = math.cos(p / 2), math.sin(p / 2)
+        cy, sy = math.cos(y / 2), math.sin(y / 2)
+        return np.array([sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+                         cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy])
+    raise where.error(key, 'must be [roll, pitch, yaw] (radians) or a quaternion '
+                           f'[x, y, z, w], got {_fmt(raw)}')
+
+
+def _collider_extras(where: _Where, key: str, m: Mapping[str, Any]) -> Dict[str, Any]:
+    """Friction, restitution and the optional name, orientation, kinematic and path."""
+    out: Dict[str, Any] = _contact(where, key, m)
+    if 'name' in m:
+        name = m['name']
+        if not isinstance(name, str) or not name or any(ch.isspace() for ch in name):
+            raise where.error(f'{key}.name', 'must be a non-empty string without spaces, '
+                                             f'got {_fmt(name)}')
+        out['name'] = name
+    if 'orientation' in m:
+        out['orientation'] = _collider_quat(where, f'{key}.orientation', m['orientation'])
+    kinematic = where.boolean(f'{key}.kinematic', m['kinematic']) if 'kinematic' in m \
+        else False
+    if kinematic and 'name' not in out:
+        raise where.error(f'{key}.kinematic', 'needs a name (the frame_id of collider_pose)')
+    out['kinematic'] = kinematic
+    if 'path' in m:
+        if not kinematic:
+            raise where.error(f'{key}.path', 'needs kinematic: true')
+        path = m['path']
+        if not isinstance(path, list) or not path:
+            raise where.error(f'{key}.path', 'must be a non-empty list of {time, position'
+                                             f'[, orientation]}}, got {_fmt(path)}')
+        frames = []
+        last = 0.0
+        for j, f in enumerate(path):
+            fk = f'{key}.path[{j}]'
+            fm = where.mapping(fk, f, ('time', 'position', 'orientation'))
+            t = where.number(f'{fk}.time', fm.get('time'), gt=last)
+            last = t
+            pos = where.vector(f'{fk}.position', fm.get('position'), 3)
+            quat = _collider_quat(where, f'{fk}.orientation', fm['orientation']) \
+                if 'orientation' in fm else None
+            frames.append((t, pos, quat))
+        out['path'] = frames
     return out
 
 
@@ -715,23 +794,41 @@ def add_spec_body(world, body: BodySpec, defaults: Optional[Mapping[str, Any]] =
                     shape=body.shape)
 
 
+def core_colliders(colliders: Mapping[str, Any]):
+    """(boxes, spheres, capsules) as sm_ros.core Box / Sphere / Capsule from a scene's
+    parsed ``colliders``."""
+    from sm_ros.core import Box, Capsule, Sphere
+
+    def extra(c):
+        out = {'friction': c.get('friction', 0.5), 'restitution': c.get('restitution', 0.0),
+               'name': c.get('name'), 'kinematic': bool(c.get('kinematic', False))}
+        if c.get('orientation') is not None:
+            out['orientation'] = tuple(float(v) for v in c['orientation'])
+        if c.get('path'):
+            out['path'] = tuple(c['path'])
+        return out
+    boxes = [Box(lo=tuple(b['lo']), hi=tuple(b['hi']), **extra(b))
+             for b in colliders.get('boxes', [])]
+    spheres = [Sphere(center=tuple(s['center']), radius=float(s['radius']), **extra(s))
+               for s in colliders.get('spheres', [])]
+    capsules = [Capsule(center=tuple(c['center']), radius=float(c['radius']),
+                        length=float(c['length']), **extra(c))
+                for c in colliders.get('capsules', [])]
+    return boxes, spheres, capsules
+
+
 def build_world(spec: SceneSpec, defaults: Optional[Mapping[str, Any]] = None):
     """
     A new sm_ros.core.World holding the scene: gravity from `defaults`, colliders (the
     ground per :func:`ground_from`), and every body. Returns (world, metas) with metas in
     the order of ``world.bodies``. Raises SceneError; no partial world is returned.
     """
-    from sm_ros.core import Box, Sphere, World
+    from sm_ros.core import World
     d = _merged(defaults)
     world = World(gravity=tuple(float(g) for g in d['gravity']))
-    world.set_colliders(
-        ground=ground_from(spec.colliders.get('ground'), d),
-        boxes=[Box(lo=tuple(b['lo']), hi=tuple(b['hi']), friction=b.get('friction', 0.5),
-                   restitution=b.get('restitution', 0.0))
-               for b in spec.colliders.get('boxes', [])],
-        spheres=[Sphere(center=tuple(s['center']), radius=float(s['radius']),
-                        friction=s.get('friction', 0.5), restitution=s.get('restitution', 0.0))
-                 for s in spec.colliders.get('spheres', [])])
+    boxes, spheres, capsules = core_colliders(spec.colliders)
+    world.set_colliders(ground=ground_from(spec.colliders.get('ground'), d), boxes=boxes,
+                        spheres=spheres, capsules=capsules)
     metas = [add_spec_body(world, b, d, spec.source) for b in spec.bodies]
     return world, metas
 

@@ -34,6 +34,7 @@ import numpy as np
 
 from sm_ros import params as table
 from sm_ros.inputs import checked_points, checked_wrench, Grippers, InputError
+from sm_ros.params import MAX_COORDINATE
 from sm_ros.stats import MomentumDrift, TickStats
 
 #: Seconds between two log lines about bodies that went non-finite.
@@ -104,7 +105,8 @@ def empty_world_like(world):
     """Return a World with ``world``'s gravity and colliders and no bodies."""
     from sm_ros.core import World
     new = World(gravity=tuple(float(g) for g in world.gravity))
-    new.set_colliders(ground=world.ground, boxes=world.boxes, spheres=world.spheres)
+    new.set_colliders(ground=world.ground, boxes=world.boxes, spheres=world.spheres,
+                      capsules=world.capsules)
     return new
 
 
@@ -174,6 +176,9 @@ class Simulation:
         self._prepared: Optional[PreparedScene] = None
         self.forces: Dict[str, float] = {}
         self.grippers = Grippers()
+        #: {collider name: (force, torque)} the bodies exerted on each named collider,
+        #: averaged over the last tick (world frame, torque about the collider's centre)
+        self.collider_wrenches: Dict[str, Tuple[np.ndarray, np.ndarray]] = {}
         self.sim_ns = 0
         self.cloud_count = 0
         self.momentum = MomentumDrift(lambda: self.world)
@@ -283,7 +288,8 @@ class Simulation:
             self.world.set_colliders(
                 ground=_scene_api().ground_from(self.spec.colliders.get('ground'),
                                                 scene_values(self.params)),
-                boxes=self.world.boxes, spheres=self.world.spheres)
+                boxes=self.world.boxes, spheres=self.world.spheres,
+                capsules=self.world.capsules)
         for names, fn in self._change_handlers:
             changed = {k: v for k, v in pending.items() if k in names}
             if changed:
@@ -362,6 +368,24 @@ class Simulation:
         """Release one gripper by name, or every gripper for ''."""
         self.grippers.release(self.world, gripper)
 
+    def move_collider(self, name: str, position, quaternion) -> None:
+        """Move kinematic collider ``name`` to a pose by the end of the next tick.
+
+        It gets there over the tick's ``substeps`` steps (position linearly, orientation by
+        slerp) at the linear and angular velocity that implies, which friction and
+        restitution see. Raises InputError (nothing changes) for an unknown or static
+        collider, NaN/Inf, a position beyond the coordinate range, or a zero or non-unit
+        quaternion.
+        """
+        pos = np.asarray(position, dtype=np.float64).reshape(-1)
+        if pos.shape == (3,) and np.isfinite(pos).all() and np.abs(pos).max() > MAX_COORDINATE:
+            raise InputError(f"position of collider '{name}' beyond +-{MAX_COORDINATE:g} m")
+        duration = float(self.params['dt']) * int(self.params['substeps'])
+        try:
+            self.world.move_collider(name, position, quaternion, duration)
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
+
     def add_cloud(self, points) -> Tuple[str, int]:
         """Add a body made from points (N, 3) as ``cloud_in_mode`` says; return its name, n."""
         mode = self.params['cloud_in_mode']
@@ -400,6 +424,7 @@ class Simulation:
             world.step(dt)
             stats.add_step(time.perf_counter() - s)
         self.sim_ns += substeps * int(round(dt * 1e9))
+        self.collider_wrenches = world.take_collider_wrenches()
         reset = self.reset_nonfinite()
         if measure and not reset:
             self.momentum.track(world, before)

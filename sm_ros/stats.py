@@ -117,7 +117,7 @@ class MomentumDrift:
         """
         if np.any(np.asarray(world.gravity) != 0.0) or held:
             return False
-        if world.boxes or world.spheres:
+        if world.boxes or world.spheres or getattr(world, 'capsules', ()):
             return False
         if any(len(b.pinned) for b in world.bodies):
             return False                                  # pins hold bodies in place

@@ -116,14 +116,16 @@ def warm_up(on_stage: Optional[Callable[[str], None]] = None) -> float:
     particles, so the node's first tick does not pay for compilation. With Numba's on-disk
     cache warm this takes a fraction of a second.
     """
-    from sm_ros.core import BodyParams, Box, Ground, Sphere, World
+    from sm_ros.core import BodyParams, Box, Capsule, Ground, Sphere, World
     t0 = time.perf_counter()
     g = np.linspace(-0.05, 0.05, 3)
     cube = np.stack(np.meshgrid(g, g, g, indexing='ij'), axis=-1).reshape(-1, 3)
     world = World(gravity=(0.0, 0.0, -9.81))
     world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.0),
                         boxes=[Box(lo=(1.0, 1.0, 0.0), hi=(2.0, 2.0, 1.0))],
-                        spheres=[Sphere(center=(-1.0, -1.0, 0.0), radius=0.5)])
+                        spheres=[Sphere(center=(-1.0, -1.0, 0.0), radius=0.5)],
+                        capsules=[Capsule(center=(0.3, 0.0, 0.0), radius=0.05, length=0.2,
+                                          name='warm_finger', kinematic=True)])
     configs = [BodyParams(mode='rigid'), BodyParams(mode='linear'),
                BodyParams(mode='quadratic', clusters=2, plastic_yield=0.01,
                           plastic_creep=1.0, plastic_max=0.5),
@@ -132,8 +134,14 @@ def warm_up(on_stage: Optional[Callable[[str], None]] = None) -> float:
                              name=f'warm{i}') for i, p in enumerate(configs)]
     bodies[0].set_wrench((0.0, 0.0, 1.0), (0.0, 0.0, 0.1))
     bodies[1].set_kinematic(np.array([0]), cube[:1] + (0.3, 0.0, 0.12))
+    world.move_collider('warm_finger', (0.3, 0.0, 0.05), (0.0, 0.0, 0.0, 1.0), 1.0 / 60.0)
     for _ in range(2):
         world.step(1.0 / 120.0)
+    # one body: the collider pass on the body's own buffers (another compiled variant)
+    solo = World(gravity=(0.0, 0.0, -9.81))
+    solo.set_colliders(capsules=[Capsule(center=(0.0, 0.0, 0.0), radius=0.05, length=0.1)])
+    solo.add_body(cube + (0.0, 0.0, 0.1), masses=0.01)
+    solo.step(1.0 / 120.0)
     if on_stage is not None:
         on_stage('world step')
     for b in bodies:

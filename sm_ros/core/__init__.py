@@ -5,7 +5,7 @@ No ROS here: the node, the scene loader, the benchmarks and the tests drive this
 """
 
 from .body import Body
-from .params import BodyParams, Box, Ground, MODES, Sphere
+from .params import BodyParams, Box, Capsule, Ground, MODES, Sphere
 from .world import World
 
-__all__ = ['Body', 'BodyParams', 'Box', 'Ground', 'MODES', 'Sphere', 'World']
+__all__ = ['Body', 'BodyParams', 'Box', 'Capsule', 'Ground', 'MODES', 'Sphere', 'World']

@@ -2,7 +2,7 @@
 
 from dataclasses import dataclass, fields, replace
 import math
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import numpy as np
 
@@ -153,41 +153,184 @@ class Ground:
         return [1.0, float(self.height), float(self.friction), float(self.restitution)]
 
 
+def _quat(name, value):
+    """A unit quaternion (x, y, z, w) from ``value``; None stays None.
+
+    Zero, non-finite and non-unit quaternions are refused (|q| must be 1 within 1e-3; the
+    accepted one is renormalised).
+    """
+    if value is None:
+        return None
+    q = np.asarray(value, dtype=float).reshape(-1)
+    if q.shape != (4,) or not np.all(np.isfinite(q)):
+        raise ValueError(f'{name} must be a quaternion of 4 finite numbers (x, y, z, w), '
+                         f'got {value!r}')
+    n = float(np.linalg.norm(q))
+    if abs(n - 1.0) > QUAT_TOLERANCE:
+        raise ValueError(f'{name} must be a unit quaternion (x, y, z, w), got {value!r} '
+                         f'of norm {n:.6g}')
+    return q / n
+
+
+#: How far from 1 the norm of a collider's quaternion may be (it is then renormalised).
+QUAT_TOLERANCE = 1e-3
+
+
+def _collider_common(kind, c):
+    """Validate the optional name / orientation / kinematic fields of a collider."""
+    if c.name is not None and (not isinstance(c.name, str) or not c.name
+                               or any(ch.isspace() for ch in c.name)):
+        raise ValueError(f'{kind}.name must be a non-empty string without spaces, '
+                         f'got {c.name!r}')
+    if not isinstance(c.kinematic, (bool, np.bool_)):
+        raise ValueError(f'{kind}.kinematic must be true or false, got {c.kinematic!r}')
+    if c.kinematic and c.name is None:
+        raise ValueError(f'a kinematic {kind} needs a name (the frame_id of collider_pose)')
+    q = _quat(f'{kind}.orientation', c.orientation)
+    _finite(f'{kind}.friction', c.friction, 0.0)
+    _finite(f'{kind}.restitution', c.restitution, 0.0, 1.0)
+    _path(kind, c)
+    return q
+
+
+def _path(kind, c):
+    """Validated keyframes [(time, position (3,), quaternion (4,) or None)]."""
+    try:
+        frames = list(c.path)
+    except TypeError:
+        raise ValueError(f'{kind}.path must be a list of (time, position, orientation) '
+                         f'keyframes, got {c.path!r}') from None
+    if frames and not c.kinematic:
+        raise ValueError(f'{kind}.path needs kinematic: true')
+    out = []
+    last = 0.0
+    for i, f in enumerate(frames):
+        if not isinstance(f, (tuple, list)) or len(f) not in (2, 3):
+            raise ValueError(f'{kind}.path[{i}] must be (time, position[, orientation]), '
+                             f'got {f!r}')
+        t = _finite(f'{kind}.path[{i}].time', f[0])
+        if t <= last:
+            raise ValueError(f'{kind}.path[{i}].time must be > {last:g} (times increase '
+                             f'from 0), got {t!r}')
+        last = t
+        pos = _vec3(f'{kind}.path[{i}].position', f[1])
+        quat = _quat(f'{kind}.path[{i}].orientation', f[2] if len(f) == 3 else None)
+        out.append((t, pos, quat))
+    return out
+
+
 @dataclass(frozen=True)
 class Box:
-    """A solid axis-aligned box from ``lo`` to ``hi``."""
+    """A solid box from ``lo`` to ``hi`` (axis-aligned unless ``orientation`` is given).
+
+    Optional: ``name`` (reports a wrench; the frame_id of ``collider_pose``),
+    ``orientation`` (unit quaternion x, y, z, w about the box centre), ``kinematic``
+    (moved by ``World.move_collider``; needs a name) and ``path`` (kinematic only:
+    keyframes ``(time, position[, quaternion])`` played from the declared pose at time 0,
+    piecewise linear / slerp, until the first ``move_collider`` of this collider).
+    """
 
     lo: tuple = (0.0, 0.0, 0.0)
     hi: tuple = (1.0, 1.0, 1.0)
     friction: float = 0.5
     restitution: float = 0.0
+    name: Optional[str] = None
+    orientation: Optional[tuple] = None
+    kinematic: bool = False
+    path: tuple = ()
+
+    @property
+    def simple(self) -> bool:
+        """Unnamed, axis-aligned and static: handled inside the fused body step."""
+        return self.name is None and self.orientation is None and not self.kinematic
 
     def row(self):
         """Return the validated row the kernels read."""
         lo, hi = _vec3('box.lo', self.lo), _vec3('box.hi', self.hi)
         if np.any(hi <= lo):
             raise ValueError(f'box.hi must be > box.lo on every axis, got {lo} .. {hi}')
-        _finite('box.friction', self.friction, 0.0)
-        _finite('box.restitution', self.restitution, 0.0, 1.0)
+        _collider_common('box', self)
         return [*lo, *hi, float(self.friction), float(self.restitution)]
+
+    def shape(self):
+        """(kind, centre, quaternion, dims) of the collider pass (kinematic.py)."""
+        self.row()
+        lo, hi = _vec3('box.lo', self.lo), _vec3('box.hi', self.hi)
+        q = _collider_common('box', self)
+        return (KIND_BOX, (lo + hi) / 2.0, _unit(q), (hi - lo) / 2.0)
 
 
 @dataclass(frozen=True)
 class Sphere:
-    """A solid sphere."""
+    """A solid sphere; ``name``, ``orientation`` and ``kinematic`` as for ``Box``."""
 
     center: tuple = (0.0, 0.0, 0.0)
     radius: float = 1.0
     friction: float = 0.5
     restitution: float = 0.0
+    name: Optional[str] = None
+    orientation: Optional[tuple] = None
+    kinematic: bool = False
+    path: tuple = ()
+
+    @property
+    def simple(self) -> bool:
+        """Unnamed and static: handled inside the fused body step."""
+        return self.name is None and self.orientation is None and not self.kinematic
 
     def row(self):
         """Return the validated row the kernels read."""
         c = _vec3('sphere.center', self.center)
         _finite('sphere.radius', self.radius, 0.0, lo_open=True)
-        _finite('sphere.friction', self.friction, 0.0)
-        _finite('sphere.restitution', self.restitution, 0.0, 1.0)
+        _collider_common('sphere', self)
         return [*c, float(self.radius), float(self.friction), float(self.restitution)]
 
+    def shape(self):
+        """(kind, centre, quaternion, dims) of the collider pass (kinematic.py)."""
+        self.row()
+        q = _collider_common('sphere', self)
+        return (KIND_SPHERE, _vec3('sphere.center', self.center), _unit(q),
+                np.array([float(self.radius), 0.0, 0.0]))
 
-__all__ = ['BodyParams', 'StepParams', 'MATERIAL_DT', 'Ground', 'Box', 'Sphere', 'MODES']
+
+@dataclass(frozen=True)
+class Capsule:
+    """A solid capsule: the points within ``radius`` of a segment of ``length`` along the
+    local z axis, centred on ``center`` (end to end: length + 2 radius; length 0 is a
+    sphere).  ``name``, ``orientation`` and ``kinematic`` as for ``Box``.
+    """
+
+    center: tuple = (0.0, 0.0, 0.0)
+    radius: float = 0.05
+    length: float = 0.1
+    friction: float = 0.5
+    restitution: float = 0.0
+    name: Optional[str] = None
+    orientation: Optional[tuple] = None
+    kinematic: bool = False
+    path: tuple = ()
+
+    @property
+    def simple(self) -> bool:
+        """Capsules always go through the collider pass."""
+        return False
+
+    def shape(self):
+        """(kind, centre, quaternion, dims) of the collider pass (kinematic.py)."""
+        c = _vec3('capsule.center', self.center)
+        r = _finite('capsule.radius', self.radius, 0.0, lo_open=True)
+        length = _finite('capsule.length', self.length, 0.0)
+        q = _collider_common('capsule', self)
+        return (KIND_CAPSULE, c, _unit(q), np.array([r, length / 2.0, 0.0]))
+
+
+def _unit(q):
+    return np.array([0.0, 0.0, 0.0, 1.0]) if q is None else q
+
+
+#: Collider kinds of the collider pass (column 0 of its rows).
+KIND_SPHERE, KIND_BOX, KIND_CAPSULE = 0, 1, 2
+
+
+__all__ = ['BodyParams', 'StepParams', 'MATERIAL_DT', 'Ground', 'Box', 'Sphere', 'Capsule',
+           'MODES']

@@ -5,9 +5,10 @@ import math
 import numpy as np
 
 from .body import Body
+from .colliders import ColliderSet
 from .contact import BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
-from .params import Box, Ground, Sphere
+from .params import Box, Capsule, Ground, Sphere
 
 
 class World:
@@ -21,6 +22,9 @@ class World:
         self._contact_params = ContactParams()
         self._flat = None                      # FlatState + Contact, rebuilt lazily
         self._contact = None
+        self._coll_stats = None                # (bodies, 2) contacts, deepest: collider pass
+        self._zeros = np.zeros(0, dtype=np.int32)
+        self._one_touch = np.zeros(1, dtype=np.uint8)
         self.time = 0.0
         self.set_colliders()
 
@@ -36,20 +40,106 @@ class World:
             raise ValueError(f'gravity must be 3 finite numbers, got {value!r}')
         self._gravity[:] = g
 
-    def set_colliders(self, ground=None, boxes=(), spheres=()):
-        """Replace the static colliders (validated; all or nothing)."""
+    def set_colliders(self, ground=None, boxes=(), spheres=(), capsules=()):
+        """Replace the colliders (validated; all or nothing).
+
+        Unnamed, axis-aligned static boxes and spheres are handled inside each body's
+        fused step as before; named, oriented or kinematic ones and capsules go through
+        the collider pass (``kinematic.py``) after the bodies' step.  Passing the same
+        collider objects again keeps the pass colliders' current poses and motion.
+        """
         if ground is not None and not isinstance(ground, Ground):
             raise ValueError('ground must be a Ground or None')
         if not all(isinstance(b, Box) for b in boxes):
             raise ValueError('boxes must be Box instances')
         if not all(isinstance(s, Sphere) for s in spheres):
             raise ValueError('spheres must be Sphere instances')
+        if not all(isinstance(c, Capsule) for c in capsules):
+            raise ValueError('capsules must be Capsule instances')
+        boxes, spheres, capsules = tuple(boxes), tuple(spheres), tuple(capsules)
         g = np.array(ground.row() if ground else [0.0, 0.0, 0.0, 0.0])
-        b = np.array([x.row() for x in boxes], dtype=float).reshape(-1, 8)
-        s = np.array([x.row() for x in spheres], dtype=float).reshape(-1, 6)
-        self.ground, self.boxes, self.spheres = ground, tuple(boxes), tuple(spheres)
+        b = np.array([x.row() for x in boxes if x.simple], dtype=float).reshape(-1, 8)
+        s = np.array([x.row() for x in spheres if x.simple], dtype=float).reshape(-1, 6)
+        passing = [x for x in boxes + spheres if not x.simple] + list(capsules)
+        names = [x.name for x in passing if x.name is not None]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f'collider names must be unique, repeated: {dup}')
+        old = getattr(self, '_cset', None)
+        if old is not None and len(old.items) == len(passing) and all(
+                a is b_ for a, b_ in zip(old.items, passing)):
+            cset = old
+        else:
+            cset = ColliderSet(passing) if passing else None    # validates every shape
+        self.ground, self.boxes, self.spheres = ground, boxes, spheres
+        self.capsules = capsules
         self._ground_row, self._box_rows, self._sphere_rows = g, b, s
         self._has_col = ground is not None or len(b) > 0 or len(s) > 0
+        self._cset = cset
+
+    @property
+    def collider_names(self):
+        """Names of the named colliders, in the order boxes, spheres, capsules."""
+        return tuple(self._cset.index) if self._cset is not None else ()
+
+    def collider(self, name: str):
+        """The Box / Sphere / Capsule called ``name`` (ValueError if there is none)."""
+        cs = self._require_cset(name)
+        return cs.items[cs.lookup(name)]
+
+    def _require_cset(self, name):
+        if self._cset is None:
+            raise ValueError(f'unknown collider {name!r} (the world has no named colliders)')
+        return self._cset
+
+    def collider_pose(self, name: str):
+        """Current (position (3,), quaternion (x, y, z, w)) of collider ``name``, copies."""
+        cs = self._require_cset(name)
+        c = cs.lookup(name)
+        return cs.pos[c].copy(), cs.quat[c].copy()
+
+    def move_collider(self, name: str, position, orientation=(0.0, 0.0, 0.0, 1.0),
+                      duration: float = 0.0):
+        """Move the kinematic collider ``name`` to a pose over the next ``duration`` s.
+
+        Each step moves it along the way (position linearly, orientation by slerp) at the
+        constant linear and angular velocity the move implies, which friction and
+        restitution see; ``duration`` 0 puts it there at once, at rest.  A new move starts
+        from wherever the collider is.  Unknown or static colliders, non-finite numbers and
+        zero or non-unit quaternions (|q| off 1 by more than 1e-3) raise ValueError and
+        change nothing.
+        """
+        self._require_cset(name).move(name, position, orientation, duration)
+
+    def collider_wrench(self, name: str):
+        """(force, torque about its centre) the bodies exert on collider ``name``, averaged
+        over the steps since the last ``take_collider_wrenches`` (world frame; N, N m)."""
+        cs = self._require_cset(name)
+        return cs.wrench(cs.lookup(name))
+
+    def take_collider_wrenches(self):
+        """{name: (force, torque)} of every named collider averaged over the steps since
+        the last call (impulses / time), and start a new window."""
+        return self._cset.take() if self._cset is not None else {}
+
+    def collider_contacts(self):
+        """{body name: (contacts, deepest penetration in m)} with the pass colliders in the
+        last step (one contact per particle and collider touched)."""
+        st, f = self._coll_stats, self._flat
+        if st is None or f is None or len(st) != len(f.bodies):
+            return dict.fromkeys(self._bodies, (0, 0.0))
+        return {b.name: (int(st[k, 0]), float(st[k, 1])) for k, b in enumerate(f.bodies)}
+
+    def contact_stats(self):
+        """{body name: (contacts, deepest penetration in m)} of the last step: the collider
+        pass (particle-collider contacts) and body-body contact (pairs) together."""
+        out = self.collider_contacts()
+        c, f = self._contact, self._flat
+        if c is not None and c.needed and f is not None:
+            for k, b in enumerate(f.bodies):
+                n, d = out.get(b.name, (0, 0.0))
+                out[b.name] = (n + int(c.count[k]), max(d, float(c.deepest[k])))
+        return out
 
     @property
     def bodies(self):
@@ -164,28 +254,61 @@ class World:
             raise ValueError(f'dt must be a finite number > 0, got {dt!r}')
         # restitution applies only above this approach speed, so resting contact stays put
         thresh = max(1e-3, 2.0 * float(np.linalg.norm(self._gravity)) * h)
+        cs = self._cset
+        if cs is not None:
+            cs.advance(h, self.time)
         for body in self._bodies.values():
             body._step(h, self._gravity, self._has_col, self._ground_row, self._box_rows,
                        self._sphere_rows, thresh)
         self._world_passes(h, thresh)
+        if cs is not None:
+            cs.imp_time += h
         self.time += h
 
     def _world_passes(self, h, thresh):
         """Passes over the world's flat state after the bodies' step (flat.py).
 
-        Gather every body's state into ``FlatState`` X/V, run body-body contact, copy the
+        Gather every body's state into ``FlatState`` X/V, run body-body contact and the
+        collider pass (colliders last: no particle ends a step inside one), copy the
         touched bodies back.  Nothing runs (no copy) when no pass is needed: contact off,
-        or one colliding body without self-collision.  Other world-level passes (moving
-        colliders) go between ``gather`` and ``scatter`` and set ``flat.touched[b]``.
+        or one colliding body without self-collision, and no pass colliders.  With pass
+        colliders but no contact to run, the collider pass works on each body's own
+        buffers (seen as (3, N)) and copies nothing.
         """
         self._ensure_flat()
         c = self._contact
-        if c is None or not c.needed:
+        cs = self._cset
+        need_contact = c is not None and c.needed
+        if not need_contact and cs is None:
             return
         f = self._flat
-        f.gather()
-        c.run(h, thresh)
-        f.scatter()
+        st = self._coll_stats
+        if st is None or len(st) != len(f.bodies):
+            st = self._coll_stats = np.zeros((len(f.bodies), 2))
+        if need_contact:
+            f.gather()
+            c.run(h, thresh)
+            if cs is not None:
+                st[:] = 0.0
+                cs.collide(f.X, f.V, f.W, f.B, 0, f.n, h, thresh, st, f.touched)
+            f.scatter()
+            return
+        f.refresh_masses()
+        for k, body in enumerate(f.bodies):
+            o0, o1 = f.off[k], f.off[k + 1]
+            sk = st[k:k + 1]
+            sk[:] = 0.0
+            cs.collide(body._x.T, body._v.T, f.W[o0:o1], self._zero_bid(body.n), 0, body.n,
+                       h, thresh, sk, self._one_touch)
+            if sk[0, 0] > 0.0:
+                body._dirty = True            # moved particles: re-accumulate the next step
+
+    def _zero_bid(self, n):
+        """Body index 0 for n particles (the per-body path of the collider pass)."""
+        z = self._zeros
+        if len(z) < n:
+            z = self._zeros = np.zeros(max(n, 2 * len(z)), dtype=np.int32)
+        return z[:n]
 
     def reset(self):
         """Every body back to its initial state; time 0."""
@@ -193,4 +316,6 @@ class World:
             body.reset()
         if self._contact is not None:
             self._contact.invalidate()
+        if self._cset is not None:
+            self._cset.reset()
         self.time = 0.0

@@ -1,0 +1,257 @@
+"""The collider pass: oriented boxes, spheres and capsules, static or moving (kinematic).
+
+Runs after the bodies' own step on world-level structure-of-arrays state: positions ``X``
+and velocities ``V`` of shape (3, N) (any layout: a body's (N, 3) buffer transposed works
+too), per-particle mass ``m`` and inverse mass ``w`` (0 for pinned or grabbed particles,
+which the colliders then leave alone: they act as infinite mass).
+
+A particle inside a collider is projected to the nearest surface point along the surface
+normal; its velocity relative to the collider's surface velocity ``v + omega x (p - c)``
+gets the ground's contact rule (restitution above ``thresh``, Coulomb friction removing up
+to mu * dv_n of the tangential velocity), and the step's displacement gets the same
+tangential change (h times it), so static friction holds a particle where it is: without
+that, a particle whose velocity friction stops has still slid by h v_t in the step, and
+fingers cannot hold a ball however large mu is.  The impulse the particle received, with the
+opposite sign, is added to the collider's accumulator: force and torque about the
+collider's centre that the bodies exert on it.
+
+Each collider is one row of ``rows`` (``ROW`` floats, columns named below); the world
+writes the pose and velocities of the current substep into it (``colliders.py``).
+
+Everything jitted here is self-contained (Numba's cache does not notice edits to jitted
+functions of other files).  ``collide_numpy`` is the plain NumPy twin the tests compare
+against.
+"""
+
+import numpy as np
+from numba import njit
+
+FASTMATH = {'nsz', 'arcp', 'contract', 'afn', 'reassoc'}
+JIT = dict(cache=True, fastmath=FASTMATH, nogil=True)
+
+# columns of a collider row
+C_KIND = 0          # 0 sphere, 1 box, 2 capsule (params.KIND_*)
+C_POS = 1           # centre (3)
+C_ROT = 4           # rotation local -> world, row-major (9)
+C_VEL = 13          # linear velocity of the centre (3)
+C_ANG = 16          # angular velocity, world frame (3)
+C_DIM = 19          # sphere: radius; box: half extents (3); capsule: radius, half length
+C_MU = 22           # Coulomb friction coefficient
+C_E = 23            # restitution
+C_BOUND = 24        # radius of a sphere about the centre holding the collider (broad phase)
+ROW = 25
+
+
+@njit(**JIT)
+def _contact_velocity(vx, vy, vz, nx, ny, nz, mu, e, thresh):
+    """Velocity after a contact with unit normal n: restitution e, Coulomb friction mu
+    (the same rule as the fused colliders of the body step)."""
+    vn = vx * nx + vy * ny + vz * nz
+    if vn >= 0.0:
+        return vx, vy, vz
+    tx = vx - vn * nx
+    ty = vy - vn * ny
+    tz = vz - vn * nz
+    vn_new = -e * vn if -vn > thresh else 0.0
+    dvn = vn_new - vn
+    tl = np.sqrt(tx * tx + ty * ty + tz * tz)
+    if tl > 0.0:
+        f = 1.0 - mu * dvn / tl
+        if f < 0.0:
+            f = 0.0
+        tx *= f
+        ty *= f
+        tz *= f
+    return tx + vn_new * nx, ty + vn_new * ny, tz + vn_new * nz
+
+
+@njit(**JIT)
+def _closest_surface(row, px, py, pz):
+    """(depth, nx, ny, nz): depth > 0 when p is inside; n the outward normal there."""
+    kind = row[C_KIND]
+    cx, cy, cz = px - row[C_POS], py - row[C_POS + 1], pz - row[C_POS + 2]
+    if kind == 0.0:
+        d2 = cx * cx + cy * cy + cz * cz
+        r = row[C_DIM]
+        if d2 >= r * r:
+            return -1.0, 0.0, 0.0, 1.0
+        d = np.sqrt(d2)
+        if d > 0.0:
+            return r - d, cx / d, cy / d, cz / d
+        return r, 0.0, 0.0, 1.0
+    # local coordinates q = R^T (p - c)
+    r00, r01, r02 = row[C_ROT], row[C_ROT + 1], row[C_ROT + 2]
+    r10, r11, r12 = row[C_ROT + 3], row[C_ROT + 4], row[C_ROT + 5]
+    r20, r21, r22 = row[C_ROT + 6], row[C_ROT + 7], row[C_ROT + 8]
+    q0 = r00 * cx + r10 * cy + r20 * cz
+    q1 = r01 * cx + r11 * cy + r21 * cz
+    q2 = r02 * cx + r12 * cy + r22 * cz
+    if kind == 1.0:
+        d0 = row[C_DIM] - abs(q0)
+        d1 = row[C_DIM + 1] - abs(q1)
+        d2 = row[C_DIM + 2] - abs(q2)
+        if d0 <= 0.0 or d1 <= 0.0 or d2 <= 0.0:
+            return -1.0, 0.0, 0.0, 1.0
+        # the face nearest to p (ties: x before y before z)
+        if d0 <= d1 and d0 <= d2:
+            s = 1.0 if q0 >= 0.0 else -1.0
+            return d0, s * r00, s * r10, s * r20
+        if d1 <= d2:
+            s = 1.0 if q1 >= 0.0 else -1.0
+            return d1, s * r01, s * r11, s * r21
+        s = 1.0 if q2 >= 0.0 else -1.0
+        return d2, s * r02, s * r12, s * r22
+    # capsule: distance to the segment [-hl, hl] along local z
+    r = row[C_DIM]
+    hl = row[C_DIM + 1]
+    z = q2
+    if z > hl:
+        z = hl
+    elif z < -hl:
+        z = -hl
+    ex = cx - r02 * z
+    ey = cy - r12 * z
+    ez = cz - r22 * z
+    d2 = ex * ex + ey * ey + ez * ez
+    if d2 >= r * r:
+        return -1.0, 0.0, 0.0, 1.0
+    d = np.sqrt(d2)
+    if d > 0.0:
+        return r - d, ex / d, ey / d, ez / d
+    return r, r00, r10, r20          # on the axis: out along local x
+
+
+@njit(**JIT)
+def collide_range(X, V, w, bid, start, end, rows, h, thresh, imp, stats, touched):
+    """Collide particles start..end with every collider of ``rows`` after a step of h s.
+
+    ``w`` inverse masses (0: left alone), ``bid`` body index of each particle.  ``imp``
+    (C, 6) gets the impulse (3) and the angular impulse about the collider centre (3) that
+    the particles exert on each collider; ``stats[b]`` [contacts, deepest penetration (m)]
+    of body b is updated (one contact per particle and collider touched) and
+    ``touched[b]`` set to 1 when a particle of body b moved.
+    Loops over particles (outer) and colliders (inner, a few): each particle's reject test
+    against a collider's bounding sphere is six flops.
+    """
+    nc = rows.shape[0]
+    for i in range(start, end):
+        if w[i] <= 0.0:
+            continue
+        px, py, pz = X[0, i], X[1, i], X[2, i]
+        hit = False
+        for c in range(nc):
+            row = rows[c]
+            cx, cy, cz = px - row[C_POS], py - row[C_POS + 1], pz - row[C_POS + 2]
+            b = row[C_BOUND]
+            if cx * cx + cy * cy + cz * cz >= b * b:
+                continue
+            depth, nx, ny, nz = _closest_surface(row, px, py, pz)
+            if depth <= 0.0:
+                continue
+            hit = True
+            px += depth * nx
+            py += depth * ny
+            pz += depth * nz
+            b_i = bid[i]
+            stats[b_i, 0] += 1.0
+            if depth > stats[b_i, 1]:
+                stats[b_i, 1] = depth
+            # surface velocity of the collider at the projected point
+            rx, ry, rz = px - row[C_POS], py - row[C_POS + 1], pz - row[C_POS + 2]
+            wx, wy, wz = row[C_ANG], row[C_ANG + 1], row[C_ANG + 2]
+            sx = row[C_VEL] + wy * rz - wz * ry
+            sy = row[C_VEL + 1] + wz * rx - wx * rz
+            sz = row[C_VEL + 2] + wx * ry - wy * rx
+            vx, vy, vz = V[0, i], V[1, i], V[2, i]
+            ux, uy, uz = _contact_velocity(vx - sx, vy - sy, vz - sz, nx, ny, nz, row[C_MU],
+                                           row[C_E], thresh)
+            # friction acts over the whole step: the tangential change of velocity also
+            # applies to the step's displacement (static friction holds a particle in place,
+            # as position-based friction does; the normal part is the projection above)
+            dx, dy, dz = ux - (vx - sx), uy - (vy - sy), uz - (vz - sz)
+            dn = dx * nx + dy * ny + dz * nz
+            px += h * (dx - dn * nx)
+            py += h * (dy - dn * ny)
+            pz += h * (dz - dn * nz)
+            ux += sx
+            uy += sy
+            uz += sz
+            # impulse on the collider = - impulse on the particle
+            mi = 1.0 / w[i]
+            jx = -mi * (ux - vx)
+            jy = -mi * (uy - vy)
+            jz = -mi * (uz - vz)
+            imp[c, 0] += jx
+            imp[c, 1] += jy
+            imp[c, 2] += jz
+            imp[c, 3] += ry * jz - rz * jy
+            imp[c, 4] += rz * jx - rx * jz
+            imp[c, 5] += rx * jy - ry * jx
+            V[0, i], V[1, i], V[2, i] = ux, uy, uz
+        if hit:
+            X[0, i], X[1, i], X[2, i] = px, py, pz
+            touched[bid[i]] = 1
+
+
+def collide_numpy(X, V, w, bid, rows, h, thresh, imp, stats, touched):
+    """Plain NumPy twin of ``collide_range`` over every particle (vectorised per collider;
+    the same sequence of colliders per particle)."""
+    m = np.divide(1.0, w, out=np.zeros_like(w), where=w > 0)
+    X = np.asarray(X)
+    V = np.asarray(V)
+    free = w > 0.0
+    for c, row in enumerate(rows):
+        p = X[:, free]
+        rel = p - row[C_POS:C_POS + 3, None]
+        rot = row[C_ROT:C_ROT + 9].reshape(3, 3)
+        kind = int(row[C_KIND])
+        n = np.zeros_like(p)
+        if kind == 0:
+            d = np.linalg.norm(rel, axis=0)
+            depth = row[C_DIM] - d
+            safe = np.where(d > 0, d, 1.0)
+            n = np.where(d > 0, rel / safe, np.array([[0.0], [0.0], [1.0]]))
+        elif kind == 1:
+            q = rot.T @ rel
+            dd = row[C_DIM:C_DIM + 3, None] - np.abs(q)
+            depth = np.where(np.all(dd > 0, axis=0), dd.min(axis=0), -1.0)
+            ax = np.argmin(dd, axis=0)          # first minimum: x before y before z
+            s = np.where(q[ax, np.arange(q.shape[1])] >= 0, 1.0, -1.0)
+            n = rot[:, ax] * s
+        else:
+            q = rot.T @ rel
+            z = np.clip(q[2], -row[C_DIM + 1], row[C_DIM + 1])
+            e = rel - rot[:, 2:3] * z
+            d = np.linalg.norm(e, axis=0)
+            depth = row[C_DIM] - d
+            safe = np.where(d > 0, d, 1.0)
+            n = np.where(d > 0, e / safe, rot[:, 0:1])
+        hit = depth > 0
+        if not hit.any():
+            continue
+        idx = np.nonzero(free)[0][hit]
+        nh, dh = n[:, hit], depth[hit]
+        pn = X[:, idx] + dh * nh
+        np.add.at(stats[:, 0], bid[idx], 1.0)
+        np.maximum.at(stats[:, 1], bid[idx], dh)
+        touched[bid[idx]] = 1
+        r = pn - row[C_POS:C_POS + 3, None]
+        vs = row[C_VEL:C_VEL + 3, None] + np.cross(row[C_ANG:C_ANG + 3], r, axis=0)
+        u = V[:, idx] - vs
+        un = (u * nh).sum(axis=0)
+        act = un < 0
+        t = u - un * nh
+        vn_new = np.where(-un > thresh, -row[C_E] * un, 0.0)
+        dvn = vn_new - un
+        tl = np.linalg.norm(t, axis=0)
+        f = np.clip(1.0 - row[C_MU] * dvn / np.where(tl > 0, tl, 1.0), 0.0, None)
+        f = np.where(tl > 0, f, 1.0)
+        u_new = np.where(act, t * f + vn_new * nh, u)
+        v_new = u_new + vs
+        du = u_new - u
+        pn = pn + h * (du - (du * nh).sum(axis=0) * nh)
+        j = -m[idx] * (v_new - V[:, idx])
+        imp[c, :3] += j.sum(axis=1)
+        imp[c, 3:] += np.cross(r, j, axis=0).sum(axis=1)
+        X[:, idx] = pn
+        V[:, idx] = v_new
