@@ -18,16 +18,14 @@ collider's centre that the bodies exert on it.
 Each collider is one row of ``rows`` (``ROW`` floats, columns named below); the world
 writes the pose and velocities of the current substep into it (``colliders.py``).
 
-Everything jitted here is self-contained (Numba's cache does not notice edits to jitted
-functions of other files).  ``collide_numpy`` is the plain NumPy twin the tests compare
-against.
+Everything jitted here is self-contained (it calls no kernel of another file).
+``collide_numpy`` is the plain NumPy twin the tests compare against.
 """
 
 import numpy as np
 from numba import njit
 
-FASTMATH = {'nsz', 'arcp', 'contract', 'afn', 'reassoc'}
-JIT = dict(cache=True, fastmath=FASTMATH, nogil=True)
+from .kernels.jit import JIT
 
 # columns of a collider row
 C_KIND = 0          # 0 sphere, 1 box, 2 capsule (params.KIND_*)
