@@ -155,7 +155,7 @@ _TIMER_WHY = ('{name} must be 0 or >= {min:g} Hz (a timer period fits in int64 '
 #: The table. Order is the order of the docs and of ``config/sim_node.yaml``.
 TABLE: Tuple[Param, ...] = (
     Param('scene', '', 'Scene YAML file, or the name of a bundled scene (default, rope, '
-          'sheet, plastic, mesh, many, paper_8_clusters); empty: default. Changing it '
+          'sheet, plastic, mesh, many, paper_8_clusters, grasp); empty: default. Changing it '
           'reloads the scene'),
     Param('mode', 'linear', 'Deformation mode: rigid (sec. 3), linear (4.2) or quadratic '
           '(4.3)', choices=MODES, scene_override=True, core_field='mode'),

@@ -24,7 +24,7 @@ import argparse
 import io
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Sequence
 
@@ -53,6 +53,9 @@ class Recording:
     ground: Optional[float]
     n_points: int
     step_ms: float
+    #: frame -> [(kind, centre (3,), rotation (3, 3), dims (3,))] of the colliders of the
+    #: collider pass (named, oriented, kinematic, capsules), drawn where they are
+    solids: List[list] = field(default_factory=list)
 
 
 def _parse_value(text: str) -> Any:
@@ -100,8 +103,45 @@ def simulate(scene: str, seconds: float = 3.0, fps: float = 10.0, dt: float = DE
         rec.frames.append([b.x[p].copy() for b, p in zip(world.bodies, picks)])
         rec.surfaces.append([m.surface.vertices(b.x).copy() if m.surface is not None else None
                              for b, m in zip(world.bodies, metas)])
+        rec.solids.append(_solids(world))
     rec.step_ms = 1000.0 * busy / max(1, steps)
     return rec
+
+
+def _solids(world) -> list:
+    """Return the current (kind, centre, rotation, dims) of the collider pass's colliders."""
+    cs = getattr(world, '_cset', None)
+    if cs is None:
+        return []
+    from sm_ros.core import kinematic as kc
+    return [(int(r[kc.C_KIND]), r[kc.C_POS:kc.C_POS + 3].copy(),
+             r[kc.C_ROT:kc.C_ROT + 9].reshape(3, 3).copy(), r[kc.C_DIM:kc.C_DIM + 3].copy())
+            for r in cs.rows]
+
+
+def _draw_solids(ax, solids, lo, hi) -> None:
+    """Draw oriented boxes, spheres and capsules (kinematic.py rows) where they are."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 20), np.linspace(0, np.pi, 11))
+    for kind, c, rot, dims in solids:
+        if kind == 1:
+            h = dims
+            corners = np.array([[x, y, z] for x in (-h[0], h[0]) for y in (-h[1], h[1])
+                                for z in (-h[2], h[2])]) @ rot.T + c
+            quads = [corners[[0, 1, 3, 2]], corners[[4, 5, 7, 6]], corners[[0, 1, 5, 4]],
+                     corners[[2, 3, 7, 6]], corners[[0, 2, 6, 4]], corners[[1, 3, 7, 5]]]
+            ax.add_collection3d(Poly3DCollection(quads, facecolor='#8c8c8c',
+                                                 edgecolor='#606060', alpha=0.4, zorder=1))
+            continue
+        r = dims[0]
+        half = dims[1] if kind == 2 else 0.0
+        # a sphere stretched along local z by the capsule's half length: the two caps and
+        # the cylinder between them in one surface
+        x, y, z = r * np.cos(u) * np.sin(v), r * np.sin(u) * np.sin(v), r * np.cos(v)
+        z = z + np.where(z >= 0.0, half, -half)
+        pts = np.stack([x, y, z], axis=-1) @ rot.T + c
+        ax.plot_surface(pts[..., 0], pts[..., 1], np.maximum(pts[..., 2], lo[2]),
+                        color='#8c8c8c', alpha=0.45, linewidth=0, shade=True, zorder=1)
 
 
 def is_recording(path: str) -> bool:
@@ -216,12 +256,24 @@ def _limits(rec: Recording):
         c, r = np.asarray(s['center']), s['radius']
         lo, hi = np.minimum(lo, np.maximum(c - r, lo - 0.5)), np.maximum(hi, np.minimum(
             c + r, hi + 0.5))
+    for solids in rec.solids:
+        for kind, c, _, dims in solids:
+            reach = float(np.linalg.norm(dims)) if kind == 1 else dims[0] + (
+                dims[1] if kind == 2 else 0.0)
+            lo = np.minimum(lo, np.maximum(c - reach, lo - 0.5))
+            hi = np.maximum(hi, np.minimum(c + reach, hi + 0.5))
     if rec.ground is not None:
         lo[2] = min(lo[2], rec.ground)
     centre = (lo + hi) / 2.0
     half = np.maximum((hi - lo) / 2.0 * 1.08, 0.05)
     half[:2] = max(half[0], half[1])
     return centre - half, centre + half
+
+
+def _in_pass(c) -> bool:
+    """Whether a scene collider goes through the collider pass (drawn from its pose)."""
+    return c.get('name') is not None or c.get('orientation') is not None \
+        or bool(c.get('kinematic'))
 
 
 def _draw(ax, rec: Recording, i: int, lo: np.ndarray, hi: np.ndarray, title: bool = True):
@@ -238,7 +290,11 @@ def _draw(ax, rec: Recording, i: int, lo: np.ndarray, hi: np.ndarray, title: boo
         quad = [[(lo[0], lo[1], g), (hi[0], lo[1], g), (hi[0], hi[1], g), (lo[0], hi[1], g)]]
         ax.add_collection3d(Poly3DCollection(quad, facecolor='#d9d9d9', edgecolor='#b0b0b0',
                                              alpha=0.6, zorder=0))
+    if rec.solids:
+        _draw_solids(ax, rec.solids[i], lo, hi)
     for b in rec.colliders.get('boxes', []):
+        if _in_pass(b):
+            continue
         bl, bh = np.maximum(b['lo'], lo), np.minimum(b['hi'], hi)
         if np.any(bh <= bl):
             continue
@@ -250,6 +306,8 @@ def _draw(ax, rec: Recording, i: int, lo: np.ndarray, hi: np.ndarray, title: boo
                                              alpha=0.35, zorder=1))
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0, np.pi, 12))
     for s in rec.colliders.get('spheres', []):
+        if _in_pass(s):
+            continue
         c, r = np.asarray(s['center']), s['radius']
         ax.plot_surface(c[0] + r * np.cos(u) * np.sin(v), c[1] + r * np.sin(u) * np.sin(v),
                         np.maximum(c[2] + r * np.cos(v), lo[2]), color='#9e9e9e', alpha=0.35,

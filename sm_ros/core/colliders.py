@@ -191,6 +191,10 @@ class ColliderSet:
         velocities during it."""
         for c, mo in enumerate(self.motion):
             if c in self.playing:
+                if t >= self.paths[c][0][-1]:          # the path is over: at rest there
+                    self.playing.discard(c)
+                    self._write_pose(c, np.zeros(3), np.zeros(3))
+                    continue
                 p, q = self.path_pose(c, t + h)
                 vel = (p - self.pos[c]) / h
                 axis, angle = rotation_between(self.quat[c], q)
