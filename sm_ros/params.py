@@ -183,6 +183,14 @@ TABLE: Tuple[Param, ...] = (
     Param('ground.friction', 0.5, 'Coulomb friction coefficient of the ground', '', 0.0, 10.0),
     Param('ground.restitution', 0.0, 'Restitution of the ground (0 = no bounce)', '',
           0.0, 1.0),
+    Param('contact.enabled', True, 'Whether bodies collide with one another (body-body '
+          'contact; a scene may set it in its contact mapping)'),
+    Param('contact.friction', 0.5, 'Coulomb friction coefficient between bodies', '',
+          0.0, 10.0),
+    Param('contact.restitution', 0.0, 'Restitution between bodies (0 = no bounce)', '',
+          0.0, 1.0),
+    Param('contact.radius_scale', 1.0, "Factor on every body's default contact radius "
+          '(half its median particle spacing)', '', 0.0, 10.0, positive=True),
     Param('grab_radius', 0.05, 'A gripper attaches the particles within this distance of '
           'its first pose (m)', 'm', 0.0, 100.0, positive=True),
     Param('force_timeout', 0.0, 'A force is cleared after this many seconds without a new '
@@ -224,9 +232,11 @@ BODY_FIELDS: Dict[str, str] = {p.name: p.core_field for p in TABLE if p.core_fie
 TIMER_RATES: Tuple[str, ...] = ('rate', 'diagnostics_rate')
 #: Ground parameters (a change rebuilds the ground collider).
 GROUND_KEYS: Tuple[str, ...] = tuple(p.name for p in TABLE if p.name.startswith('ground.'))
-#: The values a scene is built with: body parameters, gravity and ground.
+#: Scene-wide contact parameters (a change rebuilds the contact settings).
+CONTACT_KEYS: Tuple[str, ...] = tuple(p.name for p in TABLE if p.name.startswith('contact.'))
+#: The values a scene is built with: body parameters, gravity, ground and contact.
 SCENE_DEFAULT_KEYS: Tuple[str, ...] = (tuple(k for k in BODY_FIELDS if BY_NAME[k].node)
-                                       + ('gravity',) + GROUND_KEYS)
+                                       + ('gravity',) + GROUND_KEYS + CONTACT_KEYS)
 
 
 def defaults(names: Optional[Sequence[str]] = None) -> Dict[str, Any]:

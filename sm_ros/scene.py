@@ -37,7 +37,8 @@ DEFAULT_SPACING = 0.05      # m
 DEFAULT_MASS = 1.0          # kg, per body
 
 _COMMON_KEYS = ('name', 'shape', 'position', 'orientation', 'mass', 'density', 'velocity',
-                'angular_velocity', 'pinned', 'copies') + tuple(
+                'angular_velocity', 'pinned', 'copies', 'collide', 'contact_radius',
+                'self_collision') + tuple(
                     dict.fromkeys(k.split('.', 1)[0] for k in params.OVERRIDE_KEYS))
 _SHAPE_KEYS = {
     'box': ('size', 'spacing'),
@@ -50,7 +51,9 @@ _SHAPE_KEYS = {
     'cloud': ('file', 'scale', 'center', 'max_points', 'voxel'),
 }
 _LATTICE_SHAPES = ('box', 'sphere', 'cylinder', 'capsule')
-_TOP_KEYS = ('description', 'bodies', 'colliders')
+_TOP_KEYS = ('description', 'bodies', 'colliders', 'contact')
+#: Keys of the top-level ``contact`` mapping (node parameters ``contact.<key>``).
+CONTACT_SCENE_KEYS = ('enabled', 'friction', 'restitution', 'radius_scale')
 
 
 class SceneError(ValueError):
@@ -75,6 +78,8 @@ class BodySpec:
         overrides: parameter overrides in node naming (subset of ``sm_ros.params.OVERRIDE_KEYS``).
         surface: a :class:`sm_ros.shapes.Surface` for bodies from a mesh file, else None.
         shape: the shape keyword it was made from ('box', 'mesh', 'cloud', ...).
+        contact: the body's contact keys that the scene set (collide, contact_radius,
+            self_collision).
     """
 
     name: str
@@ -85,6 +90,7 @@ class BodySpec:
     overrides: Dict[str, Any] = field(default_factory=dict)
     surface: Optional[Surface] = None
     shape: str = ''
+    contact: Dict[str, Any] = field(default_factory=dict)
 
     @property
     def n(self) -> int:
@@ -107,12 +113,15 @@ class SceneSpec:
             restitution).
         source: the file it came from (or a label for scenes built in code).
         description: the scene's description text.
+        contact: the keys of the top-level ``contact`` mapping the scene set (enabled,
+            friction, restitution, radius_scale); the others come from the node.
     """
 
     bodies: List[BodySpec]
     colliders: Dict[str, Any]
     source: str = '<scene>'
     description: str = ''
+    contact: Dict[str, Any] = field(default_factory=dict)
 
     @property
     def n_points(self) -> int:
@@ -321,6 +330,7 @@ def parse_scene(data: Any, source: str = '<scene>',
     if not isinstance(description, str):
         raise where.error('description', f'must be a string, got {_fmt(description)}')
     colliders = _parse_colliders(where, top.get('colliders'))
+    contact = _parse_contact(where, top.get('contact'))
     raw_bodies = top.get('bodies')
     if not isinstance(raw_bodies, list) or not raw_bodies:
         raise where.error('bodies', f'must be a non-empty list, got {_fmt(raw_bodies)}')
@@ -339,7 +349,38 @@ def parse_scene(data: Any, source: str = '<scene>',
                     None, f'the scene exceeds {MAX_SCENE_POINTS} particles')
             bodies.append(b)
     return SceneSpec(bodies=bodies, colliders=colliders, source=source,
-                     description=description.strip())
+                     description=description.strip(), contact=contact)
+
+
+def _parse_contact(where: _Where, raw: Any) -> Dict[str, Any]:
+    """The top-level ``contact`` mapping (ranges of the ``contact.*`` node parameters)."""
+    if raw is None:
+        return {}
+    c = where.mapping('contact', raw, CONTACT_SCENE_KEYS)
+    out: Dict[str, Any] = {}
+    for key, value in c.items():
+        p = params.BY_NAME[f'contact.{key}']
+        if p.type_name == 'bool':
+            out[key] = where.boolean(f'contact.{key}', value)
+            continue
+        v = where.number(f'contact.{key}', value)
+        why = p.check(v)
+        if why:
+            raise where.error(f'contact.{key}', why.split(' ', 1)[1])
+        out[key] = v
+    return out
+
+
+def _parse_body_contact(w: '_Where', b: Mapping[str, Any]) -> Dict[str, Any]:
+    """A body's ``collide``, ``contact_radius`` and ``self_collision`` keys."""
+    out: Dict[str, Any] = {}
+    if 'collide' in b:
+        out['collide'] = w.boolean('collide', b['collide'])
+    if 'self_collision' in b:
+        out['self_collision'] = w.boolean('self_collision', b['self_collision'])
+    if 'contact_radius' in b:
+        out['contact_radius'] = w.number('contact_radius', b['contact_radius'], gt=0.0)
+    return out
 
 
 #: Keys every box, sphere and capsule collider may have beside its geometry.
@@ -660,6 +701,7 @@ def _parse_body(source: str, base: Path, index: int, raw: Any) -> List[BodySpec]
     w.choice('shape', shape, SHAPES)
     b = w.mapping(None, raw, _COMMON_KEYS + _SHAPE_KEYS[shape])
     overrides = _parse_overrides(w, b)
+    contact = _parse_body_contact(w, b)
 
     # placement
     position = w.vector('position', b.get('position', [0.0, 0.0, 0.0]), 3)
@@ -723,7 +765,8 @@ def _parse_body(source: str, base: Path, index: int, raw: Any) -> List[BodySpec]
                        else Surface.embedded(faces, surf_world + off, pts))
         out.append(BodySpec(name=bname, points=np.ascontiguousarray(pts),
                             masses=masses.copy(), velocities=vel, pinned=pinned,
-                            overrides=dict(overrides), surface=surface, shape=shape))
+                            overrides=dict(overrides), surface=surface, shape=shape,
+                            contact=dict(contact)))
     return out
 
 
@@ -776,6 +819,32 @@ def ground_from(scene_ground: Optional[Mapping[str, Any]],
     return Ground(height=g['height'], friction=g['friction'], restitution=g['restitution'])
 
 
+def contact_from(scene_contact: Optional[Mapping[str, Any]],
+                 defaults: Optional[Mapping[str, Any]]):
+    """
+    The core ContactParams from a scene's ``contact`` mapping and the node's parameters.
+
+    Rule (as for the ground): the keys the scene sets win; the others use the node's
+    ``contact.*`` parameters.
+    """
+    from sm_ros.core.contact import ContactParams
+    d = _merged(defaults)
+    c = {k: d[f'contact.{k}'] for k in CONTACT_SCENE_KEYS}
+    if scene_contact:
+        c.update(scene_contact)
+    return ContactParams(enabled=bool(c['enabled']), friction=float(c['friction']),
+                         restitution=float(c['restitution']),
+                         radius_scale=float(c['radius_scale'])).validate()
+
+
+def body_contact_from(body: BodySpec):
+    """The core BodyContact of a scene body (its keys over the defaults)."""
+    from sm_ros.core.contact import BodyContact
+    c = body.contact or {}
+    return BodyContact(collide=c.get('collide', True), radius=c.get('contact_radius'),
+                       self_collision=c.get('self_collision', False))
+
+
 def add_spec_body(world, body: BodySpec, defaults: Optional[Mapping[str, Any]] = None,
                   source: str = '<scene>') -> BodyMeta:
     """
@@ -787,7 +856,8 @@ def add_spec_body(world, body: BodySpec, defaults: Optional[Mapping[str, Any]] =
         params = params_from(defaults, body.overrides)
         world.add_body(body.points, masses=body.masses, params=params, name=body.name,
                        velocities=body.velocities,
-                       pinned=body.pinned if len(body.pinned) else None)
+                       pinned=body.pinned if len(body.pinned) else None,
+                       contact=body_contact_from(body))
     except ValueError as exc:
         raise _Where(source, body.name).error(None, str(exc)) from None
     return BodyMeta(name=body.name, overrides=dict(body.overrides), surface=body.surface,
@@ -829,6 +899,7 @@ def build_world(spec: SceneSpec, defaults: Optional[Mapping[str, Any]] = None):
     boxes, spheres, capsules = core_colliders(spec.colliders)
     world.set_colliders(ground=ground_from(spec.colliders.get('ground'), d), boxes=boxes,
                         spheres=spheres, capsules=capsules)
+    world.contact_params = contact_from(spec.contact, d)
     metas = [add_spec_body(world, b, d, spec.source) for b in spec.bodies]
     return world, metas
 

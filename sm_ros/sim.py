@@ -290,6 +290,9 @@ class Simulation:
                                                 scene_values(self.params)),
                 boxes=self.world.boxes, spheres=self.world.spheres,
                 capsules=self.world.capsules)
+        if any(k in pending for k in table.CONTACT_KEYS):
+            self.world.contact_params = _scene_api().contact_from(
+                self.spec.contact, scene_values(self.params))
         for names, fn in self._change_handlers:
             changed = {k: v for k, v in pending.items() if k in names}
             if changed:

@@ -25,7 +25,9 @@ INTERFACE_PARAMS = ('mode', 'alpha', 'beta', 'plasticity.yield', 'plasticity.cre
                     'plasticity.max', 'clusters', 'dt', 'substeps', 'rate', 'gravity',
                     'ground.enabled', 'ground.height', 'ground.friction', 'ground.restitution',
                     'grab_radius', 'force_timeout', 'scene', 'frame_id', 'publish_clock',
-                    'diagnostics_rate', 'max_points', 'cloud_in_mode', 'material_dt')
+                    'diagnostics_rate', 'max_points', 'cloud_in_mode', 'material_dt',
+                    'contact.enabled', 'contact.friction', 'contact.restitution',
+                    'contact.radius_scale')
 #: Parameters sm_ros adds to the interface (live view and recording).
 EXTRA_PARAMS = ('foxglove.port', 'foxglove.host', 'record.path')
 
@@ -228,6 +230,36 @@ def test_ground_parameters(ros, cube_scene):
     refused(node2, 'ground.restitution', 1.5)
     refused(node2, 'ground.height', float('nan'))
     refused(node2, 'ground.enabled', 'yes', 'type')
+
+
+def test_contact_parameters(ros, scene_file):
+    path = scene_file("""
+        contact: {restitution: 0.25}
+        bodies:
+          - {name: a, shape: box, size: [0.1, 0.1, 0.1], spacing: 0.05, position: [0, 0, 0.1]}
+          - {name: b, shape: box, size: [0.1, 0.1, 0.1], spacing: 0.05, position: [0, 0, 0.3],
+             contact_radius: 0.03}
+    """)
+    node = ros.start(path)
+    c = node.world.contact_params
+    assert (c.enabled, c.friction, c.restitution) == (True, 0.5, 0.25)   # scene wins
+    assert node.world.contact_radius('a') == pytest.approx(0.025)
+    ok = node.set_parameters_atomically([Parameter('contact.friction', value=0.8),
+                                         Parameter('contact.restitution', value=0.5),
+                                         Parameter('contact.radius_scale', value=2.0)])
+    assert ok.successful
+    node.tick()
+    c = node.world.contact_params
+    assert (c.friction, c.restitution, c.radius_scale) == (0.8, 0.25, 2.0)
+    assert node.world.contact_radius('a') == pytest.approx(0.05)
+    assert node.world.contact_radius('b') == 0.03          # given in the scene: kept
+    assert set_param(node, 'contact.enabled', False).successful
+    node.tick()
+    assert node.world.contact is None
+    refused(node, 'contact.friction', -0.1)
+    refused(node, 'contact.restitution', 1.5)
+    refused(node, 'contact.radius_scale', 0.0)
+    refused(node, 'contact.friction', float('nan'))
 
 
 def test_ground_stops_a_falling_body(ros, scene_file):

@@ -344,16 +344,27 @@ def contact_velocity(vx, vy, vz, nx, ny, nz, mu, e, thresh):
 
 
 @njit(**JIT)
-def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, iters, touched, count,
+def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched, count,
                 deepest):
     """Project the overlapping pairs apart and apply the contact law (Gauss-Seidel).
 
-    Returns the number of overlapping pairs met in the first sweep; ``count[b]`` and
-    ``deepest[b]`` get each body's contacts and deepest penetration (m) of that sweep.
+    Pair (i, j) overlaps when |x_i - x_j| < r_i + r_j.  Its normal n is the direction of
+    x_i - x_j at the start of the step, x - h v (exact for the bodies' symplectic Euler
+    step), so a pair that crossed within the step is pushed back to the side it came from,
+    and the impulses, all along n or across it at the two particles, keep angular
+    momentum when there is no friction.  The pair moves apart along n by the least lam
+    that restores the distance, split by inverse mass, and the velocities by lam / h;
+    the approaching normal speed left is removed (reversed times ``e`` above ``thresh``)
+    and the relative tangential speed reduced by at most ``mu`` times the whole normal
+    change.  Every velocity change also moves the particle by h times it, so x - h v
+    stays the start of the step for the pairs that follow.
+    Returns the overlapping pairs met in the first sweep; ``count[b]``, ``deepest[b]`` get
+    each body's contacts and deepest penetration (m) of that sweep.
     """
     # one sweep over the pair list in build order (spatially sorted): per pair ~20 loads,
-    # a square root and a dozen multiply-adds; a pair that does not touch costs one distance
+    # two square roots and a few dozen multiply-adds; a pair apart costs one distance
     found = 0
+    ih = 1.0 / h
     for it in range(iters):
         for k in range(npairs):
             i = pi[k]
@@ -370,27 +381,52 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, iters, touched, co
             rr = R[i] + R[j]
             if not d2 < rr * rr:       # apart, or NaN (a body that blew up: left alone)
                 continue
-            d = np.sqrt(d2)
-            if d > 1e-9 * rr:
-                nx, ny, nz = dx / d, dy / d, dz / d
-            else:                      # coincident: push apart along z (deterministic)
-                nx, ny, nz = 0.0, 0.0, 1.0
-            pen = rr - d
-            ai = wi / ws
-            aj = wj / ws
-            X[0, i] += ai * pen * nx
-            X[1, i] += ai * pen * ny
-            X[2, i] += ai * pen * nz
-            X[0, j] -= aj * pen * nx
-            X[1, j] -= aj * pen * ny
-            X[2, j] -= aj * pen * nz
             rx = V[0, i] - V[0, j]
             ry = V[1, i] - V[1, j]
             rz = V[2, i] - V[2, j]
-            qx, qy, qz = contact_velocity(rx, ry, rz, nx, ny, nz, mu, e, thresh)
-            qx -= rx
-            qy -= ry
-            qz -= rz
+            sx = dx - h * rx           # separation at the start of the step
+            sy = dy - h * ry
+            sz = dz - h * rz
+            sl = np.sqrt(sx * sx + sy * sy + sz * sz)
+            if sl > 1e-9 * rr:
+                nx, ny, nz = sx / sl, sy / sl, sz / sl
+            else:
+                d = np.sqrt(d2)
+                if d > 1e-9 * rr:
+                    nx, ny, nz = dx / d, dy / d, dz / d
+                else:                  # coincident: apart along z (deterministic)
+                    nx, ny, nz = 0.0, 0.0, 1.0
+            dn = dx * nx + dy * ny + dz * nz
+            lam = -dn + np.sqrt(dn * dn - d2 + rr * rr)
+            ai = wi / ws
+            aj = wj / ws
+            # normal speed before, the target after (restitution above the threshold)
+            vn0 = rx * nx + ry * ny + rz * nz
+            target = -e * vn0 if -vn0 > thresh else 0.0
+            vn = vn0 + lam * ih
+            dvn = target - vn if vn < target else 0.0
+            # tangential: Coulomb, budget mu * (whole normal change)
+            tx = rx - vn0 * nx
+            ty = ry - vn0 * ny
+            tz = rz - vn0 * nz
+            tl = np.sqrt(tx * tx + ty * ty + tz * tz)
+            f = 0.0
+            if tl > 0.0:
+                f = mu * (lam * ih + dvn) / tl
+                if f > 1.0:
+                    f = 1.0
+            gn = lam * ih + dvn        # relative velocity change: gn n - f t
+            qx = gn * nx - f * tx
+            qy = gn * ny - f * ty
+            qz = gn * nz - f * tz
+            # every velocity change moves the particles by h times it, so x - h v stays
+            # the start of the step for the later pairs (and angular momentum exact)
+            X[0, i] += ai * h * qx
+            X[1, i] += ai * h * qy
+            X[2, i] += ai * h * qz
+            X[0, j] -= aj * h * qx
+            X[1, j] -= aj * h * qy
+            X[2, j] -= aj * h * qz
             V[0, i] += ai * qx
             V[1, i] += ai * qy
             V[2, i] += ai * qz
@@ -405,6 +441,7 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, iters, touched, co
                 touched[bj] = 1
                 count[bi] += 1
                 count[bj] += 1
+                pen = rr - np.sqrt(d2)
                 if pen > deepest[bi]:
                     deepest[bi] = pen
                 if pen > deepest[bj]:
@@ -613,8 +650,8 @@ class Contact:
         self.deepest[:] = 0.0
         p = self.params
         self.found = solve_pairs(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
-                                 p.friction, p.restitution, thresh, p.iterations, f.touched,
-                                 self.count, self.deepest)
+                                 p.friction, p.restitution, thresh, float(h), p.iterations,
+                                 f.touched, self.count, self.deepest)
 
     def fast_particles(self, h):
         """Per body, the particles that moved more than their contact radius in the last
