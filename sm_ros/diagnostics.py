@@ -22,7 +22,8 @@ KEYS = ('points', 'bodies', 'clusters', 'mode', 'step_ms_mean', 'step_ms_max',
         'publish_ms_mean', 'tick_ms_max', 'rate_target_hz', 'rate_achieved_hz',
         'real_time_factor', 'overruns', 'shape_error_rms_m', 'momentum_drift',
         'momentum_drift_measured', 'nonfinite_resets', 'refused_messages', 'tick_ms_mean',
-        'other_ms_mean', 'recording', 'recorder_messages', 'recorder_dropped')
+        'other_ms_mean', 'recording', 'recorder_messages', 'recorder_dropped', 'contacts',
+        'contact_fast_particles')
 
 
 def fmt(value: float) -> str:
@@ -75,6 +76,8 @@ def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, 
         'recording': recording,
         'recorder_messages': str(int(recorder_messages)),
         'recorder_dropped': str(int(recorder_dropped)),
+        'contacts': str(int(getattr(stats, 'contacts', 0))),
+        'contact_fast_particles': str(int(getattr(stats, 'contact_fast_max', 0))),
     }
     status = DiagnosticStatus()
     status.name = f'{node_name}: solver'

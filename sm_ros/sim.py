@@ -428,6 +428,9 @@ class Simulation:
             stats.add_step(time.perf_counter() - s)
         self.sim_ns += substeps * int(round(dt * 1e9))
         self.collider_wrenches = world.take_collider_wrenches()
+        contact = world.contact
+        if contact is not None:
+            stats.add_contact(contact.found, int(contact.fast_particles(dt).sum()))
         reset = self.reset_nonfinite()
         if measure and not reset:
             self.momentum.track(world, before)

@@ -39,6 +39,8 @@ class TickStats:
         self.sim_s = 0.0
         self.overruns = 0
         self.nonfinite: List[str] = []
+        self.contacts = 0
+        self.contact_fast_max = 0
 
     def add_step(self, seconds: float) -> None:
         """Record one world.step."""
@@ -64,6 +66,16 @@ class TickStats:
             self.overruns_total += 1
             return True
         return False
+
+    def add_contact(self, pairs: int, fast: int) -> None:
+        """Record a tick's touching particle pairs and fast particles (sm_ros.core.contact).
+
+        ``fast``: particles that moved more than their contact radius in the tick's last
+        step (the window keeps the largest count), which can tunnel through a thin layer.
+        """
+        self.contacts = int(pairs)
+        if fast > self.contact_fast_max:
+            self.contact_fast_max = int(fast)
 
     def add_nonfinite(self, names: Iterable[str]) -> None:
         """Record bodies that went non-finite and were reset."""

@@ -1,0 +1,382 @@
+"""Body-body contact and self-collision (sm_ros.core.contact): kernels, invariants, scenes."""
+
+import math
+
+import numpy as np
+import pytest
+
+from sm_ros.core import BodyParams, Box, Ground, World
+from sm_ros.core import contact as C
+from sm_ros.core.contact import BodyContact, ContactParams
+
+S = 0.02                                           # lattice spacing of the test bodies
+
+
+def lattice(nx, ny, nz, s=S, center=(0.0, 0.0, 0.0)):
+    """An nx x ny x nz lattice of spacing s centred on ``center``."""
+    g = np.stack(np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing='ij'),
+                 -1).reshape(-1, 3) * s
+    return g - g.mean(axis=0) + np.asarray(center, dtype=float)
+
+
+def min_distance(a, b):
+    """Smallest distance between a point of a (N, 3) and a point of b (M, 3)."""
+    d = a[:, None, :] - b[None, :, :]
+    return float(np.sqrt(np.einsum('ijk,ijk->ij', d, d).min()))
+
+
+def brute_pairs(x, r, body, act, selfc, x0, cutoff_extra):
+    """The candidate pairs ``build_pairs`` must find, by NumPy over all pairs."""
+    n = len(x)
+    i, j = np.triu_indices(n, 1)
+    d = np.linalg.norm(x[i] - x[j], axis=1)
+    cut = r[i] + r[j]
+    ok = act[body[i]] & act[body[j]] & (d < cut + cutoff_extra)
+    same = body[i] == body[j]
+    rest = np.linalg.norm(x0[i] - x0[j], axis=1)
+    ok &= ~same | (selfc[body[i]] & (rest > C.SELF_REST_FACTOR * cut))
+    return set(zip(i[ok].tolist(), j[ok].tolist()))
+
+
+# ---------------------------------------------------------------------------------------
+# Kernels against NumPy
+# ---------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize('kernel', ['grid', 'hash'])
+def test_pair_build_matches_brute_force(kernel):
+    rng = np.random.default_rng(4)
+    n, nb = 600, 7
+    X = np.ascontiguousarray(rng.uniform(-0.2, 0.2, (3, n)))
+    X0 = np.ascontiguousarray(X + rng.normal(0.0, 0.05, X.shape))
+    B = rng.integers(0, nb, n).astype(np.int32)
+    R = np.array([0.01, 0.02, 0.015, 0.01, 0.012, 0.01, 0.03])[B]
+    act = np.array([True, True, True, False, True, True, True])
+    selfc = np.array([False, True, False, True, False, True, False])
+    skin = 0.005
+    cell = 2 * R.max() + skin
+    hb = np.zeros(n, np.int64)
+    srt = np.zeros(n, np.int64)
+    sco = np.zeros((5, n))
+    pi = np.zeros(10 * n, np.int32)
+    pj = np.zeros(10 * n, np.int32)
+    if kernel == 'grid':
+        cnt = np.zeros(1 << 16 | 1, np.int64)
+        m = C.build_pairs_grid(X, R, B, act, selfc, X0, cell, skin, C.SELF_REST_FACTOR, hb,
+                               cnt, srt, sco, pi, pj)
+    else:
+        cnt = np.zeros((1 << 12) + 1, np.int64)
+        m = C.build_pairs(X, R, B, act, selfc, X0, cell, skin, C.SELF_REST_FACTOR, hb, cnt,
+                          srt, np.zeros(n, np.int64), sco, pi, pj)
+    got = {(min(a, b), max(a, b)) for a, b in zip(pi[:m].tolist(), pj[:m].tolist())}
+    assert len(got) == m                                   # each pair once
+    want = brute_pairs(X.T, R, B, act, selfc, X0.T, skin)
+    assert got == want
+    assert any(B[a] == B[b] for a, b in want)              # self pairs were tested too
+
+
+def test_grid_refuses_a_box_larger_than_its_table():
+    X = np.array([[0.0, 1e3], [0.0, 0.0], [0.0, 0.0]])
+    R = np.full(2, 0.01)
+    B = np.array([0, 1], np.int32)
+    act = np.ones(2, bool)
+    m = C.build_pairs_grid(X, R, B, act, ~act, X, 0.03, 0.01, 2.0, np.zeros(2, np.int64),
+                           np.zeros(17, np.int64), np.zeros(2, np.int64), np.zeros((5, 2)),
+                           np.zeros(4, np.int32), np.zeros(4, np.int32))
+    assert m == -1
+
+
+def test_pair_response_conserves_momentum_and_separates():
+    rng = np.random.default_rng(1)
+    X = np.ascontiguousarray(np.array([[0.0, 0.015], [0.0, 0.004], [0.0, -0.002]]))
+    V = np.ascontiguousarray(rng.normal(size=(3, 2)))
+    W = np.array([1.0 / 0.3, 1.0 / 0.7])
+    R = np.full(2, 0.01)
+    B = np.array([0, 1], np.int32)
+    p0 = V @ (1.0 / W)
+    lever = X - 1e-3 * V                                  # positions at the step's start
+    l0 = np.cross(lever.T, V.T * (1.0 / W)[:, None]).sum(axis=0)
+    touched = np.zeros(2, np.uint8)
+    found = C.solve_pairs(X, V, W, R, B, np.array([0], np.int32), np.array([1], np.int32),
+                          1, 0.0, 0.0, 0.0, 1e-3, 1, touched, np.zeros(2, np.int64),
+                          np.zeros(2))
+    assert found == 1 and touched.all()
+    assert np.linalg.norm(X[:, 0] - X[:, 1]) >= 0.02 - 1e-12
+    np.testing.assert_allclose(V @ (1.0 / W), p0, atol=1e-14)
+    l1 = np.cross((X - 1e-3 * V).T, V.T * (1.0 / W)[:, None]).sum(axis=0)
+    np.testing.assert_allclose(l1, l0, atol=1e-14)
+    np.testing.assert_allclose(X - 1e-3 * V, lever, atol=1e-15)   # start of step kept
+
+
+def test_pinned_particles_are_infinite_mass():
+    X = np.ascontiguousarray(np.array([[0.0, 0.015], [0.0, 0.0], [0.0, 0.0]]))
+    V = np.zeros((3, 2))
+    W = np.array([0.0, 2.0])
+    before = X[:, 0].copy()
+    C.solve_pairs(X, V, W, np.full(2, 0.01), np.array([0, 1], np.int32),
+                  np.array([0], np.int32), np.array([1], np.int32), 1, 0.5, 0.0, 0.0, 0.01, 1,
+                  np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2))
+    np.testing.assert_array_equal(X[:, 0], before)
+    assert X[0, 1] == pytest.approx(0.02)
+
+
+def test_default_radius_is_half_the_spacing():
+    assert C.default_radius(lattice(5, 4, 3, 0.03)) == pytest.approx(0.015)
+    assert C.default_radius(lattice(40, 30, 2, 0.01)) == pytest.approx(0.005)   # sampled
+    assert C.default_radius(np.zeros((1, 3))) == 0.0
+
+
+# ---------------------------------------------------------------------------------------
+# One body: nothing to do
+# ---------------------------------------------------------------------------------------
+
+def _drop_world(contact=True, second=None):
+    w = World()
+    w.set_colliders(ground=Ground())
+    w.contact_params = ContactParams(enabled=contact)
+    w.add_body(lattice(5, 5, 5, center=(0, 0, 0.2)), 0.01, BodyParams(damping=0.05), 'a',
+               velocities=np.tile([0.3, 0.0, 0.0], (125, 1)))
+    if second is not None:
+        w.add_body(lattice(3, 3, 3, center=(1.0, 0, 0.2)), 0.01, None, 'b', contact=second)
+    return w
+
+
+@pytest.mark.parametrize('second', [None, BodyContact(collide=False)])
+def test_one_colliding_body_without_self_collision_is_a_no_op(second):
+    on, off = _drop_world(True, second), _drop_world(False, second)
+    assert on.contact is None
+    for _ in range(60):
+        on.step(1 / 120)
+        off.step(1 / 120)
+    for a, b in zip(on.bodies, off.bodies):
+        np.testing.assert_array_equal(a.x, b.x)
+        np.testing.assert_array_equal(a.v, b.v)
+    assert not on._flat.X.any()                     # never gathered
+
+
+def test_self_collision_needs_no_second_body():
+    w = World()
+    w.add_body(lattice(3, 3, 3), 1.0, None, 'a', contact=BodyContact(self_collision=True))
+    assert w.contact is not None
+
+
+# ---------------------------------------------------------------------------------------
+# Scenes
+# ---------------------------------------------------------------------------------------
+
+def test_box_dropped_onto_a_box_rests_on_it():
+    w = World()
+    w.set_colliders(ground=Ground())
+    p = BodyParams(damping=0.2)
+    a = w.add_body(lattice(6, 6, 3, center=(0, 0, 0.02)), 0.01, p, 'a')
+    b = w.add_body(lattice(4, 4, 3, center=(0.007, 0.004, 0.1)), 0.01, p, 'b')
+    for _ in range(360):
+        w.step(1 / 120)
+    assert min_distance(a.x, b.x) > 0.6 * S
+    assert b.x[:, 2].min() > a.x[:, 2].max() - 0.5 * S         # on top, not beside
+    assert abs(b.com()[0]) < 0.06 and np.abs(b.v).max() < 0.02
+
+
+def test_stack_of_five_boxes_stands():
+    # the contact layer carries the load above it like a spring of about (its particles)
+    # m / h^2 (README "Contact", limits): five boxes stand at h = 1/480 s (four substeps
+    # of the node's 1/120 s), they topple at h = 1/240 s
+    w = World()
+    w.set_colliders(ground=Ground())
+    p = BodyParams(damping=0.5)
+    boxes = [w.add_body(lattice(4, 4, 3, center=(0, 0, 0.02 + 3 * S * k)), 0.01, p, f'b{k}')
+             for k in range(5)]
+    h = 1 / 480
+    for _ in range(960):                                      # settle 2 s
+        w.step(h)
+    top = []
+    for _ in range(int(10 / h)):
+        w.step(h)
+        top.append(boxes[-1].com()[2])
+    top = np.array(top)
+    assert top[-1] > top[0] - 1e-3                            # no sinking
+    assert top.max() - top.min() < 1e-3                       # no jitter
+    for lo, hi in zip(boxes, boxes[1:]):
+        assert min_distance(lo.x, hi.x) > 0.6 * S
+
+
+@pytest.mark.parametrize('mu', [0.0, 0.5])
+def test_head_on_in_zero_gravity(mu):
+    w = World(gravity=(0, 0, 0))
+    w.contact_params = ContactParams(friction=mu)
+    n = 125
+    a = w.add_body(lattice(5, 5, 5, center=(-0.1, 0, 0)), 0.01, BodyParams(mode='linear'), 'a',
+                   velocities=np.tile([1.0, 0.0, 0.1], (n, 1)))
+    b = w.add_body(lattice(5, 5, 5, center=(0.1, 0, 0.03)), 0.02, BodyParams(mode='rigid'),
+                   'b', velocities=np.tile([-1.0, 0.2, 0.0], (n, 1)))
+    p0 = a.momentum() + b.momentum()
+    l0 = a.angular_momentum() + b.angular_momentum()
+    h = 1 / 240
+    met = 0
+    for _ in range(60):
+        w.step(h)
+        met += w.contact.found
+        # x - h v: the positions the step started from, where the symplectic step keeps
+        # angular momentum exactly
+        assert (a.x[:, 0] - b.x[:, 0].min()).max() < 0.0 or \
+            min_distance(a.x, b.x) > 0.5 * S               # never through each other
+    assert met > 0
+    assert a.com()[0] < b.com()[0] and a.v[:, 0].mean() < b.v[:, 0].mean()  # bounced apart
+    np.testing.assert_allclose(a.momentum() + b.momentum(), p0, atol=1e-12)
+    lx = a.angular_momentum() + b.angular_momentum()
+    if mu == 0.0:
+        np.testing.assert_allclose(lx, l0, atol=1e-12)
+    else:
+        assert np.abs(lx - l0).max() > 1e-6               # friction couples do act
+
+
+def _sheet_and_ball(speed, h):
+    """A pinned one-particle-thick sheet at z = 0 and a small ball moving at it."""
+    w = World(gravity=(0, 0, 0))
+    sheet = lattice(12, 12, 1)
+    w.add_body(sheet, 0.01, BodyParams(mode='linear'), 'sheet', pinned=np.arange(len(sheet)))
+    ball = lattice(3, 3, 3, center=(0.003, -0.005, 0.06))
+    b = w.add_body(ball, 0.01, BodyParams(mode='rigid'), 'ball',
+                   velocities=np.tile([0.0, 0.0, -speed], (len(ball), 1)))
+    return w, b
+
+
+@pytest.mark.parametrize('factor', [0.5, 0.95])
+def test_below_the_tunnelling_speed_nothing_passes_a_thin_sheet(factor):
+    h = 1 / 120
+    r = S / 2
+    w, ball = _sheet_and_ball(factor * r / h, h)
+    for _ in range(60):
+        w.step(h)
+        assert ball.x[:, 2].min() > 0.0
+    assert w.contact.fast_particles(h).sum() == 0
+
+
+def test_above_the_tunnelling_speed_fast_particles_are_counted():
+    h = 1 / 120
+    r = S / 2
+    w, ball = _sheet_and_ball(1.5 * r / h, h)
+    w.step(h)
+    fast = w.contact.fast_particles(h)
+    assert fast.tolist() == [0, ball.n]
+
+
+def test_pinned_body_does_not_move():
+    w = World()
+    plate = lattice(8, 8, 1, center=(0, 0, 0.3))
+    pb = w.add_body(plate, 0.01, None, 'plate', pinned=np.arange(len(plate)))
+    box = w.add_body(lattice(3, 3, 3, center=(0, 0, 0.4)), 0.01, BodyParams(damping=0.1), 'box')
+    for _ in range(240):
+        w.step(1 / 120)
+    np.testing.assert_array_equal(pb.x, plate)
+    assert box.x[:, 2].min() > 0.3 + 0.6 * S
+
+
+def test_self_collision_sheet_folds_over_a_rod():
+    def run(selfc):
+        w = World()
+        w.set_colliders(boxes=[Box(lo=(-0.012, -1.0, 0.48), hi=(0.012, 1.0, 0.50))])
+        x0 = lattice(40, 6, 1, center=(0.0, 0.0, 0.52))
+        body = w.add_body(x0, 0.001, BodyParams(mode='linear', alpha=0.1, beta=0.0,
+                                                clusters=20, damping=0.1),
+                          'sheet', contact=BodyContact(self_collision=selfc))
+        for _ in range(720):
+            w.step(1 / 240)
+        left, right = x0[:, 0] < -0.05, x0[:, 0] > 0.05      # the halves, off the rod
+        return body, min_distance(body.x[left], body.x[right])
+    body, gap = run(True)
+    assert body.is_finite() and gap > 0.6 * S
+    _, gap_off = run(False)
+    assert gap_off < 0.6 * S                          # without it the halves meet
+
+
+# ---------------------------------------------------------------------------------------
+# Bad input
+# ---------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize('changes', [
+    dict(friction=-0.1), dict(friction=math.nan), dict(restitution=1.5),
+    dict(radius_scale=0.0), dict(radius_scale=math.inf), dict(enabled='yes'),
+    dict(iterations=0), dict(iterations=2.5), dict(friction='a'),
+])
+def test_contact_params_refused(changes):
+    w = World()
+    before = w.contact_params
+    with pytest.raises(ValueError):
+        w.contact_params = ContactParams(**changes)
+    assert w.contact_params == before
+
+
+@pytest.mark.parametrize('bc', [BodyContact(radius=0.0), BodyContact(radius=-1.0),
+                                BodyContact(radius=math.nan), BodyContact(collide=1),
+                                BodyContact(self_collision='true')])
+def test_body_contact_refused(bc):
+    w = World()
+    with pytest.raises(ValueError):
+        w.add_body(lattice(2, 2, 2), 1.0, None, 'a', contact=bc)
+    assert w.bodies == []
+    w.add_body(lattice(2, 2, 2), 1.0, None, 'a')
+    with pytest.raises(ValueError):
+        w.set_body_contact('a', bc)
+    assert w.body_contact('a') == BodyContact()
+    with pytest.raises(ValueError):
+        w.contact_params = 'on'
+
+
+# ---------------------------------------------------------------------------------------
+# Scene keys and the simulation
+# ---------------------------------------------------------------------------------------
+
+TWO_BODIES = """
+bodies:
+  - {name: a, shape: box, size: [0.1, 0.1, 0.1], spacing: 0.05, position: [0, 0, 0.1]}
+  - {name: b, shape: box, size: [0.1, 0.1, 0.1], spacing: 0.05, position: [0, 0, 0.3]%s}
+"""
+
+
+def test_scene_contact_keys():
+    from sm_ros.scene import build_world, parse_scene
+    import yaml
+    data = yaml.safe_load('contact: {friction: 0.2, restitution: 0.1, radius_scale: 1.5}\n'
+                          + TWO_BODIES % ', collide: false, contact_radius: 0.04, '
+                          'self_collision: true')
+    world, _ = build_world(parse_scene(data))
+    c = world.contact_params
+    assert (c.enabled, c.friction, c.restitution, c.radius_scale) == (True, 0.2, 0.1, 1.5)
+    assert world.contact_radius('a') == pytest.approx(1.5 * 0.025)
+    assert world.contact_radius('b') == 0.04
+    assert world.body_contact('b') == BodyContact(collide=False, radius=0.04,
+                                                  self_collision=True)
+    assert world.contact is None                      # one colliding body, no self-collision
+
+
+@pytest.mark.parametrize('top, body, message', [
+    ('contact: {friction: -1}\n', '', 'contact.friction'),
+    ('contact: {restitution: 2}\n', '', 'contact.restitution'),
+    ('contact: {radius_scale: 0}\n', '', 'contact.radius_scale'),
+    ("contact: {enabled: 'yes'}\n", '', 'contact.enabled'),
+    ("contact: {friction: 'a'}\n", '', 'contact.friction'),
+    ('contact: {frictoin: 0.2}\n', '', 'frictoin'),
+    ('contact: 3\n', '', 'contact'),
+    ('', ', collide: 1', 'collide'),
+    ('', ', self_collision: [true]', 'self_collision'),
+    ('', ', contact_radius: -0.01', 'contact_radius'),
+    ('', ", contact_radius: 'big'", 'contact_radius'),
+])
+def test_scene_contact_keys_refused(top, body, message):
+    from sm_ros.scene import parse_scene, SceneError
+    import yaml
+    with pytest.raises(SceneError, match=message):
+        parse_scene(yaml.safe_load(top + TWO_BODIES % body))
+
+
+def test_simulation_counts_fast_particles(tmp_path):
+    from sm_ros.sim import Simulation
+    path = tmp_path / 'fast.yaml'
+    path.write_text(TWO_BODIES % ', velocity: [0, 0, -10]')
+    sim = Simulation({'scene': str(path)})
+    sim.tick()
+    assert sim.stats.contact_fast_max >= sim.world.body('b').n     # 10 m/s * h > r
+    path.write_text(TWO_BODIES % '')
+    slow = Simulation({'scene': str(path)})
+    slow.tick()
+    assert slow.stats.contact_fast_max == 0
