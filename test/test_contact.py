@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from sm_ros.core import BodyParams, Box, Ground, World
+from sm_ros.core import BodyParams, Ground, World
 from sm_ros.core import contact as C
 from sm_ros.core.contact import BodyContact, ContactParams
 
