@@ -201,8 +201,8 @@ def spin_points(on_cloud: Callable[[Any, float], None], seconds: float, *,
     """
     Subscribe to ``points``; call ``on_cloud(msg, wall time)`` for each cloud.
 
-    Spins until ``seconds`` have passed or ``until()`` is true; initialises and shuts down
-    rclpy itself.
+    Spins until ``seconds`` have passed, ``until()`` is true or SIGTERM arrives (then it
+    returns normally, so the caller still reports); initialises and shuts down rclpy itself.
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -217,8 +217,11 @@ def spin_points(on_cloud: Callable[[Any, float], None], seconds: float, *,
                              QoSProfile(depth=5, reliability=reliability))
     executor = SingleThreadedExecutor()
     executor.add_node(node)
+    stop = []
+    import signal
+    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))   # the bench is done: report
     t_end = time.monotonic() + seconds
-    while time.monotonic() < t_end and not until():
+    while time.monotonic() < t_end and not until() and not stop:
         executor.spin_once(timeout_sec=0.05)
     node.destroy_node()
     rclpy.try_shutdown()

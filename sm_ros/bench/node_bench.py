@@ -82,7 +82,8 @@ def measure_many(points: int, rate: float, args, tmp: Path) -> List[Dict[str, An
     harness.box_scene(bc.lattice_side(points) ** 3, scene, getattr(args, 'node_damping', 0.0))
     env = harness.ros_env(profile=harness.dds_profile(args.node_dds_profile))
     warm = 2.0 + count * points / 2e5
-    sub_seconds = args.node_seconds + warm + 10.0 + count * points / 1e5
+    # the subscribers run until the nodes are done (SIGTERM), however long start-up takes
+    sub_seconds = args.node_seconds + warm + 600.0
     spaces = ['' if count == 1 else f'/sim_{i}' for i in range(count)]
     procs = 'sm_ros.bench.node_procs'
     subs = [harness.spawn(procs, ['sub', '--seconds', f'{sub_seconds:.1f}', '--namespace', ns],
@@ -108,8 +109,10 @@ def measure_many(points: int, rate: float, args, tmp: Path) -> List[Dict[str, An
             results.append(json.loads(lines[-1]))
     received_all = []
     for sub in subs:
+        sub.terminate()
+    for sub in subs:
         try:
-            out, _ = sub.communicate(timeout=sub_seconds + 30)
+            out, _ = sub.communicate(timeout=60)
         except subprocess.TimeoutExpired:
             sub.kill()
             out = ''
