@@ -14,9 +14,11 @@ channel            schema                 content
                                           panel colours the points by body by default
 ``/poses``         foxglove.PosesInFrame  one pose (centre of mass, rotation) per body
 ``/surfaces``      foxglove.SceneUpdate   the deformed mesh surfaces (triangle lists)
-``/colliders``     foxglove.SceneUpdate   ground, boxes, spheres (and what
-                                          ``COLLIDER_ENTITIES`` learns to draw)
-``/contacts``      foxglove.SceneUpdate   contact forces as arrows
+``/colliders``     foxglove.SceneUpdate   ground, boxes, spheres, capsules where they
+                                          are now (kinematic ones move; a new kind is
+                                          one entry in ``COLLIDER_ENTITIES``)
+``/contacts``      foxglove.SceneUpdate   forces as arrows (``log_contacts``: the node
+                                          sends the collider wrenches at the colliders)
 ``/diagnostics``   JSON                   the solver's figures as numbers (Plot panel)
 =================  =====================  ==============================================
 
@@ -156,55 +158,101 @@ def body_rgba(index: int, count: int) -> Tuple[float, float, float, float]:
     return (r, g, b, 1.0)
 
 
-def _ground_entity(fg, ground, frame_id) -> Any:
+def _color(fg, rgba):
+    return fg.messages.Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
+
+
+def _pose(fg, centre, quat):
     m = fg.messages
-    pose = m.Pose(position=m.Vector3(x=0.0, y=0.0, z=float(ground.height) - 0.0005),
-                  orientation=m.Quaternion(w=1.0))
-    return [m.CubePrimitive(pose=pose, size=m.Vector3(x=GROUND_SIDE, y=GROUND_SIDE, z=0.001),
-                            color=m.Color(r=GROUND_RGBA[0], g=GROUND_RGBA[1],
-                                          b=GROUND_RGBA[2], a=GROUND_RGBA[3]))], 'cubes'
+    return m.Pose(position=m.Vector3(x=float(centre[0]), y=float(centre[1]),
+                                     z=float(centre[2])),
+                  orientation=m.Quaternion(x=float(quat[0]), y=float(quat[1]),
+                                           z=float(quat[2]), w=float(quat[3])))
 
 
-def _box_entity(fg, box, frame_id) -> Any:
+def _ground_entity(fg, ground, pose) -> Dict[str, list]:
     m = fg.messages
-    lo, hi = np.asarray(box.lo, float), np.asarray(box.hi, float)
-    c, s = (lo + hi) / 2.0, hi - lo
-    pose = m.Pose(position=m.Vector3(x=c[0], y=c[1], z=c[2]), orientation=m.Quaternion(w=1.0))
-    return [m.CubePrimitive(pose=pose, size=m.Vector3(x=s[0], y=s[1], z=s[2]),
-                            color=m.Color(r=COLLIDER_RGBA[0], g=COLLIDER_RGBA[1],
-                                          b=COLLIDER_RGBA[2], a=COLLIDER_RGBA[3]))], 'cubes'
+    centre = (0.0, 0.0, float(ground.height) - 0.0005)
+    return {'cubes': [m.CubePrimitive(pose=_pose(fg, centre, (0, 0, 0, 1)),
+                                      size=m.Vector3(x=GROUND_SIDE, y=GROUND_SIDE, z=0.001),
+                                      color=_color(fg, GROUND_RGBA))]}
 
 
-def _sphere_entity(fg, sphere, frame_id) -> Any:
+def _box_entity(fg, box, pose) -> Dict[str, list]:
     m = fg.messages
-    c = np.asarray(sphere.center, float)
+    size = np.asarray(box.hi, float) - np.asarray(box.lo, float)
+    return {'cubes': [m.CubePrimitive(pose=_pose(fg, *pose),
+                                      size=m.Vector3(x=size[0], y=size[1], z=size[2]),
+                                      color=_color(fg, COLLIDER_RGBA))]}
+
+
+def _sphere_entity(fg, sphere, pose) -> Dict[str, list]:
+    m = fg.messages
     d = 2.0 * float(sphere.radius)
-    pose = m.Pose(position=m.Vector3(x=c[0], y=c[1], z=c[2]), orientation=m.Quaternion(w=1.0))
-    return [m.SpherePrimitive(pose=pose, size=m.Vector3(x=d, y=d, z=d),
-                              color=m.Color(r=COLLIDER_RGBA[0], g=COLLIDER_RGBA[1],
-                                            b=COLLIDER_RGBA[2], a=COLLIDER_RGBA[3]))], 'spheres'
+    return {'spheres': [m.SpherePrimitive(pose=_pose(fg, *pose), size=m.Vector3(x=d, y=d, z=d),
+                                          color=_color(fg, COLLIDER_RGBA))]}
 
 
-#: Collider class name -> function(foxglove, collider, frame_id) returning
-#: (primitives, SceneEntity keyword). A new collider kind is drawn by adding one entry.
+def _capsule_entity(fg, capsule, pose) -> Dict[str, list]:
+    """A cylinder along the local z axis and a sphere at each end."""
+    m = fg.messages
+    centre, quat = np.asarray(pose[0], float), np.asarray(pose[1], float)
+    r, length = float(capsule.radius), float(capsule.length)
+    x, y, z, w = quat
+    axis = np.array([2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y)])
+    d = 2.0 * r
+    ends = [centre + 0.5 * length * axis, centre - 0.5 * length * axis]
+    return {'cylinders': [m.CylinderPrimitive(pose=_pose(fg, centre, quat),
+                                              size=m.Vector3(x=d, y=d, z=length),
+                                              bottom_scale=1.0, top_scale=1.0,
+                                              color=_color(fg, COLLIDER_RGBA))],
+            'spheres': [m.SpherePrimitive(pose=_pose(fg, e, quat), size=m.Vector3(x=d, y=d, z=d),
+                                          color=_color(fg, COLLIDER_RGBA)) for e in ends]}
+
+
+#: Collider class name -> function(foxglove, collider, (centre, quaternion x y z w))
+#: returning {SceneEntity keyword: [primitives]}. A new collider kind is drawn by adding
+#: one entry here (and, if a World keeps it elsewhere than ground/boxes/spheres/capsules,
+#: one line in ``world_colliders``).
 COLLIDER_ENTITIES: Dict[str, Callable] = {
     'Ground': _ground_entity,
     'Box': _box_entity,
     'Sphere': _sphere_entity,
+    'Capsule': _capsule_entity,
 }
 
 
-def world_colliders(world) -> List[Tuple[str, Any]]:
-    """Return (id, collider) for every collider of a core World (ground, boxes, spheres)."""
+def _declared_pose(c) -> Tuple[np.ndarray, np.ndarray]:
+    """Return the centre and quaternion a collider was declared with."""
+    if hasattr(c, 'lo'):
+        centre = (np.asarray(c.lo, float) + np.asarray(c.hi, float)) / 2.0
+    else:
+        centre = np.asarray(getattr(c, 'center', (0.0, 0.0, 0.0)), float)
+    q = getattr(c, 'orientation', None)
+    return centre, np.asarray(q if q is not None else (0.0, 0.0, 0.0, 1.0), float)
+
+
+def world_colliders(world) -> List[Tuple[str, Any, Tuple[np.ndarray, np.ndarray]]]:
+    """
+    Return (id, collider, (centre, quaternion)) for every collider of a core World.
+
+    Named colliders are drawn where they are now (``World.collider_pose``: kinematic ones
+    move); the others where they were declared.
+    """
     out = []
-    if getattr(world, 'ground', None) is not None:
-        out.append(('ground', world.ground))
-    for i, b in enumerate(getattr(world, 'boxes', ()) or ()):
-        out.append((getattr(b, 'name', None) or f'box{i}', b))
-    for i, s in enumerate(getattr(world, 'spheres', ()) or ()):
-        out.append((getattr(s, 'name', None) or f'sphere{i}', s))
-    for i, c in enumerate(getattr(world, 'colliders', ()) or ()):
-        out.append((getattr(c, 'name', None) or f'collider{i}', c))
+    ground = getattr(world, 'ground', None)
+    if ground is not None:
+        out.append(('ground', ground, (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))))
+    for kind in ('boxes', 'spheres', 'capsules'):
+        for i, c in enumerate(getattr(world, kind, ()) or ()):
+            name = getattr(c, 'name', None)
+            pose = _declared_pose(c)
+            if name and hasattr(world, 'collider_pose'):
+                try:
+                    pose = world.collider_pose(name)
+                except (ValueError, KeyError):
+                    pass
+            out.append((name or f'{kind[:-1] if kind != "boxes" else "box"}{i}', c, pose))
     return out
 
 
@@ -318,31 +366,30 @@ class FoxgloveView:
         self.messages_logged += 1
         return True
 
-    def log_colliders(self, colliders: Iterable[Tuple[str, Any]], stamp_ns: int,
-                      moving: bool = False) -> bool:
+    def log_colliders(self, colliders: Iterable[Tuple[str, Any, Any]], stamp_ns: int) -> bool:
         """
-        Send the colliders [(id, collider)] (see ``world_colliders``).
+        Send the colliders [(id, collider, (centre, quaternion))] (see ``world_colliders``).
 
-        Static colliders are sent once per subscription change (the entities persist in
-        the client); pass ``moving=True`` when a collider moved this tick.
+        Sent when a client subscribes and whenever a collider moved or changed (the
+        entities persist in the client in between).
         """
         if not self.colliders.has_sinks():
             self._collider_key = None
             return False
         colliders = list(colliders)
-        key = tuple((cid, repr(c)) for cid, c in colliders)
-        if key == self._collider_key and not moving:
+        key = tuple((cid, repr(c), tuple(np.round(np.concatenate(
+            [np.ravel(pose[0]), np.ravel(pose[1])]), 9))) for cid, c, pose in colliders)
+        if key == self._collider_key:
             return False
         m = self._fg.messages
         ts = _timestamp_msg(self._fg, stamp_ns)
         entities = []
-        for cid, c in colliders:
+        for cid, c, pose in colliders:
             draw = COLLIDER_ENTITIES.get(type(c).__name__)
             if draw is None:
                 continue
-            prims, kind = draw(self._fg, c, self.frame_id)
             entities.append(m.SceneEntity(timestamp=ts, frame_id=self.frame_id,
-                                          id=f'collider/{cid}', **{kind: prims}))
+                                          id=f'collider/{cid}', **draw(self._fg, c, pose)))
         deletions = [m.SceneEntityDeletion(timestamp=ts,
                                            type=m.SceneEntityDeletionType.All)]
         self.colliders.log(m.SceneUpdate(deletions=deletions, entities=entities),

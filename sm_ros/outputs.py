@@ -9,6 +9,7 @@ serialised once and the same bytes go to the publisher and the recorder. The nod
 """
 
 import os
+import sys
 import time
 from typing import List, Optional, Tuple
 
@@ -156,6 +157,12 @@ class Outputs:
         if live is not None:
             from sm_ros.live import world_colliders
             live.log_colliders(world_colliders(self.sim.world), ns)
+            if wrenches and live.contacts.has_sinks():
+                # the force on each named collider, as an arrow at its centre
+                names = list(wrenches)
+                live.log_contacts(
+                    np.array([self.sim.world.collider_pose(n)[0] for n in names]),
+                    np.array([wrenches[n][0] for n in names], dtype=np.float64), ns)
 
     def _send(self, pub, msg, to_ros: bool, msgtype: str, wall: int, ns: int) -> None:
         """Publish ``msg`` if ``to_ros``; record it (serialised once for both) if recording."""
@@ -290,8 +297,12 @@ class Outputs:
         if rec is None:
             return None
         meta = rec.close()['rosbag2_bagfile_information']
-        self.node.get_logger().info(f"recorded {meta['message_count']} messages into {rec.path}"
-                               + (f' ({rec.dropped} dropped)' if rec.dropped else ''))
+        text = (f"recorded {meta['message_count']} messages into {rec.path}"
+                + (f' ({rec.dropped} dropped)' if rec.dropped else ''))
+        if self.node.context.ok():
+            self.node.get_logger().info(text)
+        else:                       # after Ctrl-C: rosout is gone, the console is not
+            print(f'[{self.node.get_name()}] {text}', file=sys.stderr)
         return meta
 
     def record_path_changed(self) -> None:

@@ -162,21 +162,40 @@ def test_nothing_is_built_without_a_subscriber(view, monkeypatch):
 
 
 def test_colliders_poses_contacts_and_diagnostics(view, client):
-    from sm_ros.core import Box, Ground, Sphere
+    from sm_ros.core import Box, Capsule, Ground, Sphere, World
     client.subscribe('/colliders', '/poses', '/contacts', '/diagnostics', '/surfaces')
     assert wait_until(lambda: view.colliders.has_sinks() and view.surfaces.has_sinks())
-    colliders = [('ground', Ground(height=0.25)), ('box0', Box(lo=(1, 2, 3), hi=(2, 4, 7))),
-                 ('s', Sphere(center=(0, 0, 1), radius=0.5))]
-    assert view.log_colliders(colliders, 10)
-    assert not view.log_colliders(colliders, 11)         # static: sent once
+    world = World(gravity=(0.0, 0.0, -9.81))
+    h = np.sqrt(0.5)
+    world.set_colliders(ground=Ground(height=0.25),
+                        boxes=[Box(lo=(1, 2, 3), hi=(2, 4, 7)),
+                               Box(lo=(0, 0, 0), hi=(1, 1, 1), name='lid',
+                                   orientation=(0, 0, h, h), kinematic=True)],
+                        spheres=[Sphere(center=(0, 0, 1), radius=0.5)],
+                        capsules=[Capsule(center=(0, 0, 2), radius=0.1, length=0.4,
+                                          orientation=(h, 0, 0, h))])
+    assert view.log_colliders(live.world_colliders(world), 10)
+    assert not view.log_colliders(live.world_colliders(world), 11)   # unchanged: not again
     upd = client.decoder('/colliders').FromString(client.receive('/colliders')[1])
     ents = {e.id: e for e in upd.entities}
-    assert set(ents) == {'collider/ground', 'collider/box0', 'collider/s'}
+    assert set(ents) == {'collider/ground', 'collider/box0', 'collider/lid',
+                         'collider/sphere0', 'collider/capsule0'}
     cube = ents['collider/box0'].cubes[0]
     assert (cube.pose.position.x, cube.pose.position.y, cube.pose.position.z) == (1.5, 3, 5)
     assert (cube.size.x, cube.size.y, cube.size.z) == (1, 2, 4)
-    assert ents['collider/s'].spheres[0].size.x == 1.0
+    assert ents['collider/lid'].cubes[0].pose.orientation.z == pytest.approx(h)
+    assert ents['collider/sphere0'].spheres[0].size.x == 1.0
     assert ents['collider/ground'].cubes[0].pose.position.z == pytest.approx(0.25, abs=1e-3)
+    cap = ents['collider/capsule0']
+    assert cap.cylinders[0].size.z == pytest.approx(0.4) and len(cap.spheres) == 2
+    # turned 90 degrees about x: the capsule's axis is -y, its end caps at y = -+0.2
+    assert sorted(round(sp.pose.position.y, 9) for sp in cap.spheres) == [-0.2, 0.2]
+    world.move_collider('lid', (3.0, 0.0, 0.5))
+    world.step(1.0 / 120.0)
+    assert view.log_colliders(live.world_colliders(world), 12)       # it moved: sent again
+    upd = client.decoder('/colliders').FromString(client.receive('/colliders')[1])
+    lid = {e.id: e for e in upd.entities}['collider/lid'].cubes[0]
+    assert (lid.pose.position.x, lid.pose.position.z) == (3.0, 0.5)
 
     q = np.array([[0.0, 0.0, np.sin(0.3), np.cos(0.3)]])
     assert view.log_poses(np.array([[1.0, 2.0, 3.0]]), q, 12)

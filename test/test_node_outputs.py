@@ -59,8 +59,8 @@ def set_param(node, name, value):
 def test_nothing_is_built_without_subscribers(ros, cube_scene):
     node = ros.start(cube_scene, gravity=ZERO_G)
     fills = Counter(node.cloud, 'fill')
-    poses = Counter(node, 'body_poses')
-    surfaces = Counter(node, '_surfaces')
+    poses = Counter(node.outputs, 'body_poses')
+    surfaces = Counter(node.outputs, '_surfaces')
     for _ in range(3):
         node.tick()
     assert (fills.calls, poses.calls, surfaces.calls) == (0, 0, 0)
@@ -104,8 +104,8 @@ def test_foxglove_client_gets_the_published_cloud(ros, two_body_scene):
     assert ros.spin_until(lambda: node.pub_points.get_subscription_count() > 0)
     client = FoxgloveClient(node.live.url)
     try:
-        client.subscribe('/points', '/diagnostics')
-        assert wait_until(node.live.wants_cloud)
+        client.subscribe('/points', '/diagnostics', '/colliders')
+        assert wait_until(lambda: node.live.wants_cloud() and node.live.colliders.has_sinks())
         node.tick()
         assert ros.spin_until(lambda: clouds)
         log_time, payload = client.receive('/points')
@@ -122,6 +122,8 @@ def test_foxglove_client_gets_the_published_cloud(ros, two_body_scene):
                                       read_xyz(ros_msg))
         np.testing.assert_array_equal(pts['body'], structured_view(ros_msg)['body'])
         assert set(pts['body']) == {0, 1}
+        scene = client.decoder('/colliders').FromString(client.receive('/colliders')[1])
+        assert [e.id for e in scene.entities] == ['collider/ground']     # the scene's ground
         node.diagnostics_callback()
         import json
         diag = json.loads(client.receive('/diagnostics')[1])

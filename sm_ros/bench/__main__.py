@@ -70,12 +70,15 @@ def main(argv: Optional[List[str]] = None) -> int:
     t0 = time.perf_counter()
     if args.command == 'all' and getattr(args, 'quick', False):
         _quick(args)
-    if args.command in ('scaling', 'all'):
-        findings['scaling'] = scaling.run(args, out)
-    if args.command in ('accuracy', 'all'):
-        findings['accuracy'] = accuracy.run(args, out)
-    if args.command in ('node', 'all'):
-        findings['node'] = node_bench.run(args, out)
+    from sm_ros.progress import bar
+    parts = [(name, mod) for name, mod in (('scaling', scaling), ('accuracy', accuracy),
+                                           ('node', node_bench))
+             if args.command in (name, 'all')]
+    with bar(total=len(parts), desc='bench', unit='part') as progress:
+        for name, mod in parts:
+            progress.set_postfix_str(name)
+            findings[name] = mod.run(args, out)
+            progress.update()
     findings['wall_s'] = time.perf_counter() - t0
     _write_targets(findings, out)
     (out / 'findings.json').write_text(json.dumps(findings, indent=1, default=str))

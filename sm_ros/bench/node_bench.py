@@ -36,6 +36,9 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument('--node-damping', type=float, default=0.05)
     p.add_argument('--node-count', type=int, default=1,
                    help='nodes side by side (namespaces sim_0, sim_1, ...)')
+    p.add_argument('--node-threads', type=int, default=0,
+                   help='NUMBA_NUM_THREADS of each node process (0: Numba decides; with '
+                        'N nodes on C cores, C / N shares the cores without oversubscribing)')
     p.add_argument('--node-dds-profile', default=None,
                    help="Fast DDS profile for both processes (default: the repository's "
                         'config/fastdds_shm.xml, as the README recommends for large clouds; '
@@ -81,6 +84,9 @@ def measure_many(points: int, rate: float, args, tmp: Path) -> List[Dict[str, An
     scene = tmp / f'bench_{points}.yaml'
     harness.box_scene(bc.lattice_side(points) ** 3, scene, getattr(args, 'node_damping', 0.0))
     env = harness.ros_env(profile=harness.dds_profile(args.node_dds_profile))
+    node_env = dict(env)
+    if getattr(args, 'node_threads', 0):
+        node_env['NUMBA_NUM_THREADS'] = str(int(args.node_threads))
     warm = 2.0 + count * points / 2e5
     # the subscribers run until the nodes are done (SIGTERM), however long start-up takes
     sub_seconds = args.node_seconds + warm + 600.0
@@ -93,7 +99,7 @@ def measure_many(points: int, rate: float, args, tmp: Path) -> List[Dict[str, An
         procs, ['node', '--scene', str(scene), '--rate', str(rate), '--seconds',
                 str(args.node_seconds), '--warmup', f'{warm:.1f}', '--substeps',
                 str(args.node_substeps), '--mode', args.node_mode, '--clusters',
-                str(args.node_clusters), '--namespace', ns], env) for ns in spaces]
+                str(args.node_clusters), '--namespace', ns], node_env) for ns in spaces]
     results = []
     for proc in nodes:
         try:
@@ -170,25 +176,27 @@ def run(args, out: Path) -> Dict[str, Any]:
                  f'sim_node end to end ({args.node_mode}, clusters {args.node_clusters}, '
                  f'damping {getattr(args, "node_damping", 0.0):g}, '
                  f'{args.node_substeps} step(s) per tick, '
-                 f'{max(1, int(getattr(args, "node_count", 1)))} node(s) side by side '
+                 f'{max(1, int(getattr(args, "node_count", 1)))} node(s) side by side, '
+                 f'Numba threads {getattr(args, "node_threads", 0) or "default"} '
                  '(worst node shown), ground on, DDS profile: '
                  f'{Path(harness.dds_profile(args.node_dds_profile) or "defaults").name})')
     each = bc.Table('node_each', ['namespace'] + t.columns,
                     'Every node of the side-by-side runs (--node-count > 1)')
     findings: Dict[str, Any] = {'rows': []}
     with tempfile.TemporaryDirectory() as d:
-        for n in sizes:
-            for rate in rates:
-                bc.log(f'[node] {n} points at {rate:g} Hz')
-                r = measure(n, rate, args, Path(d))
-                if r is None:
-                    continue
-                t.add(**{k: r[k] for k in t.columns})
-                findings['rows'].append(r)
-                for row in r.get('per_node', []):
-                    each.add(**{k: row[k] for k in each.columns})
-                if bc.lattice_side(n) == 46 and rate == 60:
-                    findings['target'] = r
+        from sm_ros.progress import bar
+        configs = [(n, rate) for n in sizes for rate in rates]
+        for n, rate in bar(iterable=configs, total=len(configs), desc='node', unit='run'):
+            bc.log(f'[node] {n} points at {rate:g} Hz')
+            r = measure(n, rate, args, Path(d))
+            if r is None:
+                continue
+            t.add(**{k: r[k] for k in t.columns})
+            findings['rows'].append(r)
+            for row in r.get('per_node', []):
+                each.add(**{k: row[k] for k in each.columns})
+            if bc.lattice_side(n) == 46 and rate == 60:
+                findings['target'] = r
     t.write(out)
     if each.rows:
         each.write(out)
