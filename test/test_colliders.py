@@ -426,3 +426,4 @@ def test_grasp_scene_fingers_lift_the_ball_and_wrenches_sum_to_its_weight():
     assert fl > 0.2 * weight and fr == pytest.approx(-fl, rel=0.05)
     n, depth = world.collider_contacts()['ball']
     assert n > 20 and depth < 0.03
+
