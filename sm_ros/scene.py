@@ -1,10 +1,14 @@
 """
-Scene files: parse and validate a scene YAML, build the bodies, and put them in a World.
+Scene files: find, parse and validate a scene YAML into a SceneSpec.
 
 The format is documented in doc/scenes.md. The data path is::
 
     load_scene(name or path) -> SceneSpec (plain NumPy arrays, fully validated)
     build_world(spec, defaults) -> (sm_ros.core.World, [BodyMeta])
+
+``load_scene`` and the parsing are here; the results and the error wording are in
+``sm_ros.scene_spec``, ``build_world`` and the rules that combine a scene with the node's
+parameters in ``sm_ros.scene_build`` (both importable from here too).
 
 A bad scene raises :class:`SceneError` naming the file, the body and the key, e.g.
 ``scenes/x.yaml: body 'sponge': spacing must be > 0, got -1``; nothing is half-loaded
@@ -15,17 +19,20 @@ only when a scene has a mesh body.
 
 from __future__ import annotations
 
-import difflib
 import math
 import sys
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
 
 import numpy as np
 import yaml
 
 from sm_ros import params, shapes
+from sm_ros.scene_build import (add_spec_body, body_contact_from, build_world,  # noqa: F401
+                                cloud_body_spec, contact_from, core_colliders, DEFAULT_MASS,
+                                ground_from, params_from)
+from sm_ros.scene_spec import (BodyMeta, BodySpec, CONTACT_SCENE_KEYS, fmt as _fmt,  # noqa: F401
+                               SceneError, SceneSpec, Where as _Where)
 from sm_ros.shapes import GeometryError, Surface
 
 SHAPES = ('box', 'sphere', 'cylinder', 'capsule', 'sheet', 'rope', 'mesh', 'cloud')
@@ -34,7 +41,6 @@ SHAPES = ('box', 'sphere', 'cylinder', 'capsule', 'sheet', 'rope', 'mesh', 'clou
 MAX_SCENE_POINTS = 2_000_000
 
 DEFAULT_SPACING = 0.05      # m
-DEFAULT_MASS = 1.0          # kg, per body
 
 _COMMON_KEYS = ('name', 'shape', 'position', 'orientation', 'mass', 'density', 'velocity',
                 'angular_velocity', 'pinned', 'copies', 'collide', 'contact_radius',
@@ -52,91 +58,6 @@ _SHAPE_KEYS = {
 }
 _LATTICE_SHAPES = ('box', 'sphere', 'cylinder', 'capsule')
 _TOP_KEYS = ('description', 'bodies', 'colliders', 'contact')
-#: Keys of the top-level ``contact`` mapping (node parameters ``contact.<key>``).
-CONTACT_SCENE_KEYS = ('enabled', 'friction', 'restitution', 'radius_scale')
-
-
-class SceneError(ValueError):
-    """A scene that cannot be loaded; the message names the file, the body and the key."""
-
-
-# ----------------------------------------------------------------------------------------
-# Results
-# ----------------------------------------------------------------------------------------
-
-@dataclass
-class BodySpec:
-    """
-    One body ready for ``World.add_body``.
-
-    Attributes:
-        name: body name (the ``frame_id`` that ``force`` and ``poses`` use).
-        points: (N, 3) rest and initial positions in world coordinates (m).
-        masses: (N,) particle masses (kg).
-        velocities: (N, 3) initial velocities (m/s) or None for rest.
-        pinned: indices of particles held fixed (int64, possibly empty).
-        overrides: parameter overrides in node naming (subset of ``sm_ros.params.OVERRIDE_KEYS``).
-        surface: a :class:`sm_ros.shapes.Surface` for bodies from a mesh file, else None.
-        shape: the shape keyword it was made from ('box', 'mesh', 'cloud', ...).
-        contact: the body's contact keys that the scene set (collide, contact_radius,
-            self_collision).
-    """
-
-    name: str
-    points: np.ndarray
-    masses: np.ndarray
-    velocities: Optional[np.ndarray] = None
-    pinned: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    overrides: Dict[str, Any] = field(default_factory=dict)
-    surface: Optional[Surface] = None
-    shape: str = ''
-    contact: Dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def n(self) -> int:
-        """Number of particles."""
-        return len(self.points)
-
-
-@dataclass
-class SceneSpec:
-    """
-    A validated scene.
-
-    Attributes:
-        bodies: the bodies, in file order (copies expanded).
-        colliders: ``{'ground': None or dict, 'boxes': [{'lo', 'hi', ...}], 'spheres':
-            [{'center', 'radius', ...}], 'capsules': [{'center', 'radius', 'length',
-            ...}]}`` (each with friction, restitution, kinematic and, when given, name,
-            orientation (x, y, z, w) and path); ground None means "use the node's ground
-            parameters", a dict holds the keys the scene set (enabled, height, friction,
-            restitution).
-        source: the file it came from (or a label for scenes built in code).
-        description: the scene's description text.
-        contact: the keys of the top-level ``contact`` mapping the scene set (enabled,
-            friction, restitution, radius_scale); the others come from the node.
-    """
-
-    bodies: List[BodySpec]
-    colliders: Dict[str, Any]
-    source: str = '<scene>'
-    description: str = ''
-    contact: Dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def n_points(self) -> int:
-        """Total number of particles."""
-        return sum(b.n for b in self.bodies)
-
-
-@dataclass
-class BodyMeta:
-    """What the node keeps per body beside the core Body: name, overrides and surface."""
-
-    name: str
-    overrides: Dict[str, Any]
-    surface: Optional[Surface] = None
-    shape: str = ''
 
 
 # ----------------------------------------------------------------------------------------
@@ -188,104 +109,6 @@ def resolve_scene(name_or_path: Union[str, Path]) -> Path:
     bundled = ', '.join(list_scenes()) or 'none found'
     raise SceneError(f'{text}: no such scene file and no bundled scene of that name '
                      f'(bundled: {bundled})')
-
-
-# ----------------------------------------------------------------------------------------
-# Validation helpers
-# ----------------------------------------------------------------------------------------
-
-def _fmt(value: Any) -> str:
-    if isinstance(value, str):
-        return repr(value)
-    if isinstance(value, float) and value.is_integer() and abs(value) < 1e15:
-        return str(int(value)) if not math.isinf(value) else str(value)
-    return str(value)
-
-
-class _Where:
-    """Builds error messages: '<file>: body '<name>': <key> <reason>'."""
-
-    def __init__(self, source: str, body: Optional[str] = None):
-        self.source = source
-        self.body = body
-
-    def error(self, key: Optional[str], reason: str) -> SceneError:
-        parts = [self.source]
-        if self.body is not None:
-            parts.append(f"body '{self.body}'")
-        parts.append(f'{key} {reason}' if key else reason)
-        return SceneError(': '.join(parts))
-
-    def number(self, key: str, value: Any, *, gt: Optional[float] = None,
-               ge: Optional[float] = None, le: Optional[float] = None) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.error(key, f'must be a number, got {_fmt(value)}')
-        v = float(value)
-        if not math.isfinite(v):
-            raise self.error(key, f'must be finite, got {_fmt(value)}')
-        if gt is not None and not v > gt:
-            raise self.error(key, f'must be > {_fmt(gt)}, got {_fmt(value)}')
-        if ge is not None and not v >= ge:
-            raise self.error(key, f'must be >= {_fmt(ge)}, got {_fmt(value)}')
-        if le is not None and not v <= le:
-            raise self.error(key, f'must be <= {_fmt(le)}, got {_fmt(value)}')
-        return v
-
-    def integer(self, key: str, value: Any, *, ge: int = 1, le: Optional[int] = None) -> int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            if isinstance(value, float) and value.is_integer():
-                value = int(value)
-            else:
-                raise self.error(key, f'must be an integer, got {_fmt(value)}')
-        if value < ge:
-            raise self.error(key, f'must be >= {ge}, got {value}')
-        if le is not None and value > le:
-            raise self.error(key, f'must be <= {le}, got {value}')
-        return int(value)
-
-    def vector(self, key: str, value: Any, n: int, *, gt: Optional[float] = None
-               ) -> np.ndarray:
-        if not isinstance(value, (list, tuple)) or len(value) != n:
-            raise self.error(key, f'must be a list of {n} numbers, got {_fmt(value)}')
-        out = np.empty(n)
-        for i, v in enumerate(value):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) \
-                    or not math.isfinite(float(v)):
-                raise self.error(key, f'must be a list of {n} finite numbers, '
-                                      f'got {_fmt(value)}')
-            out[i] = float(v)
-        if gt is not None and not np.all(out > gt):
-            raise self.error(key, f'must be > {_fmt(gt)} in every component, '
-                                  f'got {_fmt(value)}')
-        return out
-
-    def string(self, key: str, value: Any) -> str:
-        if not isinstance(value, str) or not value.strip():
-            raise self.error(key, f'must be a non-empty string, got {_fmt(value)}')
-        return value.strip()
-
-    def choice(self, key: str, value: Any, options: Sequence[str]) -> str:
-        if value not in options:
-            raise self.error(key, f"must be one of {', '.join(options)}, got {_fmt(value)}")
-        return value
-
-    def boolean(self, key: str, value: Any) -> bool:
-        if not isinstance(value, bool):
-            raise self.error(key, f'must be true or false, got {_fmt(value)}')
-        return value
-
-    def mapping(self, key: Optional[str], value: Any, allowed: Sequence[str]
-                ) -> Mapping[str, Any]:
-        if not isinstance(value, dict):
-            raise self.error(key, f'must be a mapping, got {_fmt(value)}')
-        for k in value:
-            if k not in allowed:
-                name = f'{key}.{k}' if key else str(k)
-                close = difflib.get_close_matches(str(k), allowed, n=1)
-                hint = f" (did you mean '{close[0]}'?)" if close else ''
-                raise self.error(None, f"unknown key '{name}'{hint}; "
-                                       f"allowed: {', '.join(allowed)}")
-        return value
 
 
 # ----------------------------------------------------------------------------------------
@@ -768,164 +591,3 @@ def _parse_body(source: str, base: Path, index: int, raw: Any) -> List[BodySpec]
                             overrides=dict(overrides), surface=surface, shape=shape,
                             contact=dict(contact)))
     return out
-
-
-# ----------------------------------------------------------------------------------------
-# Into the solver
-# ----------------------------------------------------------------------------------------
-
-def _merged(defaults: Optional[Mapping[str, Any]]) -> Dict[str, Any]:
-    d = params.scene_defaults()
-    if defaults:
-        d.update(defaults)
-    return d
-
-
-def params_from(defaults: Optional[Mapping[str, Any]], overrides: Optional[Mapping[str, Any]]
-                ):
-    """
-    The core BodyParams for a body: its overrides over the node's parameters.
-
-    Keys are node-parameter names (see ``sm_ros.params.OVERRIDE_KEYS``); missing ones fall
-    back to the table's defaults (``sm_ros.params.scene_defaults``). Every key with a
-    ``core_field`` in the parameter table sets that BodyParams field. Raises ValueError (from
-    BodyParams.validate) on bad values.
-    """
-    from sm_ros.core import BodyParams
-    d = dict(params.defaults(list(params.BODY_FIELDS)), **_merged(defaults))
-    if overrides:
-        d.update(overrides)
-    return BodyParams(**{field: d[key] for key, field in params.BODY_FIELDS.items()}).validate()
-
-
-def ground_from(scene_ground: Optional[Mapping[str, Any]],
-                defaults: Optional[Mapping[str, Any]]):
-    """
-    The core Ground (or None when disabled) from a scene's ground and the node's parameters.
-
-    Rule: a scene that sets ``colliders.ground`` wins key by key (enabled, height, friction,
-    restitution); keys it leaves out, and scenes without a ground entry, use the node's
-    ``ground.*`` parameters.
-    """
-    from sm_ros.core import Ground
-    d = _merged(defaults)
-    g = {'enabled': bool(d['ground.enabled']), 'height': float(d['ground.height']),
-         'friction': float(d['ground.friction']),
-         'restitution': float(d['ground.restitution'])}
-    if scene_ground:
-        g.update(scene_ground)
-    if not g['enabled']:
-        return None
-    return Ground(height=g['height'], friction=g['friction'], restitution=g['restitution'])
-
-
-def contact_from(scene_contact: Optional[Mapping[str, Any]],
-                 defaults: Optional[Mapping[str, Any]]):
-    """
-    The core ContactParams from a scene's ``contact`` mapping and the node's parameters.
-
-    Rule (as for the ground): the keys the scene sets win; the others use the node's
-    ``contact.*`` parameters.
-    """
-    from sm_ros.core.contact import ContactParams
-    d = _merged(defaults)
-    c = {k: d[f'contact.{k}'] for k in CONTACT_SCENE_KEYS}
-    if scene_contact:
-        c.update(scene_contact)
-    return ContactParams(enabled=bool(c['enabled']), friction=float(c['friction']),
-                         restitution=float(c['restitution']),
-                         radius_scale=float(c['radius_scale'])).validate()
-
-
-def body_contact_from(body: BodySpec):
-    """The core BodyContact of a scene body (its keys over the defaults)."""
-    from sm_ros.core.contact import BodyContact
-    c = body.contact or {}
-    return BodyContact(collide=c.get('collide', True), radius=c.get('contact_radius'),
-                       self_collision=c.get('self_collision', False))
-
-
-def add_spec_body(world, body: BodySpec, defaults: Optional[Mapping[str, Any]] = None,
-                  source: str = '<scene>') -> BodyMeta:
-    """
-    Add one BodySpec to a World; returns its BodyMeta. The world is unchanged on error.
-
-    Raises SceneError (naming the body) when the core refuses the body or its parameters.
-    """
-    try:
-        params = params_from(defaults, body.overrides)
-        world.add_body(body.points, masses=body.masses, params=params, name=body.name,
-                       velocities=body.velocities,
-                       pinned=body.pinned if len(body.pinned) else None,
-                       contact=body_contact_from(body))
-    except ValueError as exc:
-        raise _Where(source, body.name).error(None, str(exc)) from None
-    return BodyMeta(name=body.name, overrides=dict(body.overrides), surface=body.surface,
-                    shape=body.shape)
-
-
-def core_colliders(colliders: Mapping[str, Any]):
-    """(boxes, spheres, capsules) as sm_ros.core Box / Sphere / Capsule from a scene's
-    parsed ``colliders``."""
-    from sm_ros.core import Box, Capsule, Sphere
-
-    def extra(c):
-        out = {'friction': c.get('friction', 0.5), 'restitution': c.get('restitution', 0.0),
-               'name': c.get('name'), 'kinematic': bool(c.get('kinematic', False))}
-        if c.get('orientation') is not None:
-            out['orientation'] = tuple(float(v) for v in c['orientation'])
-        if c.get('path'):
-            out['path'] = tuple(c['path'])
-        return out
-    boxes = [Box(lo=tuple(b['lo']), hi=tuple(b['hi']), **extra(b))
-             for b in colliders.get('boxes', [])]
-    spheres = [Sphere(center=tuple(s['center']), radius=float(s['radius']), **extra(s))
-               for s in colliders.get('spheres', [])]
-    capsules = [Capsule(center=tuple(c['center']), radius=float(c['radius']),
-                        length=float(c['length']), **extra(c))
-                for c in colliders.get('capsules', [])]
-    return boxes, spheres, capsules
-
-
-def build_world(spec: SceneSpec, defaults: Optional[Mapping[str, Any]] = None):
-    """
-    A new sm_ros.core.World holding the scene: gravity from `defaults`, colliders (the
-    ground per :func:`ground_from`), and every body. Returns (world, metas) with metas in
-    the order of ``world.bodies``. Raises SceneError; no partial world is returned.
-    """
-    from sm_ros.core import World
-    d = _merged(defaults)
-    world = World(gravity=tuple(float(g) for g in d['gravity']))
-    boxes, spheres, capsules = core_colliders(spec.colliders)
-    world.set_colliders(ground=ground_from(spec.colliders.get('ground'), d), boxes=boxes,
-                        spheres=spheres, capsules=capsules)
-    world.contact_params = contact_from(spec.contact, d)
-    metas = [add_spec_body(world, b, d, spec.source) for b in spec.bodies]
-    return world, metas
-
-
-def cloud_body_spec(points: np.ndarray, max_points: int, name: str = 'cloud',
-                    mass: float = DEFAULT_MASS) -> BodySpec:
-    """
-    A body from a point cloud (N, 3), voxel-downsampled to at most `max_points`.
-
-    The voxel edge is the smallest (by bisection) that leaves at most `max_points` voxel
-    centroids; the body sits where the points were, total mass `mass` shared equally.
-    Raises SceneError on empty, non-finite or badly shaped input.
-    """
-    w = _Where('cloud_in', name)
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise w.error('points', f'must have shape (N, 3), got {pts.shape}')
-    if len(pts) == 0:
-        raise w.error('points', 'is empty')
-    if not np.all(np.isfinite(pts)):
-        raise w.error('points', 'contain NaN or Inf')
-    if isinstance(max_points, bool) or int(max_points) < 1:
-        raise w.error('max_points', f'must be >= 1, got {max_points}')
-    w.number('mass', mass, gt=0.0)
-    voxel = shapes.voxel_size_for(pts, int(max_points))
-    if voxel > 0.0:
-        pts = shapes.voxel_downsample(pts, voxel)
-    return BodySpec(name=name, points=np.ascontiguousarray(pts),
-                    masses=np.full(len(pts), float(mass) / len(pts)), shape='cloud')

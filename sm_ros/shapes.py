@@ -18,8 +18,6 @@ import numpy as np
 #: Largest number of particles one body may have (guards against a tiny `spacing`).
 MAX_BODY_POINTS = 1_000_000
 
-_EPS = 1e-9
-
 
 class GeometryError(ValueError):
     """

@@ -18,7 +18,8 @@ OUT = ROOT / 'doc' / 'img' / 'architecture.png'
 #: name -> (column, row, title, files). Rows: 2 top, 1 the data path, 0 the solver.
 BOXES: Dict[str, Tuple[float, float, str, Tuple[str, ...]]] = {
     'scene_file': (0, 1, 'scene file', ('config/scenes/*.yaml', 'config/meshes/')),
-    'loader': (1, 1, 'scene loader', ('sm_ros/scene.py', 'sm_ros/shapes.py')),
+    'loader': (1, 1, 'scene loader', ('sm_ros/scene.py', 'sm_ros/scene_spec.py',
+                                      'sm_ros/scene_build.py', 'sm_ros/shapes.py')),
     'params': (2, 2, 'parameter table', ('sm_ros/params.py',)),
     'sim': (2, 1, 'Simulation (no ROS)', ('sm_ros/sim.py', 'sm_ros/inputs.py',
                                           'sm_ros/stats.py')),

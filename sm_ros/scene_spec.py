@@ -1,0 +1,213 @@
+"""
+What the scene loader produces, and how it words its errors (no ROS, no solver).
+
+:class:`SceneSpec` and :class:`BodySpec` hold a validated scene as plain NumPy arrays,
+:class:`BodyMeta` what the node keeps per body; :class:`SceneError` is every refusal, and
+:class:`Where` builds its message ('<file>: body '<name>': <key> <reason>') while checking
+values. ``sm_ros.scene`` parses files into these; ``sm_ros.scene_build`` turns them into a
+``sm_ros.core.World``.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Mapping, Optional, Sequence
+
+import numpy as np
+
+from sm_ros.shapes import Surface
+
+#: Keys of a scene's top-level ``contact`` mapping (node parameters ``contact.<key>``).
+CONTACT_SCENE_KEYS = ('enabled', 'friction', 'restitution', 'radius_scale')
+
+
+class SceneError(ValueError):
+    """A scene that cannot be loaded; the message names the file, the body and the key."""
+
+
+# ----------------------------------------------------------------------------------------
+# Results
+# ----------------------------------------------------------------------------------------
+
+@dataclass
+class BodySpec:
+    """
+    One body ready for ``World.add_body``.
+
+    Attributes:
+        name: body name (the ``frame_id`` that ``force`` and ``poses`` use).
+        points: (N, 3) rest and initial positions in world coordinates (m).
+        masses: (N,) particle masses (kg).
+        velocities: (N, 3) initial velocities (m/s) or None for rest.
+        pinned: indices of particles held fixed (int64, possibly empty).
+        overrides: parameter overrides in node naming (subset of ``sm_ros.params.OVERRIDE_KEYS``).
+        surface: a :class:`sm_ros.shapes.Surface` for bodies from a mesh file, else None.
+        shape: the shape keyword it was made from ('box', 'mesh', 'cloud', ...).
+        contact: the body's contact keys that the scene set (collide, contact_radius,
+            self_collision).
+    """
+
+    name: str
+    points: np.ndarray
+    masses: np.ndarray
+    velocities: Optional[np.ndarray] = None
+    pinned: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    overrides: Dict[str, Any] = field(default_factory=dict)
+    surface: Optional[Surface] = None
+    shape: str = ''
+    contact: Dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        """Number of particles."""
+        return len(self.points)
+
+
+@dataclass
+class SceneSpec:
+    """
+    A validated scene.
+
+    Attributes:
+        bodies: the bodies, in file order (copies expanded).
+        colliders: ``{'ground': None or dict, 'boxes': [{'lo', 'hi', ...}], 'spheres':
+            [{'center', 'radius', ...}], 'capsules': [{'center', 'radius', 'length',
+            ...}]}`` (each with friction, restitution, kinematic and, when given, name,
+            orientation (x, y, z, w) and path); ground None means "use the node's ground
+            parameters", a dict holds the keys the scene set (enabled, height, friction,
+            restitution).
+        source: the file it came from (or a label for scenes built in code).
+        description: the scene's description text.
+        contact: the keys of the top-level ``contact`` mapping the scene set (enabled,
+            friction, restitution, radius_scale); the others come from the node.
+    """
+
+    bodies: List[BodySpec]
+    colliders: Dict[str, Any]
+    source: str = '<scene>'
+    description: str = ''
+    contact: Dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_points(self) -> int:
+        """Total number of particles."""
+        return sum(b.n for b in self.bodies)
+
+
+@dataclass
+class BodyMeta:
+    """What the node keeps per body beside the core Body: name, overrides and surface."""
+
+    name: str
+    overrides: Dict[str, Any]
+    surface: Optional[Surface] = None
+    shape: str = ''
+
+
+# ----------------------------------------------------------------------------------------
+# Validation helpers
+# ----------------------------------------------------------------------------------------
+
+def fmt(value: Any) -> str:
+    """Return a value as an error message quotes it (1.0 as 1, strings quoted)."""
+    if isinstance(value, str):
+        return repr(value)
+    if isinstance(value, float) and value.is_integer() and abs(value) < 1e15:
+        return str(int(value)) if not math.isinf(value) else str(value)
+    return str(value)
+
+
+class Where:
+    """Builds error messages: '<file>: body '<name>': <key> <reason>'."""
+
+    def __init__(self, source: str, body: Optional[str] = None):
+        self.source = source
+        self.body = body
+
+    def error(self, key: Optional[str], reason: str) -> SceneError:
+        """Return the SceneError for ``key`` (None: the body or file itself)."""
+        parts = [self.source]
+        if self.body is not None:
+            parts.append(f"body '{self.body}'")
+        parts.append(f'{key} {reason}' if key else reason)
+        return SceneError(': '.join(parts))
+
+    def number(self, key: str, value: Any, *, gt: Optional[float] = None,
+               ge: Optional[float] = None, le: Optional[float] = None) -> float:
+        """Return ``value`` as a finite float within the bounds; raise SceneError if not."""
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(key, f'must be a number, got {fmt(value)}')
+        v = float(value)
+        if not math.isfinite(v):
+            raise self.error(key, f'must be finite, got {fmt(value)}')
+        if gt is not None and not v > gt:
+            raise self.error(key, f'must be > {fmt(gt)}, got {fmt(value)}')
+        if ge is not None and not v >= ge:
+            raise self.error(key, f'must be >= {fmt(ge)}, got {fmt(value)}')
+        if le is not None and not v <= le:
+            raise self.error(key, f'must be <= {fmt(le)}, got {fmt(value)}')
+        return v
+
+    def integer(self, key: str, value: Any, *, ge: int = 1, le: Optional[int] = None) -> int:
+        """Return ``value`` as an int within the bounds; raise SceneError if not."""
+        if isinstance(value, bool) or not isinstance(value, int):
+            if isinstance(value, float) and value.is_integer():
+                value = int(value)
+            else:
+                raise self.error(key, f'must be an integer, got {fmt(value)}')
+        if value < ge:
+            raise self.error(key, f'must be >= {ge}, got {value}')
+        if le is not None and value > le:
+            raise self.error(key, f'must be <= {le}, got {value}')
+        return int(value)
+
+    def vector(self, key: str, value: Any, n: int, *, gt: Optional[float] = None
+               ) -> np.ndarray:
+        """Return ``value`` as n finite floats (each > ``gt``); raise SceneError if not."""
+        if not isinstance(value, (list, tuple)) or len(value) != n:
+            raise self.error(key, f'must be a list of {n} numbers, got {fmt(value)}')
+        out = np.empty(n)
+        for i, v in enumerate(value):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) \
+                    or not math.isfinite(float(v)):
+                raise self.error(key, f'must be a list of {n} finite numbers, '
+                                      f'got {fmt(value)}')
+            out[i] = float(v)
+        if gt is not None and not np.all(out > gt):
+            raise self.error(key, f'must be > {fmt(gt)} in every component, '
+                                  f'got {fmt(value)}')
+        return out
+
+    def string(self, key: str, value: Any) -> str:
+        """Return ``value`` stripped if it is a non-empty string; raise SceneError if not."""
+        if not isinstance(value, str) or not value.strip():
+            raise self.error(key, f'must be a non-empty string, got {fmt(value)}')
+        return value.strip()
+
+    def choice(self, key: str, value: Any, options: Sequence[str]) -> str:
+        """Return ``value`` if it is one of ``options``; raise SceneError if not."""
+        if value not in options:
+            raise self.error(key, f"must be one of {', '.join(options)}, got {fmt(value)}")
+        return value
+
+    def boolean(self, key: str, value: Any) -> bool:
+        """Return ``value`` if it is a bool; raise SceneError if not."""
+        if not isinstance(value, bool):
+            raise self.error(key, f'must be true or false, got {fmt(value)}')
+        return value
+
+    def mapping(self, key: Optional[str], value: Any, allowed: Sequence[str]
+                ) -> Mapping[str, Any]:
+        """Return ``value`` if it is a mapping with only ``allowed`` keys (suggests one)."""
+        if not isinstance(value, dict):
+            raise self.error(key, f'must be a mapping, got {fmt(value)}')
+        for k in value:
+            if k not in allowed:
+                name = f'{key}.{k}' if key else str(k)
+                close = difflib.get_close_matches(str(k), allowed, n=1)
+                hint = f" (did you mean '{close[0]}'?)" if close else ''
+                raise self.error(None, f"unknown key '{name}'{hint}; "
+                                       f"allowed: {', '.join(allowed)}")
+        return value
