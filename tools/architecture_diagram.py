@@ -38,7 +38,7 @@ BOXES: Dict[str, Tuple[float, float, str, Tuple[str, ...]]] = {
 }
 
 #: Distance between two columns and two rows (plot units).
-DX, DY = 2.15, 1.35
+DX, DY = 2.15, 1.5
 
 #: (from, to, label)
 ARROWS: Tuple[Tuple[str, str, str], ...] = (
@@ -69,10 +69,10 @@ def draw(out: Path = OUT) -> Path:
     import matplotlib.pyplot as plt
     from matplotlib.patches import FancyBboxPatch
 
-    width, height = 1.78, 0.96          # a box, in plot units
+    width, height = 1.78, 1.08          # a box, in plot units
     fig, ax = plt.subplots(figsize=(14, 6.6), dpi=100)
     ax.set_xlim(-1.0, 4 * DX + 1.0)
-    ax.set_ylim(-0.7, 2 * DY + 0.6)
+    ax.set_ylim(-0.95, 2 * DY + 0.65)
     ax.set_aspect('equal')
     ax.axis('off')
     for name, (col, row, title, fs) in BOXES.items():
@@ -96,7 +96,7 @@ def draw(out: Path = OUT) -> Path:
             ax.text((start[0] + end[0]) / 2, (start[1] + end[1]) / 2 + 0.07, label,
                     ha='center', va='bottom', fontsize=8, color='#444444',
                     bbox=dict(facecolor='white', edgecolor='none', pad=0.5))
-    ax.text(2 * DX, -0.62, 'shaded: sm_ros/core, the solver (no ROS); arrows: who calls or '
+    ax.text(2 * DX, -0.85, 'shaded: sm_ros/core, the solver (no ROS); arrows: who calls or '
             'feeds whom', ha='center', fontsize=8.5, color='#555555')
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, bbox_inches='tight')
