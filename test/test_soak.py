@@ -28,8 +28,10 @@ def test_five_second_soak(tmp_path, warm):
     out = tmp_path / 'soak.json'
     taken = int(os.environ.get('ROS_DOMAIN_ID', '0'))
     domain = random.Random(os.getpid() + 1).choice([d for d in range(101, 201) if d != taken])
+    # five processes on a loaded 2-core CI machine cannot hold 60 Hz: the rate is the
+    # benchmark's business (--max-dropped 0.01 by default), not this test's
     rc = soak.main(['--seconds', '5', '--points', str(POINTS), '--lead', '2',
-                    '--domain-id', str(domain), '--json', str(out)])
+                    '--domain-id', str(domain), '--json', str(out), '--max-dropped', '1'])
     fig = json.loads(out.read_text())
     assert not fig['crashed'], fig['crashed']
     assert rc == 0
@@ -49,3 +51,17 @@ def test_five_second_soak(tmp_path, warm):
     assert fig['refused'].get('force', 0) > 0
     for sub in fig['subscribers']:
         assert sub['received'] > 10 and sub['bad_size'] == 0 and sub['non_finite'] == 0
+
+
+def test_dropped_ticks_fail_the_soak():
+    fig = {'crashed': {}, 'state_finite': True, 'every_accepted_parameter_applied': True,
+           'ticks_expected': 3600, 'dropped_ticks': 486, 'rate_hz_achieved': 51.9,
+           'rate_hz_target': 60.0}
+    ok, reasons = soak.verdict(fig, 0.01)
+    assert not ok and reasons == ['486 of 3600 ticks dropped (13.5 % > 1 %): 51.9 of 60 Hz '
+                                  'held']
+    assert soak.verdict(dict(fig, dropped_ticks=36), 0.01) == (True, [])
+    assert soak.verdict(dict(fig, dropped_ticks=37), 0.01)[0] is False
+    assert soak.verdict(fig, 1.0) == (True, [])
+    assert soak.verdict(dict(fig, state_finite=False, dropped_ticks=0), 0.01) == \
+        (False, ['the state went non-finite'])
