@@ -147,7 +147,9 @@ class MomentumDrift:
         scale = 0.0
         for b in world.bodies:
             p += b.momentum()
-            scale += float(np.dot(b.m, np.linalg.norm(b.v, axis=1)))
+            v = b.v
+            # sqrt of the row sums of squares: np.linalg.norm(v, axis=1) took 6 ms at 100k
+            scale += float(np.dot(b.m, np.sqrt(np.einsum('ij,ij->i', v, v))))
         return p, scale
 
     def needs_reference(self) -> bool:

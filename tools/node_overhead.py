@@ -1,0 +1,100 @@
+"""
+What the node pays per tick beside the steps, side by side in one process (issue 11, item 3).
+
+Builds a SimNode on one box of ``--points`` particles (linear, ``--clusters`` cubes per
+axis, damping 0.05) and times, round-robin over ``--rounds`` rounds (medians):
+
+- ``publish, nobody subscribed``: the tick's publishing when no ROS subscriber, Foxglove
+  client or recorder takes anything (what every tick costs a node nobody watches);
+- ``publish, points + poses subscribed``: the same with a subscriber on both in this
+  process (cloud fill + serialisation + poses);
+- ``poses: one pass + extract_rotation`` against ``poses: Body.com() + Body.rotation()``
+  (the NumPy einsum the node used before);
+- ``momentum: one sum`` (what a tick paid twice before; now once per conservative run and
+  once per diagnostics report).
+
+    .venv/bin/python tools/node_overhead.py --points 100000 --clusters 2
+"""
+
+import argparse
+import os
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def main(argv=None) -> int:
+    """Run the measurement; print a markdown table."""
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--points', type=int, default=100_000)
+    ap.add_argument('--clusters', type=int, default=2)
+    ap.add_argument('--rounds', type=int, default=30)
+    args = ap.parse_args(argv)
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+    import rclpy
+    from rclpy.parameter import Parameter
+    from geometry_msgs.msg import PoseArray
+    from sensor_msgs.msg import PointCloud2
+    from sm_ros.bench import common as bc, harness
+    from sm_ros.node import SimNode
+    from sm_ros.stats import MomentumDrift
+
+    rclpy.init()
+    with tempfile.TemporaryDirectory() as d:
+        scene = Path(d) / 'box.yaml'
+        n = bc.lattice_side(args.points) ** 3
+        harness.box_scene(n, scene, 0.05)
+        node = SimNode(paused=True, parameter_overrides=[
+            Parameter('scene', value=str(scene)), Parameter('clusters', value=args.clusters)])
+    out = node.outputs
+    body = node.world.bodies[0]
+    for _ in range(3):
+        node.tick()
+    probe = rclpy.create_node('overhead_probe')
+    subs = []
+
+    def subscribe():
+        subs.append(probe.create_subscription(PointCloud2, 'points', lambda m: None, 5))
+        subs.append(probe.create_subscription(PoseArray, 'poses', lambda m: None, 5))
+        deadline = time.monotonic() + 10
+        while (out.pub_points.get_subscription_count() == 0
+               or out.pub_poses.get_subscription_count() == 0):
+            if time.monotonic() > deadline:
+                raise RuntimeError('the subscriptions were not matched')
+            rclpy.spin_once(probe, timeout_sec=0.01)
+
+    drift = MomentumDrift()
+    cases = {
+        'publish, nobody subscribed': out.publish,
+        'poses: one pass + extract_rotation': out.body_poses,
+        'poses: Body.com() + Body.rotation()': lambda: (body.com(), body.rotation()),
+        'momentum: one sum': lambda: drift.measure(node.world),
+    }
+    times = {k: [] for k in cases}
+    for _ in range(args.rounds):
+        for name, fn in cases.items():
+            t = time.perf_counter()
+            fn()
+            times[name].append(time.perf_counter() - t)
+    subscribe()
+    times['publish, points + poses subscribed'] = []
+    for _ in range(args.rounds):
+        t = time.perf_counter()
+        out.publish()
+        times['publish, points + poses subscribed'].append(time.perf_counter() - t)
+        rclpy.spin_once(probe, timeout_sec=0)
+    print(f'{node.num_points} points, {body.num_clusters} clusters; {args.rounds} rounds, '
+          f'load average {os.getloadavg()[0]:.1f}\n')
+    print('| what | median ms | best ms |\n| --- | --- | --- |')
+    for name, ts in times.items():
+        print(f'| {name} | {1e3 * statistics.median(ts):.3f} | {1e3 * min(ts):.3f} |')
+    node.destroy_node()
+    probe.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
