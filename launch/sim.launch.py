@@ -17,7 +17,7 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
-from sm_ros.launching import node_configs, rviz_wanted
+from sm_ros.launching import node_configs, rviz_config, rviz_wanted
 
 ARGUMENTS = {
     'scene': ('', 'bundled scene name or YAML path (every node)'),
@@ -35,14 +35,24 @@ def _launch(context):
     value = {k: LaunchConfiguration(k).perform(context) for k in ARGUMENTS}
     params_file = value['params_file'] or os.path.join(share, 'config', 'sim_node.yaml')
     actions = []
-    for cfg in node_configs(value['scene'], value['count'], value['namespace'],
-                            value['scenes'], value['foxglove_port'], params_file):
+    configs = node_configs(value['scene'], value['count'], value['namespace'],
+                           value['scenes'], value['foxglove_port'], params_file)
+    for cfg in configs:
         actions.append(Node(package='sm_ros', executable='sim_node', name=cfg['name'],
                             namespace=cfg['namespace'], parameters=cfg['parameters'],
                             output='screen', emulate_tty=True))
     if rviz_wanted(value['rviz']):
+        config = os.path.join(share, 'config', 'sim.rviz')
+        spaces = [cfg['namespace'] for cfg in configs]
+        if any(spaces):              # several nodes: every node's topics in one view
+            import tempfile
+            with open(config, encoding='utf-8') as f:
+                text = rviz_config(f.read(), spaces)
+            fd, config = tempfile.mkstemp(prefix='sm_ros_', suffix='.rviz')
+            with os.fdopen(fd, 'w', encoding='utf-8') as f:
+                f.write(text)
         actions.append(Node(package='rviz2', executable='rviz2', name='rviz2',
-                            arguments=['-d', os.path.join(share, 'config', 'sim.rviz')]))
+                            arguments=['-d', config]))
     return actions
 
 

@@ -13,7 +13,8 @@ other topics. ``scenes`` (comma separated) gives each node its own scene; otherw
 run ``scene``. Foxglove ports count up from ``foxglove_port`` (0: off).
 """
 
-from typing import Dict, List
+import copy
+from typing import Dict, List, Sequence
 
 
 def _truthy(text) -> bool:
@@ -57,3 +58,36 @@ def node_configs(scene: str = '', count=1, namespace: str = '', scenes: str = ''
 def rviz_wanted(flag) -> bool:
     """Return True for the launch argument values that ask for RViz."""
     return _truthy(flag)
+
+
+#: The displays of config/sim.rviz that show one node's topics.
+_NODE_DISPLAYS = ('rviz_default_plugins/PointCloud2', 'rviz_default_plugins/PoseArray',
+                  'rviz_default_plugins/MarkerArray')
+
+
+def rviz_config(base_text: str, namespaces: Sequence[str]) -> str:
+    """
+    Return an RViz configuration showing every node: the per-node displays of
+    ``base_text`` (config/sim.rviz) repeated for each namespace, their topics prefixed.
+
+    One node in the root namespace gets the file unchanged.
+    """
+    import yaml
+    spaces = [ns.strip('/') for ns in namespaces]
+    if spaces in ([], ['']):
+        return base_text
+    data = yaml.safe_load(base_text)
+    manager = data['Visualization Manager']
+    out = []
+    for display in manager['Displays']:
+        if display.get('Class') not in _NODE_DISPLAYS:
+            out.append(display)
+            continue
+        for ns in spaces:
+            d = copy.deepcopy(display)
+            d['Name'] = f"{display['Name']} /{ns}" if ns else display['Name']
+            topic = d['Topic']['Value']
+            d['Topic']['Value'] = f"/{ns}/{topic.lstrip('/')}" if ns else topic
+            out.append(d)
+    manager['Displays'] = out
+    return yaml.safe_dump(data, default_flow_style=False, sort_keys=False)

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sm_ros.launching import node_configs, rviz_wanted
+from sm_ros.launching import node_configs, rviz_config, rviz_wanted
 
 ROOT = Path(__file__).resolve().parent.parent
 LAUNCH_FILE = ROOT / 'launch' / 'sim.launch.py'
@@ -87,6 +87,7 @@ def test_launch_file_loads_with_launch(tmp_path, monkeypatch):
                     'sm_ros.launching instead')
     share = tmp_path / 'share' / 'sm_ros'
     (share / 'config').mkdir(parents=True)
+    (share / 'config' / 'sim.rviz').write_text((ROOT / 'config' / 'sim.rviz').read_text())
     monkeypatch.setenv('AMENT_PREFIX_PATH', str(tmp_path))
     (tmp_path / 'share' / 'ament_index' / 'resource_index' / 'packages').mkdir(parents=True)
     (tmp_path / 'share' / 'ament_index' / 'resource_index' / 'packages' / 'sm_ros').touch()
@@ -104,3 +105,17 @@ def test_launch_file_loads_with_launch(tmp_path, monkeypatch):
     opaque = desc.entities[-1]
     nodes = opaque.execute(context)
     assert [n.node_executable for n in nodes] == ['sim_node', 'sim_node', 'rviz2']
+
+
+def test_rviz_shows_every_node_of_a_multi_node_launch():
+    base = (ROOT / 'config' / 'sim.rviz').read_text()
+    assert rviz_config(base, ['']) == base
+    data = yaml.safe_load(rviz_config(base, ['sim_0', '/sim_1']))
+    shown = [(d['Class'].split('/')[-1], d['Topic']['Value'])
+             for d in data['Visualization Manager']['Displays'] if 'Topic' in d]
+    assert shown == [('PointCloud2', '/sim_0/points'), ('PointCloud2', '/sim_1/points'),
+                     ('PoseArray', '/sim_0/poses'), ('PoseArray', '/sim_1/poses'),
+                     ('MarkerArray', '/sim_0/markers'), ('MarkerArray', '/sim_1/markers')]
+    grid = data['Visualization Manager']['Displays'][0]
+    assert grid['Class'] == 'rviz_default_plugins/Grid'
+    assert data['Visualization Manager']['Global Options']['Fixed Frame'] == 'world'
