@@ -218,6 +218,12 @@ TABLE: Tuple[Param, ...] = (
           'plastic creep fraction are defined; other steps convert them so the material '
           'does not depend on dt or substeps (0: act per step as given)', 's', 0.0, 1.0,
           scene_override=True, core_field='material_dt'),
+    Param('max_speed', 100.0, 'Largest particle speed (m/s); a faster particle is slowed to it '
+          'and counted in /diagnostics (speed_limited); 0: no limit', 'm/s', 0.0, 1e6,
+          scene_override=True, core_field='max_speed'),
+    Param('max_turn', 0.5, 'Largest rotation of a cluster in one step (rad): spin beyond '
+          'max_turn / dt is taken away and counted in /diagnostics (turn_limited); 0: no limit',
+          'rad', 0.0, 3.0, scene_override=True, core_field='max_turn'),
 )
 
 #: Every row by name.

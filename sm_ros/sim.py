@@ -209,7 +209,9 @@ class Simulation:
                     clusters=sum(int(b.num_clusters) for b in bodies), mode=','.join(modes),
                     rate_target_hz=self.params['rate'],
                     shape_error_rms_m=math.sqrt(err2 / n) if n else 0.0,
-                    momentum_drift=self.momentum.drift)
+                    momentum_drift=self.momentum.drift,
+                    speed_limited=sum(b.limit_counts[0] for b in bodies),
+                    turn_limited=sum(b.limit_counts[1] for b in bodies))
 
     # ------------------------------------------------------------------ hooks
 

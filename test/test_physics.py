@@ -266,3 +266,129 @@ def test_soft_drop_converges_as_the_step_shrinks():
     assert order > 0.8, (err, order)
     legacy = [_drop(h / 2 ** j, material_dt=0.0) for j in (2, 3)]
     assert _max_rms(legacy[0], legacy[1]) > 3.0 * err[2]
+
+
+# ---------------------------------------------------------------- 2. speed and turn limits
+
+def test_limit_speed_caps_the_speed_and_takes_back_the_excess_displacement():
+    rng = RNG(3)
+    v = rng.normal(size=(50, 3)) * 100.0
+    v[0] = [np.inf, 0.0, 0.0]                      # left to the non-finite recovery
+    x = rng.normal(size=(50, 3))
+    x_new, v_new = x.copy(), v.copy()
+    count = K.limit_speed(x=x_new, v=v_new, h=0.01, v_max=150.0)
+    speed = np.linalg.norm(v[1:], axis=1)
+    over = speed > 150.0
+    assert count == over.sum() > 0
+    np.testing.assert_allclose(np.linalg.norm(v_new[1:][over], axis=1), 150.0, rtol=1e-12)
+    np.testing.assert_allclose(v_new[1:][over] / 150.0, v[1:][over] / speed[over, None],
+                               rtol=1e-12)
+    np.testing.assert_array_equal(v_new[1:][~over], v[1:][~over])
+    np.testing.assert_array_equal(x_new[1:][~over], x[1:][~over])
+    np.testing.assert_allclose(x_new[1:][over], x[1:][over] - 0.01 * (v - v_new)[1:][over],
+                               rtol=1e-12)
+    assert np.isinf(v_new[0, 0]) and np.array_equal(x_new[0], x[0])
+
+
+@pytest.mark.parametrize('clusters', [1, 2])
+def test_limit_turn_caps_the_spin_and_keeps_the_momentum(clusters):
+    from sm_ros.core.clusters import build_memberships
+    g = np.stack(np.meshgrid(*[np.linspace(-0.1, 0.1, 6)] * 3, indexing='ij'), -1)
+    x = g.reshape(-1, 3) + [1.0, 2.0, 3.0]
+    m = RNG(2).uniform(0.5, 2.0, len(x))
+    c = m @ x / m.sum()
+    v = np.cross([0.0, 30.0, 40.0], x - c) + [0.3, 0.0, -0.2]    # 50 rad/s, drifting
+    if clusters == 1:
+        ptr, cl, nk = np.zeros(0, np.int64), np.zeros(0, np.int32), 1
+    else:
+        ptr, cl, nk = build_memberships(x - c, clusters)
+    v_new = v.copy()
+    z3 = [np.zeros((3, 3)) for _ in range(4)]
+    count = K.limit_turn(x=x, v=v_new, mass=m, ptr=ptr, cl=cl, flagged=np.ones(nk, np.bool_),
+                         w_max=10.0, lin=np.zeros((nk, 13)), w3=np.zeros((nk, 6)), m3a=z3[0],
+                         m3b=z3[1], m3c=z3[2], m3d=z3[3])
+    assert count == nk
+    np.testing.assert_allclose(m @ v_new, m @ v, atol=1e-12 * np.abs(m @ v).max())
+    members = ([np.arange(len(x))] if clusters == 1 else
+               [np.repeat(np.arange(len(x)), np.diff(ptr))[cl == k] for k in range(nk)])
+    counts = np.ones(len(x)) if clusters == 1 else np.diff(ptr).astype(float)
+    for idx in members:                     # each cluster's own spin, about its centre
+        w = m[idx] / counts[idx]
+        for vel, expect in ((v, 50.0), (v_new, 10.0)):
+            r = x[idx] - w @ x[idx] / w.sum()
+            u = vel[idx] - w @ vel[idx] / w.sum()
+            inertia = (w * (r * r).sum(1)).sum() * np.eye(3) - (w[:, None] * r).T @ r
+            omega = np.linalg.solve(inertia, np.cross(r, w[:, None] * u).sum(0))
+            if clusters == 1 or expect == 50.0:
+                np.testing.assert_allclose(np.linalg.norm(omega), expect, rtol=1e-9)
+            else:           # shared particles take the mean of their clusters' corrections
+                assert np.linalg.norm(omega) < 0.7 * 50.0   # measured 31 rad/s
+    # unflagged clusters are not touched
+    v_same = v.copy()
+    assert K.limit_turn(x=x, v=v_same, mass=m, ptr=ptr, cl=cl, flagged=np.zeros(nk, np.bool_),
+                        w_max=10.0, lin=np.zeros((nk, 13)), w3=np.zeros((nk, 6)), m3a=z3[0],
+                        m3b=z3[1], m3c=z3[2], m3d=z3[3]) == 0
+    np.testing.assert_array_equal(v_same, v)
+
+
+def _extent(body):
+    x = body.x
+    return float(np.ptp(x - x.mean(axis=0), axis=0).max())
+
+
+def test_spin_the_step_cannot_resolve_ends_within_twice_the_rest_size():
+    """Issue 12's repro: default scene, 1e6 N and 1e5 N m for 0.5 s, then no wrench.
+
+    Without the limits the cloud stays 120-190x its rest size for ever; with them it is
+    back within 1.4x (1.1x one second after the wrench was cleared).
+    """
+    from sm_ros.sim import Simulation
+    sim = Simulation({'scene': 'default'})
+    body = sim.world.bodies[0]
+    rest = _extent(body)
+    body.set_wrench([1e6, 0.0, 0.0], [1e5, 0.0, 0.0])
+    for _ in range(30):                                   # 0.5 s at 60 Hz
+        sim.tick()
+    body.clear_wrench()
+    for _ in range(60):
+        sim.tick()
+    assert _extent(body) < 2.0 * rest
+    speed, turn = body.limit_counts
+    assert speed > 0 and turn > 0
+    status = sim.status_values()
+    assert (status['speed_limited'], status['turn_limited']) == (speed, turn)
+
+
+BUNDLED = ('default', pytest.param('many', marks=pytest.mark.slow), 'mesh', 'paper_8_clusters',
+           'plastic', 'rope', 'sheet')
+
+
+@pytest.mark.parametrize('scene', BUNDLED)
+def test_bundled_scene_runs_bit_for_bit_with_the_limits_on(scene):
+    """The default limits never bind in the bundled scenes: the same states to the bit."""
+    from sm_ros.sim import Simulation
+    on = Simulation({'scene': scene})
+    off = Simulation({'scene': scene, 'max_speed': 0.0, 'max_turn': 0.0})
+    assert on.world.bodies[0].params.max_speed == 100.0
+    for _ in range(40):
+        on.tick()
+        off.tick()
+    for a, b in zip(on.world.bodies, off.world.bodies):
+        np.testing.assert_array_equal(a.x, b.x)
+        np.testing.assert_array_equal(a.v, b.v)
+        assert a.limit_counts == (0, 0)
+
+
+def test_limits_refuse_bad_values_and_change_nothing():
+    from sm_ros.sim import ParameterError, Simulation
+    for bad in (dict(max_speed=-1.0), dict(max_turn=4.0), dict(max_speed=float('nan'))):
+        with pytest.raises(ValueError):
+            BodyParams(**bad).validate()
+    sim = Simulation({'scene': 'default'})
+    for name, value in (('max_speed', -1.0), ('max_turn', 3.5), ('max_turn', float('inf'))):
+        with pytest.raises(ParameterError):
+            sim.set_params({name: value})
+    assert sim.pending == {}
+    sim.set_params({'max_speed': 5.0})
+    sim.tick()
+    assert sim.world.bodies[0].params.max_speed == 5.0

@@ -208,10 +208,13 @@ def build(case: dict, seed: int):
     x0 = x0 + rng.uniform(-3.0, 3.0, 3) * scale     # somewhere away from the origin
     m = make_masses(case['mass'], x0, rng)
     # the matrix covers the per-step coefficients at each dt: the material is given at the
-    # case's step (BodyParams.at_step converts into the same ranges at any other step)
+    # case's step (BodyParams.at_step converts into the same ranges at any other step); the
+    # speed and turn limits (a safeguard on top, issue 12) are off: the scheme itself is
+    # under test
     params = BodyParams(mode=case['mode'], alpha=case['alpha'], beta=case['beta'],
                         clusters=case['clusters'], damping=case['damping'],
-                        material_dt=case['dt'], **(PLASTIC if case['plastic'] else {}))
+                        material_dt=case['dt'], max_speed=0.0, max_turn=0.0,
+                        **(PLASTIC if case['plastic'] else {}))
     c0 = (m @ x0) / m.sum()
     x, v = x0.copy(), np.zeros_like(x0)
     start = case['start']
@@ -430,7 +433,8 @@ def test_damping_of_a_body_flying_far_out_at_huge_speed():
     world = World(gravity=(0.0, 0.0, 0.0))
     body = world.add_body(x0 + RNG_OFFSET, masses=1e-6,
                           params=BodyParams(mode='linear', alpha=0.01, beta=0.0, damping=0.1,
-                                            material_dt=0.1))   # per step, as written
+                                            material_dt=0.1,     # per step, as written
+                                            max_speed=0.0))      # 3e10 m/s on purpose
     body.set_state(x=body.x + np.random.default_rng(1).uniform(-0.02, 0.02, x0.shape))
     body.set_wrench((6e5, -6.4e5, 4.8e5))              # 1e6 N, off the axes
     for _ in range(LOAD_STEPS):

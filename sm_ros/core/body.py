@@ -147,6 +147,7 @@ class Body:
         self._quat_body = np.array([1.0, 0.0, 0.0, 0.0])
         self._params = params
         self._at_step = (None, None, None)
+        self._limit_counts = np.zeros(2, dtype=np.int64)
         self._build()
         self._merge_kinematic()
 
@@ -235,6 +236,11 @@ class Body:
         self._goal_lin = np.zeros((nk, 3, 3))
         self._goal_off = np.zeros((nk, 3))
         self._ref = cm0 + self._c0
+        # speed and turn limits (kernels/limits.py): previous rotations, scratch, flags
+        self._quat_prev = np.zeros((nk, 4))
+        self._flagged = np.zeros(nk, dtype=np.bool_)
+        self._lim_lin = np.zeros((nk, 13))
+        self._lim_w = np.zeros((nk, 6))
         self._lin = np.zeros((nk, 13)) if p.damping > 0 else None
         self._w3 = np.zeros((nk, 3)) if p.damping > 0 else None
         self._dirty = True
@@ -287,6 +293,9 @@ class Body:
             acc = K.accumulate_parallel if self._parallel else K.accumulate_serial
             acc(quad=self._quad, x=x, x0=self._x0, mass=self.m, ptr=self._ptr, cl=self._cl,
                 rest_lin=self._rest_lin, rest_off=self._rest_off, ref=self._ref, part=self._part)
+        turn = self._params.max_turn
+        if turn > 0.0:
+            np.copyto(self._quat_prev, self._quat)
         K.solve_clusters(part=self._part, wsum=self._wsum, sum_q=self._sum_q, ref=self._ref,
                          quat=self._quat, aqq3=self._aqq3, aqq9=self._aqq9,
                          rest_lin=self._rest_lin, rest_off=self._rest_off, scale=self._scale,
@@ -294,6 +303,16 @@ class Body:
                          mode=self._mode, beta=p.beta, apq=self._apq, acc=self._accbuf, m3a=s3[0],
                          m3b=s3[1], m3c=s3[2], m39=self._m39, n4=self._n4, v4=self._v4,
                          nmat=self._nmat, cdet=self._cdet)
+        if turn > 0.0:
+            # |q_prev . q| = cos(angle / 2): clusters whose rotation turned more than
+            # max_turn in the last step have their angular velocity measured and capped
+            np.less(np.abs(np.einsum('ij,ij->i', self._quat_prev, self._quat)),
+                    np.cos(0.5 * turn), out=self._flagged)
+            if self._flagged.any():
+                self._limit_counts[1] += K.limit_turn(
+                    x=x, v=v, mass=self.m, ptr=self._ptr, cl=self._cl, flagged=self._flagged,
+                    w_max=turn / h, lin=self._lim_lin, w3=self._lim_w, m3a=s3[0], m3b=s3[1],
+                    m3c=s3[2], m3d=s3[3])
         nchanged = 0
         if plastic:
             nchanged = K.plastic_update(apq=self._apq, aqq3=self._aqq3, scale=self._scale,
@@ -315,6 +334,13 @@ class Body:
             K.inertia(x, self.m, self._com, self._i3)
             K.pinv_sym(mat=self._i3, out=self._i3inv, wa=s3[0], wv=s3[1], rcond=1e-12)
             np.dot(self._i3inv, self._torque, out=self._ang)
+            if turn > 0.0:
+                # a torque may add at most max_turn / h of spin in one step: beyond that the
+                # step cannot represent the turn and the body is smeared at once
+                a_norm = float(np.sqrt(self._ang @ self._ang))
+                if a_norm * h * h > turn:
+                    self._ang *= turn / (a_norm * h * h)
+                    self._limit_counts[1] += 1
         else:
             self._ang[:] = 0.0
         if p.damping > 0.0:
@@ -337,6 +363,10 @@ class Body:
                   goal_lin=self._goal_lin, goal_off=self._goal_off, ref=self._ref, alpha=p.alpha,
                   h=h, acc=self._acc, ang=self._ang, com=self._com, part=self._part, err=self._err,
                   has_col=has_col, ground=ground, boxes=boxes, spheres=spheres, thresh=thresh)
+        capped = 0
+        if self._params.max_speed > 0.0:
+            capped = K.limit_speed(x=x, v=v, h=h, v_max=self._params.max_speed)
+            self._limit_counts[0] += capped
         if kin and sets is not None:
             K.sets_kinematic(quad=self._quad, x=x, v=v, y0=sets.y0, mass=self.m, sid=sets.sid,
                              sref=sets.ref, part=sets.part, idx=self._kin_idx, tgt=self._kin_tgt,
@@ -347,11 +377,11 @@ class Body:
                               ref=self._ref, part=self._part, idx=self._kin_idx, tgt=self._kin_tgt,
                               prev=self._kin_prev, h=h)
         self._shape_err = None                 # computed from self._err when asked
-        self._dirty = False
+        self._dirty = capped > 0               # capped positions: the sums are stale
         if nchanged:
             self._refresh_rest(self._changed)
             # the per-set sums do not depend on the rest shape; the per-cluster ones do
-            self._dirty = sets is None
+            self._dirty = self._dirty or sets is None
 
     # ------------------------------------------------------------------ state access
     @property
@@ -511,6 +541,14 @@ class Body:
                            has_col=False, ground=np.zeros(4), boxes=np.zeros((0, 8)),
                            spheres=np.zeros((0, 6)), thresh=0.0)
         return g
+
+    @property
+    def limit_counts(self):
+        """(particles slowed to max_speed, clusters whose spin was capped) since built.
+
+        Counted per step: a particle capped in 10 steps counts 10.
+        """
+        return int(self._limit_counts[0]), int(self._limit_counts[1])
 
     def shape_error_rms(self) -> float:
         """RMS distance of the particles to their goals in the last step (m)."""

@@ -66,6 +66,10 @@ class BodyParams:
     material's values at the step ``material_dt`` (s); ``at_step(h)`` converts them to the
     step actually taken so the simulated object does not depend on the step.  0 turns the
     conversion off (every value acts per step as given, the paper's semantics).
+
+    ``max_speed`` (m/s) caps every particle's speed and ``max_turn`` (rad) the rotation a
+    cluster may make in one step (``kernels/limits.py``); 0 disables either.  The defaults
+    never bind in the bundled scenes; ``Body.limit_counts`` counts when they do.
     """
 
     mode: str = 'linear'
@@ -77,6 +81,8 @@ class BodyParams:
     plastic_max: float = 0.0
     damping: float = 0.0
     material_dt: float = MATERIAL_DT
+    max_speed: float = BY_NAME['max_speed'].default
+    max_turn: float = BY_NAME['max_turn'].default
 
     def validate(self) -> 'BodyParams':
         """Return a normalised copy; raise ValueError naming the bad field."""
@@ -87,7 +93,7 @@ class BodyParams:
         if self.clusters < 1 or self.clusters > MAX_CLUSTERS:
             raise ValueError(f'clusters must be in [1, {MAX_CLUSTERS}], got {self.clusters!r}')
         numbers = ('alpha', 'beta', 'plastic_yield', 'plastic_creep', 'plastic_max', 'damping',
-                   'material_dt')
+                   'material_dt', 'max_speed', 'max_turn')
         return replace(self, clusters=int(self.clusters),
                        **{f: _finite(f, getattr(self, f), *core_range(f)) for f in numbers})
 

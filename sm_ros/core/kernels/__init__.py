@@ -13,6 +13,7 @@ file               what it computes                                            e
 ``plasticity.py``  plastic state update and its caps                            24-27
 ``colliders.py``   static ground, boxes, spheres (projection, friction)         (collisions)
 ``damping.py``     damping towards each cluster's rigid motion                  (damping)
+``limits.py``      speed and turn-per-step limits (what one step represents)   (limits)
 ``jit.py``         compile options; a Numba cache stamp shared by all files     -
 =================  ==========================================================  ============
 
@@ -34,6 +35,7 @@ from .integrate import (BLOCK, accumulate_parallel, accumulate_serial,
                         advance, apply_kinematic, gather_rows, inertia, integrate_parallel,
                         integrate_serial)
 from .jit import FASTMATH, JIT
+from .limits import limit_speed, limit_turn
 from .linalg import det3, jacobi_eigh, matmul, norm2, pinv_sym
 from .plasticity import _add_null_projector, _cap_plastic, plastic_update
 from .rotation import extract_rotation, quat_to_mat
@@ -50,4 +52,4 @@ __all__ = ['FASTMATH', 'JIT', '_collide_range', '_contact_velocity', 'collide_po
            'norm2', 'pinv_sym', '_add_null_projector', '_cap_plastic', 'plastic_update',
            'extract_rotation', 'quat_to_mat', 'sets_accumulate_parallel', 'sets_accumulate_serial',
            'sets_integrate_parallel', 'sets_integrate_serial', 'sets_kinematic', 'sets_maps',
-           'sets_reduce']
+           'sets_reduce', 'limit_speed', 'limit_turn']

@@ -1,0 +1,174 @@
+"""Speed and turn limits: what one step can represent (not an equation of the paper).
+
+A step moves a particle by h v along a straight line and a cluster's goals by the rotation
+extracted from A_pq.  A spin of more than about a radian per step cannot be represented
+(the extracted rotation aliases) and a body spun that fast is smeared for ever: angular
+momentum is conserved, correctly.  Physics engines bound what a step may do (FleX
+``maxSpeed``, PhysX ``maxAngularVelocity``, ``maxDepenetrationVelocity``); so does sm_ros,
+with two per-body limits, both off when 0 and, by default, far above anything the bundled
+scenes do (they run bit-for-bit as without them):
+
+* ``limit_speed``: every particle's speed is capped at ``v_max`` (m/s); the part of this
+  step's displacement made with the excess is taken back (x -= h (v - v_capped));
+* ``limit_turn``: a cluster whose angular velocity omega (from its particles' velocities,
+  omega = I^+ L about its centre of mass) exceeds ``w_max`` (rad/s; the node gives the
+  turn per step, w_max = turn / h) loses the excess: each particle's velocity changes by
+  the mean over its clusters of -(omega - omega_capped) x r.  Only clusters flagged by the
+  caller (their extracted rotation turned more than the limit in the last step) are
+  measured, so a scene that never spins that fast pays one comparison per cluster.
+
+Both return how many particles / clusters they capped (counted in /diagnostics).
+"""
+
+from numba import njit
+import numpy as np
+
+from .jit import JIT
+from .linalg import pinv_sym
+
+#: Largest finite float (np.isfinite is folded away by the fast-math reassociation).
+_FINITE = 1.7976931348623157e308
+
+
+@njit(**JIT)
+def limit_speed(x, v, h, v_max):
+    """Cap |v_i| at ``v_max`` (and the displacement made with the excess); return the count.
+
+    Reads every velocity; writes only the capped particles.
+    """
+    lim2 = v_max * v_max
+    count = 0
+    for i in range(v.shape[0]):
+        v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
+        s2 = v0 * v0 + v1 * v1 + v2 * v2
+        if s2 > lim2:
+            if not s2 <= _FINITE:
+                continue                       # left to the non-finite recovery
+            f = v_max / np.sqrt(s2)
+            d = h * (1.0 - f)
+            x[i, 0] -= d * v0
+            x[i, 1] -= d * v1
+            x[i, 2] -= d * v2
+            v[i, 0] = v0 * f
+            v[i, 1] = v1 * f
+            v[i, 2] = v2 * f
+            count += 1
+    return count
+
+
+@njit(**JIT)
+def limit_turn(x, v, mass, ptr, cl, flagged, w_max, lin, w3, m3a, m3b, m3c, m3d):
+    """Take from every flagged cluster the angular velocity above ``w_max``; return the count.
+
+    Per flagged cluster k: W, v_cm, d (centre), L and I about d from its members (weights
+    m_i / clusters of i, like the goals), omega = I^+ L; if |omega| > w_max the excess
+    e_k = omega (1 - w_max / |omega|) is removed from each member's velocity as the mean
+    over its clusters of e_k x (x_i - c_k).  ``lin`` (K, 13), ``w3`` (K, 6) are scratch.
+    """
+    nk = flagged.shape[0]
+    for k in range(nk):
+        for j in range(13):
+            lin[k, j] = 0.0
+        for j in range(6):
+            w3[k, j] = 0.0
+    single = ptr.shape[0] == 0
+    n = x.shape[0]
+    # centres first (the particles' own mean position per cluster), then moments about them
+    for i in range(n):
+        if single:
+            j0, j1, w = 0, 1, mass[i]
+        else:
+            j0, j1 = ptr[i], ptr[i + 1]
+            w = mass[i] / (j1 - j0)
+        for j in range(j0, j1):
+            k = 0 if single else cl[j]
+            if not flagged[k]:
+                continue
+            lin[k, 0] += w
+            w3[k, 3] += w * x[i, 0]
+            w3[k, 4] += w * x[i, 1]
+            w3[k, 5] += w * x[i, 2]
+            lin[k, 1] += w * v[i, 0]
+            lin[k, 2] += w * v[i, 1]
+            lin[k, 3] += w * v[i, 2]
+    for k in range(nk):
+        if flagged[k] and lin[k, 0] > 0.0:
+            for j in range(1, 4):
+                lin[k, j] /= lin[k, 0]
+            for j in range(3, 6):
+                w3[k, j] /= lin[k, 0]
+    for i in range(n):
+        if single:
+            j0, j1, w = 0, 1, mass[i]
+        else:
+            j0, j1 = ptr[i], ptr[i + 1]
+            w = mass[i] / (j1 - j0)
+        for j in range(j0, j1):
+            k = 0 if single else cl[j]
+            if not flagged[k]:
+                continue
+            r0 = x[i, 0] - w3[k, 3]
+            r1 = x[i, 1] - w3[k, 4]
+            r2 = x[i, 2] - w3[k, 5]
+            u0 = v[i, 0] - lin[k, 1]
+            u1 = v[i, 1] - lin[k, 2]
+            u2 = v[i, 2] - lin[k, 3]
+            rr = r0 * r0 + r1 * r1 + r2 * r2
+            lin[k, 4] += w * (r1 * u2 - r2 * u1)
+            lin[k, 5] += w * (r2 * u0 - r0 * u2)
+            lin[k, 6] += w * (r0 * u1 - r1 * u0)
+            lin[k, 7] += w * (rr - r0 * r0)
+            lin[k, 8] += w * (rr - r1 * r1)
+            lin[k, 9] += w * (rr - r2 * r2)
+            lin[k, 10] -= w * r0 * r1
+            lin[k, 11] -= w * r1 * r2
+            lin[k, 12] -= w * r2 * r0
+    count = 0
+    for k in range(nk):
+        w3[k, 0] = 0.0
+        w3[k, 1] = 0.0
+        w3[k, 2] = 0.0
+        if not flagged[k] or not lin[k, 0] > 0.0:
+            continue
+        m3a[0, 0] = lin[k, 7]
+        m3a[1, 1] = lin[k, 8]
+        m3a[2, 2] = lin[k, 9]
+        m3a[0, 1] = m3a[1, 0] = lin[k, 10]
+        m3a[1, 2] = m3a[2, 1] = lin[k, 11]
+        m3a[2, 0] = m3a[0, 2] = lin[k, 12]
+        pinv_sym(mat=m3a, out=m3b, wa=m3c, wv=m3d, rcond=1e-12)
+        o0 = m3b[0, 0] * lin[k, 4] + m3b[0, 1] * lin[k, 5] + m3b[0, 2] * lin[k, 6]
+        o1 = m3b[1, 0] * lin[k, 4] + m3b[1, 1] * lin[k, 5] + m3b[1, 2] * lin[k, 6]
+        o2 = m3b[2, 0] * lin[k, 4] + m3b[2, 1] * lin[k, 5] + m3b[2, 2] * lin[k, 6]
+        om = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+        if w_max < om <= _FINITE:
+            f = 1.0 - w_max / om
+            w3[k, 0] = f * o0
+            w3[k, 1] = f * o1
+            w3[k, 2] = f * o2
+            count += 1
+    if count == 0:
+        return 0
+    for i in range(n):
+        if single:
+            j0, j1 = 0, 1
+        else:
+            j0, j1 = ptr[i], ptr[i + 1]
+        t0 = 0.0
+        t1 = 0.0
+        t2 = 0.0
+        for j in range(j0, j1):
+            k = 0 if single else cl[j]
+            if not flagged[k]:
+                continue
+            r0 = x[i, 0] - w3[k, 3]
+            r1 = x[i, 1] - w3[k, 4]
+            r2 = x[i, 2] - w3[k, 5]
+            t0 += w3[k, 1] * r2 - w3[k, 2] * r1
+            t1 += w3[k, 2] * r0 - w3[k, 0] * r2
+            t2 += w3[k, 0] * r1 - w3[k, 1] * r0
+        inv = 1.0 / (j1 - j0)
+        v[i, 0] -= t0 * inv
+        v[i, 1] -= t1 * inv
+        v[i, 2] -= t2 * inv
+    return count
