@@ -27,7 +27,7 @@ class FoxgloveClient:
 
     def __init__(self, url, timeout=5.0):
         """Connect and read the server's advertisements."""
-        self._conn = ws_client.connect(url, subprotocols=['foxglove.sdk.v1'],
+        self._conn = ws_client.connect(url, subprotocols=['foxglove.sdk.v1'], max_size=None,
                                        open_timeout=timeout)
         self.ws = self._conn.__enter__()
         self.channels = {}

@@ -8,6 +8,8 @@ axis, damping 0.05) and times, round-robin over ``--rounds`` rounds (medians):
   client or recorder takes anything (what every tick costs a node nobody watches);
 - ``publish, points + poses subscribed``: the same with a subscriber on both in this
   process (cloud fill + serialisation + poses);
+- ``publish, a Foxglove client on /points``: only the live view takes the cloud (fill +
+  one join of header and cloud bytes; the SDK sends it from its own thread);
 - ``poses: one pass + extract_rotation`` against ``poses: Body.com() + Body.rotation()``
   (the NumPy einsum the node used before);
 - ``momentum: one sum`` (what a tick paid twice before; now once per conservative run and
@@ -78,6 +80,10 @@ def main(argv=None) -> int:
             t = time.perf_counter()
             fn()
             times[name].append(time.perf_counter() - t)
+    try:
+        times.update(_with_foxglove(node, out, args.rounds))
+    except ImportError as exc:
+        print(f'(no Foxglove row: {exc})', file=sys.stderr)
     subscribe()
     times['publish, points + poses subscribed'] = []
     for _ in range(args.rounds):
@@ -94,6 +100,40 @@ def main(argv=None) -> int:
     probe.destroy_node()
     rclpy.try_shutdown()
     return 0
+
+
+def _with_foxglove(node, out, rounds):
+    """Time publishing with only a Foxglove client on /points (a WebSocket client here)."""
+    import json
+    import socket
+    from websockets.sync.client import connect
+    from sm_ros.live import FoxgloveView
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        port = s.getsockname()[1]
+    out.live = FoxgloveView(port=port)
+    got = []
+    with connect(out.live.url, subprotocols=['foxglove.sdk.v1'], max_size=None) as ws:
+        channels = {}
+        while '/points' not in channels:
+            msg = json.loads(ws.recv(timeout=5))
+            if msg['op'] == 'advertise':
+                channels.update({c['topic']: c['id'] for c in msg['channels']})
+        ws.send(json.dumps({'op': 'subscribe',
+                            'subscriptions': [{'id': 1, 'channelId': channels['/points']}]}))
+        deadline = time.monotonic() + 5
+        while not out.live.wants_cloud() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        ts = []
+        for _ in range(rounds):
+            t = time.perf_counter()
+            out.publish()
+            ts.append(time.perf_counter() - t)
+            got.append(len(ws.recv(timeout=5)))
+    out.live.close()
+    out.live = None
+    return {f'publish, a Foxglove client on /points ({len(got)} clouds of '
+            f'{max(got) / 2**20:.1f} MiB received)': ts}
 
 
 if __name__ == '__main__':

@@ -156,14 +156,18 @@ def _write_targets(f: Dict[str, Any], out: Path):
         t.add(target='faster than pypbd', goal='>= 2x', measured='not run', met=None)
     nd = f.get('node') or {}
     row = nd.get('target')
+    what = ('node: 100k points, 8 clusters, damping 0.05, 2 substeps, 60 Hz, one '
+            'subscriber in another process (issue 11)')
+    goal = '60 Hz held, tick <= 8.33 ms, other (beyond step + fill + publish) <= 0.2 ms'
     if row:
-        t.add(target='node: 100k points at 60 Hz', goal='tick < 8.33 ms, 60 Hz',
+        t.add(target=what, goal=goal,
               measured=f'{row["rate_hz"]:.1f} Hz, tick {row["tick_ms_median"]:.2f} ms median '
-                       f'({row["tick_ms_p95"]:.2f} ms p95)',
-              met=row['rate_hz'] >= 57 and row['tick_ms_median'] < 1e3 / 120)
+                       f'({row["tick_ms_p95"]:.2f} ms p95), other '
+                       f'{row["other_ms_median"]:.2f} ms',
+              met=(row['rate_hz'] >= 59.4 and row['tick_ms_median'] <= 1e3 / 120
+                   and row['other_ms_median'] <= 0.2))
     else:
-        t.add(target='node: 100k points at 60 Hz', goal='tick < 8.33 ms',
-              measured=nd.get('status', 'not run'), met=None)
+        t.add(target=what, goal=goal, measured=nd.get('status', 'not run'), met=None)
     t.write(out)
     with open(out / 'targets.md', 'a') as fh:
         m = f['machine']
