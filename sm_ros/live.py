@@ -448,6 +448,71 @@ class FoxgloveView:
             pass
 
 
+#: Where the layout for the Foxglove app is kept (``python -m sm_ros.live --layout``).
+LAYOUT_FILE = 'config/foxglove_layout.json'
+
+
+def layout_json() -> str:
+    """
+    Return a Foxglove layout (JSON) for the live view and for recordings.
+
+    A 3D panel (frame ``world``; ``/points`` coloured by the ``body`` field, poses, surfaces,
+    colliders, contact arrows, a grid) beside a Plot panel of the solver's figures
+    (``/diagnostics``: tick and step time, achieved rate). Import it in Foxglove with
+    *Layouts -> Import from file*.
+    """
+    fl = _foxglove_layouts()
+    scene = fl.BaseRendererSceneUpdateTopicSettings
+    three_d = fl.ThreeDeePanel(title='sm_ros', config=fl.ThreeDeeConfig(
+        fixed_frame='world', follow_tf='world',
+        topics={
+            '/points': fl.BaseRendererPointCloudTopicSettings(
+                visible=True, point_size=3.0, color_mode='colormap', color_field='body',
+                color_map='turbo'),
+            '/poses': fl.BaseRendererPosesTopicSettings(visible=True, type='axis',
+                                                        axis_scale=0.5),
+            '/surfaces': scene(visible=True),
+            '/colliders': scene(visible=True),
+            '/contacts': scene(visible=True),
+        },
+        layers={'grid': fl.BaseRendererGridLayerSettings(visible=True, frame_id='world',
+                                                         size=10.0, divisions=20)}))
+    plot = fl.PlotPanel(title='solver', config=fl.PlotConfig(paths=[
+        fl.PlotSeries(value='/diagnostics.tick_ms_mean', label='tick (ms)'),
+        fl.PlotSeries(value='/diagnostics.step_ms_mean', label='step (ms)'),
+        fl.PlotSeries(value='/diagnostics.rate_achieved_hz', label='rate (Hz)'),
+    ]))
+    layout = fl.Layout(content=fl.SplitContainer(direction='row', items=[
+        fl.SplitItem(proportion=3, content=three_d), fl.SplitItem(proportion=1, content=plot)]))
+    import json
+    return json.dumps(json.loads(layout.to_json()), indent=1) + '\n'
+
+
+def _foxglove_layouts():
+    try:
+        import foxglove.layouts as fl
+    except ImportError as exc:  # pragma: no cover - depends on the install
+        raise VizUnavailable('the layout needs foxglove-sdk: pip install -e .[viz]') from exc
+    return fl
+
+
+def main(argv=None) -> int:
+    """``python -m sm_ros.live --layout [FILE]``: write the Foxglove layout."""
+    import argparse
+    import sys
+    ap = argparse.ArgumentParser(prog='python -m sm_ros.live', description=layout_json.__doc__)
+    ap.add_argument('--layout', nargs='?', const=LAYOUT_FILE, default=None, metavar='FILE',
+                    help=f'write the layout to FILE (default {LAYOUT_FILE})')
+    args = ap.parse_args(argv)
+    if args.layout is None:
+        sys.stdout.write(layout_json())
+        return 0
+    with open(args.layout, 'w', encoding='utf-8') as f:
+        f.write(layout_json())
+    print(f'wrote {args.layout}')
+    return 0
+
+
 def _quaternion_x_to(v: np.ndarray) -> Tuple[float, float, float, float]:
     """Return the shortest rotation (x, y, z, w) taking +x onto the direction of ``v``."""
     n = float(np.linalg.norm(v))
@@ -460,3 +525,8 @@ def _quaternion_x_to(v: np.ndarray) -> Tuple[float, float, float, float]:
     q = np.array([axis[0], axis[1], axis[2], w])
     q /= np.linalg.norm(q)
     return tuple(float(x) for x in q)
+
+
+if __name__ == '__main__':
+    import sys
+    sys.exit(main())

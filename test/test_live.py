@@ -226,3 +226,23 @@ def test_colliders_poses_contacts_and_diagnostics(view, client):
 def test_busy_port_is_a_clear_error(view):
     with pytest.raises(OSError, match=f'Foxglove server on 127.0.0.1:{view.port}'):
         live.FoxgloveView(port=view.port)
+
+
+def test_layout_file_is_current_and_names_the_channels(view):
+    import json
+    from pathlib import Path
+    path = Path(__file__).resolve().parent.parent / live.LAYOUT_FILE
+    assert path.read_text() == live.layout_json(), \
+        'config/foxglove_layout.json is stale: python -m sm_ros.live --layout'
+    data = json.loads(path.read_text())
+    three_d, plot = (item['content'] for item in data['content']['items'])
+    channels = {c.topic() for c in (view.points, view.poses, view.surfaces, view.colliders,
+                                    view.contacts)}
+    assert set(three_d['config']['topics']) == channels
+    points = three_d['config']['topics']['/points']
+    assert (points['colorMode'], points['colorField']) == ('colormap', 'body')
+    assert three_d['config']['fixedFrame'] == 'world'
+    from sm_ros.diagnostics import KEYS
+    for series in plot['config']['paths']:
+        topic, _, key = series['value'].partition('.')
+        assert topic == view.diagnostics.topic() and key in KEYS
