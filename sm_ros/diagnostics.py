@@ -110,7 +110,8 @@ def contact_status(node_name: str, per_body) -> DiagnosticStatus:
 
     ``per_body`` is ``{body: (contacts, deepest m)}`` of the last step
     (``World.contact_stats``); keys ``<body>.contacts`` (particle-collider contacts of the
-    collider pass plus body-body pairs) and ``<body>.penetration_max_m``.
+    collider pass plus body-body pairs) and ``<body>.penetration_max_m``, for the bodies
+    in contact only.
     """
     status = DiagnosticStatus()
     status.name = f'{node_name}: contacts'
@@ -120,6 +121,8 @@ def contact_status(node_name: str, per_body) -> DiagnosticStatus:
     status.message = f'{total} contacts'
     values = []
     for name, (n, depth) in per_body.items():
+        if not n:
+            continue                  # only the bodies in contact (a bin of 384 bodies)
         values.append(KeyValue(key=f'{name}.contacts', value=str(int(n))))
         values.append(KeyValue(key=f'{name}.penetration_max_m', value=fmt(depth)))
     status.values = values
