@@ -58,7 +58,7 @@ setup(
             'colcon-core', 'colcon-python-setup-py', 'colcon-ros', 'catkin_pkg',
             'ruff',
         ],
-        'bench': ['matplotlib', 'psutil', 'pypbd'],
+        'bench': ['matplotlib', 'psutil', 'pypbd', 'scipy'],  # scipy: contact baseline (cKDTree)
     },
     zip_safe=True,
     maintainer='sm_ros maintainers',

@@ -9,6 +9,7 @@ Subcommands (each writes markdown + CSV tables and PNG plots into ``--out``):
   second for a dt/substeps/mode/clusters sweep, one plot per scene;
 - ``node``      the ROS node publishing clouds at 30/60 Hz (needs rclpy);
 - ``soak``      hands over to ``sm_ros.bench.soak:main`` (the soak test);
+- ``contact``   body-body contact against scipy's cKDTree (``sm_ros.bench.contact``);
 - ``all``       scaling + accuracy + node (the default).
 
 ``targets.md`` lists the issue's targets with the figures this run measured.
@@ -45,6 +46,8 @@ def _parser() -> argparse.ArgumentParser:
     for mod, _ in parts.values():
         mod.add_arguments(sp)
     sub.add_parser('soak', help='long-running soak test (sm_ros.bench.soak)', add_help=False)
+    sub.add_parser('contact', help='body-body contact against cKDTree (sm_ros.bench.contact)',
+                   add_help=False)
     return p
 
 
@@ -58,6 +61,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ['soak']:
         return _run_soak(argv[1:])
+    if argv[:1] == ['contact']:
+        from . import contact
+        return contact.main(argv[1:])
     if not argv or argv[0] not in ('scaling', 'accuracy', 'node', 'all', '-h', '--help'):
         argv = ['all'] + argv
     args = _parser().parse_args(argv)
