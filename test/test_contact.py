@@ -10,6 +10,7 @@ from sm_ros.core import contact as C
 from sm_ros.core.contact import BodyContact, ContactParams
 
 S = 0.02                                           # lattice spacing of the test bodies
+NO_COLLIDERS = (False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)))
 
 
 def lattice(nx, ny, nz, s=S, center=(0.0, 0.0, 0.0)):
@@ -98,7 +99,7 @@ def test_pair_response_conserves_momentum_and_separates():
     touched = np.zeros(2, np.uint8)
     found = C.solve_pairs(X, V, W, R, B, np.array([0], np.int32), np.array([1], np.int32),
                           1, 0.0, 0.0, 0.0, 1e-3, 1, touched, np.zeros(2, np.int64),
-                          np.zeros(2))
+                          np.zeros(2), *NO_COLLIDERS)
     assert found == 1 and touched.all()
     assert np.linalg.norm(X[:, 0] - X[:, 1]) >= 0.02 - 1e-12
     np.testing.assert_allclose(V @ (1.0 / W), p0, atol=1e-14)
@@ -114,7 +115,7 @@ def test_pinned_particles_are_infinite_mass():
     before = X[:, 0].copy()
     C.solve_pairs(X, V, W, np.full(2, 0.01), np.array([0, 1], np.int32),
                   np.array([0], np.int32), np.array([1], np.int32), 1, 0.5, 0.0, 0.0, 0.01, 1,
-                  np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2))
+                  np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2), *NO_COLLIDERS)
     np.testing.assert_array_equal(X[:, 0], before)
     assert X[0, 1] == pytest.approx(0.02)
 
@@ -198,6 +199,33 @@ def test_stack_of_five_boxes_stands():
     assert top.max() - top.min() < 1e-3                       # no jitter
     for lo, hi in zip(boxes, boxes[1:]):
         assert min_distance(lo.x, hi.x) > 0.6 * S
+
+
+@pytest.mark.slow
+def test_pile_of_27_balls_heaps_up_and_settles():
+    from sm_ros import shapes
+    from sm_ros.core import Box
+    w = World()
+    w.set_colliders(ground=Ground(), boxes=[             # a 0.4 m x 0.4 m bin
+        Box(lo=(-0.3, -0.3, 0), hi=(-0.2, 0.3, 0.6)), Box(lo=(0.2, -0.3, 0), hi=(0.3, 0.3, 0.6)),
+        Box(lo=(-0.2, -0.3, 0), hi=(0.2, -0.2, 0.6)), Box(lo=(-0.2, 0.2, 0), hi=(0.2, 0.3, 0.6))])
+    ball = shapes.sphere_lattice(0.05, S)                # 81 particles
+    p = BodyParams(mode='rigid', alpha=0.9, damping=0.1)
+    bodies = [w.add_body(ball + [(i - 1) * 0.12, (j - 1) * 0.12, 0.08 + k * 0.12 + 0.003 * i],
+                         0.002, p, f'ball{i}{j}{k}')
+              for i in range(3) for j in range(3) for k in range(3)]
+    ke = []
+    for _ in range(4 * 120):
+        w.step(1 / 120)
+        ke.append(sum(0.5 * float((b.m[:, None] * b.v ** 2).sum()) for b in bodies))
+    x = np.concatenate([b.x for b in bodies])
+    bid = np.repeat(np.arange(len(bodies)), len(ball))
+    d = np.linalg.norm(x[:, None] - x[None], axis=-1)
+    d[bid[:, None] == bid[None]] = np.inf
+    assert (d.min(axis=1) < 0.5 * S).mean() < 0.02             # no overlapping layer
+    assert x[:, 2].max() > 0.12                                  # heaped: 27 > one layer of 16
+    # settles: a residual jitter of the resting contacts is left (README, "Contact")
+    assert ke[-1] < 0.05 * max(ke) and max(ke[-60:]) < 0.1
 
 
 @pytest.mark.parametrize('mu', [0.0, 0.5])

@@ -159,7 +159,8 @@ def contact_parts(world) -> Dict[str, float]:
         f.V[:] = Vs
         C.max_moved2(f.X, c._xref, f.B, c.act)
         C.solve_pairs(f.X, f.V, f.W, f.R, f.B, c._pi, c._pj, c.npairs, 0.5, 0.0, 0.16,
-                      1.0 / 120.0, 1, f.touched, c.count, c.deepest)
+                      1.0 / 120.0, 1, f.touched, c.count, c.deepest, world._has_col,
+                      world._ground_row, world._box_rows, world._sphere_rows)
 
     def restore():
         f.X[:] = Xs

@@ -37,7 +37,8 @@ from typing import Optional
 import numpy as np
 from numba import njit
 
-from .kernels import JIT
+from .kernels.colliders import collide_point
+from .kernels.jit import JIT
 from .params import _finite
 
 #: Same-body pairs self-collide only when their rest distance exceeds this many times
@@ -46,7 +47,9 @@ from .params import _finite
 SELF_REST_FACTOR = 2.0
 #: Verlet skin as a fraction of the largest contact radius.
 SKIN_FACTOR = 0.5
-_PACK = 1 << 20                                    # cell coordinate offset (21 bits/axis)
+_NO_GROUND = np.zeros(4)
+_NO_ROWS8 = np.zeros((0, 8))
+_NO_ROWS6 = np.zeros((0, 6))
 
 
 # ---------------------------------------------------------------------------------------
@@ -345,7 +348,7 @@ def contact_velocity(vx, vy, vz, nx, ny, nz, mu, e, thresh):
 
 @njit(**JIT)
 def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched, count,
-                deepest):
+                deepest, has_col, ground, boxes, spheres):
     """Project the overlapping pairs apart and apply the contact law (Gauss-Seidel).
 
     Pair (i, j) overlaps when |x_i - x_j| < r_i + r_j.  Its normal n is the direction of
@@ -358,6 +361,10 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched,
     and the relative tangential speed reduced by at most ``mu`` times the whole normal
     change.  Every velocity change also moves the particle by h times it, so x - h v
     stays the start of the step for the pairs that follow.
+    With ``has_col``, both particles are then projected out of the static colliders
+    (``kernels.colliders.collide_point``: ground, boxes, spheres), so contact never leaves
+    a particle inside one (a body pressed into the ground by another would otherwise be
+    pushed back out by the next step's collider pass, and the two would pump energy).
     Returns the overlapping pairs met in the first sweep; ``count[b]``, ``deepest[b]`` get
     each body's contacts and deepest penetration (m) of that sweep.
     """
@@ -433,6 +440,15 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched,
             V[0, j] -= aj * qx
             V[1, j] -= aj * qy
             V[2, j] -= aj * qz
+            if has_col:
+                if wi > 0.0:
+                    X[0, i], X[1, i], X[2, i], V[0, i], V[1, i], V[2, i] = collide_point(
+                        X[0, i], X[1, i], X[2, i], V[0, i], V[1, i], V[2, i], ground, boxes,
+                        spheres, thresh)
+                if wj > 0.0:
+                    X[0, j], X[1, j], X[2, j], V[0, j], V[1, j], V[2, j] = collide_point(
+                        X[0, j], X[1, j], X[2, j], V[0, j], V[1, j], V[2, j], ground, boxes,
+                        spheres, thresh)
             if it == 0:
                 found += 1
                 bi = B[i]
@@ -640,8 +656,14 @@ class Contact:
         self.valid = True
         self.builds += 1
 
-    def run(self, h, thresh):
-        """Detect and resolve contacts on ``flat.X``/``flat.V`` (already gathered)."""
+    def run(self, h, thresh, has_col=False, ground=_NO_GROUND, boxes=_NO_ROWS8,
+            spheres=_NO_ROWS6):
+        """Detect and resolve contacts on ``flat.X``/``flat.V`` (already gathered).
+
+        ``has_col``, ``ground``, ``boxes``, ``spheres``: the World's static colliders (rows
+        as in ``kernels.colliders.collide_point``), re-applied to every particle contact
+        moved.
+        """
         f = self.flat
         half = 0.5 * self.skin
         if not self.valid or max_moved2(f.X, self._xref, f.B, self.act) > half * half:
@@ -651,7 +673,8 @@ class Contact:
         p = self.params
         self.found = solve_pairs(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
                                  p.friction, p.restitution, thresh, float(h), p.iterations,
-                                 f.touched, self.count, self.deepest)
+                                 f.touched, self.count, self.deepest, bool(has_col), ground,
+                                 boxes, spheres)
 
     def fast_particles(self, h):
         """Per body, the particles that moved more than their contact radius in the last

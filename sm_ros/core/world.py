@@ -287,7 +287,8 @@ class World:
             st = self._coll_stats = np.zeros((len(f.bodies), 2))
         if need_contact:
             f.gather()
-            c.run(h, thresh)
+            c.run(h, thresh, self._has_col, self._ground_row, self._box_rows,
+                  self._sphere_rows)
             if cs is not None:
                 st[:] = 0.0
                 cs.collide(f.X, f.V, f.W, f.B, 0, f.n, h, thresh, st, f.touched)
