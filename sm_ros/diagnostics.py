@@ -23,7 +23,8 @@ KEYS = ('points', 'bodies', 'clusters', 'mode', 'step_ms_mean', 'step_ms_max',
         'real_time_factor', 'overruns', 'shape_error_rms_m', 'momentum_drift',
         'momentum_drift_measured', 'nonfinite_resets', 'refused_messages', 'tick_ms_mean',
         'other_ms_mean', 'recording', 'recorder_messages', 'recorder_dropped', 'contacts',
-        'contact_fast_particles', 'speed_limited', 'turn_limited')
+        'contact_fast_particles', 'speed_limited', 'turn_limited', 'error_estimate_m',
+        'error_estimate_ms')
 
 
 def fmt(value: float) -> str:
@@ -40,7 +41,8 @@ def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, 
                   momentum_drift: Optional[float], refused_messages: int,
                   paused: bool = False, recording: str = '', recorder_messages: int = 0,
                   recorder_dropped: int = 0, recorder_dropped_window: int = 0,
-                  speed_limited: int = 0, turn_limited: int = 0
+                  speed_limited: int = 0, turn_limited: int = 0,
+                  error_estimate_m: float = 0.0, error_estimate_ms: float = 0.0
                   ) -> DiagnosticStatus:
     """
     Build the '<node name>: solver' status for the window that ends at ``now``.
@@ -81,6 +83,8 @@ def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, 
         'contact_fast_particles': str(int(getattr(stats, 'contact_fast_max', 0))),
         'speed_limited': str(int(speed_limited)),
         'turn_limited': str(int(turn_limited)),
+        'error_estimate_m': fmt(error_estimate_m),
+        'error_estimate_ms': fmt(error_estimate_ms),
     }
     status = DiagnosticStatus()
     status.name = f'{node_name}: solver'

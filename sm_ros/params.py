@@ -224,6 +224,10 @@ TABLE: Tuple[Param, ...] = (
     Param('max_turn', 0.5, 'Largest rotation of a cluster in one step (rad): spin beyond '
           'max_turn / dt is taken away and counted in /diagnostics (turn_limited); 0: no limit',
           'rad', 0.0, 3.0, scene_override=True, core_field='max_turn'),
+    Param('error_estimate.rate', 1.0, 'Rate of the live error estimate in /diagnostics '
+          '(error_estimate_m: step doubling on copies of the world, the RMS position error '
+          'after 2 s of the running dt and substeps; its cost counts in the tick) (Hz; 0 '
+          'disables)', 'Hz', 0.0, 100.0),
 )
 
 #: Every row by name.

@@ -27,7 +27,7 @@ INTERFACE_PARAMS = ('mode', 'alpha', 'beta', 'plasticity.yield', 'plasticity.cre
                     'grab_radius', 'force_timeout', 'scene', 'frame_id', 'publish_clock',
                     'diagnostics_rate', 'max_points', 'cloud_in_mode', 'material_dt',
                     'contact.enabled', 'contact.friction', 'contact.restitution',
-                    'contact.radius_scale', 'max_speed', 'max_turn')
+                    'contact.radius_scale', 'max_speed', 'max_turn', 'error_estimate.rate')
 #: Parameters sm_ros adds to the interface (live view and recording).
 EXTRA_PARAMS = ('foxglove.port', 'foxglove.host', 'record.path')
 

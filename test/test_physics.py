@@ -392,3 +392,79 @@ def test_limits_refuse_bad_values_and_change_nothing():
     sim.set_params({'max_speed': 5.0})
     sim.tick()
     assert sim.world.bodies[0].params.max_speed == 5.0
+
+
+# ---------------------------------------------------------------- 5. live error estimate
+
+def _estimate_against_truth(name, h, points=125, duration=2.0):
+    """Mean of 4 live estimates along a run of an accuracy scene, and its true error."""
+    from sm_ros import error_estimate
+    from sm_ros.bench import accuracy as acc
+    scene = acc.make_scenes(points)[name]
+    world, body, driver = scene.build(dict(scene.nominal))
+    n = int(round(duration / h))
+    every = int(round((1.0 / acc.SAMPLE_RATE) / h))
+    xs, est = [], []
+    for i in range(n):
+        if i % (n // 4) == 0:
+            est.append(error_estimate.estimate(world, h, horizon=duration)['error_m'])
+        if driver is not None:
+            driver(world, body, (i + 1) * h)
+        world.step(h)
+        if (i + 1) % every == 0:
+            xs.append(np.array(body.x))
+    xs = np.array(xs)
+    t = (np.arange(len(xs)) + 1) * every * h
+    truth = (acc.exact_samples(scene, t) if scene.exact is not None
+             else acc.simulate(scene, scene.nominal, h / 16.0, duration)['x'])
+    return float(np.mean(est)), acc.max_rms(xs, truth)
+
+
+@pytest.mark.parametrize('h', [1.0 / 120.0, 1.0 / 240.0])
+@pytest.mark.parametrize('scene', ['rigid_spin', 'ballistic', 'cantilever'])
+def test_live_error_estimate_tracks_the_true_error(scene, h):
+    """Measured ratios estimate / truth: rigid_spin 1.6, ballistic 1.05, cantilever 2.3 and
+    1.8 (1/120 s and 1/240 s)."""
+    est, true = _estimate_against_truth(scene, h)
+    assert true / 3.0 <= est <= 3.0 * true, (est, true)
+
+
+@pytest.mark.parametrize('scene', ['soft_drop', 'plastic_press'])
+def test_live_error_estimate_is_an_upper_estimate_on_the_ground(scene):
+    """Not within 3x here: contact and friction forget part of the error that the
+    extrapolation counts (measured 5.7x for soft_drop, 14x for plastic_press at 1/120 s).
+    What holds is an upper estimate."""
+    est, true = _estimate_against_truth(scene, 1.0 / 120.0)
+    assert est >= true, (est, true)
+
+
+def test_simulation_reports_the_estimate_at_its_rate_and_counts_its_cost():
+    from sm_ros.sim import ParameterError, Simulation
+    now = [0.0]
+    sim = Simulation({'scene': 'default'}, clock=lambda: now[0])
+    off = Simulation({'scene': 'default', 'error_estimate.rate': 0.0})
+    assert sim.params['error_estimate.rate'] == 1.0
+    sim.tick()
+    off.tick()
+    first = sim.error_estimate
+    assert first is not None and first['error_m'] > 0.0 and first['steps'] == 6
+    assert off.error_estimate is None and off.status_values()['error_estimate_m'] == 0.0
+    assert sim.stats.tick_s_max >= first['cost_s']           # counted in the tick
+    for _ in range(5):                                        # within 1 s: no new estimate
+        now[0] += 0.1
+        sim.tick()
+        off.tick()
+        assert sim.error_estimate is first
+    now[0] += 0.6
+    sim.tick()
+    off.tick()
+    assert sim.error_estimate is not first
+    status = sim.status_values()
+    assert status['error_estimate_m'] == sim.error_estimate['error_m']
+    assert status['error_estimate_ms'] == pytest.approx(1e3 * sim.error_estimate['cost_s'])
+    # the copies leave the world alone
+    np.testing.assert_array_equal(sim.world.bodies[0].x, off.world.bodies[0].x)
+    for bad in (-1.0, 101.0, float('nan')):
+        with pytest.raises(ParameterError):
+            sim.set_params({'error_estimate.rate': bad})
+    assert sim.pending == {} and sim.params['error_estimate.rate'] == 1.0
