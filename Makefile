@@ -2,11 +2,11 @@
 #   make run    start the node on the default scene with the Foxglove live view on port
 #               FOXGLOVE_PORT (8765; 0: off) (ARGS='--ros-args -p alpha:=0.9' passes on)
 #   make test   run the whole test suite
-# and `make lint` checks every Python file with ruff (configured in pyproject.toml).
 # Each creates .venv (ROS 2 Jazzy client libraries as Python wheels, numpy, numba, ...) if it
 # is missing, compiles the solver kernels once (python -m sm_ros.warmup: Numba's on-disk
 # cache, so the node starts in seconds), and reinstalls only when setup.py or package.xml
-# changes.
+# changes. `make lint` checks every Python file with ruff (configured in pyproject.toml)
+# and that the files generated from the parameter table are up to date.
 
 PYTHON ?= python3
 VENV := .venv
@@ -36,6 +36,7 @@ test: $(STAMP)
 
 lint: $(STAMP)
 	$(VENV)/bin/python -m ruff check .
+	$(VENV)/bin/python -m sm_ros.params --check
 
 clean:
 	rm -rf $(VENV) build install log .pytest_cache
