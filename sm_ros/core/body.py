@@ -243,6 +243,22 @@ class Body:
         self._lim_w = np.zeros((nk, 6))
         self._lin = np.zeros((nk, 13)) if p.damping > 0 else None
         self._w3 = np.zeros((nk, 3)) if p.damping > 0 else None
+        # damping fused into the particle pass (set layout, one cluster; kernels/damping.py)
+        self._damp_fused = p.damping > 0 and (self._sets is not None or p.clusters == 1)
+        if self._damp_fused and self._sets is not None:
+            sets = self._sets
+            self._dsets = (sets.ptr, sets.cl, sets.cnt)
+            self._dpart = np.zeros((len(sets.part), len(sets.cnt), K.NDAMP))
+        elif self._damp_fused:
+            self._dsets = (np.array([0, 1], dtype=np.int64), np.zeros(1, dtype=np.int32),
+                           np.ones(1))
+            self._dpart = np.zeros((len(self._part), 1, K.NDAMP))
+        else:
+            self._dsets = None
+            self._dpart = np.zeros((1, 1, K.NDAMP))
+        self._dmp = np.zeros((len(self._dsets[2]) if self._dsets else 1, 6))
+        self._dref = np.zeros((nk, 3))
+        self._dacc = np.zeros(K.NDAMP)
         self._dirty = True
 
     def _refresh_rest(self, which):
@@ -279,6 +295,16 @@ class Body:
         x, v = self._x, self._v
         s3 = self._s3
         sets = self._sets
+        fused = self._damp_fused and p.damping > 0.0
+        if fused:
+            # the rigid fields damping moves towards, from the sums of the last pass
+            sptr, scl, scnt = self._dsets
+            dsid = sets.sid if sets is not None else self._ptr
+            if self._dirty:
+                K.damp_accumulate(x=x, v=v, mass=self.m, sid=dsid, dpart=self._dpart)
+            K.damping_fields(dpart=self._dpart, sptr=sptr, scl=scl, scnt=scnt, lin=self._lin,
+                             w3=self._w3, dref=self._dref, acc=self._dacc, m3a=s3[0], m3b=s3[1],
+                             m3c=s3[2], m3d=s3[3])
         if sets is not None:
             if self._dirty:
                 acc = K.sets_accumulate_parallel if self._parallel else \
@@ -343,7 +369,11 @@ class Body:
                     self._limit_counts[1] += 1
         else:
             self._ang[:] = 0.0
-        if p.damping > 0.0:
+        if fused:
+            K.damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=self._lin, w3=self._w3,
+                              dref=self._dref, sref=sets.ref if sets is not None else self._ref,
+                              dmp=self._dmp)
+        elif p.damping > 0.0:
             K.damp_rigid(x=x, v=v, mass=self.m, ptr=self._ptr, cl=self._cl, ref=self._ref,
                          k_damp=p.damping, lin=self._lin, w3=self._w3, m3a=s3[0], m3b=s3[1],
                          m3c=s3[2], m3d=s3[3])
@@ -355,18 +385,23 @@ class Body:
             integ(quad=self._quad, x=x, v=v, y0=sets.y0, mass=self.m, sid=sets.sid, gm=sets.gm,
                   sref=sets.ref, alpha=p.alpha, h=h, acc=self._acc, ang=self._ang, com=self._com,
                   part=sets.part, err=self._err, has_col=has_col, ground=ground, boxes=boxes,
-                  spheres=spheres, thresh=thresh)
+                  spheres=spheres, thresh=thresh, damp=fused, k_damp=p.damping, dmp=self._dmp,
+                  dpart=self._dpart)
         else:
             integ = K.integrate_parallel if self._parallel else K.integrate_serial
             integ(quad=self._quad, x=x, v=v, x0=self._x0, mass=self.m, ptr=self._ptr, cl=self._cl,
                   rest_lin=self._rest_lin, rest_off=self._rest_off, trans=self._trans,
                   goal_lin=self._goal_lin, goal_off=self._goal_off, ref=self._ref, alpha=p.alpha,
                   h=h, acc=self._acc, ang=self._ang, com=self._com, part=self._part, err=self._err,
-                  has_col=has_col, ground=ground, boxes=boxes, spheres=spheres, thresh=thresh)
+                  has_col=has_col, ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
+                  damp=fused, k_damp=p.damping, dmp=self._dmp, dpart=self._dpart)
         capped = 0
         if self._params.max_speed > 0.0:
             capped = K.limit_speed(x=x, v=v, h=h, v_max=self._params.max_speed)
             self._limit_counts[0] += capped
+        if kin and fused:                      # their damping sums follow them
+            K.damp_kinematic(x=x, v=v, mass=self.m, sid=dsid, dpart=self._dpart,
+                             idx=self._kin_idx, sign=-1.0)
         if kin and sets is not None:
             K.sets_kinematic(quad=self._quad, x=x, v=v, y0=sets.y0, mass=self.m, sid=sets.sid,
                              sref=sets.ref, part=sets.part, idx=self._kin_idx, tgt=self._kin_tgt,
@@ -376,6 +411,9 @@ class Body:
                               cl=self._cl, rest_lin=self._rest_lin, rest_off=self._rest_off,
                               ref=self._ref, part=self._part, idx=self._kin_idx, tgt=self._kin_tgt,
                               prev=self._kin_prev, h=h)
+        if kin and fused:
+            K.damp_kinematic(x=x, v=v, mass=self.m, sid=dsid, dpart=self._dpart,
+                             idx=self._kin_idx, sign=1.0)
         self._shape_err = None                 # computed from self._err when asked
         self._dirty = capped > 0               # capped positions: the sums are stale
         if nchanged:
@@ -539,7 +577,8 @@ class Body:
                            goal_off=goal_off, ref=ref, alpha=1.0, h=1.0, acc=np.zeros(3),
                            ang=np.zeros(3), com=np.zeros(3), part=part, err=np.zeros(1),
                            has_col=False, ground=np.zeros(4), boxes=np.zeros((0, 8)),
-                           spheres=np.zeros((0, 6)), thresh=0.0)
+                           spheres=np.zeros((0, 6)), thresh=0.0, damp=False, k_damp=0.0,
+                           dmp=np.zeros((1, 6)), dpart=np.zeros((1, 1, K.NDAMP)))
         return g
 
     @property

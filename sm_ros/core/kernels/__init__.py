@@ -27,7 +27,8 @@ rigid/linear modes.  Everything is re-exported here: ``from sm_ros.core import k
 """
 
 from .colliders import _collide_range, _contact_velocity, collide_point
-from .damping import damp_rigid
+from .damping import (NDAMP, damp_acc_range, damp_accumulate, damp_kinematic, damp_rigid,
+                      damp_velocity, damping_fields, damping_targets)
 from .goals import (STRETCH_LIMIT, _goal_quad, _logprod, _logx, _qhat, _stretch_ok,
                     _unit_det_sum, invert_moments, moments, nearest_unit_det, quad_features,
                     solve_clusters, unit_det_frames, unit_det_match, volume_preserving)
@@ -43,13 +44,15 @@ from .sets import (sets_accumulate_parallel, sets_accumulate_serial,
                    sets_integrate_parallel, sets_integrate_serial, sets_kinematic, sets_maps,
                    sets_reduce)
 
-__all__ = ['FASTMATH', 'JIT', '_collide_range', '_contact_velocity', 'collide_point', 'damp_rigid',
-           'STRETCH_LIMIT', '_goal_quad', '_logprod', '_qhat', 'invert_moments', 'moments',
-           'quad_features', 'solve_clusters', 'volume_preserving', 'nearest_unit_det',
-           'unit_det_match', 'unit_det_frames', '_logx', '_stretch_ok', '_unit_det_sum', 'BLOCK',
-           'accumulate_parallel', 'accumulate_serial', 'advance', 'apply_kinematic', 'gather_rows',
-           'inertia', 'integrate_parallel', 'integrate_serial', 'det3', 'jacobi_eigh', 'matmul',
-           'norm2', 'pinv_sym', '_add_null_projector', '_cap_plastic', 'plastic_update',
-           'extract_rotation', 'quat_to_mat', 'sets_accumulate_parallel', 'sets_accumulate_serial',
+__all__ = ['_collide_range', '_contact_velocity', 'collide_point', 'NDAMP', 'damp_acc_range',
+           'damp_accumulate', 'damp_kinematic', 'damp_rigid', 'damp_velocity', 'damping_fields',
+           'damping_targets', 'STRETCH_LIMIT', '_goal_quad', '_logprod', '_logx', '_qhat',
+           '_stretch_ok', '_unit_det_sum', 'invert_moments', 'moments', 'nearest_unit_det',
+           'quad_features', 'solve_clusters', 'unit_det_frames', 'unit_det_match',
+           'volume_preserving', 'BLOCK', 'accumulate_parallel', 'accumulate_serial', 'advance',
+           'apply_kinematic', 'gather_rows', 'inertia', 'integrate_parallel', 'integrate_serial',
+           'FASTMATH', 'JIT', 'det3', 'jacobi_eigh', 'matmul', 'norm2', 'pinv_sym',
+           '_add_null_projector', '_cap_plastic', 'plastic_update', 'extract_rotation',
+           'quat_to_mat', 'sets_accumulate_parallel', 'sets_accumulate_serial',
            'sets_integrate_parallel', 'sets_integrate_serial', 'sets_kinematic', 'sets_maps',
            'sets_reduce', 'limit_speed', 'limit_turn']

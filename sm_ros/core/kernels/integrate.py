@@ -15,6 +15,7 @@ from numba import njit, prange
 
 from .jit import JIT
 from .colliders import _collide_range
+from .damping import damp_acc_range, damp_velocity
 from .goals import _goal_quad, _qhat
 
 
@@ -160,8 +161,10 @@ def advance(x, v, i, p0, p1, p2, g0, g1, g2, alpha_h, h, dv0, dv1, dv2):
 
 
 @njit(**JIT)
-def _int_single_lin(start, end, x, v, x0, goal_lin, goal_off, alpha, h, acc, ang, com):
-    """Eq. 13-14 for a one-cluster rigid/linear body, its goal map held in registers."""
+def _int_single_lin(start, end, x, v, x0, goal_lin, goal_off, alpha, h, acc, ang, com, damp,
+                    k_damp, dmp, ref):
+    """Eq. 13-14 for a one-cluster rigid/linear body, its goal map held in registers; with
+    ``damp`` the velocities are first damped towards the field ``dmp[0]`` about ``ref[0]``."""
     l00, l01, l02 = goal_lin[0, 0, 0], goal_lin[0, 0, 1], goal_lin[0, 0, 2]
     l10, l11, l12 = goal_lin[0, 1, 0], goal_lin[0, 1, 1], goal_lin[0, 1, 2]
     l20, l21, l22 = goal_lin[0, 2, 0], goal_lin[0, 2, 1], goal_lin[0, 2, 2]
@@ -179,6 +182,9 @@ def _int_single_lin(start, end, x, v, x0, goal_lin, goal_off, alpha, h, acc, ang
         for i in range(start, end):
             a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
             p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
+            if damp:
+                damp_velocity(v=v, i=i, r0=p0 - ref[0, 0], r1=p1 - ref[0, 1],
+                              r2=p2 - ref[0, 2], dmp=dmp, s=0, k_damp=k_damp)
             err2 += advance(x=x, v=v, i=i, p0=p0, p1=p1, p2=p2,
                             g0=l00 * a0 + l01 * a1 + l02 * a2 + b0,
                             g1=l10 * a0 + l11 * a1 + l12 * a2 + b1,
@@ -188,6 +194,9 @@ def _int_single_lin(start, end, x, v, x0, goal_lin, goal_off, alpha, h, acc, ang
     for i in range(start, end):
         a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
         p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
+        if damp:
+            damp_velocity(v=v, i=i, r0=p0 - ref[0, 0], r1=p1 - ref[0, 1], r2=p2 - ref[0, 2],
+                          dmp=dmp, s=0, k_damp=k_damp)
         err2 += advance(x=x, v=v, i=i, p0=p0, p1=p1, p2=p2,
                         g0=l00 * a0 + l01 * a1 + l02 * a2 + b0,
                         g1=l10 * a0 + l11 * a1 + l12 * a2 + b1,
@@ -256,12 +265,14 @@ BLOCK = 256
 
 @njit(**JIT)
 def _int_range(start, end, quad, x, v, x0, ptr, cl, rest_lin, rest_off, trans, goal_lin, goal_off,
-               alpha, h, acc, ang, com):
-    """Eq. 13-14 for particles start..end; returns sum |g - x|^2."""
+               alpha, h, acc, ang, com, damp, k_damp, dmp, ref):
+    """Eq. 13-14 for particles start..end; returns sum |g - x|^2.  Fused damping
+    (``damp``) only on the one-cluster rigid/linear path (else ``damping.damp_rigid``)."""
     single = ptr.shape[0] == 0
     if single and not quad:
         return _int_single_lin(start=start, end=end, x=x, v=v, x0=x0, goal_lin=goal_lin,
-                               goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=ang, com=com)
+                               goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
+                               damp=damp, k_damp=k_damp, dmp=dmp, ref=ref)
     alpha_h = alpha / h
     err2 = 0.0
     for i in range(start, end):
@@ -309,9 +320,10 @@ def _int_range(start, end, quad, x, v, x0, ptr, cl, rest_lin, rest_off, trans, g
 @njit(**JIT)
 def _int_chunk(chunk, nchunks, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, goal_lin,
                goal_off, ref, alpha, h, acc, ang, com, part, err, has_col, ground, boxes, spheres,
-               thresh):
+               thresh, damp, k_damp, dmp, dpart):
     """Integrate a chunk block by block; collide and accumulate each block for the next
-    step while it is still in L1 (one pass over memory, short loops without spills)."""
+    step while it is still in L1 (one pass over memory, short loops without spills).
+    ``damp``: damp in the same pass and accumulate the damping sums into ``dpart``."""
     n = x.shape[0]
     start = (chunk * n) // nchunks
     end = ((chunk + 1) * n) // nchunks
@@ -319,24 +331,32 @@ def _int_chunk(chunk, nchunks, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off
     for k in range(sums.shape[0]):
         for j in range(sums.shape[1]):
             sums[k, j] = 0.0
+    if damp:
+        dsums = dpart[chunk]
+        for k in range(dsums.shape[0]):
+            for j in range(dsums.shape[1]):
+                dsums[k, j] = 0.0
     err2 = 0.0
     for bs in range(start, end, BLOCK):
         be = min(bs + BLOCK, end)
         err2 += _int_range(start=bs, end=be, quad=quad, x=x, v=v, x0=x0, ptr=ptr, cl=cl,
                            rest_lin=rest_lin, rest_off=rest_off, trans=trans, goal_lin=goal_lin,
-                           goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=ang, com=com)
+                           goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
+                           damp=damp, k_damp=k_damp, dmp=dmp, ref=ref)
         if has_col:
             _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes, spheres=spheres,
                            thresh=thresh)
         _acc_range(start=bs, end=be, quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
                    rest_lin=rest_lin, rest_off=rest_off, ref=ref, sums=sums)
+        if damp:
+            damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass, sid=ptr, dsums=dpart[chunk])
     err[chunk] = err2
 
 
 @njit(**JIT)
 def integrate_serial(quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, goal_lin, goal_off,
                      ref, alpha, h, acc, ang, com, part, err, has_col, ground, boxes, spheres,
-                     thresh):
+                     thresh, damp, k_damp, dmp, dpart):
     """Integration pass, one thread."""
     nchunks = part.shape[0]
     for chunk in range(nchunks):
@@ -344,13 +364,14 @@ def integrate_serial(quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, g
                    cl=cl, rest_lin=rest_lin, rest_off=rest_off, trans=trans, goal_lin=goal_lin,
                    goal_off=goal_off, ref=ref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
                    part=part, err=err, has_col=has_col, ground=ground, boxes=boxes,
-                   spheres=spheres, thresh=thresh)
+                   spheres=spheres, thresh=thresh, damp=damp, k_damp=k_damp, dmp=dmp,
+                   dpart=dpart)
 
 
 @njit(parallel=True, **JIT)
 def integrate_parallel(quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, goal_lin,
                        goal_off, ref, alpha, h, acc, ang, com, part, err, has_col, ground, boxes,
-                       spheres, thresh):
+                       spheres, thresh, damp, k_damp, dmp, dpart):
     """Integration pass, one chunk per thread."""
     nchunks = part.shape[0]
     for chunk in prange(nchunks):
@@ -358,7 +379,8 @@ def integrate_parallel(quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans,
                    cl=cl, rest_lin=rest_lin, rest_off=rest_off, trans=trans, goal_lin=goal_lin,
                    goal_off=goal_off, ref=ref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
                    part=part, err=err, has_col=has_col, ground=ground, boxes=boxes,
-                   spheres=spheres, thresh=thresh)
+                   spheres=spheres, thresh=thresh, damp=damp, k_damp=k_damp, dmp=dmp,
+                   dpart=dpart)
 
 
 @njit(**JIT)

@@ -16,6 +16,7 @@ from numba import njit, prange
 
 from .jit import JIT
 from .colliders import _collide_range
+from .damping import damp_acc_range, damp_velocity
 from .integrate import BLOCK, advance
 
 
@@ -139,10 +140,12 @@ def sets_maps(sptr, scl, scnt, sorg, rest_lin, rest_off, trans, goal_lin, goal_o
 
 
 @njit(**JIT)
-def _sets_int_lin(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1, w2):
+def _sets_int_lin(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1, w2, damp,
+                  k_damp, dmp, sref):
     """Rigid/linear goals: each run of one set with its 3 x 4 map in registers.
 
-    ``ax, ay, az`` is the uniform acceleration (acc - ang x com), ``w`` the angular one.
+    ``ax, ay, az`` is the uniform acceleration (acc - ang x com), ``w`` the angular one;
+    with ``damp`` the velocities are first damped towards ``dmp`` (``damp_velocity``).
     """
     torque = w0 != 0.0 or w1 != 0.0 or w2 != 0.0
     err2 = 0.0
@@ -158,6 +161,9 @@ def _sets_int_lin(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1,
         for k in range(i, j):
             y_0, y_1, y_2 = y0[k, 0], y0[k, 1], y0[k, 2]
             p0, p1, p2 = x[k, 0], x[k, 1], x[k, 2]
+            if damp:
+                damp_velocity(v=v, i=k, r0=p0 - sref[s, 0], r1=p1 - sref[s, 1],
+                              r2=p2 - sref[s, 2], dmp=dmp, s=s, k_damp=k_damp)
             if torque:
                 dv0 = h * (ax + w1 * p2 - w2 * p1)
                 dv1 = h * (ay + w2 * p0 - w0 * p2)
@@ -176,8 +182,9 @@ def _sets_int_lin(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1,
 
 
 @njit(**JIT)
-def _sets_int_quad(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1, w2):
-    """Quadratic goals: gm[s] (3 x 10) times phi(y)."""
+def _sets_int_quad(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1, w2, damp,
+                   k_damp, dmp, sref):
+    """Quadratic goals: gm[s] (3 x 10) times phi(y); damping as in ``_sets_int_lin``."""
     err2 = 0.0
     for i in range(start, end):
         s = sid[i]
@@ -198,6 +205,9 @@ def _sets_int_quad(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1
               + gm[s, 2, 4] * f4 + gm[s, 2, 5] * f5 + gm[s, 2, 6] * f6 + gm[s, 2, 7] * f7
               + gm[s, 2, 8] * f8 + gm[s, 2, 9] * f9)
         p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
+        if damp:
+            damp_velocity(v=v, i=i, r0=p0 - sref[s, 0], r1=p1 - sref[s, 1], r2=p2 - sref[s, 2],
+                          dmp=dmp, s=s, k_damp=k_damp)
         err2 += advance(x=x, v=v, i=i, p0=p0, p1=p1, p2=p2, g0=g0, g1=g1, g2=g2, alpha_h=alpha_h,
                         h=h, dv0=h * (ax + w1 * p2 - w2 * p1), dv1=h * (ay + w2 * p0 - w0 * p2),
                         dv2=h * (az + w0 * p1 - w1 * p0))
@@ -205,7 +215,8 @@ def _sets_int_quad(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1
 
 
 @njit(**JIT)
-def _sets_int_range(start, end, quad, x, v, y0, sid, gm, alpha, h, acc, ang, com):
+def _sets_int_range(start, end, quad, x, v, y0, sid, gm, alpha, h, acc, ang, com, damp, k_damp,
+                    dmp, sref):
     """Eq. 13-14 for particles start..end with the set goal maps; returns sum |g - x|^2."""
     w0, w1, w2 = ang[0], ang[1], ang[2]
     # acc + ang x (p - com) = (acc - ang x com) + ang x p
@@ -214,9 +225,11 @@ def _sets_int_range(start, end, quad, x, v, y0, sid, gm, alpha, h, acc, ang, com
     az = acc[2] - (w0 * com[1] - w1 * com[0])
     if quad:
         return _sets_int_quad(start=start, end=end, x=x, v=v, y0=y0, sid=sid, gm=gm,
-                              alpha_h=alpha / h, h=h, ax=ax, ay=ay, az=az, w0=w0, w1=w1, w2=w2)
+                              alpha_h=alpha / h, h=h, ax=ax, ay=ay, az=az, w0=w0, w1=w1, w2=w2,
+                              damp=damp, k_damp=k_damp, dmp=dmp, sref=sref)
     return _sets_int_lin(start=start, end=end, x=x, v=v, y0=y0, sid=sid, gm=gm, alpha_h=alpha / h,
-                         h=h, ax=ax, ay=ay, az=az, w0=w0, w1=w1, w2=w2)
+                         h=h, ax=ax, ay=ay, az=az, w0=w0, w1=w1, w2=w2, damp=damp,
+                         k_damp=k_damp, dmp=dmp, sref=sref)
 
 
 @njit(**JIT)
@@ -386,8 +399,9 @@ def sets_accumulate_parallel(quad, x, y0, mass, sid, sref, part):
 
 @njit(**JIT)
 def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, sid, gm, sref, alpha, h, acc, ang, com,
-                    part, err, has_col, ground, boxes, spheres, thresh):
-    """Integrate, collide and accumulate a chunk block by block (one pass over memory)."""
+                    part, err, has_col, ground, boxes, spheres, thresh, damp, k_damp, dmp, dpart):
+    """Damp, integrate, collide and accumulate a chunk block by block (one pass over
+    memory); ``dpart[chunk]`` receives the damping sums of the next step."""
     n = x.shape[0]
     start = (chunk * n) // nchunks
     end = ((chunk + 1) * n) // nchunks
@@ -395,41 +409,52 @@ def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, sid, gm, sref, alpha, 
     for s in range(sums.shape[0]):
         for j in range(sums.shape[1]):
             sums[s, j] = 0.0
+    if damp:
+        dsums = dpart[chunk]
+        for s in range(dsums.shape[0]):
+            for j in range(dsums.shape[1]):
+                dsums[s, j] = 0.0
     err2 = 0.0
     for bs in range(start, end, BLOCK):
         be = min(bs + BLOCK, end)
         err2 += _sets_int_range(start=bs, end=be, quad=quad, x=x, v=v, y0=y0, sid=sid, gm=gm,
-                                alpha=alpha, h=h, acc=acc, ang=ang, com=com)
+                                alpha=alpha, h=h, acc=acc, ang=ang, com=com, damp=damp,
+                                k_damp=k_damp, dmp=dmp, sref=sref)
         if has_col:
             _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes, spheres=spheres,
                            thresh=thresh)
         _sets_acc_range(start=bs, end=be, quad=quad, x=x, y0=y0, mass=mass, sid=sid, sref=sref,
                         sums=sums)
+        if damp:
+            damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass, sid=sid, dsums=dpart[chunk])
     err[chunk] = err2
 
 
 @njit(**JIT)
 def sets_integrate_serial(quad, x, v, y0, mass, sid, gm, sref, alpha, h, acc, ang, com, part, err,
-                          has_col, ground, boxes, spheres, thresh):
+                          has_col, ground, boxes, spheres, thresh, damp, k_damp, dmp, dpart):
     """Fused step pass of a set-layout body, one thread."""
     nchunks = part.shape[0]
     for chunk in range(nchunks):
         _sets_int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v, y0=y0, mass=mass,
                         sid=sid, gm=gm, sref=sref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
                         part=part, err=err, has_col=has_col, ground=ground, boxes=boxes,
-                        spheres=spheres, thresh=thresh)
+                        spheres=spheres, thresh=thresh, damp=damp, k_damp=k_damp, dmp=dmp,
+                        dpart=dpart)
 
 
 @njit(parallel=True, **JIT)
 def sets_integrate_parallel(quad, x, v, y0, mass, sid, gm, sref, alpha, h, acc, ang, com, part,
-                            err, has_col, ground, boxes, spheres, thresh):
+                            err, has_col, ground, boxes, spheres, thresh, damp, k_damp, dmp,
+                            dpart):
     """Fused step pass of a set-layout body, one chunk per thread."""
     nchunks = part.shape[0]
     for chunk in prange(nchunks):
         _sets_int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v, y0=y0, mass=mass,
                         sid=sid, gm=gm, sref=sref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
                         part=part, err=err, has_col=has_col, ground=ground, boxes=boxes,
-                        spheres=spheres, thresh=thresh)
+                        spheres=spheres, thresh=thresh, damp=damp, k_damp=k_damp, dmp=dmp,
+                        dpart=dpart)
 
 
 @njit(**JIT)
