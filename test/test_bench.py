@@ -34,7 +34,21 @@ def test_quick_run_writes_tables(tmp_path):
     rows = _rows(out / 'scaling.csv')
     assert {r['mode'] for r in rows} == {'rigid', 'linear', 'quadratic'}
     assert {r['clusters'] for r in rows} == {'1', '8', '64'}
-    assert all(float(r['ms_median']) > 0 for r in rows)
+    # every configuration in every variant, once; figures consistent with each other
+    keys = [(r['N'], r['mode'], r['clusters'], r['variant']) for r in rows]
+    assert len(keys) == len(set(keys)) == 2 * 3 * 3 * 3
+    for r in rows:
+        assert float(r['ms_min']) <= float(r['ms_median'])
+        assert float(r['ns_per_particle']) == pytest.approx(
+            1e6 * float(r['ms_median']) / int(r['N']), rel=1e-3)
+        assert r['layout'] == 'single' if r['clusters'] == '1' else r['layout'] != 'single'
+    var = _rows(out / 'scaling_variants.csv')
+    assert len(var) == 2 * 3 * 3
+    for r in var:
+        assert float(r['damped_over_plain']) == pytest.approx(
+            float(r['damped_ms']) / float(r['plain_ms']), rel=1e-3)
+    many = _rows(out / 'many.csv')
+    assert [(r['bodies'], r['particles']) for r in many] == [('2', '288'), ('6', '864')]
     acc = _rows(out / 'accuracy.csv')
     assert {r['scene'] for r in acc} == {'rigid_spin', 'soft_drop'}
     assert all(float(r['err_rms']) >= 0 for r in acc)
@@ -49,11 +63,18 @@ def test_scaling_subcommand_as_a_process(tmp_path):
     res = subprocess.run([sys.executable, '-m', 'sm_ros.bench', 'scaling', '--sizes', '125',
                           '--modes', 'linear', '--clusters', '1,2', '--min-time', '0',
                           '--numpy-sizes', '', '--pypbd-sizes', '', '--bandwidth-mb', '4',
-                          '--out', str(out)], cwd=ROOT, capture_output=True, text=True,
-                         timeout=300)
+                          '--variants', 'plain,substeps2', '--many', '', '--out', str(out)],
+                         cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-2000:]
     rows = _rows(out / 'scaling.csv')
-    assert [(r['N'], r['clusters']) for r in rows] == [('125', '1'), ('125', '8')]
+    assert [(r['N'], r['clusters'], r['variant']) for r in rows] == [
+        ('125', '1', 'plain'), ('125', '1', 'substeps2'), ('125', '8', 'plain'),
+        ('125', '8', 'substeps2')]
+    assert _rows(out / 'many.csv') == []
+    bad = subprocess.run([sys.executable, '-m', 'sm_ros.bench', 'scaling', '--variants',
+                          'fast', '--out', str(out)], cwd=ROOT, capture_output=True,
+                         text=True, timeout=300)
+    assert bad.returncode != 0 and 'choose from plain, damped, substeps2, damped_pass' in bad.stderr
 
 
 def test_soak_hook_hands_over_its_arguments(monkeypatch):

@@ -109,6 +109,7 @@ def _quick(args):
     args.ref_factor = 2
     args.duration = 0.2
     args.node_sizes = ''
+    args.many = '2,6'
 
 
 def _fmt_ms(v):
@@ -122,11 +123,29 @@ def _write_targets(f: Dict[str, Any], out: Path):
     sc = f.get('scaling') or {}
     res = sc.get('scaling', [])
 
-    def pick(n_side, mode, k):
+    def pick(n_side, mode, k, variant='plain'):
         for r in res:
-            if r['N'] == n_side ** 3 and r['mode'] == mode and r['k'] == k:
+            if (r['N'] == n_side ** 3 and r['mode'] == mode and r['k'] == k
+                    and r.get('variant', 'plain') == variant):
                 return r
         return None
+
+    # issue 11: what users run (damping, substeps, many bodies)
+    r = pick(22, 'rigid', 1)
+    t.add(target='rigid, 1 cluster, 10k points', goal='<= 1.5 ns/particle',
+          measured='-' if not r else f'{r["ns_per_particle"]:.2f} ns/particle',
+          met=None if not r else r['ns_per_particle'] <= 1.5)
+    r, r0 = pick(46, 'linear', 2, 'damped'), pick(46, 'linear', 2)
+    t.add(target='linear, 8 clusters, damping 0.05, 100k points', goal='<= 0.9 ms/step',
+          measured=_fmt_ms(r and r['ms_median']), met=None if not r else r['ms_median'] <= 0.9)
+    t.add(target='damping overhead (same, damped / undamped)', goal='<= 1.15x',
+          measured='-' if not (r and r0) else f'{r["ms_median"] / r0["ms_median"]:.2f}x',
+          met=None if not (r and r0) else r['ms_median'] / r0['ms_median'] <= 1.15)
+    for row in sc.get('many', []):
+        goal = 0.2 if row['bodies'] <= 64 else 1.0
+        t.add(target=f'{row["bodies"]} bodies of {row["particles"] // row["bodies"]} '
+                     'particles, one step', goal=f'<= {goal} ms',
+              measured=_fmt_ms(row['ms_median']), met=row['ms_median'] <= goal)
 
     r = pick(22, 'quadratic', 2)
     t.add(target='paper scene: 10,648 points, 8 clusters, quadratic', goal='<= 1.0 ms/step',
@@ -152,6 +171,12 @@ def _write_targets(f: Dict[str, Any], out: Path):
     else:
         t.add(target='Numba / NumPy reference at 97,336 points', goal='>= 10x',
               measured='not run', met=None)
+    rows = [x for x in sc.get('pypbd', []) if x['N'] == 22 ** 3 and x['clusters'] == 8]
+    if rows:
+        x = rows[0]
+        t.add(target='rigid, 8 clusters, damping 0.05, 10k points, against pypbd',
+              goal='>= 8x', measured=f'{x["speedup_rigid_damped"]:.1f}x',
+              met=x['speedup_rigid_damped'] >= 8)
     rows = sc.get('pypbd', [])
     if rows:
         worst = min(rows, key=lambda x: x['speedup_rigid'])

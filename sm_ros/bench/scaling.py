@@ -3,7 +3,12 @@ Part 1 of the benchmark: ms/step against N (the paper's Fig. 6 on this machine).
 
 Bodies are n x n x n lattices on the unit cube (the lattice pypbd's peer script builds),
 unit masses, gravity, no colliders, alpha = 1 (pypbd's stiffness 1), beta = 0.5. The
-cluster parameter is the number of cubes per axis: 1, 2, 4 give 1, 8, 64 clusters.
+cluster parameter is the number of cubes per axis: 1, 2, 4 give 1, 8, 64 clusters. Every
+configuration runs in three variants, timed round-robin in one run: ``plain`` (no damping,
+one step per tick), ``damped`` (damping 0.05, what 6 of the 7 bundled scenes use) and
+``substeps2`` (damping 0.05, two steps of dt / 2 per tick, the node's default); the times
+are per tick.  ``many``: 64 and 384 bodies of 144 particles in one world (the paper's
+Fig. 7 body count, contact off), timed round-robin too.
 
 In the same run: the NumPy reference (``sm_ros.core.reference``), the peer pypbd (one
 configuration per subprocess: ``sm_ros.bench.pypbd_driver``), and the memory bandwidth of a
@@ -25,6 +30,13 @@ DT = 0.005                      # pypbd's default step (its TimeManager), used f
 GRAVITY = (0.0, 0.0, -9.81)
 MODES = ('rigid', 'linear', 'quadratic')
 CLUSTER_NAMES = {1: 1, 2: 8, 3: 27, 4: 64}
+#: variant -> (damping, steps per tick); ``damped_pass`` damps in a pass of its own (the
+#: solver before issue 11), for the side-by-side figure of what fusing it saved
+VARIANTS = {'plain': (0.0, 1), 'damped': (0.05, 1), 'substeps2': (0.05, 2),
+            'damped_pass': (0.05, 1)}
+DEFAULT_VARIANTS = ('plain', 'damped', 'substeps2')
+#: particles of one body of the ``many`` rows (4 x 6 x 6 lattice)
+MANY_BODY = (4, 6, 6)
 
 
 def add_arguments(p: argparse.ArgumentParser):
@@ -44,6 +56,11 @@ def add_arguments(p: argparse.ArgumentParser):
                    help='OMP_NUM_THREADS settings for pypbd (its best is compared)')
     p.add_argument('--bandwidth-mb', type=float, default=256.0,
                    help='array size of the streaming copy (MB)')
+    p.add_argument('--variants', default=','.join(DEFAULT_VARIANTS),
+                   help='plain (no damping), damped (0.05), substeps2 (0.05, 2 substeps), '
+                        'damped_pass (0.05 in a separate pass, as before)')
+    p.add_argument('--many', default='64,384',
+                   help='body counts of the many-bodies rows ("" to skip)')
 
 
 # ---------------------------------------------------------------------------------------
@@ -142,13 +159,26 @@ def bytes_per_particle(body) -> int:
 # sm_ros (Numba)
 # ---------------------------------------------------------------------------------------
 
-def build_world(n_side: int, mode: str, k: int, alpha: float = 1.0):
+def build_world(n_side: int, mode: str, k: int, alpha: float = 1.0, damping: float = 0.0):
     """Build a world with one n^3 lattice body (unit masses) and gravity; no colliders."""
     from sm_ros.core import BodyParams, World
     world = World(gravity=GRAVITY)
     body = world.add_body(bc.cube_lattice(n_side), masses=1.0, name='cube',
-                          params=BodyParams(mode=mode, alpha=alpha, beta=0.5, clusters=k))
+                          params=BodyParams(mode=mode, alpha=alpha, beta=0.5, clusters=k,
+                                            damping=damping))
     return world, body
+
+
+def tick_function(world, substeps: int):
+    """One tick of ``world``: ``substeps`` steps of DT / substeps."""
+    if substeps == 1:
+        return lambda: world.step(DT)
+    h = DT / substeps
+
+    def tick():
+        for _ in range(substeps):
+            world.step(h)
+    return tick
 
 
 def time_numba(n_side: int, mode: str, k: int, min_time: float) -> Dict[str, Any]:
@@ -172,9 +202,10 @@ def time_numba(n_side: int, mode: str, k: int, min_time: float) -> Dict[str, Any
             'bytes_per_particle': bytes_per_particle(body), 'finite': body.is_finite()}
 
 
-def time_size(n_side: int, modes, ks, min_time: float) -> List[Dict[str, Any]]:
+def time_size(n_side: int, modes, ks, min_time: float,
+              variants=('plain',)) -> List[Dict[str, Any]]:
     """
-    Time every (mode, clusters) configuration of one size, interleaved.
+    Time every (mode, clusters, variant) configuration of one size, interleaved.
 
     All bodies are built first, then stepped round-robin so that the load of a shared
     machine falls on every configuration alike and their ratios (quadratic / linear,
@@ -185,38 +216,92 @@ def time_size(n_side: int, modes, ks, min_time: float) -> List[Dict[str, Any]]:
     cfgs = []
     for mode in modes:
         for k in ks:
-            t0 = time.perf_counter()
-            world, body = build_world(n_side, mode, k)
-            build_s = time.perf_counter() - t0
-            for _ in range(3):
-                world.step(DT)
-            cfgs.append((mode, k, world, body, build_s, []))
+            for variant in variants:
+                damping, substeps = VARIANTS[variant]
+                t0 = time.perf_counter()
+                world, body = build_world(n_side, mode, k, damping=damping)
+                if variant == 'damped_pass':
+                    body._damp_fused = False
+                build_s = time.perf_counter() - t0
+                tick = tick_function(world, substeps)
+                for _ in range(3):
+                    tick()
+                cfgs.append((mode, k, variant, tick, body, build_s, []))
     n = n_side ** 3
     batch = max(3, min(50, int(2e6 // n)))
     clock = time.perf_counter
     t_end = clock() + min_time * len(cfgs)
     rounds = 0
     while rounds < 3 or (clock() < t_end and rounds < 400):
-        for mode, k, world, body, build_s, samples in cfgs:
-            world.step(DT)
+        for mode, k, variant, tick, body, build_s, samples in cfgs:
+            tick()
             for _ in range(batch):
                 t0 = clock()
-                world.step(DT)
+                tick()
                 samples.append(clock() - t0)
         rounds += 1
     out = []
-    for mode, k, world, body, build_s, samples in cfgs:
+    for mode, k, variant, tick, body, build_s, samples in cfgs:
         s = np.asarray(samples)
         memberships = len(body._cl) if len(getattr(body, '_cl', ())) else n
         layout = 'single' if k == 1 else ('sets' if getattr(body, '_sets', None) is not None
                                           else 'memberships')
         out.append({'N': n, 'mode': mode, 'k': k, 'clusters': body.num_clusters,
+                    'variant': variant, 'damping': VARIANTS[variant][0],
+                    'substeps': VARIANTS[variant][1],
                     'memberships': memberships, 'layout': layout,
                     'ms_median': 1e3 * float(np.median(s)), 'ms_min': 1e3 * float(s.min()),
                     'ns_per_particle': 1e9 * float(np.median(s)) / n, 'build_s': build_s,
                     'parallel': bool(getattr(body, '_parallel', False)),
                     'bytes_per_particle': bytes_per_particle(body),
                     'finite': body.is_finite(), 'rounds': rounds})
+    return out
+
+
+def build_many(bodies: int):
+    """A world of ``bodies`` lattices of MANY_BODY particles side by side, contact off."""
+    from sm_ros.core import BodyParams, World
+    from sm_ros.core.contact import ContactParams
+    world = World(gravity=GRAVITY)
+    world.contact_params = ContactParams(enabled=False)
+    nx, ny, nz = MANY_BODY
+    g = [np.arange(n) * 0.02 for n in MANY_BODY]
+    x0 = np.stack(np.meshgrid(*g, indexing='ij'), axis=-1).reshape(-1, 3)
+    params = BodyParams(mode='linear', clusters=1, alpha=0.5, beta=0.5, damping=0.05)
+    side = int(np.ceil(np.sqrt(bodies)))
+    for b in range(bodies):
+        world.add_body(x0 + (0.2 * (b % side), 0.2 * (b // side), 1.0), masses=0.01,
+                       params=params, name=f'b{b}')
+    return world
+
+
+def time_many(counts, min_time: float) -> List[Dict[str, Any]]:
+    """ms per step of worlds of many small bodies, stepped round-robin."""
+    worlds = []
+    for c in counts:
+        world = build_many(c)
+        for _ in range(3):
+            world.step(DT)
+        worlds.append((c, world, []))
+    clock = time.perf_counter
+    t_end = clock() + min_time * len(worlds)
+    rounds = 0
+    while rounds < 3 or (clock() < t_end and rounds < 400):
+        for c, world, samples in worlds:
+            world.step(DT)
+            for _ in range(5):
+                t0 = clock()
+                world.step(DT)
+                samples.append(clock() - t0)
+        rounds += 1
+    out = []
+    for c, world, samples in worlds:
+        s = np.asarray(samples)
+        n = sum(b.n for b in world.bodies)
+        out.append({'bodies': c, 'particles': n, 'ms_median': 1e3 * float(np.median(s)),
+                    'ms_min': 1e3 * float(s.min()),
+                    'us_per_body': 1e6 * float(np.median(s)) / c,
+                    'ns_per_particle': 1e9 * float(np.median(s)) / n})
     return out
 
 
@@ -268,6 +353,10 @@ def run(args, out: Path) -> Dict[str, Any]:
     sizes = sorted({bc.lattice_side(s) for s in bc.as_list(args.sizes)})
     modes = list(bc.as_list(args.modes, str))
     ks = bc.ints(args.clusters)
+    variants = list(bc.as_list(args.variants, str))
+    unknown = set(variants) - set(VARIANTS)
+    if unknown or not variants:
+        raise SystemExit(f'--variants: choose from {", ".join(VARIANTS)}, got {args.variants}')
     findings: Dict[str, Any] = {}
 
     bc.log('[scaling] memory bandwidth (streaming copy)')
@@ -275,37 +364,78 @@ def run(args, out: Path) -> Dict[str, Any]:
     bw_best = max(bw['numpy_copy_GBps'], bw['numba_parallel_copy_GBps'])
     findings['bandwidth'] = bw
 
-    t = bc.Table('scaling', ['N', 'mode', 'clusters', 'memberships', 'layout', 'ms_median',
-                             'ms_min', 'ns_per_particle', 'parallel', 'build_s'],
-                 'ms per step against N (World.step, dt = 5 ms, gravity, no colliders; the '
-                 'configurations of one N timed round-robin)')
+    t = bc.Table('scaling', ['N', 'mode', 'clusters', 'variant', 'memberships', 'layout',
+                             'ms_median', 'ms_min', 'ns_per_particle', 'parallel', 'build_s'],
+                 'ms per tick against N (World.step, dt = 5 ms per tick, gravity, no '
+                 'colliders; variants: plain, damped = damping 0.05, substeps2 = damping '
+                 '0.05 in two steps of 2.5 ms; the configurations of one N timed round-robin)')
     results: List[Dict[str, Any]] = []
     for n_side in sizes:
-        bc.log(f'[scaling] sm_ros N={n_side ** 3}: {len(modes) * len(ks)} configurations, '
-               'interleaved')
-        for r in time_size(n_side, modes, ks, args.min_time):
+        bc.log(f'[scaling] sm_ros N={n_side ** 3}: {len(modes) * len(ks) * len(variants)} '
+               'configurations, interleaved')
+        for r in time_size(n_side, modes, ks, args.min_time, variants):
             results.append(r)
-            t.add(N=r['N'], mode=r['mode'], clusters=r['clusters'],
+            t.add(N=r['N'], mode=r['mode'], clusters=r['clusters'], variant=r['variant'],
                   memberships=r['memberships'], layout=r['layout'], ms_median=r['ms_median'],
                   ms_min=r['ms_min'], ns_per_particle=r['ns_per_particle'],
                   parallel=r['parallel'], build_s=r['build_s'])
     t.write(out)
     findings['scaling'] = results
 
-    def pick(n, mode, k):
+    def pick(n, mode, k, variant=None):
+        variant = variant or variants[0]
         for r in results:
-            if r['N'] == n and r['mode'] == mode and r['k'] == k:
+            if r['N'] == n and r['mode'] == mode and r['k'] == k and r['variant'] == variant:
                 return r
         return None
+
+    # the variants side by side: what damping and substeps cost (same run, round-robin)
+    vt = bc.Table('scaling_variants', ['N', 'mode', 'clusters', 'plain_ms', 'damped_ms',
+                                       'substeps2_ms', 'damped_pass_ms', 'damped_over_plain',
+                                       'substeps2_over_damped', 'damped_pass_over_plain'],
+                  'ms per tick of the variants (medians of one interleaved run) and their '
+                  'ratios')
+    findings['variants'] = []
+    for n_side in sizes:
+        for mode in modes:
+            for k in ks:
+                got = {v: pick(n_side ** 3, mode, k, v) for v in VARIANTS}
+                ms = {v: (r['ms_median'] if r else None) for v, r in got.items()}
+                row = dict(N=n_side ** 3, mode=mode, clusters=CLUSTER_NAMES.get(k, k ** 3),
+                           plain_ms=ms['plain'], damped_ms=ms['damped'],
+                           substeps2_ms=ms['substeps2'], damped_pass_ms=ms['damped_pass'],
+                           damped_over_plain=(ms['damped'] / ms['plain']
+                                              if ms['damped'] and ms['plain'] else None),
+                           substeps2_over_damped=(ms['substeps2'] / ms['damped']
+                                                  if ms['substeps2'] and ms['damped']
+                                                  else None),
+                           damped_pass_over_plain=(ms['damped_pass'] / ms['plain']
+                                                   if ms['damped_pass'] and ms['plain']
+                                                   else None))
+                vt.add(**row)
+                findings['variants'].append(row)
+    vt.write(out)
+
+    # many bodies in one world, interleaved
+    counts = bc.ints(args.many) if args.many else []
+    mt = bc.Table('many', ['bodies', 'particles', 'ms_median', 'ms_min', 'us_per_body',
+                           'ns_per_particle'],
+                  f'many bodies of {np.prod(MANY_BODY)} particles (linear, 1 cluster, '
+                  'damping 0.05, contact off, one step of 5 ms; timed round-robin)')
+    findings['many'] = time_many(counts, args.min_time) if counts else []
+    for r in findings['many']:
+        mt.add(**r)
+    mt.write(out)
 
     # slopes and quadratic/linear ratios
     s = bc.Table('scaling_summary', ['mode', 'clusters', 'slope_loglog', 'slope_upper_half',
                                      'quad_over_linear_at_max_N'],
-                 'log-log slope of ms/step against N, and quadratic / linear')
+                 f'log-log slope of ms/step against N, and quadratic / linear ({variants[0]})')
     nmax = max(r['N'] for r in results) if results else 0
     for mode in modes:
         for k in ks:
-            rows = [r for r in results if r['mode'] == mode and r['k'] == k]
+            rows = [r for r in results if r['mode'] == mode and r['k'] == k
+                    and r['variant'] == variants[0]]
             ns = [r['N'] for r in rows]
             ms = [r['ms_median'] for r in rows]
             upper = [(a, b) for a, b in zip(ns, ms) if a >= 1e4]
@@ -380,8 +510,8 @@ def run(args, out: Path) -> Dict[str, Any]:
     pp_sizes = sorted({bc.lattice_side(x) for x in bc.as_list(args.pypbd_sizes)})
     ppt = bc.Table('pypbd', ['N', 'clusters', 'memberships_pypbd', 'memberships_ours',
                              'pypbd_1thread_ms', 'pypbd_2threads_ms', 'pypbd_best_ms',
-                             'ours_rigid_ms', 'ours_linear_ms', 'speedup_rigid',
-                             'speedup_linear'],
+                             'ours_rigid_ms', 'ours_linear_ms', 'ours_rigid_damped_ms',
+                             'speedup_rigid', 'speedup_linear', 'speedup_rigid_damped'],
                    'sm_ros against pypbd (same lattice and clusters, 1 iteration, dt 5 ms; '
                    'medians; speedup = pypbd at its best thread count / ours)')
     findings['pypbd'] = []
@@ -404,7 +534,8 @@ def run(args, out: Path) -> Dict[str, Any]:
                     continue
                 peer = min(per.values(), key=lambda r: r['median_ms'])
                 # ours timed again right after the peer, under the same load
-                rig, lin = time_size(n_side, ['rigid', 'linear'], [k], args.min_time)
+                rig, rig_d, lin, _ = time_size(n_side, ['rigid', 'linear'], [k],
+                                               args.min_time, ('plain', 'damped'))
                 row = {'N': n_side ** 3, 'clusters': peer['clusters'],
                        'memberships_pypbd': peer['memberships'],
                        'memberships_ours': rig['memberships'],
@@ -412,8 +543,10 @@ def run(args, out: Path) -> Dict[str, Any]:
                        'pypbd_2threads_ms': per[2]['median_ms'] if 2 in per else None,
                        'pypbd_best_ms': peer['median_ms'],
                        'ours_rigid_ms': rig['ms_median'], 'ours_linear_ms': lin['ms_median'],
+                       'ours_rigid_damped_ms': rig_d['ms_median'],
                        'speedup_rigid': peer['median_ms'] / rig['ms_median'],
-                       'speedup_linear': peer['median_ms'] / lin['ms_median']}
+                       'speedup_linear': peer['median_ms'] / lin['ms_median'],
+                       'speedup_rigid_damped': peer['median_ms'] / rig_d['ms_median']}
                 ppt.add(**row)
                 findings['pypbd'].append(row)
     ppt.write(out)
