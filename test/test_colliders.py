@@ -427,3 +427,20 @@ def test_grasp_scene_fingers_lift_the_ball_and_wrenches_sum_to_its_weight():
     assert fl > 0.2 * weight and fr == pytest.approx(-fl, rel=0.05)
     n, depth = world.collider_contacts()['ball']
     assert n > 20 and depth < 0.03
+
+
+def test_changing_the_ground_keeps_moving_colliders_where_they_are():
+    """The node re-sets the colliders when a ground.* parameter changes: passing the same
+    collider objects keeps the kinematic ones' poses, motion and scripted paths."""
+    world = World()
+    world.set_colliders(ground=Ground(), capsules=[Capsule(name='f', kinematic=True)])
+    world.move_collider('f', (1.0, 0.0, 0.0), duration=0.02)
+    world.step(0.01)
+    before = world.collider_pose('f')[0].copy()
+    world.set_colliders(ground=Ground(height=-1.0), boxes=world.boxes, spheres=world.spheres,
+                        capsules=world.capsules)
+    np.testing.assert_array_equal(world.collider_pose('f')[0], before)
+    world.step(0.01)
+    np.testing.assert_allclose(world.collider_pose('f')[0], (1.0, 0.0, 0.0), atol=1e-12)
+    world.set_colliders(ground=Ground(), capsules=[Capsule(name='f', kinematic=True)])
+    np.testing.assert_array_equal(world.collider_pose('f')[0], (0.0, 0.0, 0.0))   # new ones
