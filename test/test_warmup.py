@@ -6,6 +6,8 @@ import shutil
 import subprocess
 import sys
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 PROBE = 'from sm_ros import warmup; print(warmup.cold_kernels()); print(warmup.cold_start_note())'
 
@@ -20,6 +22,7 @@ def _probe(pkg_root: Path):
     return int(n), note
 
 
+@pytest.mark.slow
 def test_fresh_copy_is_cold_warm_cache_is_not_and_an_edit_makes_it_cold(tmp_path, warm):
     # the worktree's cache is warm (the fixture ran the warm-up)
     assert _probe(ROOT) == (0, 'None')
@@ -51,6 +54,7 @@ def test_progress_is_quiet_when_not_a_terminal(tmp_path):
     assert (tmp_path / 'log').read_text() == ''
 
 
+@pytest.mark.slow
 def test_warmup_command_prints_no_control_characters_into_a_pipe(warm):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     out = subprocess.run([sys.executable, '-m', 'sm_ros.warmup'], cwd=ROOT, env=env,
