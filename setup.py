@@ -51,10 +51,12 @@ setup(
         'record': ['mcap', 'mcap-ros2-support'],
         # progress bars of warmup, bench and render (quiet when not a terminal)
         'progress': ['tqdm'],
+        # linear-elastic FEM reference of `python -m sm_ros.bench material` (issue 12 part 6)
+        'fem': ['scikit-fem'],
         'test': [
             'pytest', 'hypothesis', 'psutil', 'trimesh', 'matplotlib',
             'foxglove-sdk', 'mcap', 'mcap-ros2-support', 'tqdm',
-            'rosbags', 'websockets', 'protobuf',
+            'rosbags', 'websockets', 'protobuf', 'scikit-fem',
             'colcon-core', 'colcon-python-setup-py', 'colcon-ros', 'catkin_pkg',
             'ruff',
         ],

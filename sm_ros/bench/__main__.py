@@ -30,11 +30,12 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog='python -m sm_ros.bench', description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest='command')
-    from . import accuracy, node_bench, scaling
+    from . import accuracy, material, node_bench, scaling
     parts = {
         'scaling': (scaling, 'ms/step against N, NumPy reference, pypbd, bandwidth'),
         'accuracy': (accuracy, 'error against run time (work-precision)'),
         'node': (node_bench, 'the node end to end (needs rclpy)'),
+        'material': (material, 'alpha against a FEM cantilever of modulus E (scikit-fem)'),
     }
     for name, (mod, helptext) in parts.items():
         sp = sub.add_parser(name, help=helptext)
@@ -64,12 +65,13 @@ def main(argv: Optional[List[str]] = None) -> int:
     if argv[:1] == ['contact']:
         from . import contact
         return contact.main(argv[1:])
-    if not argv or argv[0] not in ('scaling', 'accuracy', 'node', 'all', '-h', '--help'):
+    if not argv or argv[0] not in ('scaling', 'accuracy', 'node', 'material', 'all', '-h',
+                                   '--help'):
         argv = ['all'] + argv
     args = _parser().parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from . import accuracy, node_bench, scaling
+    from . import accuracy, material, node_bench, scaling
     cmd = 'python -m sm_ros.bench ' + shlex.join(argv)
     info = bc.machine_info()
     findings: Dict[str, Any] = {'command': cmd, 'machine': info}
@@ -80,6 +82,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     parts = [(name, mod) for name, mod in (('scaling', scaling), ('accuracy', accuracy),
                                            ('node', node_bench))
              if args.command in (name, 'all')]
+    if args.command == 'material':            # not in 'all': needs scikit-fem
+        parts = [('material', material)]
     with bar(total=len(parts), desc='bench', unit='part') as progress:
         for name, mod in parts:
             progress.set_postfix_str(name)
