@@ -109,10 +109,10 @@ class SimNode(Node):
         for p in NODE_PARAMS:
             self.declare_parameter(p.name, p.default, descriptor(p))
         values = {p.name: _plain(self.get_parameter(p.name).value) for p in NODE_PARAMS}
-        self.sim = Simulation(values, log=self.get_logger())
-        note = cold_start_note()
+        note = cold_start_note()         # before the scene is built: that compiles too
         if note:
             self.get_logger().info(note)
+        self.sim = Simulation(values, log=self.get_logger())
         self.warm_up_s = warm_up()
         self.outputs = Outputs(self, self.sim)      # publishers, live view, recorder
 
