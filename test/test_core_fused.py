@@ -53,6 +53,7 @@ def test_fused_damping_matches_the_damping_pass(monkeypatch, mode, clusters, pla
     """
     monkeypatch.setattr(body_mod, 'PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
     monkeypatch.setattr(body_mod, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
+    monkeypatch.setattr(body_mod, 'FUSED_DAMPING_MIN', 0)       # and fused damping
     states = []
     for fused in (True, False):
         world, bodies = _world(mode, clusters, plastic, fused, colliders)
@@ -71,6 +72,7 @@ def test_fused_damping_matches_the_damping_pass(monkeypatch, mode, clusters, pla
 def test_fused_damping_keeps_momentum(monkeypatch):
     """Damping alone (no gravity, no goals' net force) keeps linear and angular momentum."""
     monkeypatch.setattr(body_mod, 'SET_LAYOUT_MIN_RATIO', 0)
+    monkeypatch.setattr(body_mod, 'FUSED_DAMPING_MIN', 0)
     world = World(gravity=(0.0, 0.0, 0.0))
     rng = np.random.default_rng(0)
     x0 = lattice(5)

@@ -21,6 +21,10 @@ _MODE_ID = {'rigid': 0, 'linear': 1, 'quadratic': 2}
 #: threads' fork/join waits cost far more than they save: on 2 shared cores, 100k particles
 #: took 1.5 ms/step (median) on one thread and 13 ms on two (benchmarks.md).
 PARALLEL_MIN_WORK = 262144
+#: Bodies with at least this many particles damp inside the particle pass (``kernels.
+#: damping``); smaller ones keep the separate pass, which costs less than the two extra
+#: kernel calls there (a call costs several microseconds, a pass over 1,000 particles ~1).
+FUSED_DAMPING_MIN = 1024
 #: Relative eigenvalue cut-off of the A_qq / A~_qq pseudo-inverses.
 RCOND = 1e-10
 #: A multi-cluster body uses the set layout (``kernels.sets_*``) when its cluster
@@ -244,7 +248,9 @@ class Body:
         self._lin = np.zeros((nk, 13)) if p.damping > 0 else None
         self._w3 = np.zeros((nk, 3)) if p.damping > 0 else None
         # damping fused into the particle pass (set layout, one cluster; kernels/damping.py)
-        self._damp_fused = p.damping > 0 and (self._sets is not None or p.clusters == 1)
+        # where the pass it saves costs more than the two small kernel calls it adds
+        self._damp_fused = (p.damping > 0 and (self._sets is not None or p.clusters == 1)
+                            and n >= FUSED_DAMPING_MIN)
         if self._damp_fused and self._sets is not None:
             sets = self._sets
             self._dsets = (sets.ptr, sets.cl, sets.cnt)
@@ -296,15 +302,7 @@ class Body:
         s3 = self._s3
         sets = self._sets
         fused = self._damp_fused and p.damping > 0.0
-        if fused:
-            # the rigid fields damping moves towards, from the sums of the last pass
-            sptr, scl, scnt = self._dsets
-            dsid = sets.sid if sets is not None else self._ptr
-            if self._dirty:
-                K.damp_accumulate(x=x, v=v, mass=self.m, sid=dsid, dpart=self._dpart)
-            K.damping_fields(dpart=self._dpart, sptr=sptr, scl=scl, scnt=scnt, lin=self._lin,
-                             w3=self._w3, dref=self._dref, acc=self._dacc, m3a=s3[0], m3b=s3[1],
-                             m3c=s3[2], m3d=s3[3])
+        turned = 0
         if sets is not None:
             if self._dirty:
                 acc = K.sets_accumulate_parallel if self._parallel else \
@@ -335,10 +333,11 @@ class Body:
             np.less(np.abs(np.einsum('ij,ij->i', self._quat_prev, self._quat)),
                     np.cos(0.5 * turn), out=self._flagged)
             if self._flagged.any():
-                self._limit_counts[1] += K.limit_turn(
+                turned = K.limit_turn(
                     x=x, v=v, mass=self.m, ptr=self._ptr, cl=self._cl, flagged=self._flagged,
                     w_max=turn / h, lin=self._lim_lin, w3=self._lim_w, m3a=s3[0], m3b=s3[1],
                     m3c=s3[2], m3d=s3[3])
+                self._limit_counts[1] += turned
         nchanged = 0
         if plastic:
             nchanged = K.plastic_update(apq=self._apq, aqq3=self._aqq3, scale=self._scale,
@@ -370,6 +369,15 @@ class Body:
         else:
             self._ang[:] = 0.0
         if fused:
+            # the rigid fields damping moves towards, from the sums of the last pass (taken
+            # again if the state changed since: set by hand, contact, turn limit)
+            sptr, scl, scnt = self._dsets
+            dsid = sets.sid if sets is not None else self._ptr
+            if self._dirty or turned:
+                K.damp_accumulate(x=x, v=v, mass=self.m, sid=dsid, dpart=self._dpart)
+            K.damping_fields(dpart=self._dpart, sptr=sptr, scl=scl, scnt=scnt, lin=self._lin,
+                             w3=self._w3, dref=self._dref, acc=self._dacc, m3a=s3[0], m3b=s3[1],
+                             m3c=s3[2], m3d=s3[3])
             K.damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=self._lin, w3=self._w3,
                               dref=self._dref, sref=sets.ref if sets is not None else self._ref,
                               dmp=self._dmp)
