@@ -76,7 +76,11 @@ class Outputs:
         sim.on_change(['record.path'], lambda c: self.record_path_changed())
         self.start_live()
         if params['record.path']:
-            self.start_recording(params['record.path'])
+            try:
+                self.start_recording(params['record.path'])
+            except Exception as exc:  # noqa: B902 - a start-up setting: one clear line
+                from sm_ros.sim import ConfigError
+                raise ConfigError(f'record.path: {exc}') from None
 
     def _publisher(self, msg_type, topic: str, qos: QoSProfile):
         return self.node.create_publisher(

@@ -272,3 +272,11 @@ def test_recorder_drops_show_in_diagnostics(ros, cube_scene, tmp_path):
     assert rec.dropped == 2 and values['recorder_dropped'] == '2'   # points and poses
     assert values['recording'] == str(tmp_path / 'd')
     assert status.level == DiagnosticStatus.WARN and 'dropped 2 messages' in status.message
+
+
+def test_unusable_record_path_at_start_is_a_clear_error(ros, cube_scene, tmp_path):
+    pytest.importorskip('mcap', reason="recording needs the 'record' extra")
+    from sm_ros.sim import ConfigError
+    (tmp_path / 'taken').mkdir()
+    with pytest.raises(ConfigError, match=r'record.path: .*taken exists already'):
+        ros.start(cube_scene, record__path=str(tmp_path / 'taken'))
