@@ -32,6 +32,9 @@ class _Quiet:
         """Count ``n`` more steps."""
         self.n += n
 
+    def refresh(self):
+        """Nothing to draw."""
+
     def set_postfix_str(self, *_a, **_k):
         """Ignore the postfix."""
 

@@ -11,6 +11,7 @@ import importlib
 import os
 import pkgutil
 import sys
+import threading
 import time
 from typing import Callable, Optional, Sequence
 
@@ -174,12 +175,37 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     from sm_ros.progress import bar
     note = cold_start_note()
     print('sm_ros: ' + (note or 'loading the solver kernels from the cache'), flush=True)
-    with bar(total=WARM_UP_STAGES + len(args.scenes), desc='warmup', unit='stage') as pb:
-        total = warm_up(on_stage=lambda _: pb.update())
-        for name in args.scenes:
-            pb.set_postfix_str(name)
-            total += warm_scene(name)
-            pb.update()
+    if note:
+        # a cold compile is one long call: the bar runs on the expected time (it never
+        # claims to be done before the compile is), stages only name what is compiling
+        with bar(total=COLD_COMPILE_S, desc='compiling', unit='s',
+                 bar_format='{l_bar}{bar}| {n:.0f}/{total:.0f} s expected [{elapsed}]') as pb:
+            done = threading.Event()
+
+            def tick():
+                t0 = time.monotonic()
+                while not done.wait(0.5):
+                    pb.n = min(time.monotonic() - t0, COLD_COMPILE_S * 0.99)
+                    pb.refresh()
+            ticker = threading.Thread(target=tick, daemon=True)
+            ticker.start()
+            try:
+                total = warm_up(on_stage=pb.set_postfix_str)
+                for name in args.scenes:
+                    pb.set_postfix_str(name)
+                    total += warm_scene(name)
+            finally:
+                done.set()
+                ticker.join()
+            pb.n = pb.total
+            pb.refresh()
+    else:
+        with bar(total=WARM_UP_STAGES + len(args.scenes), desc='warmup', unit='stage') as pb:
+            total = warm_up(on_stage=lambda _: pb.update())
+            for name in args.scenes:
+                pb.set_postfix_str(name)
+                total += warm_scene(name)
+                pb.update()
     print(f'sm_ros: kernels ready ({total:.1f} s)', flush=True)
     return 0
 
