@@ -158,8 +158,9 @@ def damp_velocity(v, i, r0, r1, r2, dmp, s, k_damp):
 def damp_acc_range(start, end, x, v, mass, sid, dsums):
     """Rows ``dsums[s]`` += the particles start..end (``sid`` empty: all in set 0).
 
-    The loop runs over one set at a time with its sums in registers (scalar code: the
-    (N, 3) rows do not vectorise across particles).
+    The loop runs over one set at a time with its 20 sums in registers; ``inspect_asm``:
+    scalar across particles (73 packed ``xmm`` against 94 scalar double instructions in
+    ``damp_accumulate``), the (N, 3) rows do not vectorise across particles.
     """
     single = sid.shape[0] == 0
     i = start

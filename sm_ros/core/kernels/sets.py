@@ -9,7 +9,8 @@ U_s = sum m (x - r_s) phi(y)^T with phi(y) = [1, y, y0^2, y1^2, y2^2, y0 y1, y1 
 A step then reads and writes each particle once and costs about as much per particle as a
 single-cluster body, whatever the number of clusters per particle; the per-cluster work
 moves to the few set-cluster pairs (``sets_reduce``, ``sets_maps``).  ``part`` is
-(chunks, sets, 3 * nphi).
+(chunks, sets, 3 * nphi).  Vectorisation: as in ``integrate.py`` (scalar across particles,
+component pairs in SSE registers; the set's map and sums stay in registers over a run).
 """
 
 from numba import njit, prange
