@@ -285,7 +285,7 @@ def test_limit_speed_caps_the_speed_and_takes_back_the_excess_displacement():
                                rtol=1e-12)
     np.testing.assert_array_equal(v_new[1:][~over], v[1:][~over])
     np.testing.assert_array_equal(x_new[1:][~over], x[1:][~over])
-    np.testing.assert_allclose(x_new[1:][over], x[1:][over] - 0.01 * (v - v_new)[1:][over],
+    np.testing.assert_allclose(x_new[1:][over], x[1:][over] - 0.01 * (v[1:] - v_new[1:])[over],
                                rtol=1e-12)
     assert np.isinf(v_new[0, 0]) and np.array_equal(x_new[0], x[0])
 
