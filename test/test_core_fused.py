@@ -88,3 +88,26 @@ def test_fused_damping_keeps_momentum(monkeypatch):
     assert np.allclose(body.momentum(), p0, atol=1e-12 * np.abs(p0).max())
     assert np.allclose(body.angular_momentum(), l0, atol=1e-10 * np.abs(l0).max())
     assert float(np.sum(body.m[:, None] * body.v ** 2)) < 0.5 * e0     # it does damp
+
+
+@pytest.mark.parametrize('mode,clusters', [('rigid', 1), ('linear', 1), ('linear', 8)])
+def test_plastic_refresh_at_cluster_cost_matches_the_particle_pass(mode, clusters):
+    """The rigid/linear rest data after plastic flow, from the rest moments kept since the
+    build (per cluster), equal the particle pass ``kernels.moments`` to round-off."""
+    from sm_ros.core import kernels as K
+    world = World(gravity=(0.0, 0.0, 0.0))
+    x0 = lattice(6)
+    body = world.add_body(x0, masses=1.0 + np.arange(len(x0)) % 3,
+                          params=BodyParams(mode=mode, clusters=clusters, plastic_yield=0.01,
+                                            plastic_creep=50.0, plastic_max=0.4))
+    body.set_state(v=np.random.default_rng(2).standard_normal(x0.shape))
+    for _ in range(20):
+        world.step(0.005)
+    assert np.abs(body.plastic_state - np.eye(3)).max() > 0.01      # it flowed
+    sum_q, mom3 = np.zeros_like(body._sum_q), np.zeros_like(body._mom3)
+    K.moments(body._x0, body.m, body._ptr, body._cl, body._rest_lin, body._rest_off,
+              body._wsum, np.ones(body.num_clusters, dtype=np.bool_), True, False, sum_q, mom3,
+              np.zeros((1, 9, 9)), np.zeros(9))
+    scale = np.abs(mom3).max()
+    assert np.abs(body._mom3 - mom3).max() <= 1e-12 * scale
+    assert np.abs(body._sum_q - sum_q).max() <= 1e-12 * np.sqrt(scale * body._wsum.max())

@@ -198,6 +198,15 @@ class Body:
                                   minlength=nk) / wsum)
         self._wsum = wsum
         self._cm0 = cm0
+        # rest moments about each cluster's rest centre, sum w d and sum w d d^T: with them
+        # a plastic refresh of the rigid/linear rest data costs per cluster, not per particle
+        self._dsum0 = np.stack([np.bincount(member, weights=w * d[:, j], minlength=nk)
+                                for j in range(3)], axis=1)
+        self._cov0 = np.zeros((nk, 3, 3))
+        for i in range(3):
+            for j in range(i, 3):
+                self._cov0[:, i, j] = self._cov0[:, j, i] = np.bincount(
+                    member, weights=w * d[:, i] * d[:, j], minlength=nk)
         self._scale = np.where(rms > 0.0, rms, 1.0)
         self._s_plastic = np.tile(np.eye(3), (nk, 1, 1))
         self._rest_lin = np.zeros((nk, 3, 3))
@@ -268,14 +277,30 @@ class Body:
         self._dirty = True
 
     def _refresh_rest(self, which):
-        """Plastic rest shape q = Sp (x0 - cm0) / s of the clusters in ``which``; A_qq."""
+        """Plastic rest shape q = Sp (x0 - cm0) / s of the clusters in ``which``; A_qq.
+
+        Rigid/linear: q = G d with d = x0 - cm0, so sum w q = G sum w d and the centred
+        moments are G (sum w d d^T) G^T - (sum w q)(sum w q)^T / W, from the rest moments
+        kept since the build: the cost is per changed cluster (plasticity at cluster cost).
+        Quadratic features need moments up to degree 4: one pass over the particles.
+        """
         idx = np.nonzero(which)[0]
         self._rest_lin[idx] = self._s_plastic[idx] / self._scale[idx, None, None]
         self._rest_off[idx] = -np.einsum('kij,kj->ki', self._rest_lin[idx], self._cm0[idx])
-        K.moments(x0=self._x0, mass=self.m, ptr=self._ptr, cl=self._cl, rest_lin=self._rest_lin,
-                  rest_off=self._rest_off, wsum=self._wsum, which=which, need3=self._need3,
-                  need9=self._need9, sum_q=self._sum_q, mom3=self._mom3, mom9=self._mom9,
-                  f9=self._f9)
+        if not self._need9:
+            g = self._rest_lin[idx]
+            sq = np.einsum('kij,kj->ki', g, self._dsum0[idx])
+            self._sum_q[idx] = 0.0
+            self._sum_q[idx, :3] = sq
+            if self._need3:
+                mom = (np.einsum('kia,kab,kjb->kij', g, self._cov0[idx], g)
+                       - sq[:, :, None] * sq[:, None, :] / self._wsum[idx, None, None])
+                self._mom3[idx] = 0.5 * (mom + mom.transpose(0, 2, 1))
+        else:
+            K.moments(x0=self._x0, mass=self.m, ptr=self._ptr, cl=self._cl,
+                      rest_lin=self._rest_lin, rest_off=self._rest_off, wsum=self._wsum,
+                      which=which, need3=self._need3, need9=self._need9, sum_q=self._sum_q,
+                      mom3=self._mom3, mom9=self._mom9, f9=self._f9)
         K.invert_moments(which=which, need3=self._need3, need9=self._need9, mom3=self._mom3,
                          mom9=self._mom9, aqq3=self._aqq3, aqq9=self._aqq9, w3a=self._s3[0],
                          w3b=self._s3[1], w9a=self._w9[0], w9b=self._w9[1], rcond=RCOND)
