@@ -143,6 +143,19 @@ def warm_up(on_stage: Optional[Callable[[str], None]] = None) -> float:
     solo.set_colliders(capsules=[Capsule(center=(0.0, 0.0, 0.0), radius=0.05, length=0.1)])
     solo.add_body(cube + (0.0, 0.0, 0.1), masses=0.01)
     solo.step(1.0 / 120.0)
+    # damping: the separate pass (small bodies) and the one fused into the particle pass
+    # (bodies of FUSED_DAMPING_MIN particles and more; one cluster, and the set layout)
+    g11 = np.linspace(-0.05, 0.05, 11)
+    big = np.stack(np.meshgrid(g11, g11, g11, indexing='ij'), axis=-1).reshape(-1, 3)
+    damped = World(gravity=(0.0, 0.0, -9.81))
+    damped.set_colliders(ground=Ground(height=0.0))
+    for i, (mode, k) in enumerate((('linear', 1), ('linear', 2), ('quadratic', 2))):
+        damped.add_body(big + (0.3 * i, 0.0, 0.1), masses=0.01,
+                        params=BodyParams(mode=mode, clusters=k, damping=0.05))
+    damped.add_body(cube + (-0.3, 0.0, 0.1), masses=0.01, params=BodyParams(damping=0.05))
+    damped.bodies[0].set_kinematic(np.array([0]), big[:1] + (0.0, 0.0, 0.12))
+    for _ in range(2):
+        damped.step(1.0 / 120.0)
     if on_stage is not None:
         on_stage('world step')
     for b in bodies:
