@@ -126,7 +126,10 @@ def test_diagnostics_report_every_key(ros, two_body_scene):
     assert ros.spin_until(lambda: ours())
     status = ours()[-1]
     assert status.hardware_id == 'sm_ros'
-    assert status.level == DiagnosticStatus.OK
+    # OK, or WARN only because a tick overran its period on a loaded machine (the full
+    # suite on 2 shared cores: the first tick after start took longer than 16.7 ms)
+    assert status.level == DiagnosticStatus.OK or (
+        status.level == DiagnosticStatus.WARN and 'overran' in status.message), status
     values = diag_values(status)
     assert set(INTERFACE_KEYS) <= set(values) and list(values) == list(KEYS)
     assert values['points'] == str(node.num_points) == '54'
