@@ -422,3 +422,19 @@ def test_simulation_counts_fast_particles(tmp_path):
     slow = Simulation({'scene': str(path)})
     slow.tick()
     assert slow.stats.contact_fast_max == 0
+
+
+@pytest.mark.slow
+def test_paper_384_scene_pours_into_its_bin():
+    from sm_ros.scene import build_world, load_scene
+    spec = load_scene('paper_384')
+    world, _ = build_world(spec)
+    bodies = world.bodies
+    assert len(bodies) == 384 and 54_000 < spec.n_points < 57_000
+    assert sum(b.num_clusters for b in bodies) == 2400
+    assert {b.params.mode for b in bodies} == {'rigid', 'linear', 'quadratic'}
+    for _ in range(120):                                   # 1 s: the first layers land
+        world.step(1 / 120)
+    x = np.concatenate([b.x for b in bodies])
+    assert np.isfinite(x).all() and x[:, 2].min() >= 0.0
+    assert world.contact.found > 1000                      # they land on one another

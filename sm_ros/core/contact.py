@@ -1,33 +1,33 @@
 """Contact between bodies, and self-collision, on the world's flat state (``flat.py``).
 
-Model (README "Contact"): every particle of a colliding body is a sphere of its body's
-contact radius ``r``; two particles of different bodies (or of one self-colliding body
-whose rest distance exceeds ``SELF_REST_FACTOR`` times their contact distance) must stay
-at least ``r_i + r_j`` apart.  After the bodies' own step (each substep) every overlapping
-pair is projected apart along the line of centres, weighted by inverse mass (pinned and
-grabbed particles have infinite mass), equal and opposite, so linear momentum is kept to
-round-off; their relative velocity then gets the ground's contact law: the approaching
-normal component is removed (or reversed by the restitution above the resting threshold)
-and the tangential one reduced by at most ``friction`` times the normal change
-(Coulomb, applied per pair as an impulse along the pair's relative velocity).  The
-impulses act along the line of centres and in the tangent plane at the pair; without
-friction they are central forces, so angular momentum is kept too.
+Model (README "Contact between bodies"): every particle of a colliding body is a sphere of
+its body's contact radius ``r``; two particles of different bodies (or of one
+self-colliding body whose rest distance exceeds ``SELF_REST_FACTOR`` times their contact
+distance) must stay at least ``r_i + r_j`` apart.  After the bodies' own step (each
+substep) every overlapping pair is pushed apart along the line of its start-of-step
+positions (x - h v), weighted by inverse mass (pinned and grabbed particles have infinite
+mass), equal and opposite, so linear momentum is kept to round-off; its relative velocity
+then gets the ground's contact law (``solve_pairs``).  Every velocity change also moves the
+particles by h times it, so without friction angular momentum is kept to round-off too.
+Particles that contact moved are then projected out of the static colliders again.
 
 Neighbour search: a Verlet list.  Every candidate pair closer than ``r_i + r_j + skin`` is
-found by a hashed cell grid (counting sort, cell = the largest contact distance plus the
-skin, 27 neighbour cells, each pair once); the list stays valid while no particle has
-moved more than ``skin / 2`` since it was built, which one pass over the positions checks
-each step.  Pairs of one body are skipped in the build by one integer compare (unless the
-body self-collides), so the per-step work is proportional to the candidate pairs.  A
-world with one body and no self-collision does not run the pass at all.
+found on a dense cell grid over the colliding particles (``build_pairs_grid``; a hashed grid,
+``build_pairs``, when the bounding box is too large), counting sort by cell, the forward
+half-stencil of 13 cells plus the own cell, so each pair is met once; pairs are then sorted
+by their lower index (``sort_pairs``).  The list stays valid while no particle has moved
+more than ``skin / 2`` since it was built, which one pass over the positions checks each
+step.  Pairs of one body are skipped in the build by one integer compare (unless the body
+self-collides).  A world with one colliding body and no self-collision does not run the
+pass at all.
 
-Everything here is serial: the pair order is fixed by the build, so the result does not
+Everything here is serial and the pair order is fixed by the build, so the result does not
 depend on thread scheduling (bit-identical between runs).
 
-Tunnelling: a pair is seen only where it overlaps at the end of a step, so two particles
-approaching faster than about ``r / h`` (r = contact radius, h = step) can cross a layer
-one particle thick between two steps; ``Contact.fast`` counts the particles moving faster
-than that.
+Tunnelling: a pair is seen only where it overlaps at the end of a step, so particles
+approaching faster than about ``r / h`` (r = contact radius, h = step) may cross a layer
+one particle thick between two steps; ``Contact.fast_particles`` counts the particles
+moving faster than that.
 """
 
 from dataclasses import dataclass, fields, replace
