@@ -155,8 +155,8 @@ _TIMER_WHY = ('{name} must be 0 or >= {min:g} Hz (a timer period fits in int64 '
 #: The table. Order is the order of the docs and of ``config/sim_node.yaml``.
 TABLE: Tuple[Param, ...] = (
     Param('scene', '', 'Scene YAML file, or the name of a bundled scene (default, rope, '
-          'sheet, plastic, mesh, many, paper_8_clusters, grasp); empty: default. Changing it '
-          'reloads the scene'),
+          'sheet, plastic, mesh, many, paper_8_clusters, grasp, paper_384); empty: default. '
+          'Changing it reloads the scene'),
     Param('mode', 'linear', 'Deformation mode: rigid (sec. 3), linear (4.2) or quadratic '
           '(4.3)', choices=MODES, scene_override=True, core_field='mode'),
     Param('alpha', 0.5, 'Stiffness alpha (1 = rigid)', '', 0.0, 1.0,

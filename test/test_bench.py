@@ -122,3 +122,16 @@ def test_pypbd_driver_runs_one_configuration():
     assert (res['N'], res['clusters']) == (216, 8)
     assert res['com_drop_m'] == pytest.approx(res['com_drop_expected_m'], rel=1e-6)
     assert res['shape_rms_m'] < 1e-9                # a rigid drop keeps the shape
+
+
+def test_contact_subcommand_smoke(tmp_path):
+    import json
+    out = tmp_path / 'contact'
+    assert main(['contact', '--out', str(out), '--blocks', '24', '--steps', '3', '--settle',
+                 '2', '--scales', '1,2', '--paper-seconds', '0', '--one-body-side', '6']) == 0
+    res = json.loads((out / 'contact.json').read_text())
+    assert res['N'] == 24 * 144 and res['settle']['steps'] == 3
+    assert [r['blocks'] for r in res['scaling']] == [24, 48]
+    assert res['one_body']['n'] == 6 ** 3 and res['paper_384'] is None
+    text = (out / 'contact.md').read_text()
+    assert 'pair-list rebuild alone' in text and 'cKDTree' in text

@@ -50,6 +50,9 @@ def add_arguments(p: argparse.ArgumentParser):
                         '(0: skip paper_384)')
     p.add_argument('--paper-ticks', type=int, default=60, help='timed ticks of paper_384')
     p.add_argument('--threads', type=int, default=1, help='Numba threads (issue: one)')
+    p.add_argument('--blocks', type=int, default=384, help='blocks in the bin (a smoke run: few)')
+    p.add_argument('--one-body-side', type=int, default=38,
+                   help='side of the one-body lattice (38^3 = 54,872 particles)')
     p.add_argument('--write-doc', action='store_true',
                    help='write the tables into doc/benchmarks.md')
 
@@ -206,14 +209,14 @@ def one_body(n_side: int = 38) -> Dict[str, float]:
     return {'n': len(pts), 'on_ms': on, 'off_ms': off, 'ratio': on / off}
 
 
-def scaling(scales: List[int]) -> List[Dict[str, Any]]:
+def scaling(scales: List[int], blocks: int = 384) -> List[Dict[str, Any]]:
     """Rebuild and per-step contact cost against N (blocks packed, at rest)."""
     rows = []
     for s in scales:
-        w = block_bin(384 * s)
+        w = block_bin(blocks * s)
         w.step(1 / 120)
         parts = contact_parts(w)
-        rows.append({'blocks': 384 * s, 'N': w._flat.n, **parts})
+        rows.append({'blocks': blocks * s, 'N': w._flat.n, **parts})
         bc.log(f'contact scaling: {w._flat.n} particles: rebuild {parts["rebuild_ms"]:.1f} '
                f'ms, per step {parts["step_ms"]:.2f} ms')
     return rows
@@ -247,9 +250,10 @@ def run(args, out: Path) -> Dict[str, Any]:
     """Run every part; return the findings (also written as JSON and markdown)."""
     import numba
     numba.set_num_threads(max(1, min(args.threads, numba.config.NUMBA_NUM_THREADS)))
-    res: Dict[str, Any] = {'threads': numba.get_num_threads(), 'settle_steps': args.settle}
-    bc.log('contact: building 384 blocks')
-    w = block_bin(384)
+    res: Dict[str, Any] = {'threads': numba.get_num_threads(), 'settle_steps': args.settle,
+                           'blocks': args.blocks}
+    bc.log(f'contact: building {args.blocks} blocks')
+    w = block_bin(args.blocks)
     for _ in range(max(1, args.settle)):              # compiles, settles
         w.step(1 / 120)
     f = w._flat
@@ -259,8 +263,8 @@ def run(args, out: Path) -> Dict[str, Any]:
     res['settle'] = settle_and_time(w, args.steps)
     res['parts'] = contact_parts(w)
     bc.log('contact: one body')
-    res['one_body'] = one_body()
-    res['scaling'] = scaling([int(s) for s in bc.as_list(args.scales, int)])
+    res['one_body'] = one_body(args.one_body_side)
+    res['scaling'] = scaling([int(s) for s in bc.as_list(args.scales, int)], args.blocks)
     xs = [r['N'] for r in res['scaling']]
     if len(xs) > 1:
         res['slope_rebuild'] = bc.loglog_slope(xs, [r['rebuild_ms'] for r in res['scaling']])
@@ -277,7 +281,8 @@ def markdown(r: Dict[str, Any]) -> str:
     """The tables of a run."""
     s, p, b = r['settle'], r['parts'], r.get('ckdtree')
     per_step = s['contact']['median_ms']
-    lines = [f"Body-body contact, {r['N']:,} particles (384 blocks of 6 x 6 x 4, spacing 2 cm, "
+    lines = [f"Body-body contact, {r['N']:,} particles ({r['blocks']} blocks of 6 x 6 x 4, "
+             f"spacing 2 cm, "
              f"contact radius 1 cm, side by side in a bin), {r['threads']} thread(s), "
              f"resting at h = 1/120 s: {s['steps']} steps timed after {r['settle_steps']} "
              f"({s['rebuilds']} pair-list rebuilds; {s['pairs_listed']:,} pairs listed, "
