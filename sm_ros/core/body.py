@@ -34,6 +34,9 @@ SET_LAYOUT_MIN_RATIO = 8
 #: Single-cluster quadratic bodies use the set layout too (one set).
 SINGLE_QUADRATIC_SETS = True
 _EMPTY_I64 = np.zeros(0, dtype=np.int64)
+#: Bumped whenever a body's buffers, parameters, grabs or wrench kind change: ``World``
+#: rebuilds its list of compiled-step records (``kernels.world_step``) when it moved.
+_GENERATION = [0]
 _EMPTY_I32 = np.zeros(0, dtype=np.int32)
 
 
@@ -152,6 +155,7 @@ class Body:
         self._params = params
         self._at_step = (None, None, None)
         self._limit_counts = np.zeros(2, dtype=np.int64)
+        self._flags = np.zeros(2)             # [dirty, shape error stale] (world_step)
         self._build()
         self._merge_kinematic()
 
@@ -275,6 +279,7 @@ class Body:
         self._dref = np.zeros((nk, 3))
         self._dacc = np.zeros(K.NDAMP)
         self._dirty = True
+        _GENERATION[0] += 1
 
     def _refresh_rest(self, which):
         """Plastic rest shape q = Sp (x0 - cm0) / s of the clusters in ``which``; A_qq.
@@ -316,8 +321,45 @@ class Body:
         self._kin_tgt = np.ascontiguousarray(
             np.concatenate([self._grab_tgt[keep], self.x_init[pins]]), dtype=np.float64)
         self._kin_prev = np.zeros_like(self._kin_tgt)
+        _GENERATION[0] += 1
 
     # ------------------------------------------------------------------ step
+    @property
+    def _dirty(self) -> bool:
+        """Whether the per-cluster sums must be accumulated again before the next step."""
+        return bool(self._flags[0])
+
+    @_dirty.setter
+    def _dirty(self, value):
+        self._flags[0] = 1.0 if value else 0.0
+
+    def _fast_ok(self) -> bool:
+        """Whether ``kernels.world_step`` may step this body (see its docstring)."""
+        return (self._sets is None and self._params.clusters == 1 and self._mode in (0, 1)
+                and not self._params.plastic and len(self._kin_idx) == 0
+                and not self._has_torque and not self._parallel)
+
+    def _fast_record(self, h):
+        """The tuple of buffers ``kernels.world_step`` steps (valid until the next rebuild)."""
+        p = self._params.at_step(h)
+        self._at_step = (h, self._params, p)
+        self._fstate = np.array([p.alpha, p.beta, p.damping, self._params.max_speed,
+                                 self._params.max_turn, 1.0 / self.total_mass, self._mode,
+                                 1.0 if self._damp_fused else 0.0])
+        sptr, scl, scnt = self._dsets if self._dsets else (
+            np.zeros(2, dtype=np.int64), np.zeros(1, dtype=np.int32), np.ones(1))
+        lin = self._lin if self._lin is not None else np.zeros((self.num_clusters, 13))
+        w3 = self._w3 if self._w3 is not None else np.zeros((self.num_clusters, 3))
+        s3 = self._s3
+        return (self._x, self._v, self._x0, self.m, self._ptr, self._cl, self._rest_lin,
+                self._rest_off, self._part, self._wsum, self._sum_q, self._ref, self._quat,
+                self._aqq3, self._aqq9, self._scale, self._trans, self._goal_lin,
+                self._goal_off, self._apq, self._accbuf, s3[0], s3[1], s3[2], s3[3],
+                self._m39, self._n4, self._v4, self._nmat, self._cdet, self._acc, self._ang,
+                self._com, self._err, self._dpart, self._dmp, self._dref, self._dacc, lin, w3,
+                sptr, scl, scnt, self._quat_prev, self._flagged, self._lim_lin, self._lim_w,
+                self._force, self._fstate, self._flags, self._limit_counts)
+
     def _step(self, h, gravity, has_col, ground, boxes, spheres, thresh):
         if self._at_step[0] != h or self._at_step[1] is not self._params:
             self._at_step = (h, self._params, self._params.at_step(h))
@@ -512,6 +554,7 @@ class Body:
         new = replace(new, **changes).validate()
         old = self._params
         self._params = new
+        _GENERATION[0] += 1
         if (new.mode != old.mode or new.clusters != old.clusters or new.plastic != old.plastic
                 or (new.damping > 0) != (old.damping > 0)):
             self._build()
@@ -526,12 +569,14 @@ class Body:
         self._force[:] = f
         self._torque[:] = t
         self._has_torque = bool(t.any())
+        _GENERATION[0] += 1
 
     def clear_wrench(self):
         """Remove the external force and torque."""
         self._force[:] = 0.0
         self._torque[:] = 0.0
         self._has_torque = False
+        _GENERATION[0] += 1
 
     @property
     def wrench(self):
@@ -624,8 +669,9 @@ class Body:
 
     def shape_error_rms(self) -> float:
         """RMS distance of the particles to their goals in the last step (m)."""
-        if self._shape_err is None:
+        if self._shape_err is None or self._flags[1]:
             self._shape_err = float(np.sqrt(self._err.sum() / self.n))
+            self._flags[1] = 0.0
         return self._shape_err
 
     def momentum(self) -> np.ndarray:

@@ -4,7 +4,11 @@ import math
 
 import numpy as np
 
+from numba.typed import List as TypedList
+
+from . import body as body_mod
 from .body import Body
+from .kernels.world_step import step_single_bodies
 from .colliders import ColliderSet
 from .contact import BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
@@ -21,6 +25,7 @@ class World:
         self._contacts = {}                    # body name -> (BodyContact, default radius)
         self._contact_params = ContactParams()
         self._flat = None                      # FlatState + Contact, rebuilt lazily
+        self._split = None                     # compiled-step records (_split_bodies)
         self._contact = None
         self._coll_stats = None                # (bodies, 2) contacts, deepest: collider pass
         self._zeros = np.zeros(0, dtype=np.int32)
@@ -257,13 +262,41 @@ class World:
         cs = self._cset
         if cs is not None:
             cs.advance(h, self.time)
-        for body in self._bodies.values():
+        records, slow = self._split_bodies(h)
+        if len(records):
+            # one compiled call for every one-cluster body (kernels/world_step.py)
+            step_single_bodies(records, h, self._gravity, self._has_col, self._ground_row,
+                               self._box_rows, self._sphere_rows, thresh)
+        for body in slow:
             body._step(h, self._gravity, self._has_col, self._ground_row, self._box_rows,
                        self._sphere_rows, thresh)
         self._world_passes(h, thresh)
         if cs is not None:
             cs.imp_time += h
         self.time += h
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state['_split'] = None                 # a typed list does not copy: rebuilt
+        return state
+
+    #: Step the bodies ``kernels.world_step`` covers in one compiled call (tests compare).
+    compiled_step = True
+
+    def _split_bodies(self, h):
+        """(typed list of compiled-step records, bodies stepped one by one), rebuilt only
+        when a body's buffers, parameters, grabs or wrench kind or the step changed."""
+        key = (body_mod._GENERATION[0], h, tuple(self._bodies), self.compiled_step)
+        split = self._split
+        if split is None or split[0] != key:
+            records, slow = TypedList(), []
+            for body in self._bodies.values():
+                if self.compiled_step and body._fast_ok():
+                    records.append(body._fast_record(h))
+                else:
+                    slow.append(body)
+            split = self._split = (key, records, slow)
+        return split[1], split[2]
 
     def _world_passes(self, h, thresh):
         """Passes over the world's flat state after the bodies' step (flat.py).

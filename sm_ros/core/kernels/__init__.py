@@ -14,6 +14,7 @@ file               what it computes                                            e
 ``colliders.py``   static ground, boxes, spheres (projection, friction)         (collisions)
 ``damping.py``     damping towards each cluster's rigid motion                  (damping)
 ``limits.py``      speed and turn-per-step limits (what one step represents)   (limits)
+``world_step.py``  one compiled call steps every one-cluster body of a world   7-14
 ``jit.py``         compile options; a Numba cache stamp shared by all files     -
 =================  ==========================================================  ============
 
@@ -43,6 +44,7 @@ from .rotation import extract_rotation, quat_to_mat
 from .sets import (sets_accumulate_parallel, sets_accumulate_serial,
                    sets_integrate_parallel, sets_integrate_serial, sets_kinematic, sets_maps,
                    sets_reduce)
+from .world_step import step_single_bodies
 
 __all__ = ['_collide_range', '_contact_velocity', 'collide_point', 'NDAMP', 'damp_acc_range',
            'damp_accumulate', 'damp_kinematic', 'damp_rigid', 'damp_velocity', 'damping_fields',
@@ -51,8 +53,8 @@ __all__ = ['_collide_range', '_contact_velocity', 'collide_point', 'NDAMP', 'dam
            'quad_features', 'solve_clusters', 'unit_det_frames', 'unit_det_match',
            'volume_preserving', 'BLOCK', 'accumulate_parallel', 'accumulate_serial', 'advance',
            'apply_kinematic', 'gather_rows', 'inertia', 'integrate_parallel', 'integrate_serial',
-           'FASTMATH', 'JIT', 'det3', 'jacobi_eigh', 'matmul', 'norm2', 'pinv_sym',
-           '_add_null_projector', '_cap_plastic', 'plastic_update', 'extract_rotation',
-           'quat_to_mat', 'sets_accumulate_parallel', 'sets_accumulate_serial',
-           'sets_integrate_parallel', 'sets_integrate_serial', 'sets_kinematic', 'sets_maps',
-           'sets_reduce', 'limit_speed', 'limit_turn']
+           'FASTMATH', 'JIT', 'limit_speed', 'limit_turn', 'det3', 'jacobi_eigh', 'matmul',
+           'norm2', 'pinv_sym', '_add_null_projector', '_cap_plastic', 'plastic_update',
+           'extract_rotation', 'quat_to_mat', 'step_single_bodies', 'sets_accumulate_parallel',
+           'sets_accumulate_serial', 'sets_integrate_parallel', 'sets_integrate_serial',
+           'sets_kinematic', 'sets_maps', 'sets_reduce']
