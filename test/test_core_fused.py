@@ -114,28 +114,32 @@ def test_plastic_refresh_at_cluster_cost_matches_the_particle_pass(mode, cluster
 
 
 def _many_world(compiled):
-    """Small and large one-cluster bodies (damped in a pass, fused, undamped), a body the
-    compiled step does not cover (8 clusters), colliders, a force."""
+    """Small and large one-cluster and set-layout bodies (damped in a pass, fused,
+    undamped; rigid, linear, quadratic), a body the compiled step does not cover (8
+    clusters without the set layout), colliders, a force."""
     world = World()
     world.compiled_step = compiled
     world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.2))
     rng = np.random.default_rng(5)
     specs = [('rigid', 1, 0.0, 4), ('linear', 1, 0.05, 4), ('linear', 1, 0.05, 11),
-             ('rigid', 1, 0.05, 11), ('linear', 8, 0.05, 5)]
+             ('rigid', 1, 0.05, 11), ('linear', 8, 0.05, 5), ('quadratic', 1, 0.05, 5),
+             ('linear', 8, 0.05, 11), ('quadratic', 8, 0.0, 11)]
     for i, (mode, clusters, damping, n) in enumerate(specs):
         x0 = lattice(n) + (0.3 * i, 0.0, 0.05)
+        plastic = dict(plastic_yield=0.01, plastic_creep=5.0, plastic_max=0.3) if i == 4 else {}
         world.add_body(x0, masses=0.01, name=f'b{i}', velocities=rng.standard_normal(x0.shape),
                        params=BodyParams(mode=mode, clusters=clusters, damping=damping,
-                                         max_speed=3.0))
+                                         max_speed=3.0, **plastic))
     world.bodies[1].set_wrench((0.0, 0.01, 0.02))
     return world
 
 
-def test_compiled_world_step_equals_stepping_bodies_one_by_one():
-    """One compiled call for every one-cluster body gives the states of ``Body._step``
+def test_compiled_world_step_equals_stepping_bodies_one_by_one(monkeypatch):
+    """One compiled call for the bodies it covers gives the states of ``Body._step``
     called body by body (the same kernels in the same order: bit for bit), through
     parameter changes, a state set by hand, a torque (the body leaves the compiled step
     and comes back), a new body and two step sizes."""
+    monkeypatch.setattr(body_mod, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
     states = []
     for compiled in (True, False):
         world = _many_world(compiled)
@@ -151,7 +155,9 @@ def test_compiled_world_step_equals_stepping_bodies_one_by_one():
                 world.add_body(lattice(3) + (0.0, 0.5, 0.1), masses=0.01, name='late')
         if compiled:
             records, slow = world._split_bodies(1.0 / 120.0)
-            assert len(records) == 5 and [b.name for b in slow] == ['b4']
+            assert len(records) == 8 and [b.name for b in slow] == ['b4']
+            assert world.body('b6')._sets is not None and world.body('b6')._damp_fused
+            assert world.body('b7')._sets is not None and world.body('b4')._sets is not None
         states.append([(b.x.copy(), b.v.copy(), b.shape_error_rms(), b._limit_counts.copy())
                        for b in world.bodies])
     for got, want in zip(*states):

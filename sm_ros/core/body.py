@@ -133,6 +133,7 @@ class Body:
         self._c0 = (m @ x) / self.total_mass
         self._x0 = np.ascontiguousarray(x - self._c0)
         self._force = np.zeros(3)
+        self._facc = np.zeros(3)               # force / total mass
         self._torque = np.zeros(3)
         self._has_torque = False
         self._grab_idx = _EMPTY_I64
@@ -335,7 +336,7 @@ class Body:
 
     def _fast_ok(self) -> bool:
         """Whether ``kernels.world_step`` may step this body (see its docstring)."""
-        return (self._sets is None and self._params.clusters == 1 and self._mode in (0, 1)
+        return ((self._sets is not None or self._params.clusters == 1)
                 and not self._params.plastic and len(self._kin_idx) == 0
                 and not self._has_torque and not self._parallel)
 
@@ -345,7 +346,9 @@ class Body:
         self._at_step = (h, self._params, p)
         self._fstate = np.array([p.alpha, p.beta, p.damping, self._params.max_speed,
                                  self._params.max_turn, 1.0 / self.total_mass, self._mode,
-                                 1.0 if self._damp_fused else 0.0])
+                                 1.0 if self._damp_fused else 0.0, 1.0 if self._quad else 0.0,
+                                 1.0 if self._sets is not None else 0.0,
+                                 self._params.max_turn / h])
         sptr, scl, scnt = self._dsets if self._dsets else (
             np.zeros(2, dtype=np.int64), np.zeros(1, dtype=np.int32), np.ones(1))
         lin = self._lin if self._lin is not None else np.zeros((self.num_clusters, 13))
@@ -358,7 +361,18 @@ class Body:
                 self._m39, self._n4, self._v4, self._nmat, self._cdet, self._acc, self._ang,
                 self._com, self._err, self._dpart, self._dmp, self._dref, self._dacc, lin, w3,
                 sptr, scl, scnt, self._quat_prev, self._flagged, self._lim_lin, self._lim_w,
-                self._force, self._fstate, self._flags, self._limit_counts)
+                self._facc, self._fstate, self._flags, self._limit_counts) + self._fast_sets()
+
+    def _fast_sets(self):
+        """The set-layout buffers of a record (empty ones for a one-cluster body)."""
+        st = self._sets
+        if st is not None:
+            return (st.y0, st.sid, st.gm, st.ref, st.part, st.ptr, st.cl, st.cnt, st.phi,
+                    st.org, st.wk, st.pm)
+        na = 30 if self._quad else 12
+        return (np.zeros((0, 3)), _EMPTY_I32, np.zeros((0, 3, 10)), np.zeros((0, 3)),
+                np.zeros((1, 0, na)), np.zeros(1, dtype=np.int64), _EMPTY_I32, np.zeros(0),
+                np.zeros((0, 10)), np.zeros((0, 3)), np.zeros((2, 3, 10)), np.zeros((9, 10)))
 
     def _step(self, h, gravity, has_col, ground, boxes, spheres, thresh):
         if self._at_step[0] != h or self._at_step[1] is not self._params:
@@ -418,8 +432,7 @@ class Body:
                         rest_lin=self._rest_lin, rest_off=self._rest_off, trans=self._trans,
                         goal_lin=self._goal_lin, goal_off=self._goal_off, ref=self._ref,
                         quad=self._quad, gm=sets.gm, sref=sets.ref, pm=sets.pm)
-        np.multiply(self._force, 1.0 / self.total_mass, out=self._acc)
-        self._acc += gravity
+        np.add(self._facc, gravity, out=self._acc)
         if self._has_torque:
             np.dot(self._wsum, self._ref, out=self._com)
             self._com /= self._wsum.sum()
@@ -567,6 +580,7 @@ class Body:
                                                        and np.all(np.isfinite(t))):
             raise ValueError('force and torque must be 3 finite numbers each')
         self._force[:] = f
+        np.multiply(self._force, 1.0 / self.total_mass, out=self._facc)
         self._torque[:] = t
         self._has_torque = bool(t.any())
         _GENERATION[0] += 1
@@ -574,6 +588,7 @@ class Body:
     def clear_wrench(self):
         """Remove the external force and torque."""
         self._force[:] = 0.0
+        self._facc[:] = 0.0
         self._torque[:] = 0.0
         self._has_torque = False
         _GENERATION[0] += 1

@@ -1,16 +1,20 @@
-"""One compiled call steps every one-cluster body of a world (Eq. 7-14, damping, limits).
+"""One compiled call steps the bodies of a world (Eq. 7-14, 23, damping, limits).
 
 ``World.step`` used to call 4-6 kernels per body and step from Python; each call of a
 Numba function with 10-30 array arguments costs several microseconds in the dispatcher,
 while a 144-particle body's own work is about one.  ``step_single_bodies`` runs the same
 kernels, in the same order and with the same arguments as ``Body._step``, for every body
 of a typed list of per-body records, so the Python cost of a step no longer grows with the
-number of such bodies.  It covers one-cluster rigid/linear bodies without plasticity,
-kinematic particles or torque (``Body._fast_ok``); the others keep ``Body._step``.
+number of such bodies.  It covers one-cluster and set-layout bodies without plasticity,
+kinematic particles or torque, on one thread (``Body._fast_ok``); the others keep
+``Body._step``.
 
 A record (``Body._fast_record``) is a tuple of the body's own buffers; ``state`` holds
 [alpha, beta, damping (per step), max_speed, max_turn, 1 / total mass, mode, fused
-damping], ``flags`` [dirty, shape error stale], ``counts`` the limit counters.
+damping, quadratic, set layout, max_turn / h], ``force`` the force over the total mass
+(both divided in Python, as ``Body._step`` does: fast math would round them otherwise),
+``flags`` [dirty, shape error stale], ``counts`` the
+limit counters; the set-layout buffers (``s_*``) are empty for one-cluster bodies.
 """
 
 import numpy as np
@@ -21,23 +25,34 @@ from .goals import solve_clusters
 from .integrate import accumulate_serial, integrate_serial
 from .jit import JIT
 from .limits import limit_speed, limit_turn
+from .sets import sets_accumulate_serial, sets_integrate_serial, sets_maps, sets_reduce
 
 
 @njit(**JIT)
 def step_single_bodies(bodies, h, gravity, has_col, ground, boxes, spheres, thresh):
-    """``Body._step`` for every record of ``bodies`` (one-cluster bodies)."""
+    """``Body._step`` for every record of ``bodies``."""
     for b in range(len(bodies)):
         (x, v, x0, mass, ptr, cl, rest_lin, rest_off, part, wsum, sum_q, ref, quat, aqq3,
          aqq9, scale, trans, goal_lin, goal_off, apq, accbuf, m3a, m3b, m3c, m3d, m39, n4, v4,
          nmat, cdet, acc, ang, com, err, dpart, dmp, dref, dacc, lin, w3, sptr, scl, scnt,
-         quat_prev, flagged, lim_lin, lim_w, force, state, flags, counts) = bodies[b]
+         quat_prev, flagged, lim_lin, lim_w, force, state, flags, counts, y0, sid, gm, sref,
+         s_part, s_ptr, s_cl, s_cnt, s_phi, s_org, wk, pm) = bodies[b]
         alpha, beta, k_damp = state[0], state[1], state[2]
-        v_max, turn, inv_mass = state[3], state[4], state[5]
+        v_max, turn = state[3], state[4]
         mode = int(state[6])
         fused = state[7] > 0.0 and k_damp > 0.0
+        quad = state[8] > 0.0
+        sets = state[9] > 0.0
         dirty = flags[0] > 0.0
-        if dirty:
-            accumulate_serial(quad=False, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
+        if sets:
+            if dirty:
+                sets_accumulate_serial(quad=quad, x=x, y0=y0, mass=mass, sid=sid, sref=sref,
+                                       part=s_part)
+            sets_reduce(part=s_part, sptr=s_ptr, scl=s_cl, scnt=s_cnt, sphi=s_phi, sref=sref,
+                        sorg=s_org, rest_lin=rest_lin, rest_off=rest_off, ref=ref, quad=quad,
+                        out=part, wk=wk, pm=pm)
+        elif dirty:
+            accumulate_serial(quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
                               rest_lin=rest_lin, rest_off=rest_off, ref=ref, part=part)
         if turn > 0.0:
             quat_prev[:, :] = quat
@@ -58,28 +73,42 @@ def step_single_bodies(bodies, h, gravity, has_col, ground, boxes, spheres, thre
                 any_flagged = any_flagged or flagged[k]
             if any_flagged:
                 turned = limit_turn(x=x, v=v, mass=mass, ptr=ptr, cl=cl, flagged=flagged,
-                                    w_max=turn / h, lin=lim_lin, w3=lim_w, m3a=m3a, m3b=m3b,
+                                    w_max=state[10], lin=lim_lin, w3=lim_w, m3a=m3a, m3b=m3b,
                                     m3c=m3c, m3d=m3d)
                 counts[1] += turned
+        if sets:
+            sets_maps(sptr=s_ptr, scl=s_cl, scnt=s_cnt, sorg=s_org, rest_lin=rest_lin,
+                      rest_off=rest_off, trans=trans, goal_lin=goal_lin, goal_off=goal_off,
+                      ref=ref, quad=quad, gm=gm, sref=sref, pm=pm)
         for i in range(3):
-            acc[i] = force[i] * inv_mass + gravity[i]
+            acc[i] = force[i] + gravity[i]
             ang[i] = 0.0
         if fused:
             if dirty or turned:
-                damp_accumulate(x=x, v=v, mass=mass, sid=ptr, dpart=dpart)
+                if sets:
+                    damp_accumulate(x=x, v=v, mass=mass, sid=sid, dpart=dpart)
+                else:
+                    damp_accumulate(x=x, v=v, mass=mass, sid=ptr, dpart=dpart)
             damping_fields(dpart=dpart, sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3,
                            dref=dref, acc=dacc, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
-            damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3, dref=dref, sref=ref,
-                            dmp=dmp)
+            damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3, dref=dref,
+                            sref=sref if sets else ref, dmp=dmp)
         elif k_damp > 0.0:
             damp_rigid(x=x, v=v, mass=mass, ptr=ptr, cl=cl, ref=ref, k_damp=k_damp, lin=lin,
                        w3=w3, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
-        integrate_serial(quad=False, x=x, v=v, x0=x0, mass=mass, ptr=ptr, cl=cl,
-                         rest_lin=rest_lin, rest_off=rest_off, trans=trans, goal_lin=goal_lin,
-                         goal_off=goal_off, ref=ref, alpha=alpha, h=h, acc=acc, ang=ang,
-                         com=com, part=part, err=err, has_col=has_col, ground=ground,
-                         boxes=boxes, spheres=spheres, thresh=thresh, damp=fused,
-                         k_damp=k_damp, dmp=dmp, dpart=dpart)
+        if sets:
+            sets_integrate_serial(quad=quad, x=x, v=v, y0=y0, mass=mass, sid=sid, gm=gm,
+                                  sref=sref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
+                                  part=s_part, err=err, has_col=has_col, ground=ground,
+                                  boxes=boxes, spheres=spheres, thresh=thresh, damp=fused,
+                                  k_damp=k_damp, dmp=dmp, dpart=dpart)
+        else:
+            integrate_serial(quad=quad, x=x, v=v, x0=x0, mass=mass, ptr=ptr, cl=cl,
+                             rest_lin=rest_lin, rest_off=rest_off, trans=trans,
+                             goal_lin=goal_lin, goal_off=goal_off, ref=ref, alpha=alpha, h=h,
+                             acc=acc, ang=ang, com=com, part=part, err=err, has_col=has_col,
+                             ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
+                             damp=fused, k_damp=k_damp, dmp=dmp, dpart=dpart)
         capped = 0
         if v_max > 0.0:
             capped = limit_speed(x=x, v=v, h=h, v_max=v_max)
