@@ -1,9 +1,11 @@
 """Passes fused into the particle pass give the states of the separate passes they replace."""
 
+import numba
 import numpy as np
 import pytest
 
 import sm_ros.core.body as body_mod
+import sm_ros.core.world as world_mod
 from sm_ros.core import BodyParams, Box, Ground, Sphere, World
 
 
@@ -134,7 +136,8 @@ def _many_world(compiled):
     return world
 
 
-def test_compiled_world_step_equals_stepping_bodies_one_by_one(monkeypatch):
+@pytest.mark.parametrize('parallel', [False, True])
+def test_compiled_world_step_equals_stepping_bodies_one_by_one(monkeypatch, parallel):
     """One compiled call for the bodies it covers gives the states of ``Body._step``
     called body by body (the same kernels in the same order: bit for bit), through
     parameter changes, a state set by hand, a torque (the body leaves the compiled step
@@ -142,6 +145,8 @@ def test_compiled_world_step_equals_stepping_bodies_one_by_one(monkeypatch):
     monkeypatch.setattr(body_mod, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
     states = []
     for compiled in (True, False):
+        # the world's bodies over the threads (each body on one thread)
+        monkeypatch.setattr(world_mod, 'WORLD_PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
         world = _many_world(compiled)
         for step in range(40):
             world.step(1.0 / 240.0 if step < 20 else 1.0 / 120.0)
@@ -154,7 +159,8 @@ def test_compiled_world_step_equals_stepping_bodies_one_by_one(monkeypatch):
                 world.bodies[0].clear_wrench()
                 world.add_body(lattice(3) + (0.0, 0.5, 0.1), masses=0.01, name='late')
         if compiled:
-            records, slow = world._split_bodies(1.0 / 120.0)
+            records, slow, threads = world._split_bodies(1.0 / 120.0)
+            assert threads == (parallel and numba.get_num_threads() > 1)
             assert len(records) == 8 and [b.name for b in slow] == ['b4']
             assert world.body('b6')._sets is not None and world.body('b6')._damp_fused
             assert world.body('b7')._sets is not None and world.body('b4')._sets is not None

@@ -4,15 +4,20 @@ import math
 
 import numpy as np
 
+import numba
 from numba.typed import List as TypedList
 
 from . import body as body_mod
 from .body import Body
-from .kernels.world_step import step_single_bodies
+from .kernels.world_step import step_bodies_parallel, step_single_bodies
 from .colliders import ColliderSet
 from .contact import BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
 from .params import Box, Capsule, Ground, Sphere
+
+#: The compiled world step spreads its bodies over the threads from this many particles
+#: (the threshold of one body's multi-threaded kernels, ``body.PARALLEL_MIN_WORK``).
+WORLD_PARALLEL_MIN_WORK = 262144
 
 
 class World:
@@ -262,11 +267,12 @@ class World:
         cs = self._cset
         if cs is not None:
             cs.advance(h, self.time)
-        records, slow = self._split_bodies(h)
+        records, slow, parallel = self._split_bodies(h)
         if len(records):
-            # one compiled call for every one-cluster body (kernels/world_step.py)
-            step_single_bodies(records, h, self._gravity, self._has_col, self._ground_row,
-                               self._box_rows, self._sphere_rows, thresh)
+            # one compiled call for the bodies it covers (kernels/world_step.py)
+            run = step_bodies_parallel if parallel else step_single_bodies
+            run(records, h, self._gravity, self._has_col, self._ground_row, self._box_rows,
+                self._sphere_rows, thresh)
         for body in slow:
             body._step(h, self._gravity, self._has_col, self._ground_row, self._box_rows,
                        self._sphere_rows, thresh)
@@ -284,19 +290,24 @@ class World:
     compiled_step = True
 
     def _split_bodies(self, h):
-        """(typed list of compiled-step records, bodies stepped one by one), rebuilt only
-        when a body's buffers, parameters, grabs or wrench kind or the step changed."""
+        """(typed list of compiled-step records, bodies stepped one by one, whether the
+        records run on several threads), rebuilt only when a body's buffers, parameters,
+        grabs or wrench kind or the step changed.  Threads as for one body: only from
+        ``WORLD_PARALLEL_MIN_WORK`` particles (on shared cores fork/join costs more below)."""
         key = (body_mod._GENERATION[0], h, tuple(self._bodies), self.compiled_step)
         split = self._split
         if split is None or split[0] != key:
-            records, slow = TypedList(), []
+            records, slow, work = TypedList(), [], 0
             for body in self._bodies.values():
                 if self.compiled_step and body._fast_ok():
                     records.append(body._fast_record(h))
+                    work += body.n
                 else:
                     slow.append(body)
-            split = self._split = (key, records, slow)
-        return split[1], split[2]
+            parallel = (work >= WORLD_PARALLEL_MIN_WORK and len(records) > 1
+                        and numba.get_num_threads() > 1)
+            split = self._split = (key, records, slow, parallel)
+        return split[1], split[2], split[3]
 
     def _world_passes(self, h, thresh):
         """Passes over the world's flat state after the bodies' step (flat.py).

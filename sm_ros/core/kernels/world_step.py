@@ -18,7 +18,7 @@ limit counters; the set-layout buffers (``s_*``) are empty for one-cluster bodie
 """
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .damping import damp_accumulate, damp_rigid, damping_fields, damping_targets
 from .goals import solve_clusters
@@ -30,88 +30,102 @@ from .sets import sets_accumulate_serial, sets_integrate_serial, sets_maps, sets
 
 @njit(**JIT)
 def step_single_bodies(bodies, h, gravity, has_col, ground, boxes, spheres, thresh):
-    """``Body._step`` for every record of ``bodies``."""
+    """``Body._step`` for every record of ``bodies``, one after another."""
     for b in range(len(bodies)):
-        (x, v, x0, mass, ptr, cl, rest_lin, rest_off, part, wsum, sum_q, ref, quat, aqq3,
-         aqq9, scale, trans, goal_lin, goal_off, apq, accbuf, m3a, m3b, m3c, m3d, m39, n4, v4,
-         nmat, cdet, acc, ang, com, err, dpart, dmp, dref, dacc, lin, w3, sptr, scl, scnt,
-         quat_prev, flagged, lim_lin, lim_w, force, state, flags, counts, y0, sid, gm, sref,
-         s_part, s_ptr, s_cl, s_cnt, s_phi, s_org, wk, pm) = bodies[b]
-        alpha, beta, k_damp = state[0], state[1], state[2]
-        v_max, turn = state[3], state[4]
-        mode = int(state[6])
-        fused = state[7] > 0.0 and k_damp > 0.0
-        quad = state[8] > 0.0
-        sets = state[9] > 0.0
-        dirty = flags[0] > 0.0
-        if sets:
-            if dirty:
-                sets_accumulate_serial(quad=quad, x=x, y0=y0, mass=mass, sid=sid, sref=sref,
-                                       part=s_part)
-            sets_reduce(part=s_part, sptr=s_ptr, scl=s_cl, scnt=s_cnt, sphi=s_phi, sref=sref,
-                        sorg=s_org, rest_lin=rest_lin, rest_off=rest_off, ref=ref, quad=quad,
-                        out=part, wk=wk, pm=pm)
-        elif dirty:
-            accumulate_serial(quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
-                              rest_lin=rest_lin, rest_off=rest_off, ref=ref, part=part)
-        if turn > 0.0:
-            quat_prev[:, :] = quat
-        solve_clusters(part=part, wsum=wsum, sum_q=sum_q, ref=ref, quat=quat, aqq3=aqq3,
-                       aqq9=aqq9, rest_lin=rest_lin, rest_off=rest_off, scale=scale,
-                       trans=trans, goal_lin=goal_lin, goal_off=goal_off, mode=mode, beta=beta,
-                       apq=apq, acc=accbuf, m3a=m3a, m3b=m3b, m3c=m3c, m39=m39, n4=n4, v4=v4,
-                       nmat=nmat, cdet=cdet)
-        turned = 0
-        if turn > 0.0:
-            # |q_prev . q| = cos(angle / 2), as Body._step
-            limit = np.cos(0.5 * turn)
-            any_flagged = False
-            for k in range(quat.shape[0]):
-                dot = (quat_prev[k, 0] * quat[k, 0] + quat_prev[k, 1] * quat[k, 1]
-                       + quat_prev[k, 2] * quat[k, 2] + quat_prev[k, 3] * quat[k, 3])
-                flagged[k] = abs(dot) < limit
-                any_flagged = any_flagged or flagged[k]
-            if any_flagged:
-                turned = limit_turn(x=x, v=v, mass=mass, ptr=ptr, cl=cl, flagged=flagged,
-                                    w_max=state[10], lin=lim_lin, w3=lim_w, m3a=m3a, m3b=m3b,
-                                    m3c=m3c, m3d=m3d)
-                counts[1] += turned
-        if sets:
-            sets_maps(sptr=s_ptr, scl=s_cl, scnt=s_cnt, sorg=s_org, rest_lin=rest_lin,
-                      rest_off=rest_off, trans=trans, goal_lin=goal_lin, goal_off=goal_off,
-                      ref=ref, quad=quad, gm=gm, sref=sref, pm=pm)
-        for i in range(3):
-            acc[i] = force[i] + gravity[i]
-            ang[i] = 0.0
-        if fused:
-            if dirty or turned:
-                if sets:
-                    damp_accumulate(x=x, v=v, mass=mass, sid=sid, dpart=dpart)
-                else:
-                    damp_accumulate(x=x, v=v, mass=mass, sid=ptr, dpart=dpart)
-            damping_fields(dpart=dpart, sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3,
-                           dref=dref, acc=dacc, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
-            damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3, dref=dref,
-                            sref=sref if sets else ref, dmp=dmp)
-        elif k_damp > 0.0:
-            damp_rigid(x=x, v=v, mass=mass, ptr=ptr, cl=cl, ref=ref, k_damp=k_damp, lin=lin,
-                       w3=w3, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
-        if sets:
-            sets_integrate_serial(quad=quad, x=x, v=v, y0=y0, mass=mass, sid=sid, gm=gm,
-                                  sref=sref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
-                                  part=s_part, err=err, has_col=has_col, ground=ground,
-                                  boxes=boxes, spheres=spheres, thresh=thresh, damp=fused,
-                                  k_damp=k_damp, dmp=dmp, dpart=dpart)
-        else:
-            integrate_serial(quad=quad, x=x, v=v, x0=x0, mass=mass, ptr=ptr, cl=cl,
-                             rest_lin=rest_lin, rest_off=rest_off, trans=trans,
-                             goal_lin=goal_lin, goal_off=goal_off, ref=ref, alpha=alpha, h=h,
-                             acc=acc, ang=ang, com=com, part=part, err=err, has_col=has_col,
-                             ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
-                             damp=fused, k_damp=k_damp, dmp=dmp, dpart=dpart)
-        capped = 0
-        if v_max > 0.0:
-            capped = limit_speed(x=x, v=v, h=h, v_max=v_max)
-            counts[0] += capped
-        flags[0] = 1.0 if capped > 0 else 0.0
-        flags[1] = 1.0
+        _step_record(bodies[b], h, gravity, has_col, ground, boxes, spheres, thresh)
+
+
+@njit(parallel=True, **JIT)
+def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, thresh):
+    """``Body._step`` for every record of ``bodies``, bodies spread over the threads (each
+    record owns all the buffers it writes, so the order does not change any result)."""
+    for b in prange(len(bodies)):
+        _step_record(bodies[b], h, gravity, has_col, ground, boxes, spheres, thresh)
+
+
+@njit(**JIT)
+def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
+    """``Body._step`` for one record."""
+    (x, v, x0, mass, ptr, cl, rest_lin, rest_off, part, wsum, sum_q, ref, quat, aqq3,
+     aqq9, scale, trans, goal_lin, goal_off, apq, accbuf, m3a, m3b, m3c, m3d, m39, n4, v4,
+     nmat, cdet, acc, ang, com, err, dpart, dmp, dref, dacc, lin, w3, sptr, scl, scnt,
+     quat_prev, flagged, lim_lin, lim_w, force, state, flags, counts, y0, sid, gm, sref,
+     s_part, s_ptr, s_cl, s_cnt, s_phi, s_org, wk, pm) = record
+    alpha, beta, k_damp = state[0], state[1], state[2]
+    v_max, turn = state[3], state[4]
+    mode = int(state[6])
+    fused = state[7] > 0.0 and k_damp > 0.0
+    quad = state[8] > 0.0
+    sets = state[9] > 0.0
+    dirty = flags[0] > 0.0
+    if sets:
+        if dirty:
+            sets_accumulate_serial(quad=quad, x=x, y0=y0, mass=mass, sid=sid, sref=sref,
+                                   part=s_part)
+        sets_reduce(part=s_part, sptr=s_ptr, scl=s_cl, scnt=s_cnt, sphi=s_phi, sref=sref,
+                    sorg=s_org, rest_lin=rest_lin, rest_off=rest_off, ref=ref, quad=quad,
+                    out=part, wk=wk, pm=pm)
+    elif dirty:
+        accumulate_serial(quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
+                          rest_lin=rest_lin, rest_off=rest_off, ref=ref, part=part)
+    if turn > 0.0:
+        quat_prev[:, :] = quat
+    solve_clusters(part=part, wsum=wsum, sum_q=sum_q, ref=ref, quat=quat, aqq3=aqq3,
+                   aqq9=aqq9, rest_lin=rest_lin, rest_off=rest_off, scale=scale,
+                   trans=trans, goal_lin=goal_lin, goal_off=goal_off, mode=mode, beta=beta,
+                   apq=apq, acc=accbuf, m3a=m3a, m3b=m3b, m3c=m3c, m39=m39, n4=n4, v4=v4,
+                   nmat=nmat, cdet=cdet)
+    turned = 0
+    if turn > 0.0:
+        # |q_prev . q| = cos(angle / 2), as Body._step
+        limit = np.cos(0.5 * turn)
+        any_flagged = False
+        for k in range(quat.shape[0]):
+            dot = (quat_prev[k, 0] * quat[k, 0] + quat_prev[k, 1] * quat[k, 1]
+                   + quat_prev[k, 2] * quat[k, 2] + quat_prev[k, 3] * quat[k, 3])
+            flagged[k] = abs(dot) < limit
+            any_flagged = any_flagged or flagged[k]
+        if any_flagged:
+            turned = limit_turn(x=x, v=v, mass=mass, ptr=ptr, cl=cl, flagged=flagged,
+                                w_max=state[10], lin=lim_lin, w3=lim_w, m3a=m3a, m3b=m3b,
+                                m3c=m3c, m3d=m3d)
+            counts[1] += turned
+    if sets:
+        sets_maps(sptr=s_ptr, scl=s_cl, scnt=s_cnt, sorg=s_org, rest_lin=rest_lin,
+                  rest_off=rest_off, trans=trans, goal_lin=goal_lin, goal_off=goal_off,
+                  ref=ref, quad=quad, gm=gm, sref=sref, pm=pm)
+    for i in range(3):
+        acc[i] = force[i] + gravity[i]
+        ang[i] = 0.0
+    if fused:
+        if dirty or turned:
+            if sets:
+                damp_accumulate(x=x, v=v, mass=mass, sid=sid, dpart=dpart)
+            else:
+                damp_accumulate(x=x, v=v, mass=mass, sid=ptr, dpart=dpart)
+        damping_fields(dpart=dpart, sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3,
+                       dref=dref, acc=dacc, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
+        damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3, dref=dref,
+                        sref=sref if sets else ref, dmp=dmp)
+    elif k_damp > 0.0:
+        damp_rigid(x=x, v=v, mass=mass, ptr=ptr, cl=cl, ref=ref, k_damp=k_damp, lin=lin,
+                   w3=w3, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
+    if sets:
+        sets_integrate_serial(quad=quad, x=x, v=v, y0=y0, mass=mass, sid=sid, gm=gm,
+                              sref=sref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
+                              part=s_part, err=err, has_col=has_col, ground=ground,
+                              boxes=boxes, spheres=spheres, thresh=thresh, damp=fused,
+                              k_damp=k_damp, dmp=dmp, dpart=dpart)
+    else:
+        integrate_serial(quad=quad, x=x, v=v, x0=x0, mass=mass, ptr=ptr, cl=cl,
+                         rest_lin=rest_lin, rest_off=rest_off, trans=trans,
+                         goal_lin=goal_lin, goal_off=goal_off, ref=ref, alpha=alpha, h=h,
+                         acc=acc, ang=ang, com=com, part=part, err=err, has_col=has_col,
+                         ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
+                         damp=fused, k_damp=k_damp, dmp=dmp, dpart=dpart)
+    capped = 0
+    if v_max > 0.0:
+        capped = limit_speed(x=x, v=v, h=h, v_max=v_max)
+        counts[0] += capped
+    flags[0] = 1.0 if capped > 0 else 0.0
+    flags[1] = 1.0
