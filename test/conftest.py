@@ -227,3 +227,17 @@ def two_body_scene(scene_file):
 def pytest_configure(config):
     """Register the ``slow`` marker (end-to-end tests; ``make test`` still runs them)."""
     config.addinivalue_line('markers', 'slow: a slow end-to-end test (still run by make test)')
+
+
+@pytest.fixture(autouse=True)
+def _numba_threads_restored():
+    """Give every test the session's Numba thread count back (a benchmark driver that sets
+    it would otherwise make later tests skip their parallel cases)."""
+    try:
+        import numba
+    except ImportError:
+        yield
+        return
+    threads = numba.get_num_threads()
+    yield
+    numba.set_num_threads(threads)

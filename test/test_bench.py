@@ -126,9 +126,12 @@ def test_pypbd_driver_runs_one_configuration():
 
 def test_contact_subcommand_smoke(tmp_path):
     import json
+    import numba
+    threads = numba.get_num_threads()
     out = tmp_path / 'contact'
     assert main(['contact', '--out', str(out), '--blocks', '24', '--steps', '3', '--settle',
                  '2', '--scales', '1,2', '--paper-seconds', '0', '--one-body-side', '6']) == 0
+    assert numba.get_num_threads() == threads      # the caller's thread count is given back
     res = json.loads((out / 'contact.json').read_text())
     assert res['N'] == 24 * 144 and res['settle']['steps'] == 3
     assert [r['blocks'] for r in res['scaling']] == [24, 48]

@@ -249,7 +249,16 @@ def paper_tick(seconds: float, ticks: int) -> Optional[Dict[str, Any]]:
 def run(args, out: Path) -> Dict[str, Any]:
     """Run every part; return the findings (also written as JSON and markdown)."""
     import numba
+    threads = numba.get_num_threads()
     numba.set_num_threads(max(1, min(args.threads, numba.config.NUMBA_NUM_THREADS)))
+    try:
+        return _run(args, out)
+    finally:
+        numba.set_num_threads(threads)       # a caller in the same process keeps its threads
+
+
+def _run(args, out: Path) -> Dict[str, Any]:
+    import numba
     res: Dict[str, Any] = {'threads': numba.get_num_threads(), 'settle_steps': args.settle,
                            'blocks': args.blocks}
     bc.log(f'contact: building {args.blocks} blocks')
