@@ -225,8 +225,9 @@ TABLE: Tuple[Param, ...] = (
           'max_turn / dt is taken away and counted in /diagnostics (turn_limited); 0: no limit',
           'rad', 0.0, 3.0, scene_override=True, core_field='max_turn'),
     Param('error_estimate.rate', 1.0, 'Rate of the live error estimate in /diagnostics '
-          '(error_estimate_m: step doubling on copies of the world, the RMS position error '
-          'after 2 s of the running dt and substeps; its cost counts in the tick) (Hz; 0 '
+          '(error_estimate_m: trajectories of two copies of the world at dt and dt/2 '
+          'compared over 0.5 s, the RMS position error after 2 s of the running dt and '
+          'substeps; the copies run over the ticks, their cost counts in them) (Hz; 0 '
           'disables)', 'Hz', 0.0, 100.0),
 )
 
