@@ -94,3 +94,21 @@ def test_source_stamp_changes_with_any_file(tmp_path):
     second = jit.source_stamp(str(tmp_path))
     (tmp_path / 'notes.txt').write_text('not source')
     assert first != second == jit.source_stamp(str(tmp_path))
+
+
+@pytest.mark.parametrize('module', ['contact', 'kinematic'])
+def test_contact_law_callers_carry_the_package_stamp(module):
+    """contact.py and kinematic.py call ``kernels.colliders.contact_velocity``: their
+    jitted functions are stamped with the kernel package, so an edit of the shared contact
+    law recompiles them."""
+    import importlib
+    mod = importlib.import_module(f'sm_ros.core.{module}')
+    stamp = jit.source_stamp(os.path.dirname(os.path.abspath(jit.__file__)))
+    jitted = [f for f in vars(mod).values()
+              if hasattr(f, 'py_func') and f.py_func.__module__ == mod.__name__]
+    assert jitted
+    assert mod.contact_velocity is K.contact_velocity
+    for d in jitted:
+        locator = d._cache._impl.locator
+        assert isinstance(locator, jit.KernelCacheLocator), d
+        assert locator.get_source_stamp()[1] == stamp

@@ -37,7 +37,7 @@ from typing import Optional
 import numpy as np
 from numba import njit
 
-from .kernels.colliders import collide_point
+from .kernels.colliders import collide_point, contact_velocity
 from .kernels.jit import JIT
 from .params import _finite
 
@@ -346,32 +346,6 @@ def max_moved2(X, Xref, B, act):
 
 
 @njit(**JIT)
-def contact_velocity(vx, vy, vz, nx, ny, nz, mu, e, thresh):
-    """Relative velocity after a contact with unit normal n (the ground's law).
-
-    Approaching normal speed above ``thresh`` is reversed times ``e``, below it removed;
-    the tangential part shrinks by at most ``mu`` times the normal change (Coulomb).
-    """
-    vn = vx * nx + vy * ny + vz * nz
-    if vn >= 0.0:
-        return vx, vy, vz
-    tx = vx - vn * nx
-    ty = vy - vn * ny
-    tz = vz - vn * nz
-    vn_new = -e * vn if -vn > thresh else 0.0
-    dvn = vn_new - vn
-    tl = np.sqrt(tx * tx + ty * ty + tz * tz)
-    if tl > 0.0:
-        f = 1.0 - mu * dvn / tl
-        if f < 0.0:
-            f = 0.0
-        tx *= f
-        ty *= f
-        tz *= f
-    return tx + vn_new * nx, ty + vn_new * ny, tz + vn_new * nz
-
-
-@njit(**JIT)
 def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched, count,
                 deepest, has_col, ground, boxes, spheres, moved):
     """Project the overlapping pairs apart and apply the contact law (Gauss-Seidel).
@@ -384,8 +358,10 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched,
     that restores the distance, split by inverse mass, and the velocities by lam / h;
     the approaching normal speed left is removed (reversed times ``e`` above ``thresh``)
     and the relative tangential speed reduced by at most ``mu`` times the whole normal
-    change.  Every velocity change also moves the particle by h times it, so x - h v
-    stays the start of the step for the pairs that follow.
+    change: the law of ``kernels.colliders.contact_velocity`` applied to the relative
+    velocity, written out here because its normal change also counts the projection's
+    lam / h in the friction budget.  Every velocity change also moves the particle by h
+    times it, so x - h v stays the start of the step for the pairs that follow.
     With ``has_col``, every particle moved (flagged in ``moved`` (N,) uint8, zero on entry
     and on return) is then projected out of the static colliders, once, after the sweeps
     (``kernels.colliders.collide_point``: ground, boxes, spheres), so contact never leaves
@@ -719,4 +695,5 @@ class Contact:
         return self.fast[:len(f.bodies)].copy()
 
 
-__all__ = ['ContactParams', 'BodyContact', 'Contact', 'default_radius', 'SELF_REST_FACTOR']
+__all__ = ['ContactParams', 'BodyContact', 'Contact', 'default_radius', 'SELF_REST_FACTOR',
+           'contact_velocity']

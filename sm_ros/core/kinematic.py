@@ -18,13 +18,16 @@ collider's centre that the bodies exert on it.
 Each collider is one row of ``rows`` (``ROW`` floats, columns named below); the world
 writes the pose and velocities of the current substep into it (``colliders.py``).
 
-Everything jitted here is self-contained (it calls no kernel of another file).
+The contact law is ``kernels.colliders.contact_velocity``, shared with the static
+colliders; the cache stamp of this module includes the kernel package (``kernels/jit.py``),
+so an edit of the law recompiles ``collide_range``.
 ``collide_numpy`` is the plain NumPy twin the tests compare against.
 """
 
 import numpy as np
 from numba import njit
 
+from .kernels.colliders import contact_velocity
 from .kernels.jit import JIT
 
 # columns of a collider row
@@ -38,29 +41,6 @@ C_MU = 22           # Coulomb friction coefficient
 C_E = 23            # restitution
 C_BOUND = 24        # radius of a sphere about the centre holding the collider (broad phase)
 ROW = 25
-
-
-@njit(**JIT)
-def _contact_velocity(vx, vy, vz, nx, ny, nz, mu, e, thresh):
-    """Velocity after a contact with unit normal n: restitution e, Coulomb friction mu
-    (the same rule as the fused colliders of the body step)."""
-    vn = vx * nx + vy * ny + vz * nz
-    if vn >= 0.0:
-        return vx, vy, vz
-    tx = vx - vn * nx
-    ty = vy - vn * ny
-    tz = vz - vn * nz
-    vn_new = -e * vn if -vn > thresh else 0.0
-    dvn = vn_new - vn
-    tl = np.sqrt(tx * tx + ty * ty + tz * tz)
-    if tl > 0.0:
-        f = 1.0 - mu * dvn / tl
-        if f < 0.0:
-            f = 0.0
-        tx *= f
-        ty *= f
-        tz *= f
-    return tx + vn_new * nx, ty + vn_new * ny, tz + vn_new * nz
 
 
 @njit(**JIT)
@@ -161,8 +141,8 @@ def collide_range(X, V, w, bid, start, end, rows, h, thresh, imp, stats, touched
             sy = row[C_VEL + 1] + wz * rx - wx * rz
             sz = row[C_VEL + 2] + wx * ry - wy * rx
             vx, vy, vz = V[0, i], V[1, i], V[2, i]
-            ux, uy, uz = _contact_velocity(vx - sx, vy - sy, vz - sz, nx, ny, nz, row[C_MU],
-                                           row[C_E], thresh)
+            ux, uy, uz = contact_velocity(vx - sx, vy - sy, vz - sz, nx, ny, nz, row[C_MU],
+                                          row[C_E], thresh)
             # friction acts over the whole step: the tangential change of velocity also
             # applies to the step's displacement (static friction holds a particle in place,
             # as position-based friction does; the normal part is the projection above)

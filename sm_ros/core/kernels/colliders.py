@@ -12,8 +12,17 @@ from .jit import JIT
 
 
 @njit(**JIT)
-def _contact_velocity(vx, vy, vz, nx, ny, nz, friction, restitution, thresh):
-    """Velocity after a contact with unit normal n: restitution e, Coulomb friction mu."""
+def contact_velocity(vx, vy, vz, nx, ny, nz, friction, restitution, thresh):
+    """Velocity after a contact with unit normal n: the contact law of every collider.
+
+    The one place the law is written: the static colliders here, the kinematic colliders
+    (``sm_ros.core.kinematic``, on the velocity relative to the collider's surface) and the
+    documentation of body-body contact (``sm_ros.core.contact``) use it.  A velocity
+    leaving the surface (v . n >= 0) is returned unchanged.  Otherwise the approaching
+    normal speed is reversed times ``restitution`` when it exceeds ``thresh`` (m/s) and
+    removed below it, so resting contact stays put; the tangential part shrinks by at most
+    ``friction`` (Coulomb mu) times the normal change, and never reverses.
+    """
     vn = vx * nx + vy * ny + vz * nz
     if vn >= 0.0:
         return vx, vy, vz
@@ -43,8 +52,8 @@ def collide_point(px, py, pz, vx, vy, vz, ground, boxes, spheres, thresh):
     """
     if ground[0] > 0.5 and pz < ground[1]:
         pz = ground[1]
-        vx, vy, vz = _contact_velocity(vx=vx, vy=vy, vz=vz, nx=0.0, ny=0.0, nz=1.0,
-                                       friction=ground[2], restitution=ground[3], thresh=thresh)
+        vx, vy, vz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=0.0, ny=0.0, nz=1.0,
+                                      friction=ground[2], restitution=ground[3], thresh=thresh)
     for b in range(boxes.shape[0]):
         if (px > boxes[b, 0] and px < boxes[b, 3] and py > boxes[b, 1] and py < boxes[b, 4]
                 and pz > boxes[b, 2] and pz < boxes[b, 5]):
@@ -75,9 +84,9 @@ def collide_point(px, py, pz, vx, vy, vz, ground, boxes, spheres, thresh):
                 py = boxes[b, 4] if sgn > 0.0 else boxes[b, 1]
             else:
                 pz = boxes[b, 5] if sgn > 0.0 else boxes[b, 2]
-            vx, vy, vz = _contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
-                                           friction=boxes[b, 6], restitution=boxes[b, 7],
-                                           thresh=thresh)
+            vx, vy, vz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
+                                          friction=boxes[b, 6], restitution=boxes[b, 7],
+                                          thresh=thresh)
     for s in range(spheres.shape[0]):
         dx = px - spheres[s, 0]
         dy = py - spheres[s, 1]
@@ -93,9 +102,9 @@ def collide_point(px, py, pz, vx, vy, vz, ground, boxes, spheres, thresh):
             px = spheres[s, 0] + rad * nx
             py = spheres[s, 1] + rad * ny
             pz = spheres[s, 2] + rad * nz
-            vx, vy, vz = _contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
-                                           friction=spheres[s, 4], restitution=spheres[s, 5],
-                                           thresh=thresh)
+            vx, vy, vz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
+                                          friction=spheres[s, 4], restitution=spheres[s, 5],
+                                          thresh=thresh)
     return px, py, pz, vx, vy, vz
 
 
@@ -116,9 +125,9 @@ def _collide_range(start, end, x, v, ground, boxes, spheres, thresh):
         for i in range(start, end):
             if x[i, 2] < gz:
                 x[i, 2] = gz
-                v[i, 0], v[i, 1], v[i, 2] = _contact_velocity(vx=v[i, 0], vy=v[i, 1], vz=v[i, 2],
-                                                              nx=0.0, ny=0.0, nz=1.0, friction=mu,
-                                                              restitution=e, thresh=thresh)
+                v[i, 0], v[i, 1], v[i, 2] = contact_velocity(vx=v[i, 0], vy=v[i, 1], vz=v[i, 2],
+                                                             nx=0.0, ny=0.0, nz=1.0, friction=mu,
+                                                             restitution=e, thresh=thresh)
         return
     for i in range(start, end):
         x[i, 0], x[i, 1], x[i, 2], v[i, 0], v[i, 1], v[i, 2] = collide_point(px=x[i, 0],
@@ -130,4 +139,4 @@ def _collide_range(start, end, x, v, ground, boxes, spheres, thresh):
                                                                              ground=ground,
                                                                              boxes=boxes,
                                                                              spheres=spheres,
-                                                                             thresh=thresh)
+                                                                            thresh=thresh)
