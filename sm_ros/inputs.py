@@ -126,3 +126,32 @@ class Grippers(Dict[str, List[Attachment]]):
                 self[name] = kept
             else:
                 del self[name]
+
+
+class Forces(Dict[str, float]):
+    """Wrenches held on bodies: body name -> clock time of its last force.
+
+    A force lasts until a zero wrench clears it or, with a ``force_timeout``, until it is
+    not renewed in time (``expire``).
+    """
+
+    def hold(self, bodies, force: np.ndarray, torque: np.ndarray, now: float) -> None:
+        """Set a checked wrench on ``bodies`` at clock time ``now``; zero clears it."""
+        clear = not force.any() and not torque.any()
+        for b in bodies:
+            if clear:
+                b.clear_wrench()
+                self.pop(b.name, None)
+            else:
+                b.set_wrench(force, torque)
+                self[b.name] = now
+
+    def expire(self, world, timeout: float, clock) -> None:
+        """Clear the wrenches of ``world``'s bodies not renewed within ``timeout`` s (0:
+        never); ``clock()`` is read only when some force could expire."""
+        if timeout <= 0.0 or not self:
+            return
+        now = clock()
+        for name in [n for n, t in self.items() if now - t > timeout]:
+            del self[name]
+            world.body(name).clear_wrench()

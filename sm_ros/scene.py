@@ -27,7 +27,7 @@ from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
 import numpy as np
 import yaml
 
-from sm_ros import params, shapes
+from sm_ros import params, point_files, shapes
 from sm_ros.scene_build import (add_spec_body, body_contact_from, build_world,  # noqa: F401
                                 cloud_body_spec, contact_from, core_colliders, DEFAULT_MASS,
                                 ground_from, params_from)
@@ -458,7 +458,7 @@ def _build_local(w: _Where, shape: str, b: Mapping[str, Any], base: Path
                 pts, surf = shapes.mesh_lattice(verts, faces, spacing), verts
         else:  # cloud
             path = _resolve_file(w, base, b.get('file'))
-            pts = _scale_center(w, b, shapes.read_cloud_file(path))
+            pts = _scale_center(w, b, point_files.read_cloud_file(path))
             voxel = None
             if 'voxel' in b:
                 voxel = w.number('voxel', b['voxel'], gt=0.0)

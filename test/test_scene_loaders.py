@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from sm_ros import shapes
+from sm_ros import point_files, shapes
 from sm_ros.scene import (cloud_body_spec, list_scenes, load_scene, parse_scene,
                           resolve_scene, SceneError)
 
@@ -485,7 +485,7 @@ def lzf_literals(raw):
 @pytest.mark.parametrize('fmt', ['ascii', 'binary_little_endian', 'binary_big_endian'])
 def test_ply_cloud(tmp_path, fmt):
     write_ply(tmp_path / 'c.ply', CLOUD, fmt)
-    pts = shapes.read_cloud_file(tmp_path / 'c.ply')
+    pts = point_files.read_cloud_file(tmp_path / 'c.ply')
     assert np.allclose(pts, CLOUD, atol=1e-6)
 
 
@@ -499,16 +499,16 @@ def test_ply_cloud_written_by_trimesh(tmp_path, trimesh):
 @pytest.mark.parametrize('mode', ['ascii', 'binary', 'binary_compressed'])
 def test_pcd_cloud(tmp_path, mode):
     write_pcd(tmp_path / 'c.pcd', CLOUD, mode)
-    pts = shapes.read_cloud_file(tmp_path / 'c.pcd')
+    pts = point_files.read_cloud_file(tmp_path / 'c.pcd')
     assert np.allclose(pts, CLOUD, atol=1e-6)
 
 
 def test_lzf_back_reference():
     # literal 'abc', then a back reference of length 6 at distance 3 (overlapping copy)
     data = bytes([2]) + b'abc' + bytes([(4 << 5) | 0, 2])
-    assert shapes.lzf_decompress(data, 9) == b'abcabcabc'
+    assert point_files.lzf_decompress(data, 9) == b'abcabcabc'
     with pytest.raises(shapes.GeometryError):
-        shapes.lzf_decompress(data, 10)
+        point_files.lzf_decompress(data, 10)
 
 
 def test_npy_cloud_plain_and_structured_nan_dropped(tmp_path):
