@@ -33,9 +33,9 @@ from typing import Any, Callable, Dict, Iterable, List, Mapping, Optional, Tuple
 import numpy as np
 
 from sm_ros import params as table
-from sm_ros.inputs import checked_points, checked_wrench, Grippers, InputError
+from sm_ros.inputs import checked_points, checked_wrench, Forces, Grippers, InputError
 from sm_ros.params import MAX_COORDINATE
-from sm_ros.stats import MomentumDrift, TickStats
+from sm_ros.stats import ErrorEstimateSchedule, MomentumDrift, solver_figures, TickStats
 
 #: Seconds between two log lines about bodies that went non-finite.
 NONFINITE_LOG_PERIOD = 1.0
@@ -141,6 +141,31 @@ def cloud_body(world, points: np.ndarray, values: Mapping[str, Any]):
     return name, spec, meta, target
 
 
+def apply_body_params(world, metas, changes: Mapping[str, Any], log) -> None:
+    """Set changed body parameters on every body of ``world`` that does not override them
+    (``metas``: the bodies' scene metadata); log the ones a body refuses."""
+    for body, meta in zip(world.bodies, metas):
+        fields = {table.BODY_FIELDS[k]: v for k, v in changes.items()
+                  if k not in meta.overrides}
+        if not fields:
+            continue
+        try:
+            body.set_params(**fields)
+        except ValueError as exc:
+            log.error(f"body '{body.name}': parameters not applied: {exc}")
+
+
+def carry_state(old_world, new_world) -> None:
+    """Give every body of ``new_world`` the state (x, v) of the body of ``old_world`` with
+    its name, where that one has the same rest shape and masses."""
+    old = {b.name: b for b in old_world.bodies}
+    for b in new_world.bodies:
+        o = old.get(b.name)
+        if (o is not None and o.n == b.n and np.array_equal(o.x_init, b.x_init)
+                and np.array_equal(o.m, b.m)):
+            b.set_state(x=o.x, v=o.v)
+
+
 class Simulation:
     """
     A world, its scene, pending parameter changes, forces, grippers and tick statistics.
@@ -174,7 +199,7 @@ class Simulation:
         self.pending: Dict[str, Any] = {}
         self.pending_scene: Optional[PreparedScene] = None
         self._prepared: Optional[PreparedScene] = None
-        self.forces: Dict[str, float] = {}
+        self.forces = Forces()
         self.grippers = Grippers()
         #: {collider name: (force, torque)} the bodies exerted on each named collider,
         #: averaged over the last tick (world frame, torque about the collider's centre)
@@ -182,10 +207,7 @@ class Simulation:
         self.sim_ns = 0
         self.cloud_count = 0
         self.momentum = MomentumDrift(lambda: self.world)
-        #: the last live error estimate (sm_ros.error_estimate.estimate) or None
-        self.error_estimate: Optional[Dict[str, Any]] = None
-        self._next_estimate = -math.inf
-        self._estimator: Optional[Any] = None           # the estimate in progress
+        self._estimates = ErrorEstimateSchedule()
         self.stats = TickStats(clock())
         self._nonfinite_logged = -math.inf
         self._tick_listeners: List[Callable[['Simulation'], None]] = []
@@ -203,22 +225,19 @@ class Simulation:
         """Return the simulation time in seconds (monotonic across resets and scenes)."""
         return self.sim_ns * 1e-9
 
+    @property
+    def error_estimate(self) -> Optional[Dict[str, Any]]:
+        """Return the last finished live error estimate (``sm_ros.error_estimate``) or None."""
+        return self._estimates.result
+
+    @property
+    def _estimator(self):
+        """The live error estimate in progress, or None."""
+        return self._estimates.running
+
     def status_values(self) -> Dict[str, Any]:
         """Return the figures of the solver status (``sm_ros.diagnostics.solver_status``)."""
-        bodies = self.world.bodies
-        n = self.num_points
-        err2 = sum(b.n * float(b.shape_error_rms()) ** 2 for b in bodies)
-        modes = sorted({b.params.mode for b in bodies}) or [self.params['mode']]
-        est = self.error_estimate
-        return dict(points=n, bodies=len(bodies),
-                    clusters=sum(int(b.num_clusters) for b in bodies), mode=','.join(modes),
-                    rate_target_hz=self.params['rate'],
-                    shape_error_rms_m=math.sqrt(err2 / n) if n else 0.0,
-                    momentum_drift=self.momentum.drift,
-                    speed_limited=sum(b.limit_counts[0] for b in bodies),
-                    turn_limited=sum(b.limit_counts[1] for b in bodies),
-                    error_estimate_m=est['error_m'] if est else 0.0,
-                    error_estimate_ms=1e3 * est['cost_s'] if est else 0.0)
+        return solver_figures(self.world, self.params, self.momentum, self.error_estimate)
 
     # ------------------------------------------------------------------ hooks
 
@@ -290,7 +309,7 @@ class Simulation:
         else:
             body_changes = {k: v for k, v in pending.items() if k in table.BODY_FIELDS}
         if body_changes:
-            self._apply_body_params(body_changes)
+            apply_body_params(self.world, self.metas, body_changes, self.log)
         if 'gravity' in pending:
             self.world.gravity = np.asarray(pending['gravity'], dtype=np.float64)
         if any(k in pending for k in table.GROUND_KEYS):
@@ -308,27 +327,10 @@ class Simulation:
                 fn(changed)
         return pending
 
-    def _apply_body_params(self, changes: Mapping[str, Any]) -> None:
-        """Set changed body parameters on every body that does not override them."""
-        for body, meta in zip(self.world.bodies, self.metas):
-            fields = {table.BODY_FIELDS[k]: v for k, v in changes.items()
-                      if k not in meta.overrides}
-            if not fields:
-                continue
-            try:
-                body.set_params(**fields)
-            except ValueError as exc:
-                self.log.error(f"body '{body.name}': parameters not applied: {exc}")
-
     def install_world(self, world, metas, spec=None, keep_state: bool = True) -> None:
         """Swap in a new world; bodies unchanged by name and rest shape keep their state."""
         if keep_state:
-            old = {b.name: b for b in self.world.bodies}
-            for b in world.bodies:
-                o = old.get(b.name)
-                if (o is not None and o.n == b.n and np.array_equal(o.x_init, b.x_init)
-                        and np.array_equal(o.m, b.m)):
-                    b.set_state(x=o.x, v=o.v)
+            carry_state(self.world, world)
         self.world = world
         self.metas = list(metas)
         if spec is not None:
@@ -351,25 +353,11 @@ class Simulation:
         """Hold a wrench on one body ('' = every body); a zero wrench clears it."""
         f, t = checked_wrench(force, torque)
         targets = [self.body(body)] if body else list(self.world.bodies)
-        clear = not f.any() and not t.any()
-        now = self.clock()
-        for b in targets:
-            if clear:
-                b.clear_wrench()
-                self.forces.pop(b.name, None)
-            else:
-                b.set_wrench(f, t)
-                self.forces[b.name] = now
+        self.forces.hold(targets, f, t, self.clock())
 
     def expire_forces(self) -> None:
         """Clear the forces not renewed within ``force_timeout`` seconds (0: never)."""
-        timeout = self.params['force_timeout']
-        if timeout <= 0.0 or not self.forces:
-            return
-        now = self.clock()
-        for name in [n for n, t in self.forces.items() if now - t > timeout]:
-            del self.forces[name]
-            self.world.body(name).clear_wrench()
+        self.forces.expire(self.world, self.params['force_timeout'], self.clock)
 
     def grab(self, gripper: str, position, quaternion) -> None:
         """Attach particles to a gripper (first pose) or move them with it."""
@@ -445,45 +433,17 @@ class Simulation:
             self.momentum.track(world, before)
         else:
             self.momentum.forget()
-        estimate_s = self._estimate_error(dt, substeps)
+        # the live error estimate (stats.ErrorEstimateSchedule): a share of one every
+        # 1 / error_estimate.rate s, its time counted in the tick but not as an overrun
+        estimate_s = self._estimates.advance(world, dt, substeps,
+                                             float(self.params['error_estimate.rate']),
+                                             self.clock)
         tp = time.perf_counter()
         for fn in self._tick_listeners:
             fn(self)
         stats.add_publish(time.perf_counter() - tp)
         stats.add_tick(time.perf_counter() - t0, substeps * dt, 1.0 / self.params['rate'],
                        exempt=estimate_s)
-
-    def _estimate_error(self, dt: float, substeps: int) -> float:
-        """Advance the live error estimate; start one every 1 / ``error_estimate.rate`` s.
-
-        The estimate (``sm_ros.error_estimate.ErrorEstimate``) steps two copies of the
-        world over a 0.5 s window; every tick runs ``substeps`` of its coarse steps (and
-        twice as many fine ones), so the copies keep pace with the simulation and the cost
-        is spread over the ticks (about 3x the tick's own steps while a window runs).
-        ``error_estimate`` is the last finished estimate. Returns the seconds spent this
-        tick: they count in ``tick_ms_max`` / ``tick_ms_mean`` but not as an overrun.
-        """
-        rate = float(self.params['error_estimate.rate'])
-        if rate <= 0.0 or not self.world.bodies:
-            self._estimator = None
-            return 0.0
-        spent = 0.0
-        now = self.clock()
-        if self._estimator is None and now >= self._next_estimate:
-            from sm_ros.error_estimate import ErrorEstimate
-            self._next_estimate = now + 1.0 / rate
-            self._estimator = ErrorEstimate(self.world, dt, substeps)
-            spent = self._estimator.cost_s
-        est = self._estimator
-        if est is not None and (est.dt != dt or est.source is not self.world):
-            est = self._estimator = None         # the step or the scene changed: start anew
-            self._next_estimate = now
-        if est is not None:
-            spent += est.advance(substeps)
-            if est.done:
-                self.error_estimate = est.result
-                self._estimator = None
-        return spent
 
     def reset_nonfinite(self) -> List[str]:
         """Reset every body whose state is no longer finite; return their names."""
