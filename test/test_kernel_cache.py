@@ -96,18 +96,19 @@ def test_source_stamp_changes_with_any_file(tmp_path):
     assert first != second == jit.source_stamp(str(tmp_path))
 
 
-@pytest.mark.parametrize('module', ['contact', 'kinematic'])
+@pytest.mark.parametrize('module', ['contact_kernels', 'kinematic'])
 def test_contact_law_callers_carry_the_package_stamp(module):
-    """contact.py and kinematic.py call ``kernels.colliders.contact_velocity``: their
-    jitted functions are stamped with the kernel package, so an edit of the shared contact
-    law recompiles them."""
+    """The contact kernels (they call ``kernels.colliders.collide_point``) and kinematic.py
+    (it calls ``kernels.colliders.contact_velocity``) are stamped with the kernel package,
+    so an edit of the shared contact law recompiles them."""
     import importlib
+    from sm_ros.core import contact, kinematic
+    assert contact.contact_velocity is kinematic.contact_velocity is K.contact_velocity
     mod = importlib.import_module(f'sm_ros.core.{module}')
     stamp = jit.source_stamp(os.path.dirname(os.path.abspath(jit.__file__)))
     jitted = [f for f in vars(mod).values()
               if hasattr(f, 'py_func') and f.py_func.__module__ == mod.__name__]
     assert jitted
-    assert mod.contact_velocity is K.contact_velocity
     for d in jitted:
         locator = d._cache._impl.locator
         assert isinstance(locator, jit.KernelCacheLocator), d
