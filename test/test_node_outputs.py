@@ -86,9 +86,10 @@ def test_diagnostics_split_the_tick(ros, cube_scene):
               if kv.key in ('tick_ms_mean', 'step_ms_mean', 'publish_ms_mean',
                             'other_ms_mean')}
     assert values['tick_ms_mean'] >= 3 * values['step_ms_mean']
+    # each mean is reported rounded to 1e-6 ms: the identity holds within 6 half-units
     assert values['other_ms_mean'] == pytest.approx(
         values['tick_ms_mean'] - 3 * values['step_ms_mean'] - values['publish_ms_mean'],
-        abs=2e-6)
+        abs=3.1e-6)
 
 
 def test_foxglove_client_gets_the_published_cloud(ros, two_body_scene):
