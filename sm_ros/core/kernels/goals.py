@@ -13,7 +13,7 @@ plastic state changes; ``_qhat`` is a particle's plastic, scaled rest offset q-h
 import numpy as np
 from numba import njit
 
-from .jit import JIT
+from .jit import JIT, finite
 from .linalg import det3, jacobi_eigh, matmul, pinv_sym
 from .rotation import extract_rotation
 
@@ -51,7 +51,7 @@ def volume_preserving(a, out, wa, wv, limit):
                 s += a[u, i] * a[u, j]
             wa[i, j] = s
     det = det3(a)
-    if not (det > 1e-9) or not np.isfinite(det):
+    if not (det > 1e-9) or not finite(det):
         return False
     jacobi_eigh(wa, wv, 50)
     s0 = np.sqrt(max(wa[0, 0], 0.0))
@@ -140,7 +140,7 @@ def nearest_unit_det(f, out, wa, wv):
                 s += f[u, i] * f[u, j]
             wa[i, j] = s
     d = det3(f)
-    if not (d > 0.0) or not np.isfinite(d):
+    if not (d > 0.0) or not finite(d):
         return False
     jacobi_eigh(wa, wv, 50)
     s0 = np.sqrt(max(wa[0, 0], 0.0))
@@ -405,7 +405,7 @@ def solve_clusters(part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin, rest_off,
                 det = det3(m3c) / (s_k * s_k * s_k)
                 # B = the unit-determinant minimiser (Eq. 18, see unit_det_match), written
                 # into t's 3x3 block; inverted, flat or line-like (det A <= 0): R
-                if (det > 1e-9 and np.isfinite(det) and cdet[k] > 0.0
+                if (det > 1e-9 and finite(det) and cdet[k] > 0.0
                         and unit_det_match(apq=m3a, nmat=nmat[k], c_s=s_k * cdet[k], rot=m3b,
                                            out=m3c, w1=m39[:, 3:6], w2=m39[:, 6:9], wa=n4[:3, :3],
                                            wv=v4[:3, :3], limit=STRETCH_LIMIT)):

@@ -19,6 +19,7 @@ import functools
 import hashlib
 import os
 
+from numba import njit as _njit
 from numba.core import caching
 
 # Numba's registry of cache locators (renamed from ``_CacheImpl`` in Numba 0.58).
@@ -107,3 +108,18 @@ class KernelCacheLocator(caching._CacheLocator):
 
 if KernelCacheLocator not in _CACHE_IMPL._locator_classes:
     _CACHE_IMPL._locator_classes.insert(0, KernelCacheLocator)
+
+#: The largest finite float64.
+FLOAT_MAX = 1.7976931348623157e308
+
+
+@_njit(inline='always', **JIT)
+def finite(x):
+    """Whether ``x`` is finite (neither inf nor nan), for every kernel's guards.
+
+    Under ``FASTMATH`` LLVM folds ``np.isfinite(x)`` / ``math.isfinite(x)`` to True when a
+    comparison of the same value comes first (``det > 1e-9 and np.isfinite(det)`` let an
+    overflowed ``det = inf`` through). Comparisons with the largest float are not folded
+    and are False for nan (``test/test_nonfinite_kernels.py``).
+    """
+    return -FLOAT_MAX <= x <= FLOAT_MAX

@@ -23,12 +23,8 @@ Both return how many particles / clusters they capped (counted in /diagnostics).
 from numba import njit
 import numpy as np
 
-from .jit import JIT
+from .jit import JIT, finite
 from .linalg import pinv_sym
-
-#: Largest finite float (np.isfinite is folded away by the fast-math reassociation).
-_FINITE = 1.7976931348623157e308
-
 
 @njit(**JIT)
 def limit_speed(x, v, h, v_max):
@@ -42,7 +38,7 @@ def limit_speed(x, v, h, v_max):
         v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
         s2 = v0 * v0 + v1 * v1 + v2 * v2
         if s2 > lim2:
-            if not s2 <= _FINITE:
+            if not finite(s2):
                 continue                       # left to the non-finite recovery
             f = v_max / np.sqrt(s2)
             d = h * (1.0 - f)
@@ -141,7 +137,7 @@ def limit_turn(x, v, mass, ptr, cl, flagged, w_max, lin, w3, m3a, m3b, m3c, m3d)
         o1 = m3b[1, 0] * lin[k, 4] + m3b[1, 1] * lin[k, 5] + m3b[1, 2] * lin[k, 6]
         o2 = m3b[2, 0] * lin[k, 4] + m3b[2, 1] * lin[k, 5] + m3b[2, 2] * lin[k, 6]
         om = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
-        if w_max < om <= _FINITE:
+        if om > w_max and finite(om):
             f = 1.0 - w_max / om
             w3[k, 0] = f * o0
             w3[k, 1] = f * o1

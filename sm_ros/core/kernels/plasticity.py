@@ -9,7 +9,7 @@ A cluster whose S^P changed gets its rest shape and A_qq refreshed by ``goals.mo
 import numpy as np
 from numba import njit
 
-from .jit import JIT
+from .jit import JIT, finite
 from .linalg import det3, jacobi_eigh, matmul, norm2
 from .rotation import extract_rotation
 
@@ -115,7 +115,7 @@ def plastic_update(apq, aqq3, scale, quat, s_plastic, c_yield, c_creep, c_max, h
             for j in range(3):
                 m3b[i, j] = m3a[i, j]
         nrm = norm2(m3b, n4[:3, :3], v4[:3, :3])
-        if nrm > c_yield and c_creep > 0.0 and np.isfinite(nrm):
+        if nrm > c_yield and c_creep > 0.0 and finite(nrm):
             tc = h * c_creep
             if tc > 1.0:
                 tc = 1.0
@@ -127,7 +127,7 @@ def plastic_update(apq, aqq3, scale, quat, s_plastic, c_yield, c_creep, c_max, h
                         s += ((1.0 if i == u else 0.0) + tc * m3a[i, u]) * s_plastic[k, u, j]
                     m3c[i, j] = s
             det = det3(m3c)
-            if det > 1e-12 and np.isfinite(det):
+            if det > 1e-12 and finite(det):
                 inv_cbrt = 1.0 / np.cbrt(det)
                 for i in range(3):
                     for j in range(3):

@@ -8,7 +8,7 @@ stays continuous where A_pq is singular (flat, line-like or single-point cluster
 import numpy as np
 from numba import njit
 
-from .jit import JIT
+from .jit import JIT, finite
 from .linalg import jacobi_eigh
 
 
@@ -72,11 +72,14 @@ def extract_rotation(mat, quat, rot, n4, v4):
         for j in range(i):
             n4[i, j] = n4[j, i]
     scale = 0.0
+    total = 0.0                      # inf or nan anywhere makes it non-finite
     for i in range(4):
         for j in range(4):
-            if abs(n4[i, j]) > scale:
-                scale = abs(n4[i, j])
-    if not (scale > 0.0) or not np.isfinite(scale):
+            a = abs(n4[i, j])
+            total += a
+            if a > scale:
+                scale = a
+    if not (scale > 0.0) or not finite(total):
         # Zero or non-finite match: keep the previous rotation.
         return
     jacobi_eigh(n4, v4, 30)
