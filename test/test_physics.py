@@ -483,3 +483,25 @@ def test_simulation_reports_the_estimate_at_its_rate_and_counts_its_cost():
         with pytest.raises(ParameterError):
             sim.set_params({'error_estimate.rate': bad})
     assert sim.pending == {} and sim.params['error_estimate.rate'] == 1.0
+
+
+def test_estimate_in_progress_is_dropped_when_the_step_or_the_world_changes():
+    from sm_ros.bench import accuracy as acc
+    from sm_ros.stats import ErrorEstimateSchedule
+    scene = acc.make_scenes(27)['ballistic']
+    world, _, _ = scene.build(dict(scene.nominal))
+    other, _, _ = scene.build(dict(scene.nominal))
+    sched, clock = ErrorEstimateSchedule(), (lambda: 0.0)
+    sched.advance(world, 0.01, 1, 1.0, clock)
+    first = sched.running
+    assert first is not None and first.dt == 0.01 and len(first.d) == 1
+    sched.advance(world, 0.02, 1, 1.0, clock)               # dt changed: dropped
+    assert sched.running is None and sched.result is None
+    sched.advance(world, 0.02, 1, 1.0, clock)               # due at once: a new one
+    assert sched.running is not None and sched.running.dt == 0.02
+    sched.advance(other, 0.02, 1, 1.0, clock)               # another world: dropped
+    assert sched.running is None
+    for _ in range(25):                                     # 0.5 s / 0.02 s
+        sched.advance(other, 0.02, 1, 1.0, clock)
+    assert sched.result is not None and sched.result['steps'] == 25
+    assert sched.advance(other, 0.02, 1, 0.0, clock) == 0.0 and sched.running is None
