@@ -1,20 +1,19 @@
 """A deformable body: its state, its precomputed rest data and its step (algorithm.md).
 
 The public methods validate their input and raise ``ValueError``; the private ``_step``
-drives the Numba kernels in ``kernels/`` over buffers made when the body is built, so a
-step allocates nothing.  What a body computes is chosen when it is built: a rigid body has
-no A_qq, a linear body no 9x9 data, a body without plasticity no plastic state, a
-one-cluster body no membership lists.
+(``body_step.step``) drives the Numba kernels in ``kernels/`` over buffers made when the
+body is built (``body_build``), so a step allocates nothing.  What a body computes is
+chosen when it is built: a rigid body has no A_qq, a linear body no 9x9 data, a body
+without plasticity no plastic state, a one-cluster body no membership lists.
 """
 
 import numpy as np
-import numba
 
+from . import body_build, body_step
 from . import kernels as K
-from .clusters import build_memberships
+from .body_build import _EMPTY_I64, _GENERATION
 from .params import BodyParams
 
-_MODE_ID = {'rigid': 0, 'linear': 1, 'quadratic': 2}
 #: Bodies with at least this much work per step (particles, or cluster memberships on the
 #: membership path) run the multi-threaded kernels.  Below it a step takes well under a
 #: millisecond on one thread, and on a loaded machine (other nodes on the same cores) the
@@ -25,19 +24,12 @@ PARALLEL_MIN_WORK = 262144
 #: damping``); smaller ones keep the separate pass, which costs less than the two extra
 #: kernel calls there (a call costs several microseconds, a pass over 1,000 particles ~1).
 FUSED_DAMPING_MIN = 1024
-#: Relative eigenvalue cut-off of the A_qq / A~_qq pseudo-inverses.
-RCOND = 1e-10
 #: A multi-cluster body uses the set layout (``kernels.sets_*``) when its cluster
 #: memberships outnumber its set-cluster pairs by at least this factor (each pair costs
 #: about as much per step as this many memberships).
 SET_LAYOUT_MIN_RATIO = 8
 #: Single-cluster quadratic bodies use the set layout too (one set).
 SINGLE_QUADRATIC_SETS = True
-_EMPTY_I64 = np.zeros(0, dtype=np.int64)
-#: Bumped whenever a body's buffers, parameters, grabs or wrench kind change: ``World``
-#: rebuilds its list of compiled-step records (``kernels.world_step``) when it moved.
-_GENERATION = [0]
-_EMPTY_I32 = np.zeros(0, dtype=np.int32)
 
 
 def _as_points(points, name='points'):
@@ -47,57 +39,6 @@ def _as_points(points, name='points'):
     if not np.all(np.isfinite(a)):
         raise ValueError(f'{name} must be finite')
     return a
-
-
-class _SetLayout:
-    """Particles grouped by the set of clusters they belong to (see ``kernels.sets_*``).
-
-    ``sid`` (N,) set of each particle, ``ptr``/``cl`` the clusters of each set (CSR),
-    ``cnt`` their number, ``org`` (S, 3) a rest-space origin per set, ``y0`` (N, 3) the
-    rest offsets from it, ``phi`` (S, 10) sum m phi(y), ``ref`` (S, 3) the reference point
-    of the per-set sums, ``gm`` (S, 3, 10) the goal maps; scratch ``wk``, ``pm``.
-    """
-
-    def __init__(self, x0, m, ptr, cl, c0):
-        n = len(x0)
-        counts = np.diff(ptr)
-        rows = np.repeat(np.arange(n), counts)
-        pos = np.arange(len(cl)) - ptr[rows]
-        pad = np.full((n, int(counts.max())), -1, dtype=np.int64)
-        pad[rows, pos] = cl
-        # group equal membership lists by a 64-bit hash (np.unique over rows is ~50x
-        # slower), then check that every particle's list equals its set's first one
-        mult = np.random.default_rng(12345).integers(1, 2 ** 62, pad.shape[1],
-                                                     dtype=np.uint64) | np.uint64(1)
-        key = ((pad + 1).astype(np.uint64) * mult).sum(axis=1, dtype=np.uint64)
-        _, first, sid = np.unique(key, return_index=True, return_inverse=True)
-        sid = sid.reshape(-1)
-        uniq = pad[first]
-        if not np.array_equal(uniq[sid], pad):     # a hash collision: exact grouping
-            uniq, sid = np.unique(pad, axis=0, return_inverse=True)
-        ns = len(uniq)
-        self.sid = np.ascontiguousarray(sid.reshape(-1), dtype=np.int32)
-        valid = uniq >= 0
-        self.cnt = valid.sum(axis=1).astype(np.float64)
-        self.ptr = np.zeros(ns + 1, dtype=np.int64)
-        np.cumsum(valid.sum(axis=1), out=self.ptr[1:])
-        self.cl = np.ascontiguousarray(uniq[valid], dtype=np.int32)
-        pop = np.bincount(self.sid, minlength=ns).astype(np.float64)
-        self.org = np.stack([np.bincount(self.sid, weights=x0[:, j], minlength=ns)
-                             for j in range(3)], axis=1) / pop[:, None]
-        self.y0 = np.ascontiguousarray(x0 - self.org[self.sid])
-        y = self.y0
-        phi = np.stack([np.ones(n), y[:, 0], y[:, 1], y[:, 2], y[:, 0] ** 2, y[:, 1] ** 2,
-                        y[:, 2] ** 2, y[:, 0] * y[:, 1], y[:, 1] * y[:, 2],
-                        y[:, 2] * y[:, 0]], axis=1)
-        self.phi = np.stack([np.bincount(self.sid, weights=m * phi[:, j], minlength=ns)
-                             for j in range(10)], axis=1)
-        self.ref = self.org + c0
-        self.gm = np.zeros((ns, 3, 10))
-        self.wk = np.zeros((2, 3, 10))
-        self.pm = np.zeros((9, 10))
-        self.pairs = len(self.cl)
-        self.part = None
 
 
 class Body:
@@ -173,156 +114,19 @@ class Body:
         return np.unique(a.astype(np.int64))
 
     def _build(self):
-        """Precompute everything that depends on the rest shape and the parameters."""
-        self.shape_error_rms()                 # keep the last step's figure across a rebuild
-        p = self._params
-        n = self.n
-        x0, m = self._x0, self.m
-        mode = _MODE_ID[p.mode]
-        self._mode = mode
-        self._quad = mode == 2
-        self._need3 = mode == 1 or p.plastic
-        self._need9 = self._quad
-        if p.clusters == 1:
-            self._ptr, self._cl, nk = _EMPTY_I64, _EMPTY_I32, 1
-            w = m
-            member = np.zeros(n, dtype=np.int64)
-            rows = np.arange(n)
-        else:
-            self._ptr, self._cl, nk = build_memberships(x0, p.clusters)
-            counts = np.diff(self._ptr)
-            rows = np.repeat(np.arange(n), counts)
-            w = (m / counts)[rows]
-            member = self._cl.astype(np.int64)
-        self.num_clusters = nk
-        wsum = np.bincount(member, weights=w, minlength=nk)
-        cm0 = np.stack([np.bincount(member, weights=w * x0[rows, j], minlength=nk)
-                        for j in range(3)], axis=1) / wsum[:, None]
-        d = x0[rows] - cm0[member]
-        rms = np.sqrt(np.bincount(member, weights=w * np.einsum('ij,ij->i', d, d),
-                                  minlength=nk) / wsum)
-        self._wsum = wsum
-        self._cm0 = cm0
-        # rest moments about each cluster's rest centre, sum w d and sum w d d^T: with them
-        # a plastic refresh of the rigid/linear rest data costs per cluster, not per particle
-        self._dsum0 = np.stack([np.bincount(member, weights=w * d[:, j], minlength=nk)
-                                for j in range(3)], axis=1)
-        self._cov0 = np.zeros((nk, 3, 3))
-        for i in range(3):
-            for j in range(i, 3):
-                self._cov0[:, i, j] = self._cov0[:, j, i] = np.bincount(
-                    member, weights=w * d[:, i] * d[:, j], minlength=nk)
-        self._scale = np.where(rms > 0.0, rms, 1.0)
-        self._s_plastic = np.tile(np.eye(3), (nk, 1, 1))
-        self._rest_lin = np.zeros((nk, 3, 3))
-        self._rest_off = np.zeros((nk, 3))
-        self._quat = np.tile([1.0, 0.0, 0.0, 0.0], (nk, 1))
-        self._apq = np.zeros((nk, 3, 3))
-        self._q4 = np.zeros(4)
-        self._sum_q = np.zeros((nk, 9))
-        self._mom3 = np.zeros((nk if self._need3 else 1, 3, 3))
-        self._mom9 = np.zeros((nk if self._need9 else 1, 9, 9))
-        self._aqq3 = np.zeros_like(self._mom3)
-        self._aqq9 = np.zeros_like(self._mom9)
-        # linear mode: the unit-determinant frames of A_qq (kernels.unit_det_frames)
-        self._nmat = np.zeros((nk if mode == 1 else 1, 3, 3))
-        self._cdet = np.zeros(nk if mode == 1 else 1)
-        self._changed = np.ones(nk, dtype=np.bool_)
-        self._refresh_rest(self._changed)
-        na = 30 if self._quad else 12
-        self._sets = None
-        if p.clusters > 1:
-            sets = _SetLayout(x0, m, self._ptr, self._cl, self._c0)
-            if sets.pairs * SET_LAYOUT_MIN_RATIO <= len(self._cl):
-                self._sets = sets
-        elif self._quad and SINGLE_QUADRATIC_SETS:
-            # one set: the quadratic goal as one polynomial of x0 (27 multiply-adds less
-            # per particle than features-then-transform)
-            self._sets = _SetLayout(x0, m, np.arange(n + 1, dtype=np.int64),
-                                    np.zeros(n, dtype=np.int32), self._c0)
-        # work per step: one unit per particle (one cluster, set layout) or per membership
-        work = len(self._cl) if p.clusters > 1 and self._sets is None else n
-        self._parallel = work >= PARALLEL_MIN_WORK and numba.get_num_threads() > 1
-        nch = numba.get_num_threads() if self._parallel else 1
-        nch = max(1, min(nch, n))
-        if self._sets is not None:
-            self._sets.part = np.zeros((nch, len(self._sets.cnt), na))
-            nch = 1                            # self._part: the reduced per-cluster sums
-        self._part = np.zeros((nch, nk, na))
-        self._err = np.zeros(len(self._sets.part) if self._sets is not None else nch)
-        self._trans = np.zeros((nk, 3, 9))
-        self._goal_lin = np.zeros((nk, 3, 3))
-        self._goal_off = np.zeros((nk, 3))
-        self._ref = cm0 + self._c0
-        # speed and turn limits (kernels/limits.py): previous rotations, scratch, flags
-        self._quat_prev = np.zeros((nk, 4))
-        self._flagged = np.zeros(nk, dtype=np.bool_)
-        self._lim_lin = np.zeros((nk, 13))
-        self._lim_w = np.zeros((nk, 6))
-        self._lin = np.zeros((nk, 13)) if p.damping > 0 else None
-        self._w3 = np.zeros((nk, 3)) if p.damping > 0 else None
-        # damping fused into the particle pass (set layout, one cluster; kernels/damping.py)
-        # where the pass it saves costs more than the two small kernel calls it adds
-        self._damp_fused = (p.damping > 0 and (self._sets is not None or p.clusters == 1)
-                            and n >= FUSED_DAMPING_MIN)
-        if self._damp_fused and self._sets is not None:
-            sets = self._sets
-            self._dsets = (sets.ptr, sets.cl, sets.cnt)
-            self._dpart = np.zeros((len(sets.part), len(sets.cnt), K.NDAMP))
-        elif self._damp_fused:
-            self._dsets = (np.array([0, 1], dtype=np.int64), np.zeros(1, dtype=np.int32),
-                           np.ones(1))
-            self._dpart = np.zeros((len(self._part), 1, K.NDAMP))
-        else:
-            self._dsets = None
-            self._dpart = np.zeros((1, 1, K.NDAMP))
-        self._dmp = np.zeros((len(self._dsets[2]) if self._dsets else 1, 6))
-        self._dref = np.zeros((nk, 3))
-        self._dacc = np.zeros(K.NDAMP)
-        self._dirty = True
-        _GENERATION[0] += 1
+        """Precompute everything that depends on the rest shape and the parameters
+        (``body_build.build`` with this module's layout thresholds, read at each build)."""
+        body_build.build(self, parallel_min_work=PARALLEL_MIN_WORK,
+                         fused_damping_min=FUSED_DAMPING_MIN,
+                         set_layout_min_ratio=SET_LAYOUT_MIN_RATIO,
+                         single_quadratic_sets=SINGLE_QUADRATIC_SETS)
 
     def _refresh_rest(self, which):
-        """Plastic rest shape q = Sp (x0 - cm0) / s of the clusters in ``which``; A_qq.
-
-        Rigid/linear: q = G d with d = x0 - cm0, so sum w q = G sum w d and the centred
-        moments are G (sum w d d^T) G^T - (sum w q)(sum w q)^T / W, from the rest moments
-        kept since the build: the cost is per changed cluster (plasticity at cluster cost).
-        Quadratic features need moments up to degree 4: one pass over the particles.
-        """
-        idx = np.nonzero(which)[0]
-        self._rest_lin[idx] = self._s_plastic[idx] / self._scale[idx, None, None]
-        self._rest_off[idx] = -np.einsum('kij,kj->ki', self._rest_lin[idx], self._cm0[idx])
-        if not self._need9:
-            g = self._rest_lin[idx]
-            sq = np.einsum('kij,kj->ki', g, self._dsum0[idx])
-            self._sum_q[idx] = 0.0
-            self._sum_q[idx, :3] = sq
-            if self._need3:
-                mom = (np.einsum('kia,kab,kjb->kij', g, self._cov0[idx], g)
-                       - sq[:, :, None] * sq[:, None, :] / self._wsum[idx, None, None])
-                self._mom3[idx] = 0.5 * (mom + mom.transpose(0, 2, 1))
-        else:
-            K.moments(x0=self._x0, mass=self.m, ptr=self._ptr, cl=self._cl,
-                      rest_lin=self._rest_lin, rest_off=self._rest_off, wsum=self._wsum,
-                      which=which, need3=self._need3, need9=self._need9, sum_q=self._sum_q,
-                      mom3=self._mom3, mom9=self._mom9, f9=self._f9)
-        K.invert_moments(which=which, need3=self._need3, need9=self._need9, mom3=self._mom3,
-                         mom9=self._mom9, aqq3=self._aqq3, aqq9=self._aqq9, w3a=self._s3[0],
-                         w3b=self._s3[1], w9a=self._w9[0], w9b=self._w9[1], rcond=RCOND)
-        if self._mode == 1:
-            K.unit_det_frames(which=which, mom3=self._mom3, nmat=self._nmat, cdet=self._cdet,
-                              wa=self._s3[0], wv=self._s3[1], rcond=RCOND)
+        """Plastic rest data of the clusters in ``which`` (``body_build.refresh_rest``)."""
+        body_build.refresh_rest(self, which)
 
     def _merge_kinematic(self):
-        pins = self._pinned
-        grab = self._grab_idx
-        keep = ~np.isin(grab, pins)
-        self._kin_idx = np.concatenate([grab[keep], pins]).astype(np.int64)
-        self._kin_tgt = np.ascontiguousarray(
-            np.concatenate([self._grab_tgt[keep], self.x_init[pins]]), dtype=np.float64)
-        self._kin_prev = np.zeros_like(self._kin_tgt)
-        _GENERATION[0] += 1
+        body_build.merge_kinematic(self)
 
     # ------------------------------------------------------------------ step
     @property
@@ -341,173 +145,15 @@ class Body:
                 and not self._has_torque and not self._parallel)
 
     def _fast_record(self, h):
-        """The tuple of buffers ``kernels.world_step`` steps (valid until the next rebuild)."""
-        p = self._params.at_step(h)
-        self._at_step = (h, self._params, p)
-        self._fstate = np.array([p.alpha, p.beta, p.damping, self._params.max_speed,
-                                 self._params.max_turn, 1.0 / self.total_mass, self._mode,
-                                 1.0 if self._damp_fused else 0.0, 1.0 if self._quad else 0.0,
-                                 1.0 if self._sets is not None else 0.0,
-                                 self._params.max_turn / h])
-        sptr, scl, scnt = self._dsets if self._dsets else (
-            np.zeros(2, dtype=np.int64), np.zeros(1, dtype=np.int32), np.ones(1))
-        lin = self._lin if self._lin is not None else np.zeros((self.num_clusters, 13))
-        w3 = self._w3 if self._w3 is not None else np.zeros((self.num_clusters, 3))
-        s3 = self._s3
-        return (self._x, self._v, self._x0, self.m, self._ptr, self._cl, self._rest_lin,
-                self._rest_off, self._part, self._wsum, self._sum_q, self._ref, self._quat,
-                self._aqq3, self._aqq9, self._scale, self._trans, self._goal_lin,
-                self._goal_off, self._apq, self._accbuf, s3[0], s3[1], s3[2], s3[3],
-                self._m39, self._n4, self._v4, self._nmat, self._cdet, self._acc, self._ang,
-                self._com, self._err, self._dpart, self._dmp, self._dref, self._dacc, lin, w3,
-                sptr, scl, scnt, self._quat_prev, self._flagged, self._lim_lin, self._lim_w,
-                self._facc, self._fstate, self._flags, self._limit_counts) + self._fast_sets()
+        """The tuple of buffers ``kernels.world_step`` steps (``body_build.fast_record``)."""
+        return body_build.fast_record(self, h)
 
     def _fast_sets(self):
-        """The set-layout buffers of a record (empty ones for a one-cluster body)."""
-        st = self._sets
-        if st is not None:
-            return (st.y0, st.sid, st.gm, st.ref, st.part, st.ptr, st.cl, st.cnt, st.phi,
-                    st.org, st.wk, st.pm)
-        na = 30 if self._quad else 12
-        return (np.zeros((0, 3)), _EMPTY_I32, np.zeros((0, 3, 10)), np.zeros((0, 3)),
-                np.zeros((1, 0, na)), np.zeros(1, dtype=np.int64), _EMPTY_I32, np.zeros(0),
-                np.zeros((0, 10)), np.zeros((0, 3)), np.zeros((2, 3, 10)), np.zeros((9, 10)))
+        """The set-layout buffers of a record (``body_build.fast_sets``)."""
+        return body_build.fast_sets(self)
 
     def _step(self, h, gravity, has_col, ground, boxes, spheres, thresh):
-        if self._at_step[0] != h or self._at_step[1] is not self._params:
-            self._at_step = (h, self._params, self._params.at_step(h))
-        p = self._at_step[2]                   # the material's coefficients at this step
-        plastic = self._params.plastic
-        x, v = self._x, self._v
-        s3 = self._s3
-        sets = self._sets
-        fused = self._damp_fused and p.damping > 0.0
-        turned = 0
-        if sets is not None:
-            if self._dirty:
-                acc = K.sets_accumulate_parallel if self._parallel else \
-                    K.sets_accumulate_serial
-                acc(quad=self._quad, x=x, y0=sets.y0, mass=self.m, sid=sets.sid, sref=sets.ref,
-                    part=sets.part)
-            K.sets_reduce(part=sets.part, sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sphi=sets.phi,
-                          sref=sets.ref, sorg=sets.org, rest_lin=self._rest_lin,
-                          rest_off=self._rest_off, ref=self._ref, quad=self._quad, out=self._part,
-                          wk=sets.wk, pm=sets.pm)
-        elif self._dirty:
-            acc = K.accumulate_parallel if self._parallel else K.accumulate_serial
-            acc(quad=self._quad, x=x, x0=self._x0, mass=self.m, ptr=self._ptr, cl=self._cl,
-                rest_lin=self._rest_lin, rest_off=self._rest_off, ref=self._ref, part=self._part)
-        turn = self._params.max_turn
-        if turn > 0.0:
-            np.copyto(self._quat_prev, self._quat)
-        K.solve_clusters(part=self._part, wsum=self._wsum, sum_q=self._sum_q, ref=self._ref,
-                         quat=self._quat, aqq3=self._aqq3, aqq9=self._aqq9,
-                         rest_lin=self._rest_lin, rest_off=self._rest_off, scale=self._scale,
-                         trans=self._trans, goal_lin=self._goal_lin, goal_off=self._goal_off,
-                         mode=self._mode, beta=p.beta, apq=self._apq, acc=self._accbuf, m3a=s3[0],
-                         m3b=s3[1], m3c=s3[2], m39=self._m39, n4=self._n4, v4=self._v4,
-                         nmat=self._nmat, cdet=self._cdet)
-        if turn > 0.0:
-            # |q_prev . q| = cos(angle / 2): clusters whose rotation turned more than
-            # max_turn in the last step have their angular velocity measured and capped
-            np.less(np.abs(np.einsum('ij,ij->i', self._quat_prev, self._quat)),
-                    np.cos(0.5 * turn), out=self._flagged)
-            if self._flagged.any():
-                turned = K.limit_turn(
-                    x=x, v=v, mass=self.m, ptr=self._ptr, cl=self._cl, flagged=self._flagged,
-                    w_max=turn / h, lin=self._lim_lin, w3=self._lim_w, m3a=s3[0], m3b=s3[1],
-                    m3c=s3[2], m3d=s3[3])
-                self._limit_counts[1] += turned
-        nchanged = 0
-        if plastic:
-            nchanged = K.plastic_update(apq=self._apq, aqq3=self._aqq3, scale=self._scale,
-                                        quat=self._quat, s_plastic=self._s_plastic,
-                                        c_yield=self._params.plastic_yield, c_creep=p.creep,
-                                        c_max=self._params.plastic_max, h=h, changed=self._changed,
-                                        q4=self._q4, m3a=s3[0], m3b=s3[1], m3c=s3[2], n4=self._n4,
-                                        v4=self._v4)
-        if sets is not None:
-            K.sets_maps(sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sorg=sets.org,
-                        rest_lin=self._rest_lin, rest_off=self._rest_off, trans=self._trans,
-                        goal_lin=self._goal_lin, goal_off=self._goal_off, ref=self._ref,
-                        quad=self._quad, gm=sets.gm, sref=sets.ref, pm=sets.pm)
-        np.add(self._facc, gravity, out=self._acc)
-        if self._has_torque:
-            np.dot(self._wsum, self._ref, out=self._com)
-            self._com /= self._wsum.sum()
-            K.inertia(x, self.m, self._com, self._i3)
-            K.pinv_sym(mat=self._i3, out=self._i3inv, wa=s3[0], wv=s3[1], rcond=1e-12)
-            np.dot(self._i3inv, self._torque, out=self._ang)
-            if turn > 0.0:
-                # a torque may add at most max_turn / h of spin in one step: beyond that the
-                # step cannot represent the turn and the body is smeared at once
-                a_norm = float(np.sqrt(self._ang @ self._ang))
-                if a_norm * h * h > turn:
-                    self._ang *= turn / (a_norm * h * h)
-                    self._limit_counts[1] += 1
-        else:
-            self._ang[:] = 0.0
-        if fused:
-            # the rigid fields damping moves towards, from the sums of the last pass (taken
-            # again if the state changed since: set by hand, contact, turn limit)
-            sptr, scl, scnt = self._dsets
-            dsid = sets.sid if sets is not None else self._ptr
-            if self._dirty or turned:
-                K.damp_accumulate(x=x, v=v, mass=self.m, sid=dsid, dpart=self._dpart)
-            K.damping_fields(dpart=self._dpart, sptr=sptr, scl=scl, scnt=scnt, lin=self._lin,
-                             w3=self._w3, dref=self._dref, acc=self._dacc, m3a=s3[0], m3b=s3[1],
-                             m3c=s3[2], m3d=s3[3])
-            K.damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=self._lin, w3=self._w3,
-                              dref=self._dref, sref=sets.ref if sets is not None else self._ref,
-                              dmp=self._dmp)
-        elif p.damping > 0.0:
-            K.damp_rigid(x=x, v=v, mass=self.m, ptr=self._ptr, cl=self._cl, ref=self._ref,
-                         k_damp=p.damping, lin=self._lin, w3=self._w3, m3a=s3[0], m3b=s3[1],
-                         m3c=s3[2], m3d=s3[3])
-        kin = len(self._kin_idx) > 0
-        if kin:
-            K.gather_rows(x, self._kin_idx, self._kin_prev)
-        if sets is not None:
-            integ = K.sets_integrate_parallel if self._parallel else K.sets_integrate_serial
-            integ(quad=self._quad, x=x, v=v, y0=sets.y0, mass=self.m, sid=sets.sid, gm=sets.gm,
-                  sref=sets.ref, alpha=p.alpha, h=h, acc=self._acc, ang=self._ang, com=self._com,
-                  part=sets.part, err=self._err, has_col=has_col, ground=ground, boxes=boxes,
-                  spheres=spheres, thresh=thresh, damp=fused, k_damp=p.damping, dmp=self._dmp,
-                  dpart=self._dpart)
-        else:
-            integ = K.integrate_parallel if self._parallel else K.integrate_serial
-            integ(quad=self._quad, x=x, v=v, x0=self._x0, mass=self.m, ptr=self._ptr, cl=self._cl,
-                  rest_lin=self._rest_lin, rest_off=self._rest_off, trans=self._trans,
-                  goal_lin=self._goal_lin, goal_off=self._goal_off, ref=self._ref, alpha=p.alpha,
-                  h=h, acc=self._acc, ang=self._ang, com=self._com, part=self._part, err=self._err,
-                  has_col=has_col, ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
-                  damp=fused, k_damp=p.damping, dmp=self._dmp, dpart=self._dpart)
-        capped = 0
-        if self._params.max_speed > 0.0:
-            capped = K.limit_speed(x=x, v=v, h=h, v_max=self._params.max_speed)
-            self._limit_counts[0] += capped
-        if kin and fused:                      # their damping sums follow them
-            K.damp_kinematic(x=x, v=v, mass=self.m, sid=dsid, dpart=self._dpart,
-                             idx=self._kin_idx, sign=-1.0)
-        if kin and sets is not None:
-            K.sets_kinematic(quad=self._quad, x=x, v=v, y0=sets.y0, mass=self.m, sid=sets.sid,
-                             sref=sets.ref, part=sets.part, idx=self._kin_idx, tgt=self._kin_tgt,
-                             prev=self._kin_prev, h=h)
-        elif kin:
-            K.apply_kinematic(quad=self._quad, x=x, v=v, x0=self._x0, mass=self.m, ptr=self._ptr,
-                              cl=self._cl, rest_lin=self._rest_lin, rest_off=self._rest_off,
-                              ref=self._ref, part=self._part, idx=self._kin_idx, tgt=self._kin_tgt,
-                              prev=self._kin_prev, h=h)
-        if kin and fused:
-            K.damp_kinematic(x=x, v=v, mass=self.m, sid=dsid, dpart=self._dpart,
-                             idx=self._kin_idx, sign=1.0)
-        self._shape_err = None                 # computed from self._err when asked
-        self._dirty = capped > 0               # capped positions: the sums are stale
-        if nchanged:
-            self._refresh_rest(self._changed)
-            # the per-set sums do not depend on the rest shape; the per-cluster ones do
-            self._dirty = self._dirty or sets is None
+        body_step.step(self, h, gravity, has_col, ground, boxes, spheres, thresh)
 
     # ------------------------------------------------------------------ state access
     @property
@@ -646,33 +292,9 @@ class Body:
         return r
 
     def goals(self) -> np.ndarray:
-        """Goal positions g_i for the current state (Eq. 12/18/22, averaged over clusters)."""
-        p = self._params
-        part = np.zeros((1,) + self._part.shape[1:])
-        ref, quat = self._ref.copy(), self._quat.copy()
-        trans, goal_lin = np.zeros_like(self._trans), np.zeros_like(self._goal_lin)
-        goal_off = np.zeros_like(self._goal_off)
-        K.accumulate_serial(quad=self._quad, x=self._x, x0=self._x0, mass=self.m, ptr=self._ptr,
-                            cl=self._cl, rest_lin=self._rest_lin, rest_off=self._rest_off, ref=ref,
-                            part=part)
-        s3 = [np.zeros((3, 3)) for _ in range(3)]
-        K.solve_clusters(part=part, wsum=self._wsum, sum_q=self._sum_q, ref=ref, quat=quat,
-                         aqq3=self._aqq3, aqq9=self._aqq9, rest_lin=self._rest_lin,
-                         rest_off=self._rest_off, scale=self._scale, trans=trans,
-                         goal_lin=goal_lin, goal_off=goal_off, mode=self._mode, beta=p.beta,
-                         apq=np.zeros_like(self._apq), acc=np.zeros(32), m3a=s3[0], m3b=s3[1],
-                         m3c=s3[2], m39=np.zeros((3, 9)), n4=np.zeros((4, 4)), v4=np.zeros((4, 4)),
-                         nmat=self._nmat, cdet=self._cdet)
-        g = self._x.copy()
-        K.integrate_serial(quad=self._quad, x=g, v=np.zeros_like(g), x0=self._x0, mass=self.m,
-                           ptr=self._ptr, cl=self._cl, rest_lin=self._rest_lin,
-                           rest_off=self._rest_off, trans=trans, goal_lin=goal_lin,
-                           goal_off=goal_off, ref=ref, alpha=1.0, h=1.0, acc=np.zeros(3),
-                           ang=np.zeros(3), com=np.zeros(3), part=part, err=np.zeros(1),
-                           has_col=False, ground=np.zeros(4), boxes=np.zeros((0, 8)),
-                           spheres=np.zeros((0, 6)), thresh=0.0, damp=False, k_damp=0.0,
-                           dmp=np.zeros((1, 6)), dpart=np.zeros((1, 1, K.NDAMP)))
-        return g
+        """Goal positions g_i for the current state (Eq. 12/18/22, averaged over clusters;
+        ``body_step.goals``)."""
+        return body_step.goals(self)
 
     @property
     def limit_counts(self):

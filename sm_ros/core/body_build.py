@@ -1,0 +1,273 @@
+"""Rest data and buffers of a ``Body``: built once per rest shape and parameter set.
+
+``build`` precomputes what a body's mode needs (cluster memberships, rest moments, the
+set layout ``_SetLayout``, scratch buffers, the damping sets) and ``refresh_rest`` the
+plastic rest data of changed clusters (Eq. 7-9, 21 of algorithm.md); ``merge_kinematic``
+merges grabbed and pinned particles; ``fast_record`` hands a body's buffers to the
+compiled world step (``kernels.world_step``).  The functions set the body's private
+buffers; ``sm_ros.core.body.Body`` calls them and owns the state.
+"""
+
+import numba
+import numpy as np
+
+from . import kernels as K
+from .clusters import build_memberships
+
+_MODE_ID = {'rigid': 0, 'linear': 1, 'quadratic': 2}
+#: Relative eigenvalue cut-off of the A_qq / A~_qq pseudo-inverses.
+RCOND = 1e-10
+_EMPTY_I64 = np.zeros(0, dtype=np.int64)
+#: Bumped whenever a body's buffers, parameters, grabs or wrench kind change: ``World``
+#: rebuilds its list of compiled-step records (``kernels.world_step``) when it moved.
+_GENERATION = [0]
+_EMPTY_I32 = np.zeros(0, dtype=np.int32)
+
+
+class _SetLayout:
+    """Particles grouped by the set of clusters they belong to (see ``kernels.sets_*``).
+
+    ``sid`` (N,) set of each particle, ``ptr``/``cl`` the clusters of each set (CSR),
+    ``cnt`` their number, ``org`` (S, 3) a rest-space origin per set, ``y0`` (N, 3) the
+    rest offsets from it, ``phi`` (S, 10) sum m phi(y), ``ref`` (S, 3) the reference point
+    of the per-set sums, ``gm`` (S, 3, 10) the goal maps; scratch ``wk``, ``pm``.
+    """
+
+    def __init__(self, x0, m, ptr, cl, c0):
+        n = len(x0)
+        counts = np.diff(ptr)
+        rows = np.repeat(np.arange(n), counts)
+        pos = np.arange(len(cl)) - ptr[rows]
+        pad = np.full((n, int(counts.max())), -1, dtype=np.int64)
+        pad[rows, pos] = cl
+        # group equal membership lists by a 64-bit hash (np.unique over rows is ~50x
+        # slower), then check that every particle's list equals its set's first one
+        mult = np.random.default_rng(12345).integers(1, 2 ** 62, pad.shape[1],
+                                                     dtype=np.uint64) | np.uint64(1)
+        key = ((pad + 1).astype(np.uint64) * mult).sum(axis=1, dtype=np.uint64)
+        _, first, sid = np.unique(key, return_index=True, return_inverse=True)
+        sid = sid.reshape(-1)
+        uniq = pad[first]
+        if not np.array_equal(uniq[sid], pad):     # a hash collision: exact grouping
+            uniq, sid = np.unique(pad, axis=0, return_inverse=True)
+        ns = len(uniq)
+        self.sid = np.ascontiguousarray(sid.reshape(-1), dtype=np.int32)
+        valid = uniq >= 0
+        self.cnt = valid.sum(axis=1).astype(np.float64)
+        self.ptr = np.zeros(ns + 1, dtype=np.int64)
+        np.cumsum(valid.sum(axis=1), out=self.ptr[1:])
+        self.cl = np.ascontiguousarray(uniq[valid], dtype=np.int32)
+        pop = np.bincount(self.sid, minlength=ns).astype(np.float64)
+        self.org = np.stack([np.bincount(self.sid, weights=x0[:, j], minlength=ns)
+                             for j in range(3)], axis=1) / pop[:, None]
+        self.y0 = np.ascontiguousarray(x0 - self.org[self.sid])
+        y = self.y0
+        phi = np.stack([np.ones(n), y[:, 0], y[:, 1], y[:, 2], y[:, 0] ** 2, y[:, 1] ** 2,
+                        y[:, 2] ** 2, y[:, 0] * y[:, 1], y[:, 1] * y[:, 2],
+                        y[:, 2] * y[:, 0]], axis=1)
+        self.phi = np.stack([np.bincount(self.sid, weights=m * phi[:, j], minlength=ns)
+                             for j in range(10)], axis=1)
+        self.ref = self.org + c0
+        self.gm = np.zeros((ns, 3, 10))
+        self.wk = np.zeros((2, 3, 10))
+        self.pm = np.zeros((9, 10))
+        self.pairs = len(self.cl)
+        self.part = None
+
+
+def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
+          single_quadratic_sets):
+    """Precompute everything of ``body`` that depends on the rest shape and the parameters.
+
+    The layout thresholds are the ``sm_ros.core.body`` constants of the same names (passed
+    by ``Body._build``, read there at each build).
+    """
+    body.shape_error_rms()                 # keep the last step's figure across a rebuild
+    p = body._params
+    n = body.n
+    x0, m = body._x0, body.m
+    mode = _MODE_ID[p.mode]
+    body._mode = mode
+    body._quad = mode == 2
+    body._need3 = mode == 1 or p.plastic
+    body._need9 = body._quad
+    if p.clusters == 1:
+        body._ptr, body._cl, nk = _EMPTY_I64, _EMPTY_I32, 1
+        w = m
+        member = np.zeros(n, dtype=np.int64)
+        rows = np.arange(n)
+    else:
+        body._ptr, body._cl, nk = build_memberships(x0, p.clusters)
+        counts = np.diff(body._ptr)
+        rows = np.repeat(np.arange(n), counts)
+        w = (m / counts)[rows]
+        member = body._cl.astype(np.int64)
+    body.num_clusters = nk
+    wsum = np.bincount(member, weights=w, minlength=nk)
+    cm0 = np.stack([np.bincount(member, weights=w * x0[rows, j], minlength=nk)
+                    for j in range(3)], axis=1) / wsum[:, None]
+    d = x0[rows] - cm0[member]
+    rms = np.sqrt(np.bincount(member, weights=w * np.einsum('ij,ij->i', d, d),
+                              minlength=nk) / wsum)
+    body._wsum = wsum
+    body._cm0 = cm0
+    # rest moments about each cluster's rest centre, sum w d and sum w d d^T: with them
+    # a plastic refresh of the rigid/linear rest data costs per cluster, not per particle
+    body._dsum0 = np.stack([np.bincount(member, weights=w * d[:, j], minlength=nk)
+                            for j in range(3)], axis=1)
+    body._cov0 = np.zeros((nk, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            body._cov0[:, i, j] = body._cov0[:, j, i] = np.bincount(
+                member, weights=w * d[:, i] * d[:, j], minlength=nk)
+    body._scale = np.where(rms > 0.0, rms, 1.0)
+    body._s_plastic = np.tile(np.eye(3), (nk, 1, 1))
+    body._rest_lin = np.zeros((nk, 3, 3))
+    body._rest_off = np.zeros((nk, 3))
+    body._quat = np.tile([1.0, 0.0, 0.0, 0.0], (nk, 1))
+    body._apq = np.zeros((nk, 3, 3))
+    body._q4 = np.zeros(4)
+    body._sum_q = np.zeros((nk, 9))
+    body._mom3 = np.zeros((nk if body._need3 else 1, 3, 3))
+    body._mom9 = np.zeros((nk if body._need9 else 1, 9, 9))
+    body._aqq3 = np.zeros_like(body._mom3)
+    body._aqq9 = np.zeros_like(body._mom9)
+    # linear mode: the unit-determinant frames of A_qq (kernels.unit_det_frames)
+    body._nmat = np.zeros((nk if mode == 1 else 1, 3, 3))
+    body._cdet = np.zeros(nk if mode == 1 else 1)
+    body._changed = np.ones(nk, dtype=np.bool_)
+    body._refresh_rest(body._changed)
+    na = 30 if body._quad else 12
+    body._sets = None
+    if p.clusters > 1:
+        sets = _SetLayout(x0, m, body._ptr, body._cl, body._c0)
+        if sets.pairs * set_layout_min_ratio <= len(body._cl):
+            body._sets = sets
+    elif body._quad and single_quadratic_sets:
+        # one set: the quadratic goal as one polynomial of x0 (27 multiply-adds less
+        # per particle than features-then-transform)
+        body._sets = _SetLayout(x0, m, np.arange(n + 1, dtype=np.int64),
+                                np.zeros(n, dtype=np.int32), body._c0)
+    # work per step: one unit per particle (one cluster, set layout) or per membership
+    work = len(body._cl) if p.clusters > 1 and body._sets is None else n
+    body._parallel = work >= parallel_min_work and numba.get_num_threads() > 1
+    nch = numba.get_num_threads() if body._parallel else 1
+    nch = max(1, min(nch, n))
+    if body._sets is not None:
+        body._sets.part = np.zeros((nch, len(body._sets.cnt), na))
+        nch = 1                            # body._part: the reduced per-cluster sums
+    body._part = np.zeros((nch, nk, na))
+    body._err = np.zeros(len(body._sets.part) if body._sets is not None else nch)
+    body._trans = np.zeros((nk, 3, 9))
+    body._goal_lin = np.zeros((nk, 3, 3))
+    body._goal_off = np.zeros((nk, 3))
+    body._ref = cm0 + body._c0
+    # speed and turn limits (kernels/limits.py): previous rotations, scratch, flags
+    body._quat_prev = np.zeros((nk, 4))
+    body._flagged = np.zeros(nk, dtype=np.bool_)
+    body._lim_lin = np.zeros((nk, 13))
+    body._lim_w = np.zeros((nk, 6))
+    body._lin = np.zeros((nk, 13)) if p.damping > 0 else None
+    body._w3 = np.zeros((nk, 3)) if p.damping > 0 else None
+    # damping fused into the particle pass (set layout, one cluster; kernels/damping.py)
+    # where the pass it saves costs more than the two small kernel calls it adds
+    body._damp_fused = (p.damping > 0 and (body._sets is not None or p.clusters == 1)
+                        and n >= fused_damping_min)
+    if body._damp_fused and body._sets is not None:
+        sets = body._sets
+        body._dsets = (sets.ptr, sets.cl, sets.cnt)
+        body._dpart = np.zeros((len(sets.part), len(sets.cnt), K.NDAMP))
+    elif body._damp_fused:
+        body._dsets = (np.array([0, 1], dtype=np.int64), np.zeros(1, dtype=np.int32),
+                       np.ones(1))
+        body._dpart = np.zeros((len(body._part), 1, K.NDAMP))
+    else:
+        body._dsets = None
+        body._dpart = np.zeros((1, 1, K.NDAMP))
+    body._dmp = np.zeros((len(body._dsets[2]) if body._dsets else 1, 6))
+    body._dref = np.zeros((nk, 3))
+    body._dacc = np.zeros(K.NDAMP)
+    body._dirty = True
+    _GENERATION[0] += 1
+
+
+def refresh_rest(body, which):
+    """Plastic rest shape q = Sp (x0 - cm0) / s of the clusters in ``which``; A_qq.
+
+    Rigid/linear: q = G d with d = x0 - cm0, so sum w q = G sum w d and the centred
+    moments are G (sum w d d^T) G^T - (sum w q)(sum w q)^T / W, from the rest moments
+    kept since the build: the cost is per changed cluster (plasticity at cluster cost).
+    Quadratic features need moments up to degree 4: one pass over the particles.
+    """
+    idx = np.nonzero(which)[0]
+    body._rest_lin[idx] = body._s_plastic[idx] / body._scale[idx, None, None]
+    body._rest_off[idx] = -np.einsum('kij,kj->ki', body._rest_lin[idx], body._cm0[idx])
+    if not body._need9:
+        g = body._rest_lin[idx]
+        sq = np.einsum('kij,kj->ki', g, body._dsum0[idx])
+        body._sum_q[idx] = 0.0
+        body._sum_q[idx, :3] = sq
+        if body._need3:
+            mom = (np.einsum('kia,kab,kjb->kij', g, body._cov0[idx], g)
+                   - sq[:, :, None] * sq[:, None, :] / body._wsum[idx, None, None])
+            body._mom3[idx] = 0.5 * (mom + mom.transpose(0, 2, 1))
+    else:
+        K.moments(x0=body._x0, mass=body.m, ptr=body._ptr, cl=body._cl,
+                  rest_lin=body._rest_lin, rest_off=body._rest_off, wsum=body._wsum,
+                  which=which, need3=body._need3, need9=body._need9, sum_q=body._sum_q,
+                  mom3=body._mom3, mom9=body._mom9, f9=body._f9)
+    K.invert_moments(which=which, need3=body._need3, need9=body._need9, mom3=body._mom3,
+                     mom9=body._mom9, aqq3=body._aqq3, aqq9=body._aqq9, w3a=body._s3[0],
+                     w3b=body._s3[1], w9a=body._w9[0], w9b=body._w9[1], rcond=RCOND)
+    if body._mode == 1:
+        K.unit_det_frames(which=which, mom3=body._mom3, nmat=body._nmat, cdet=body._cdet,
+                          wa=body._s3[0], wv=body._s3[1], rcond=RCOND)
+
+
+def merge_kinematic(body):
+    """The particles ``body`` moves to targets: grabbed ones, then the pinned ones
+    not grabbed (at their initial positions)."""
+    pins = body._pinned
+    grab = body._grab_idx
+    keep = ~np.isin(grab, pins)
+    body._kin_idx = np.concatenate([grab[keep], pins]).astype(np.int64)
+    body._kin_tgt = np.ascontiguousarray(
+        np.concatenate([body._grab_tgt[keep], body.x_init[pins]]), dtype=np.float64)
+    body._kin_prev = np.zeros_like(body._kin_tgt)
+    _GENERATION[0] += 1
+
+
+def fast_record(body, h):
+    """The tuple of buffers ``kernels.world_step`` steps (valid until the next rebuild)."""
+    p = body._params.at_step(h)
+    body._at_step = (h, body._params, p)
+    body._fstate = np.array([p.alpha, p.beta, p.damping, body._params.max_speed,
+                             body._params.max_turn, 1.0 / body.total_mass, body._mode,
+                             1.0 if body._damp_fused else 0.0, 1.0 if body._quad else 0.0,
+                             1.0 if body._sets is not None else 0.0,
+                             body._params.max_turn / h])
+    sptr, scl, scnt = body._dsets if body._dsets else (
+        np.zeros(2, dtype=np.int64), np.zeros(1, dtype=np.int32), np.ones(1))
+    lin = body._lin if body._lin is not None else np.zeros((body.num_clusters, 13))
+    w3 = body._w3 if body._w3 is not None else np.zeros((body.num_clusters, 3))
+    s3 = body._s3
+    return (body._x, body._v, body._x0, body.m, body._ptr, body._cl, body._rest_lin,
+            body._rest_off, body._part, body._wsum, body._sum_q, body._ref, body._quat,
+            body._aqq3, body._aqq9, body._scale, body._trans, body._goal_lin,
+            body._goal_off, body._apq, body._accbuf, s3[0], s3[1], s3[2], s3[3],
+            body._m39, body._n4, body._v4, body._nmat, body._cdet, body._acc, body._ang,
+            body._com, body._err, body._dpart, body._dmp, body._dref, body._dacc, lin, w3,
+            sptr, scl, scnt, body._quat_prev, body._flagged, body._lim_lin, body._lim_w,
+            body._facc, body._fstate, body._flags, body._limit_counts) + body._fast_sets()
+
+
+def fast_sets(body):
+    """The set-layout buffers of a record (empty ones for a one-cluster body)."""
+    st = body._sets
+    if st is not None:
+        return (st.y0, st.sid, st.gm, st.ref, st.part, st.ptr, st.cl, st.cnt, st.phi,
+                st.org, st.wk, st.pm)
+    na = 30 if body._quad else 12
+    return (np.zeros((0, 3)), _EMPTY_I32, np.zeros((0, 3, 10)), np.zeros((0, 3)),
+            np.zeros((1, 0, na)), np.zeros(1, dtype=np.int64), _EMPTY_I32, np.zeros(0),
+            np.zeros((0, 10)), np.zeros((0, 3)), np.zeros((2, 3, 10)), np.zeros((9, 10)))

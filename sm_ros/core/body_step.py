@@ -1,0 +1,181 @@
+"""The step of a ``Body`` (``Body._step``) and its goal read-out (``Body.goals``).
+
+``step`` drives the Numba kernels of ``kernels/`` over the buffers ``body_build`` made, so
+a step allocates nothing: per-cluster sums, the shape match (Eq. 7-12, 18-22), the turn
+limit, plasticity (Eq. 24-27), damping, Eq. 13-14 with the static colliders, the speed
+limit and the grabbed / pinned particles.  ``goals`` evaluates the goal positions of the
+current state with scratch copies (nothing of the body changes).
+"""
+
+import numpy as np
+
+from . import kernels as K
+
+
+def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
+    """One step of h seconds of ``body`` (``Body._step``; the kernels of ``kernels/``
+    in the order of algorithm.md): goals, limits, plasticity, damping, Eq. 13-14 with
+    the static colliders, grabbed and pinned particles."""
+    if body._at_step[0] != h or body._at_step[1] is not body._params:
+        body._at_step = (h, body._params, body._params.at_step(h))
+    p = body._at_step[2]                   # the material's coefficients at this step
+    plastic = body._params.plastic
+    x, v = body._x, body._v
+    s3 = body._s3
+    sets = body._sets
+    fused = body._damp_fused and p.damping > 0.0
+    turned = 0
+    if sets is not None:
+        if body._dirty:
+            acc = K.sets_accumulate_parallel if body._parallel else \
+                K.sets_accumulate_serial
+            acc(quad=body._quad, x=x, y0=sets.y0, mass=body.m, sid=sets.sid, sref=sets.ref,
+                part=sets.part)
+        K.sets_reduce(part=sets.part, sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sphi=sets.phi,
+                      sref=sets.ref, sorg=sets.org, rest_lin=body._rest_lin,
+                      rest_off=body._rest_off, ref=body._ref, quad=body._quad, out=body._part,
+                      wk=sets.wk, pm=sets.pm)
+    elif body._dirty:
+        acc = K.accumulate_parallel if body._parallel else K.accumulate_serial
+        acc(quad=body._quad, x=x, x0=body._x0, mass=body.m, ptr=body._ptr, cl=body._cl,
+            rest_lin=body._rest_lin, rest_off=body._rest_off, ref=body._ref, part=body._part)
+    turn = body._params.max_turn
+    if turn > 0.0:
+        np.copyto(body._quat_prev, body._quat)
+    K.solve_clusters(part=body._part, wsum=body._wsum, sum_q=body._sum_q, ref=body._ref,
+                     quat=body._quat, aqq3=body._aqq3, aqq9=body._aqq9,
+                     rest_lin=body._rest_lin, rest_off=body._rest_off, scale=body._scale,
+                     trans=body._trans, goal_lin=body._goal_lin, goal_off=body._goal_off,
+                     mode=body._mode, beta=p.beta, apq=body._apq, acc=body._accbuf, m3a=s3[0],
+                     m3b=s3[1], m3c=s3[2], m39=body._m39, n4=body._n4, v4=body._v4,
+                     nmat=body._nmat, cdet=body._cdet)
+    if turn > 0.0:
+        # |q_prev . q| = cos(angle / 2): clusters whose rotation turned more than
+        # max_turn in the last step have their angular velocity measured and capped
+        np.less(np.abs(np.einsum('ij,ij->i', body._quat_prev, body._quat)),
+                np.cos(0.5 * turn), out=body._flagged)
+        if body._flagged.any():
+            turned = K.limit_turn(
+                x=x, v=v, mass=body.m, ptr=body._ptr, cl=body._cl, flagged=body._flagged,
+                w_max=turn / h, lin=body._lim_lin, w3=body._lim_w, m3a=s3[0], m3b=s3[1],
+                m3c=s3[2], m3d=s3[3])
+            body._limit_counts[1] += turned
+    nchanged = 0
+    if plastic:
+        nchanged = K.plastic_update(apq=body._apq, aqq3=body._aqq3, scale=body._scale,
+                                    quat=body._quat, s_plastic=body._s_plastic,
+                                    c_yield=body._params.plastic_yield, c_creep=p.creep,
+                                    c_max=body._params.plastic_max, h=h, changed=body._changed,
+                                    q4=body._q4, m3a=s3[0], m3b=s3[1], m3c=s3[2], n4=body._n4,
+                                    v4=body._v4)
+    if sets is not None:
+        K.sets_maps(sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sorg=sets.org,
+                    rest_lin=body._rest_lin, rest_off=body._rest_off, trans=body._trans,
+                    goal_lin=body._goal_lin, goal_off=body._goal_off, ref=body._ref,
+                    quad=body._quad, gm=sets.gm, sref=sets.ref, pm=sets.pm)
+    np.add(body._facc, gravity, out=body._acc)
+    if body._has_torque:
+        np.dot(body._wsum, body._ref, out=body._com)
+        body._com /= body._wsum.sum()
+        K.inertia(x, body.m, body._com, body._i3)
+        K.pinv_sym(mat=body._i3, out=body._i3inv, wa=s3[0], wv=s3[1], rcond=1e-12)
+        np.dot(body._i3inv, body._torque, out=body._ang)
+        if turn > 0.0:
+            # a torque may add at most max_turn / h of spin in one step: beyond that the
+            # step cannot represent the turn and the body is smeared at once
+            a_norm = float(np.sqrt(body._ang @ body._ang))
+            if a_norm * h * h > turn:
+                body._ang *= turn / (a_norm * h * h)
+                body._limit_counts[1] += 1
+    else:
+        body._ang[:] = 0.0
+    if fused:
+        # the rigid fields damping moves towards, from the sums of the last pass (taken
+        # again if the state changed since: set by hand, contact, turn limit)
+        sptr, scl, scnt = body._dsets
+        dsid = sets.sid if sets is not None else body._ptr
+        if body._dirty or turned:
+            K.damp_accumulate(x=x, v=v, mass=body.m, sid=dsid, dpart=body._dpart)
+        K.damping_fields(dpart=body._dpart, sptr=sptr, scl=scl, scnt=scnt, lin=body._lin,
+                         w3=body._w3, dref=body._dref, acc=body._dacc, m3a=s3[0], m3b=s3[1],
+                         m3c=s3[2], m3d=s3[3])
+        K.damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=body._lin, w3=body._w3,
+                          dref=body._dref, sref=sets.ref if sets is not None else body._ref,
+                          dmp=body._dmp)
+    elif p.damping > 0.0:
+        K.damp_rigid(x=x, v=v, mass=body.m, ptr=body._ptr, cl=body._cl, ref=body._ref,
+                     k_damp=p.damping, lin=body._lin, w3=body._w3, m3a=s3[0], m3b=s3[1],
+                     m3c=s3[2], m3d=s3[3])
+    kin = len(body._kin_idx) > 0
+    if kin:
+        K.gather_rows(x, body._kin_idx, body._kin_prev)
+    if sets is not None:
+        integ = K.sets_integrate_parallel if body._parallel else K.sets_integrate_serial
+        integ(quad=body._quad, x=x, v=v, y0=sets.y0, mass=body.m, sid=sets.sid, gm=sets.gm,
+              sref=sets.ref, alpha=p.alpha, h=h, acc=body._acc, ang=body._ang, com=body._com,
+              part=sets.part, err=body._err, has_col=has_col, ground=ground, boxes=boxes,
+              spheres=spheres, thresh=thresh, damp=fused, k_damp=p.damping, dmp=body._dmp,
+              dpart=body._dpart)
+    else:
+        integ = K.integrate_parallel if body._parallel else K.integrate_serial
+        integ(quad=body._quad, x=x, v=v, x0=body._x0, mass=body.m, ptr=body._ptr, cl=body._cl,
+              rest_lin=body._rest_lin, rest_off=body._rest_off, trans=body._trans,
+              goal_lin=body._goal_lin, goal_off=body._goal_off, ref=body._ref, alpha=p.alpha,
+              h=h, acc=body._acc, ang=body._ang, com=body._com, part=body._part, err=body._err,
+              has_col=has_col, ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
+              damp=fused, k_damp=p.damping, dmp=body._dmp, dpart=body._dpart)
+    capped = 0
+    if body._params.max_speed > 0.0:
+        capped = K.limit_speed(x=x, v=v, h=h, v_max=body._params.max_speed)
+        body._limit_counts[0] += capped
+    if kin and fused:                      # their damping sums follow them
+        K.damp_kinematic(x=x, v=v, mass=body.m, sid=dsid, dpart=body._dpart,
+                         idx=body._kin_idx, sign=-1.0)
+    if kin and sets is not None:
+        K.sets_kinematic(quad=body._quad, x=x, v=v, y0=sets.y0, mass=body.m, sid=sets.sid,
+                         sref=sets.ref, part=sets.part, idx=body._kin_idx, tgt=body._kin_tgt,
+                         prev=body._kin_prev, h=h)
+    elif kin:
+        K.apply_kinematic(quad=body._quad, x=x, v=v, x0=body._x0, mass=body.m, ptr=body._ptr,
+                          cl=body._cl, rest_lin=body._rest_lin, rest_off=body._rest_off,
+                          ref=body._ref, part=body._part, idx=body._kin_idx, tgt=body._kin_tgt,
+                          prev=body._kin_prev, h=h)
+    if kin and fused:
+        K.damp_kinematic(x=x, v=v, mass=body.m, sid=dsid, dpart=body._dpart,
+                         idx=body._kin_idx, sign=1.0)
+    body._shape_err = None                 # computed from body._err when asked
+    body._dirty = capped > 0               # capped positions: the sums are stale
+    if nchanged:
+        body._refresh_rest(body._changed)
+        # the per-set sums do not depend on the rest shape; the per-cluster ones do
+        body._dirty = body._dirty or sets is None
+
+
+def goals(body) -> np.ndarray:
+    """Goal positions g_i for the current state (Eq. 12/18/22, averaged over clusters)."""
+    p = body._params
+    part = np.zeros((1,) + body._part.shape[1:])
+    ref, quat = body._ref.copy(), body._quat.copy()
+    trans, goal_lin = np.zeros_like(body._trans), np.zeros_like(body._goal_lin)
+    goal_off = np.zeros_like(body._goal_off)
+    K.accumulate_serial(quad=body._quad, x=body._x, x0=body._x0, mass=body.m, ptr=body._ptr,
+                        cl=body._cl, rest_lin=body._rest_lin, rest_off=body._rest_off, ref=ref,
+                        part=part)
+    s3 = [np.zeros((3, 3)) for _ in range(3)]
+    K.solve_clusters(part=part, wsum=body._wsum, sum_q=body._sum_q, ref=ref, quat=quat,
+                     aqq3=body._aqq3, aqq9=body._aqq9, rest_lin=body._rest_lin,
+                     rest_off=body._rest_off, scale=body._scale, trans=trans,
+                     goal_lin=goal_lin, goal_off=goal_off, mode=body._mode, beta=p.beta,
+                     apq=np.zeros_like(body._apq), acc=np.zeros(32), m3a=s3[0], m3b=s3[1],
+                     m3c=s3[2], m39=np.zeros((3, 9)), n4=np.zeros((4, 4)), v4=np.zeros((4, 4)),
+                     nmat=body._nmat, cdet=body._cdet)
+    g = body._x.copy()
+    K.integrate_serial(quad=body._quad, x=g, v=np.zeros_like(g), x0=body._x0, mass=body.m,
+                       ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
+                       rest_off=body._rest_off, trans=trans, goal_lin=goal_lin,
+                       goal_off=goal_off, ref=ref, alpha=1.0, h=1.0, acc=np.zeros(3),
+                       ang=np.zeros(3), com=np.zeros(3), part=part, err=np.zeros(1),
+                       has_col=False, ground=np.zeros(4), boxes=np.zeros((0, 8)),
+                       spheres=np.zeros((0, 6)), thresh=0.0, damp=False, k_damp=0.0,
+                       dmp=np.zeros((1, 6)), dpart=np.zeros((1, 1, K.NDAMP)))
+    return g
