@@ -1,0 +1,108 @@
+"""The collider side of ``World``: static, named, oriented and kinematic colliders.
+
+A mixin of ``World`` (``world.py``), split off so that each file answers one question:
+what collides with the bodies and how a user moves it and reads its wrench.  Unnamed
+axis-aligned boxes and spheres and the ground run inside each body's fused step
+(``kernels/colliders.py``); everything else goes through the collider pass
+(``kinematic.py``, ``ColliderSet``) after the bodies' step.
+"""
+
+import numpy as np
+
+from .colliders import ColliderSet
+from .params import Box, Capsule, Ground, Sphere
+
+
+class WorldColliders:
+    """Collider state and API of a ``World`` (uses its ``_bodies``, ``_flat``,
+    ``_coll_stats``)."""
+
+    def set_colliders(self, ground=None, boxes=(), spheres=(), capsules=()):
+        """Replace the colliders (validated; all or nothing).
+
+        Unnamed, axis-aligned static boxes and spheres are handled inside each body's
+        fused step as before; named, oriented or kinematic ones and capsules go through
+        the collider pass (``kinematic.py``) after the bodies' step.  Passing the same
+        collider objects again keeps the pass colliders' current poses and motion.
+        """
+        if ground is not None and not isinstance(ground, Ground):
+            raise ValueError('ground must be a Ground or None')
+        if not all(isinstance(b, Box) for b in boxes):
+            raise ValueError('boxes must be Box instances')
+        if not all(isinstance(s, Sphere) for s in spheres):
+            raise ValueError('spheres must be Sphere instances')
+        if not all(isinstance(c, Capsule) for c in capsules):
+            raise ValueError('capsules must be Capsule instances')
+        boxes, spheres, capsules = tuple(boxes), tuple(spheres), tuple(capsules)
+        g = np.array(ground.row() if ground else [0.0, 0.0, 0.0, 0.0])
+        b = np.array([x.row() for x in boxes if x.simple], dtype=float).reshape(-1, 8)
+        s = np.array([x.row() for x in spheres if x.simple], dtype=float).reshape(-1, 6)
+        passing = [x for x in boxes + spheres if not x.simple] + list(capsules)
+        names = [x.name for x in passing if x.name is not None]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f'collider names must be unique, repeated: {dup}')
+        old = getattr(self, '_cset', None)
+        if old is not None and len(old.items) == len(passing) and all(
+                a is b_ for a, b_ in zip(old.items, passing)):
+            cset = old
+        else:
+            cset = ColliderSet(passing) if passing else None    # validates every shape
+        self.ground, self.boxes, self.spheres = ground, boxes, spheres
+        self.capsules = capsules
+        self._ground_row, self._box_rows, self._sphere_rows = g, b, s
+        self._has_col = ground is not None or len(b) > 0 or len(s) > 0
+        self._cset = cset
+
+    @property
+    def collider_names(self):
+        """Names of the named colliders, in the order boxes, spheres, capsules."""
+        return tuple(self._cset.index) if self._cset is not None else ()
+
+    def collider(self, name: str):
+        """The Box / Sphere / Capsule called ``name`` (ValueError if there is none)."""
+        cs = self._require_cset(name)
+        return cs.items[cs.lookup(name)]
+
+    def _require_cset(self, name):
+        if self._cset is None:
+            raise ValueError(f'unknown collider {name!r} (the world has no named colliders)')
+        return self._cset
+
+    def collider_pose(self, name: str):
+        """Current (position (3,), quaternion (x, y, z, w)) of collider ``name``, copies."""
+        cs = self._require_cset(name)
+        c = cs.lookup(name)
+        return cs.pos[c].copy(), cs.quat[c].copy()
+
+    def move_collider(self, name: str, position, orientation=(0.0, 0.0, 0.0, 1.0),
+                      duration: float = 0.0):
+        """Move the kinematic collider ``name`` to a pose over the next ``duration`` s.
+
+        Each step moves it along the way (position linearly, orientation by slerp) at the
+        constant linear and angular velocity the move implies, which friction and
+        restitution see; ``duration`` 0 puts it there at once, at rest.  A new move starts
+        from wherever the collider is.  Unknown or static colliders, non-finite numbers and
+        zero or non-unit quaternions (|q| off 1 by more than 1e-3) raise ValueError and
+        change nothing.
+        """
+        self._require_cset(name).move(name, position, orientation, duration)
+
+    def collider_wrench(self, name: str):
+        """(force, torque about its centre) the bodies exert on collider ``name``, averaged
+        over the steps since the last ``take_collider_wrenches`` (world frame; N, N m)."""
+        cs = self._require_cset(name)
+        return cs.wrench(cs.lookup(name))
+
+    def take_collider_wrenches(self):
+        """{name: (force, torque)} of every named collider averaged over the steps since
+        the last call (impulses / time), and start a new window."""
+        return self._cset.take() if self._cset is not None else {}
+
+    def collider_contacts(self):
+        """{body name: (contacts, deepest penetration in m)} with the pass colliders in the
+        last step (one contact per particle and collider touched)."""
+        st, f = self._coll_stats, self._flat
+        if st is None or f is None or len(st) != len(f.bodies):
+            return dict.fromkeys(self._bodies, (0, 0.0))
+        return {b.name: (int(st[k, 0]), float(st[k, 1])) for k, b in enumerate(f.bodies)}
