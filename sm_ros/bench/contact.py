@@ -174,7 +174,7 @@ def contact_parts(world) -> Dict[str, float]:
         f.X[:] = Xs
         f.V[:] = Vs
         c.run(1.0 / 120.0, 0.16, world._has_col, world._ground_row, world._box_rows,
-              world._sphere_rows)
+              world._sphere_rows, world._gravity)
 
     def restore():
         f.X[:] = Xs

@@ -245,7 +245,7 @@ class World(WorldColliders):
         if need_contact:
             f.gather()
             c.run(h, thresh, self._has_col, self._ground_row, self._box_rows,
-                  self._sphere_rows)
+                  self._sphere_rows, self._gravity)
             if cs is not None:
                 st[:] = 0.0
                 cs.collide(f.X, f.V, f.W, f.B, 0, f.n, h, thresh, st, f.touched)
