@@ -10,6 +10,11 @@ mass), equal and opposite, so linear momentum is kept to round-off; its relative
 then gets the ground's contact law (``solve_pairs``).  Every velocity change also moves the
 particles by h times it, so without friction angular momentum is kept to round-off too.
 Particles that contact moved are then projected out of the static colliders again.
+Under gravity a pair of two free bodies (no pinned or grabbed particle) moves the two
+bodies as a whole (a translation of each, ``contact_kernels.solve_contacts``), so a body's
+load is carried by the whole body rather than its touching layer, and resting pairs one
+above the other are solved bottom-up (shock propagation, ``SHOCK``): stacks stand at the
+node's step.
 
 Neighbour search (a Verlet pair list on a cell grid) and the per-pair solve are compiled
 kernels in ``contact_kernels.py``; this file holds the settings (``ContactParams``,
@@ -246,5 +251,6 @@ class Contact:
 
 
 __all__ = ['ContactParams', 'BodyContact', 'Contact', 'default_radius', 'SELF_REST_FACTOR',
-           'SHOCK', 'body_inverse_masses', 'solve_contacts', 'build_pairs', 'build_pairs_grid', 'contact_velocity', 'count_fast', 'max_moved2',
-           'median_nn_distance', 'solve_pairs', 'sort_pairs']
+           'SHOCK', 'body_inverse_masses', 'build_pairs', 'build_pairs_grid',
+           'contact_velocity', 'count_fast', 'max_moved2', 'median_nn_distance',
+           'solve_contacts', 'solve_pairs', 'sort_pairs']
