@@ -179,13 +179,15 @@ def test_box_dropped_onto_a_box_rests_on_it():
 
 
 def test_stack_of_five_boxes_stands():
-    # at the node's step (dt 1/120 s, World.step as Simulation.tick calls it): a resting
-    # pair of two free bodies moves the bodies as a whole and stacks are solved bottom-up
+    # at the node's step (dt 1/120 s, World.step as Simulation.tick calls it), with
+    # stacking: a pair of two free bodies moves the bodies as a whole and stacks are solved
+    # bottom-up
     # (README "Contact between bodies"); per particle, the touching layer alone gave way
     # and these boxes fell through one another.  Every other box is put a little off
     # (like the dropped box above): lattices exactly above one another rest particle on
     # particle, a balance that a round-off tips after about 10 s
     w = World()
+    w.contact_params = ContactParams(stacking=True)
     w.set_colliders(ground=Ground())
     p = BodyParams(mode='rigid', alpha=0.99, damping=0.5)
     boxes = [w.add_body(lattice(4, 4, 3, center=(0.007 * (k % 2), 0.004 * (k % 2),
@@ -208,9 +210,10 @@ def test_stack_of_five_boxes_stands():
 
 
 def test_box_resting_partly_over_an_edge_stays():
-    # its centre of mass over the lower box: it stays where it was put (per particle, the
-    # lattice bumps kicked it off sideways)
+    # its centre of mass over the lower box, with stacking: it stays where it was put (per
+    # particle, the default, the lattice bumps kick it off sideways)
     w = World()
+    w.contact_params = ContactParams(stacking=True)
     w.set_colliders(ground=Ground())
     p = BodyParams(mode='rigid', alpha=0.99, damping=0.2)
     a = w.add_body(lattice(6, 6, 3, center=(0, 0, 0.02)), 0.01, p, 'a')
@@ -222,9 +225,10 @@ def test_box_resting_partly_over_an_edge_stays():
 
 
 def test_sideways_collision_under_gravity_exchanges_momentum_exactly():
-    # the bodies-as-a-whole response is equal and opposite; only resting pairs one above
-    # the other (shock propagation) exchange unequally, and these never rest
+    # with stacking the bodies-as-a-whole response is equal and opposite; only resting
+    # pairs one above the other (shock propagation) exchange unequally, and these never rest
     w = World()
+    w.contact_params = ContactParams(stacking=True)
     n = 27
     a = w.add_body(lattice(3, 3, 3, center=(-0.05, 0, 1.0)), 0.01, BodyParams(mode='rigid'),
                    'a', velocities=np.tile([1.0, 0.0, 0.0], (n, 1)))
@@ -378,7 +382,7 @@ def test_self_collision_folded_sheet_does_not_cross_itself(selfc):
 @pytest.mark.parametrize('changes', [
     dict(friction=-0.1), dict(friction=math.nan), dict(restitution=1.5),
     dict(radius_scale=0.0), dict(radius_scale=math.inf), dict(enabled='yes'),
-    dict(iterations=0), dict(iterations=2.5), dict(friction='a'),
+    dict(iterations=0), dict(iterations=2.5), dict(friction='a'), dict(stacking='yes'),
 ])
 def test_contact_params_refused(changes):
     w = World()

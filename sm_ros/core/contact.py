@@ -10,11 +10,12 @@ mass), equal and opposite, so linear momentum is kept to round-off; its relative
 then gets the ground's contact law (``solve_pairs``).  Every velocity change also moves the
 particles by h times it, so without friction angular momentum is kept to round-off too.
 Particles that contact moved are then projected out of the static colliders again.
-Under gravity a pair of two free bodies (no pinned or grabbed particle) moves the two
-bodies as a whole (a translation of each, ``contact_kernels.solve_contacts``), so a body's
-load is carried by the whole body rather than its touching layer, and resting pairs one
-above the other are solved bottom-up (shock propagation, ``SHOCK``): stacks stand at the
-node's step.
+With ``ContactParams.stacking`` (opt-in), under gravity a pair of two free bodies (no
+pinned or grabbed particle) moves the two bodies as a whole (a translation of each,
+``contact_kernels.solve_contacts``), so a body's load is carried by the whole body rather
+than its touching layer, and resting pairs one above the other are solved bottom-up
+(shock propagation, ``SHOCK``): stacks stand at the node's step (confined heaps, on the
+other hand, stay agitated: README "Contact between bodies").
 
 Neighbour search (a Verlet pair list on a cell grid) and the per-pair solve are compiled
 kernels in ``contact_kernels.py``; this file holds the settings (``ContactParams``,
@@ -67,6 +68,9 @@ class ContactParams:
     act like the ground's; ``radius_scale`` multiplies every body's default contact
     radius (half its median nearest-neighbour distance; a body's own ``contact_radius``
     is used as given); ``iterations`` Gauss-Seidel sweeps over the pairs per step.
+    ``stacking`` (opt-in, core API only so far): under gravity, pairs of two free bodies
+    push the bodies as a whole and resting stacks are solved bottom-up (README "Contact
+    between bodies": stacks stand at the node's step; confined heaps stay agitated).
     """
 
     enabled: bool = True
@@ -74,6 +78,7 @@ class ContactParams:
     restitution: float = 0.0
     radius_scale: float = 1.0
     iterations: int = 1
+    stacking: bool = False
 
     def validate(self) -> 'ContactParams':
         """Return a normalised copy; raise ValueError naming the bad field."""
@@ -88,6 +93,7 @@ class ContactParams:
             radius_scale=_finite('contact.radius_scale', self.radius_scale, 0.0, 10.0,
                                  lo_open=True),
             iterations=int(it),
+            stacking=_flag('contact.stacking', self.stacking),
         )
 
     @staticmethod
@@ -220,8 +226,9 @@ class Contact:
 
         ``has_col``, ``ground``, ``boxes``, ``spheres``: the World's static colliders (rows
         as in ``kernels.colliders.collide_point``), re-applied to every particle contact
-        moved.  ``gravity`` (3,): with a nonzero one, pairs of two free bodies move the
-        bodies as a whole and resting stacks are solved bottom-up (``solve_contacts``).
+        moved.  ``gravity`` (3,): with a nonzero one and ``params.stacking``, pairs of two
+        free bodies move the bodies as a whole and resting stacks are solved bottom-up
+        (``solve_contacts``).
         """
         f = self.flat
         half = 0.5 * self.skin
@@ -230,7 +237,8 @@ class Contact:
         self.count[:] = 0
         self.deepest[:] = 0.0
         p = self.params
-        g = 0.0 if gravity is None else math.sqrt(float(np.dot(gravity, gravity)))
+        g = 0.0 if gravity is None or not p.stacking else \
+            math.sqrt(float(np.dot(gravity, gravity)))
         if g > 0.0:
             np.multiply(gravity, -1.0 / g, out=self._up)
             body_inverse_masses(f.W, f.off, self._bw)
