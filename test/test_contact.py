@@ -482,3 +482,19 @@ def test_paper_384_scene_pours_into_its_bin():
     x = np.concatenate([b.x for b in bodies])
     assert np.isfinite(x).all() and x[:, 2].min() >= 0.0
     assert world.contact.found > 1000                      # they land on one another
+
+
+def test_stacking_changes_nothing_without_gravity():
+    # stacking acts only under gravity; without it the pairs act per particle, bit for bit
+    states = []
+    for stacking in (False, True):
+        w = World(gravity=(0, 0, 0))
+        w.contact_params = ContactParams(stacking=stacking)
+        a = w.add_body(lattice(3, 3, 3, center=(-0.04, 0, 0)), 0.01, None, 'a',
+                       velocities=np.tile([1.0, 0.0, 0.0], (27, 1)))
+        b = w.add_body(lattice(3, 3, 3, center=(0.04, 0.01, 0)), 0.01, None, 'b')
+        for _ in range(30):
+            w.step(1 / 120)
+        states.append(np.concatenate([a.x, b.x, a.v, b.v]))
+    assert w.contact.builds > 0
+    np.testing.assert_array_equal(states[0], states[1])

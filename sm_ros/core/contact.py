@@ -239,11 +239,14 @@ class Contact:
         p = self.params
         g = 0.0 if gravity is None or not p.stacking else \
             math.sqrt(float(np.dot(gravity, gravity)))
-        if g > 0.0:
-            np.multiply(gravity, -1.0 / g, out=self._up)
-            body_inverse_masses(f.W, f.off, self._bw)
-        else:
-            self._up[:] = 0.0
+        if g == 0.0:
+            self.found = solve_pairs(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
+                                     p.friction, p.restitution, thresh, float(h), p.iterations,
+                                     f.touched, self.count, self.deepest, bool(has_col),
+                                     ground, boxes, spheres, self._moved)
+            return
+        np.multiply(gravity, -1.0 / g, out=self._up)
+        body_inverse_masses(f.W, f.off, self._bw)
         self.found = solve_contacts(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
                                     p.friction, p.restitution, thresh, float(h), p.iterations,
                                     f.touched, self.count, self.deepest, bool(has_col), ground,
