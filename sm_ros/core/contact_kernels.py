@@ -45,6 +45,12 @@ def _bucket(key, mask):
     return np.int64(h >> np.uint64(32)) & mask
 
 
+# build_pairs and build_pairs_grid share their inner pair test (distance with skin, same
+# body only with self-collision and beyond the rest distance).  It is written out in
+# both on purpose: as a shared helper (also with inline='always') the rebuild of the
+# 384-block bin took 14-39 ms against 6 ms (one thread, side by side).
+
+
 @njit(**JIT)
 def build_pairs(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt, srt, skey, sco,
                 pi, pj):
