@@ -26,6 +26,51 @@ def _logprod(s0, s1, s2, lam):
             + np.log(0.5 * (s2 + np.sqrt(max(s2 * s2 + 4.0 * lam, 0.0)))))
 
 
+@njit(**JIT)
+def _plus_roots(s0, s1, s2, lo, hi, ftol, xtol):
+    """x_i = (s_i + sqrt(s_i^2 + 4 mu)) / 2 at the root mu in [lo, hi] of sum_i log x_i.
+
+    The sum increases with mu; safeguarded Newton (a step leaving the bracket bisects),
+    stopping at |sum| < ``ftol`` or a bracket narrower than ``xtol`` (1 + |mu|).  Shared
+    by ``volume_preserving`` and ``nearest_unit_det``.
+    """
+    mu = 0.5 * (lo + hi)
+    x0 = x1 = x2 = 1.0
+    for _ in range(100):
+        r0 = np.sqrt(max(s0 * s0 + 4.0 * mu, 0.0))
+        r1 = np.sqrt(max(s1 * s1 + 4.0 * mu, 0.0))
+        r2 = np.sqrt(max(s2 * s2 + 4.0 * mu, 0.0))
+        x0 = 0.5 * (s0 + r0)
+        x1 = 0.5 * (s1 + r1)
+        x2 = 0.5 * (s2 + r2)
+        fv = np.log(x0) + np.log(x1) + np.log(x2)
+        if abs(fv) < ftol or hi - lo < xtol * (1.0 + abs(mu)):
+            break
+        if fv < 0.0:
+            lo = mu
+        else:
+            hi = mu
+        fp = 0.0
+        if r0 > 0.0 and r1 > 0.0 and r2 > 0.0:
+            fp = 1.0 / (x0 * r0) + 1.0 / (x1 * r1) + 1.0 / (x2 * r2)
+        step = mu - fv / fp if fp > 0.0 else lo - 1.0
+        mu = step if lo < step < hi else 0.5 * (lo + hi)
+    return x0, x1, x2
+
+
+@njit(**JIT)
+def _times_v_diag_vt(a, wv, d0, d1, d2, out):
+    """out = a V diag(d) V^T (3x3; V the columns of ``wv``)."""
+    for i in range(3):
+        for j in range(3):
+            s = 0.0
+            for u in range(3):
+                vv = (wv[u, 0] * d0 * wv[j, 0] + wv[u, 1] * d1 * wv[j, 1]
+                      + wv[u, 2] * d2 * wv[j, 2])
+                s += a[i, u] * vv
+            out[i, j] = s
+
+
 #: Largest stretch (and 1 / smallest) of the volume-preserving linear transform A'.
 STRETCH_LIMIT = 2.0
 
@@ -66,44 +111,15 @@ def volume_preserving(a, out, wa, wv, limit):
     if _logprod(s0, s1, s2, 0.0) < 0.0:
         lo, hi = 0.0, 1.0            # at lam = 1 every x_i >= 1
     ok = _logprod(s0, s1, s2, lo) <= 0.0
-    lam = 0.5 * (lo + hi)
     x0 = x1 = x2 = 1.0
-    for _ in range(100):
-        if not ok:
-            break
-        r0 = np.sqrt(max(s0 * s0 + 4.0 * lam, 0.0))
-        r1 = np.sqrt(max(s1 * s1 + 4.0 * lam, 0.0))
-        r2 = np.sqrt(max(s2 * s2 + 4.0 * lam, 0.0))
-        x0 = 0.5 * (s0 + r0)
-        x1 = 0.5 * (s1 + r1)
-        x2 = 0.5 * (s2 + r2)
-        f = np.log(x0) + np.log(x1) + np.log(x2)
-        if abs(f) < 1e-14 or hi - lo < 1e-15 * (1.0 + abs(lam)):
-            break
-        if f < 0.0:
-            lo = lam
-        else:
-            hi = lam
-        fp = 0.0
-        if r0 > 0.0 and r1 > 0.0 and r2 > 0.0:
-            fp = 1.0 / (x0 * r0) + 1.0 / (x1 * r1) + 1.0 / (x2 * r2)
-        step = lam - f / fp if fp > 0.0 else lo - 1.0
-        lam = step if lo < step < hi else 0.5 * (lo + hi)
-    if not ok:                       # no root in reach: the uniform rescaling of Eq. 18
+    if ok:
+        x0, x1, x2 = _plus_roots(s0=s0, s1=s1, s2=s2, lo=lo, hi=hi, ftol=1e-14, xtol=1e-15)
+    else:                       # no root in reach: the uniform rescaling of Eq. 18
         c = 1.0 / np.cbrt(s0 * s1 * s2)
         x0, x1, x2 = s0 * c, s1 * c, s2 * c
-    x0 = min(max(x0, 1.0 / limit), limit) / s0
-    x1 = min(max(x1, 1.0 / limit), limit) / s1
-    x2 = min(max(x2, 1.0 / limit), limit) / s2
-    # out = a V diag(x / s) V^T
-    for i in range(3):
-        for j in range(3):
-            s = 0.0
-            for u in range(3):
-                vv = (wv[u, 0] * x0 * wv[j, 0] + wv[u, 1] * x1 * wv[j, 1]
-                      + wv[u, 2] * x2 * wv[j, 2])
-                s += a[i, u] * vv
-            out[i, j] = s
+    _times_v_diag_vt(a=a, wv=wv, d0=min(max(x0, 1.0 / limit), limit) / s0,
+                     d1=min(max(x1, 1.0 / limit), limit) / s1,
+                     d2=min(max(x2, 1.0 / limit), limit) / s2, out=out)
     return True
 
 
@@ -156,26 +172,7 @@ def nearest_unit_det(f, out, wa, wv):
         hi = 0.0
         if _unit_det_sum(s0=s0, s1=s1, s2=s2, mu=0.0, kmin=-1) < 0.0:
             lo, hi = 0.0, 1.0            # at mu = 1 every x_i >= 1
-        mu = 0.5 * (lo + hi)
-        for _ in range(100):
-            r0 = np.sqrt(max(s0 * s0 + 4.0 * mu, 0.0))
-            r1 = np.sqrt(max(s1 * s1 + 4.0 * mu, 0.0))
-            r2 = np.sqrt(max(s2 * s2 + 4.0 * mu, 0.0))
-            x0 = 0.5 * (s0 + r0)
-            x1 = 0.5 * (s1 + r1)
-            x2 = 0.5 * (s2 + r2)
-            fv = np.log(x0) + np.log(x1) + np.log(x2)
-            if abs(fv) < 1e-15 or hi - lo < 1e-16 * (1.0 + abs(mu)):
-                break
-            if fv < 0.0:
-                lo = mu
-            else:
-                hi = mu
-            fp = 0.0
-            if r0 > 0.0 and r1 > 0.0 and r2 > 0.0:
-                fp = 1.0 / (x0 * r0) + 1.0 / (x1 * r1) + 1.0 / (x2 * r2)
-            step = mu - fv / fp if fp > 0.0 else lo - 1.0
-            mu = step if lo < step < hi else 0.5 * (lo + hi)
+        x0, x1, x2 = _plus_roots(s0=s0, s1=s1, s2=s2, lo=lo, hi=hi, ftol=1e-15, xtol=1e-16)
     else:
         hi = 0.0                         # minus root of the smallest: sum falls to -inf
         for _ in range(200):
@@ -193,17 +190,7 @@ def nearest_unit_det(f, out, wa, wv):
         x0 = 0.5 * (s0 - r0) if kmin == 0 else 0.5 * (s0 + r0)
         x1 = 0.5 * (s1 - r1) if kmin == 1 else 0.5 * (s1 + r1)
         x2 = 0.5 * (s2 - r2) if kmin == 2 else 0.5 * (s2 + r2)
-    x0 /= s0
-    x1 /= s1
-    x2 /= s2
-    for i in range(3):
-        for j in range(3):
-            s = 0.0
-            for u in range(3):
-                vv = (wv[u, 0] * x0 * wv[j, 0] + wv[u, 1] * x1 * wv[j, 1]
-                      + wv[u, 2] * x2 * wv[j, 2])
-                s += f[i, u] * vv
-            out[i, j] = s
+    _times_v_diag_vt(a=f, wv=wv, d0=x0 / s0, d1=x1 / s1, d2=x2 / s2, out=out)
     return True
 
 
