@@ -24,7 +24,7 @@ KEYS = ('points', 'bodies', 'clusters', 'mode', 'step_ms_mean', 'step_ms_max',
         'momentum_drift_measured', 'nonfinite_resets', 'refused_messages', 'tick_ms_mean',
         'other_ms_mean', 'recording', 'recorder_messages', 'recorder_dropped', 'contacts',
         'contact_fast_particles', 'speed_limited', 'turn_limited', 'error_estimate_m',
-        'error_estimate_ms')
+        'error_estimate_ms', 'error_estimate_age_s')
 
 
 def fmt(value: float) -> str:
@@ -42,14 +42,16 @@ def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, 
                   paused: bool = False, recording: str = '', recorder_messages: int = 0,
                   recorder_dropped: int = 0, recorder_dropped_window: int = 0,
                   speed_limited: int = 0, turn_limited: int = 0,
-                  error_estimate_m: float = 0.0, error_estimate_ms: float = 0.0
-                  ) -> DiagnosticStatus:
+                  error_estimate_m: float = 0.0, error_estimate_ms: float = 0.0,
+                  error_estimate_age_s: Optional[float] = None) -> DiagnosticStatus:
     """
     Build the '<node name>: solver' status for the window that ends at ``now``.
 
     Level: ERROR when a body went non-finite in the window, else WARN when ticks overran
     or the recorder dropped messages in the window, else OK. ``recording`` is the folder
     being recorded into ('' when not recording); ``recorder_*`` count over the recording.
+    ``error_estimate_age_s``: seconds since the state of the last error estimate (None:
+    no estimate yet, published as -1).
     """
     span = max(now - stats.window_start, 1e-9)
     tick_ms = 1e3 * stats.tick_s_sum / stats.ticks if stats.ticks else 0.0
@@ -85,6 +87,8 @@ def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, 
         'turn_limited': str(int(turn_limited)),
         'error_estimate_m': fmt(error_estimate_m),
         'error_estimate_ms': fmt(error_estimate_ms),
+        'error_estimate_age_s': '-1' if error_estimate_age_s is None
+        else fmt(error_estimate_age_s),
     }
     status = DiagnosticStatus()
     status.name = f'{node_name}: solver'

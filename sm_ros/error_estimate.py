@@ -25,9 +25,26 @@ mean of 4 estimates along 2 s, 125 particles): estimate / true error at 1/120 an
 rigid_spin 0.90, 0.91; ballistic 1.00, 1.00; soft_drop 1.50, 1.53; cantilever 0.78, 1.00;
 plastic_press 2.03, 2.51. A single estimate can be 0.2-5x (an oscillation's phase).
 
-Cost: the copies take 3 n steps of the world's cost (n = ceil(W / h)). The node spreads
-them over its ticks (:meth:`ErrorEstimate.advance`, ``substeps`` coarse steps per tick, so
-the copies keep pace with the simulation and no tick pays for the whole window).
+Cost: the copies take 3 n world steps (n = ceil(W / h): n of h, 2 n of h/2) and two copies
+of the world (each about 3 steps' worth). The node spreads them over its ticks
+(:meth:`ErrorEstimate.work`, driven by ``sm_ros.stats.ErrorEstimateSchedule``) in units of
+one world step of one copy, within a budget: each tick may add ``error_estimate.budget`` x
+``substeps`` world steps of the copies (default 0.25: at 2 substeps one more step every
+other tick), so the copies cost a bounded share of the simulation whatever the scene
+(before the budget they ran ``substeps`` coarse steps a tick: 3x the tick's own steps,
+which tripled the ticks of the 384-body paper scene). An estimate then takes
+(3 n + 6) / (budget x substeps) ticks: 372 ticks, 6.2 s at 60 Hz with the default dt,
+substeps and budget, longer where ticks are late; ``error_estimate.rate`` is the most
+often one starts, and /diagnostics gives the age of the last (``error_estimate_age_s``).
+Its value does not depend on the pace: the copies are independent of the live world once
+made, and the same copies and steps give the same estimate.
+
+The copies are deep copies that keep the read-only flags of the world's arrays
+(:func:`copy_world`): a plain ``copy.deepcopy`` makes them writeable, which Numba types
+differently, so the first step of every copy loaded a second set of compiled kernels
+(2.4 s on the 384-body paper scene). The first copy is made when the estimate starts (a
+snapshot of the live world); the second is made from the first, still unstepped, as the
+first piece of work, so no tick pays for both.
 """
 
 import copy
@@ -83,23 +100,51 @@ def extrapolate(d, window: float, order: float = ORDER, horizon: float = HORIZON
     return {'error_m': factor * late * scale, 'window_m': factor * late, 'growth': q}
 
 
+def copy_world(world):
+    """Return a deep copy of ``world`` whose arrays have the types of the world's.
+
+    ``copy.deepcopy`` makes every array writeable; Numba types a read-only array
+    differently, so a copy's first step would load (or compile) a second specialisation of
+    every kernel that reads one (the masses, the rest shape). The copy's arrays are made
+    read-only where the world's are (found through the deep copy's memo, which holds every
+    object copied).
+    """
+    memo: Dict[int, Any] = {}
+    twin = copy.deepcopy(world, memo)
+    for original in memo.get(id(memo), ()):
+        if isinstance(original, np.ndarray) and not original.flags.writeable:
+            dup = memo.get(id(original))
+            if isinstance(dup, np.ndarray) and dup is not original:
+                dup.flags.writeable = False
+    return twin
+
+
 class ErrorEstimate:
     """Two copies of a world stepped at h and h/2 over a window, in slices.
 
-    ``advance(k)`` runs at most k more coarse steps (and 2 k fine ones); once
-    ``done``, ``result`` holds the estimate (:func:`extrapolate`'s keys plus ``steps``,
-    n, and ``cost_s``, the wall time of all slices).
+    ``advance(k)`` runs at most k more coarse steps (and 2 k fine ones); ``work(units)``
+    runs pieces of work: a world step of one copy (one unit) or, when ``staged``, the
+    making of the fine copy from the coarse one, still unstepped (``COPY_UNITS``); the
+    first piece. Once ``done``, ``result`` holds the estimate (:func:`extrapolate`'s keys
+    plus ``steps``, n, ``cost_s``, the wall time of all slices, and ``units``, the units
+    of work it took). ``units`` counts the units done so far.
     """
 
+    #: Units of work the making of one copy counts as: a deep copy costs about three world
+    #: steps (measured, copy against one step: paper_384 87 ms / 30 ms, many 11 / 4 ms).
+    COPY_UNITS = 3
+
     def __init__(self, world, dt: float, substeps: int = 1, order: float = ORDER,
-                 horizon: float = HORIZON_S, window: float = WINDOW_S):
+                 horizon: float = HORIZON_S, window: float = WINDOW_S, staged: bool = False):
         t0 = time.perf_counter()
         self.dt, self.order, self.horizon = float(dt), order, horizon
         self.source = world                                  # the world it estimates
         self.n = window_steps(dt, substeps, window)
-        self.coarse = copy.deepcopy(world)
-        self.fine = copy.deepcopy(world)
+        self.coarse = copy_world(world)
+        self.fine = None if staged else copy_world(world)
+        self.units = self.COPY_UNITS * (1 if staged else 2)
         self.d = []
+        self._phase = 0         # the next unit: 0 coarse step, 1 and 2 the fine steps
         self.result: Optional[Dict[str, Any]] = None
         self.cost_s = time.perf_counter() - t0
 
@@ -108,25 +153,65 @@ class ErrorEstimate:
         """Whether the window is complete (``result`` set)."""
         return self.result is not None
 
-    def advance(self, steps: int) -> float:
-        """Run up to ``steps`` coarse steps of the window; return the seconds it took."""
-        t0 = time.perf_counter()
+    @property
+    def next_units(self) -> int:
+        """The units the next piece of work counts (0 once done)."""
+        if self.result is not None:
+            return 0
+        return self.COPY_UNITS if self.fine is None else 1
+
+    def _unit(self) -> None:
+        """Do the next unit: make the fine copy, or one step of one copy."""
         h = self.dt
-        for _ in range(min(int(steps), self.n - len(self.d))):
+        if self.fine is None:
+            self.fine = copy_world(self.coarse)
+            self.units += self.COPY_UNITS
+            return
+        if self._phase == 0:
             self.coarse.step(h)
+        else:
             self.fine.step(0.5 * h)
-            self.fine.step(0.5 * h)
+        self.units += 1
+        self._phase = (self._phase + 1) % 3
+        if self._phase == 0:
             self.d.append(_rms(_positions(self.coarse) - _positions(self.fine)))
-        if len(self.d) >= self.n and self.result is None:
-            self.coarse = self.fine = self.source = None    # free the copies
-            res = extrapolate(self.d, self.n * h, self.order, self.horizon)
-            res['steps'] = self.n
-            self.result = res
+            if len(self.d) >= self.n:
+                self._finish()
+
+    def _finish(self) -> None:
+        self.coarse = self.fine = self.source = None    # free the copies
+        res = extrapolate(self.d, self.n * self.dt, self.order, self.horizon)
+        res['steps'] = self.n
+        res['units'] = self.units
+        self.result = res
+
+    def _timed(self, more) -> float:
+        t0 = time.perf_counter()
+        while self.result is None and more():
+            self._unit()
         spent = time.perf_counter() - t0
         self.cost_s += spent
         if self.result is not None:
             self.result['cost_s'] = self.cost_s
         return spent
+
+    def advance(self, steps: int) -> float:
+        """Run up to ``steps`` coarse steps of the window; return the seconds it took."""
+        goal = len(self.d) + int(steps)
+        return self._timed(lambda: len(self.d) < goal)
+
+    def work(self, units: float) -> float:
+        """Do the next pieces of work while they fit in ``units`` (a piece is done only
+        when all of its units fit); return the seconds it took."""
+        left = [float(units)]
+
+        def more():
+            cost = self.next_units
+            if cost > left[0]:
+                return False
+            left[0] -= cost
+            return True
+        return self._timed(more)
 
 
 def estimate(world, dt: float, substeps: int = 1, order: float = ORDER,

@@ -227,8 +227,14 @@ TABLE: Tuple[Param, ...] = (
     Param('error_estimate.rate', 1.0, 'Rate of the live error estimate in /diagnostics '
           '(error_estimate_m: trajectories of two copies of the world at dt and dt/2 '
           'compared over 0.5 s, the RMS position error after 2 s of the running dt and '
-          'substeps; the copies run over the ticks, their cost counts in them) (Hz; 0 '
+          'substeps; the copies run over the ticks within error_estimate.budget, their '
+          'cost counts in them; the most often: a small budget makes it rarer) (Hz; 0 '
           'disables)', 'Hz', 0.0, 100.0),
+    Param('error_estimate.budget', 0.25, "World steps the live error estimate's copies may "
+          "add to a tick, as a share of the tick's own steps (substeps): 0.25 adds one step "
+          'every other tick at 2 substeps. An estimate takes 3 x 0.5 s / dt steps and two '
+          'copies of about 3 steps each, so (1.5 / dt + 6) / (substeps x budget) ticks (372, '
+          '6.2 s at 60 Hz, with the defaults)', '', 0.0, 100.0, positive=True),
 )
 
 #: Every row by name.

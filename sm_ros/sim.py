@@ -39,6 +39,9 @@ from sm_ros.stats import ErrorEstimateSchedule, MomentumDrift, solver_figures, T
 
 #: Seconds between two log lines about bodies that went non-finite.
 NONFINITE_LOG_PERIOD = 1.0
+#: Parameters whose change abandons the live error estimate in progress (it estimates the
+#: error of the configuration its copies were made with; a new world or dt drops it too).
+ESTIMATE_KEYS = frozenset(table.SCENE_DEFAULT_KEYS + ('substeps', 'scene'))
 
 
 class ConfigError(Exception):
@@ -237,7 +240,8 @@ class Simulation:
 
     def status_values(self) -> Dict[str, Any]:
         """Return the figures of the solver status (``sm_ros.diagnostics.solver_status``)."""
-        return solver_figures(self.world, self.params, self.momentum, self.error_estimate)
+        return solver_figures(self.world, self.params, self.momentum, self.error_estimate,
+                              self._estimates.age(self.clock()))
 
     # ------------------------------------------------------------------ hooks
 
@@ -409,7 +413,8 @@ class Simulation:
     def tick(self) -> None:
         """Apply pending changes, step ``substeps`` x ``dt``, recover, call the listeners."""
         t0 = time.perf_counter()
-        self.apply_pending()
+        if ESTIMATE_KEYS.intersection(self.apply_pending()):
+            self._estimates.drop()          # it would describe the configuration before
         world, stats = self.world, self.stats
         dt = float(self.params['dt'])
         substeps = int(self.params['substeps'])
@@ -433,11 +438,13 @@ class Simulation:
             self.momentum.track(world, before)
         else:
             self.momentum.forget()
-        # the live error estimate (stats.ErrorEstimateSchedule): a share of one every
-        # 1 / error_estimate.rate s, its time counted in the tick but not as an overrun
+        # the live error estimate (stats.ErrorEstimateSchedule): at most one every
+        # 1 / error_estimate.rate s, its copies stepped within error_estimate.budget; its
+        # time counted in the tick but not as an overrun
         estimate_s = self._estimates.advance(world, dt, substeps,
                                              float(self.params['error_estimate.rate']),
-                                             self.clock)
+                                             self.clock,
+                                             float(self.params['error_estimate.budget']))
         tp = time.perf_counter()
         for fn in self._tick_listeners:
             fn(self)

@@ -183,13 +183,22 @@ class MomentumDrift:
 
 
 class ErrorEstimateSchedule:
-    """The live error estimate of a running simulation, one every 1 / rate s.
+    """The live error estimate of a running simulation, one every 1 / rate s at most.
 
     Each estimate (``sm_ros.error_estimate.ErrorEstimate``) steps two copies of the world
-    over a 0.5 s window; every tick runs ``substeps`` of its coarse steps (and twice as many
-    fine ones), so the copies keep pace with the simulation and the cost is spread over
-    the ticks (about 3x the tick's own steps while a window runs).  ``result`` is the last
-    finished estimate (None before the first), ``running`` the one in progress or None.
+    over a 0.5 s window (3 n world steps: n of h, 2 n of h/2) within a budget: every tick
+    earns ``budget`` x ``substeps`` units of credit and the estimate does the pieces of
+    work the credit covers: one world step of one copy (one unit) or the making of the
+    second copy (``ErrorEstimate.COPY_UNITS``, about what a copy costs in steps). A tick
+    thus adds at most max(ceil(``budget`` x ``substeps``), ``COPY_UNITS``) units; the unused
+    credit carries over. The first copy is made when the estimate starts (a snapshot of
+    the live world) on credit, which the next ticks pay back. With a small budget an
+    estimate takes many ticks and comes less often than ``rate`` asks; ``age`` says how
+    old the state the last one describes is. The node's budget is the parameter
+    ``error_estimate.budget``.
+
+    ``result`` is the last finished estimate (None before the first), ``running`` the one
+    in progress or None, ``units`` the units of work done in the last ``advance``.
     """
 
     def __init__(self):
@@ -197,16 +206,33 @@ class ErrorEstimateSchedule:
         self.result: Optional[Dict[str, Any]] = None
         self.running: Optional[Any] = None
         self._next = -math.inf
+        self._credit = 0.0
+        self._started = -math.inf       # clock time the running estimate's copies were made
+        self.result_started = None      # the same, of ``result`` (None before the first)
+        self.units = 0
+
+    def drop(self) -> None:
+        """Abandon the estimate in progress (the configuration changed); start anew."""
+        if self.running is not None:
+            self.running = None
+            self._next = -math.inf
+
+    def age(self, now: float) -> Optional[float]:
+        """Seconds since the copies of the last finished estimate were made, or None."""
+        return None if self.result_started is None else now - self.result_started
 
     def advance(self, world, dt: float, substeps: int, rate: float,
-                clock: Callable[[], float]) -> float:
+                clock: Callable[[], float], budget: Optional[float] = None) -> float:
         """Advance the estimate by a tick of ``world``; start one when due (``rate`` > 0:
-        estimates per second).
+        estimates per second) with ``budget`` x ``substeps`` units of work per tick (None:
+        ``substeps`` coarse steps a tick, 3 units each, so the copies keep pace with the
+        simulation and cost 3x its steps while a window runs).
 
         Returns the seconds spent this tick: they count in ``tick_ms_max`` /
         ``tick_ms_mean`` but not as an overrun.
         """
-        if rate <= 0.0 or not world.bodies:
+        self.units = 0
+        if rate <= 0.0 or (budget is not None and budget <= 0.0) or not world.bodies:
             self.running = None
             return 0.0
         spent = 0.0
@@ -214,24 +240,37 @@ class ErrorEstimateSchedule:
         if self.running is None and now >= self._next:
             from sm_ros.error_estimate import ErrorEstimate
             self._next = now + 1.0 / rate
-            self.running = ErrorEstimate(world, dt, substeps)
+            self._started = now
+            self.running = ErrorEstimate(world, dt, substeps, staged=budget is not None)
             spent = self.running.cost_s
+            self.units = self.running.units
+            self._credit = -float(self.running.units)
         est = self.running
         if est is not None and (est.dt != dt or est.source is not world):
             est = self.running = None            # the step or the scene changed: start anew
             self._next = now
         if est is not None:
-            spent += est.advance(substeps)
+            before = est.units
+            if budget is None:
+                spent += est.advance(substeps)
+            else:
+                self._credit += budget * max(int(substeps), 1)
+                spent += est.work(self._credit)
+                self._credit -= est.units - before
+            self.units += est.units - before
             if est.done:
                 self.result = est.result
+                self.result_started = self._started
                 self.running = None
         return spent
 
 
 def solver_figures(world, values: Mapping[str, Any], momentum: MomentumDrift,
-                   estimate: Optional[Dict[str, Any]]) -> Dict[str, Any]:
+                   estimate: Optional[Dict[str, Any]], estimate_age: Optional[float] = None
+                   ) -> Dict[str, Any]:
     """The figures of the solver status (``sm_ros.diagnostics.solver_status``) of a world
-    run with node parameter ``values``, its momentum drift and last error estimate."""
+    run with node parameter ``values``, its momentum drift and last error estimate (made
+    from the state of ``estimate_age`` seconds ago)."""
     bodies = world.bodies
     n = int(sum(b.n for b in bodies))
     err2 = sum(b.n * float(b.shape_error_rms()) ** 2 for b in bodies)
@@ -244,4 +283,5 @@ def solver_figures(world, values: Mapping[str, Any], momentum: MomentumDrift,
                 speed_limited=sum(b.limit_counts[0] for b in bodies),
                 turn_limited=sum(b.limit_counts[1] for b in bodies),
                 error_estimate_m=estimate['error_m'] if estimate else 0.0,
-                error_estimate_ms=1e3 * estimate['cost_s'] if estimate else 0.0)
+                error_estimate_ms=1e3 * estimate['cost_s'] if estimate else 0.0,
+                error_estimate_age_s=estimate_age if estimate else None)

@@ -28,8 +28,8 @@ INTERFACE_PARAMS = ('mode', 'alpha', 'beta', 'plasticity.yield', 'plasticity.cre
                     'diagnostics_rate', 'max_points', 'cloud_in_mode', 'material_dt',
                     'contact.enabled', 'contact.friction', 'contact.restitution',
                     'contact.radius_scale', 'max_speed', 'max_turn', 'error_estimate.rate')
-#: Parameters sm_ros adds to the interface (live view and recording).
-EXTRA_PARAMS = ('foxglove.port', 'foxglove.host', 'record.path')
+#: Parameters sm_ros adds to the interface (live view, recording, error estimate budget).
+EXTRA_PARAMS = ('foxglove.port', 'foxglove.host', 'record.path', 'error_estimate.budget')
 
 
 def set_param(node, name, value):

@@ -444,31 +444,60 @@ def test_error_extrapolation():
         assert extrapolate([1e-3, bad], 0.5)['error_m'] == float('inf')
 
 
+def _budget_ticks(steps, budget, substeps):
+    """Ticks from the start of an estimate to its result: the start tick makes the first
+    copy on credit, every tick earns budget x substeps units, the work is the fine copy
+    and 3 world steps per coarse step."""
+    from sm_ros.error_estimate import ErrorEstimate
+    return int(math.ceil((3 * steps + 2 * ErrorEstimate.COPY_UNITS) / (budget * substeps)))
+
+
 def test_simulation_reports_the_estimate_at_its_rate_and_counts_its_cost():
+    from sm_ros import error_estimate
+    from sm_ros.error_estimate import ErrorEstimate
     from sm_ros.sim import ParameterError, Simulation
     now = [0.0]
     sim = Simulation({'scene': 'default'}, clock=lambda: now[0])
     off = Simulation({'scene': 'default', 'error_estimate.rate': 0.0})
     assert sim.params['error_estimate.rate'] == 1.0
+    budget = sim.params['error_estimate.budget']
+    assert budget == 0.25
     n = sim.params['substeps']
-    steps = int(np.ceil(0.5 / sim.params['dt']))        # a 0.5 s window, substeps a tick
-    ticks = -(-steps // n)
-    for _ in range(ticks - 1):                             # the window spread over ticks
-        sim.tick()
-        off.tick()
-        assert sim.error_estimate is None and sim._estimator is not None
+    steps = int(np.ceil(0.5 / sim.params['dt']))        # a 0.5 s window
+    ticks = _budget_ticks(steps, budget, n)
+    assert ticks == 372                                   # 6.2 s at 60 Hz
+    units = []
     sim.tick()
     off.tick()
+    # the estimate without a budget, from the state the copies were made of
+    unbudgeted = error_estimate.estimate(sim.world, sim.params['dt'], n)
+    units.append(sim._estimates.units)
+    for _ in range(ticks - 1):                            # the window spread over ticks
+        assert sim.error_estimate is None and sim._estimator is not None
+        sim.tick()
+        off.tick()
+        units.append(sim._estimates.units)
     first = sim.error_estimate
     assert first is not None and first['error_m'] > 0.0 and first['steps'] == steps
+    # the copies' work per tick is bounded: the snapshot copy, then at most one piece a
+    # tick, never more than ceil(budget x substeps) steps or one copy
+    assert units[0] == ErrorEstimate.COPY_UNITS
+    assert max(units[1:]) <= max(ErrorEstimate.COPY_UNITS, math.ceil(budget * n))
+    assert sum(units) == 3 * steps + 2 * ErrorEstimate.COPY_UNITS == first['units']
+    assert sorted(set(units)) == [0, 1, ErrorEstimate.COPY_UNITS]
+    # same copies, same steps: the budget changes when the estimate comes, not its value
+    for key in ('error_m', 'window_m', 'growth', 'steps'):
+        assert first[key] == unbudgeted[key], key
     assert off.error_estimate is None and off.status_values()['error_estimate_m'] == 0.0
-    # counted in the ticks: the copies take 3x the world's steps, the ticks alone 1x
+    assert off.status_values()['error_estimate_age_s'] is None
+    # counted in the ticks
     assert sim.stats.tick_s_sum >= first['cost_s']
     for _ in range(5):                                        # within 1 s: no new estimate
         now[0] += 0.1
         sim.tick()
         off.tick()
         assert sim.error_estimate is first
+    assert sim.status_values()['error_estimate_age_s'] == pytest.approx(0.5)
     now[0] += 0.6
     for _ in range(ticks):
         sim.tick()
@@ -477,12 +506,71 @@ def test_simulation_reports_the_estimate_at_its_rate_and_counts_its_cost():
     status = sim.status_values()
     assert status['error_estimate_m'] == sim.error_estimate['error_m']
     assert status['error_estimate_ms'] == pytest.approx(1e3 * sim.error_estimate['cost_s'])
+    assert status['error_estimate_age_s'] == 0.0                # the clock stood still
     # the copies leave the world alone
     np.testing.assert_array_equal(sim.world.bodies[0].x, off.world.bodies[0].x)
-    for bad in (-1.0, 101.0, float('nan')):
+    for name, bad in (('error_estimate.rate', -1.0), ('error_estimate.rate', 101.0),
+                      ('error_estimate.rate', float('nan')), ('error_estimate.budget', 0.0),
+                      ('error_estimate.budget', -0.5), ('error_estimate.budget', 101.0)):
         with pytest.raises(ParameterError):
-            sim.set_params({'error_estimate.rate': bad})
+            sim.set_params({name: bad})
     assert sim.pending == {} and sim.params['error_estimate.rate'] == 1.0
+    assert sim.params['error_estimate.budget'] == 0.25
+
+
+def test_estimate_budget_sets_the_pace_and_a_physics_change_drops_it():
+    """A budget of 0.5 at 1 substep: 192 ticks for 30 coarse steps, 3 units a tick at
+    most; changing a body parameter abandons the estimate in progress (a new one starts
+    from the new configuration), changing the diagnostics rate does not."""
+    from sm_ros.sim import Simulation
+    now = [0.0]
+    sim = Simulation({'scene': 'default', 'error_estimate.budget': 0.5,
+                      'dt': 1.0 / 60.0, 'substeps': 1}, clock=lambda: now[0])
+    steps = 30
+    ticks = _budget_ticks(steps, 0.5, 1)
+    assert ticks == 192
+    for _ in range(ticks - 1):
+        sim.tick()
+        assert sim.error_estimate is None
+        assert sim._estimates.units <= 3
+    sim.tick()
+    assert sim.error_estimate is not None and sim.error_estimate['steps'] == steps
+    now[0] += 2.0
+    sim.tick()
+    running = sim._estimator
+    assert running is not None
+    sim.set_params({'diagnostics_rate': 2.0})
+    sim.tick()
+    assert sim._estimator is running
+    old_params = [b.params for b in running.coarse.bodies]
+    sim.set_params({'alpha': 0.9})
+    sim.tick()                          # dropped at the change, a new one from the new world
+    fresh = sim._estimator
+    assert fresh is not None and fresh is not running
+    assert [b.params for b in fresh.coarse.bodies] == [b.params for b in sim.world.bodies]
+    assert [b.params for b in fresh.coarse.bodies] != old_params
+
+
+def test_copies_of_the_world_keep_the_array_types():
+    """A copy's arrays have the Numba types of the world's (read-only stays read-only), so
+    its first step runs the kernels the world already loaded."""
+    import copy
+    import numba
+    from sm_ros.error_estimate import copy_world
+    from sm_ros.sim import Simulation
+    world = Simulation({'scene': 'default'}).world
+    twin = copy_world(world)
+    plain = copy.deepcopy(world)
+    for b, t, p in zip(world.bodies, twin.bodies, plain.bodies):
+        arrays = [k for k, v in vars(b).items() if isinstance(v, np.ndarray)]
+        assert {'m', 'x_init', '_x', '_v'} <= set(arrays)
+        assert not b.m.flags.writeable and p.m.flags.writeable   # what deepcopy does
+        for k in arrays:
+            assert numba.typeof(getattr(t, k)) == numba.typeof(getattr(b, k)), k
+            assert getattr(t, k) is not getattr(b, k)
+            np.testing.assert_array_equal(getattr(t, k), getattr(b, k))
+    twin.step(1.0 / 120.0)
+    assert not np.array_equal(twin.bodies[0].x, world.bodies[0].x)
 
 
 def test_estimate_in_progress_is_dropped_when_the_step_or_the_world_changes():
