@@ -2,6 +2,7 @@
 
 import math
 
+import numba
 import numpy as np
 import pytest
 
@@ -43,7 +44,33 @@ def brute_pairs(x, r, body, act, selfc, x0, cutoff_extra):
 # Kernels against NumPy
 # ---------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize('kernel', ['grid', 'hash'])
+def build_with(kernel, X, R, B, act, selfc, X0, cell, skin, cap):
+    """Run one pair-list builder; (m, pi, pj) with the table sized as ``Contact`` does."""
+    n = X.shape[1]
+    hb = np.zeros(n, np.int64)
+    srt = np.zeros(n, np.int64)
+    sco = np.zeros((5, n))
+    pi = np.zeros(cap, np.int32)
+    pj = np.zeros(cap, np.int32)
+    cnt = np.zeros((1 << max(4, int(np.ceil(np.log2(4 * n))))) + 1, np.int64)
+    args = (X, R, B, act, selfc, X0, cell, skin, C.SELF_REST_FACTOR, hb, cnt, srt)
+    if kernel == 'hash':
+        m = C.build_pairs(*args, np.zeros(n, np.int64), sco, pi, pj)
+    elif kernel == 'cells':
+        m = C.build_pairs_cells(*args, sco, pi, pj)
+    else:
+        scratch = (np.zeros((n, 4)), np.zeros(n, np.int32), np.zeros(len(cnt) - 1, np.int32))
+        if kernel == 'grid':
+            m = C.build_pairs_grid(*args, *scratch, pi, pj)
+        else:
+            m = C.build_pairs_grid_par(*args, *scratch, pi, pj, numba.get_num_threads())
+    return m, pi, pj
+
+
+BUILDERS = ['grid', 'grid_par', 'cells', 'hash']
+
+
+@pytest.mark.parametrize('kernel', BUILDERS)
 def test_pair_build_matches_brute_force(kernel):
     rng = np.random.default_rng(4)
     n, nb = 600, 7
@@ -54,20 +81,7 @@ def test_pair_build_matches_brute_force(kernel):
     act = np.array([True, True, True, False, True, True, True])
     selfc = np.array([False, True, False, True, False, True, False])
     skin = 0.005
-    cell = 2 * R.max() + skin
-    hb = np.zeros(n, np.int64)
-    srt = np.zeros(n, np.int64)
-    sco = np.zeros((5, n))
-    pi = np.zeros(10 * n, np.int32)
-    pj = np.zeros(10 * n, np.int32)
-    if kernel == 'grid':
-        cnt = np.zeros(1 << 16 | 1, np.int64)
-        m = C.build_pairs_grid(X, R, B, act, selfc, X0, cell, skin, C.SELF_REST_FACTOR, hb,
-                               cnt, srt, sco, pi, pj)
-    else:
-        cnt = np.zeros((1 << 12) + 1, np.int64)
-        m = C.build_pairs(X, R, B, act, selfc, X0, cell, skin, C.SELF_REST_FACTOR, hb, cnt,
-                          srt, np.zeros(n, np.int64), sco, pi, pj)
+    m, pi, pj = build_with(kernel, X, R, B, act, selfc, X0, 2 * R.max() + skin, skin, 10 * n)
     got = {(min(a, b), max(a, b)) for a, b in zip(pi[:m].tolist(), pj[:m].tolist())}
     assert len(got) == m                                   # each pair once
     want = brute_pairs(X.T, R, B, act, selfc, X0.T, skin)
@@ -75,15 +89,88 @@ def test_pair_build_matches_brute_force(kernel):
     assert any(B[a] == B[b] for a, b in want)              # self pairs were tested too
 
 
+def heap_of_lattices(seed, n_bodies=14, side=5, selfc_body=3, off_body=5):
+    """Lattice blocks, rotated at random, thrown into a small box so that they overlap (the
+    pair list's hard case: cells shared by several bodies next to cells of one)."""
+    rng = np.random.default_rng(seed)
+    g = lattice(side, side, side)
+    xs, x0s, bs = [], [], []
+    for b in range(n_bodies):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        w, x, y, z = q
+        rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+        xs.append(g @ rot.T * rng.uniform(0.9, 1.1) + rng.uniform(-0.1, 0.1, 3))
+        x0s.append(g * (3.0 if b == selfc_body else 1.0) + 10.0 * b)  # self: spread at rest
+        bs.append(np.full(len(g), b))
+    B = np.concatenate(bs).astype(np.int32)
+    X = np.ascontiguousarray(np.concatenate(xs).T)
+    X0 = np.ascontiguousarray(np.concatenate(x0s).T)
+    R = np.where(B % 2 == 0, 0.5 * S, 0.4 * S)
+    act = np.ones(n_bodies, bool)
+    act[off_body] = False
+    selfc = np.zeros(n_bodies, bool)
+    selfc[selfc_body] = True
+    return X, R, B, act, selfc, X0
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_pair_builders_agree_on_a_heap_of_bodies(seed):
+    """Every builder lists the same pairs as brute force on overlapping rotated blocks; the
+    serial and the parallel grid builder the same list in the same order, so the solve does
+    not depend on the thread count; ``sort_pairs`` orders by the lower index, stably."""
+    X, R, B, act, selfc, X0 = heap_of_lattices(seed)
+    skin = 0.25 * S
+    want = brute_pairs(X.T, R, B, act, selfc, X0.T, skin)
+    assert len(want) > 500 and any(B[a] == B[b] for a, b in want)
+    n = X.shape[1]
+    lists = {}
+    for kernel in BUILDERS:
+        m, pi, pj = build_with(kernel, X, R, B, act, selfc, X0, 2 * R.max() + skin, skin,
+                               8 * n)
+        assert m == len(want), kernel
+        lists[kernel] = (pi[:m].copy(), pj[:m].copy())
+        C.sort_pairs(pi, pj, m, n, np.zeros(n + 1, np.int64), np.zeros_like(pi),
+                     np.zeros_like(pj))
+        assert set(zip(pi[:m].tolist(), pj[:m].tolist())) == want, kernel
+        assert np.all(pi[:m] < pj[:m]) and np.all(np.diff(pi[:m]) >= 0)
+        low = np.minimum(*lists[kernel])
+        stable = np.argsort(low, kind='stable')            # the same as a stable sort
+        np.testing.assert_array_equal(pj[:m], np.maximum(*lists[kernel])[stable])
+    for k in (0, 1):
+        np.testing.assert_array_equal(lists['grid_par'][k], lists['grid'][k])
+
+
+def test_parallel_builder_grows_a_full_list():
+    """With too small a list, the parallel builder asks for more room than it has (the
+    caller grows it), then fills it like the serial one."""
+    X, R, B, act, selfc, X0 = heap_of_lattices(5)
+    skin = 0.25 * S
+    m_ser, pi_s, pj_s = build_with('grid', X, R, B, act, selfc, X0, 2 * R.max() + skin, skin,
+                                   16 * X.shape[1])
+    m, _, _ = build_with('grid_par', X, R, B, act, selfc, X0, 2 * R.max() + skin, skin, 64)
+    assert m > 64
+    m2, pi, pj = build_with('grid_par', X, R, B, act, selfc, X0, 2 * R.max() + skin, skin,
+                            int(m * 1.5) + 1024)
+    assert m2 == m_ser
+    np.testing.assert_array_equal(pi[:m2], pi_s[:m_ser])
+    np.testing.assert_array_equal(pj[:m2], pj_s[:m_ser])
+
+
 def test_grid_refuses_a_box_larger_than_its_table():
     X = np.array([[0.0, 1e3], [0.0, 0.0], [0.0, 0.0]])
     R = np.full(2, 0.01)
     B = np.array([0, 1], np.int32)
     act = np.ones(2, bool)
-    m = C.build_pairs_grid(X, R, B, act, ~act, X, 0.03, 0.01, 2.0, np.zeros(2, np.int64),
-                           np.zeros(17, np.int64), np.zeros(2, np.int64), np.zeros((5, 2)),
-                           np.zeros(4, np.int32), np.zeros(4, np.int32))
-    assert m == -1
+    args = (X, R, B, act, ~act, X, 0.03, 0.01, 2.0, np.zeros(2, np.int64),
+            np.zeros(17, np.int64), np.zeros(2, np.int64))
+    out = (np.zeros(4, np.int32), np.zeros(4, np.int32))
+    assert C.build_pairs_cells(*args, np.zeros((5, 2)), *out) == -1
+    scratch = (np.zeros((2, 4)), np.zeros(2, np.int32), np.zeros(16, np.int32))
+    assert C.build_pairs_grid(*args, *scratch, *out) == -1
+    assert C.build_pairs_grid_par(*args, *scratch, *out, 2) == -1
 
 
 def test_pair_response_conserves_momentum_and_separates():

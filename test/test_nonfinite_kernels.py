@@ -74,9 +74,9 @@ def test_plastic_update_leaves_the_plastic_state_of_a_non_finite_match(bad):
         np.testing.assert_array_equal(sp[0], np.eye(3))
 
 
-@pytest.mark.parametrize('grid', [False, True])
+@pytest.mark.parametrize('kind', ['hash', 'cells', 'grid', 'grid_par'])
 @pytest.mark.parametrize('bad', BAD)
-def test_contact_pairs_skip_non_finite_particles(bad, grid):
+def test_contact_pairs_skip_non_finite_particles(bad, kind):
     n = 4
     x = np.zeros((3, n))
     x[0] = [0.0, 0.01, bad, 0.02]
@@ -84,13 +84,19 @@ def test_contact_pairs_skip_non_finite_particles(bad, grid):
     x0 = np.zeros((3, n))
     x0[0] = [0.0, 1.0, 2.0, 3.0]                       # far apart at rest: self-contact
     hb = np.zeros(n, dtype=np.int64)
-    pi, pj = np.zeros(16, dtype=np.int64), np.zeros(16, dtype=np.int64)
-    args = (x, np.full(n, 0.01), np.zeros(n, dtype=np.int64), np.ones(1, dtype=np.bool_),
+    pi, pj = np.zeros(16, dtype=np.int32), np.zeros(16, dtype=np.int32)
+    args = (x, np.full(n, 0.01), np.zeros(n, dtype=np.int32), np.ones(1, dtype=np.bool_),
             np.ones(1, dtype=np.bool_), x0, 0.02, 0.0, 0.0, hb, np.zeros(65, dtype=np.int64),
             np.zeros(n, dtype=np.int64))
-    if grid:
-        m = contact.build_pairs_grid(*args, np.zeros((5, n)), pi, pj)
-    else:
+    if kind == 'cells':
+        m = contact.build_pairs_cells(*args, np.zeros((5, n)), pi, pj)
+    elif kind == 'hash':
         m = contact.build_pairs(*args, np.zeros(n, dtype=np.int64), np.zeros((5, n)), pi, pj)
+    else:
+        scratch = (np.zeros((n, 4)), np.zeros(n, dtype=np.int32), np.zeros(64, dtype=np.int32))
+        if kind == 'grid':
+            m = contact.build_pairs_grid(*args, *scratch, pi, pj)
+        else:
+            m = contact.build_pairs_grid_par(*args, *scratch, pi, pj, 2)
     assert m == 1 and (pi[0], pj[0]) == (0, 1)
     assert hb[2] == -1 and hb[3] == -1

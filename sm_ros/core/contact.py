@@ -18,8 +18,9 @@ than its touching layer, and resting pairs one above the other are solved bottom
 other hand, stay agitated: README "Contact between bodies").
 
 Neighbour search (a Verlet pair list on a cell grid) and the per-pair solve are compiled
-kernels in ``contact_kernels.py``; this file holds the settings (``ContactParams``,
-``BodyContact``) and the pass ``Contact`` that owns the buffers and calls them.
+kernels in ``contact_build.py`` and ``contact_kernels.py``; this file holds the settings
+(``ContactParams``, ``BodyContact``) and the pass ``Contact`` that owns the buffers and calls
+them.
 """
 
 from dataclasses import dataclass, fields, replace
@@ -28,9 +29,12 @@ from typing import Optional
 
 import numpy as np
 
-from .contact_kernels import (body_inverse_masses, build_pairs, build_pairs_grid, count_fast,
-                              max_moved2, median_nn_distance, solve_contacts, solve_pairs,
-                              sort_pairs)
+import numba
+
+from .contact_build import (build_pairs, build_pairs_cells, build_pairs_grid,
+                            build_pairs_grid_par, max_moved2, sort_pairs)
+from .contact_kernels import (body_inverse_masses, count_fast, median_nn_distance,
+                              solve_contacts, solve_pairs)
 from .kernels.colliders import contact_velocity
 from .params import _finite
 
@@ -45,6 +49,10 @@ SKIN_FACTOR = 0.5
 #: bodies"): 0.25 stands five stacked boxes still at the node's step; 1 (exact momentum
 #: exchange) lets them sink by about 3 mm a second.
 SHOCK = 0.25
+#: The pair list is built on the Numba threads (``build_pairs_grid_par``) from this many
+#: colliding particles when more than one thread is set (below it, fork/join costs more
+#: than it saves on shared cores).
+PARALLEL_BUILD_MIN = 20000
 _NO_GROUND = np.zeros(4)
 _NO_ROWS8 = np.zeros((0, 8))
 _NO_ROWS6 = np.zeros((0, 6))
@@ -173,6 +181,13 @@ class Contact:
         self._srt = np.zeros(n, dtype=np.int64)
         self._skey = np.zeros(n, dtype=np.int64)
         self._sco = np.zeros((5, n))
+        self._P = np.zeros((n, 4))
+        self._sb = np.zeros(n, dtype=np.int32)
+        self._cb = np.zeros(tsize, dtype=np.int32)
+        #: None: the serial builder, or the parallel one from ``PARALLEL_BUILD_MIN``
+        #: particles when more than one Numba thread is set; True / False: always / never
+        #: the parallel one; 'cells': the previous builder (the benchmark's reference).
+        self.parallel_build = None
         cap = max(1024, 2 * n)
         self._pi = np.zeros(cap, dtype=np.int32)
         self._pj = np.zeros(cap, dtype=np.int32)
@@ -197,12 +212,34 @@ class Contact:
         """Force a rebuild of the pair list at the next step."""
         self.valid = False
 
+    def _grid_builder(self):
+        """'cells' (the previous builder), or the number of threads of the grid builder."""
+        mode = self.parallel_build
+        if mode == 'cells':
+            return mode
+        nt = numba.get_num_threads()
+        if mode is None:
+            mode = self.flat.n >= PARALLEL_BUILD_MIN and nt > 1
+        return nt if mode else 1
+
     def _build(self):
         f = self.flat
+        nt = self._grid_builder()
         while True:
-            m = build_pairs_grid(f.X, f.R, f.B, self.act, self.selfc, f.X0, self.cell,
-                                 self.skin, SELF_REST_FACTOR, self._hb, self._cnt, self._srt,
-                                 self._sco, self._pi, self._pj)
+            if nt == 'cells':
+                m = build_pairs_cells(f.X, f.R, f.B, self.act, self.selfc, f.X0, self.cell,
+                                      self.skin, SELF_REST_FACTOR, self._hb, self._cnt,
+                                      self._srt, self._sco, self._pi, self._pj)
+            elif nt == 1:
+                m = build_pairs_grid(f.X, f.R, f.B, self.act, self.selfc, f.X0, self.cell,
+                                     self.skin, SELF_REST_FACTOR, self._hb, self._cnt,
+                                     self._srt, self._P, self._sb, self._cb, self._pi,
+                                     self._pj)
+            else:
+                m = build_pairs_grid_par(f.X, f.R, f.B, self.act, self.selfc, f.X0, self.cell,
+                                         self.skin, SELF_REST_FACTOR, self._hb, self._cnt,
+                                         self._srt, self._P, self._sb, self._cb, self._pi,
+                                         self._pj, nt)
             if m < 0:                           # sparse world: hashed cells
                 m = build_pairs(f.X, f.R, f.B, self.act, self.selfc, f.X0, self.cell,
                                 self.skin, SELF_REST_FACTOR, self._hb, self._cnt, self._srt,
@@ -262,6 +299,7 @@ class Contact:
 
 
 __all__ = ['ContactParams', 'BodyContact', 'Contact', 'default_radius', 'SELF_REST_FACTOR',
-           'SHOCK', 'body_inverse_masses', 'build_pairs', 'build_pairs_grid',
+           'SHOCK', 'PARALLEL_BUILD_MIN', 'body_inverse_masses', 'build_pairs',
+           'build_pairs_cells', 'build_pairs_grid', 'build_pairs_grid_par',
            'contact_velocity', 'count_fast', 'max_moved2', 'median_nn_distance',
            'solve_contacts', 'solve_pairs', 'sort_pairs']
