@@ -213,6 +213,7 @@ class Simulation:
         self._estimates = ErrorEstimateSchedule()
         self.stats = TickStats(clock())
         self._nonfinite_logged = -math.inf
+        self._nonfinite = None      # sm_ros.nonfinite.NonFiniteCheck (Numba), made when used
         self._tick_listeners: List[Callable[['Simulation'], None]] = []
         self._change_handlers: List[Tuple[frozenset, Callable[[Dict[str, Any]], None]]] = []
 
@@ -454,7 +455,10 @@ class Simulation:
 
     def reset_nonfinite(self) -> List[str]:
         """Reset every body whose state is no longer finite; return their names."""
-        names = [b.name for b in self.world.bodies if not b.is_finite()]
+        if self._nonfinite is None:
+            from sm_ros.nonfinite import NonFiniteCheck   # one compiled pass over all bodies
+            self._nonfinite = NonFiniteCheck()
+        names = [b.name for b in self._nonfinite.bad_bodies(self.world.bodies)]
         for name in names:
             self.world.body(name).reset()
             self.forces.pop(name, None)
