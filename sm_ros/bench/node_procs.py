@@ -3,7 +3,8 @@ The two processes of the node benchmark (run by ``node_bench``; one JSON line ea
 
 ``python -m sm_ros.bench.node_procs node --scene S --rate R --seconds T``
     runs sim_node in this process and records, per tick, the time of the step(s), of the
-    cloud build (``CloudBuffer.fill``), of the publish call, and the wall time at which
+    cloud build (``CloudBuffer.fill``), of the publish call, of the live error estimate,
+    the rest of the tick (``other``: the node's own overhead) and the wall time at which
     each cloud was handed to rclpy (keyed by its stamp).
 ``python -m sm_ros.bench.node_procs sub --seconds T``
     subscribes to ``points`` and records each message's stamp and wall receive time.
@@ -22,26 +23,52 @@ def _node(a) -> dict:
         {'scene': a.scene, 'rate': float(a.rate), 'dt': 1.0 / (a.rate * a.substeps),
          'substeps': int(a.substeps), 'mode': a.mode, 'clusters': int(a.clusters)},
         a.namespace)
-    rec = {'step': [], 'fill': [], 'publish': [], 'tick': [], 'sent': {}}
+    rec = {'step': [], 'fill': [], 'publish': [], 'tick': [], 'sent': {}, 'estimate': [],
+           'other': []}
     measuring = [False]
-    harness.time_ticks(node, lambda start, s: measuring[0] and rec['tick'].append(s))
+    cur = {'step': 0.0, 'fill': 0.0, 'publish': 0.0, 'estimate': 0.0}
 
-    step0 = node.world.step
-
-    def step(dt):
-        t = time.perf_counter()
-        step0(dt)
+    def tick_done(start, s):
         if measuring[0]:
-            rec['step'].append(time.perf_counter() - t)
-    node.world.step = step
+            rec['tick'].append(s)
+            rec['estimate'].append(cur['estimate'])
+            rec['other'].append(s - sum(cur.values()))
+        for k in cur:
+            cur[k] = 0.0
+    harness.time_ticks(node, tick_done)
+
+    # the steps as the simulation times them (stats.add_step); wrapping world.step itself
+    # would be copied into the error estimate's deep copies of the world, whose steps
+    # would then step the live world
+    stats = node.sim.stats
+    add_step0 = stats.add_step
+
+    def add_step(seconds):
+        add_step0(seconds)
+        cur['step'] += seconds
+        if measuring[0]:
+            rec['step'].append(seconds)
+    stats.add_step = add_step
+
+    estimates = node.sim._estimates
+    advance0 = estimates.advance
+
+    def advance(*args, **kwargs):
+        t = time.perf_counter()
+        out = advance0(*args, **kwargs)
+        cur['estimate'] += time.perf_counter() - t
+        return out
+    estimates.advance = advance
 
     fill0 = node.cloud.fill
 
     def fill(blocks, stamp):
         t = time.perf_counter()
         msg = fill0(blocks, stamp)
+        s = time.perf_counter() - t
+        cur['fill'] += s
         if measuring[0]:
-            rec['fill'].append(time.perf_counter() - t)
+            rec['fill'].append(s)
         return msg
     node.cloud.fill = fill
 
@@ -52,8 +79,10 @@ def _node(a) -> dict:
         key = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         rec['sent'][key] = time.time()
         pub0(msg)
+        s = time.perf_counter() - t
+        cur['publish'] += s
         if measuring[0]:
-            rec['publish'].append(time.perf_counter() - t)
+            rec['publish'].append(s)
     node.pub_points.publish = publish
 
     t_end_warm = time.monotonic() + a.warmup
@@ -69,7 +98,8 @@ def _node(a) -> dict:
     out = {'points': node.num_points, 'rate_target': a.rate, 'substeps': a.substeps,
            'elapsed_s': elapsed, 'ticks': ticks,
            'step_s': rec['step'], 'fill_s': rec['fill'], 'publish_s': rec['publish'],
-           'tick_s': rec['tick'], 'sent': {str(k): v for k, v in rec['sent'].items()}}
+           'tick_s': rec['tick'], 'estimate_s': rec['estimate'], 'other_s': rec['other'],
+           'sent': {str(k): v for k, v in rec['sent'].items()}}
     node.destroy_node()
     import rclpy
     rclpy.try_shutdown()
