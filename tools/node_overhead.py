@@ -4,6 +4,12 @@ What the node pays per tick beside the steps, side by side in one process (issue
 Builds a SimNode on one box of ``--points`` particles (linear, ``--clusters`` cubes per
 axis, damping 0.05) and times, round-robin over ``--rounds`` rounds (medians):
 
+- ``tick minus its steps``: a whole ``SimNode.tick`` (2 steps of the world, the live
+  error estimate off) less its steps as ``Simulation.stats`` times them, nobody subscribed:
+  the node's own overhead;
+- the non-finite check body by body (``Body.is_finite``, before) against one compiled
+  call over every body (``sm_ros.nonfinite``, now), and one ``get_subscription_count``;
+
 - ``publish, nobody subscribed``: the tick's publishing when no ROS subscriber, Foxglove
   client or recorder takes anything (what every tick costs a node nobody watches);
 - ``publish, points + poses subscribed``: the same with a subscriber on both in this
@@ -41,6 +47,7 @@ def main(argv=None) -> int:
     from sensor_msgs.msg import PointCloud2
     from sm_ros.bench import common as bc, harness
     from sm_ros.node import SimNode
+    from sm_ros.nonfinite import NonFiniteCheck
     from sm_ros.stats import MomentumDrift
 
     rclpy.init()
@@ -49,7 +56,8 @@ def main(argv=None) -> int:
         n = bc.lattice_side(args.points) ** 3
         harness.box_scene(n, scene, 0.05)
         node = SimNode(paused=True, parameter_overrides=[
-            Parameter('scene', value=str(scene)), Parameter('clusters', value=args.clusters)])
+            Parameter('scene', value=str(scene)), Parameter('clusters', value=args.clusters),
+            Parameter('error_estimate.rate', value=0.0)])
     out = node.outputs
     body = node.world.bodies[0]
     for _ in range(3):
@@ -68,7 +76,23 @@ def main(argv=None) -> int:
             rclpy.spin_once(probe, timeout_sec=0.01)
 
     drift = MomentumDrift()
+    sim = node.sim
+    bodies = node.world.bodies
+    check = NonFiniteCheck()
+
+    def tick_overhead():
+        # a whole tick (2 steps, checks, publishing) minus its steps as the stats time them
+        steps = sim.stats.step_s_sum
+        t = time.perf_counter()
+        node.tick()
+        return time.perf_counter() - t - (sim.stats.step_s_sum - steps)
     cases = {
+        'tick minus its steps, nobody subscribed': tick_overhead,
+        'non-finite check: Body.is_finite body by body (before)':
+            lambda: [b for b in bodies if not b.is_finite()],
+        'non-finite check: one compiled call (sm_ros.nonfinite, now)':
+            lambda: check.bad_bodies(bodies),
+        'get_subscription_count (one publisher)': out.pub_points.get_subscription_count,
         'publish, nobody subscribed': out.publish,
         'poses: one pass + extract_rotation': out.body_poses,
         'poses: Body.com() + Body.rotation()': lambda: (body.com(), body.rotation()),
@@ -78,8 +102,8 @@ def main(argv=None) -> int:
     for _ in range(args.rounds):
         for name, fn in cases.items():
             t = time.perf_counter()
-            fn()
-            times[name].append(time.perf_counter() - t)
+            r = fn()
+            times[name].append(r if fn is tick_overhead else time.perf_counter() - t)
     try:
         times.update(_with_foxglove(node, out, args.rounds))
     except ImportError as exc:
