@@ -142,5 +142,9 @@ def test_contact_subcommand_smoke(tmp_path):
     assert res['N'] == 24 * 144 and res['settle']['steps'] == 3
     assert [r['blocks'] for r in res['scaling']] == [24, 48]
     assert res['one_body']['n'] == 6 ** 3 and res['paper_384'] is None
+    b = res['builders']                 # the builders side by side list the same pairs
+    assert b['before']['pairs_listed'] == b['serial']['pairs_listed'] == \
+        b['parallel']['pairs_listed'] > 0
     text = (out / 'contact.md').read_text()
     assert 'pair-list rebuild alone' in text and 'cKDTree' in text
+    assert 'build_pairs_cells' in text and 'per step while moving' in text

@@ -11,10 +11,15 @@ written to ``--out``:
   rebuild alone and the per-step part alone; the flat-state copies (gather/scatter) that
   the World needs until it owns the flat arrays; the bodies' own step (shape matching)
   of the same scene;
+- the pair-list builders side by side (round-robin, same state): the previous one
+  (``build_pairs_cells``, "before"), the current one on one thread and on
+  ``--build-threads``: the rebuild alone and a step that rebuilds (bodies moving), on the
+  resting bin and on ``paper_384`` while it pours;
 - one body without self-collision: world step with contact on and off;
 - scaling: the contact pass on 1x, 2x, 4x, 10x the blocks (log-log slope in N);
 - ``paper_384``: the node's tick (``Simulation.tick``: 2 substeps, no ROS publishing) once
-  the heap has formed (``--paper-seconds`` of simulated pouring first).
+  the heap has formed (``--paper-seconds`` of simulated pouring first), and the contact
+  pass's share of it per builder (ticks taken in turn with each).
 
 ``--write-doc`` replaces the contact section of ``doc/benchmarks.md`` with the tables.
 scipy is needed for the baseline (extra ``bench``); without it that column is empty.
@@ -50,6 +55,8 @@ def add_arguments(p: argparse.ArgumentParser):
                         '(0: skip paper_384)')
     p.add_argument('--paper-ticks', type=int, default=60, help='timed ticks of paper_384')
     p.add_argument('--threads', type=int, default=1, help='Numba threads (issue: one)')
+    p.add_argument('--build-threads', type=int, default=2,
+                   help='threads of the parallel pair-list builder, timed side by side')
     p.add_argument('--blocks', type=int, default=384, help='blocks in the bin (a smoke run: few)')
     p.add_argument('--one-body-side', type=int, default=38,
                    help='side of the one-body lattice (38^3 = 54,872 particles)')
@@ -186,6 +193,74 @@ def contact_parts(world) -> Dict[str, float]:
             'pairs_listed': int(c.npairs), 'pairs_touching': int(c.found)}
 
 
+#: The pair-list builders timed side by side: (name, ``Contact.parallel_build``, threads;
+#: None: ``--build-threads``).
+BUILDERS = (('before', 'cells', 1), ('serial', False, 1), ('parallel', True, None))
+
+
+class _Threads:
+    """Numba threads set to ``n`` inside the block (capped by NUMBA_NUM_THREADS)."""
+
+    def __init__(self, n):
+        import numba
+        self.n = max(1, min(int(n), numba.config.NUMBA_NUM_THREADS))
+
+    def __enter__(self):
+        import numba
+        self.old = numba.get_num_threads()
+        numba.set_num_threads(self.n)
+
+    def __exit__(self, *exc):
+        import numba
+        numba.set_num_threads(self.old)
+
+
+def builders(world, build_threads: int, rounds: int = 5) -> Dict[str, Any]:
+    """Each pair-list builder on the world's present state, round-robin: the rebuild alone
+    and a step that rebuilds (``Contact.invalidate`` + ``run``: bodies that move more than
+    a quarter radius a step), median ms; the state is put back before every call."""
+    c = world.contact
+    f = world._flat
+    f.gather()
+    Xs, Vs = f.X.copy(), f.V.copy()
+
+    def restore():
+        f.X[:] = Xs
+        f.V[:] = Vs
+
+    def moving():
+        restore()
+        c.invalidate()
+        c.run(1.0 / 120.0, 0.16, world._has_col, world._ground_row, world._box_rows,
+              world._sphere_rows, world._gravity)
+    samples = {name: {'rebuild': [], 'moving': []} for name, _, _ in BUILDERS}
+    pairs = {}
+    tr = bc.time_calls(restore, min_time=0.1, min_reps=10, max_reps=100)
+    old = c.parallel_build
+    try:
+        for _ in range(rounds):
+            for name, mode, nt in BUILDERS:
+                c.parallel_build = mode
+                with _Threads(build_threads if nt is None else nt):
+                    restore()
+                    c._build()
+                    pairs[name] = c.npairs
+                    samples[name]['rebuild'] += bc.time_calls(
+                        c._build, min_time=0.05, min_reps=3, max_reps=10).tolist()
+                    samples[name]['moving'] += bc.time_calls(
+                        moving, min_time=0.05, min_reps=3, max_reps=10).tolist()
+    finally:
+        c.parallel_build = old
+        restore()
+        c.invalidate()
+    out = {name: {'rebuild_ms': _median_ms(v['rebuild']),
+                  'moving_ms': max(0.0, _median_ms(v['moving']) - _median_ms(tr)),
+                  'pairs_listed': int(pairs[name])} for name, v in samples.items()}
+    out['threads'] = _Threads(build_threads).n
+    out['N'] = f.n
+    return out
+
+
 def one_body(n_side: int = 38) -> Dict[str, float]:
     """World step of one 38^3 (54,872) body with contact on and off, round-robin."""
     from sm_ros.core import BodyParams, Ground, World
@@ -222,8 +297,13 @@ def scaling(scales: List[int], blocks: int = 384) -> List[Dict[str, Any]]:
     return rows
 
 
-def paper_tick(seconds: float, ticks: int) -> Optional[Dict[str, Any]]:
-    """Simulation.tick of paper_384 (2 substeps of 1/120 s) after pouring ``seconds``."""
+def paper_tick(seconds: float, ticks: int, build_threads: int = 2) -> Optional[Dict[str, Any]]:
+    """Simulation.tick of paper_384 (2 substeps of 1/120 s) after pouring ``seconds``.
+
+    The ticks are taken in turn with each builder (``BUILDERS``); per builder the contact
+    pass's time per tick (all its substeps), its rebuilds per tick and the rebuild alone
+    per call.  Then the builders side by side on the state reached (``builders``).
+    """
     if seconds <= 0:
         return None
     from sm_ros.sim import Simulation
@@ -232,18 +312,41 @@ def paper_tick(seconds: float, ticks: int) -> Optional[Dict[str, Any]]:
     dt = float(sim.params['dt'])
     for _ in range(int(round(seconds / dt))):
         world.step(dt)
-    ts = []
-    for _ in range(ticks):
-        t0 = time.perf_counter()
-        sim.tick()
-        ts.append(time.perf_counter() - t0)
     c = world.contact
+    runs, builds = [], []
+    _timed(c, 'run', runs)
+    _timed(c, '_build', builds)
+    ts = []
+    per = {name: {'contact': [], 'build': [], 'builds': 0, 'ticks': 0}
+           for name, _, _ in BUILDERS}
+    for k in range(ticks):
+        name, mode, nt = BUILDERS[k % len(BUILDERS)]
+        c.parallel_build = mode
+        with _Threads(build_threads if nt is None else nt):
+            del runs[:], builds[:]
+            t0 = time.perf_counter()
+            sim.tick()
+            ts.append(time.perf_counter() - t0)
+        p = per[name]
+        p['contact'].append(sum(runs))
+        p['build'] += builds
+        p['builds'] += len(builds)
+        p['ticks'] += 1
+    del c.run, c._build
+    c.parallel_build = None
     ke = sum(0.5 * float((b.m[:, None] * b.v ** 2).sum()) for b in world.bodies)
-    return {'points': sim.num_points, 'bodies': len(world.bodies),
-            'clusters': sum(b.num_clusters for b in world.bodies),
-            'tick_median_ms': _median_ms(ts), 'tick_p90_ms': 1e3 * float(np.percentile(ts, 90)),
-            'substeps': int(sim.params['substeps']), 'pairs_touching': int(c.found),
-            'kinetic_energy_j': ke, 'poured_s': seconds}
+    out = {'points': sim.num_points, 'bodies': len(world.bodies),
+           'clusters': sum(b.num_clusters for b in world.bodies),
+           'tick_median_ms': _median_ms(ts), 'tick_p90_ms': 1e3 * float(np.percentile(ts, 90)),
+           'substeps': int(sim.params['substeps']), 'pairs_touching': int(c.found),
+           'kinetic_energy_j': ke, 'poured_s': seconds,
+           'per_builder': {name: {'contact_ms_per_tick': _median_ms(p['contact']),
+                                  'rebuild_ms': _median_ms(p['build']) if p['build'] else 0.0,
+                                  'rebuilds_per_tick': p['builds'] / max(1, p['ticks'])}
+                           for name, p in per.items() if p['ticks']}}
+    bc.log('contact: paper_384 builders side by side')
+    out['builders'] = builders(world, build_threads)
+    return out
 
 
 def run(args, out: Path) -> Dict[str, Any]:
@@ -260,7 +363,7 @@ def run(args, out: Path) -> Dict[str, Any]:
 def _run(args, out: Path) -> Dict[str, Any]:
     import numba
     res: Dict[str, Any] = {'threads': numba.get_num_threads(), 'settle_steps': args.settle,
-                           'blocks': args.blocks}
+                           'blocks': args.blocks, 'paper_ticks': args.paper_ticks}
     bc.log(f'contact: building {args.blocks} blocks')
     w = block_bin(args.blocks)
     for _ in range(max(1, args.settle)):              # compiles, settles
@@ -271,6 +374,7 @@ def _run(args, out: Path) -> Dict[str, Any]:
     res['ckdtree'] = base
     res['settle'] = settle_and_time(w, args.steps)
     res['parts'] = contact_parts(w)
+    res['builders'] = builders(w, args.build_threads)
     bc.log('contact: one body')
     res['one_body'] = one_body(args.one_body_side)
     res['scaling'] = scaling([int(s) for s in bc.as_list(args.scales, int)], args.blocks)
@@ -279,7 +383,7 @@ def _run(args, out: Path) -> Dict[str, Any]:
         res['slope_rebuild'] = bc.loglog_slope(xs, [r['rebuild_ms'] for r in res['scaling']])
         res['slope_step'] = bc.loglog_slope(xs, [r['step_ms'] for r in res['scaling']])
     bc.log('contact: paper_384')
-    res['paper_384'] = paper_tick(args.paper_seconds, args.paper_ticks)
+    res['paper_384'] = paper_tick(args.paper_seconds, args.paper_ticks, args.build_threads)
     text = markdown(res)
     (out / 'contact.md').write_text(text)
     (out / 'contact.json').write_text(json.dumps(res, indent=1, default=float))
@@ -319,6 +423,7 @@ def markdown(r: Dict[str, Any]) -> str:
         f"| contact / shape matching (bodies' own steps {s['bodies']['median_ms']:.1f} ms) "
         f"| <= 1x | {per_step / s['bodies']['median_ms']:.2f}x |",
     ]
+    lines += _builder_rows(r.get('builders'), 'resting bin')
     o = r['one_body']
     lines.append(f"| one body ({o['n']:,} particles), no self-collision: step with contact on "
                  f"/ off | nothing measurable | {o['on_ms']:.2f} / {o['off_ms']:.2f} ms "
@@ -333,11 +438,45 @@ def markdown(r: Dict[str, Any]) -> str:
                      f"publishing), {pp['points']:,} particles, {pp['clusters']:,} clusters, "
                      f"after {pp['poured_s']:g} s of pouring | <= 8.3 ms (60 Hz) | "
                      f"{pp['tick_median_ms']:.1f} ms median, p90 {pp['tick_p90_ms']:.1f} ms |")
+        pb = pp.get('per_builder') or {}
+        if pb:
+            cells = ' / '.join(f"{pb[k]['contact_ms_per_tick']:.1f}" for k in pb)
+            reb = ' / '.join(f"{pb[k]['rebuilds_per_tick']:.1f}" for k in pb)
+            lines.append(f"| `paper_384` contact pass per tick (all substeps), ticks taken in "
+                         f"turn: {_names(pb, pp['builders'])} | - | {cells} ms "
+                         f"({reb} rebuilds a tick) |")
+        lines += _builder_rows(pp.get('builders'), f"`paper_384` after {pp['poured_s']:g} s "
+                               f"of pouring and {r.get('paper_ticks', 0)} ticks")
     lines += ['', '| particles | blocks | rebuild ms | per step ms |', '| --- | --- | --- | --- |']
     for row in r['scaling']:
         lines.append(f"| {row['N']:,} | {row['blocks']} | {row['rebuild_ms']:.1f} | "
                      f"{row['step_ms']:.2f} |")
     return '\n'.join(lines) + '\n'
+
+
+def _names(d, b) -> str:
+    """'before / serial / parallel (2 threads)' for the builders in ``d``."""
+    nt = b['threads'] if b else 2
+    words = {'before': 'before (`build_pairs_cells`, 1 thread)',
+             'serial': 'now (`build_pairs_grid`, 1 thread)',
+             'parallel': f'now on {nt} threads (`build_pairs_grid_par`)'}
+    return ' / '.join(words[k] for k in d if k in words)
+
+
+def _builder_rows(b, where: str) -> List[str]:
+    """Table rows of a ``builders`` result."""
+    if not b:
+        return []
+    names = [k for k, _, _ in BUILDERS if k in b]
+    reb = ' / '.join(f"{b[k]['rebuild_ms']:.2f}" for k in names)
+    mov = ' / '.join(f"{b[k]['moving_ms']:.2f}" for k in names)
+    ratio = b['before']['rebuild_ms'] / max(b['serial']['rebuild_ms'], 1e-9)
+    ratio2 = b['before']['moving_ms'] / max(b['serial']['moving_ms'], 1e-9)
+    return [f"| pair-list rebuild, {where} ({b['N']:,} particles, "
+            f"{b['serial']['pairs_listed']:,} pairs listed): {_names(b, b)} | - | {reb} ms "
+            f"({ratio:.1f}x on one thread) |",
+            f'| per step while moving (every step rebuilds: rebuild + sort + solve), {where}: '
+            f'{_names(b, b)} | - | {mov} ms ({ratio2:.1f}x on one thread) |']
 
 
 def write_doc(text: str, command: str, root: Path):
