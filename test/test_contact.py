@@ -159,6 +159,54 @@ def test_parallel_builder_grows_a_full_list():
     np.testing.assert_array_equal(pj[:m2], pj_s[:m_ser])
 
 
+def falling_blocks(build):
+    """Eight 4 x 4 x 4 blocks dropped in a heap; ``Contact.parallel_build`` set to ``build``."""
+    w = World()
+    w.set_colliders(ground=Ground())
+    p = BodyParams(mode='linear', alpha=0.9, damping=0.05)
+    for k in range(8):
+        w.add_body(lattice(4, 4, 4, center=(0.03 * (k % 3), 0.025 * (k % 2), 0.05 + 0.07 * k)),
+                   0.01, p, f'b{k}')
+    w.contact.parallel_build = build
+    return w
+
+
+def test_serial_and_parallel_builds_step_bit_identically():
+    """The pair list does not depend on the builder's thread count, so neither does the
+    world: a falling heap stepped with either is bit-identical (rebuilt at most steps)."""
+    ws = [falling_blocks(False), falling_blocks(True)]
+    for _ in range(40):
+        for w in ws:
+            w.step(1 / 120)
+    assert ws[0].contact.builds > 20 and ws[0].contact.found > 0
+    assert ws[0].contact.builds == ws[1].contact.builds
+    for a, b in zip(ws[0].bodies, ws[1].bodies):
+        np.testing.assert_array_equal(a.x, b.x)
+        np.testing.assert_array_equal(a.v, b.v)
+
+
+def test_builder_choice(monkeypatch):
+    """Serial below ``PARALLEL_BUILD_MIN`` particles or on one thread; all threads above it;
+    'cells' keeps the previous builder callable (the benchmark's reference)."""
+    w = falling_blocks(None)
+    c = w.contact
+    nt = numba.get_num_threads()
+    assert c._grid_builder() == 1
+    monkeypatch.setattr(C, 'PARALLEL_BUILD_MIN', 10)
+    assert c._grid_builder() == (nt if nt > 1 else 1)
+    c.parallel_build = False
+    assert c._grid_builder() == 1
+    c.parallel_build = 'cells'
+    assert c._grid_builder() == 'cells'
+    for _ in range(30):
+        w.step(1 / 120)
+    c._build()
+    n_cells = c.npairs
+    c.parallel_build = False
+    c._build()
+    assert c.npairs == n_cells > 0
+
+
 def test_grid_refuses_a_box_larger_than_its_table():
     X = np.array([[0.0, 1e3], [0.0, 0.0], [0.0, 0.0]])
     R = np.full(2, 0.01)

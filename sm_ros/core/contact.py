@@ -50,9 +50,11 @@ SKIN_FACTOR = 0.5
 #: exchange) lets them sink by about 3 mm a second.
 SHOCK = 0.25
 #: The pair list is built on the Numba threads (``build_pairs_grid_par``) from this many
-#: colliding particles when more than one thread is set (below it, fork/join costs more
-#: than it saves on shared cores).
-PARALLEL_BUILD_MIN = 20000
+#: particles when more than one thread is set, like the bodies' step
+#: (``world.WORLD_PARALLEL_MIN_WORK``): on the two shared cores of the development machine
+#: the two-thread build of ``paper_384`` (55k particles) took 2-5x as long as the serial
+#: one (``python -m sm_ros.bench contact`` times both side by side).
+PARALLEL_BUILD_MIN = 262144
 _NO_GROUND = np.zeros(4)
 _NO_ROWS8 = np.zeros((0, 8))
 _NO_ROWS6 = np.zeros((0, 6))

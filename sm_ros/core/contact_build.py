@@ -416,7 +416,8 @@ def _cell_pairs(a_lo, a_hi, nx, ny, nz, hb, cnt, srt, P, sb, cb, R, selfc, X0, s
     sorted particles: the stencil is five runs, the own cell with the next one in x, and
     the rows of three cells at (dy, dz) = (1, 0), (-1, 1), (0, 1), (1, 1).  When the cell
     holds one body (without self-collision), a run whose cells hold only that body or
-    nothing is skipped whole (three loads of ``cb``).
+    nothing is skipped whole (three loads of ``cb``), and otherwise such cells at its ends
+    are left out of it.
     """
     nxy = nx * ny
     m = m0
@@ -450,15 +451,24 @@ def _cell_pairs(a_lo, a_hi, nx, ny, nz, hb, cnt, srt, P, sb, cb, R, selfc, X0, s
                 if qy < 0 or qy >= ny or cz + dz >= nz:
                     continue
                 base = c + dy * nx + dz * nxy
+                first = xl
+                last = xh
                 if one:
                     e0 = cb[base + xl]
                     e1 = cb[base]
                     e2 = cb[base + xh]
-                    if ((e0 == b) | (e0 == EMPTY)) & ((e1 == b) | (e1 == EMPTY)) & \
-                            ((e2 == b) | (e2 == EMPTY)):
+                    k0 = (e0 == b) | (e0 == EMPTY)
+                    k1 = (e1 == b) | (e1 == EMPTY)
+                    k2 = (e2 == b) | (e2 == EMPTY)
+                    if k0 & k1 & k2:
                         continue            # the row holds this body only: nothing to test
-                t0b = cnt[base + xl]
-                t1 = cnt[base + xh + 1]
+                    # leave out end cells that hold this body only
+                    if k0:
+                        first = xh if k1 else 0
+                    if k2:
+                        last = xl if k1 else 0
+                t0b = cnt[base + first]
+                t1 = cnt[base + last + 1]
             if t0b == t1:
                 continue
             for a in range(a0, a1):
