@@ -216,6 +216,8 @@ class Simulation:
         self._nonfinite = None      # sm_ros.nonfinite.NonFiniteCheck (Numba), made when used
         self._tick_listeners: List[Callable[['Simulation'], None]] = []
         self._change_handlers: List[Tuple[frozenset, Callable[[Dict[str, Any]], None]]] = []
+        # an estimate in progress would describe the configuration before the change
+        self.on_change(ESTIMATE_KEYS, lambda changes: self._estimates.drop())
 
     # ------------------------------------------------------------------ read-outs
 
@@ -414,8 +416,7 @@ class Simulation:
     def tick(self) -> None:
         """Apply pending changes, step ``substeps`` x ``dt``, recover, call the listeners."""
         t0 = time.perf_counter()
-        if ESTIMATE_KEYS.intersection(self.apply_pending()):
-            self._estimates.drop()          # it would describe the configuration before
+        self.apply_pending()
         world, stats = self.world, self.stats
         dt = float(self.params['dt'])
         substeps = int(self.params['substeps'])
