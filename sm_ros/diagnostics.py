@@ -17,14 +17,15 @@ HARDWARE_ID = 'sm_ros'
 #: Every key of the solver status, in the order it is published (interface.md, plus the
 #: sm_ros extras from momentum_drift_measured on). A tick's time splits into the steps
 #: (step_ms_mean x substeps), publishing (publish_ms_mean: building and sending what is
-#: consumed) and the rest (other_ms_mean: parameter changes, checks, momentum).
+#: consumed), the live error estimate's share (error_estimate_ms_mean) and the rest
+#: (other_ms_mean: parameter changes, checks, momentum).
 KEYS = ('points', 'bodies', 'clusters', 'mode', 'step_ms_mean', 'step_ms_max',
         'publish_ms_mean', 'tick_ms_max', 'rate_target_hz', 'rate_achieved_hz',
         'real_time_factor', 'overruns', 'shape_error_rms_m', 'momentum_drift',
         'momentum_drift_measured', 'nonfinite_resets', 'refused_messages', 'tick_ms_mean',
         'other_ms_mean', 'recording', 'recorder_messages', 'recorder_dropped', 'contacts',
         'contact_fast_particles', 'speed_limited', 'turn_limited', 'error_estimate_m',
-        'error_estimate_ms', 'error_estimate_age_s')
+        'error_estimate_ms', 'error_estimate_age_s', 'error_estimate_ms_mean')
 
 
 def fmt(value: float) -> str:
@@ -57,6 +58,8 @@ def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, 
     tick_ms = 1e3 * stats.tick_s_sum / stats.ticks if stats.ticks else 0.0
     step_ms = 1e3 * stats.step_s_sum / stats.ticks if stats.ticks else 0.0
     publish_ms = 1e3 * stats.publish_s_sum / stats.ticks if stats.ticks else 0.0
+    estimate_ms = 1e3 * getattr(stats, 'estimate_s_sum', 0.0) / stats.ticks \
+        if stats.ticks else 0.0
     values = {
         'points': str(int(points)),
         'bodies': str(int(bodies)),
@@ -77,7 +80,7 @@ def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, 
         'nonfinite_resets': str(stats.nonfinite_total),
         'refused_messages': str(int(refused_messages)),
         'tick_ms_mean': fmt(tick_ms),
-        'other_ms_mean': fmt(max(0.0, tick_ms - step_ms - publish_ms)),
+        'other_ms_mean': fmt(max(0.0, tick_ms - step_ms - publish_ms - estimate_ms)),
         'recording': recording,
         'recorder_messages': str(int(recorder_messages)),
         'recorder_dropped': str(int(recorder_dropped)),
@@ -89,6 +92,7 @@ def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, 
         'error_estimate_ms': fmt(error_estimate_ms),
         'error_estimate_age_s': '-1' if error_estimate_age_s is None
         else fmt(error_estimate_age_s),
+        'error_estimate_ms_mean': fmt(estimate_ms),
     }
     status = DiagnosticStatus()
     status.name = f'{node_name}: solver'

@@ -17,8 +17,9 @@ class TickStats:
     Timing figures accumulated between two diagnostics reports.
 
     ``step_ms`` is one ``world.step(dt)`` (one substep); ``tick_ms`` is a whole tick
-    (pending changes, substeps, checks and publishing); ``publish_ms`` is building and
-    publishing the messages of one tick.
+    (pending changes, substeps, checks, the live error estimate's share and publishing);
+    ``publish_ms`` is building and publishing the messages of one tick; ``estimate_s_sum``
+    the error estimate's seconds in the window's ticks.
     """
 
     def __init__(self, now: float):
@@ -38,6 +39,7 @@ class TickStats:
         self.publishes = 0
         self.tick_s_max = 0.0
         self.tick_s_sum = 0.0
+        self.estimate_s_sum = 0.0
         self.sim_s = 0.0
         self.overruns = 0
         self.nonfinite: List[str] = []
@@ -60,11 +62,12 @@ class TickStats:
                  exempt: float = 0.0) -> bool:
         """Record one tick; returns True when it overran ``period``.
 
-        ``exempt`` seconds of it (the occasional live error estimate) count in the tick
-        times but not in the overrun test.
+        ``exempt`` seconds of it (the live error estimate) count in the tick times but not
+        in the overrun test; they are summed apart too (``estimate_s_sum``).
         """
         self.ticks += 1
         self.tick_s_sum += seconds
+        self.estimate_s_sum += exempt
         self.sim_s += sim_seconds
         if seconds > self.tick_s_max:
             self.tick_s_max = seconds
