@@ -236,6 +236,13 @@ def builders(world, build_threads: int, rounds: int = 5) -> Dict[str, Any]:
     samples = {name: {'rebuild': [], 'moving': []} for name, _, _ in BUILDERS}
     pairs = {}
     tr = bc.time_calls(restore, min_time=0.1, min_reps=10, max_reps=100)
+    sort = []
+
+    def grid_sort():
+        grid_sort_kernel(f.X, f.R, f.B, c.act, c.cell, c._hb, c._cnt, c._srt, c._P, c._sb,
+                         c._cb, dims)
+    from sm_ros.core.contact_build import grid_sort as grid_sort_kernel
+    dims = np.zeros(3, dtype=np.int64)
     old = c.parallel_build
     try:
         for _ in range(rounds):
@@ -249,6 +256,8 @@ def builders(world, build_threads: int, rounds: int = 5) -> Dict[str, Any]:
                         c._build, min_time=0.05, min_reps=3, max_reps=10).tolist()
                     samples[name]['moving'] += bc.time_calls(
                         moving, min_time=0.05, min_reps=3, max_reps=10).tolist()
+            restore()
+            sort += bc.time_calls(grid_sort, min_time=0.05, min_reps=3, max_reps=10).tolist()
     finally:
         c.parallel_build = old
         restore()
@@ -258,6 +267,8 @@ def builders(world, build_threads: int, rounds: int = 5) -> Dict[str, Any]:
                   'moving_ms': max(0.0, _median_ms(v['moving']) - _median_ms(tr)),
                   'moving_min_ms': max(0.0, 1e3 * float(np.min(v['moving']) - np.min(tr))),
                   'pairs_listed': int(pairs[name])} for name, v in samples.items()}
+    out['grid_sort_ms'] = _median_ms(sort)
+    out['grid_sort_min_ms'] = 1e3 * float(np.min(sort))
     out['threads'] = _Threads(build_threads).n
     out['N'] = f.n
     return out
@@ -498,7 +509,8 @@ def _builder_rows(b, where: str) -> List[str]:
                 f'({ratio_low:.1f}x)')
     return [f"| pair-list rebuild, {where} ({b['N']:,} particles, "
             f"{b['serial']['pairs_listed']:,} pairs listed): {_names(b, b)} | - | "
-            f"{figs('rebuild')} |",
+            f"{figs('rebuild')}; of which the counting sort by cell (``grid_sort``) "
+            f"{b['grid_sort_ms']:.2f} ms median, fastest {b['grid_sort_min_ms']:.2f} ms |",
             f'| per step while moving (every step rebuilds: rebuild + sort + solve), {where}: '
             f"{_names(b, b)} | - | {figs('moving')} |"]
 
