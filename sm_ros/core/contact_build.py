@@ -313,8 +313,6 @@ def max_moved2(X, Xref, B, act):
     return best
 
 
-
-
 @njit(**JIT)
 def grid_sort(X, R, B, act, cell, hb, cnt, srt, P, sb, cb, dims):
     """Counting sort of the colliding particles into a dense grid of cells of side ``cell``.
