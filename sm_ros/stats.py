@@ -195,7 +195,8 @@ class ErrorEstimateSchedule:
     second copy (``ErrorEstimate.COPY_UNITS``, about what a copy costs in steps). A tick
     thus adds at most max(ceil(``budget`` x ``substeps``), ``COPY_UNITS``) units; the unused
     credit carries over. The first copy is made when the estimate starts (a snapshot of
-    the live world) on credit, which the next ticks pay back. With a small budget an
+    the live world) on credit, which the next ticks pay back; the next estimate (after a
+    finished or a dropped one) starts only once nothing is owed. With a small budget an
     estimate takes many ticks and comes less often than ``rate`` asks; ``age`` says how
     old the state the last one describes is. The node's budget is the parameter
     ``error_estimate.budget``.
@@ -240,24 +241,30 @@ class ErrorEstimateSchedule:
             return 0.0
         spent = 0.0
         now = clock()
-        if self.running is None and now >= self._next:
+        if budget is None:
+            self._credit = 0.0
+        # a new estimate starts only once the copies of the last are paid for (a dropped
+        # one's too), so parameter changes every tick cannot copy the world every tick
+        if self.running is None and now >= self._next and self._credit >= 0.0:
             from sm_ros.error_estimate import ErrorEstimate
             self._next = now + 1.0 / rate
             self._started = now
             self.running = ErrorEstimate(world, dt, substeps, staged=budget is not None)
             spent = self.running.cost_s
             self.units = self.running.units
-            self._credit = -float(self.running.units)
+            if budget is not None:
+                self._credit -= float(self.running.units)
         est = self.running
         if est is not None and (est.dt != dt or est.source is not world):
             est = self.running = None            # the step or the scene changed: start anew
             self._next = now
+        if budget is not None and (est is not None or self._credit < 0.0):
+            self._credit += budget * max(int(substeps), 1)
         if est is not None:
             before = est.units
             if budget is None:
                 spent += est.advance(substeps)
             else:
-                self._credit += budget * max(int(substeps), 1)
                 spent += est.work(self._credit)
                 self._credit -= est.units - before
             self.units += est.units - before

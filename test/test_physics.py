@@ -521,7 +521,8 @@ def test_simulation_reports_the_estimate_at_its_rate_and_counts_its_cost():
 def test_estimate_budget_sets_the_pace_and_a_physics_change_drops_it():
     """A budget of 0.5 at 1 substep: 192 ticks for 30 coarse steps, 3 units a tick at
     most; changing a body parameter abandons the estimate in progress (a new one starts
-    from the new configuration), changing the diagnostics rate does not."""
+    from the new configuration once the old one's copy is paid for), changing the
+    diagnostics rate does not."""
     from sm_ros.sim import Simulation
     now = [0.0]
     sim = Simulation({'scene': 'default', 'error_estimate.budget': 0.5,
@@ -543,12 +544,24 @@ def test_estimate_budget_sets_the_pace_and_a_physics_change_drops_it():
     sim.tick()
     assert sim._estimator is running
     old_params = [b.params for b in running.coarse.bodies]
+    # the running estimate started 2 ticks ago: its first copy (3 units) is still owed
+    # (-3 + 2 x 0.5); dropped at the change, the next starts once that is paid back
     sim.set_params({'alpha': 0.9})
-    sim.tick()                          # dropped at the change, a new one from the new world
+    for _ in range(4):
+        sim.tick()
+        assert sim._estimator is None and sim._estimates.units == 0
+    sim.tick()
     fresh = sim._estimator
-    assert fresh is not None and fresh is not running
+    assert fresh is not None and fresh is not running and sim._estimates.units == 3
     assert [b.params for b in fresh.coarse.bodies] == [b.params for b in sim.world.bodies]
     assert [b.params for b in fresh.coarse.bodies] != old_params
+    # parameter changes every tick: a copy only every 6 ticks (3 units at 0.5 a tick)
+    copies = 0
+    for k in range(60):
+        sim.set_params({'alpha': 0.5 + 0.004 * k})
+        sim.tick()
+        copies += sim._estimates.units == 3
+    assert copies == 10
 
 
 def test_copies_of_the_world_keep_the_array_types():
