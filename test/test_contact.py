@@ -207,6 +207,30 @@ def test_builder_choice(monkeypatch):
     assert c.npairs == n_cells > 0
 
 
+def test_far_apart_bodies_fall_back_to_hashed_cells():
+    """A body a kilometre away makes the grid's box larger than its table: the pass falls
+    back to hashed cells and lists the same pairs of the touching bodies."""
+    def world(far):
+        w = World(gravity=(0, 0, 0))
+        w.add_body(lattice(4, 4, 4), 0.01, BodyParams(mode='rigid'), 'a')
+        w.add_body(lattice(4, 4, 4, center=(3.9 * S, 0.3 * S, 0.0)), 0.01,
+                   BodyParams(mode='rigid'), 'b')
+        if far:
+            w.add_body(lattice(2, 2, 2, center=(1e3, 0.0, 0.0)), 0.01,
+                       BodyParams(mode='rigid'), 'far')
+        w.step(1 / 240)
+        c = w.contact
+        c.invalidate()
+        c._build()
+        pairs = set(zip(c._pi[:c.npairs].tolist(), c._pj[:c.npairs].tolist()))
+        return c, pairs
+    near, near_pairs = world(False)
+    far, far_pairs = world(True)
+    assert far._cb.shape[0] < 1e3 / far.cell           # the grid cannot span the box
+    assert near._cb.shape[0] > 1.0 / near.cell         # ... and could without the far body
+    assert near.npairs > 0 and far_pairs == near_pairs
+
+
 def test_grid_refuses_a_box_larger_than_its_table():
     X = np.array([[0.0, 1e3], [0.0, 0.0], [0.0, 0.0]])
     R = np.full(2, 0.01)
