@@ -27,9 +27,8 @@ from dataclasses import dataclass, fields, replace
 import math
 from typing import Optional
 
-import numpy as np
-
 import numba
+import numpy as np
 
 from .contact_build import (build_pairs, build_pairs_cells, build_pairs_grid,
                             build_pairs_grid_par, max_moved2, sort_pairs)
@@ -52,8 +51,9 @@ SHOCK = 0.25
 #: The pair list is built on the Numba threads (``build_pairs_grid_par``) from this many
 #: particles when more than one thread is set, like the bodies' step
 #: (``world.WORLD_PARALLEL_MIN_WORK``): on the two shared cores of the development machine
-#: the two-thread build of ``paper_384`` (55k particles) took 2-5x as long as the serial
-#: one (``python -m sm_ros.bench contact`` times both side by side).
+#: the two-thread build of ``paper_384`` (55k particles) took 3.6 ms against 9.7 ms serial
+#: while the second core was free, and 12-60 ms whenever another job held it (OpenMP waits
+#: for the descheduled thread; ``python -m sm_ros.bench contact`` times both side by side).
 PARALLEL_BUILD_MIN = 262144
 _NO_GROUND = np.zeros(4)
 _NO_ROWS8 = np.zeros((0, 8))
