@@ -10,12 +10,12 @@ mass), equal and opposite, so linear momentum is kept to round-off; its relative
 then gets the ground's contact law (``solve_pairs``).  Every velocity change also moves the
 particles by h times it, so without friction angular momentum is kept to round-off too.
 Particles that contact moved are then projected out of the static colliders again.
-With ``ContactParams.stacking`` (opt-in), under gravity a pair of two free bodies (no
-pinned or grabbed particle) moves the two bodies as a whole (a translation of each,
-``contact_kernels.solve_contacts``), so a body's load is carried by the whole body rather
-than its touching layer, and resting pairs one above the other are solved bottom-up
-(shock propagation, ``SHOCK``): stacks stand at the node's step (confined heaps, on the
-other hand, stay agitated: README "Contact between bodies").
+With ``ContactParams.stacking`` (opt-in), under gravity, a stiff body of one cluster
+(alpha at the step at least ``COUPLE_ALPHA``, no pinned or grabbed particle) carries its
+contacts as a whole: an impulse on one of its particles translates the body, so its load
+reaches all of it within the step instead of compressing its touching layer; such pairs
+are solved with accumulated impulses over several sweeps (``contact_kernels.solve_bodies``):
+stacks stand and heaps of such bodies come to rest at the node's step.
 
 Neighbour search (a Verlet pair list on a cell grid) and the per-pair solve are compiled
 kernels in ``contact_build.py`` and ``contact_kernels.py``; this file holds the settings
@@ -32,8 +32,8 @@ import numpy as np
 
 from .contact_build import (build_pairs, build_pairs_cells, build_pairs_grid,
                             build_pairs_grid_par, max_moved2, sort_pairs)
-from .contact_kernels import (body_inverse_masses, count_fast, median_nn_distance,
-                              solve_contacts, solve_pairs)
+from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
+                              median_nn_distance, solve_bodies, solve_pairs, wall_candidates)
 from .kernels.colliders import contact_velocity
 from .params import _finite
 
@@ -43,11 +43,6 @@ from .params import _finite
 SELF_REST_FACTOR = 2.0
 #: Verlet skin as a fraction of the largest contact radius.
 SKIN_FACTOR = 0.5
-#: Shock propagation: in a resting pair of two free bodies, one above the other under
-#: gravity, the lower body's inverse mass is multiplied by this (README "Contact between
-#: bodies"): 0.25 stands five stacked boxes still at the node's step; 1 (exact momentum
-#: exchange) lets them sink by about 3 mm a second.
-SHOCK = 0.25
 #: The pair list is built on the Numba threads (``build_pairs_grid_par``) from this many
 #: particles when more than one thread is set, like the bodies' step
 #: (``world.WORLD_PARALLEL_MIN_WORK``): on the two shared cores of the development machine
@@ -55,6 +50,18 @@ SHOCK = 0.25
 #: while the second core was free, and 12-60 ms whenever another job held it (OpenMP waits
 #: for the descheduled thread; ``python -m sm_ros.bench contact`` times both side by side).
 PARALLEL_BUILD_MIN = 262144
+#: A body carries its contacts as a whole (``Contact.coupling``) when it has one cluster
+#: and its goal pull alpha at the step is at least this: the shape match then restores
+#: most of a deviation within the step, so the body is stiff (README "Contact between
+#: bodies"); softer and many-cluster bodies give way at their contacts, per particle.
+COUPLE_ALPHA = 0.5
+#: With stacking, ``solve_bodies`` sweeps the pairs of bodies carried as a whole at most
+#: this many times a step (at least ``iterations``): 4 left five stacked boxes jittering
+#: by 1.2 mm at the node's step, 8 by 0.01 mm.
+STACK_SWEEPS = 8
+#: ``solve_bodies`` stops sweeping once no velocity changed by more than this fraction of
+#: the resting threshold (``World.step``: 2 |g| h) in a sweep.
+SWEEP_TOL = 0.01
 _NO_GROUND = np.zeros(4)
 _NO_ROWS8 = np.zeros((0, 8))
 _NO_ROWS6 = np.zeros((0, 6))
@@ -78,9 +85,9 @@ class ContactParams:
     act like the ground's; ``radius_scale`` multiplies every body's default contact
     radius (half its median nearest-neighbour distance; a body's own ``contact_radius``
     is used as given); ``iterations`` Gauss-Seidel sweeps over the pairs per step.
-    ``stacking`` (opt-in, core API only so far): under gravity, pairs of two free bodies
-    push the bodies as a whole and resting stacks are solved bottom-up (README "Contact
-    between bodies": stacks stand at the node's step; confined heaps stay agitated).
+    ``stacking`` (opt-in, core API only so far): under gravity, stiff one-cluster bodies
+    carry their contacts as a whole (``COUPLE_ALPHA``, ``STACK_SWEEPS``; README "Contact
+    between bodies": stacks stand and heaps of such bodies come to rest at the node's step).
     """
 
     enabled: bool = True
@@ -205,10 +212,19 @@ class Contact:
         self.count = np.zeros(max(nb, 1), dtype=np.int64)
         self.deepest = np.zeros(max(nb, 1))
         self.fast = np.zeros(max(nb, 1), dtype=np.int64)
-        self._bw = np.zeros(max(nb, 1))                  # bodies' inverse masses
-        self._dv = np.zeros((max(nb, 1), 6))             # their moves in a sweep
+        # solve_bodies: which bodies carry their contacts as a whole (set by World),
+        # their inverse masses and moves, per-pair and per-particle impulses
+        self.coupling = np.zeros(max(nb, 1), dtype=np.bool_)
+        self._bw = np.zeros(max(nb, 1))
+        self._dv = np.zeros((max(nb, 1), 6))
         self._pend = np.zeros(max(nb, 1), dtype=np.uint8)
-        self._up = np.zeros(3)
+        self._active = np.zeros(0, dtype=np.int64)
+        self._acc = np.zeros((2, 0))
+        self._tg = np.zeros(0)
+        self._vb = np.zeros((max(nb, 1), 3))
+        self._noground = np.zeros(4)
+        self._cand = np.zeros(n, dtype=np.int64)        # particles near boxes, spheres
+        self._cptr = np.zeros(max(nb, 1) + 1, dtype=np.int64)
 
     def invalidate(self):
         """Force a rebuild of the pair list at the next step."""
@@ -265,9 +281,9 @@ class Contact:
 
         ``has_col``, ``ground``, ``boxes``, ``spheres``: the World's static colliders (rows
         as in ``kernels.colliders.collide_point``), re-applied to every particle contact
-        moved.  ``gravity`` (3,): with a nonzero one and ``params.stacking``, pairs of two
-        free bodies move the bodies as a whole and resting stacks are solved bottom-up
-        (``solve_contacts``).
+        moved.  ``gravity`` (3,): with a nonzero one, ``params.stacking`` and a body
+        marked in ``coupling``, the bodies so marked carry their contacts as a whole
+        (``solve_bodies``); otherwise every pair acts per particle (``solve_pairs``).
         """
         f = self.flat
         half = 0.5 * self.skin
@@ -276,21 +292,36 @@ class Contact:
         self.count[:] = 0
         self.deepest[:] = 0.0
         p = self.params
-        g = 0.0 if gravity is None or not p.stacking else \
-            math.sqrt(float(np.dot(gravity, gravity)))
-        if g == 0.0:
+        grav = gravity is not None and bool(np.any(gravity != 0.0))
+        if not (p.stacking and grav and self.coupling.any()):
             self.found = solve_pairs(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
                                      p.friction, p.restitution, thresh, float(h), p.iterations,
                                      f.touched, self.count, self.deepest, bool(has_col),
                                      ground, boxes, spheres, self._moved)
             return
-        np.multiply(gravity, -1.0 / g, out=self._up)
+        if self._acc.shape[1] < self.npairs:
+            m = len(self._pi)                  # grows with the pair list's capacity
+            self._acc = np.zeros((2, m))
+            self._tg = np.zeros(m)
+            self._active = np.zeros(m, dtype=np.int64)
         body_inverse_masses(f.W, f.off, self._bw)
-        self.found = solve_contacts(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
-                                    p.friction, p.restitution, thresh, float(h), p.iterations,
-                                    f.touched, self.count, self.deepest, bool(has_col), ground,
-                                    boxes, spheres, self._moved, f.off, self._up, SHOCK,
-                                    self._bw, self._dv, self._pend)
+        body_velocities(f.V, f.W, f.off, self.coupling, self._bw, self._vb)
+        ncand = 0
+        if has_col and (len(boxes) or len(spheres)):
+            ncand = wall_candidates(f.X, f.off, self.coupling, self._bw, boxes, spheres,
+                                    self.cell, self._cand, self._cptr)
+            if ncand > len(self._cand):         # a particle near two of them: grow
+                self._cand = np.zeros(ncand, dtype=np.int64)
+                ncand = wall_candidates(f.X, f.off, self.coupling, self._bw, boxes,
+                                        spheres, self.cell, self._cand, self._cptr)
+        self.found = solve_bodies(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
+                                  p.friction, p.restitution, thresh, float(h),
+                                  max(p.iterations, STACK_SWEEPS), f.touched, self.count,
+                                  self.deepest, bool(has_col), ground,
+                                  boxes, spheres, self._moved, f.off, self._bw, self.coupling,
+                                  self._dv, self._pend, self._active, self._acc, self._tg,
+                                  SWEEP_TOL * thresh, self._vb, self._noground,
+                                  self._cand[:ncand], self._cptr)
 
     def fast_particles(self, h):
         """Per body, the particles that moved more than their contact radius in the last
@@ -301,7 +332,8 @@ class Contact:
 
 
 __all__ = ['ContactParams', 'BodyContact', 'Contact', 'default_radius', 'SELF_REST_FACTOR',
-           'SHOCK', 'PARALLEL_BUILD_MIN', 'body_inverse_masses', 'build_pairs',
-           'build_pairs_cells', 'build_pairs_grid', 'build_pairs_grid_par',
-           'contact_velocity', 'count_fast', 'max_moved2', 'median_nn_distance',
-           'solve_contacts', 'solve_pairs', 'sort_pairs']
+           'COUPLE_ALPHA', 'STACK_SWEEPS', 'PARALLEL_BUILD_MIN', 'body_inverse_masses',
+           'body_velocities', 'build_pairs', 'build_pairs_cells', 'build_pairs_grid',
+           'build_pairs_grid_par', 'contact_velocity', 'count_fast', 'max_moved2',
+           'median_nn_distance', 'solve_bodies', 'solve_pairs', 'sort_pairs',
+           'wall_candidates']

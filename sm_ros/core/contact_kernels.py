@@ -160,250 +160,6 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched,
 
 
 @njit(**JIT)
-def solve_contacts(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched, count,
-                   deepest, has_col, ground, boxes, spheres, moved, off, up, shock, bw, dv,
-                   pend):
-    """``solve_pairs`` with stacking (``ContactParams.stacking``; a separate kernel so that
-    the default pays nothing for it: ~25 % of the per-step sweep when merged).
-
-    Project the overlapping pairs apart and apply the contact law (Gauss-Seidel).
-
-    Pair (i, j) overlaps when |x_i - x_j| < r_i + r_j.  Its normal n is the direction of
-    x_i - x_j at the start of the step, x - h v (exact for the bodies' symplectic Euler
-    step), so a pair that crossed within the step is pushed back to the side it came from,
-    and the impulses, all along n or across it at the two particles, keep angular
-    momentum when there is no friction.  The pair moves apart along n by the least lam
-    that restores the distance, split by inverse mass, and the velocities by lam / h;
-    the approaching normal speed left is removed (reversed times ``e`` above ``thresh``)
-    and the relative tangential speed reduced by at most ``mu`` times the whole normal
-    change: the law of ``kernels.colliders.contact_velocity`` applied to the relative
-    velocity, written out here because its normal change also counts the projection's
-    lam / h in the friction budget.  Every velocity change also moves the particle by h
-    times it, so x - h v stays the start of the step for the pairs that follow.
-    With ``has_col``, every particle moved (flagged in ``moved`` (N,) uint8, zero on entry
-    and on return) is then projected out of the static colliders, once, after the sweeps
-    (``kernels.colliders.collide_point``: ground, boxes, spheres), so contact never leaves
-    a particle inside one (a body pressed into the ground by another would otherwise be
-    pushed back out by the next step's collider pass, and the two would pump energy).
-    Returns the overlapping pairs met in the first sweep; ``count[b]``, ``deepest[b]`` get
-    each body's contacts and deepest penetration (m) of that sweep.
-
-    Load (``up``, the unit vector against gravity, nonzero): a pair of two different bodies
-    that both have an inverse mass ``bw[b]`` (no pinned or grabbed particle; ``off`` (nb + 1,)
-    their particle ranges) moves the two bodies as a whole instead of the two particles:
-    the same velocity change is split by the bodies' inverse masses into ``dv`` (nb, 3), a
-    translation of every particle of the body (``pend[b]`` set; later pairs see it), so the
-    whole body, not its touching layer, carries the load and the shape match is not
-    compressed by it (README "Contact between bodies").  Shock propagation: when such a
-    pair is resting (approach speed at most ``thresh``) and its normal is within 60 degrees
-    of ``up``, the lower body counts ``1 / shock`` times heavier, so a stack is solved from
-    the bottom up in one sweep (linear momentum is then not exchanged exactly; it is in
-    every other pair, and without gravity nothing here changes).  ``dv`` and ``pend`` are
-    zero on entry and on return.
-    """
-    # one sweep over the pair list in build order (spatially sorted): per pair ~20 loads,
-    # two square roots and a few dozen multiply-adds; a pair apart costs one distance
-    found = 0
-    ih = 1.0 / h
-    load = up[0] != 0.0 or up[1] != 0.0 or up[2] != 0.0
-    for it in range(iters):
-        for k in range(npairs):
-            i = pi[k]
-            j = pj[k]
-            wi = W[i]
-            wj = W[j]
-            ws = wi + wj
-            if ws <= 0.0:
-                continue
-            bi = B[i]
-            bj = B[j]
-            xi0, xi1, xi2 = X[0, i], X[1, i], X[2, i]
-            vi0, vi1, vi2 = V[0, i], V[1, i], V[2, i]
-            xj0, xj1, xj2 = X[0, j], X[1, j], X[2, j]
-            vj0, vj1, vj2 = V[0, j], V[1, j], V[2, j]
-            if pend[bi]:               # the body's translation so far in this sweep
-                xi0 += h * dv[bi, 0] + dv[bi, 3]
-                xi1 += h * dv[bi, 1] + dv[bi, 4]
-                xi2 += h * dv[bi, 2] + dv[bi, 5]
-                vi0 += dv[bi, 0]
-                vi1 += dv[bi, 1]
-                vi2 += dv[bi, 2]
-            if pend[bj]:
-                xj0 += h * dv[bj, 0] + dv[bj, 3]
-                xj1 += h * dv[bj, 1] + dv[bj, 4]
-                xj2 += h * dv[bj, 2] + dv[bj, 5]
-                vj0 += dv[bj, 0]
-                vj1 += dv[bj, 1]
-                vj2 += dv[bj, 2]
-            dx = xi0 - xj0
-            dy = xi1 - xj1
-            dz = xi2 - xj2
-            d2 = dx * dx + dy * dy + dz * dz
-            rr = R[i] + R[j]
-            if not d2 < rr * rr:       # apart, or NaN (a body that blew up: left alone)
-                continue
-            rx = vi0 - vj0
-            ry = vi1 - vj1
-            rz = vi2 - vj2
-            sx = dx - h * rx           # separation at the start of the step
-            sy = dy - h * ry
-            sz = dz - h * rz
-            sl = np.sqrt(sx * sx + sy * sy + sz * sz)
-            if sl > 1e-9 * rr:
-                nx, ny, nz = sx / sl, sy / sl, sz / sl
-            else:
-                d = np.sqrt(d2)
-                if d > 1e-9 * rr:
-                    nx, ny, nz = dx / d, dy / d, dz / d
-                else:                  # coincident: apart along z (deterministic)
-                    nx, ny, nz = 0.0, 0.0, 1.0
-            dn = dx * nx + dy * ny + dz * nz
-            lam = -dn + np.sqrt(dn * dn - d2 + rr * rr)
-            # normal speed before, the target after (restitution above the threshold)
-            vn0 = rx * nx + ry * ny + rz * nz
-            target = -e * vn0 if -vn0 > thresh else 0.0
-            vn = vn0 + lam * ih
-            dvn = target - vn if vn < target else 0.0
-            # tangential: Coulomb, budget mu * (whole normal change)
-            tx = rx - vn0 * nx
-            ty = ry - vn0 * ny
-            tz = rz - vn0 * nz
-            tl = np.sqrt(tx * tx + ty * ty + tz * tz)
-            f = 0.0
-            if tl > 0.0:
-                f = mu * (lam * ih + dvn) / tl
-                if f > 1.0:
-                    f = 1.0
-            gn = lam * ih + dvn        # relative velocity change: gn n - f t
-            qx = gn * nx - f * tx
-            qy = gn * ny - f * ty
-            qz = gn * nz - f * tz
-            if load and bi != bj and bw[bi] > 0.0 and bw[bj] > 0.0:
-                # the two bodies as a whole (translation); resting and stacked: the lower
-                # body counts 1 / shock times heavier
-                wbi = bw[bi]
-                wbj = bw[bj]
-                if -vn0 <= thresh:
-                    a = nx * up[0] + ny * up[1] + nz * up[2]
-                    if a > 0.5:
-                        wbj *= shock
-                    elif a < -0.5:
-                        wbi *= shock
-                c = 1.0 / (wbi + wbj)
-                ci = c * wbi
-                cj = c * wbj
-                # the overlap is removed by moving the bodies, but they leave it at most at
-                # a tenth of the resting threshold (a body's velocity carries every particle, so
-                # lam / h of a deep overlap would launch it); the rest of lam moves them
-                # without velocity.  Friction budget: mu times the velocity change.
-                va = vn0 + lam * ih
-                vcap = 0.1 * thresh if vn0 < 0.1 * thresh else vn0
-                if va > vcap:
-                    va = vcap
-                if va < target:
-                    va = target
-                dvn = va - vn0
-                f = 0.0
-                if tl > 0.0:
-                    f = mu * dvn / tl
-                    if f > 1.0:
-                        f = 1.0
-                qx = dvn * nx - f * tx
-                qy = dvn * ny - f * ty
-                qz = dvn * nz - f * tz
-                lam -= h * dvn                 # the part the velocity change moves
-                dv[bi, 0] += ci * qx
-                dv[bi, 1] += ci * qy
-                dv[bi, 2] += ci * qz
-                dv[bj, 0] -= cj * qx
-                dv[bj, 1] -= cj * qy
-                dv[bj, 2] -= cj * qz
-                dv[bi, 3] += ci * lam * nx
-                dv[bi, 4] += ci * lam * ny
-                dv[bi, 5] += ci * lam * nz
-                dv[bj, 3] -= cj * lam * nx
-                dv[bj, 4] -= cj * lam * ny
-                dv[bj, 5] -= cj * lam * nz
-                pend[bi] = 1
-                pend[bj] = 1
-                moved[i] = 1
-                moved[j] = 1
-                if it == 0:
-                    found += 1
-                    touched[bi] = 1
-                    touched[bj] = 1
-                    count[bi] += 1
-                    count[bj] += 1
-                    pen = rr - np.sqrt(d2)
-                    if pen > deepest[bi]:
-                        deepest[bi] = pen
-                    if pen > deepest[bj]:
-                        deepest[bj] = pen
-                continue
-            ai = wi / ws
-            aj = wj / ws
-            # every velocity change moves the particles by h times it, so x - h v stays
-            # the start of the step for the later pairs (and angular momentum exact)
-            X[0, i] += ai * h * qx
-            X[1, i] += ai * h * qy
-            X[2, i] += ai * h * qz
-            X[0, j] -= aj * h * qx
-            X[1, j] -= aj * h * qy
-            X[2, j] -= aj * h * qz
-            V[0, i] += ai * qx
-            V[1, i] += ai * qy
-            V[2, i] += ai * qz
-            V[0, j] -= aj * qx
-            V[1, j] -= aj * qy
-            V[2, j] -= aj * qz
-            moved[i] = 1
-            moved[j] = 1
-            if it == 0:
-                found += 1
-                touched[bi] = 1
-                touched[bj] = 1
-                count[bi] += 1
-                count[bj] += 1
-                pen = rr - np.sqrt(d2)
-                if pen > deepest[bi]:
-                    deepest[bi] = pen
-                if pen > deepest[bj]:
-                    deepest[bj] = pen
-    # the bodies moved as a whole: every particle, then the static colliders
-    for b in range(pend.shape[0]):
-        if not pend[b]:
-            continue
-        pend[b] = 0
-        d0, d1, d2_ = dv[b, 0], dv[b, 1], dv[b, 2]
-        e0 = h * d0 + dv[b, 3]
-        e1 = h * d1 + dv[b, 4]
-        e2 = h * d2_ + dv[b, 5]
-        dv[b, :] = 0.0
-        for p in range(off[b], off[b + 1]):
-            X[0, p] += e0
-            X[1, p] += e1
-            X[2, p] += e2
-            V[0, p] += d0
-            V[1, p] += d1
-            V[2, p] += d2_
-            moved[p] = 0
-            if has_col:
-                X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p] = collide_point(
-                    X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p], ground, boxes,
-                    spheres, thresh)
-    # the static colliders, once per moved particle, in pair order (deterministic)
-    for k in range(npairs):
-        for p in (pi[k], pj[k]):
-            if moved[p]:
-                moved[p] = 0
-                if has_col and W[p] > 0.0:
-                    X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p] = collide_point(
-                        X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p], ground, boxes,
-                        spheres, thresh)
-    return found
-
-
-@njit(**JIT)
 def count_fast(V, R, B, act, h, fast):
     """fast[b] = particles of colliding body b moving more than their radius per step."""
     fast[:] = 0
@@ -438,3 +194,334 @@ def median_nn_distance(x, step):
         best[a] = b2
     best.sort()
     return np.sqrt(best[ns // 2])
+
+
+
+@njit(inline='always')
+def _own(X, V, i, c, h, px, py, pz, q0, q1, q2):
+    """Particle i's own change, inverse mass c: velocity impulse p (it also moves by h
+    times the velocity change), position impulse q (moves it only)."""
+    X[0, i] += c * (h * px + q0)
+    X[1, i] += c * (h * py + q1)
+    X[2, i] += c * (h * pz + q2)
+    V[0, i] += c * px
+    V[1, i] += c * py
+    V[2, i] += c * pz
+
+
+@njit(**JIT)
+def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched, count,
+                 deepest, has_col, ground, boxes, spheres, moved, off, bw, cpl, dv, pend,
+                 active, acc, tg, tol, vb, noground, cand, cptr):
+    """Body-body contact under gravity, the stiff bodies carrying their contacts as a
+    whole (README "Contact between bodies"; ``Contact.run`` calls ``solve_pairs``
+    without gravity or without such bodies).
+
+    A body with ``cpl[b]`` and an inverse mass ``bw[b]`` (one cluster, stiff, no pinned or
+    grabbed particle: ``Contact``) takes every impulse on one of its particles as a
+    translation of the whole body: a pair's inverse mass on its side is ``bw[b]``, the
+    body's changes so far are kept in ``dv[b]`` (velocity, then position; ``pend[b]``
+    set), seen by the later pairs and applied to every particle at the end.  The load on
+    it so reaches all its particles within the step instead of compressing its touching
+    layer (through the shape match it reaches them a step later, the layer giving way by a
+    load-dependent depth every step).  The contact law acts on such a body's own velocity
+    (``vb[b]``, momentum / mass, plus its changes): the deviation of a particle from it is
+    the shape match's.  A pair with such a body is pushed apart by a position impulse (no
+    speed: overlap does not turn into bounce) and its normal velocity goes to the law's
+    target (0, or restitution times the approach above ``thresh``, fixed at the first
+    visit in ``tg``, + 2 for these pairs), with accumulated impulses (``acc`` (2, P):
+    velocity and position impulse of the pair so far, never negative, so a later sweep
+    may take back what an earlier one gave too much) over at most ``iters`` symmetric
+    Gauss-Seidel sweeps (forward, backward, ...: a one-way sweep drifts a stack towards
+    its end), stopping once a sweep changes no velocity by more than ``tol``; after the
+    first sweep only these pairs closer than 1.25 (r_i + r_j) (``active``) are visited.
+    Other pairs (two per-particle bodies, or one body) get the law of ``solve_pairs`` in
+    the first sweep.  Friction: Coulomb, at most ``mu`` times the normal change (the
+    position impulse's too, over h) and at most what stops the sliding.  Impulses are
+    equal and opposite: linear momentum is kept to round-off.  Particles moved are put
+    out of the static colliders at the end, as in ``solve_pairs``.  ``dv``, ``pend``,
+    ``moved`` are zero on entry and on return.  Returns the overlapping pairs of the first
+    sweep (``count``, ``deepest`` as in ``solve_pairs``).
+    """
+    found = 0
+    ih = 1.0 / h
+    nact = 0
+    for it in range(iters):
+        first = it == 0
+        todo = npairs if first else nact
+        big = 0.0
+        for kk in range(todo):
+            # symmetric Gauss-Seidel: forward, then backward
+            a = kk if it % 2 == 0 else todo - 1 - kk
+            k = a if first else active[a]
+            if first:
+                acc[0, k] = 0.0
+                acc[1, k] = 0.0
+            i = pi[k]
+            j = pj[k]
+            wi = W[i]
+            wj = W[j]
+            if wi + wj <= 0.0:
+                continue
+            bi = B[i]
+            bj = B[j]
+            ci = bi != bj and cpl[bi] and bw[bi] > 0.0 and wi > 0.0
+            cj = bi != bj and cpl[bj] and bw[bj] > 0.0 and wj > 0.0
+            xi0, xi1, xi2 = X[0, i], X[1, i], X[2, i]
+            vi0, vi1, vi2 = V[0, i], V[1, i], V[2, i]
+            xj0, xj1, xj2 = X[0, j], X[1, j], X[2, j]
+            vj0, vj1, vj2 = V[0, j], V[1, j], V[2, j]
+            if ci and pend[bi]:        # the body's moves so far in this pass
+                vi0 += dv[bi, 0]
+                vi1 += dv[bi, 1]
+                vi2 += dv[bi, 2]
+                xi0 += h * dv[bi, 0] + dv[bi, 3]
+                xi1 += h * dv[bi, 1] + dv[bi, 4]
+                xi2 += h * dv[bi, 2] + dv[bi, 5]
+            if cj and pend[bj]:
+                vj0 += dv[bj, 0]
+                vj1 += dv[bj, 1]
+                vj2 += dv[bj, 2]
+                xj0 += h * dv[bj, 0] + dv[bj, 3]
+                xj1 += h * dv[bj, 1] + dv[bj, 4]
+                xj2 += h * dv[bj, 2] + dv[bj, 5]
+            dx = xi0 - xj0
+            dy = xi1 - xj1
+            dz = xi2 - xj2
+            d2 = dx * dx + dy * dy + dz * dz
+            rr = R[i] + R[j]
+            # separation at the start of the step (the particles' own velocities)
+            sx = dx - h * (vi0 - vj0)
+            sy = dy - h * (vi1 - vj1)
+            sz = dz - h * (vi2 - vj2)
+            # the law acts on a carried body's own velocity (its momentum over its mass):
+            # the particle's deviation from it is the shape match's to restore
+            if ci:
+                vi0 = vb[bi, 0] + dv[bi, 0]
+                vi1 = vb[bi, 1] + dv[bi, 1]
+                vi2 = vb[bi, 2] + dv[bi, 2]
+            if cj:
+                vj0 = vb[bj, 0] + dv[bj, 0]
+                vj1 = vb[bj, 1] + dv[bj, 1]
+                vj2 = vb[bj, 2] + dv[bj, 2]
+            if not d2 == d2:
+                continue               # NaN (a body that blew up): left alone
+            over = d2 < rr * rr
+            held = acc[0, k] > 0.0 or acc[1, k] > 0.0
+            if first and (ci or cj) and (over or d2 < 1.5625 * rr * rr):
+                active[nact] = k       # visited again by the later sweeps
+                nact += 1
+            if not over and not held:
+                continue
+            rx = vi0 - vj0
+            ry = vi1 - vj1
+            rz = vi2 - vj2
+            sl = np.sqrt(sx * sx + sy * sy + sz * sz)
+            if sl > 1e-9 * rr:
+                nx, ny, nz = sx / sl, sy / sl, sz / sl
+            else:
+                d = np.sqrt(d2)
+                if d > 1e-9 * rr:
+                    nx, ny, nz = dx / d, dy / d, dz / d
+                else:                  # coincident: apart along z (deterministic)
+                    nx, ny, nz = 0.0, 0.0, 1.0
+            dn = dx * nx + dy * ny + dz * nz
+            arg = dn * dn - d2 + rr * rr
+            lam = -dn + np.sqrt(arg) if arg >= 0.0 else rr - np.sqrt(d2)
+            vn0 = rx * nx + ry * ny + rz * nz
+            if first:                  # the pair's law, fixed at its first visit
+                tg[k] = -e * vn0 if -vn0 > thresh else 0.0
+                if ci or cj:
+                    tg[k] += 2.0       # split: position for the overlap, velocity law
+            split = tg[k] >= 1.0
+            target = tg[k] - 2.0 if split else tg[k]
+            if split:
+                gn = target - vn0      # may be negative: takes back, down to zero
+                qn = lam
+            elif over:
+                vn = vn0 + lam * ih
+                gn = lam * ih + (target - vn if vn < target else 0.0)
+                qn = 0.0
+            else:
+                continue
+            ki = bw[bi] if ci else wi
+            kj = bw[bj] if cj else wj
+            kn = ki + kj
+            pn = gn / kn               # normal impulse (mass x velocity)
+            qq = qn / kn               # position impulse (mass x length)
+            a_new = max(acc[0, k] + pn, 0.0)
+            pn = a_new - acc[0, k]
+            acc[0, k] = a_new
+            a_new = max(acc[1, k] + qq, 0.0)
+            qq = a_new - acc[1, k]
+            acc[1, k] = a_new
+            # tangential: Coulomb, at most mu times the normal change (the overlap's too,
+            # as in solve_pairs), at most what stops the sliding (inverse mass kn too)
+            tx = rx - vn0 * nx
+            ty = ry - vn0 * ny
+            tz = rz - vn0 * nz
+            tl = np.sqrt(tx * tx + ty * ty + tz * tz)
+            pt = 0.0
+            if tl > 0.0:
+                pt = min(mu * max(pn + qq * ih, 0.0), tl / kn) / tl
+            px = pn * nx - pt * tx
+            py = pn * ny - pt * ty
+            pz = pn * nz - pt * tz
+            q0 = qq * nx
+            q1 = qq * ny
+            q2 = qq * nz
+            ch = kn * max(abs(pn) + pt * tl, abs(qq) * ih)
+            if ch > big:
+                big = ch
+            if ci:
+                dv[bi, 0] += ki * px
+                dv[bi, 1] += ki * py
+                dv[bi, 2] += ki * pz
+                dv[bi, 3] += ki * q0
+                dv[bi, 4] += ki * q1
+                dv[bi, 5] += ki * q2
+                pend[bi] = 1
+            elif wi > 0.0:
+                _own(X, V, i, wi, h, px, py, pz, q0, q1, q2)
+                moved[i] = 1
+            if cj:
+                dv[bj, 0] -= kj * px
+                dv[bj, 1] -= kj * py
+                dv[bj, 2] -= kj * pz
+                dv[bj, 3] -= kj * q0
+                dv[bj, 4] -= kj * q1
+                dv[bj, 5] -= kj * q2
+                pend[bj] = 1
+            elif wj > 0.0:
+                _own(X, V, j, -wj, h, px, py, pz, q0, q1, q2)
+                moved[j] = 1
+            if first and over:
+                found += 1
+                touched[bi] = 1
+                touched[bj] = 1
+                count[bi] += 1
+                count[bj] += 1
+                pen = rr - np.sqrt(d2)
+                if pen > deepest[bi]:
+                    deepest[bi] = pen
+                if pen > deepest[bj]:
+                    deepest[bj] = pen
+        if has_col and cand.shape[0] > 0:
+            # walls: a body carried as a whole is pushed out of boxes and spheres as a
+            # whole (its particles near them, ``cand``), so a jam is not dented into them
+            for b in range(pend.shape[0]):
+                if not pend[b]:
+                    continue
+                for t in range(cptr[b], cptr[b + 1]):
+                    p = cand[t]
+                    x0 = X[0, p] + h * dv[b, 0] + dv[b, 3]
+                    x1 = X[1, p] + h * dv[b, 1] + dv[b, 4]
+                    x2 = X[2, p] + h * dv[b, 2] + dv[b, 5]
+                    y0, y1, y2, _, _, _ = collide_point(x0, x1, x2, 0.0, 0.0, 0.0, noground,
+                                                        boxes, spheres, thresh)
+                    if y0 != x0 or y1 != x1 or y2 != x2:
+                        dv[b, 3] += y0 - x0
+                        dv[b, 4] += y1 - x1
+                        dv[b, 5] += y2 - x2
+                        ch = np.sqrt((y0 - x0) ** 2 + (y1 - x1) ** 2 + (y2 - x2) ** 2) * ih
+                        if ch > big:
+                            big = ch
+        if not first and big <= tol:
+            break                      # converged
+    # the bodies' moves: every particle, then the static colliders
+    for b in range(pend.shape[0]):
+        if not pend[b]:
+            continue
+        pend[b] = 0
+        u0, u1, u2 = dv[b, 0], dv[b, 1], dv[b, 2]
+        e0 = h * u0 + dv[b, 3]
+        e1 = h * u1 + dv[b, 4]
+        e2 = h * u2 + dv[b, 5]
+        dv[b, :] = 0.0
+        for p in range(off[b], off[b + 1]):
+            X[0, p] += e0
+            X[1, p] += e1
+            X[2, p] += e2
+            V[0, p] += u0
+            V[1, p] += u1
+            V[2, p] += u2
+            moved[p] = 0
+            if has_col:
+                X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p] = collide_point(
+                    X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p], ground, boxes,
+                    spheres, thresh)
+    for k in range(npairs):
+        for p in (pi[k], pj[k]):
+            if moved[p]:
+                moved[p] = 0
+                if has_col and W[p] > 0.0:
+                    X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p] = collide_point(
+                        X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p], ground, boxes,
+                        spheres, thresh)
+    return found
+
+
+@njit(**JIT)
+def body_velocities(V, W, off, cpl, bw, vb):
+    """vb[b] = the velocity of body b's centre of mass (momentum / mass) for the bodies
+    ``solve_bodies`` carries as a whole (``cpl[b]``, ``bw[b]`` > 0)."""
+    for b in range(off.shape[0] - 1):
+        vb[b, 0] = vb[b, 1] = vb[b, 2] = 0.0
+        if not cpl[b] or not bw[b] > 0.0:
+            continue
+        p0 = p1 = p2 = 0.0
+        for k in range(off[b], off[b + 1]):
+            m = 1.0 / W[k]
+            p0 += m * V[0, k]
+            p1 += m * V[1, k]
+            p2 += m * V[2, k]
+        vb[b, 0] = p0 * bw[b]
+        vb[b, 1] = p1 * bw[b]
+        vb[b, 2] = p2 * bw[b]
+
+
+@njit(**JIT)
+def wall_candidates(X, off, cpl, bw, boxes, spheres, margin, cand, cptr):
+    """The particles of the bodies ``solve_bodies`` carries as a whole (``cpl[b]``,
+    ``bw[b]`` > 0) that are within ``margin`` of a box or a sphere, body by body:
+    ``cand[cptr[b]:cptr[b + 1]]``; returns their number.  A body's bounding box is
+    tested first, so a body far from them costs one pass over its particles."""
+    m = 0
+    for b in range(off.shape[0] - 1):
+        cptr[b] = m
+        if not cpl[b] or not bw[b] > 0.0:
+            continue
+        lo0 = lo1 = lo2 = np.inf
+        hi0 = hi1 = hi2 = -np.inf
+        for p in range(off[b], off[b + 1]):
+            lo0 = min(lo0, X[0, p])
+            lo1 = min(lo1, X[1, p])
+            lo2 = min(lo2, X[2, p])
+            hi0 = max(hi0, X[0, p])
+            hi1 = max(hi1, X[1, p])
+            hi2 = max(hi2, X[2, p])
+        for k in range(boxes.shape[0]):
+            if not (lo0 - margin < boxes[k, 3] and hi0 + margin > boxes[k, 0]
+                    and lo1 - margin < boxes[k, 4] and hi1 + margin > boxes[k, 1]
+                    and lo2 - margin < boxes[k, 5] and hi2 + margin > boxes[k, 2]):
+                continue
+            for p in range(off[b], off[b + 1]):
+                if (X[0, p] > boxes[k, 0] - margin and X[0, p] < boxes[k, 3] + margin
+                        and X[1, p] > boxes[k, 1] - margin and X[1, p] < boxes[k, 4] + margin
+                        and X[2, p] > boxes[k, 2] - margin
+                        and X[2, p] < boxes[k, 5] + margin):
+                    if m < cand.shape[0]:
+                        cand[m] = p
+                    m += 1
+        for k in range(spheres.shape[0]):
+            rr = spheres[k, 3] + margin
+            for p in range(off[b], off[b + 1]):
+                d0 = X[0, p] - spheres[k, 0]
+                d1 = X[1, p] - spheres[k, 1]
+                d2 = X[2, p] - spheres[k, 2]
+                if d0 * d0 + d1 * d1 + d2 * d2 < rr * rr:
+                    if m < cand.shape[0]:
+                        cand[m] = p
+                    m += 1
+    cptr[off.shape[0] - 1] = m
+    return m

@@ -10,7 +10,7 @@ from numba.typed import List as TypedList
 from . import body as body_mod
 from .body import Body
 from .kernels.world_step import step_bodies_parallel, step_single_bodies
-from .contact import BodyContact, Contact, ContactParams, default_radius
+from .contact import COUPLE_ALPHA, BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
 from .world_colliders import WorldColliders
 
@@ -38,6 +38,7 @@ class World(WorldColliders):
         self._coll_stats = None                # (bodies, 2) contacts, deepest: collider pass
         self._zeros = np.zeros(0, dtype=np.int32)
         self._one_touch = np.zeros(1, dtype=np.uint8)
+        self._coupling_key = None
         self.time = 0.0
         self.set_colliders()
 
@@ -243,6 +244,7 @@ class World(WorldColliders):
         if st is None or len(st) != len(f.bodies):
             st = self._coll_stats = np.zeros((len(f.bodies), 2))
         if need_contact:
+            self._contact_coupling(h)
             f.gather()
             c.run(h, thresh, self._has_col, self._ground_row, self._box_rows,
                   self._sphere_rows, self._gravity)
@@ -260,6 +262,18 @@ class World(WorldColliders):
                        h, thresh, sk, self._one_touch)
             if sk[0, 0] > 0.0:
                 body._dirty = True            # moved particles: re-accumulate the next step
+
+    def _contact_coupling(self, h):
+        """Mark the bodies that carry their contacts as a whole (``Contact.coupling``): one
+        cluster and alpha at the step at least ``contact.COUPLE_ALPHA`` (README "Contact
+        between bodies").  Recomputed when a body, its parameters or the step change."""
+        key = (body_mod._GENERATION[0], h, id(self._flat))
+        if self._coupling_key == key:
+            return
+        c = self._contact.coupling
+        for k, b in enumerate(self._flat.bodies):
+            c[k] = b.num_clusters == 1 and b._params.at_step(h).alpha >= COUPLE_ALPHA
+        self._coupling_key = key
 
     def _zero_bid(self, n):
         """Body index 0 for n particles (the per-body path of the collider pass)."""
