@@ -8,7 +8,7 @@ keeps every cluster's linear and angular momentum.
 from numba import njit
 
 from .jit import JIT
-from .linalg import pinv_sym
+from .linalg import sym3_solve
 
 
 @njit(**JIT)
@@ -37,10 +37,9 @@ def _rigid_fields(lin, w3, m3a, m3b, m3c, m3d):
         m3a[0, 1] = m3a[1, 0] = lin[k, 10] + wk * d0 * d1
         m3a[1, 2] = m3a[2, 1] = lin[k, 11] + wk * d1 * d2
         m3a[2, 0] = m3a[0, 2] = lin[k, 12] + wk * d2 * d0
-        pinv_sym(mat=m3a, out=m3b, wa=m3c, wv=m3d, rcond=1e-12)
-        o0 = m3b[0, 0] * l0 + m3b[0, 1] * l1 + m3b[0, 2] * l2
-        o1 = m3b[1, 0] * l0 + m3b[1, 1] * l1 + m3b[1, 2] * l2
-        o2 = m3b[2, 0] * l0 + m3b[2, 1] * l1 + m3b[2, 2] * l2
+        # omega = I^+ L (the adjugate where I is well posed, else the pseudo-inverse)
+        o0, o1, o2 = sym3_solve(mat=m3a, b0=l0, b1=l1, b2=l2, rcond=1e-12, wout=m3b, wa=m3c,
+                                wv=m3d)
         w3[k, 0] = o0
         w3[k, 1] = o1
         w3[k, 2] = o2

@@ -24,7 +24,7 @@ from numba import njit
 import numpy as np
 
 from .jit import JIT, finite
-from .linalg import pinv_sym
+from .linalg import sym3_solve
 
 @njit(**JIT)
 def limit_speed(x, v, h, v_max):
@@ -132,10 +132,8 @@ def limit_turn(x, v, mass, ptr, cl, flagged, w_max, lin, w3, m3a, m3b, m3c, m3d)
         m3a[0, 1] = m3a[1, 0] = lin[k, 10]
         m3a[1, 2] = m3a[2, 1] = lin[k, 11]
         m3a[2, 0] = m3a[0, 2] = lin[k, 12]
-        pinv_sym(mat=m3a, out=m3b, wa=m3c, wv=m3d, rcond=1e-12)
-        o0 = m3b[0, 0] * lin[k, 4] + m3b[0, 1] * lin[k, 5] + m3b[0, 2] * lin[k, 6]
-        o1 = m3b[1, 0] * lin[k, 4] + m3b[1, 1] * lin[k, 5] + m3b[1, 2] * lin[k, 6]
-        o2 = m3b[2, 0] * lin[k, 4] + m3b[2, 1] * lin[k, 5] + m3b[2, 2] * lin[k, 6]
+        o0, o1, o2 = sym3_solve(mat=m3a, b0=lin[k, 4], b1=lin[k, 5], b2=lin[k, 6],
+                                rcond=1e-12, wout=m3b, wa=m3c, wv=m3d)
         om = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
         if om > w_max and finite(om):
             f = 1.0 - w_max / om

@@ -9,7 +9,7 @@ write-up), so these routines are used instead; each writes into caller-provided 
 import numpy as np
 from numba import njit
 
-from .jit import JIT
+from .jit import FLOAT_MAX, JIT
 
 
 @njit(**JIT)
@@ -59,6 +59,65 @@ def jacobi_eigh(mat, vecs, max_sweeps=50):
                     vkq = vecs[k, q]
                     vecs[k, p] = c * vkp - s * vkq
                     vecs[k, q] = s * vkp + c * vkq
+
+
+@njit(inline='always', **JIT)
+def _jacobi_angle(app, aqq, apq):
+    """One Jacobi rotation zeroing a_pq: (new a_pp, new a_qq, c, s), as ``jacobi_eigh``."""
+    theta = (aqq - app) / (2.0 * apq)
+    if theta >= 0.0:
+        t = 1.0 / (theta + np.sqrt(theta * theta + 1.0))
+    else:
+        t = -1.0 / (-theta + np.sqrt(theta * theta + 1.0))
+    c = 1.0 / np.sqrt(t * t + 1.0)
+    return app - t * apq, aqq + t * apq, c, t * c
+
+
+@njit(inline='always', **JIT)
+def _rotate_columns(vecs, p, q, c, s):
+    for k in range(3):
+        vkp = vecs[k, p]
+        vkq = vecs[k, q]
+        vecs[k, p] = c * vkp - s * vkq
+        vecs[k, q] = s * vkp + c * vkq
+
+
+@njit(**JIT)
+def jacobi3(mat, vecs, max_sweeps=50):
+    """``jacobi_eigh`` for a symmetric 3x3 ``mat``: the same cyclic rotations and stopping
+    rule, on the six distinct entries held in registers (the rotated pair's diagonal by
+    a_pp - t a_pq, a_qq + t a_pq) instead of full row and column sweeps of the array:
+    about three times faster, equal to rounding.  Diagonal of ``mat`` <- eigenvalues,
+    columns of ``vecs`` <- eigenvectors."""
+    a00, a11, a22 = mat[0, 0], mat[1, 1], mat[2, 2]
+    a01, a02, a12 = mat[0, 1], mat[0, 2], mat[1, 2]
+    for i in range(3):
+        for j in range(3):
+            vecs[i, j] = 1.0 if i == j else 0.0
+    for _ in range(max_sweeps):
+        off = a01 * a01 + a02 * a02 + a12 * a12
+        diag = a00 * a00 + a11 * a11 + a22 * a22
+        if off <= 1e-32 * diag or off == 0.0:
+            break
+        if a01 != 0.0:                          # (p, q) = (0, 1), r = 2
+            a00, a11, c, s = _jacobi_angle(a00, a11, a01)
+            a01 = 0.0
+            a02, a12 = c * a02 - s * a12, s * a02 + c * a12
+            _rotate_columns(vecs, 0, 1, c, s)
+        if a02 != 0.0:                          # (0, 2), r = 1
+            a00, a22, c, s = _jacobi_angle(a00, a22, a02)
+            a02 = 0.0
+            a01, a12 = c * a01 - s * a12, s * a01 + c * a12
+            _rotate_columns(vecs, 0, 2, c, s)
+        if a12 != 0.0:                          # (1, 2), r = 0
+            a11, a22, c, s = _jacobi_angle(a11, a22, a12)
+            a12 = 0.0
+            a01, a02 = c * a01 - s * a02, s * a01 + c * a02
+            _rotate_columns(vecs, 1, 2, c, s)
+    mat[0, 0], mat[1, 1], mat[2, 2] = a00, a11, a22
+    mat[0, 1] = mat[1, 0] = a01
+    mat[0, 2] = mat[2, 0] = a02
+    mat[1, 2] = mat[2, 1] = a12
 
 
 @njit(**JIT)
@@ -128,3 +187,40 @@ def norm2(mat, wa, wv):
         if wa[i, i] > lmax:
             lmax = wa[i, i]
     return np.sqrt(lmax)
+
+
+#: ``sym3_solve`` inverts by the adjugate when the smallest eigenvalue is provably above
+#: this fraction of the largest (det > WELL_POSED tr^3 for a positive definite matrix).
+WELL_POSED = 1e-6
+
+
+@njit(**JIT)
+def sym3_solve(mat, b0, b1, b2, rcond, wout, wa, wv):
+    """``pinv_sym(mat, rcond) @ b`` for a symmetric positive semi-definite 3x3 ``mat``.
+
+    Where Sylvester's criterion shows ``mat`` positive definite and det > ``WELL_POSED``
+    tr^3 (then lambda_min >= det / tr^2 > 1e-6 lambda_max, far above any ``rcond`` used,
+    so the pseudo-inverse is the inverse) it solves by the adjugate: no eigen-solve.
+    Otherwise (flat, line-like or indefinite by rounding) ``pinv_sym`` into ``wout``
+    (scratch ``wa``, ``wv``).  Both agree to rounding times the condition number.
+    """
+    m00, m01, m02 = mat[0, 0], mat[0, 1], mat[0, 2]
+    m11, m12, m22 = mat[1, 1], mat[1, 2], mat[2, 2]
+    c00 = m11 * m22 - m12 * m12
+    c01 = m02 * m12 - m01 * m22
+    c02 = m01 * m12 - m02 * m11
+    det = m00 * c00 + m01 * c01 + m02 * c02
+    tr = m00 + m11 + m22
+    if (m00 > 0.0 and m00 * m11 - m01 * m01 > 0.0 and det > WELL_POSED * tr * tr * tr
+            and det < FLOAT_MAX):
+        c11 = m00 * m22 - m02 * m02
+        c12 = m01 * m02 - m00 * m12
+        c22 = m00 * m11 - m01 * m01
+        inv = 1.0 / det
+        return ((c00 * b0 + c01 * b1 + c02 * b2) * inv,
+                (c01 * b0 + c11 * b1 + c12 * b2) * inv,
+                (c02 * b0 + c12 * b1 + c22 * b2) * inv)
+    pinv_sym(mat=mat, out=wout, wa=wa, wv=wv, rcond=rcond)
+    return (wout[0, 0] * b0 + wout[0, 1] * b1 + wout[0, 2] * b2,
+            wout[1, 0] * b0 + wout[1, 1] * b1 + wout[1, 2] * b2,
+            wout[2, 0] * b0 + wout[2, 1] * b1 + wout[2, 2] * b2)
