@@ -20,10 +20,13 @@ from .params import BodyParams
 #: threads' fork/join waits cost far more than they save: on 2 shared cores, 100k particles
 #: took 1.5 ms/step (median) on one thread and 13 ms on two (benchmarks.md).
 PARALLEL_MIN_WORK = 262144
-#: Bodies with at least this many particles damp inside the particle pass (``kernels.
-#: damping``); smaller ones keep the separate pass, which costs less than the two extra
-#: kernel calls there (a call costs several microseconds, a pass over 1,000 particles ~1).
-FUSED_DAMPING_MIN = 1024
+#: One-cluster and set-layout bodies with at least this many particles damp inside the
+#: particle pass (``kernels.damping``; the others keep the separate pass, ``damp_rigid``).
+#: It was 1,024 while every body called its kernels one by one from Python (two more
+#: calls of several microseconds); a body the compiled world step covers makes one call
+#: whatever it runs, and the fused damping costs less at any size (``paper_384``, 384
+#: bodies of 112-179 particles: 14.5-15.1 -> 12.3-12.6 ms per step on one thread).
+FUSED_DAMPING_MIN = 0
 #: A multi-cluster body uses the set layout (``kernels.sets_*``) when its cluster
 #: memberships outnumber its set-cluster pairs by at least this factor (each pair costs
 #: about as much per step as this many memberships).
@@ -147,6 +150,15 @@ class Body:
     def _fast_record(self, h):
         """The tuple of buffers ``kernels.world_step`` steps (``body_build.fast_record``)."""
         return body_build.fast_record(self, h)
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state.pop('_one', None)                # a typed list does not copy: rebuilt
+        return state
+
+    def _one_record(self, h):
+        """A typed list of this body's record alone (``body_build.one_record``)."""
+        return body_build.one_record(self, h)
 
     def _fast_sets(self):
         """The set-layout buffers of a record (``body_build.fast_sets``)."""

@@ -10,6 +10,7 @@ buffers; ``sm_ros.core.body.Body`` calls them and owns the state.
 
 import numba
 import numpy as np
+from numba.typed import List as TypedList
 
 from . import kernels as K
 from .clusters import build_memberships
@@ -259,6 +260,15 @@ def fast_record(body, h):
             body._com, body._err, body._dpart, body._dmp, body._dref, body._dacc, lin, w3,
             sptr, scl, scnt, body._quat_prev, body._flagged, body._lim_lin, body._lim_w,
             body._facc, body._fstate, body._flags, body._limit_counts) + body._fast_sets()
+
+
+def one_record(body, h):
+    """A typed list holding ``fast_record(body, h)``, kept until a body changes or h does."""
+    key = (_GENERATION[0], h)
+    one = getattr(body, '_one', None)
+    if one is None or one[0] != key:
+        one = body._one = (key, TypedList([fast_record(body, h)]))
+    return one[1]
 
 
 def fast_sets(body):

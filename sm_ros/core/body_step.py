@@ -15,7 +15,17 @@ from . import kernels as K
 def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     """One step of h seconds of ``body`` (``Body._step``; the kernels of ``kernels/``
     in the order of algorithm.md): goals, limits, plasticity, damping, Eq. 13-14 with
-    the static colliders, grabbed and pinned particles."""
+    the static colliders, grabbed and pinned particles.
+
+    A body the compiled world step covers (``Body._fast_ok``) is stepped by it, as a list
+    of one record: one call instead of one per kernel, and the very code ``World.step``
+    runs for it (the kernels compiled inside one caller or called one by one from Python
+    can round differently under fast math).
+    """
+    if body._fast_ok():
+        K.step_single_bodies(body._one_record(h), h, gravity, has_col, ground, boxes, spheres,
+                             thresh)
+        return
     if body._at_step[0] != h or body._at_step[1] is not body._params:
         body._at_step = (h, body._params, body._params.at_step(h))
     p = body._at_step[2]                   # the material's coefficients at this step

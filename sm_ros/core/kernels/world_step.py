@@ -7,7 +7,7 @@ kernels, in the same order and with the same arguments as ``Body._step``, for ev
 of a typed list of per-body records, so the Python cost of a step no longer grows with the
 number of such bodies.  It covers one-cluster and set-layout bodies without plasticity,
 kinematic particles or torque, on one thread (``Body._fast_ok``); the others keep
-``Body._step``.
+``Body._step``, which steps a covered body as a list of one record.
 
 A record (``Body._fast_record``) is a tuple of the body's own buffers; ``state`` holds
 [alpha, beta, damping (per step), max_speed, max_turn, 1 / total mass, mode, fused
@@ -17,6 +17,7 @@ damping, quadratic, set layout, max_turn / h], ``force`` the force over the tota
 limit counters; the set-layout buffers (``s_*``) are empty for one-cluster bodies.
 """
 
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -28,19 +29,33 @@ from .limits import limit_speed, limit_turn
 from .sets import sets_accumulate_serial, sets_integrate_serial, sets_maps, sets_reduce
 
 
-@njit(**JIT)
-def step_single_bodies(bodies, h, gravity, has_col, ground, boxes, spheres, thresh):
-    """``Body._step`` for every record of ``bodies``, one after another."""
-    for b in range(len(bodies)):
-        _step_record(bodies[b], h, gravity, has_col, ground, boxes, spheres, thresh)
-
-
 @njit(parallel=True, **JIT)
 def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, thresh):
     """``Body._step`` for every record of ``bodies``, bodies spread over the threads (each
     record owns all the buffers it writes, so the order does not change any result)."""
-    for b in prange(len(bodies)):
+    for b in prange(np.int64(len(bodies))):
         _step_record(bodies[b], h, gravity, has_col, ground, boxes, spheres, thresh)
+
+
+def step_single_bodies(bodies, h, gravity, has_col, ground, boxes, spheres, thresh):
+    """``Body._step`` for every record of ``bodies`` on the calling thread alone.
+
+    The same compiled loop as ``step_bodies_parallel``, run with one Numba thread: the
+    kernels compiled into two different callers are optimised (inlined, reassociated
+    under fast math) differently and can round differently, so the one-thread world
+    step, the threaded one and ``Body._step`` (which steps a covered body as a list of
+    one record) run one machine code and agree bit for bit.  Setting the thread count
+    costs about a microsecond; the loop then runs on the calling thread.
+    """
+    threads = numba.get_num_threads()
+    if threads == 1:
+        step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, thresh)
+        return
+    numba.set_num_threads(1)
+    try:
+        step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, thresh)
+    finally:
+        numba.set_num_threads(threads)
 
 
 @njit(**JIT)

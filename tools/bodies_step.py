@@ -1,0 +1,101 @@
+"""
+The bodies' own compiled step of ``paper_384`` (``kernels.world_step``, contact and the
+collider pass left out), after ``--steps`` world steps of pouring: all records on one
+thread and on every Numba thread, and each kind of body (96 of each) on one thread,
+round-robin in one process (medians of ``--rounds`` rounds, ms per world step); then the
+``many`` worlds of ``sm_ros.bench scaling`` (64 and 384 one-cluster bodies of 144
+particles, ``World.step``, contact off).  Prints one JSON line, so that two checkouts can
+be compared run against run (``--compare A B``: alternate processes, medians).
+
+    .venv/bin/python tools/bodies_step.py
+    .venv/bin/python tools/bodies_step.py --compare /path/to/old/checkout . --runs 3
+"""
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+
+def measure(steps, rounds):
+    """The figures of this checkout (ms per world step, medians)."""
+    import numba
+    from numba.typed import List as TypedList
+
+    from sm_ros.bench.scaling import build_many
+    from sm_ros.core.kernels.world_step import step_bodies_parallel, step_single_bodies
+    from sm_ros.sim import Simulation
+
+    sim = Simulation({'scene': 'paper_384'})
+    world = sim.world
+    dt = float(sim.params['dt'])
+    for _ in range(steps):
+        world.step(dt)
+    records, slow, _ = world._split_bodies(dt)
+    bodies = [b for b in world.bodies if b not in slow]
+    args = (dt, world._gravity, world._has_col, world._ground_row, world._box_rows,
+            world._sphere_rows, 1e-3)
+    kinds = {}
+    for b, r in zip(bodies, records):
+        kinds.setdefault(b.name.rstrip('0123456789_'), []).append(r)
+    runs = {'all, 1 thread': lambda: step_single_bodies(records, *args),
+            f'all, {numba.get_num_threads()} threads': lambda: step_bodies_parallel(records,
+                                                                                   *args)}
+    for kind, recs in kinds.items():
+        tl = TypedList(recs)
+        runs[f'{kind} ({len(recs)}), 1 thread'] = (lambda t=tl: step_single_bodies(t, *args))
+    many = {c: build_many(c) for c in (64, 384)}
+    for c, w in many.items():
+        runs[f'many {c}, World.step'] = (lambda w=w: w.step(dt))
+    samples = {k: [] for k in runs}
+    for fn in runs.values():
+        fn()
+    for _ in range(rounds):
+        for k, fn in runs.items():
+            t0 = time.perf_counter()
+            fn()
+            samples[k].append(time.perf_counter() - t0)
+    return {'records': len(records), 'stepped apart': len(slow),
+            'ms': {k: 1e3 * statistics.median(v) for k, v in samples.items()}}
+
+
+def main(argv=None) -> int:
+    """Measure this checkout, or compare two (alternating processes)."""
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--steps', type=int, default=120, help='world steps of pouring first')
+    ap.add_argument('--rounds', type=int, default=40)
+    ap.add_argument('--compare', nargs=2, metavar=('BEFORE', 'AFTER'))
+    ap.add_argument('--runs', type=int, default=3, help='processes per checkout (--compare)')
+    ap.add_argument('--root', help='checkout whose sm_ros is measured (default: this one)')
+    args = ap.parse_args(argv)
+    if not args.compare:
+        sys.path.insert(0, args.root or str(Path(__file__).resolve().parent.parent))
+        print(json.dumps(measure(args.steps, args.rounds)))
+        return 0
+    me = Path(__file__).resolve()
+    got = {c: [] for c in args.compare}
+    for _ in range(args.runs):
+        for c in args.compare:
+            root = str(Path(c).resolve())
+            env = dict(os.environ, PYTHONPATH=root)
+            out = subprocess.run([sys.executable, str(me), '--steps', str(args.steps),
+                                  '--rounds', str(args.rounds), '--root', root], env=env, cwd=c,
+                                 capture_output=True, text=True, check=True)
+            got[c].append(json.loads(out.stdout.strip().splitlines()[-1])['ms'])
+    before, after = args.compare
+    print(f'| ms per step (median of {args.runs} runs) | before | after | before / after |')
+    print('| --- | --- | --- | --- |')
+    for k in got[after][0]:
+        b = statistics.median(r[k] for r in got[before] if k in r) if k in got[before][0] \
+            else float('nan')
+        a = statistics.median(r[k] for r in got[after])
+        print(f'| {k} | {b:.2f} | {a:.2f} | {b / a:.2f} |')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
