@@ -11,6 +11,11 @@ table is, in turn:
 
 Each is stepped in turn (round-robin, so machine load hits every variant alike) and the
 median ms per step is printed with the ratio to ``plain``, plus the grasp scene's step.
+
+``--motion``: what moving colliders cost per step, the compiled pose update
+(``collider_motion.advance_poses``) side by side with its Python twin (the former
+per-collider loop): K = 1..32 capsules on scripted paths or under commanded moves, and the
+grasp scene's whole step with its two fingers moving and at rest.
 """
 
 import argparse
@@ -68,6 +73,81 @@ def run(n_side: int = 30, steps: int = 60, rounds: int = 5,
     return {k: 1e3 * statistics.median(v) for k, v in times.items()}
 
 
+def _motion_set(k: int, kind: str):
+    from sm_ros.core import Capsule, World
+    rz = (0.0, 0.0, 0.0499792, 0.9987503)
+    path = ((100.0, (0.0, 1.0, 1.0), rz),) if kind == 'path' else ()
+    caps = [Capsule(center=(float(i), 0.0, 1.0), radius=0.02, length=0.1, name=f'c{i}',
+                    kinematic=True, path=path) for i in range(k)]
+    world = World()
+    world.set_colliders(capsules=caps)
+    return world._cset
+
+
+def motion(rounds: int = 7, calls: int = 300, dt: float = 1.0 / 120.0):
+    """{(K, kind): (compiled us, Python us)} median per advance, and the grasp scene's
+    {variant: ms/step} (fingers moving / at rest, compiled / Python)."""
+    from sm_ros.core import collider_motion as CM
+    from sm_ros.core.colliders import ColliderSet
+    from sm_ros.scene import build_world, load_scene
+
+    def args(cs, t):
+        return (cs.mode, cs.pos, cs.quat, cs.mv, cs.ktime, cs.kpos, cs.kquat, cs.kseg,
+                cs.koff, cs.rows, dt, t, cs.done)
+
+    out = {}
+    for k in (1, 2, 8, 32):
+        for kind in ('path', 'move'):
+            sets = {f: _motion_set(k, kind) for f in ('compiled', 'python')}
+            times: Dict[str, List[float]] = {f: [] for f in sets}
+            fns = {'compiled': CM.advance_poses, 'python': CM.advance_reference}
+            fns['compiled'](*args(sets['compiled'], 0.0))          # compile / load
+            for _ in range(rounds):
+                for f, cs in sets.items():
+                    for i in range(calls):
+                        if kind == 'move':           # a new move each step, like the node
+                            for c in range(k):
+                                cs.move(f'c{c}', (float(c), 0.001 * (i % 7), 1.0),
+                                        (0.0, 0.0, 0.0499792, 0.9987503), dt)
+                        t0 = time.perf_counter()
+                        fns[f](*args(cs, 0.5))
+                        times[f].append(time.perf_counter() - t0)
+                        cs.done[:] = 0
+            out[(k, kind)] = tuple(1e6 * statistics.median(times[f]) for f in sets)
+    python_advance = ColliderSet.advance
+
+    def advance_python(self, h, t=0.0):
+        if CM.advance_reference(*args(self, t)[:10], float(h), float(t), self.done):
+            for c in np.flatnonzero(self.done):
+                self.motion[c] = None
+            self.done[:] = 0
+
+    worlds = {}
+    for v in ('moving', 'at rest'):
+        w, _ = build_world(load_scene('grasp'))
+        for _ in range(5 if v == 'moving' else 200):         # the path is over at 1.5 s
+            w.step(dt)
+        worlds[v] = w
+    start = worlds['moving'].time
+    grasp: Dict[str, List[float]] = {}
+    try:
+        for _ in range(rounds):
+            for impl in ('compiled', 'python'):
+                ColliderSet.advance = python_advance if impl == 'compiled' else advance_python
+                for v, w in worlds.items():
+                    for _ in range(calls // 5):
+                        if v == 'moving' and w.time > 0.45:          # fingers still closing
+                            w.reset()
+                            while w.time < start:
+                                w.step(dt)
+                        t0 = time.perf_counter()
+                        w.step(dt)
+                        grasp.setdefault(f'{v}, {impl}', []).append(time.perf_counter() - t0)
+    finally:
+        ColliderSet.advance = python_advance
+    return out, {k: 1e3 * statistics.median(v) for k, v in grasp.items()}
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     """Print the table; returns 0."""
     ap = argparse.ArgumentParser(prog='python -m sm_ros.bench.colliders', description=__doc__,
@@ -75,7 +155,22 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument('--side', type=int, default=30, help='particles per box edge (30: 27k)')
     ap.add_argument('--steps', type=int, default=60, help='steps per variant per round')
     ap.add_argument('--rounds', type=int, default=5, help='round-robin rounds')
+    ap.add_argument('--motion', action='store_true',
+                    help='moving colliders: compiled pose update against the Python loop')
     args = ap.parse_args(argv)
+    if args.motion:
+        us, grasp = motion(args.rounds)
+        print('moving colliders: pose update per step (median us), compiled and Python')
+        print('| colliders | motion | compiled us | Python us | Python / compiled |')
+        print('| --- | --- | --- | --- | --- |')
+        for (k, kind), (a, b) in us.items():
+            print(f'| {k} | {kind} | {a:.2f} | {b:.1f} | {b / a:.0f} |')
+        print('grasp scene, whole World.step (median ms)')
+        print('| fingers | compiled | Python |')
+        print('| --- | --- | --- |')
+        for v in ('moving', 'at rest'):
+            print(f'| {v} | {grasp[f"{v}, compiled"]:.4f} | {grasp[f"{v}, python"]:.4f} |')
+        return 0
     ms = run(args.side, args.steps, args.rounds)
     n = args.side ** 3
     base = ms['plain']

@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from . import collider_motion as CM
 from . import kinematic as KC
 from .params import KIND_BOX, KIND_CAPSULE, QUAT_TOLERANCE
 
@@ -102,9 +103,11 @@ class ColliderSet:
                 bound = dims[0]
             # a little slack: the bound only skips particles that cannot touch
             row[KC.C_BOUND] = bound * (1.0 + 1e-9) + 1e-12
-        # scripted paths: keyframe times (from 0), positions, quaternions
+        # scripted paths: keyframe times (from 0), positions, quaternions, concatenated
+        # over the colliders (collider_motion.py), with each segment's axis and angle
         self.paths = {}
         from .params import _path
+        koff, ktime, kpos, kquat, kseg = [0], [], [], [], []
         for c, item in enumerate(self.items):
             frames = _path('collider', item)
             if frames:
@@ -115,6 +118,22 @@ class ColliderSet:
                     pos.append(p)
                     quats.append(quats[-1] if q is None else q)
                 self.paths[c] = (times, np.array(pos), np.array(quats))
+                ktime.extend(times)
+                kpos.extend(pos)
+                kquat.extend(quats)
+                for k in range(len(times)):
+                    axis, angle = (rotation_between(quats[k], quats[k + 1])
+                                   if k + 1 < len(times) else (np.zeros(3), 0.0))
+                    kseg.append([*axis, angle])
+            koff.append(len(ktime))
+        self.koff = np.array(koff, dtype=np.int64)
+        self.ktime = np.array(ktime, dtype=float)
+        self.kpos = np.array(kpos, dtype=float).reshape(-1, 3)
+        self.kquat = np.array(kquat, dtype=float).reshape(-1, 4)
+        self.kseg = np.array(kseg, dtype=float).reshape(-1, 4)
+        self.mode = np.zeros(nc, dtype=np.int64)
+        self.mv = np.zeros((nc, CM.MV))
+        self.done = np.zeros(nc, dtype=np.int64)
         self.imp = np.zeros((nc, 6))
         self.imp_time = 0.0
         self.reset()
@@ -126,10 +145,14 @@ class ColliderSet:
         """Initial poses, no motion, no accumulated impulses."""
         self.pos = self.pos0.copy()
         self.quat = self.quat0.copy()
-        # per collider: None or (start pos, start quat, target pos, target quat, duration,
-        # elapsed, linear velocity, axis, angle)
+        # per collider: None or the commanded move in progress, (start pos, start quat,
+        # target pos, target quat, duration, linear velocity, axis, angle) as commanded;
+        # its progress lives in ``mv`` (collider_motion.py)
         self.motion = [None] * len(self.items)
-        self.playing = set(self.paths)
+        self.mode[:] = CM.IDLE
+        for c in self.paths:
+            self.mode[c] = CM.PATH
+        self.mv[:] = 0.0
         for c in range(len(self.items)):
             self._write_pose(c, np.zeros(3), np.zeros(3))
         self.imp[:] = 0.0
@@ -164,16 +187,27 @@ class ColliderSet:
             raise ValueError(f'duration must be a number, got {duration!r}') from None
         if not (math.isfinite(d) and d >= 0.0):
             raise ValueError(f'duration must be finite and >= 0, got {duration!r}')
-        self.playing.discard(c)           # a commanded move ends the scripted path
         if d == 0.0:
+            self.mode[c] = CM.IDLE        # a commanded move ends the scripted path
             self.pos[c] = p
             self.quat[c] = q
             self.motion[c] = None
             self._write_pose(c, np.zeros(3), np.zeros(3))
             return
         axis, angle = rotation_between(self.quat[c], q)
-        self.motion[c] = (self.pos[c].copy(), self.quat[c].copy(), p, q, d, 0.0,
-                          (p - self.pos[c]) / d, axis, angle)
+        vel = (p - self.pos[c]) / d
+        self.motion[c] = (self.pos[c].copy(), self.quat[c].copy(), p, q, d, vel, axis, angle)
+        mo = self.mv[c]
+        mo[CM.M_P0:CM.M_P0 + 3] = self.pos[c]
+        mo[CM.M_Q0:CM.M_Q0 + 4] = self.quat[c]
+        mo[CM.M_P1:CM.M_P1 + 3] = p
+        mo[CM.M_Q1:CM.M_Q1 + 4] = q
+        mo[CM.M_DUR] = d
+        mo[CM.M_EL] = 0.0
+        mo[CM.M_VEL:CM.M_VEL + 3] = vel
+        mo[CM.M_AXIS:CM.M_AXIS + 3] = axis
+        mo[CM.M_ANGLE] = angle
+        self.mode[c] = CM.MOVE            # a commanded move ends the scripted path
 
     def path_pose(self, c, t):
         """Pose of collider ``c``'s scripted path at time ``t`` (s)."""
@@ -186,38 +220,21 @@ class ColliderSet:
         return (pos[k] + (pos[k + 1] - pos[k]) * s,
                 quat_mul(axis_angle_quat(axis, angle * s), quats[k]))
 
+    @property
+    def playing(self):
+        """Indices of the colliders still playing their scripted path."""
+        return set(np.flatnonzero(self.mode == CM.PATH).tolist())
+
     def advance(self, h, t=0.0):
         """Poses at the end of the next step (from time ``t``, of ``h`` s) and the
-        velocities during it."""
-        for c, mo in enumerate(self.motion):
-            if c in self.playing:
-                if t >= self.paths[c][0][-1]:          # the path is over: at rest there
-                    self.playing.discard(c)
-                    self._write_pose(c, np.zeros(3), np.zeros(3))
-                    continue
-                p, q = self.path_pose(c, t + h)
-                vel = (p - self.pos[c]) / h
-                axis, angle = rotation_between(self.quat[c], q)
-                self.pos[c] = p
-                self.quat[c] = q
-                self._write_pose(c, vel, axis * (angle / h))
-                continue
-            if mo is None:
-                if self.rows[c, KC.C_VEL:KC.C_ANG + 3].any():
-                    self._write_pose(c, np.zeros(3), np.zeros(3))
-                continue
-            p0, q0, p1, q1, d, t, vel, axis, angle = mo
-            t_new = t + h
-            if t_new >= d * (1.0 - 1e-9):
-                self.pos[c] = p1
-                self.quat[c] = q1
+        velocities during it: one compiled call for every collider
+        (``collider_motion.advance_poses``)."""
+        if CM.advance_poses(self.mode, self.pos, self.quat, self.mv, self.ktime, self.kpos,
+                            self.kquat, self.kseg, self.koff, self.rows, float(h), float(t),
+                            self.done):
+            for c in np.flatnonzero(self.done):
                 self.motion[c] = None
-            else:
-                s = t_new / d
-                self.pos[c] = p0 + (p1 - p0) * s
-                self.quat[c] = quat_mul(axis_angle_quat(axis, angle * s), q0)
-                self.motion[c] = (p0, q0, p1, q1, d, t_new, vel, axis, angle)
-            self._write_pose(c, vel, axis * (angle / d))
+            self.done[:] = 0
 
     # ------------------------------------------------------------------ contact
     def collide(self, X, V, w, bid, start, end, h, thresh, stats, touched):
