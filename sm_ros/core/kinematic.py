@@ -24,6 +24,8 @@ so an edit of the law recompiles ``collide_range``.
 ``collide_numpy`` is the plain NumPy twin the tests compare against.
 """
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -233,3 +235,145 @@ def collide_numpy(X, V, w, bid, rows, h, thresh, imp, stats, touched):
         imp[c, 3:] += np.cross(r, j, axis=0).sum(axis=1)
         X[:, idx] = pn
         V[:, idx] = v_new
+
+
+# ---------------------------------------------------------------------------------------
+# Poses of the kinematic colliders, all in one call (state: collider_motion.py).  Here, in
+# the file of the row layout, so that an edit of the columns recompiles this kernel too.
+# ---------------------------------------------------------------------------------------
+
+IDLE, MOVE, PATH = 0, 1, 2
+
+# columns of a commanded move (mv)
+M_P0 = 0            # start position (3)
+M_Q0 = 3            # start quaternion (4)
+M_P1 = 7            # target position (3)
+M_Q1 = 10           # target quaternion (4)
+M_DUR = 14          # duration (s)
+M_EL = 15           # time elapsed (s)
+M_VEL = 16          # linear velocity (3)
+M_AXIS = 19         # rotation axis, world frame (3)
+M_ANGLE = 22        # rotation angle over the whole move (rad)
+MV = 23
+
+
+@njit(**JIT)
+def _axis_angle_mul(ax, ay, az, angle, q):
+    """quat_mul(axis_angle_quat(axis, angle), q) as four floats."""
+    s = math.sin(0.5 * angle)
+    x, y, z, w = ax * s, ay * s, az * s, math.cos(0.5 * angle)
+    bx, by, bz, bw = q[0], q[1], q[2], q[3]
+    return (w * bx + x * bw + y * bz - z * by,
+            w * by - x * bz + y * bw + z * bx,
+            w * bz + x * by - y * bx + z * bw,
+            w * bw - x * bx - y * by - z * bz)
+
+
+@njit(**JIT)
+def _rotation_between(q0, q1x, q1y, q1z, q1w):
+    """(ax, ay, az, angle) of the world-frame rotation taking q0 to q1 (angle in [0, pi])."""
+    ax, ay, az, aw = q1x, q1y, q1z, q1w
+    bx, by, bz, bw = -q0[0], -q0[1], -q0[2], q0[3]
+    dx = aw * bx + ax * bw + ay * bz - az * by
+    dy = aw * by - ax * bz + ay * bw + az * bx
+    dz = aw * bz + ax * by - ay * bx + az * bw
+    dw = aw * bw - ax * bx - ay * by - az * bz
+    if dw < 0.0:
+        dx, dy, dz, dw = -dx, -dy, -dz, -dw
+    s = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if s < 1e-15:
+        return 0.0, 0.0, 1.0, 0.0
+    return dx / s, dy / s, dz / s, 2.0 * math.atan2(s, dw)
+
+
+@njit(**JIT)
+def _write_pose(row, p, q, vx, vy, vz, wx, wy, wz):
+    """Position, rotation matrix of unit quaternion q, linear and angular velocity."""
+    row[C_POS], row[C_POS + 1], row[C_POS + 2] = p[0], p[1], p[2]
+    x, y, z, w = q[0], q[1], q[2], q[3]
+    r = C_ROT
+    row[r] = 1 - 2 * (y * y + z * z)
+    row[r + 1] = 2 * (x * y - z * w)
+    row[r + 2] = 2 * (x * z + y * w)
+    row[r + 3] = 2 * (x * y + z * w)
+    row[r + 4] = 1 - 2 * (x * x + z * z)
+    row[r + 5] = 2 * (y * z - x * w)
+    row[r + 6] = 2 * (x * z - y * w)
+    row[r + 7] = 2 * (y * z + x * w)
+    row[r + 8] = 1 - 2 * (x * x + y * y)
+    row[C_VEL], row[C_VEL + 1], row[C_VEL + 2] = vx, vy, vz
+    row[C_ANG], row[C_ANG + 1], row[C_ANG + 2] = wx, wy, wz
+
+
+@njit(**JIT)
+def advance_poses(mode, pos, quat, mv, ktime, kpos, kquat, kseg, koff, rows, h, t, done):
+    """Poses at the end of the next step (from world time ``t``, of ``h`` s) and the
+    velocities during it, for every collider; returns how many commanded moves ended.
+
+    One pass over the colliders (a few): each moving one costs a slerp, a rotation matrix
+    and, on a path, a scan of its keyframes; a collider at rest only has its velocities
+    zeroed once.
+    """
+    ended = 0
+    for c in range(mode.shape[0]):
+        row = rows[c]
+        m = mode[c]
+        if m == PATH:
+            k0, k1 = koff[c], koff[c + 1]
+            end = ktime[k1 - 1]
+            if t >= end:                        # the path is over: at rest there
+                mode[c] = IDLE
+                _write_pose(row, pos[c], quat[c], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+                continue
+            tt = t + h
+            if tt >= end:
+                px, py, pz = kpos[k1 - 1, 0], kpos[k1 - 1, 1], kpos[k1 - 1, 2]
+                qk = kquat[k1 - 1]
+                qx, qy, qz, qw = qk[0], qk[1], qk[2], qk[3]
+            else:
+                k = k0
+                while k + 1 < k1 and ktime[k + 1] <= tt:
+                    k += 1
+                s = (tt - ktime[k]) / (ktime[k + 1] - ktime[k])
+                px = kpos[k, 0] + (kpos[k + 1, 0] - kpos[k, 0]) * s
+                py = kpos[k, 1] + (kpos[k + 1, 1] - kpos[k, 1]) * s
+                pz = kpos[k, 2] + (kpos[k + 1, 2] - kpos[k, 2]) * s
+                qx, qy, qz, qw = _axis_angle_mul(kseg[k, 0], kseg[k, 1], kseg[k, 2],
+                                                 kseg[k, 3] * s, kquat[k])
+            vx, vy, vz = (px - pos[c, 0]) / h, (py - pos[c, 1]) / h, (pz - pos[c, 2]) / h
+            ax, ay, az, angle = _rotation_between(quat[c], qx, qy, qz, qw)
+            pos[c, 0], pos[c, 1], pos[c, 2] = px, py, pz
+            quat[c, 0], quat[c, 1], quat[c, 2], quat[c, 3] = qx, qy, qz, qw
+            w = angle / h
+            _write_pose(row, pos[c], quat[c], vx, vy, vz, ax * w, ay * w, az * w)
+        elif m == MOVE:
+            mo = mv[c]
+            d = mo[M_DUR]
+            t_new = mo[M_EL] + h
+            if t_new >= d * (1.0 - 1e-9):
+                for i in range(3):
+                    pos[c, i] = mo[M_P1 + i]
+                for i in range(4):
+                    quat[c, i] = mo[M_Q1 + i]
+                mode[c] = IDLE
+                done[c] = 1
+                ended += 1
+            else:
+                s = t_new / d
+                for i in range(3):
+                    pos[c, i] = mo[M_P0 + i] + (mo[M_P1 + i] - mo[M_P0 + i]) * s
+                qx, qy, qz, qw = _axis_angle_mul(mo[M_AXIS], mo[M_AXIS + 1], mo[M_AXIS + 2],
+                                                 mo[M_ANGLE] * s, mo[M_Q0:M_Q0 + 4])
+                quat[c, 0], quat[c, 1], quat[c, 2], quat[c, 3] = qx, qy, qz, qw
+                mo[M_EL] = t_new
+            w = mo[M_ANGLE] / d
+            _write_pose(row, pos[c], quat[c], mo[M_VEL], mo[M_VEL + 1], mo[M_VEL + 2],
+                        mo[M_AXIS] * w, mo[M_AXIS + 1] * w, mo[M_AXIS + 2] * w)
+        else:
+            moving = False
+            for i in range(C_VEL, C_ANG + 3):
+                if row[i] != 0.0:
+                    moving = True
+            if moving:
+                _write_pose(row, pos[c], quat[c], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    return ended
