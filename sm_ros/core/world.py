@@ -56,8 +56,14 @@ class World(WorldColliders):
 
     def contact_stats(self):
         """{body name: (contacts, deepest penetration in m)} of the last step: the collider
-        pass (particle-collider contacts) and body-body contact (pairs) together."""
+        pass (particle-collider contacts), body-body contact (pairs) and the particles
+        resting on the ground and plain boxes and spheres (``static_contacts``: counted,
+        their depth before the fused step projected them is not known) together."""
         out = self.collider_contacts()
+        for name, n in self.static_contacts().items():
+            if n:
+                m, d = out.get(name, (0, 0.0))
+                out[name] = (m + n, d)
         c, f = self._contact, self._flat
         if c is not None and c.needed and f is not None:
             for k, b in enumerate(f.bodies):

@@ -106,3 +106,37 @@ class WorldColliders:
         if st is None or f is None or len(st) != len(f.bodies):
             return dict.fromkeys(self._bodies, (0, 0.0))
         return {b.name: (int(st[k, 0]), float(st[k, 1])) for k, b in enumerate(f.bodies)}
+
+    #: A particle within this distance (m) of a static collider's surface, or inside it,
+    #: touches it (the fused step puts a penetrating particle exactly on the surface).
+    STATIC_TOUCH = 1e-9
+
+    def static_contacts(self):
+        """{body name: particles touching the ground and the plain (unnamed, axis-aligned,
+        static) boxes and spheres at the end of the last step}, one per particle and
+        collider.
+
+        These colliders are resolved inside each body's fused step, which projects a
+        penetrating particle exactly onto the surface and keeps no record of it: the count
+        is of the particles lying on (or within ``STATIC_TOUCH`` of, or inside) a surface
+        now, and how deep they were before the projection is not known.  Computed when
+        asked (NumPy over each body's positions; ``/diagnostics`` asks once a period).
+        """
+        out = dict.fromkeys(self._bodies, 0)
+        if not self._has_col:
+            return out
+        tol = self.STATIC_TOUCH
+        g, boxes, spheres = self._ground_row, self._box_rows, self._sphere_rows
+        for name, body in self._bodies.items():
+            x = body._x
+            n = 0
+            if g[0] > 0.5:
+                n += int(np.count_nonzero(x[:, 2] <= g[1] + tol))
+            for b in boxes:
+                n += int(np.count_nonzero(np.all((x >= b[:3] - tol) & (x <= b[3:6] + tol),
+                                                 axis=1)))
+            for sp in spheres:
+                d = x - sp[:3]
+                n += int(np.count_nonzero(np.einsum('ij,ij->i', d, d) <= (sp[3] + tol) ** 2))
+            out[name] = n
+        return out
