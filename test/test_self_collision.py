@@ -16,6 +16,7 @@ line count: around the rod the two halves are one continuous sheet.
 """
 
 import numpy as np
+import pytest
 
 from sm_ros.core.contact import BodyContact
 from sm_ros.scene import build_world, load_scene
@@ -24,9 +25,11 @@ H = 1 / 120                    # the node's default step (dt)
 FAR = 5                        # lattice steps from the fold line: past the rod's wrap
 
 
-def _scene(self_collision):
+def _scene(self_collision, clusters=None):
     world, _ = build_world(load_scene('sheet_rod'))
     world.set_body_contact('sheet', BodyContact(self_collision=self_collision))
+    if clusters is not None:
+        world.body('sheet').set_params(clusters=clusters)
     return world, world.body('sheet')
 
 
@@ -98,8 +101,8 @@ def test_crossings_sees_a_particle_pushed_through_the_other_half():
     assert far_left in crossings(x, grid, s)
 
 
-def _drop(self_collision, steps=240):
-    world, sheet = _scene(self_collision)
+def _drop(self_collision, steps=240, clusters=None):
+    world, sheet = _scene(self_collision, clusters)
     s = 0.02
     nx, ny, grid = _lattice(sheet.x, s)
     rod = world.collider('rod')
@@ -115,8 +118,9 @@ def _drop(self_collision, steps=240):
     return world, sheet, grid, top, dict(crossed=crossed, gap=gap, fold=lowest_fold)
 
 
-def test_sheet_folds_over_the_rod_without_crossing_itself():
-    world, sheet, grid, top, r = _drop(True)
+@pytest.mark.parametrize('clusters', [None, 8])       # the scene's 30 per axis, and 8
+def test_sheet_folds_over_the_rod_without_crossing_itself(clusters):
+    world, sheet, grid, top, r = _drop(True, clusters=clusters)
     s = 0.02
     dist = 2 * world.contact_radius('sheet')          # the contact distance, 1 spacing
     assert r['crossed'] == 0
