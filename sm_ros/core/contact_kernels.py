@@ -197,7 +197,7 @@ def median_nn_distance(x, step):
 
 
 
-@njit(inline='always')
+@njit(inline='always', **JIT)
 def _own(X, V, i, c, h, px, py, pz, q0, q1, q2):
     """Particle i's own change, inverse mass c: velocity impulse p (it also moves by h
     times the velocity change), position impulse q (moves it only)."""
