@@ -191,6 +191,9 @@ TABLE: Tuple[Param, ...] = (
           0.0, 1.0),
     Param('contact.radius_scale', 1.0, "Factor on every body's default contact radius "
           '(half its median particle spacing)', '', 0.0, 10.0, positive=True),
+    Param('contact.stacking', True, 'Under gravity, stiff one-cluster bodies carry their '
+          'contacts as a whole (stacks stand, piles come to rest at the default step; '
+          'false: every particle on its own)'),
     Param('grab_radius', 0.05, 'A gripper attaches the particles within this distance of '
           'its first pose (m)', 'm', 0.0, 100.0, positive=True),
     Param('force_timeout', 0.0, 'A force is cleared after this many seconds without a new '

@@ -78,7 +78,8 @@ def contact_from(scene_contact: Optional[Mapping[str, Any]],
         c.update(scene_contact)
     return ContactParams(enabled=bool(c['enabled']), friction=float(c['friction']),
                          restitution=float(c['restitution']),
-                         radius_scale=float(c['radius_scale'])).validate()
+                         radius_scale=float(c['radius_scale']),
+                         stacking=c['stacking']).validate()
 
 
 def body_contact_from(body: BodySpec):

@@ -20,7 +20,7 @@ import numpy as np
 from sm_ros.shapes import Surface
 
 #: Keys of a scene's top-level ``contact`` mapping (node parameters ``contact.<key>``).
-CONTACT_SCENE_KEYS = ('enabled', 'friction', 'restitution', 'radius_scale')
+CONTACT_SCENE_KEYS = ('enabled', 'friction', 'restitution', 'radius_scale', 'stacking')
 
 
 class SceneError(ValueError):
@@ -81,7 +81,7 @@ class SceneSpec:
         source: the file it came from (or a label for scenes built in code).
         description: the scene's description text.
         contact: the keys of the top-level ``contact`` mapping the scene set (enabled,
-            friction, restitution, radius_scale); the others come from the node.
+            friction, restitution, radius_scale, stacking); the others come from the node.
     """
 
     bodies: List[BodySpec]

@@ -29,7 +29,8 @@ INTERFACE_PARAMS = ('mode', 'alpha', 'beta', 'plasticity.yield', 'plasticity.cre
                     'contact.enabled', 'contact.friction', 'contact.restitution',
                     'contact.radius_scale', 'max_speed', 'max_turn', 'error_estimate.rate')
 #: Parameters sm_ros adds to the interface (live view, recording, error estimate budget).
-EXTRA_PARAMS = ('foxglove.port', 'foxglove.host', 'record.path', 'error_estimate.budget')
+EXTRA_PARAMS = ('foxglove.port', 'foxglove.host', 'record.path', 'error_estimate.budget',
+                'contact.stacking')
 
 
 def set_param(node, name, value):
@@ -253,6 +254,12 @@ def test_contact_parameters(ros, scene_file):
     assert (c.friction, c.restitution, c.radius_scale) == (0.8, 0.25, 2.0)
     assert node.world.contact_radius('a') == pytest.approx(0.05)
     assert node.world.contact_radius('b') == 0.03          # given in the scene: kept
+    assert c.stacking                                       # the default
+    assert set_param(node, 'contact.stacking', False).successful
+    node.tick()
+    assert node.world.contact_params.stacking is False
+    refused(node, 'contact.stacking', 'yes', 'type')
+    refused(node, 'contact.stacking', 1, 'type')
     assert set_param(node, 'contact.enabled', False).successful
     node.tick()
     assert node.world.contact is None

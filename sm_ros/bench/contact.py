@@ -65,10 +65,16 @@ def add_arguments(p: argparse.ArgumentParser):
 
 
 def block_bin(n_blocks: int = 384, seed: int = 1, layers: int = 1):
-    """A World of n_blocks 6x6x4 blocks in a bin, faces 0.95 spacing apart (touching).
+    """A World of n_blocks 6x6x4 blocks resting in a bin, faces one spacing apart.
 
-    One layer by default: 24 blocks a row (6 layers of 8 x 8 blocks boil at h = 1/120 s:
-    README "Contact", load through the shape match).
+    Neighbouring blocks touch: the facing particles of two blocks are one spacing (their
+    contact distance) apart, each block put off by up to 1 mm at random, so about half of
+    those pairs start overlapping by up to 2 mm.  Blocks stand on the ground (the colliders
+    act on particle centres: the bottom layer 0-1 mm above it), the walls 1 cm from the
+    outer blocks' particles.  (Until this layout the faces were 0.95 spacing apart and the
+    blocks started 2 cm into the ground; with stacking, blocks pushed apart then jammed
+    against the walls and the bin never came to rest.)  One layer by default: 24 blocks a
+    row.
     """
     from sm_ros.core import BodyParams, Box, Ground, World
     rng = np.random.default_rng(seed)
@@ -76,7 +82,7 @@ def block_bin(n_blocks: int = 384, seed: int = 1, layers: int = 1):
     nx = 24 if layers == 1 else 8
     ny = int(np.ceil(n_blocks / (nx * nz)))
     size = (np.array(BLOCK) - 1) * SPACING
-    pitch = size + 0.95 * SPACING
+    pitch = size + SPACING
     g = np.stack(np.meshgrid(*[np.arange(k) for k in BLOCK], indexing='ij'),
                  -1).reshape(-1, 3) * SPACING
     w = World()
@@ -95,7 +101,7 @@ def block_bin(n_blocks: int = 384, seed: int = 1, layers: int = 1):
                 if k == n_blocks:
                     return w
                 c = np.array([ix, iy, iz]) * pitch + rng.uniform(-0.05, 0.05, 3) * SPACING
-                c[2] += 0.5 * SPACING
+                c[2] = iz * pitch[2] + 0.5 * size[2] + abs(c[2] - iz * pitch[2])
                 w.add_body(g - 0.5 * size + c, 0.01, p, f'block{k}')
                 k += 1
     return w

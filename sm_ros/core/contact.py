@@ -10,7 +10,7 @@ mass), equal and opposite, so linear momentum is kept to round-off; its relative
 then gets the ground's contact law (``solve_pairs``).  Every velocity change also moves the
 particles by h times it, so without friction angular momentum is kept to round-off too.
 Particles that contact moved are then projected out of the static colliders again.
-With ``ContactParams.stacking`` (opt-in), under gravity, a stiff body of one cluster
+With ``ContactParams.stacking`` (the default), under gravity, a stiff body of one cluster
 (alpha at the step at least ``COUPLE_ALPHA``, no pinned or grabbed particle) carries its
 contacts as a whole: an impulse on one of its particles translates the body, so its load
 reaches all of it within the step instead of compressing its touching layer; such pairs
@@ -85,9 +85,11 @@ class ContactParams:
     act like the ground's; ``radius_scale`` multiplies every body's default contact
     radius (half its median nearest-neighbour distance; a body's own ``contact_radius``
     is used as given); ``iterations`` Gauss-Seidel sweeps over the pairs per step.
-    ``stacking`` (opt-in, core API only so far): under gravity, stiff one-cluster bodies
-    carry their contacts as a whole (``COUPLE_ALPHA``, ``STACK_SWEEPS``; README "Contact
-    between bodies": stacks stand and heaps of such bodies come to rest at the node's step).
+    ``stacking`` (on by default; scene key ``contact: {stacking: ...}``, node parameter
+    ``contact.stacking``): under gravity, stiff one-cluster bodies carry their contacts as
+    a whole (``COUPLE_ALPHA``, ``STACK_SWEEPS``; README "Contact between bodies": stacks
+    stand and heaps of such bodies come to rest at the node's step); False: every particle
+    acts on its own (``solve_pairs``), as softer and many-cluster bodies always do.
     """
 
     enabled: bool = True
@@ -95,7 +97,7 @@ class ContactParams:
     restitution: float = 0.0
     radius_scale: float = 1.0
     iterations: int = 1
-    stacking: bool = False
+    stacking: bool = True
 
     def validate(self) -> 'ContactParams':
         """Return a normalised copy; raise ValueError naming the bad field."""
