@@ -42,15 +42,16 @@ def measure(steps, rounds):
     kinds = {}
     for b, r in zip(bodies, records):
         kinds.setdefault(b.name.rstrip('0123456789_'), []).append(r)
-    runs = {'all, 1 thread': lambda: step_single_bodies(records, *args),
-            f'all, {numba.get_num_threads()} threads': lambda: step_bodies_parallel(records,
-                                                                                   *args)}
+    runs = {'all, 1 thread': lambda: step_single_bodies(records, *args)}
     for kind, recs in kinds.items():
         tl = TypedList(recs)
         runs[f'{kind} ({len(recs)}), 1 thread'] = (lambda t=tl: step_single_bodies(t, *args))
     many = {c: build_many(c) for c in (64, 384)}
     for c, w in many.items():
         runs[f'many {c}, World.step'] = (lambda w=w: w.step(dt))
+    # last in each round: the threads may spin a while after it and slow what follows
+    runs[f'all, {numba.get_num_threads()} threads'] = lambda: step_bodies_parallel(records,
+                                                                                  *args)
     samples = {k: [] for k in runs}
     for fn in runs.values():
         fn()

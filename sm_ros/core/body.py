@@ -20,13 +20,14 @@ from .params import BodyParams
 #: threads' fork/join waits cost far more than they save: on 2 shared cores, 100k particles
 #: took 1.5 ms/step (median) on one thread and 13 ms on two (benchmarks.md).
 PARALLEL_MIN_WORK = 262144
-#: One-cluster and set-layout bodies with at least this many particles damp inside the
-#: particle pass (``kernels.damping``; the others keep the separate pass, ``damp_rigid``).
-#: It was 1,024 while every body called its kernels one by one from Python (two more
-#: calls of several microseconds); a body the compiled world step covers makes one call
-#: whatever it runs, and the fused damping costs less at any size (``paper_384``, 384
-#: bodies of 112-179 particles: 14.5-15.1 -> 12.3-12.6 ms per step on one thread).
-FUSED_DAMPING_MIN = 0
+#: One-cluster bodies with at least this many particles damp inside the particle pass
+#: (``kernels.damping``); smaller ones keep the separate pass, which costs less there (384
+#: bodies of 144 particles, one cluster: 4.22 ms per step with it, 4.56 ms fused).
+FUSED_DAMPING_MIN = 1024
+#: The same for set-layout bodies.  Their separate pass walks every cluster membership
+#: twice, the fused one takes per-set sums in the particle pass: cheaper at any size
+#: (``paper_384``'s 8-cluster bodies of 144-179 particles: 20-30 % less per body step).
+FUSED_DAMPING_MIN_SETS = 0
 #: A multi-cluster body uses the set layout (``kernels.sets_*``) when its cluster
 #: memberships outnumber its set-cluster pairs by at least this factor (each pair costs
 #: about as much per step as this many memberships).
@@ -121,6 +122,7 @@ class Body:
         (``body_build.build`` with this module's layout thresholds, read at each build)."""
         body_build.build(self, parallel_min_work=PARALLEL_MIN_WORK,
                          fused_damping_min=FUSED_DAMPING_MIN,
+                         fused_damping_min_sets=FUSED_DAMPING_MIN_SETS,
                          set_layout_min_ratio=SET_LAYOUT_MIN_RATIO,
                          single_quadratic_sets=SINGLE_QUADRATIC_SETS)
 

@@ -77,7 +77,7 @@ class _SetLayout:
 
 
 def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
-          single_quadratic_sets):
+          single_quadratic_sets, fused_damping_min_sets=None):
     """Precompute everything of ``body`` that depends on the rest shape and the parameters.
 
     The layout thresholds are the ``sm_ros.core.body`` constants of the same names (passed
@@ -171,9 +171,13 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     body._lin = np.zeros((nk, 13)) if p.damping > 0 else None
     body._w3 = np.zeros((nk, 3)) if p.damping > 0 else None
     # damping fused into the particle pass (set layout, one cluster; kernels/damping.py)
-    # where the pass it saves costs more than the two small kernel calls it adds
-    body._damp_fused = (p.damping > 0 and (body._sets is not None or p.clusters == 1)
-                        and n >= fused_damping_min)
+    # where the pass it saves costs more than the fused one (body.FUSED_DAMPING_MIN, and
+    # FUSED_DAMPING_MIN_SETS for the set layout)
+    if fused_damping_min_sets is None:
+        fused_damping_min_sets = fused_damping_min
+    body._damp_fused = p.damping > 0 and (
+        (body._sets is not None and n >= min(fused_damping_min, fused_damping_min_sets))
+        or (body._sets is None and p.clusters == 1 and n >= fused_damping_min))
     if body._damp_fused and body._sets is not None:
         sets = body._sets
         body._dsets = (sets.ptr, sets.cl, sets.cnt)

@@ -88,8 +88,10 @@ def sets_reduce(part, sptr, scl, scnt, sphi, sref, sorg, rest_lin, rest_off, ref
                     vb[a, fi] = inv_n * (u[a, fi] + dr * sphi[s, fi])
                 out[0, k, a] += vb[a, 0]
                 for jj in range(nq):
+                    # P's rows of q-hat itself are affine in y: 4 features, not 10
+                    nf = 4 if jj < 3 else nphi
                     acc = 0.0
-                    for fi in range(nphi):
+                    for fi in range(nf):
                         acc += vb[a, fi] * pm[jj, fi]
                     out[0, k, 3 + a * nq + jj] += acc
 
@@ -121,7 +123,8 @@ def sets_maps(sptr, scl, scnt, sorg, rest_lin, rest_off, trans, goal_lin, goal_o
                 for a in range(3):
                     for fi in range(10):
                         acc = 0.0
-                        for jj in range(9):
+                        # the quadratic features (fi >= 4) come from P's rows 3-8 only
+                        for jj in range(0 if fi < 4 else 3, 9):
                             acc += trans[k, a, jj] * pm[jj, fi]
                         gm[s, a, fi] += acc
                     gm[s, a, 0] += goal_off[k, a]
