@@ -47,7 +47,7 @@ def _plus_roots(s0, s1, s2, lo, hi, ftol, xtol):
         x0 = 0.5 * (s0 + r0)
         x1 = 0.5 * (s1 + r1)
         x2 = 0.5 * (s2 + r2)
-        fv = np.log(x0) + np.log(x1) + np.log(x2)
+        fv = np.log(x0 * x1 * x2)          # one log a step (the product stays in range)
         if abs(fv) < ftol or hi - lo < xtol * (1.0 + abs(mu)):
             break
         if fv < 0.0:
@@ -128,6 +128,15 @@ def volume_preserving(a, out, wa, wv, limit):
 
 
 @njit(**JIT)
+def _plus_prod(s0, s1, s2, mu):
+    """prod_i (s_i + sqrt(s_i^2 + 4 mu)) / 2: compared with 1 it gives the sign of
+    ``_unit_det_sum`` on the plus roots without three logarithms."""
+    return (0.5 * (s0 + np.sqrt(max(s0 * s0 + 4.0 * mu, 0.0)))
+            * (0.5 * (s1 + np.sqrt(max(s1 * s1 + 4.0 * mu, 0.0))))
+            * (0.5 * (s2 + np.sqrt(max(s2 * s2 + 4.0 * mu, 0.0)))))
+
+
+@njit(**JIT)
 def _logx(sv, root, minus):
     """log of x = (s + r) / 2, or of the minus root (s - r) / 2 = -mu / ((s + r) / 2)."""
     return np.log(0.5 * (sv - root)) if minus else np.log(0.5 * (sv + root))
@@ -172,9 +181,9 @@ def nearest_unit_det(f, out, wa, wv):
     kmin = 0 if smin == s0 else (1 if smin == s1 else 2)
     lo = -0.25 * smin * smin
     x0 = x1 = x2 = 1.0
-    if _unit_det_sum(s0=s0, s1=s1, s2=s2, mu=lo, kmin=-1) <= 0.0:
+    if _plus_prod(s0=s0, s1=s1, s2=s2, mu=lo) <= 1.0:     # sum of logs <= 0
         hi = 0.0
-        if _unit_det_sum(s0=s0, s1=s1, s2=s2, mu=0.0, kmin=-1) < 0.0:
+        if _plus_prod(s0=s0, s1=s1, s2=s2, mu=0.0) < 1.0:
             lo, hi = 0.0, 1.0            # at mu = 1 every x_i >= 1
         x0, x1, x2 = _plus_roots(s0=s0, s1=s1, s2=s2, lo=lo, hi=hi, ftol=1e-15, xtol=1e-16)
     else:
