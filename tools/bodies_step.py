@@ -49,9 +49,10 @@ def measure(steps, rounds):
     many = {c: build_many(c) for c in (64, 384)}
     for c, w in many.items():
         runs[f'many {c}, World.step'] = (lambda w=w: w.step(dt))
-    # last in each round: the threads may spin a while after it and slow what follows
-    runs[f'all, {numba.get_num_threads()} threads'] = lambda: step_bodies_parallel(records,
-                                                                                  *args)
+    # last in each round, then a pause: the threads spin a while after a parallel loop and
+    # slow the serial runs that follow (OpenMP layer on 2 shared cores)
+    threaded = f'all, {numba.get_num_threads()} threads'
+    runs[threaded] = lambda: step_bodies_parallel(records, *args)
     samples = {k: [] for k in runs}
     for fn in runs.values():
         fn()
@@ -60,6 +61,8 @@ def measure(steps, rounds):
             t0 = time.perf_counter()
             fn()
             samples[k].append(time.perf_counter() - t0)
+            if k == threaded:
+                time.sleep(0.3)
     return {'records': len(records), 'stepped apart': len(slow),
             'ms': {k: 1e3 * statistics.median(v) for k, v in samples.items()}}
 
