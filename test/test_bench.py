@@ -148,3 +148,22 @@ def test_contact_subcommand_smoke(tmp_path):
     text = (out / 'contact.md').read_text()
     assert 'pair-list rebuild alone' in text and 'cKDTree' in text
     assert 'build_pairs_cells' in text and 'per step while moving' in text
+
+
+def test_contact_block_bin_starts_touching_on_the_ground():
+    # the bench's bin: blocks standing on the ground (colliders act on particle centres),
+    # clear of the walls, neighbouring faces one spacing (the contact distance) apart (they
+    # once started 2 cm into the ground, 1 mm overlapping)
+    import numpy as np
+    from sm_ros.bench.contact import SPACING, block_bin
+    w = block_bin(48)                   # 24 a row: 2 rows
+    xs = [b.x for b in w.bodies]
+    x = np.concatenate(xs)
+    assert 0.0 <= x[:, 2].min() and max(a[:, 2].min() for a in xs) <= 1e-3
+    for box in w.boxes:
+        lo, hi = np.asarray(box.lo), np.asarray(box.hi)
+        assert not np.all((x > lo) & (x < hi), axis=1).any()
+    for a, b in [(xs[k], xs[k + 1]) for k in range(0, 47, 2)] + [(xs[k], xs[k + 2])
+                                                                 for k in range(0, 46, 2)]:
+        near = np.linalg.norm(a[:, None] - b[None], axis=-1).min()
+        assert SPACING - 1e-12 < near < np.hypot(SPACING, 1e-3)     # touching (z: 0-1 mm)

@@ -5,7 +5,8 @@ The scene of issue 13: 384 blocks of 6 x 6 x 4 = 144 particles (55,296) touching
 (one layer, side by side), spacing 2 cm, contact radius 1 cm, one thread. Printed and
 written to ``--out``:
 
-- cKDTree baseline: build + ``query_pairs(2 r)`` + dropping same-body pairs, per call;
+- cKDTree baseline: build + ``query_pairs(2 r)`` + dropping same-body pairs, per call, on
+  the resting bin squeezed by 5 % (``squeezed``: thousands of facing pairs overlapping);
 - sm_ros: the contact pass (Verlet list check, rebuild when needed, projection) per step
   of the blocks resting under gravity, median and mean, with its count of rebuilds; the
   rebuild alone and the per-step part alone; the flat-state copies (gather/scatter) that
@@ -67,10 +68,9 @@ def add_arguments(p: argparse.ArgumentParser):
 def block_bin(n_blocks: int = 384, seed: int = 1, layers: int = 1):
     """A World of n_blocks 6x6x4 blocks resting in a bin, faces one spacing apart.
 
-    Neighbouring blocks touch: the facing particles of two blocks are one spacing (their
-    contact distance) apart, each block put off by up to 1 mm at random, so about half of
-    those pairs start overlapping by up to 2 mm.  Blocks stand on the ground (the colliders
-    act on particle centres: the bottom layer 0-1 mm above it), the walls 1 cm from the
+    Neighbouring blocks touch: the facing particles of two blocks are exactly one spacing
+    (their contact distance) apart.  Blocks stand on the ground (the colliders act on
+    particle centres: the bottom layer 0-1 mm above it, at random), the walls 1 cm from the
     outer blocks' particles.  (Until this layout the faces were 0.95 spacing apart and the
     blocks started 2 cm into the ground; with stacking, blocks pushed apart then jammed
     against the walls and the bin never came to rest.)  One layer by default: 24 blocks a
@@ -100,11 +100,27 @@ def block_bin(n_blocks: int = 384, seed: int = 1, layers: int = 1):
             for iy in range(ny):
                 if k == n_blocks:
                     return w
-                c = np.array([ix, iy, iz]) * pitch + rng.uniform(-0.05, 0.05, 3) * SPACING
-                c[2] = iz * pitch[2] + 0.5 * size[2] + abs(c[2] - iz * pitch[2])
+                c = np.array([ix, iy, iz]) * pitch
+                c[2] += 0.5 * size[2] + abs(rng.uniform(-0.05, 0.05)) * SPACING
                 w.add_body(g - 0.5 * size + c, 0.01, p, f'block{k}')
                 k += 1
     return w
+
+
+def squeezed(X: np.ndarray) -> np.ndarray:
+    """A copy of positions X (3, N) squeezed towards their centre by 5 % in x and y.
+
+    Resting blocks that carry their contacts as a whole (stacking, the default) sit with
+    their side faces at or a little beyond the contact distance (no side load; sagging
+    under their weight, the faces bulge: gaps of 0.5-8 mm after 200 steps), so at rest no
+    pair overlaps.  Squeezed by 5 %, about 8,500 facing pairs overlap by up to 0.9 mm (1 %:
+    43 pairs), near the issue's bin (~12,700 pairs within 2 r).  The cKDTree baseline and
+    the per-step part are timed on this state.
+    """
+    Xs = X.copy()
+    mid = Xs[:2].mean(axis=1, keepdims=True)
+    Xs[:2] = mid + (Xs[:2] - mid) * 0.95
+    return Xs
 
 
 def _median_ms(samples) -> float:
@@ -172,15 +188,13 @@ def contact_parts(world) -> Dict[str, float]:
     """The rebuild alone, and the per-step part (check + projection) alone.
 
     The per-step part runs on a snapshot of the resting bin squeezed towards its centre by
-    1 % in x and y, so that every pair of facing block sides overlaps a little (about as
-    many touching pairs as the issue's bin), restored before every call.
+    5 % in x and y (``squeezed``), so that thousands of facing block pairs overlap a
+    little (about as many touching pairs as the issue's bin), restored before every call.
     """
     c = world.contact
     f = world._flat
     f.gather()
-    Xs, Vs = f.X.copy(), f.V.copy()
-    mid = Xs[:2].mean(axis=1, keepdims=True)
-    Xs[:2] = mid + (Xs[:2] - mid) * 0.99
+    Xs, Vs = squeezed(f.X), f.V.copy()
     tb = bc.time_calls(c._build, min_time=0.5, min_reps=5, max_reps=40)
 
     def per_step():
@@ -194,9 +208,14 @@ def contact_parts(world) -> Dict[str, float]:
         f.V[:] = Vs
     ts = bc.time_calls(per_step, min_time=0.5, min_reps=10, max_reps=200)
     tr = bc.time_calls(restore, min_time=0.2, min_reps=10, max_reps=200)
+    # overlapping pairs of the squeezed state, counted directly (with stacking the
+    # solver's own count misses the pairs an earlier one in the sweep already freed)
+    pi, pj = c._pi[:c.npairs], c._pj[:c.npairs]
+    rr = f.R[pi] + f.R[pj]
+    over = int((((Xs[:, pi] - Xs[:, pj]) ** 2).sum(axis=0) < rr * rr).sum())
     return {'rebuild_ms': _median_ms(tb),
             'step_ms': max(0.0, _median_ms(ts) - _median_ms(tr)),
-            'pairs_listed': int(c.npairs), 'pairs_touching': int(c.found)}
+            'pairs_listed': int(c.npairs), 'pairs_touching': over}
 
 
 #: The pair-list builders timed side by side: (name, ``Contact.parallel_build``, threads;
@@ -406,7 +425,7 @@ def _run(args, out: Path) -> Dict[str, Any]:
         w.step(1 / 120)
     f = w._flat
     res['N'] = f.n
-    base = ckdtree_ms(f.X, f.B, SPACING / 2)
+    base = ckdtree_ms(squeezed(f.X), f.B, SPACING / 2)
     res['ckdtree'] = base
     res['settle'] = settle_and_time(w, args.steps)
     res['parts'] = contact_parts(w)
@@ -438,7 +457,8 @@ def markdown(r: Dict[str, Any]) -> str:
              f"{s['pairs_touching']:,} touching).", '',
              '| figure | target | measured |', '| --- | --- | --- |']
     if b:
-        lines.append(f"| cKDTree baseline: build + query_pairs + drop same-body pairs | - | "
+        lines.append(f"| cKDTree baseline: build + query_pairs + drop same-body pairs, the "
+                     f"bin squeezed by 5 % | - | "
                      f"{b['ms']:.1f} ms median ({b['pairs']:,} pairs) |")
     ratio = f" ({b['ms'] / per_step:.0f}x the cKDTree baseline)" if b else ''
     lines += [
@@ -449,7 +469,7 @@ def markdown(r: Dict[str, Any]) -> str:
         f"| pair-list rebuild alone | - | {p['rebuild_ms']:.1f} ms |",
         f"| per step when every step rebuilds (bodies moving more than r/4 a step: falling, "
         f"stacked or pressed) | - | {p['rebuild_ms'] + p['step_ms']:.1f} ms |",
-        f"| per step without rebuild (skin check + projection), the bin squeezed by 1 %: "
+        f"| per step without rebuild (skin check + projection), the bin squeezed by 5 %: "
         f"{p['pairs_touching']:,} pairs touching of {p['pairs_listed']:,} listed | <= 1.5 ms, "
         f">= 25x cKDTree | {p['step_ms']:.2f} ms"
         + (f" ({b['ms'] / max(p['step_ms'], 1e-6):.0f}x the cKDTree baseline) |" if b
