@@ -33,8 +33,11 @@ from .sets import sets_accumulate_serial, sets_integrate_serial, sets_maps, sets
 def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, thresh):
     """``Body._step`` for every record of ``bodies``, bodies spread over the threads (each
     record owns all the buffers it writes, so the order does not change any result)."""
-    for b in prange(np.int64(len(bodies))):
-        _step_record(bodies[b], h, gravity, has_col, ground, boxes, spheres, thresh)
+    n = len(bodies)
+    for b in prange(n):
+        # prange's index is unsigned; a typed list takes a signed one (an implicit cast
+        # warned NumbaTypeSafetyWarning on every compile)
+        _step_record(bodies[np.int64(b)], h, gravity, has_col, ground, boxes, spheres, thresh)
 
 
 def step_single_bodies(bodies, h, gravity, has_col, ground, boxes, spheres, thresh):
