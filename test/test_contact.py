@@ -427,18 +427,9 @@ def test_sideways_collision_under_gravity_exchanges_momentum_exactly(mode):
 @pytest.mark.slow
 @pytest.mark.parametrize('stacking', [False, True])
 def test_pile_of_27_balls_heaps_up_and_settles(stacking):
-    from sm_ros import shapes
-    from sm_ros.core import Box
-    w = World()
-    w.contact_params = ContactParams(stacking=stacking)
-    w.set_colliders(ground=Ground(), boxes=[             # a 0.4 m x 0.4 m bin
-        Box(lo=(-0.3, -0.3, 0), hi=(-0.2, 0.3, 0.6)), Box(lo=(0.2, -0.3, 0), hi=(0.3, 0.3, 0.6)),
-        Box(lo=(-0.2, -0.3, 0), hi=(0.2, -0.2, 0.6)), Box(lo=(-0.2, 0.2, 0), hi=(0.2, 0.3, 0.6))])
-    ball = shapes.sphere_lattice(0.05, S)                # 81 particles
-    p = BodyParams(mode='rigid', alpha=0.9, damping=0.1)
-    bodies = [w.add_body(ball + [(i - 1) * 0.12, (j - 1) * 0.12, 0.08 + k * 0.12 + 0.003 * i],
-                         0.002, p, f'ball{i}{j}{k}')
-              for i in range(3) for j in range(3) for k in range(3)]
+    from sm_ros.bench.contact import ball_pile
+    w, bodies = ball_pile(stacking)                      # 27 balls of 81 particles
+    ball = bodies[0].x
     ke = []
     for _ in range(4 * 120):
         w.step(1 / 120)

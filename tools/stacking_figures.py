@@ -28,9 +28,8 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..'))
 
-from sm_ros import shapes  # noqa: E402
-from sm_ros.bench.contact import block_bin  # noqa: E402
-from sm_ros.core import Box, BodyParams, Ground, World  # noqa: E402
+from sm_ros.bench.contact import ball_pile, block_bin  # noqa: E402
+from sm_ros.core import BodyParams, Ground, World  # noqa: E402
 from sm_ros.core import contact as contact_mod  # noqa: E402
 from sm_ros.core.contact import ContactParams  # noqa: E402
 
@@ -84,16 +83,7 @@ def stack(stacking):
 
 def pile(stacking):
     """27 balls poured into a bin: their kinetic energy after 4 s."""
-    w = World()
-    w.contact_params = ContactParams(stacking=stacking)
-    w.set_colliders(ground=Ground(), boxes=[
-        Box(lo=(-0.3, -0.3, 0), hi=(-0.2, 0.3, 0.6)), Box(lo=(0.2, -0.3, 0), hi=(0.3, 0.3, 0.6)),
-        Box(lo=(-0.2, -0.3, 0), hi=(0.2, -0.2, 0.6)), Box(lo=(-0.2, 0.2, 0), hi=(0.2, 0.3, 0.6))])
-    ball = shapes.sphere_lattice(0.05, S)
-    p = BodyParams(mode='rigid', alpha=0.9, damping=0.1)
-    bodies = [w.add_body(ball + [(i - 1) * 0.12, (j - 1) * 0.12, 0.08 + k * 0.12 + 0.003 * i],
-                         0.002, p, f'ball{i}{j}{k}')
-              for i in range(3) for j in range(3) for k in range(3)]
+    w, bodies = ball_pile(stacking)
     ke = []
     for _ in range(4 * 120):
         w.step(H)

@@ -65,6 +65,26 @@ def add_arguments(p: argparse.ArgumentParser):
                    help='write the tables into doc/benchmarks.md')
 
 
+def ball_pile(stacking: bool):
+    """(World, bodies): 27 stiff balls (81 particles each, spacing 2 cm) above a 0.4 m x
+    0.4 m bin, to be poured by stepping (issue 13's pile; ``test/test_contact.py`` and
+    ``tools/stacking_figures.py`` step it)."""
+    from sm_ros import shapes
+    from sm_ros.core import BodyParams, Box, Ground, World
+    from sm_ros.core.contact import ContactParams
+    w = World()
+    w.contact_params = ContactParams(stacking=stacking)
+    w.set_colliders(ground=Ground(), boxes=[
+        Box(lo=(-0.3, -0.3, 0), hi=(-0.2, 0.3, 0.6)), Box(lo=(0.2, -0.3, 0), hi=(0.3, 0.3, 0.6)),
+        Box(lo=(-0.2, -0.3, 0), hi=(0.2, -0.2, 0.6)), Box(lo=(-0.2, 0.2, 0), hi=(0.2, 0.3, 0.6))])
+    ball = shapes.sphere_lattice(0.05, SPACING)
+    p = BodyParams(mode='rigid', alpha=0.9, damping=0.1)
+    bodies = [w.add_body(ball + [(i - 1) * 0.12, (j - 1) * 0.12, 0.08 + k * 0.12 + 0.003 * i],
+                         0.002, p, f'ball{i}{j}{k}')
+              for i in range(3) for j in range(3) for k in range(3)]
+    return w, bodies
+
+
 def block_bin(n_blocks: int = 384, seed: int = 1, layers: int = 1):
     """A World of n_blocks 6x6x4 blocks resting in a bin, faces one spacing apart.
 
