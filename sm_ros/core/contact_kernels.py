@@ -147,7 +147,14 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched,
                     deepest[bi] = pen
                 if pen > deepest[bj]:
                     deepest[bj] = pen
-    # the static colliders, once per moved particle, in pair order (deterministic)
+    _collide_moved(X, V, W, pi, pj, npairs, moved, has_col, ground, boxes, spheres, thresh)
+    return found
+
+
+@njit(inline='always', **JIT)
+def _collide_moved(X, V, W, pi, pj, npairs, moved, has_col, ground, boxes, spheres, thresh):
+    """The static colliders, once per particle the solve moved (``moved``, cleared), in
+    pair order (deterministic); kinematic particles (W = 0) stay where they were put."""
     for k in range(npairs):
         for p in (pi[k], pj[k]):
             if moved[p]:
@@ -156,7 +163,6 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched,
                     X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p] = collide_point(
                         X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p], ground, boxes,
                         spheres, thresh)
-    return found
 
 
 @njit(**JIT)
@@ -450,14 +456,7 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
                 X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p] = collide_point(
                     X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p], ground, boxes,
                     spheres, thresh)
-    for k in range(npairs):
-        for p in (pi[k], pj[k]):
-            if moved[p]:
-                moved[p] = 0
-                if has_col and W[p] > 0.0:
-                    X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p] = collide_point(
-                        X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p], ground, boxes,
-                        spheres, thresh)
+    _collide_moved(X, V, W, pi, pj, npairs, moved, has_col, ground, boxes, spheres, thresh)
     return found
 
 
