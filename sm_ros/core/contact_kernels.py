@@ -86,15 +86,7 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched,
             sx = dx - h * rx           # separation at the start of the step
             sy = dy - h * ry
             sz = dz - h * rz
-            sl = np.sqrt(sx * sx + sy * sy + sz * sz)
-            if sl > 1e-9 * rr:
-                nx, ny, nz = sx / sl, sy / sl, sz / sl
-            else:
-                d = np.sqrt(d2)
-                if d > 1e-9 * rr:
-                    nx, ny, nz = dx / d, dy / d, dz / d
-                else:                  # coincident: apart along z (deterministic)
-                    nx, ny, nz = 0.0, 0.0, 1.0
+            nx, ny, nz = _pair_normal(sx, sy, sz, dx, dy, dz, d2, rr)
             dn = dx * nx + dy * ny + dz * nz
             lam = -dn + np.sqrt(dn * dn - d2 + rr * rr)
             ai = wi / ws
@@ -201,6 +193,20 @@ def median_nn_distance(x, step):
     best.sort()
     return np.sqrt(best[ns // 2])
 
+
+
+@njit(inline='always', **JIT)
+def _pair_normal(sx, sy, sz, dx, dy, dz, d2, rr):
+    """The unit normal of a pair: along its separation at the start of the step (s), else
+    along its separation now (d, squared length d2), else along z when the two coincide
+    (deterministic); ``rr`` the contact distance sets what counts as zero."""
+    sl = np.sqrt(sx * sx + sy * sy + sz * sz)
+    if sl > 1e-9 * rr:
+        return sx / sl, sy / sl, sz / sl
+    d = np.sqrt(d2)
+    if d > 1e-9 * rr:
+        return dx / d, dy / d, dz / d
+    return 0.0, 0.0, 1.0
 
 
 @njit(inline='always', **JIT)
@@ -322,15 +328,7 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
             rx = vi0 - vj0
             ry = vi1 - vj1
             rz = vi2 - vj2
-            sl = np.sqrt(sx * sx + sy * sy + sz * sz)
-            if sl > 1e-9 * rr:
-                nx, ny, nz = sx / sl, sy / sl, sz / sl
-            else:
-                d = np.sqrt(d2)
-                if d > 1e-9 * rr:
-                    nx, ny, nz = dx / d, dy / d, dz / d
-                else:                  # coincident: apart along z (deterministic)
-                    nx, ny, nz = 0.0, 0.0, 1.0
+            nx, ny, nz = _pair_normal(sx, sy, sz, dx, dy, dz, d2, rr)
             dn = dx * nx + dy * ny + dz * nz
             arg = dn * dn - d2 + rr * rr
             lam = -dn + np.sqrt(arg) if arg >= 0.0 else rr - np.sqrt(d2)
