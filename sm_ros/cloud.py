@@ -205,7 +205,8 @@ class CloudBuffer:
     One reusable PointCloud2 for the bodies' particles.
 
     ``fill(blocks, stamp)`` writes each body's (N_i, 3) positions into the message's buffer
-    (float64 -> float32 in one vectorised copy per body) and returns the message. The buffer
+    (float64 -> float32, one vectorised copy per column: x, y, z are each contiguous in a
+    body's F-contiguous ``Body.x``) and returns the message. The buffer
     and the body index column are rebuilt only when the sizes of the blocks change.
     """
 
@@ -265,8 +266,13 @@ class CloudBuffer:
         if sizes != self._sizes:
             self._resize(sizes)
         offsets = self._offsets
+        xyz = self._xyz
         for i, b in enumerate(blocks):
-            self._xyz[offsets[i]:offsets[i + 1]] = b
+            rows = xyz[offsets[i]:offsets[i + 1]]
+            # column by column: a body's positions are stored per component (``Body.x`` is
+            # F-contiguous), so each column is read with unit stride
+            for j in range(3):
+                rows[:, j] = b[:, j]
         if stamp is not None:
             self.msg.header.stamp = stamp
         return self.msg

@@ -36,6 +36,17 @@ SET_LAYOUT_MIN_RATIO = 8
 SINGLE_QUADRATIC_SETS = True
 
 
+def soa(a):
+    """``a`` (N, 3) stored per component: the transpose of a C-contiguous (3, N) block.
+
+    The result is an F-contiguous (N, 3) array: ``a[:, j]`` is unit-stride, so the compiled
+    particle loops (which index ``x[i, j]``, typed with layout F) run over i with unit
+    stride and vectorise across particles; ``a.T`` is the (3, N) block itself.  Every
+    body's per-particle state (x, v, rest positions) is kept this way (issue 11 item 1).
+    """
+    return np.ascontiguousarray(np.asarray(a, dtype=np.float64).T).T
+
+
 def _as_points(points, name='points'):
     a = np.array(points, dtype=np.float64, order='C', copy=True)
     if a.ndim != 2 or a.shape[1] != 3 or a.shape[0] == 0:
@@ -71,12 +82,13 @@ class Body:
         self.x_init = x.copy()
         self.x_init.flags.writeable = False
         self._v_init = v.copy()
-        self._x = x
-        self._v = v
+        # positions and velocities per component ((3, N) blocks seen as (N, 3), ``soa``)
+        self._x = soa(x)
+        self._v = soa(v)
         # rest positions about the mass centre: every kernel reads these (exact for any
         # far-away placement)
         self._c0 = (m @ x) / self.total_mass
-        self._x0 = np.ascontiguousarray(x - self._c0)
+        self._x0 = soa(x - self._c0)
         self._force = np.zeros(3)
         self._facc = np.zeros(3)               # force / total mass
         self._torque = np.zeros(3)
@@ -177,14 +189,18 @@ class Body:
 
     @property
     def x(self) -> np.ndarray:
-        """Positions (N, 3), read-only view (write with ``set_state``)."""
+        """Positions (N, 3), read-only view (write with ``set_state``).
+
+        The view is F-contiguous: the body stores its positions per component, as a (3, N)
+        C-contiguous block (``x.T``), so ``x[:, j]`` is a unit-stride column.  Code that needs
+        C-ordered rows copies (``np.ascontiguousarray(body.x)``)."""
         view = self._x.view()
         view.flags.writeable = False
         return view
 
     @property
     def v(self) -> np.ndarray:
-        """Velocities (N, 3), read-only view (write with ``set_state``)."""
+        """Velocities (N, 3), read-only view (write with ``set_state``; F-contiguous as ``x``)."""
         view = self._v.view()
         view.flags.writeable = False
         return view

@@ -61,7 +61,8 @@ class _SetLayout:
         pop = np.bincount(self.sid, minlength=ns).astype(np.float64)
         self.org = np.stack([np.bincount(self.sid, weights=x0[:, j], minlength=ns)
                              for j in range(3)], axis=1) / pop[:, None]
-        self.y0 = np.ascontiguousarray(x0 - self.org[self.sid])
+        # per component, as the body's positions (``body.soa``)
+        self.y0 = np.ascontiguousarray((x0 - self.org[self.sid]).T).T
         y = self.y0
         phi = np.stack([np.ones(n), y[:, 0], y[:, 1], y[:, 2], y[:, 0] ** 2, y[:, 1] ** 2,
                         y[:, 2] ** 2, y[:, 0] * y[:, 1], y[:, 1] * y[:, 2],
@@ -256,7 +257,10 @@ def fast_record(body, h):
     lin = body._lin if body._lin is not None else np.zeros((body.num_clusters, 13))
     w3 = body._w3 if body._w3 is not None else np.zeros((body.num_clusters, 3))
     s3 = body._s3
-    return (body._x, body._v, body._x0, body.m, body._ptr, body._cl, body._rest_lin,
+    # x, v, x0 (and the set layout's y0) as their (3, N) C-contiguous blocks: a typed list
+    # fixes the element type from its first record, and a one-particle body's (1, 3) view
+    # is typed C (both orders at once); the world step transposes them back (layout F)
+    return (body._x.T, body._v.T, body._x0.T, body.m, body._ptr, body._cl, body._rest_lin,
             body._rest_off, body._part, body._wsum, body._sum_q, body._ref, body._quat,
             body._aqq3, body._aqq9, body._scale, body._trans, body._goal_lin,
             body._goal_off, body._apq, body._accbuf, s3[0], s3[1], s3[2], s3[3],
@@ -279,9 +283,9 @@ def fast_sets(body):
     """The set-layout buffers of a record (empty ones for a one-cluster body)."""
     st = body._sets
     if st is not None:
-        return (st.y0, st.sid, st.gm, st.ref, st.part, st.ptr, st.cl, st.cnt, st.phi,
+        return (st.y0.T, st.sid, st.gm, st.ref, st.part, st.ptr, st.cl, st.cnt, st.phi,
                 st.org, st.wk, st.pm)
     na = 30 if body._quad else 12
-    return (np.zeros((0, 3)), _EMPTY_I32, np.zeros((0, 3, 10)), np.zeros((0, 3)),
+    return (np.zeros((3, 0)), _EMPTY_I32, np.zeros((0, 3, 10)), np.zeros((0, 3)),
             np.zeros((1, 0, na)), np.zeros(1, dtype=np.int64), _EMPTY_I32, np.zeros(0),
             np.zeros((0, 10)), np.zeros((0, 3)), np.zeros((2, 3, 10)), np.zeros((9, 10)))

@@ -10,7 +10,8 @@ the world at once, so they read one set of arrays instead of one per body:
 * ``X0`` (3, N) rest positions (``Body.x_init``), for the self-collision rest-distance test.
 
 Until the World owns these arrays itself (the fused world step), ``World.step`` runs the
-bodies' own steps, then ``gather`` copies every body's ``_x``/``_v`` into ``X``/``V``, the
+bodies' own steps, then ``gather`` copies every body's ``_x``/``_v`` (stored per component,
+so ``_x.T`` is a (3, n) C-contiguous block: one contiguous copy a row) into ``X``/``V``, the
 world-level passes move particles and mark the bodies they touched in ``touched``, and
 ``scatter`` copies only those bodies back and flags them ``_dirty`` (their per-cluster sums,
 fused into the integration pass, must be recomputed from the moved positions).  Both
@@ -28,37 +29,36 @@ from .kernels import JIT
 
 @njit(**JIT)
 def gather_state(xs, vs, off, X, V):
-    """X[:, off[b] + i] = xs[b][i] (and V from vs) for every body b."""
-    # streams each body's (n, 3) rows into the (3, N) columns
+    """X[:, off[b]:off[b + 1]] = xs[b] (and V from vs) for every body b.
+
+    ``xs[b]``, ``vs[b]`` are the bodies' (3, n) blocks (``Body._x.T``): each row is a
+    unit-stride copy (vectorised, 4 doubles a ``ymm`` move).
+    """
     for b in range(len(xs)):
         x = xs[b]
         v = vs[b]
         o = off[b]
-        for i in range(x.shape[0]):
-            X[0, o + i] = x[i, 0]
-            X[1, o + i] = x[i, 1]
-            X[2, o + i] = x[i, 2]
-            V[0, o + i] = v[i, 0]
-            V[1, o + i] = v[i, 1]
-            V[2, o + i] = v[i, 2]
+        for j in range(3):
+            for i in range(x.shape[1]):
+                X[j, o + i] = x[j, i]
+            for i in range(v.shape[1]):
+                V[j, o + i] = v[j, i]
 
 
 @njit(**JIT)
 def scatter_state(xs, vs, off, X, V, touched):
-    """xs[b][i] = X[:, off[b] + i] (and vs from V) for the bodies with ``touched[b]``."""
+    """xs[b] = X[:, off[b]:off[b + 1]] (and vs from V) for the bodies with ``touched[b]``."""
     for b in range(len(xs)):
         if not touched[b]:
             continue
         x = xs[b]
         v = vs[b]
         o = off[b]
-        for i in range(x.shape[0]):
-            x[i, 0] = X[0, o + i]
-            x[i, 1] = X[1, o + i]
-            x[i, 2] = X[2, o + i]
-            v[i, 0] = V[0, o + i]
-            v[i, 1] = V[1, o + i]
-            v[i, 2] = V[2, o + i]
+        for j in range(3):
+            for i in range(x.shape[1]):
+                x[j, i] = X[j, o + i]
+            for i in range(v.shape[1]):
+                v[j, i] = V[j, o + i]
 
 
 class FlatState:
@@ -82,8 +82,8 @@ class FlatState:
         self._xs = List()
         self._vs = List()
         for b in self.bodies:
-            self._xs.append(b._x)
-            self._vs.append(b._v)
+            self._xs.append(b._x.T)          # the (3, n) blocks (Body stores x per component)
+            self._vs.append(b._v.T)
         for k, b in enumerate(self.bodies):
             self.X0[:, self.off[k]:self.off[k + 1]] = b.x_init.T
         self._kin_seen = [None] * nb
@@ -99,8 +99,8 @@ class FlatState:
         self._xs = List()
         self._vs = List()
         for b in self.bodies:
-            self._xs.append(b._x)
-            self._vs.append(b._v)
+            self._xs.append(b._x.T)          # the (3, n) blocks (Body stores x per component)
+            self._vs.append(b._v.T)
 
     def refresh_masses(self):
         """W from the bodies' masses; 0 for pinned/grabbed particles (cheap if unchanged)."""

@@ -9,7 +9,8 @@ number of such bodies.  It covers one-cluster and set-layout bodies without plas
 kinematic particles or torque, on one thread (``Body._fast_ok``); the others keep
 ``Body._step``, which steps a covered body as a list of one record.
 
-A record (``Body._fast_record``) is a tuple of the body's own buffers; ``state`` holds
+A record (``Body._fast_record``) is a tuple of the body's own buffers (x, v, x0, y0 as their
+(3, N) blocks, transposed back to (N, 3) views of layout F here); ``state`` holds
 [alpha, beta, damping (per step), max_speed, max_turn, 1 / total mass, mode, fused
 damping, quadratic, set layout, max_turn / h], ``force`` the force over the total mass
 (both divided in Python, as ``Body._step`` does: fast math would round them otherwise),
@@ -64,11 +65,13 @@ def step_single_bodies(bodies, h, gravity, has_col, ground, boxes, spheres, thre
 @njit(**JIT)
 def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
     """``Body._step`` for one record."""
-    (x, v, x0, mass, ptr, cl, rest_lin, rest_off, part, wsum, sum_q, ref, quat, aqq3,
+    (xt, vt, x0t, mass, ptr, cl, rest_lin, rest_off, part, wsum, sum_q, ref, quat, aqq3,
      aqq9, scale, trans, goal_lin, goal_off, apq, accbuf, m3a, m3b, m3c, m3d, m39, n4, v4,
      nmat, cdet, acc, ang, com, err, dpart, dmp, dref, dacc, lin, w3, sptr, scl, scnt,
-     quat_prev, flagged, lim_lin, lim_w, force, state, flags, counts, y0, sid, gm, sref,
+     quat_prev, flagged, lim_lin, lim_w, force, state, flags, counts, y0t, sid, gm, sref,
      s_part, s_ptr, s_cl, s_cnt, s_phi, s_org, wk, pm) = record
+    # the (3, N) blocks seen as (N, 3) arrays of layout F, as the bodies' own x, v
+    x, v, x0, y0 = xt.T, vt.T, x0t.T, y0t.T
     alpha, beta, k_damp = state[0], state[1], state[2]
     v_max, turn = state[3], state[4]
     mode = int(state[6])
