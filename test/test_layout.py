@@ -1,0 +1,126 @@
+"""The bodies' per-component state layout (issue 11 item 1) and the API kept on top of it.
+
+A body stores x, v and its rest positions as (3, N) C-contiguous blocks; ``body.x`` and
+``body.v`` stay (N, 3) read-only views of the live state (F-contiguous).  These tests fail
+if the views stop being views, stop following the state, lose the layout on a copy, or if
+the compiled world step cannot hold bodies whose views type differently (one particle).
+"""
+
+import pickle
+
+import numpy as np
+import pytest
+
+from sm_ros.core import BodyParams, Ground, World
+from sm_ros.core import body as body_mod
+from sm_ros.core.reference import ReferenceBody
+from sm_ros.error_estimate import copy_world
+
+H = 1.0 / 120.0
+
+
+def _lattice(n, spacing=0.1):
+    g = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing='ij'), axis=-1).reshape(-1, 3)
+    return g * spacing
+
+
+def _layout_ok(body):
+    """x, v, x0 are (N, 3) arrays over (3, N) C-contiguous blocks."""
+    for a in (body._x, body._v, body._x0):
+        assert a.shape == (body.n, 3) and a.T.flags.c_contiguous
+    if body._sets is not None:
+        assert body._sets.y0.T.flags.c_contiguous
+
+
+def test_views_are_column_major_read_only_and_follow_the_state():
+    world = World(gravity=(0.0, 0.0, -9.81))
+    pts = _lattice(4) + (0.0, 0.0, 1.0)
+    body = world.add_body(pts, params=BodyParams(mode='linear', clusters=2, damping=0.05))
+    _layout_ok(body)
+    x, v = body.x, body.v
+    assert x.shape == (64, 3) and x.flags.f_contiguous and x.T.flags.c_contiguous
+    assert np.shares_memory(x, body._x) and np.shares_memory(v, body._v)
+    assert np.array_equal(x, pts)                # row i is particle i, as before
+    with pytest.raises(ValueError):
+        x[0, 0] = 5.0                            # read-only
+    world.step(H)
+    assert np.array_equal(x, body.x) and x[0, 2] < 1.0 and v[0, 2] < 0.0   # a live view
+    rows = np.arange(192, dtype=float).reshape(64, 3)   # C-ordered input
+    body.set_state(x=rows, v=-rows)
+    assert np.array_equal(x, rows) and np.array_equal(v, -rows)
+    assert x.flags.f_contiguous and np.array_equal(np.ascontiguousarray(x).reshape(-1),
+                                                   np.arange(192.0))
+    _layout_ok(body)
+
+
+def test_compiled_world_step_takes_a_one_particle_body():
+    """A one-particle body's (1, 3) view is C- and F-contiguous at once; its record goes
+    into the same typed list as the others' and steps as it does alone (bit for bit)."""
+    def run(names):
+        world = World(gravity=(0.0, 0.0, -9.81))
+        world.set_colliders(ground=Ground(height=0.0))
+        if 'dot' in names:
+            world.add_body([[0.0, 0.0, 0.05]], name='dot',
+                           velocities=[[0.3, 0.0, 0.0]], params=BodyParams(damping=0.05))
+        if 'cube' in names:
+            world.add_body(_lattice(4) + (1.0, 0.0, 0.3), name='cube',
+                           params=BodyParams(mode='linear', damping=0.05))
+        for _ in range(30):
+            world.step(H)
+        return {b.name: (b.x.copy(), b.v.copy()) for b in world.bodies}, world
+
+    both, world = run(('dot', 'cube'))
+    records, slow, _ = world._split_bodies(H)
+    assert len(records) == 2 and not slow
+    for name in ('dot', 'cube'):
+        alone, _ = run((name,))
+        assert np.array_equal(both[name][0], alone[name][0])
+        assert np.array_equal(both[name][1], alone[name][1])
+    assert both['dot'][0][0, 2] >= 0.0           # the ground held it
+
+
+@pytest.mark.parametrize('copy', ['pickle', 'copy_world'])
+def test_copies_keep_the_layout_and_the_trajectory(copy):
+    world = World(gravity=(0.0, 0.0, -9.81))
+    world.set_colliders(ground=Ground(height=0.0))
+    world.add_body(_lattice(5) + (0.0, 0.0, 0.2), name='a',
+                   params=BodyParams(mode='linear', clusters=4, damping=0.05))
+    world.add_body(_lattice(3) + (1.0, 0.0, 0.2), name='b', params=BodyParams(mode='rigid'))
+    for _ in range(5):
+        world.step(H)
+    twin = pickle.loads(pickle.dumps(world)) if copy == 'pickle' else copy_world(world)
+    for b in twin.bodies:
+        _layout_ok(b)
+    for _ in range(20):
+        world.step(H)
+        twin.step(H)
+    for a, b in zip(world.bodies, twin.bodies):
+        assert np.array_equal(a.x, b.x) and np.array_equal(a.v, b.v)
+
+
+@pytest.mark.parametrize('mode,clusters', [('rigid', 1), ('linear', 1), ('linear', 3)])
+def test_compiled_step_on_the_layout_matches_the_numpy_twin(monkeypatch, mode, clusters):
+    """The compiled world step (no torque: ``Body._fast_ok``) on the per-component layout
+    against the NumPy reference (row-major (N, 3) arrays) to round-off, with the ground
+    (the 3-cluster body on the set layout, whose rest offsets y0 are stored per component)."""
+    monkeypatch.setattr(body_mod, 'SET_LAYOUT_MIN_RATIO', 0)
+    rng = np.random.default_rng(3)
+    x0 = _lattice(4) + rng.uniform(-0.02, 0.02, (64, 3)) + (0.0, 0.0, 0.12)
+    m = rng.uniform(0.5, 2.0, len(x0))
+    params = BodyParams(mode=mode, alpha=0.4, beta=0.6, clusters=clusters)
+    world = World(gravity=(0.0, 0.0, -9.81))
+    ground = Ground(height=0.0, friction=0.3, restitution=0.2)
+    world.set_colliders(ground=ground)
+    body = world.add_body(x0, m, params)
+    ref = ReferenceBody(x0, m, params)
+    v0 = rng.normal(scale=0.3, size=x0.shape)
+    body.set_state(v=v0)
+    ref.v = v0.copy()
+    assert body._fast_ok()
+    _layout_ok(body)
+    for _ in range(40):
+        world.step(H)
+        ref.step(H, world.gravity, ground)
+        assert np.abs(body.x - ref.x).max() < 1e-9
+        assert np.abs(body.v - ref.v).max() < 1e-9 / H
+    assert body.x[:, 2].min() < 0.05             # it reached the ground
