@@ -459,7 +459,10 @@ class Simulation:
         if self._nonfinite is None:
             from sm_ros.nonfinite import NonFiniteCheck   # one compiled pass over all bodies
             self._nonfinite = NonFiniteCheck()
-        names = [b.name for b in self._nonfinite.bad_bodies(self.world.bodies)]
+        world = self.world
+        # right after the steps: the integration passes flagged a non-finite state already
+        # unless contact or pass colliders wrote after them (World.state_flagged)
+        names = [b.name for b in self._nonfinite.bad_bodies(world.bodies, world.state_flagged)]
         for name in names:
             self.world.body(name).reset()
             self.forces.pop(name, None)

@@ -39,6 +39,7 @@ class World(WorldColliders):
         self._zeros = np.zeros(0, dtype=np.int32)
         self._one_touch = np.zeros(1, dtype=np.uint8)
         self._coupling_key = None
+        self._flagged = False                  # see state_flagged
         self.time = 0.0
         self.set_colliders()
 
@@ -196,10 +197,23 @@ class World(WorldColliders):
         for body in slow:
             body._step(h, self._gravity, self._has_col, self._ground_row, self._box_rows,
                        self._sphere_rows, thresh)
-        self._world_passes(h, thresh)
+        self._flagged = not self._world_passes(h, thresh)
         if cs is not None:
             cs.imp_time += h
         self.time += h
+
+    @property
+    def state_flagged(self) -> bool:
+        """Whether the last ``step`` ended with the bodies' own integration passes.
+
+        Then a body whose positions or velocities are not finite has a non-finite entry in
+        its shape-error sums (``Body._err``, written by the pass: ``kernels.integrate.
+        advance``), so a check of a few numbers per body finds it (``sm_ros.nonfinite``)
+        without reading x and v.  False before the first step and after a step whose
+        body-body contact or pass colliders moved particles after those passes; valid until
+        the state is written by hand (``set_state``, ``reset``: those write finite values).
+        """
+        return getattr(self, '_flagged', False)
 
     def __getstate__(self):
         state = self.__dict__.copy()
@@ -229,8 +243,9 @@ class World(WorldColliders):
             split = self._split = (key, records, slow, parallel)
         return split[1], split[2], split[3]
 
-    def _world_passes(self, h, thresh):
-        """Passes over the world's flat state after the bodies' step (flat.py).
+    def _world_passes(self, h, thresh) -> bool:
+        """Passes over the world's flat state after the bodies' step (flat.py); return
+        whether one ran (and may have written particle state).
 
         Gather every body's state into ``FlatState`` X/V, run body-body contact and the
         collider pass (colliders last: no particle ends a step inside one), copy the
@@ -244,7 +259,7 @@ class World(WorldColliders):
         cs = self._cset
         need_contact = c is not None and c.needed
         if not need_contact and cs is None:
-            return
+            return False
         f = self._flat
         st = self._coll_stats
         if st is None or len(st) != len(f.bodies):
@@ -258,7 +273,7 @@ class World(WorldColliders):
                 st[:] = 0.0
                 cs.collide(f.X, f.V, f.W, f.B, 0, f.n, h, thresh, st, f.touched)
             f.scatter()
-            return
+            return True
         f.refresh_masses()
         for k, body in enumerate(f.bodies):
             o0, o1 = f.off[k], f.off[k + 1]
@@ -268,6 +283,7 @@ class World(WorldColliders):
                        h, thresh, sk, self._one_touch)
             if sk[0, 0] > 0.0:
                 body._dirty = True            # moved particles: re-accumulate the next step
+        return True
 
     def _contact_coupling(self, h):
         """Mark the bodies that carry their contacts as a whole (``Contact.coupling``): one

@@ -146,7 +146,8 @@ def _acc_single(start, end, quad, x, x0, mass, rest_lin, rest_off, ref, sums):
 
 @njit(**JIT)
 def advance(x, v, i, p0, p1, p2, g0, g1, g2, alpha_h, h, dv0, dv1, dv2):
-    """Eq. 13-14 for particle ``i`` at ``p`` (= x[i]) towards its goal g; returns |g - p|^2.
+    """Eq. 13-14 for particle ``i`` at ``p`` (= x[i]) towards its goal g; returns |g - p|^2
+    (not finite when p or the new velocity is not; when both are, so is x = p + h v).
 
     v <- v + (alpha / h) (g - p) + dv, then x <- p + h v, where dv is h times the external
     acceleration.  Every integration loop calls this; it is inlined into them.  The caller
@@ -166,7 +167,11 @@ def advance(x, v, i, p0, p1, p2, g0, g1, g2, alpha_h, h, dv0, dv1, dv2):
     v[i, 0] = v0
     v[i, 1] = v1
     v[i, 2] = v2
-    return err
+    # + 0 (v0 + v1 + v2): exactly err while the new v is finite, NaN when it is not (0 * inf
+    # = NaN; no ``nnan``/``ninf`` fast math folds it away; an infinite p makes err infinite),
+    # so a body's shape-error sums flag a non-finite state without a pass of their own
+    # (sm_ros/nonfinite.py)
+    return err + 0.0 * (v0 + v1 + v2)
 
 
 @njit(**JIT)
