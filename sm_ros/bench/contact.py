@@ -65,10 +65,11 @@ def add_arguments(p: argparse.ArgumentParser):
                    help='write the tables into doc/benchmarks.md')
 
 
-def ball_pile(stacking: bool):
+def ball_pile(stacking: bool, clusters: int = 1):
     """(World, bodies): 27 stiff balls (81 particles each, spacing 2 cm) above a 0.4 m x
     0.4 m bin, to be poured by stepping (issue 13's pile; ``test/test_contact.py`` and
-    ``tools/stacking_figures.py`` step it)."""
+    ``tools/stacking_figures.py`` step it).  ``clusters`` > 1: linear balls of that many
+    clusters per axis (``paper_384``'s stiff many-cluster bodies) instead of rigid ones."""
     from sm_ros import shapes
     from sm_ros.core import BodyParams, Box, Ground, World
     from sm_ros.core.contact import ContactParams
@@ -79,6 +80,8 @@ def ball_pile(stacking: bool):
         Box(lo=(-0.2, -0.3, 0), hi=(0.2, -0.2, 0.6)), Box(lo=(-0.2, 0.2, 0), hi=(0.2, 0.3, 0.6))])
     ball = shapes.sphere_lattice(0.05, SPACING)
     p = BodyParams(mode='rigid', alpha=0.9, damping=0.1)
+    if clusters > 1:
+        p = BodyParams(mode='linear', alpha=0.9, beta=0.2, clusters=clusters, damping=0.1)
     bodies = [w.add_body(ball + [(i - 1) * 0.12, (j - 1) * 0.12, 0.08 + k * 0.12 + 0.003 * i],
                          0.002, p, f'ball{i}{j}{k}')
               for i in range(3) for j in range(3) for k in range(3)]

@@ -33,7 +33,8 @@ import numpy as np
 from .contact_build import (build_pairs, build_pairs_cells, build_pairs_grid,
                             build_pairs_grid_par, max_moved2, sort_pairs)
 from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
-                              median_nn_distance, solve_bodies, solve_pairs, wall_candidates)
+                              inverse_sym3, median_nn_distance, solve_bodies, solve_pairs,
+                              wall_candidates)
 from .kernels.colliders import contact_velocity
 from .params import _finite
 
@@ -62,6 +63,10 @@ STACK_SWEEPS = 8
 #: ``solve_bodies`` stops sweeping once no velocity changed by more than this fraction of
 #: the resting threshold (``World.step``: 2 |g| h) in a sweep.
 SWEEP_TOL = 0.01
+#: ``solve_bodies`` starts each step from this fraction of the impulses its pairs of
+#: carried bodies (and their ground contacts) ended the last step with, while the pair
+#: list is unchanged (``contact_kernels._warm_start``).
+WARM_START = 0.5
 _NO_GROUND = np.zeros(4)
 _NO_ROWS8 = np.zeros((0, 8))
 _NO_ROWS6 = np.zeros((0, 6))
@@ -218,12 +223,18 @@ class Contact:
         # their inverse masses and moves, per-pair and per-particle impulses
         self.coupling = np.zeros(max(nb, 1), dtype=np.bool_)
         self._bw = np.zeros(max(nb, 1))
-        self._dv = np.zeros((max(nb, 1), 6))
+        self._dv = np.zeros((max(nb, 1), 7))     # velocity, position changes; held
         self._pend = np.zeros(max(nb, 1), dtype=np.uint8)
         self._active = np.zeros(0, dtype=np.int64)
         self._acc = np.zeros((2, 0))
         self._tg = np.zeros(0)
         self._vb = np.zeros((max(nb, 1), 3))
+        self._zlo = np.zeros(max(nb, 1))                # lowest particle per body
+        self._bc = np.zeros((max(nb, 1), 3))            # centre of mass
+        self._bom = np.zeros((max(nb, 1), 3))           # spin
+        self._biv = np.zeros((max(nb, 1), 9))           # inverse inertia tensor
+        self._accg = np.zeros((2, max(nb, 1)))          # ground impulses per body
+        self._warm = False              # acc, accg hold the last step's impulses (list kept)
         self._noground = np.zeros(4)
         self._cand = np.zeros(n, dtype=np.int64)        # particles near boxes, spheres
         self._cptr = np.zeros(max(nb, 1) + 1, dtype=np.int64)
@@ -272,6 +283,7 @@ class Contact:
             self._ti = np.zeros(cap, dtype=np.int32)
             self._tj = np.zeros(cap, dtype=np.int32)
         sort_pairs(self._pi, self._pj, m, f.n, self._pcnt, self._ti, self._tj)
+        self._warm = False                      # the impulses were of the old list's pairs
         self.npairs = m
         self._xref[:] = f.X
         self.valid = True
@@ -296,6 +308,7 @@ class Contact:
         p = self.params
         grav = gravity is not None and bool(np.any(gravity != 0.0))
         if not (p.stacking and grav and self.coupling.any()):
+            self._warm = False
             self.found = solve_pairs(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
                                      p.friction, p.restitution, thresh, float(h), p.iterations,
                                      f.touched, self.count, self.deepest, bool(has_col),
@@ -307,7 +320,8 @@ class Contact:
             self._tg = np.zeros(m)
             self._active = np.zeros(m, dtype=np.int64)
         body_inverse_masses(f.W, f.off, self._bw)
-        body_velocities(f.V, f.W, f.off, self.coupling, self._bw, self._vb)
+        body_velocities(f.X, f.V, f.W, f.off, self.coupling, self._bw, self._vb, self._zlo,
+                        self._bc, self._bom, self._biv)
         ncand = 0
         if has_col and (len(boxes) or len(spheres)):
             ncand = wall_candidates(f.X, f.off, self.coupling, self._bw, boxes, spheres,
@@ -323,7 +337,10 @@ class Contact:
                                   boxes, spheres, self._moved, f.off, self._bw, self.coupling,
                                   self._dv, self._pend, self._active, self._acc, self._tg,
                                   SWEEP_TOL * thresh, self._vb, self._noground,
-                                  self._cand[:ncand], self._cptr)
+                                  self._cand[:ncand], self._cptr, self._zlo, self._accg,
+                                  WARM_START if self._warm else 0.0, self._bc, self._bom,
+                                  self._biv)
+        self._warm = True
 
     def fast_particles(self, h):
         """Per body, the particles that moved more than their contact radius in the last
@@ -336,6 +353,7 @@ class Contact:
 __all__ = ['ContactParams', 'BodyContact', 'Contact', 'default_radius', 'SELF_REST_FACTOR',
            'COUPLE_ALPHA', 'STACK_SWEEPS', 'PARALLEL_BUILD_MIN', 'body_inverse_masses',
            'body_velocities', 'build_pairs', 'build_pairs_cells', 'build_pairs_grid',
-           'build_pairs_grid_par', 'contact_velocity', 'count_fast', 'max_moved2',
+           'build_pairs_grid_par', 'contact_velocity', 'count_fast', 'inverse_sym3',
+           'max_moved2',
            'median_nn_distance', 'solve_bodies', 'solve_pairs', 'sort_pairs',
            'wall_candidates']

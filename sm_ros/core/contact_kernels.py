@@ -224,7 +224,8 @@ def _own(X, V, i, c, h, px, py, pz, q0, q1, q2):
 @njit(**JIT)
 def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched, count,
                  deepest, has_col, ground, boxes, spheres, moved, off, bw, cpl, dv, pend,
-                 active, acc, tg, tol, vb, noground, cand, cptr):
+                 active, acc, tg, tol, vb, noground, cand, cptr, zlo, accg, warm, bc, bom,
+                 biv):
     """Body-body contact under gravity, the stiff bodies carrying their contacts as a
     whole (README "Contact between bodies"; ``Contact.run`` calls ``solve_pairs``
     without gravity or without such bodies).
@@ -258,6 +259,8 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
     found = 0
     ih = 1.0 / h
     nact = 0
+    _warm_start(X, V, W, B, R, pi, pj, npairs, mu, h, ground, off, bw, cpl, dv, pend, acc,
+                vb, accg, warm, has_col and ground[0] > 0.5)
     for it in range(iters):
         first = it == 0
         todo = npairs if first else nact
@@ -266,9 +269,6 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
             # symmetric Gauss-Seidel: forward, then backward
             a = kk if it % 2 == 0 else todo - 1 - kk
             k = a if first else active[a]
-            if first:
-                acc[0, k] = 0.0
-                acc[1, k] = 0.0
             i = pi[k]
             j = pj[k]
             wi = W[i]
@@ -384,6 +384,7 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
                 dv[bi, 3] += ki * q0
                 dv[bi, 4] += ki * q1
                 dv[bi, 5] += ki * q2
+                dv[bi, 6] = 1.0        # held by another body: no spin (see the end)
                 pend[bi] = 1
             elif wi > 0.0:
                 _own(X, V, i, wi, h, px, py, pz, q0, q1, q2)
@@ -395,6 +396,7 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
                 dv[bj, 3] -= kj * q0
                 dv[bj, 4] -= kj * q1
                 dv[bj, 5] -= kj * q2
+                dv[bj, 6] = 1.0
                 pend[bj] = 1
             elif wj > 0.0:
                 _own(X, V, j, -wj, h, px, py, pz, q0, q1, q2)
@@ -410,6 +412,39 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
                     deepest[bi] = pen
                 if pen > deepest[bj]:
                     deepest[bj] = pen
+        if has_col and ground[0] > 0.5:
+            # the ground: a body carried as a whole rests on it as a whole (its lowest
+            # particle, ``zlo[b]``), with accumulated impulses like a pair's, so the load
+            # of the bodies above goes into the ground, not into squashing the body
+            gh = ground[1]
+            for b in range(pend.shape[0]):
+                if not (cpl[b] and bw[b] > 0.0):
+                    continue
+                z = zlo[b] + h * dv[b, 2] + dv[b, 5]
+                if not (z <= gh + 1e-9 or accg[0, b] > 0.0 or accg[1, b] > 0.0):
+                    continue
+                vz = vb[b, 2] + dv[b, 2]
+                m = 1.0 / bw[b]
+                a_new = max(accg[1, b] + m * (gh - z), 0.0)
+                qq = a_new - accg[1, b]
+                accg[1, b] = a_new
+                a_new = max(accg[0, b] - m * vz, 0.0)
+                pn = a_new - accg[0, b]
+                accg[0, b] = a_new
+                tx = vb[b, 0] + dv[b, 0]
+                ty = vb[b, 1] + dv[b, 1]
+                tl = np.sqrt(tx * tx + ty * ty)
+                pt = 0.0
+                if tl > 0.0:
+                    pt = min(ground[2] * max(pn + qq * ih, 0.0), tl * m) / tl
+                dv[b, 0] -= bw[b] * pt * tx
+                dv[b, 1] -= bw[b] * pt * ty
+                dv[b, 2] += bw[b] * pn
+                dv[b, 5] += bw[b] * qq
+                pend[b] = 1
+                ch = bw[b] * max(abs(pn) + pt * tl, abs(qq) * ih)
+                if ch > big:
+                    big = ch
         if has_col and cand.shape[0] > 0:
             # walls: a body carried as a whole is pushed out of boxes and spheres as a
             # whole (its particles near them, ``cand``), so a jam is not dented into them
@@ -437,18 +472,30 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
         if not pend[b]:
             continue
         pend[b] = 0
+        accg[1, b] = 0.0
         u0, u1, u2 = dv[b, 0], dv[b, 1], dv[b, 2]
-        e0 = h * u0 + dv[b, 3]
-        e1 = h * u1 + dv[b, 4]
-        e2 = h * u2 + dv[b, 5]
+        e0 = dv[b, 3]
+        e1 = dv[b, 4]
+        e2 = dv[b, 5]
+        w0 = w1 = w2 = 0.0
+        if dv[b, 6] > 0.0:             # held by another body: its spin is stopped
+            w0, w1, w2 = -bom[b, 0], -bom[b, 1], -bom[b, 2]
+        c0, c1, c2 = bc[b, 0], bc[b, 1], bc[b, 2]
         dv[b, :] = 0.0
         for p in range(off[b], off[b + 1]):
-            X[0, p] += e0
-            X[1, p] += e1
-            X[2, p] += e2
-            V[0, p] += u0
-            V[1, p] += u1
-            V[2, p] += u2
+            # the translation, and the spin stopped: dw x (x - centre)
+            r0 = X[0, p] - c0
+            r1 = X[1, p] - c1
+            r2 = X[2, p] - c2
+            g0 = u0 + w1 * r2 - w2 * r1
+            g1 = u1 + w2 * r0 - w0 * r2
+            g2 = u2 + w0 * r1 - w1 * r0
+            X[0, p] += h * g0 + e0
+            X[1, p] += h * g1 + e1
+            X[2, p] += h * g2 + e2
+            V[0, p] += g0
+            V[1, p] += g1
+            V[2, p] += g2
             moved[p] = 0
             if has_col:
                 X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p] = collide_point(
@@ -458,23 +505,219 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
     return found
 
 
+@njit(inline='always', **JIT)
+def _carried(X, V, dv, pend, b, c, i, h):
+    """Particle i's position and velocity with its body's moves so far (``c``: body b is
+    carried as a whole) and the velocity the contact law sees (the body's when carried)."""
+    x0, x1, x2 = X[0, i], X[1, i], X[2, i]
+    v0, v1, v2 = V[0, i], V[1, i], V[2, i]
+    if c and pend[b]:
+        v0 += dv[b, 0]
+        v1 += dv[b, 1]
+        v2 += dv[b, 2]
+        x0 += h * dv[b, 0] + dv[b, 3]
+        x1 += h * dv[b, 1] + dv[b, 4]
+        x2 += h * dv[b, 2] + dv[b, 5]
+    return x0, x1, x2, v0, v1, v2
+
+
 @njit(**JIT)
-def body_velocities(V, W, off, cpl, bw, vb):
-    """vb[b] = the velocity of body b's centre of mass (momentum / mass) for the bodies
-    ``solve_bodies`` carries as a whole (``cpl[b]``, ``bw[b]`` > 0)."""
+def _warm_start(X, V, W, B, R, pi, pj, npairs, mu, h, ground, off, bw, cpl, dv, pend, acc,
+                vb, accg, warm, hasg):
+    """Warm start of ``solve_bodies``: the velocity impulses its pairs of carried bodies and
+    their ground contacts ended the last step with (``acc[0]``, ``accg[0]``) are applied
+    again first, along the pairs' normals now, with Coulomb friction up to ``mu`` times
+    them, when the pair list is the one of the last step (``warm``); the sweeps then only
+    correct them (and may take them back).  A resting heap so carries its load from the
+    first sweep: without it, the sweeps of one step (``STACK_SWEEPS``) do not carry the
+    load of a heap ten bodies high to the ground, and its bodies keep a downward velocity
+    that the position impulses then cancel every step (about 2 g h at the top of
+    ``paper_384``).  Every other accumulated impulse is cleared."""
+    for k in range(npairs):
+        p = warm * acc[0, k]
+        acc[0, k] = 0.0
+        acc[1, k] = 0.0
+        if not p > 0.0:
+            continue
+        i = pi[k]
+        j = pj[k]
+        wi = W[i]
+        wj = W[j]
+        bi = B[i]
+        bj = B[j]
+        ci = bi != bj and cpl[bi] and bw[bi] > 0.0 and wi > 0.0
+        cj = bi != bj and cpl[bj] and bw[bj] > 0.0 and wj > 0.0
+        if not (ci or cj) or wi + wj <= 0.0:
+            continue
+        xi0, xi1, xi2, vi0, vi1, vi2 = _carried(X, V, dv, pend, bi, ci, i, h)
+        xj0, xj1, xj2, vj0, vj1, vj2 = _carried(X, V, dv, pend, bj, cj, j, h)
+        dx = xi0 - xj0
+        dy = xi1 - xj1
+        dz = xi2 - xj2
+        d2 = dx * dx + dy * dy + dz * dz
+        if not d2 == d2:
+            continue
+        nx, ny, nz = _pair_normal(dx - h * (vi0 - vj0), dy - h * (vi1 - vj1),
+                                  dz - h * (vi2 - vj2), dx, dy, dz, d2, R[i] + R[j])
+        if ci:
+            vi0 = vb[bi, 0] + dv[bi, 0]
+            vi1 = vb[bi, 1] + dv[bi, 1]
+            vi2 = vb[bi, 2] + dv[bi, 2]
+        if cj:
+            vj0 = vb[bj, 0] + dv[bj, 0]
+            vj1 = vb[bj, 1] + dv[bj, 1]
+            vj2 = vb[bj, 2] + dv[bj, 2]
+        rx = vi0 - vj0
+        ry = vi1 - vj1
+        rz = vi2 - vj2
+        vn = rx * nx + ry * ny + rz * nz
+        ki = bw[bi] if ci else wi
+        kj = bw[bj] if cj else wj
+        kn = ki + kj
+        tx = rx - vn * nx
+        ty = ry - vn * ny
+        tz = rz - vn * nz
+        tl = np.sqrt(tx * tx + ty * ty + tz * tz)
+        pt = 0.0
+        if tl > 0.0:
+            pt = min(mu * p, tl / kn) / tl
+        px = p * nx - pt * tx
+        py = p * ny - pt * ty
+        pz = p * nz - pt * tz
+        acc[0, k] = p
+        if ci:
+            dv[bi, 0] += ki * px
+            dv[bi, 1] += ki * py
+            dv[bi, 2] += ki * pz
+            pend[bi] = 1
+        elif wi > 0.0:
+            _own(X, V, i, wi, h, px, py, pz, 0.0, 0.0, 0.0)
+        if cj:
+            dv[bj, 0] -= kj * px
+            dv[bj, 1] -= kj * py
+            dv[bj, 2] -= kj * pz
+            pend[bj] = 1
+        elif wj > 0.0:
+            _own(X, V, j, -wj, h, px, py, pz, 0.0, 0.0, 0.0)
+    for b in range(pend.shape[0]):
+        p = warm * accg[0, b]
+        accg[0, b] = 0.0
+        accg[1, b] = 0.0
+        if not (hasg and p > 0.0 and cpl[b] and bw[b] > 0.0):
+            continue
+        tx = vb[b, 0] + dv[b, 0]
+        ty = vb[b, 1] + dv[b, 1]
+        tl = np.sqrt(tx * tx + ty * ty)
+        pt = 0.0
+        if tl > 0.0:
+            pt = min(ground[2] * p, tl / bw[b]) / tl
+        dv[b, 0] -= bw[b] * pt * tx
+        dv[b, 1] -= bw[b] * pt * ty
+        dv[b, 2] += bw[b] * p
+        accg[0, b] = p
+        pend[b] = 1
+
+
+@njit(**JIT)
+def inverse_sym3(a, out):
+    """out (9,) = the inverse of the symmetric 3x3 matrix a (9,), row-major, by its
+    adjugate; zero when a is singular to round-off (a body of collinear particles)."""
+    c00 = a[4] * a[8] - a[5] * a[7]
+    c01 = a[5] * a[6] - a[3] * a[8]
+    c02 = a[3] * a[7] - a[4] * a[6]
+    det = a[0] * c00 + a[1] * c01 + a[2] * c02
+    tr = a[0] + a[4] + a[8]
+    if not abs(det) > 1e-12 * tr * tr * tr:
+        out[:] = 0.0
+        return
+    idet = 1.0 / det
+    out[0] = c00 * idet
+    out[1] = (a[2] * a[7] - a[1] * a[8]) * idet
+    out[2] = (a[1] * a[5] - a[2] * a[4]) * idet
+    out[3] = c01 * idet
+    out[4] = (a[0] * a[8] - a[2] * a[6]) * idet
+    out[5] = (a[2] * a[3] - a[0] * a[5]) * idet
+    out[6] = c02 * idet
+    out[7] = (a[1] * a[6] - a[0] * a[7]) * idet
+    out[8] = (a[0] * a[4] - a[1] * a[3]) * idet
+
+
+@njit(**JIT)
+def body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv):
+    """For the bodies ``solve_bodies`` carries as a whole (``cpl[b]``, ``bw[b]`` > 0):
+    vb[b] the velocity of the centre of mass (momentum / mass), zlo[b] the lowest
+    particle's height, bc[b] the centre of mass, biv[b] (9,) the inverse of the inertia
+    tensor about it, bom[b] its spin (angular momentum about it times that).  One pass
+    over the body's particles for the sums (about the first particle, for round-off)."""
+    a = np.zeros(9)
     for b in range(off.shape[0] - 1):
         vb[b, 0] = vb[b, 1] = vb[b, 2] = 0.0
+        bom[b, 0] = bom[b, 1] = bom[b, 2] = 0.0
         if not cpl[b] or not bw[b] > 0.0:
             continue
-        p0 = p1 = p2 = 0.0
-        for k in range(off[b], off[b + 1]):
+        o = off[b]
+        q0, q1, q2 = X[0, o], X[1, o], X[2, o]
+        p0 = p1 = p2 = 0.0             # momentum
+        s0 = s1 = s2 = 0.0             # first moment about q
+        l0 = l1 = l2 = 0.0             # angular momentum about q
+        xx = yy = zz = xy = yz = zx = 0.0   # second moments about q
+        lo = np.inf
+        for k in range(o, off[b + 1]):
+            lo = min(lo, X[2, k])
             m = 1.0 / W[k]
-            p0 += m * V[0, k]
-            p1 += m * V[1, k]
-            p2 += m * V[2, k]
-        vb[b, 0] = p0 * bw[b]
-        vb[b, 1] = p1 * bw[b]
-        vb[b, 2] = p2 * bw[b]
+            y0 = X[0, k] - q0
+            y1 = X[1, k] - q1
+            y2 = X[2, k] - q2
+            u0 = m * V[0, k]
+            u1 = m * V[1, k]
+            u2 = m * V[2, k]
+            p0 += u0
+            p1 += u1
+            p2 += u2
+            s0 += m * y0
+            s1 += m * y1
+            s2 += m * y2
+            l0 += y1 * u2 - y2 * u1
+            l1 += y2 * u0 - y0 * u2
+            l2 += y0 * u1 - y1 * u0
+            xx += m * y0 * y0
+            yy += m * y1 * y1
+            zz += m * y2 * y2
+            xy += m * y0 * y1
+            yz += m * y1 * y2
+            zx += m * y2 * y0
+        iw = bw[b]
+        vb[b, 0] = p0 * iw
+        vb[b, 1] = p1 * iw
+        vb[b, 2] = p2 * iw
+        zlo[b] = lo
+        g0 = s0 * iw                   # centre of mass, relative to q
+        g1 = s1 * iw
+        g2 = s2 * iw
+        bc[b, 0] = q0 + g0
+        bc[b, 1] = q1 + g1
+        bc[b, 2] = q2 + g2
+        # moments about the centre: shift by the total mass M = 1 / iw
+        mm = 1.0 / iw
+        xx -= mm * g0 * g0
+        yy -= mm * g1 * g1
+        zz -= mm * g2 * g2
+        xy -= mm * g0 * g1
+        yz -= mm * g1 * g2
+        zx -= mm * g2 * g0
+        l0 -= g1 * p2 - g2 * p1
+        l1 -= g2 * p0 - g0 * p2
+        l2 -= g0 * p1 - g1 * p0
+        a[0] = yy + zz
+        a[4] = zz + xx
+        a[8] = xx + yy
+        a[1] = a[3] = -xy
+        a[5] = a[7] = -yz
+        a[2] = a[6] = -zx
+        inverse_sym3(a, biv[b])
+        bom[b, 0] = biv[b, 0] * l0 + biv[b, 1] * l1 + biv[b, 2] * l2
+        bom[b, 1] = biv[b, 3] * l0 + biv[b, 4] * l1 + biv[b, 5] * l2
+        bom[b, 2] = biv[b, 6] * l0 + biv[b, 7] * l1 + biv[b, 8] * l2
 
 
 @njit(**JIT)

@@ -286,15 +286,16 @@ class World(WorldColliders):
         return True
 
     def _contact_coupling(self, h):
-        """Mark the bodies that carry their contacts as a whole (``Contact.coupling``): one
-        cluster and alpha at the step at least ``contact.COUPLE_ALPHA`` (README "Contact
-        between bodies").  Recomputed when a body, its parameters or the step change."""
+        """Mark the bodies that carry their contacts as a whole (``Contact.coupling``):
+        alpha at the step at least ``contact.COUPLE_ALPHA``, with one cluster or many
+        (README "Contact between bodies").  Recomputed when a body, its parameters or the
+        step change."""
         key = (body_mod._GENERATION[0], h, id(self._flat))
         if self._coupling_key == key:
             return
         c = self._contact.coupling
         for k, b in enumerate(self._flat.bodies):
-            c[k] = b.num_clusters == 1 and b._params.at_step(h).alpha >= COUPLE_ALPHA
+            c[k] = b._params.at_step(h).alpha >= COUPLE_ALPHA
         self._coupling_key = key
 
     def _zero_bid(self, n):
