@@ -9,11 +9,14 @@ Prints, for each of the two settings:
   closest particles of neighbouring boxes (in spacings) (``test/test_contact.py``);
 - ``pile``: 27 stiff balls poured into a bin, 4 s: kinetic energy of the last 0.5 s over
   the peak, its RMS speed;
+- ``pile8``: the same with balls of 8 clusters (linear, alpha 0.9, as ``paper_384``'s);
 - ``bin``: the contact benchmark's bin of 384 blocks (``sm_ros.bench.contact.block_bin``),
   200 steps, then the contact pass per step over 120 steps (median), rebuilds, pairs
   touching, kinetic energy;
+- ``bin2``: the same bin in two layers (8 x 24 x 2 blocks);
 - ``paper_384`` (``--paper-seconds``, 0 to skip): kinetic energy after pouring, every
-  0.5 s, and the contact pass per step (median of the last 60 steps).
+  0.5 s, the contact pass per step (median of the last 60 steps) and the pair-list
+  rebuilds in those 60 steps.
 
     .venv/bin/python tools/stacking_figures.py --paper-seconds 4
 """
@@ -81,9 +84,9 @@ def stack(stacking):
             f'over 10 s; closest neighbours {min(gaps):.2f} spacings')
 
 
-def pile(stacking):
+def pile(stacking, clusters=1):
     """27 balls poured into a bin: their kinetic energy after 4 s."""
-    w, bodies = ball_pile(stacking)
+    w, bodies = ball_pile(stacking, clusters)
     ke = []
     for _ in range(4 * 120):
         w.step(H)
@@ -94,9 +97,9 @@ def pile(stacking):
             f'peak, {np.sqrt(2 * last / m):.3f} m/s RMS')
 
 
-def bin_(stacking):
+def bin_(stacking, layers=1):
     """The contact benchmark's bin: the contact pass per step after 200 steps."""
-    w = block_bin(384)
+    w = block_bin(384, layers=layers)
     w.contact_params = ContactParams(stacking=stacking)
     for _ in range(200):
         w.step(H)
@@ -116,12 +119,16 @@ def paper(stacking, seconds):
     w.contact_params = dataclasses.replace(w.contact_params, stacking=stacking)
     _TIMES.clear()
     rows = []
+    b0 = 0
     for k in range(int(round(seconds / H))):
         w.step(H)
         if k % 60 == 59:
-            rows.append(f'{(k + 1) * H:.1f} s: {_ke(w.bodies):.1f} J '
-                        f'({1e3 * np.median(_TIMES[-60:]):.1f} ms)')
-    return 'kinetic energy (contact per step): ' + ', '.join(rows)
+            c = w.contact
+            rows.append(f'{(k + 1) * H:.1f} s: {_ke(w.bodies):.3f} J '
+                        f'({1e3 * np.median(_TIMES[-60:]):.1f} ms, {c.builds - b0} rebuilds)')
+            b0 = c.builds
+    return ('kinetic energy (contact per step, rebuilds in the last 60 steps): '
+            + ', '.join(rows))
 
 
 def main():
@@ -129,7 +136,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--paper-seconds', type=float, default=0.0,
                     help='pouring of paper_384 (0: skip)')
-    ap.add_argument('--only', default='stack,pile,bin,paper', help='parts to run')
+    ap.add_argument('--only', default='stack,pile,pile8,bin,bin2,paper',
+                    help='parts to run')
     args = ap.parse_args()
     parts = args.only.split(',')
     for stacking in (False, True):
@@ -138,8 +146,12 @@ def main():
             print(f'{name}: stack: {stack(stacking)}', flush=True)
         if 'pile' in parts:
             print(f'{name}: pile: {pile(stacking)}', flush=True)
+        if 'pile8' in parts:
+            print(f'{name}: pile of 8-cluster balls: {pile(stacking, 2)}', flush=True)
         if 'bin' in parts:
             print(f'{name}: bin: {bin_(stacking)}', flush=True)
+        if 'bin2' in parts:
+            print(f'{name}: two-layer bin: {bin_(stacking, 2)}', flush=True)
         if 'paper' in parts and args.paper_seconds > 0:
             print(f'{name}: paper_384: {paper(stacking, args.paper_seconds)}', flush=True)
 
