@@ -1,6 +1,6 @@
 """
-The bodies' own compiled step of ``paper_384`` (``kernels.world_step``, contact and the
-collider pass left out), after ``--steps`` world steps of pouring: all records on one
+The bodies' own compiled step of ``paper_384`` (``kernels.world_step`` and, for its
+one-cluster bodies, ``sm_ros.core.packed``; contact and the collider pass left out), after ``--steps`` world steps of pouring: all records on one
 thread and on every Numba thread, and each kind of body (96 of each) on one thread,
 round-robin in one process (medians of ``--rounds`` rounds, ms per world step); then the
 ``many`` worlds of ``sm_ros.bench scaling`` (64 and 384 one-cluster bodies of 144
@@ -35,24 +35,40 @@ def measure(steps, rounds):
     dt = float(sim.params['dt'])
     for _ in range(steps):
         world.step(dt)
-    records, slow, _ = world._split_bodies(dt)
-    bodies = [b for b in world.bodies if b not in slow]
+    pack, records, slow, _ = world._split_bodies(dt)
+    packed = pack.bodies if pack is not None else []
+    bodies = [b for b in world.bodies if b not in slow and b not in packed]
     args = (dt, world._gravity, world._has_col, world._ground_row, world._box_rows,
             world._sphere_rows, 1e-3)
     kinds = {}
     for b, r in zip(bodies, records):
         kinds.setdefault(b.name.rstrip('0123456789_'), []).append(r)
-    runs = {'all, 1 thread': lambda: step_single_bodies(records, *args)}
+
+    def step_all():
+        if pack is not None:
+            pack.step(*args)
+        step_single_bodies(records, *args)
+
+    runs = {'all, 1 thread': step_all}
     for kind, recs in kinds.items():
         tl = TypedList(recs)
         runs[f'{kind} ({len(recs)}), 1 thread'] = (lambda t=tl: step_single_bodies(t, *args))
+    if pack is not None:
+        names = sorted({b.name.rstrip('0123456789_') for b in packed})
+        runs[f'{"+".join(names)} ({len(packed)}, packed), 1 thread'] = lambda: pack.step(*args)
     many = {c: build_many(c) for c in (64, 384)}
     for c, w in many.items():
         runs[f'many {c}, World.step'] = (lambda w=w: w.step(dt))
     # last in each round, then a pause: the threads spin a while after a parallel loop and
     # slow the serial runs that follow (OpenMP layer on 2 shared cores)
     threaded = f'all, {numba.get_num_threads()} threads'
-    runs[threaded] = lambda: step_bodies_parallel(records, *args)
+
+    def step_threaded():
+        if pack is not None:
+            pack.step(*args, parallel=True)
+        step_bodies_parallel(records, *args)
+
+    runs[threaded] = step_threaded
     samples = {k: [] for k in runs}
     for fn in runs.values():
         fn()
@@ -63,7 +79,7 @@ def measure(steps, rounds):
             samples[k].append(time.perf_counter() - t0)
             if k == threaded:
                 time.sleep(0.3)
-    return {'records': len(records), 'stepped apart': len(slow),
+    return {'records': len(records), 'packed': len(packed), 'stepped apart': len(slow),
             'ms': {k: 1e3 * statistics.median(v) for k, v in samples.items()}}
 
 

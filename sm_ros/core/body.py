@@ -12,6 +12,7 @@ import numpy as np
 from . import body_build, body_step
 from . import kernels as K
 from .body_build import _EMPTY_I64, _GENERATION
+from .packed import Pack
 from .params import BodyParams
 
 #: Bodies with at least this much work per step (particles, or cluster memberships on the
@@ -113,7 +114,8 @@ class Body:
         self._params = params
         self._at_step = (None, None, None)
         self._limit_counts = np.zeros(2, dtype=np.int64)
-        self._flags = np.zeros(2)             # [dirty, shape error stale] (world_step)
+        # [dirty, shape error stale, fused damping sums valid] (world_step, packed)
+        self._flags = np.zeros(3)
         self._build()
         self._merge_kinematic()
 
@@ -161,6 +163,22 @@ class Body:
                 and not self._params.plastic and len(self._kin_idx) == 0
                 and not self._has_torque and not self._parallel)
 
+    def _packed_ok(self) -> bool:
+        """Whether the packed world step (``packed.py``) may step this body: a body of
+        the compiled step with one cluster, rigid or linear."""
+        return (self._params.clusters == 1 and self._sets is None and not self._quad
+                and self._fast_ok())
+
+    def _one_pack(self, h):
+        """A ``packed.Pack`` of this body alone, kept until a body changes, h does or the
+        body was packed elsewhere."""
+        key = (_GENERATION[0], h)
+        one = getattr(self, '_one', None)
+        if (one is None or one[0] != key or not isinstance(one[1], Pack)
+                or getattr(self, '_pack_owner', None) is not one[1]):
+            one = self._one = (key, Pack([self], h))
+        return one[1]
+
     def _fast_record(self, h):
         """The tuple of buffers ``kernels.world_step`` steps (``body_build.fast_record``)."""
         return body_build.fast_record(self, h)
@@ -168,6 +186,7 @@ class Body:
     def __getstate__(self):
         state = self.__dict__.copy()
         state.pop('_one', None)                # a typed list does not copy: rebuilt
+        state.pop('_pack_owner', None)
         return state
 
     def _one_record(self, h):

@@ -194,6 +194,7 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     body._dref = np.zeros((nk, 3))
     body._dacc = np.zeros(K.NDAMP)
     body._dirty = True
+    body._flags[2] = 0.0                   # no fused damping sums yet
     _GENERATION[0] += 1
 
 
@@ -274,7 +275,7 @@ def one_record(body, h):
     """A typed list holding ``fast_record(body, h)``, kept until a body changes or h does."""
     key = (_GENERATION[0], h)
     one = getattr(body, '_one', None)
-    if one is None or one[0] != key:
+    if one is None or one[0] != key or not isinstance(one[1], TypedList):
         one = body._one = (key, TypedList([fast_record(body, h)]))
     return one[1]
 

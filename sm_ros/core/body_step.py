@@ -22,6 +22,9 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     runs for it (the kernels compiled inside one caller or called one by one from Python
     can round differently under fast math).
     """
+    if body._packed_ok():
+        body._one_pack(h).step(h, gravity, has_col, ground, boxes, spheres, thresh)
+        return
     if body._fast_ok():
         K.step_single_bodies(body._one_record(h), h, gravity, has_col, ground, boxes, spheres,
                              thresh)
@@ -154,6 +157,7 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
         K.damp_kinematic(x=x, v=v, mass=body.m, sid=dsid, dpart=body._dpart,
                          idx=body._kin_idx, sign=1.0)
     body._shape_err = None                 # computed from body._err when asked
+    body._flags[2] = 1.0 if fused else 0.0
     body._dirty = capped > 0               # capped positions: the sums are stale
     if nchanged:
         body._refresh_rest(body._changed)

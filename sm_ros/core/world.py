@@ -10,6 +10,7 @@ from numba.typed import List as TypedList
 from . import body as body_mod
 from .body import Body
 from .kernels.world_step import step_bodies_parallel, step_single_bodies
+from .packed import PACK_EPOCH, Pack
 from .contact import COUPLE_ALPHA, BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
 from .world_colliders import WorldColliders
@@ -34,6 +35,7 @@ class World(WorldColliders):
         self._contact_params = ContactParams()
         self._flat = None                      # FlatState + Contact, rebuilt lazily
         self._split = None                     # compiled-step records (_split_bodies)
+        self._layout = 0                       # bumped when bodies are added or removed
         self._contact = None
         self._coll_stats = None                # (bodies, 2) contacts, deepest: collider pass
         self._zeros = np.zeros(0, dtype=np.int32)
@@ -104,6 +106,7 @@ class World(WorldColliders):
         self._bodies[name] = body
         self._contacts[name] = (contact, r0)
         self._flat = None
+        self._layout += 1
         return body
 
     def remove_body(self, name: str):
@@ -111,6 +114,7 @@ class World(WorldColliders):
         del self._bodies[name]
         self._contacts.pop(name, None)
         self._flat = None
+        self._layout += 1
 
     # ------------------------------------------------------------------ contact
     @property
@@ -188,7 +192,11 @@ class World(WorldColliders):
         cs = self._cset
         if cs is not None:
             cs.advance(h, self.time)
-        records, slow, parallel = self._split_bodies(h)
+        pack, records, slow, parallel = self._split_bodies(h)
+        if pack is not None:
+            # the one-cluster rigid/linear bodies: one compiled call over their rows (packed.py)
+            pack.step(h, self._gravity, self._has_col, self._ground_row, self._box_rows,
+                      self._sphere_rows, thresh, parallel)
         if len(records):
             # one compiled call for the bodies it covers (kernels/world_step.py)
             run = step_bodies_parallel if parallel else step_single_bodies
@@ -224,24 +232,31 @@ class World(WorldColliders):
     compiled_step = True
 
     def _split_bodies(self, h):
-        """(typed list of compiled-step records, bodies stepped one by one, whether the
-        records run on several threads), rebuilt only when a body's buffers, parameters,
-        grabs or wrench kind or the step changed.  Threads as for one body: only from
+        """(``packed.Pack`` of the one-cluster rigid/linear bodies or None, typed list of
+        compiled-step records of the other covered bodies, bodies stepped one by one,
+        whether the compiled calls run on several threads), rebuilt only when a body's
+        buffers, parameters, grabs or wrench kind, the bodies, the step or the packing
+        (``packed.PACK_EPOCH``: a body was packed elsewhere) changed.  Python cost per step
+        does not grow with the number of bodies.  Threads as for one body: only from
         ``WORLD_PARALLEL_MIN_WORK`` particles (on shared cores fork/join costs more below)."""
-        key = (body_mod._GENERATION[0], h, tuple(self._bodies), self.compiled_step)
+        key = (body_mod._GENERATION[0], h, self._layout, self.compiled_step)
         split = self._split
-        if split is None or split[0] != key:
-            records, slow, work = TypedList(), [], 0
+        if split is None or split[0] != key or split[1] != PACK_EPOCH[0]:
+            records, packed, slow, work = TypedList(), [], [], 0
             for body in self._bodies.values():
-                if self.compiled_step and body._fast_ok():
+                if self.compiled_step and body._packed_ok():
+                    packed.append(body)
+                    work += body.n
+                elif self.compiled_step and body._fast_ok():
                     records.append(body._fast_record(h))
                     work += body.n
                 else:
                     slow.append(body)
-            parallel = (work >= WORLD_PARALLEL_MIN_WORK and len(records) > 1
+            pack = Pack(packed, h) if packed else None
+            parallel = (work >= WORLD_PARALLEL_MIN_WORK and len(records) + len(packed) > 1
                         and numba.get_num_threads() > 1)
-            split = self._split = (key, records, slow, parallel)
-        return split[1], split[2], split[3]
+            split = self._split = (key, PACK_EPOCH[0], pack, records, slow, parallel)
+        return split[2], split[3], split[4], split[5]
 
     def _world_passes(self, h, thresh) -> bool:
         """Passes over the world's flat state after the bodies' step (flat.py); return

@@ -5,9 +5,11 @@ Numba function with 10-30 array arguments costs several microseconds in the disp
 while a 144-particle body's own work is about one.  ``step_single_bodies`` runs the same
 kernels, in the same order and with the same arguments as ``Body._step``, for every body
 of a typed list of per-body records, so the Python cost of a step no longer grows with the
-number of such bodies.  It covers one-cluster and set-layout bodies without plasticity,
-kinematic particles or torque, on one thread (``Body._fast_ok``); the others keep
-``Body._step``, which steps a covered body as a list of one record.
+number of such bodies.  It covers set-layout bodies (and one-cluster quadratic ones)
+without plasticity, kinematic particles or torque, on one thread (``Body._fast_ok``);
+one-cluster rigid/linear bodies take the packed step (``sm_ros.core.packed``: no per-body
+record) and the others keep ``Body._step``, which steps a covered body as a list of one
+record.
 
 A record (``Body._fast_record``) is a tuple of the body's own buffers (x, v, x0, y0 as their
 (3, N) blocks, transposed back to (N, 3) views of layout F here); ``state`` holds

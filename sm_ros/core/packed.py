@@ -1,0 +1,335 @@
+"""The packed world step: one-cluster rigid/linear bodies without per-body records.
+
+``kernels.world_step`` steps a body from a record, a tuple of ~63 of its own arrays held
+in a typed list; fetching a record inside the compiled loop copies 63 array structures and
+moves 63 reference counts up and down (~0.85 us a body, as much as a 144-particle body's
+shape match), and a small body paid besides for its damping pass (``damp_rigid``, two
+loops) and its speed-limit pass.  Here the bodies the ``many`` scenes are made of (one
+cluster, rigid or linear, no plasticity, grabs or torque, one thread: ``Body._packed_ok``)
+keep their per-body scalars and per-cluster state in one row each of a world-level array
+``Pack.P`` (nb, NCOL): the body's own attributes (``_ref``, ``_quat``, ``_part``, ...)
+become views of its row, so every reader of the body sees the state the packed step
+writes, and the compiled loop reads a body's state from ``P[b]`` with no array fetched
+but the four particle arrays (x, v, x0, m).  Scratch (3x3, 4x4, ...) is allocated once
+per chunk of bodies, not per body.
+
+One pass over a body's particles does what four did: in blocks of ``BLOCK`` particles,
+the damping (the rigid field of the last pass's sums), Eq. 13-14, the static colliders,
+the speed limit and the sums of the next step (shape match and damping) while the block
+is in L1.  The speed limit comes before the sums, so a capped particle no longer forces a
+re-accumulation the next step.  The damping is the fused damping of ``kernels.damping``
+(sums per step taken in the pass, the field from them by ``damping_fields``), with its
+per-body 3x3 solve.
+
+``Body._step`` steps such a body as a pack of one (``Body._one_pack``): the same machine
+code as ``World.step``, so both agree bit for bit (test_core_fused.py).  A body belongs to
+one pack at a time: building a pack copies the body's current state into its row and
+rebinds the attributes; ``PACK_EPOCH`` counts pack builds, so a world whose bodies were
+packed elsewhere (a body stepped on its own) packs them again before stepping.
+"""
+
+import numba
+import numpy as np
+from numba import njit, prange
+from numba.typed import List as TypedList
+
+from .kernels import (BLOCK, JIT, NDAMP, _collide_range, damp_acc_range, damping_fields,
+                      damping_targets, limit_turn, solve_clusters)
+from .kernels.integrate import _acc_single, _int_single_lin
+from .kernels.jit import finite
+
+#: Counts pack builds (a pack build rebinds its bodies' attributes to its rows).
+PACK_EPOCH = [0]
+
+# Row layout: parameters (written at each pack build), then the body state the rows hold
+# (attribute, shape); each attribute becomes a view of its columns.
+C_ALPHA, C_BETA, C_DAMP, C_VMAX, C_TURN, C_WMAX, C_MODE = range(7)
+NPARAM = 7
+STATE = (('_flags', (3,)), ('_facc', (3,)), ('_ref', (1, 3)), ('_quat', (1, 4)),
+         ('_rest_lin', (1, 3, 3)), ('_rest_off', (1, 3)), ('_sum_q', (1, 9)),
+         ('_wsum', (1,)), ('_scale', (1,)), ('_cdet', (1,)), ('_aqq3', (1, 3, 3)),
+         ('_nmat', (1, 3, 3)), ('_part', (1, 1, 12)), ('_err', (1,)),
+         ('_dpart', (1, 1, NDAMP)))
+
+
+def _columns():
+    cols, off = {}, NPARAM
+    for name, shape in STATE:
+        size = int(np.prod(shape))
+        cols[name] = (off, size, shape)
+        off += size
+    return cols, off
+
+
+COLS, NCOL = _columns()
+C_FLAGS = COLS['_flags'][0]            # [dirty, shape error stale, damping sums valid]
+C_FACC = COLS['_facc'][0]
+C_REF = COLS['_ref'][0]
+C_QUAT = COLS['_quat'][0]
+C_RLIN = COLS['_rest_lin'][0]
+C_ROFF = COLS['_rest_off'][0]
+C_SUMQ = COLS['_sum_q'][0]
+C_WSUM = COLS['_wsum'][0]
+C_SCALE = COLS['_scale'][0]
+C_CDET = COLS['_cdet'][0]
+C_AQQ3 = COLS['_aqq3'][0]
+C_NMAT = COLS['_nmat'][0]
+C_PART = COLS['_part'][0]
+C_ERR = COLS['_err'][0]
+C_DPART = COLS['_dpart'][0]
+
+
+class Pack:
+    """The rows of a list of packable bodies at the step ``h`` (see the module docstring)."""
+
+    def __init__(self, bodies, h):
+        nb = len(bodies)
+        self.bodies = list(bodies)
+        self.h = h
+        self.P = np.zeros((max(nb, 1), NCOL))
+        self.counts = np.zeros((max(nb, 1), 2), dtype=np.int64)
+        self.parts = TypedList()
+        for b, body in enumerate(self.bodies):
+            p = body._params.at_step(h)
+            body._at_step = (h, body._params, p)
+            row = self.P[b]
+            row[:NPARAM] = (p.alpha, p.beta, p.damping, body._params.max_speed,
+                            body._params.max_turn, body._params.max_turn / h, body._mode)
+            for name, (off, size, shape) in COLS.items():
+                src = np.asarray(getattr(body, name))
+                if src.shape != shape:
+                    raise AssertionError(f'{body.name}.{name}: shape {src.shape}, packed '
+                                         f'{shape}')
+                view = row[off:off + size]
+                view[:] = src.reshape(-1)
+                setattr(body, name, view.reshape(shape))
+            self.counts[b] = body._limit_counts
+            body._limit_counts = self.counts[b]
+            body._pack_owner = self
+            self.parts.append((body._x, body._v, body._x0, body.m))
+        PACK_EPOCH[0] += 1
+
+    def __len__(self):
+        return len(self.bodies)
+
+    def step(self, h, gravity, has_col, ground, boxes, spheres, thresh, parallel=False):
+        """Step every body of the pack once (on the threads with ``parallel``)."""
+        if parallel:
+            step_packed(self.P, self.counts, self.parts, numba.get_num_threads(), h, gravity,
+                        has_col, ground, boxes, spheres, thresh)
+        else:
+            step_packed_single(self.P, self.counts, self.parts, h, gravity, has_col,
+                               ground, boxes, spheres, thresh)
+
+
+def step_packed_single(P, counts, parts, h, gravity, has_col, ground, boxes, spheres,
+                       thresh):
+    """``step_packed`` on the calling thread alone (one machine code for every caller, as
+    ``kernels.world_step.step_single_bodies``)."""
+    threads = numba.get_num_threads()
+    if threads == 1:
+        step_packed(P, counts, parts, 1, h, gravity, has_col, ground, boxes, spheres, thresh)
+        return
+    numba.set_num_threads(1)
+    try:
+        step_packed(P, counts, parts, 1, h, gravity, has_col, ground, boxes, spheres, thresh)
+    finally:
+        numba.set_num_threads(threads)
+
+
+@njit(parallel=True, **JIT)
+def step_packed(P, counts, parts, threads, h, gravity, has_col, ground, boxes, spheres,
+                thresh):
+    """Every body of a pack, in ``threads`` chunks of consecutive bodies over the threads
+    (a body owns its row and its particles, so the chunking changes no result)."""
+    nb = len(parts)
+    nch = max(1, min(threads, nb))
+    for c in prange(nch):
+        lo = (c * nb) // nch
+        hi = ((c + 1) * nb) // nch
+        _step_chunk(P, counts, parts, lo, hi, h, gravity, has_col, ground, boxes, spheres,
+                    thresh)
+
+
+@njit(**JIT)
+def _step_chunk(P, counts, parts, lo, hi, h, gravity, has_col, ground, boxes, spheres,
+                thresh):
+    """Bodies lo..hi with one set of scratch buffers (shaped as ``solve_clusters`` and the
+    damping kernels take them for one cluster)."""
+    part = np.zeros((1, 1, 12))
+    wsum = np.zeros(1)
+    sum_q = np.zeros((1, 9))
+    ref = np.zeros((1, 3))
+    quat = np.zeros((1, 4))
+    aqq3 = np.zeros((1, 3, 3))
+    aqq9 = np.zeros((1, 9, 9))
+    rest_lin = np.zeros((1, 3, 3))
+    rest_off = np.zeros((1, 3))
+    scale = np.zeros(1)
+    trans = np.zeros((1, 3, 9))
+    goal_lin = np.zeros((1, 3, 3))
+    goal_off = np.zeros((1, 3))
+    apq = np.zeros((1, 3, 3))
+    accbuf = np.zeros(32)
+    m3 = np.zeros((4, 3, 3))
+    m39 = np.zeros((3, 9))
+    n4 = np.zeros((4, 4))
+    v4 = np.zeros((4, 4))
+    nmat = np.zeros((1, 3, 3))
+    cdet = np.zeros(1)
+    dpart = np.zeros((1, 1, NDAMP))
+    sptr = np.array([0, 1], dtype=np.int64)
+    scl = np.zeros(1, dtype=np.int32)
+    scnt = np.ones(1)
+    lin = np.zeros((1, 13))
+    w3 = np.zeros((1, 3))
+    dref = np.zeros((1, 3))
+    dacc = np.zeros(NDAMP)
+    dmp = np.zeros((1, 6))
+    flagged = np.zeros(1, dtype=np.bool_)
+    lim_lin = np.zeros((1, 13))
+    lim_w = np.zeros((1, 6))
+    noptr = np.zeros(0, dtype=np.int64)
+    nocl = np.zeros(0, dtype=np.int32)
+    acc = np.zeros(3)
+    zero3 = np.zeros(3)
+    for b in range(lo, hi):
+        x, v, x0, mass = parts[b]
+        row = P[b]
+        # ---- load the body's state into the scratch (copies of ~70 numbers)
+        for j in range(3):
+            ref[0, j] = row[C_REF + j]
+            rest_off[0, j] = row[C_ROFF + j]
+        for j in range(4):
+            quat[0, j] = row[C_QUAT + j]
+        for i in range(3):
+            for j in range(3):
+                rest_lin[0, i, j] = row[C_RLIN + 3 * i + j]
+                aqq3[0, i, j] = row[C_AQQ3 + 3 * i + j]
+                nmat[0, i, j] = row[C_NMAT + 3 * i + j]
+        for j in range(9):
+            sum_q[0, j] = row[C_SUMQ + j]
+        wsum[0] = row[C_WSUM]
+        scale[0] = row[C_SCALE]
+        cdet[0] = row[C_CDET]
+        _step_one(row, counts[b], x, v, x0, mass, h, gravity, has_col, ground, boxes,
+                  spheres, thresh, part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin,
+                  rest_off, scale, trans, goal_lin, goal_off, apq, accbuf, m3, m39, n4, v4,
+                  nmat, cdet, dpart, sptr, scl, scnt, lin, w3, dref, dacc, dmp, flagged,
+                  lim_lin, lim_w, noptr, nocl, acc, zero3)
+        # ---- store what the step changed
+        for j in range(3):
+            row[C_REF + j] = ref[0, j]
+        for j in range(4):
+            row[C_QUAT + j] = quat[0, j]
+        for j in range(12):
+            row[C_PART + j] = part[0, 0, j]
+        for j in range(NDAMP):
+            row[C_DPART + j] = dpart[0, 0, j]
+
+
+@njit(**JIT)
+def _cap_range(start, end, x, v, h, v_max):
+    """``limits.limit_speed`` for particles start..end; returns the count."""
+    lim2 = v_max * v_max
+    count = 0
+    for i in range(start, end):
+        v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
+        s2 = v0 * v0 + v1 * v1 + v2 * v2
+        if s2 > lim2:
+            if not finite(s2):
+                continue                       # left to the non-finite recovery
+            f = v_max / np.sqrt(s2)
+            d = h * (1.0 - f)
+            x[i, 0] -= d * v0
+            x[i, 1] -= d * v1
+            x[i, 2] -= d * v2
+            v[i, 0] = v0 * f
+            v[i, 1] = v1 * f
+            v[i, 2] = v2 * f
+            count += 1
+    return count
+
+
+@njit(**JIT)
+def _step_one(row, counts, x, v, x0, mass, h, gravity, has_col, ground, boxes, spheres,
+              thresh, part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin, rest_off, scale,
+              trans, goal_lin, goal_off, apq, accbuf, m3, m39, n4, v4, nmat, cdet, dpart,
+              sptr, scl, scnt, lin, w3, dref, dacc, dmp, flagged, lim_lin, lim_w, noptr,
+              nocl, acc, zero3):
+    """``Body._step`` of one packed body (its state loaded into the scratch)."""
+    alpha, beta, k_damp = row[C_ALPHA], row[C_BETA], row[C_DAMP]
+    v_max, turn = row[C_VMAX], row[C_TURN]
+    mode = int(row[C_MODE])
+    damp = k_damp > 0.0
+    dirty = row[C_FLAGS] > 0.0
+    n = x.shape[0]
+    if dirty:
+        for j in range(12):
+            part[0, 0, j] = 0.0
+        _acc_single(start=0, end=n, quad=False, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
+                    rest_off=rest_off, ref=ref, sums=part[0])
+    else:
+        for j in range(12):
+            part[0, 0, j] = row[C_PART + j]
+    q0, q1, q2, q3 = quat[0, 0], quat[0, 1], quat[0, 2], quat[0, 3]
+    solve_clusters(part=part, wsum=wsum, sum_q=sum_q, ref=ref, quat=quat, aqq3=aqq3,
+                   aqq9=aqq9, rest_lin=rest_lin, rest_off=rest_off, scale=scale,
+                   trans=trans, goal_lin=goal_lin, goal_off=goal_off, mode=mode, beta=beta,
+                   apq=apq, acc=accbuf, m3a=m3[0], m3b=m3[1], m3c=m3[2], m39=m39, n4=n4,
+                   v4=v4, nmat=nmat, cdet=cdet)
+    turned = 0
+    if turn > 0.0:
+        # |q_prev . q| = cos(angle / 2), as Body._step
+        dot = q0 * quat[0, 0] + q1 * quat[0, 1] + q2 * quat[0, 2] + q3 * quat[0, 3]
+        flagged[0] = abs(dot) < np.cos(0.5 * turn)
+        if flagged[0]:
+            turned = limit_turn(x=x, v=v, mass=mass, ptr=noptr, cl=nocl, flagged=flagged,
+                                w_max=row[C_WMAX], lin=lim_lin, w3=lim_w, m3a=m3[0],
+                                m3b=m3[1], m3c=m3[2], m3d=m3[3])
+            counts[1] += turned
+    for i in range(3):
+        acc[i] = row[C_FACC + i] + gravity[i]
+    if damp:
+        # the rigid field damping moves towards, from the sums of the last pass (taken
+        # again if the state changed since: set by hand, contact, turn limit, not damped)
+        if dirty or turned or not row[C_FLAGS + 2] > 0.0:
+            for j in range(NDAMP):
+                dpart[0, 0, j] = 0.0
+            damp_acc_range(start=0, end=n, x=x, v=v, mass=mass, sid=noptr, dsums=dpart[0])
+        else:
+            for j in range(NDAMP):
+                dpart[0, 0, j] = row[C_DPART + j]
+        damping_fields(dpart=dpart, sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3,
+                       dref=dref, acc=dacc, m3a=m3[0], m3b=m3[1], m3c=m3[2], m3d=m3[3])
+        damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3, dref=dref, sref=ref,
+                        dmp=dmp)
+    # ---- the one particle pass, block by block: damping + Eq. 13-14, colliders, speed
+    # limit, then the next step's sums while the block is in L1
+    for j in range(12):
+        part[0, 0, j] = 0.0
+    for j in range(NDAMP):
+        dpart[0, 0, j] = 0.0
+    err2 = 0.0
+    capped = 0
+    sums = part[0]
+    dsums = dpart[0]
+    for bs in range(0, n, BLOCK):
+        be = min(bs + BLOCK, n)
+        err2 += _int_single_lin(start=bs, end=be, x=x, v=v, x0=x0, goal_lin=goal_lin,
+                                goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=zero3,
+                                com=zero3, damp=damp, k_damp=k_damp, dmp=dmp, ref=ref)
+        if has_col:
+            _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes,
+                           spheres=spheres, thresh=thresh)
+        if v_max > 0.0:
+            capped += _cap_range(bs, be, x, v, h, v_max)
+        _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
+                    rest_off=rest_off, ref=ref, sums=sums)
+        if damp:
+            damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass, sid=noptr, dsums=dsums)
+    counts[0] += capped
+    row[C_ERR] = err2
+    row[C_FLAGS] = 0.0                     # the sums are those of the state just written
+    row[C_FLAGS + 1] = 1.0                 # shape error stale
+    row[C_FLAGS + 2] = 1.0 if damp else 0.0

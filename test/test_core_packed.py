@@ -1,0 +1,128 @@
+"""The packed world step (``sm_ros.core.packed``) gives the states of the bodies' own steps."""
+
+import copy
+
+import numpy as np
+import pytest
+
+import sm_ros.core.body as body_mod
+import sm_ros.core.world as world_mod
+from sm_ros.core import BodyParams, Box, Ground, World
+
+
+def lattice(n, spacing=0.02):
+    g = np.arange(n) * spacing
+    return np.stack(np.meshgrid(g, g, g, indexing='ij'), axis=-1).reshape(-1, 3)
+
+
+def _world(compiled=True):
+    """Damped and undamped rigid/linear one-cluster bodies (packed; two of them larger than
+    a block of the pass), a set-layout body, a quadratic one and a plastic one (not
+    packed), on a ground and a box; spinning and fast enough to hit both limits."""
+    world = World()
+    world.compiled_step = compiled
+    world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.3),
+                        boxes=[Box(lo=(0.3, -0.1, 0.0), hi=(0.5, 0.2, 0.04))])
+    rng = np.random.default_rng(11)
+    specs = [('rigid', 1, 0.1, 4), ('linear', 1, 0.05, 5), ('linear', 1, 0.0, 7),
+             ('rigid', 1, 0.2, 8), ('linear', 1, 0.3, 3), ('linear', 8, 0.05, 5),
+             ('quadratic', 1, 0.05, 4), ('linear', 1, 0.05, 4)]
+    for i, (mode, clusters, damping, n) in enumerate(specs):
+        x0 = lattice(n) + (0.25 * i, 0.0, 0.03 + 0.02 * i)
+        c = x0.mean(axis=0)
+        spin = np.cross(rng.standard_normal(3) * 40.0, x0 - c)      # up to ~1 rad/step
+        plastic = dict(plastic_yield=0.01, plastic_creep=5.0, plastic_max=0.3) if i == 7 \
+            else {}
+        world.add_body(x0, masses=0.01 + 0.01 * rng.random(len(x0)), name=f'b{i}',
+                       velocities=spin + rng.standard_normal(x0.shape),
+                       params=BodyParams(mode=mode, clusters=clusters, damping=damping,
+                                         alpha=0.4, beta=0.6, max_speed=2.5, max_turn=0.05,
+                                         **plastic))
+    world.bodies[1].set_wrench((0.0, 0.01, 0.03))
+    return world
+
+
+def _states(world):
+    return [(b.x.copy(), b.v.copy(), b.shape_error_rms(), b._limit_counts.copy(),
+             b.cluster_rotations) for b in world.bodies]
+
+
+def _run(world, ticks, substeps=2, dt=1.0 / 120.0, events=True):
+    for tick in range(ticks):
+        for _ in range(substeps):
+            world.step(dt / substeps)
+        if not events:
+            continue
+        if tick == 3:
+            world.bodies[3].set_state(v=0.5 * world.bodies[3].v)
+            world.bodies[4].set_params(damping=0.0)
+        if tick == 5:
+            world.bodies[0].set_wrench((0.0, 0.0, 0.0), (0.0, 0.0, 1e-4))   # leaves the pack
+            world.bodies[4].set_params(damping=0.1)
+        if tick == 7:
+            world.bodies[0].clear_wrench()                                    # comes back
+            world.add_body(lattice(3) + (0.0, 0.6, 0.2), masses=0.02, name='late',
+                           params=BodyParams(damping=0.05))
+    return world
+
+
+@pytest.mark.parametrize('parallel', [False, True])
+def test_packed_step_equals_stepping_bodies_one_at_a_time(monkeypatch, parallel):
+    """World.step over the packed rows (one compiled call, 2 substeps a tick, threads or
+    not) gives bit for bit the states of ``Body._step`` called body by body, through a
+    state set by hand, damping switched off and on, a torque (the body leaves the pack and
+    comes back) and a new body; the limits and colliders are hit."""
+    monkeypatch.setattr(world_mod, 'WORLD_PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
+    got = _run(_world(True), 12)
+    want = _run(_world(False), 12)
+    pack, records, slow, _ = got._split_bodies(1.0 / 240.0)
+    assert [b.name for b in pack.bodies] == ['b0', 'b1', 'b2', 'b3', 'b4', 'late']
+    assert len(records) == 1 and 'b7' in [b.name for b in slow]     # b6 (quadratic): sets
+    counts = np.array([s[3] for s in _states(got)])
+    assert counts[:5, 0].sum() > 0 and counts[:5, 1].sum() > 0        # both limits acted
+    assert got.bodies[2].n > 256 and got.bodies[3].n > 256               # several blocks
+    for g, w in zip(_states(got), _states(want)):
+        assert np.array_equal(g[0], w[0]) and np.array_equal(g[1], w[1])
+        assert g[2] == w[2] and np.array_equal(g[3], w[3]) and np.array_equal(g[4], w[4])
+
+
+def test_packed_step_matches_the_kernel_by_kernel_step(monkeypatch):
+    """The packed step (damping fused into the particle pass, the speed limit inside it)
+    gives the states of the body step kernel by kernel (``damp_rigid``'s own passes, the
+    speed limit as a pass, sums re-accumulated after a cap) to round-off."""
+    got = _run(_world(True), 4, events=False)
+    monkeypatch.setattr(body_mod.Body, '_fast_ok', lambda self: False)
+    want = _run(_world(True), 4, events=False)
+    assert want._split_bodies(1.0 / 240.0)[0] is None
+    for g, w in zip(_states(got), _states(want)):
+        for a, b in ((g[0], w[0]), (g[1], w[1])):
+            assert np.abs(a - b).max() <= 1e-11 * np.abs(b).max()
+        assert np.array_equal(g[3], w[3])
+        assert abs(g[2] - w[2]) <= 1e-9 * w[2]
+
+
+def test_packed_bodies_read_their_state_from_the_pack():
+    """A packed body's attributes are views of its row: what the step wrote is what the
+    body reports (rotation, shape error, counts), a body stepped on its own in between is
+    packed again (not left stale in the world's rows), and a copied world steps as the
+    original."""
+    world = _run(_world(True), 2, events=False)
+    body = world.body('b1')
+    pack = world._split_bodies(1.0 / 240.0)[0]
+    assert np.shares_memory(body._quat, pack.P) and np.shares_memory(body._part, pack.P)
+    r = body.cluster_rotations[0]
+    assert np.allclose(r @ r.T, np.eye(3), atol=1e-12) and not np.allclose(r, np.eye(3))
+    twin = copy.deepcopy(world)
+    ref = _run(copy.deepcopy(world), 2, events=False)
+    # body b1 alone: packed on its own, then the world packs it again
+    gargs = (world._gravity, world._has_col, world._ground_row, world._box_rows,
+             world._sphere_rows, 1e-3)
+    body._step(1.0 / 240.0, *gargs)
+    assert not np.shares_memory(body._quat, pack.P)
+    twin.body('b1')._step(1.0 / 240.0, *gargs)
+    _run(world, 2, events=False)
+    _run(twin, 2, events=False)
+    for g, w in zip(_states(world), _states(twin)):
+        assert np.array_equal(g[0], w[0]) and np.array_equal(g[1], w[1])
+    moved = [not np.array_equal(g[0], w[0]) for g, w in zip(_states(world), _states(ref))]
+    assert moved[1] and not any(moved[:1] + moved[2:])
