@@ -54,8 +54,9 @@ def test_views_are_column_major_read_only_and_follow_the_state():
 
 
 def test_compiled_world_step_takes_a_one_particle_body():
-    """A one-particle body's (1, 3) view is C- and F-contiguous at once; its record goes
-    into the same typed list as the others' and steps as it does alone (bit for bit)."""
+    """A one-particle body's (1, 3) view is C- and F-contiguous at once; its particle
+    arrays go into the same typed list as the others' (``packed.Pack``) and it steps as it
+    does alone (bit for bit)."""
     def run(names):
         world = World(gravity=(0.0, 0.0, -9.81))
         world.set_colliders(ground=Ground(height=0.0))
@@ -70,8 +71,8 @@ def test_compiled_world_step_takes_a_one_particle_body():
         return {b.name: (b.x.copy(), b.v.copy()) for b in world.bodies}, world
 
     both, world = run(('dot', 'cube'))
-    records, slow, _ = world._split_bodies(H)
-    assert len(records) == 2 and not slow
+    pack, records, slow, _ = world._split_bodies(H)
+    assert len(pack) == 2 and len(records) == 0 and not slow      # one-cluster: packed
     for name in ('dot', 'cube'):
         alone, _ = run((name,))
         assert np.array_equal(both[name][0], alone[name][0])

@@ -1,10 +1,11 @@
 """
 The bodies' own compiled step of ``paper_384`` (``kernels.world_step`` and, for its
-one-cluster bodies, ``sm_ros.core.packed``; contact and the collider pass left out), after ``--steps`` world steps of pouring: all records on one
-thread and on every Numba thread, and each kind of body (96 of each) on one thread,
-round-robin in one process (medians of ``--rounds`` rounds, ms per world step); then the
-``many`` worlds of ``sm_ros.bench scaling`` (64 and 384 one-cluster bodies of 144
-particles, ``World.step``, contact off).  Prints one JSON line, so that two checkouts can
+one-cluster bodies, ``sm_ros.core.packed``; contact and the collider pass left out), after
+``--steps`` world steps of pouring: all bodies on one thread and on every Numba thread,
+and each kind of body (96 of each) on one thread, round-robin in one process (medians of
+``--rounds`` rounds, ms per world step); then the ``many`` worlds of ``sm_ros.bench
+scaling`` (64 and 384 one-cluster bodies of 144 particles, ``World.step``, contact off).
+Prints one JSON line, so that two checkouts can
 be compared run against run (``--compare A B``: alternate processes, medians).
 
     .venv/bin/python tools/bodies_step.py

@@ -106,7 +106,9 @@ class Pack:
             self.counts[b] = body._limit_counts
             body._limit_counts = self.counts[b]
             body._pack_owner = self
-            self.parts.append((body._x, body._v, body._x0, body.m))
+            # x, v, x0 as their (3, N) blocks (``body.soa``): a one-particle body's (1, 3)
+            # view would type C and the typed list takes one type; transposed back (F) below
+            self.parts.append((body._x.T, body._v.T, body._x0.T, body.m))
         PACK_EPOCH[0] += 1
 
     def __len__(self):
@@ -194,7 +196,8 @@ def _step_chunk(P, counts, parts, lo, hi, h, gravity, has_col, ground, boxes, sp
     acc = np.zeros(3)
     zero3 = np.zeros(3)
     for b in range(lo, hi):
-        x, v, x0, mass = parts[b]
+        xt, vt, x0t, mass = parts[b]
+        x, v, x0 = xt.T, vt.T, x0t.T
         row = P[b]
         # ---- load the body's state into the scratch (copies of ~70 numbers)
         for j in range(3):
