@@ -33,8 +33,9 @@ import numpy as np
 from numba import njit, prange
 from numba.typed import List as TypedList
 
-from .kernels import (BLOCK, JIT, NDAMP, _collide_range, damp_acc_range, damping_fields,
-                      damping_targets, limit_turn, solve_clusters)
+from .kernels import (BLOCK, JIT, NDAMP, _collide_range, damp_acc_range, limit_turn,
+                      solve_clusters)
+from .kernels.damping import _rigid_fields
 from .kernels.integrate import _acc_single, _int_single_lin
 from .kernels.jit import finite
 
@@ -124,19 +125,41 @@ class Pack:
                                ground, boxes, spheres, thresh)
 
 
+_THREADS = []
+
+
+def _thread_count_fns():
+    """(get, set) of the calling thread's Numba thread count.  The public
+    ``numba.get/set_num_threads`` check the threading layer at each call (~6 us for a get
+    and two sets, as much as two 144-particle bodies' steps); after the first call the
+    layer's own functions are used (about 1.3 us), where this Numba version has them."""
+    if not _THREADS:
+        numba.get_num_threads()                # launches the threading layer
+        try:
+            from numba.np.ufunc import parallel as layer
+            get, put = layer._get_num_threads, layer._set_num_threads
+            if get() != numba.get_num_threads():
+                raise AttributeError
+        except (ImportError, AttributeError, TypeError):
+            get, put = numba.get_num_threads, numba.set_num_threads
+        _THREADS.extend((get, put))
+    return _THREADS
+
+
 def step_packed_single(P, counts, parts, h, gravity, has_col, ground, boxes, spheres,
                        thresh):
     """``step_packed`` on the calling thread alone (one machine code for every caller, as
     ``kernels.world_step.step_single_bodies``)."""
-    threads = numba.get_num_threads()
+    get, put = _thread_count_fns()
+    threads = get()
     if threads == 1:
         step_packed(P, counts, parts, 1, h, gravity, has_col, ground, boxes, spheres, thresh)
         return
-    numba.set_num_threads(1)
+    put(1)
     try:
         step_packed(P, counts, parts, 1, h, gravity, has_col, ground, boxes, spheres, thresh)
     finally:
-        numba.set_num_threads(threads)
+        put(threads)
 
 
 @njit(parallel=True, **JIT)
@@ -180,13 +203,8 @@ def _step_chunk(P, counts, parts, lo, hi, h, gravity, has_col, ground, boxes, sp
     nmat = np.zeros((1, 3, 3))
     cdet = np.zeros(1)
     dpart = np.zeros((1, 1, NDAMP))
-    sptr = np.array([0, 1], dtype=np.int64)
-    scl = np.zeros(1, dtype=np.int32)
-    scnt = np.ones(1)
     lin = np.zeros((1, 13))
     w3 = np.zeros((1, 3))
-    dref = np.zeros((1, 3))
-    dacc = np.zeros(NDAMP)
     dmp = np.zeros((1, 6))
     flagged = np.zeros(1, dtype=np.bool_)
     lim_lin = np.zeros((1, 13))
@@ -215,11 +233,79 @@ def _step_chunk(P, counts, parts, lo, hi, h, gravity, has_col, ground, boxes, sp
         wsum[0] = row[C_WSUM]
         scale[0] = row[C_SCALE]
         cdet[0] = row[C_CDET]
-        _step_one(row, counts[b], x, v, x0, mass, h, gravity, has_col, ground, boxes,
-                  spheres, thresh, part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin,
-                  rest_off, scale, trans, goal_lin, goal_off, apq, accbuf, m3, m39, n4, v4,
-                  nmat, cdet, dpart, sptr, scl, scnt, lin, w3, dref, dacc, dmp, flagged,
-                  lim_lin, lim_w, noptr, nocl, acc, zero3)
+        alpha, beta, k_damp = row[C_ALPHA], row[C_BETA], row[C_DAMP]
+        v_max, turn = row[C_VMAX], row[C_TURN]
+        mode = int(row[C_MODE])
+        damp = k_damp > 0.0
+        dirty = row[C_FLAGS] > 0.0
+        n = x.shape[0]
+        if dirty:
+            for j in range(12):
+                part[0, 0, j] = 0.0
+            _acc_single(start=0, end=n, quad=False, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
+                        rest_off=rest_off, ref=ref, sums=part[0])
+        else:
+            for j in range(12):
+                part[0, 0, j] = row[C_PART + j]
+        q0, q1, q2, q3 = quat[0, 0], quat[0, 1], quat[0, 2], quat[0, 3]
+        solve_clusters(part=part, wsum=wsum, sum_q=sum_q, ref=ref, quat=quat, aqq3=aqq3,
+                       aqq9=aqq9, rest_lin=rest_lin, rest_off=rest_off, scale=scale,
+                       trans=trans, goal_lin=goal_lin, goal_off=goal_off, mode=mode, beta=beta,
+                       apq=apq, acc=accbuf, m3a=m3[0], m3b=m3[1], m3c=m3[2], m39=m39, n4=n4,
+                       v4=v4, nmat=nmat, cdet=cdet)
+        turned = 0
+        if turn > 0.0:
+            # |q_prev . q| = cos(angle / 2), as Body._step
+            dot = q0 * quat[0, 0] + q1 * quat[0, 1] + q2 * quat[0, 2] + q3 * quat[0, 3]
+            flagged[0] = abs(dot) < np.cos(0.5 * turn)
+            if flagged[0]:
+                turned = limit_turn(x=x, v=v, mass=mass, ptr=noptr, cl=nocl, flagged=flagged,
+                                    w_max=row[C_WMAX], lin=lim_lin, w3=lim_w, m3a=m3[0],
+                                    m3b=m3[1], m3c=m3[2], m3d=m3[3])
+                counts[b, 1] += turned
+        for i in range(3):
+            acc[i] = row[C_FACC + i] + gravity[i]
+        if damp:
+            # the rigid field damping moves towards, from the sums of the last pass (taken
+            # again if the state changed since: set by hand, contact, turn limit, not damped)
+            if dirty or turned or not row[C_FLAGS + 2] > 0.0:
+                for j in range(NDAMP):
+                    dpart[0, 0, j] = 0.0
+                damp_acc_range(start=0, end=n, x=x, v=v, mass=mass, sid=noptr, dsums=dpart[0])
+            else:
+                for j in range(NDAMP):
+                    dpart[0, 0, j] = row[C_DPART + j]
+            _damp_field_one(dp=dpart[0, 0], ref=ref, lin=lin, w3=w3, m3a=m3[0], m3b=m3[1],
+                            m3c=m3[2], m3d=m3[3], dmp=dmp)
+        # ---- the one particle pass, block by block: damping + Eq. 13-14, colliders, speed
+        # limit, then the next step's sums while the block is in L1
+        for j in range(12):
+            part[0, 0, j] = 0.0
+        for j in range(NDAMP):
+            dpart[0, 0, j] = 0.0
+        err2 = 0.0
+        capped = 0
+        sums = part[0]
+        dsums = dpart[0]
+        for bs in range(0, n, BLOCK):
+            be = min(bs + BLOCK, n)
+            err2 += _int_single_lin(start=bs, end=be, x=x, v=v, x0=x0, goal_lin=goal_lin,
+                                    goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=zero3,
+                                    com=zero3, damp=damp, k_damp=k_damp, dmp=dmp, ref=ref)
+            if has_col:
+                _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes,
+                               spheres=spheres, thresh=thresh)
+            if v_max > 0.0:
+                capped += _cap_range(bs, be, x, v, h, v_max)
+            _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
+                        rest_off=rest_off, ref=ref, sums=sums)
+            if damp:
+                damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass, sid=noptr, dsums=dsums)
+        counts[b, 0] += capped
+        row[C_ERR] = err2
+        row[C_FLAGS] = 0.0                     # the sums are those of the state just written
+        row[C_FLAGS + 1] = 1.0                 # shape error stale
+        row[C_FLAGS + 2] = 1.0 if damp else 0.0
         # ---- store what the step changed
         for j in range(3):
             row[C_REF + j] = ref[0, j]
@@ -229,6 +315,40 @@ def _step_chunk(P, counts, parts, lo, hi, h, gravity, has_col, ground, boxes, sp
             row[C_PART + j] = part[0, 0, j]
         for j in range(NDAMP):
             row[C_DPART + j] = dpart[0, 0, j]
+
+
+@njit(**JIT)
+def _damp_field_one(dp, ref, lin, w3, m3a, m3b, m3c, m3d, dmp):
+    """``damping_fields`` + ``damping_targets`` for one cluster of one set (one chunk):
+    the rigid field c + omega x (x - ref) of the damping row ``dp`` (sums about its point
+    p = ``dp[15:18]``) into ``dmp[0]``, without the general loops over sets and chunks."""
+    lin[0, 0] = dp[19]
+    lin[0, 1] = dp[3]
+    lin[0, 2] = dp[4]
+    lin[0, 3] = dp[5]
+    w3[0, 0] = dp[0]
+    w3[0, 1] = dp[1]
+    w3[0, 2] = dp[2]
+    lin[0, 4] = dp[6]
+    lin[0, 5] = dp[7]
+    lin[0, 6] = dp[8]
+    lin[0, 7] = dp[10] + dp[11]
+    lin[0, 8] = dp[9] + dp[11]
+    lin[0, 9] = dp[9] + dp[10]
+    lin[0, 10] = -dp[12]
+    lin[0, 11] = -dp[13]
+    lin[0, 12] = -dp[14]
+    _rigid_fields(lin=lin, w3=w3, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
+    t0 = ref[0, 0] - dp[15]
+    t1 = ref[0, 1] - dp[16]
+    t2 = ref[0, 2] - dp[17]
+    w0, w1, w2 = w3[0, 0], w3[0, 1], w3[0, 2]
+    dmp[0, 0] = lin[0, 1] + w1 * t2 - w2 * t1
+    dmp[0, 1] = lin[0, 2] + w2 * t0 - w0 * t2
+    dmp[0, 2] = lin[0, 3] + w0 * t1 - w1 * t0
+    dmp[0, 3] = w0
+    dmp[0, 4] = w1
+    dmp[0, 5] = w2
 
 
 @njit(**JIT)
@@ -252,87 +372,3 @@ def _cap_range(start, end, x, v, h, v_max):
             v[i, 2] = v2 * f
             count += 1
     return count
-
-
-@njit(**JIT)
-def _step_one(row, counts, x, v, x0, mass, h, gravity, has_col, ground, boxes, spheres,
-              thresh, part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin, rest_off, scale,
-              trans, goal_lin, goal_off, apq, accbuf, m3, m39, n4, v4, nmat, cdet, dpart,
-              sptr, scl, scnt, lin, w3, dref, dacc, dmp, flagged, lim_lin, lim_w, noptr,
-              nocl, acc, zero3):
-    """``Body._step`` of one packed body (its state loaded into the scratch)."""
-    alpha, beta, k_damp = row[C_ALPHA], row[C_BETA], row[C_DAMP]
-    v_max, turn = row[C_VMAX], row[C_TURN]
-    mode = int(row[C_MODE])
-    damp = k_damp > 0.0
-    dirty = row[C_FLAGS] > 0.0
-    n = x.shape[0]
-    if dirty:
-        for j in range(12):
-            part[0, 0, j] = 0.0
-        _acc_single(start=0, end=n, quad=False, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
-                    rest_off=rest_off, ref=ref, sums=part[0])
-    else:
-        for j in range(12):
-            part[0, 0, j] = row[C_PART + j]
-    q0, q1, q2, q3 = quat[0, 0], quat[0, 1], quat[0, 2], quat[0, 3]
-    solve_clusters(part=part, wsum=wsum, sum_q=sum_q, ref=ref, quat=quat, aqq3=aqq3,
-                   aqq9=aqq9, rest_lin=rest_lin, rest_off=rest_off, scale=scale,
-                   trans=trans, goal_lin=goal_lin, goal_off=goal_off, mode=mode, beta=beta,
-                   apq=apq, acc=accbuf, m3a=m3[0], m3b=m3[1], m3c=m3[2], m39=m39, n4=n4,
-                   v4=v4, nmat=nmat, cdet=cdet)
-    turned = 0
-    if turn > 0.0:
-        # |q_prev . q| = cos(angle / 2), as Body._step
-        dot = q0 * quat[0, 0] + q1 * quat[0, 1] + q2 * quat[0, 2] + q3 * quat[0, 3]
-        flagged[0] = abs(dot) < np.cos(0.5 * turn)
-        if flagged[0]:
-            turned = limit_turn(x=x, v=v, mass=mass, ptr=noptr, cl=nocl, flagged=flagged,
-                                w_max=row[C_WMAX], lin=lim_lin, w3=lim_w, m3a=m3[0],
-                                m3b=m3[1], m3c=m3[2], m3d=m3[3])
-            counts[1] += turned
-    for i in range(3):
-        acc[i] = row[C_FACC + i] + gravity[i]
-    if damp:
-        # the rigid field damping moves towards, from the sums of the last pass (taken
-        # again if the state changed since: set by hand, contact, turn limit, not damped)
-        if dirty or turned or not row[C_FLAGS + 2] > 0.0:
-            for j in range(NDAMP):
-                dpart[0, 0, j] = 0.0
-            damp_acc_range(start=0, end=n, x=x, v=v, mass=mass, sid=noptr, dsums=dpart[0])
-        else:
-            for j in range(NDAMP):
-                dpart[0, 0, j] = row[C_DPART + j]
-        damping_fields(dpart=dpart, sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3,
-                       dref=dref, acc=dacc, m3a=m3[0], m3b=m3[1], m3c=m3[2], m3d=m3[3])
-        damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3, dref=dref, sref=ref,
-                        dmp=dmp)
-    # ---- the one particle pass, block by block: damping + Eq. 13-14, colliders, speed
-    # limit, then the next step's sums while the block is in L1
-    for j in range(12):
-        part[0, 0, j] = 0.0
-    for j in range(NDAMP):
-        dpart[0, 0, j] = 0.0
-    err2 = 0.0
-    capped = 0
-    sums = part[0]
-    dsums = dpart[0]
-    for bs in range(0, n, BLOCK):
-        be = min(bs + BLOCK, n)
-        err2 += _int_single_lin(start=bs, end=be, x=x, v=v, x0=x0, goal_lin=goal_lin,
-                                goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=zero3,
-                                com=zero3, damp=damp, k_damp=k_damp, dmp=dmp, ref=ref)
-        if has_col:
-            _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes,
-                           spheres=spheres, thresh=thresh)
-        if v_max > 0.0:
-            capped += _cap_range(bs, be, x, v, h, v_max)
-        _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
-                    rest_off=rest_off, ref=ref, sums=sums)
-        if damp:
-            damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass, sid=noptr, dsums=dsums)
-    counts[0] += capped
-    row[C_ERR] = err2
-    row[C_FLAGS] = 0.0                     # the sums are those of the state just written
-    row[C_FLAGS + 1] = 1.0                 # shape error stale
-    row[C_FLAGS + 2] = 1.0 if damp else 0.0
