@@ -13,7 +13,8 @@ thread (``serial``) and on all threads (``threads``):
 - ``many_64``, ``many_384``: ``sm_ros.bench.scaling.build_many`` (144-particle bodies,
   contact off);
 - ``box_100k``: one body of 97,336 particles, 8 clusters, damping 0.05 (the body's own
-  threaded kernels against its serial ones; two worlds, stepped alternately).
+  threaded kernels against its serial ones; two worlds, stepped alternately); ``box_1m``
+  the same with 1,000,000 particles (threaded by default: ``body.PARALLEL_MIN_WORK``).
 
 With ``--env A=1,B=2 --env ...`` it runs itself once per environment (each in a fresh
 process, as OpenMP reads its settings when it starts), alternating the processes
@@ -51,8 +52,8 @@ def _scenes(names, settle):
             out[name] = ('world', w, dt)
         elif name.startswith('many_'):
             out[name] = ('world', scaling.build_many(int(name[5:])), scaling.DT)
-        elif name == 'box_100k':
-            g = np.arange(46) * 0.01
+        elif name in ('box_100k', 'box_1m'):
+            g = np.arange(46 if name == 'box_100k' else 100) * 0.01
             x0 = np.stack(np.meshgrid(g, g, g, indexing='ij'), axis=-1).reshape(-1, 3)
             pair = []
             for par in (False, True):
