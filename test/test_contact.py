@@ -718,7 +718,7 @@ def test_resting_pair_is_pushed_apart_without_speed():
                    np.zeros(2, np.uint8), off, bw, np.ones(2, np.bool_), np.zeros((2, 7)),
                    np.zeros(2, np.uint8), np.zeros(1, np.int64), acc, np.zeros(1), 1e-3,
                    np.zeros((2, 3)), np.zeros(4), np.zeros(0, np.int64), np.zeros(3, np.int64),
-                   np.zeros(2), np.zeros((2, 2)), False, X.T.copy(), np.zeros((2, 3)),
+                   np.zeros((2, 2)), np.zeros((2, 2)), False, X.T.copy(), np.zeros((2, 3)),
                    np.zeros((2, 9)))
     assert X[2, 1] - X[2, 0] == pytest.approx(0.02)
     np.testing.assert_array_equal(V, 0.0)
@@ -772,7 +772,7 @@ def test_body_velocities_match_numpy():
     W = rng.uniform(0.5, 2.0, off[-1])
     cpl = np.array([True, True, False])
     bw = np.array([1 / (1 / W[off[b]:off[b + 1]]).sum() for b in range(3)])
-    vb, zlo, bc, bom, biv = (np.zeros((3, 3)), np.zeros(3), np.zeros((3, 3)),
+    vb, zlo, bc, bom, biv = (np.zeros((3, 3)), np.zeros((2, 3)), np.zeros((3, 3)),
                              np.zeros((3, 3)), np.zeros((3, 9)))
     C.body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv)
     for b in range(2):
@@ -785,7 +785,7 @@ def test_body_velocities_match_numpy():
         ang = (m[:, None] * np.cross(r, v)).sum(0)
         np.testing.assert_allclose(bc[b], c, rtol=1e-12)
         np.testing.assert_allclose(vb[b], (m[:, None] * v).sum(0) / m.sum(), rtol=1e-12)
-        assert zlo[b] == x[:, 2].min()
+        assert zlo[0, b] == x[:, 2].min() and zlo[1, b] == v[np.argmin(x[:, 2]), 2]
         np.testing.assert_allclose(biv[b].reshape(3, 3), np.linalg.inv(inertia), rtol=1e-9)
         np.testing.assert_allclose(bom[b], np.linalg.solve(inertia, ang), rtol=1e-9)
     np.testing.assert_array_equal(vb[2], 0.0)

@@ -10,12 +10,14 @@ mass), equal and opposite, so linear momentum is kept to round-off; its relative
 then gets the ground's contact law (``solve_pairs``).  Every velocity change also moves the
 particles by h times it, so without friction angular momentum is kept to round-off too.
 Particles that contact moved are then projected out of the static colliders again.
-With ``ContactParams.stacking`` (the default), under gravity, a stiff body of one cluster
-(alpha at the step at least ``COUPLE_ALPHA``, no pinned or grabbed particle) carries its
-contacts as a whole: an impulse on one of its particles translates the body, so its load
-reaches all of it within the step instead of compressing its touching layer; such pairs
-are solved with accumulated impulses over several sweeps (``contact_kernels.solve_bodies``):
-stacks stand and heaps of such bodies come to rest at the node's step.
+With ``ContactParams.stacking`` (the default), under gravity, a stiff body (alpha at the
+step at least ``COUPLE_ALPHA``, one cluster or many, no pinned or grabbed particle) carries
+its contacts as a whole: an impulse on one of its particles translates the body, so its
+load reaches all of it within the step instead of compressing its touching layer; such
+pairs, and such bodies on the ground, are solved with accumulated impulses over several
+sweeps, warm-started from the last step (``WARM_START``), and a carried body held by
+another does not spin (``contact_kernels.solve_bodies``): stacks stand and heaps of such
+bodies (``paper_384``) come to rest at the node's step.
 
 Neighbour search (a Verlet pair list on a cell grid) and the per-pair solve are compiled
 kernels in ``contact_build.py`` and ``contact_kernels.py``; this file holds the settings
@@ -51,10 +53,10 @@ SKIN_FACTOR = 0.5
 #: while the second core was free, and 12-60 ms whenever another job held it (OpenMP waits
 #: for the descheduled thread; ``python -m sm_ros.bench contact`` times both side by side).
 PARALLEL_BUILD_MIN = 262144
-#: A body carries its contacts as a whole (``Contact.coupling``) when it has one cluster
-#: and its goal pull alpha at the step is at least this: the shape match then restores
+#: A body carries its contacts as a whole (``Contact.coupling``) when its goal pull alpha
+#: at the step is at least this (one cluster or many): the shape match then restores
 #: most of a deviation within the step, so the body is stiff (README "Contact between
-#: bodies"); softer and many-cluster bodies give way at their contacts, per particle.
+#: bodies"); softer bodies give way at their contacts, per particle.
 COUPLE_ALPHA = 0.5
 #: With stacking, ``solve_bodies`` sweeps the pairs of bodies carried as a whole at most
 #: this many times a step (at least ``iterations``): 4 left five stacked boxes jittering
@@ -63,9 +65,12 @@ STACK_SWEEPS = 8
 #: ``solve_bodies`` stops sweeping once no velocity changed by more than this fraction of
 #: the resting threshold (``World.step``: 2 |g| h) in a sweep.
 SWEEP_TOL = 0.01
-#: ``solve_bodies`` starts each step from this fraction of the impulses its pairs of
-#: carried bodies (and their ground contacts) ended the last step with, while the pair
-#: list is unchanged (``contact_kernels._warm_start``).
+#: ``solve_bodies`` starts each step from this fraction of the velocity impulses its
+#: pairs of carried bodies (and their ground contacts) ended the last step with, while the
+#: pair list is unchanged (``contact_kernels._warm_start``): without it the 8 sweeps did
+#: not carry the load of ``paper_384``'s heap (up to ten bodies high) to the ground, its
+#: top bodies kept about 2 g h of downward speed that the position impulses cancelled
+#: every step (1.3 J left); with 1.0 five stacked boxes sank 14 mm in 10 s.
 WARM_START = 0.5
 _NO_GROUND = np.zeros(4)
 _NO_ROWS8 = np.zeros((0, 8))
@@ -91,10 +96,10 @@ class ContactParams:
     radius (half its median nearest-neighbour distance; a body's own ``contact_radius``
     is used as given); ``iterations`` Gauss-Seidel sweeps over the pairs per step.
     ``stacking`` (on by default; scene key ``contact: {stacking: ...}``, node parameter
-    ``contact.stacking``): under gravity, stiff one-cluster bodies carry their contacts as
-    a whole (``COUPLE_ALPHA``, ``STACK_SWEEPS``; README "Contact between bodies": stacks
-    stand and heaps of such bodies come to rest at the node's step); False: every particle
-    acts on its own (``solve_pairs``), as softer and many-cluster bodies always do.
+    ``contact.stacking``): under gravity, stiff bodies carry their contacts as a whole
+    (``COUPLE_ALPHA``, ``STACK_SWEEPS``, ``WARM_START``; README "Contact between bodies":
+    stacks stand and heaps of such bodies come to rest at the node's step); False: every
+    particle acts on its own (``solve_pairs``), as softer bodies always do.
     """
 
     enabled: bool = True
@@ -229,7 +234,7 @@ class Contact:
         self._acc = np.zeros((2, 0))
         self._tg = np.zeros(0)
         self._vb = np.zeros((max(nb, 1), 3))
-        self._zlo = np.zeros(max(nb, 1))                # lowest particle per body
+        self._zlo = np.zeros((2, max(nb, 1)))   # lowest particle per body: z, its v_z
         self._bc = np.zeros((max(nb, 1), 3))            # centre of mass
         self._bom = np.zeros((max(nb, 1), 3))           # spin
         self._biv = np.zeros((max(nb, 1), 9))           # inverse inertia tensor

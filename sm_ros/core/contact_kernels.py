@@ -230,8 +230,8 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
     whole (README "Contact between bodies"; ``Contact.run`` calls ``solve_pairs``
     without gravity or without such bodies).
 
-    A body with ``cpl[b]`` and an inverse mass ``bw[b]`` (one cluster, stiff, no pinned or
-    grabbed particle: ``Contact``) takes every impulse on one of its particles as a
+    A body with ``cpl[b]`` and an inverse mass ``bw[b]`` (stiff, one cluster or many, no
+    pinned or grabbed particle: ``Contact``) takes every impulse on one of its particles as a
     translation of the whole body: a pair's inverse mass on its side is ``bw[b]``, the
     body's changes so far are kept in ``dv[b]`` (velocity, then position; ``pend[b]``
     set), seen by the later pairs and applied to every particle at the end.  The load on
@@ -255,6 +255,17 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
     out of the static colliders at the end, as in ``solve_pairs``.  ``dv``, ``pend``,
     ``moved`` are zero on entry and on return.  Returns the overlapping pairs of the first
     sweep (``count``, ``deepest`` as in ``solve_pairs``).
+
+    A carried body rests on the ground inside the sweeps, as a whole (its lowest particle,
+    ``zlo``; accumulated impulses ``accg`` (2, bodies) like a pair's, the ground's
+    friction): the load of the bodies above goes into the ground instead of squashing the
+    body against it.  Each step starts from ``warm`` (0: none) times the velocity impulses
+    of the last step (``_warm_start``; ``acc[0]``, ``accg[0]`` kept between calls while
+    the pair list is the same).  A carried body that another body held in this pass
+    (``dv[b, 6]`` set) loses its spin: ``bom[b]``, about its centre of mass ``bc[b]``
+    (``body_velocities``), is removed from its particles at the end (contacts translate
+    carried bodies and never turn them, so nothing else would stop a spin picked up from
+    the ground's friction).  ``biv`` is the bodies' inverse inertia (unused here).
     """
     found = 0
     ih = 1.0 / h
@@ -414,17 +425,24 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
                     deepest[bj] = pen
         if has_col and ground[0] > 0.5:
             # the ground: a body carried as a whole rests on it as a whole (its lowest
-            # particle, ``zlo[b]``), with accumulated impulses like a pair's, so the load
-            # of the bodies above goes into the ground, not into squashing the body
+            # particle, ``zlo[:, b]``: height, vertical velocity), with accumulated
+            # impulses like a pair's
             gh = ground[1]
             for b in range(pend.shape[0]):
                 if not (cpl[b] and bw[b] > 0.0):
                     continue
-                z = zlo[b] + h * dv[b, 2] + dv[b, 5]
+                z = zlo[0, b] + h * dv[b, 2] + dv[b, 5]
                 if not (z <= gh + 1e-9 or accg[0, b] > 0.0 or accg[1, b] > 0.0):
                     continue
-                vz = vb[b, 2] + dv[b, 2]
+                # pressed down by other bodies: the law acts on the body's own velocity
+                # (their load goes into the ground, not into squashing it); else on the
+                # lowest particle's, which the bodies' step has already stopped at the
+                # ground, so only what contact adds is taken back, not the body's own
+                # sagging under its weight (acting on the body's velocity there lifted
+                # resting blocks off the ground every step)
                 m = 1.0 / bw[b]
+                down = dv[b, 2] - bw[b] * accg[0, b] < -0.25 * thresh   # > g h / 2
+                vz = (vb[b, 2] if down else zlo[1, b]) + dv[b, 2]
                 a_new = max(accg[1, b] + m * (gh - z), 0.0)
                 qq = a_new - accg[1, b]
                 accg[1, b] = a_new
@@ -645,9 +663,10 @@ def inverse_sym3(a, out):
 @njit(**JIT)
 def body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv):
     """For the bodies ``solve_bodies`` carries as a whole (``cpl[b]``, ``bw[b]`` > 0):
-    vb[b] the velocity of the centre of mass (momentum / mass), zlo[b] the lowest
-    particle's height, bc[b] the centre of mass, biv[b] (9,) the inverse of the inertia
-    tensor about it, bom[b] its spin (angular momentum about it times that).  One pass
+    vb[b] the velocity of the centre of mass (momentum / mass), zlo[:, b] the lowest
+    particle's height and vertical velocity, bc[b] the centre of mass, biv[b] (9,) the
+    inverse of the inertia tensor about it, bom[b] its spin (angular momentum about it
+    times that).  One pass
     over the body's particles for the sums (about the first particle, for round-off)."""
     a = np.zeros(9)
     for b in range(off.shape[0] - 1):
@@ -662,8 +681,11 @@ def body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv):
         l0 = l1 = l2 = 0.0             # angular momentum about q
         xx = yy = zz = xy = yz = zx = 0.0   # second moments about q
         lo = np.inf
+        klo = o
         for k in range(o, off[b + 1]):
-            lo = min(lo, X[2, k])
+            if X[2, k] < lo:
+                lo = X[2, k]
+                klo = k
             m = 1.0 / W[k]
             y0 = X[0, k] - q0
             y1 = X[1, k] - q1
@@ -690,7 +712,8 @@ def body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv):
         vb[b, 0] = p0 * iw
         vb[b, 1] = p1 * iw
         vb[b, 2] = p2 * iw
-        zlo[b] = lo
+        zlo[0, b] = lo
+        zlo[1, b] = V[2, klo]
         g0 = s0 * iw                   # centre of mass, relative to q
         g1 = s1 * iw
         g2 = s2 * iw
