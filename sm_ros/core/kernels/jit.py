@@ -19,6 +19,8 @@ import functools
 import hashlib
 import os
 
+import numpy as np
+
 from numba import njit as _njit
 from numba.core import caching
 
@@ -109,6 +111,14 @@ class KernelCacheLocator(caching._CacheLocator):
 if KernelCacheLocator not in _CACHE_IMPL._locator_classes:
     _CACHE_IMPL._locator_classes.insert(0, KernelCacheLocator)
 
+#: Index type of the particle loops that run over a range ``start..end``:
+#: ``for i in range(U(start), U(end))``.  Numba wraps a negative signed index around
+#: (``i + n`` when ``i < 0``); with a start whose sign LLVM cannot prove, that select makes
+#: every address non-affine in i and the loop vectoriser gives up (a loop from 0 is fine).
+#: An unsigned index has no wraparound, so the per-component loads and stores of the
+#: (N, 3) F-contiguous state become unit-stride vectors.  Only index with it: numba types
+#: ``uint64 + int64`` as a float.
+U = np.uint64
 #: The largest finite float64.
 FLOAT_MAX = 1.7976931348623157e308
 

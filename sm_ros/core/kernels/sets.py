@@ -9,15 +9,19 @@ U_s = sum m (x - r_s) phi(y)^T with phi(y) = [1, y, y0^2, y1^2, y2^2, y0 y1, y1 
 A step then reads and writes each particle once and costs about as much per particle as a
 single-cluster body, whatever the number of clusters per particle; the per-cluster work
 moves to the few set-cluster pairs (``sets_reduce``, ``sets_maps``).  ``part`` is
-(chunks, sets, 3 * nphi).  Vectorisation: as in ``integrate.py`` (scalar across particles,
-component pairs in SSE registers; the set's map and sums stay in registers over a run).
+(chunks, sets, 3 * nphi).  Vectorisation: the rigid/linear loops run over one run of a set
+at a time (consecutive particles of one set) with the set's map, field and sums in
+registers, and vectorise across the particles of the run as ``integrate.py``'s one-cluster
+loops do (unit-stride columns, unsigned index, no array but x, v, y0, mass read in the
+loop); runs shorter than a vector (lattice rows cut by the cluster faces) take the scalar
+remainder loop.  The quadratic loops fetch the map per particle: scalar.
 """
 
 from numba import njit, prange
 
-from .jit import JIT
+from .jit import JIT, U
 from .colliders import _collide_range
-from .damping import damp_acc_range, damp_velocity
+from .damping import damp_acc_range, damp_towards, damp_velocity
 from .integrate import BLOCK, advance
 
 
@@ -150,8 +154,11 @@ def _sets_int_lin(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1,
 
     ``ax, ay, az`` is the uniform acceleration (acc - ang x com), ``w`` the angular one;
     with ``damp`` the velocities are first damped towards ``dmp`` (``damp_velocity``).
+    The loop over a run vectorises (module docstring): the set's map, reference and
+    damping field in locals, the torque and damping branches outside it.
     """
     torque = w0 != 0.0 or w1 != 0.0 or w2 != 0.0
+    hx, hy, hz = h * ax, h * ay, h * az
     err2 = 0.0
     i = start
     while i < end:
@@ -159,28 +166,47 @@ def _sets_int_lin(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1,
         m00, m01, m02, m03 = gm[s, 0, 0], gm[s, 0, 1], gm[s, 0, 2], gm[s, 0, 3]
         m10, m11, m12, m13 = gm[s, 1, 0], gm[s, 1, 1], gm[s, 1, 2], gm[s, 1, 3]
         m20, m21, m22, m23 = gm[s, 2, 0], gm[s, 2, 1], gm[s, 2, 2], gm[s, 2, 3]
+        r0c, r1c, r2c = sref[s, 0], sref[s, 1], sref[s, 2]
+        s_d = s if damp else 0
+        c0, c1, c2 = dmp[s_d, 0], dmp[s_d, 1], dmp[s_d, 2]
+        o0, o1, o2 = dmp[s_d, 3], dmp[s_d, 4], dmp[s_d, 5]
         j = i + 1
         while j < end and sid[j] == s:
             j += 1
-        for k in range(i, j):
-            y_0, y_1, y_2 = y0[k, 0], y0[k, 1], y0[k, 2]
-            p0, p1, p2 = x[k, 0], x[k, 1], x[k, 2]
-            if damp:
-                damp_velocity(v=v, i=k, r0=p0 - sref[s, 0], r1=p1 - sref[s, 1],
-                              r2=p2 - sref[s, 2], dmp=dmp, s=s, k_damp=k_damp)
-            if torque:
-                dv0 = h * (ax + w1 * p2 - w2 * p1)
-                dv1 = h * (ay + w2 * p0 - w0 * p2)
-                dv2 = h * (az + w0 * p1 - w1 * p0)
-            else:
-                dv0 = h * ax
-                dv1 = h * ay
-                dv2 = h * az
-            err2 += advance(x=x, v=v, i=k, p0=p0, p1=p1, p2=p2,
-                            g0=m00 + m01 * y_0 + m02 * y_1 + m03 * y_2,
-                            g1=m10 + m11 * y_0 + m12 * y_1 + m13 * y_2,
-                            g2=m20 + m21 * y_0 + m22 * y_1 + m23 * y_2, alpha_h=alpha_h, h=h,
-                            dv0=dv0, dv1=dv1, dv2=dv2)
+        if damp and not torque:
+            for k in range(U(i), U(j)):
+                y_0, y_1, y_2 = y0[k, 0], y0[k, 1], y0[k, 2]
+                p0, p1, p2 = x[k, 0], x[k, 1], x[k, 2]
+                damp_towards(v=v, i=k, r0=p0 - r0c, r1=p1 - r1c, r2=p2 - r2c, c0=c0, c1=c1,
+                             c2=c2, o0=o0, o1=o1, o2=o2, k_damp=k_damp)
+                err2 += advance(x=x, v=v, i=k, p0=p0, p1=p1, p2=p2,
+                                g0=m00 + m01 * y_0 + m02 * y_1 + m03 * y_2,
+                                g1=m10 + m11 * y_0 + m12 * y_1 + m13 * y_2,
+                                g2=m20 + m21 * y_0 + m22 * y_1 + m23 * y_2, alpha_h=alpha_h,
+                                h=h, dv0=hx, dv1=hy, dv2=hz)
+        elif not torque:
+            for k in range(U(i), U(j)):
+                y_0, y_1, y_2 = y0[k, 0], y0[k, 1], y0[k, 2]
+                p0, p1, p2 = x[k, 0], x[k, 1], x[k, 2]
+                err2 += advance(x=x, v=v, i=k, p0=p0, p1=p1, p2=p2,
+                                g0=m00 + m01 * y_0 + m02 * y_1 + m03 * y_2,
+                                g1=m10 + m11 * y_0 + m12 * y_1 + m13 * y_2,
+                                g2=m20 + m21 * y_0 + m22 * y_1 + m23 * y_2, alpha_h=alpha_h,
+                                h=h, dv0=hx, dv1=hy, dv2=hz)
+        else:
+            for k in range(U(i), U(j)):
+                y_0, y_1, y_2 = y0[k, 0], y0[k, 1], y0[k, 2]
+                p0, p1, p2 = x[k, 0], x[k, 1], x[k, 2]
+                if damp:
+                    damp_towards(v=v, i=k, r0=p0 - r0c, r1=p1 - r1c, r2=p2 - r2c, c0=c0,
+                                 c1=c1, c2=c2, o0=o0, o1=o1, o2=o2, k_damp=k_damp)
+                err2 += advance(x=x, v=v, i=k, p0=p0, p1=p1, p2=p2,
+                                g0=m00 + m01 * y_0 + m02 * y_1 + m03 * y_2,
+                                g1=m10 + m11 * y_0 + m12 * y_1 + m13 * y_2,
+                                g2=m20 + m21 * y_0 + m22 * y_1 + m23 * y_2, alpha_h=alpha_h,
+                                h=h, dv0=h * (ax + w1 * p2 - w2 * p1),
+                                dv1=h * (ay + w2 * p0 - w0 * p2),
+                                dv2=h * (az + w0 * p1 - w1 * p0))
         i = j
     return err2
 
@@ -246,12 +272,16 @@ def _sets_acc_lin(start, end, x, y0, mass, sid, sref, sums):
         a00 = a01 = a02 = a03 = 0.0
         a10 = a11 = a12 = a13 = 0.0
         a20 = a21 = a22 = a23 = 0.0
-        while i < end and sid[i] == s:
-            w = mass[i]
-            d0 = w * (x[i, 0] - r0)
-            d1 = w * (x[i, 1] - r1)
-            d2 = w * (x[i, 2] - r2)
-            y_0, y_1, y_2 = y0[i, 0], y0[i, 1], y0[i, 2]
+        j = i + 1
+        while j < end and sid[j] == s:
+            j += 1
+        # a reduction over the run: vectorises (module docstring)
+        for k in range(U(i), U(j)):
+            w = mass[k]
+            d0 = w * (x[k, 0] - r0)
+            d1 = w * (x[k, 1] - r1)
+            d2 = w * (x[k, 2] - r2)
+            y_0, y_1, y_2 = y0[k, 0], y0[k, 1], y0[k, 2]
             a00 += d0
             a01 += d0 * y_0
             a02 += d0 * y_1
@@ -264,7 +294,7 @@ def _sets_acc_lin(start, end, x, y0, mass, sid, sref, sums):
             a21 += d2 * y_0
             a22 += d2 * y_1
             a23 += d2 * y_2
-            i += 1
+        i = j
         sums[s, 0] += a00
         sums[s, 1] += a01
         sums[s, 2] += a02
