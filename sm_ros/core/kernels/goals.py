@@ -319,7 +319,7 @@ def unit_det_frames(which, mom3, nmat, cdet, wa, wv, rcond):
                                  + wv[i, 2] * e2 * wv[j, 2])
 
 
-@njit(**JIT)
+@njit(inline='always', **JIT)
 def _qhat(rest_lin, rest_off, k, a0, a1, a2):
     """q-hat = G_k x0 + h_k: the (plastic, scaled) rest offset of rest position ``a`` in
     cluster k (G_k = ``rest_lin[k]``, h_k = ``rest_off[k]``)."""
@@ -345,7 +345,7 @@ def quad_features(q0, q1, q2, feat):
     feat[8] = q2 * q0
 
 
-@njit(**JIT)
+@njit(inline='always', **JIT)
 def _goal_quad(trans, k, q0, q1, q2):
     """T_c q~ (3x9 times the quadratic features of q-hat); the caller adds the centre."""
     f3 = q0 * q0

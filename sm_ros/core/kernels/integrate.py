@@ -10,13 +10,17 @@ L1.  ``accumulate_*`` recomputes those sums when the state was changed outside a
 cancel (A_pq = sum w (x - ref) q^T - (cm - ref)(sum w q)^T).  Single-cluster bodies take
 fast paths that keep every cluster constant and accumulator in registers.
 
-Vectorisation (checked with ``inspect_asm`` on an AVX2 machine, Numba 0.68; counts of packed
-and scalar double instructions): the particle loops compile to scalar code with a few
-2-wide SSE pairs over the components of one particle (SLP: ``integrate_serial`` 270 packed
-``xmm`` against 1,017 scalar, ``sets_integrate_serial`` 211 / 818, the accumulations
-59-73 / 94-326) and no 4-wide ``ymm`` instruction: with (N, 3) rows nothing vectorises
-across particles.  Storing x, v per component ((3, N), issue 11 item 1) is what would let
-the loops run 4 particles per instruction.
+Vectorisation (issue 11 item 1; checked with ``inspect_asm`` and timed, AVX-512 machine,
+Numba 0.68): a body stores x, v, x0 per component (``Body`` keeps (3, N) blocks and hands
+the kernels their (N, 3) transposes, typed layout F), so ``x[i, j]`` is unit-stride in i.
+The one-cluster loops (``_int_single_lin``, ``_acc_single``) and ``damping.damp_acc_range``
+then run 8 particles a ``zmm`` instruction: 1.1 ns/particle for the integration loop at
+10k particles, 4.5-5 on the (N, 3) rows.  What it takes (each loop says so): an unsigned
+loop index (``jit.U``: no negative-index wraparound), ``advance`` and the accumulators
+inlined by Numba (an LLVM-level call stayed a call), every constant in a local (an array
+read in the loop may alias x/v: LLVM gave up, "too many memory checks needed"), branches
+outside the loops.  The membership loops (several clusters a particle, gathered by index)
+stay scalar; multi-cluster bodies mostly take the set layout (``sets.py``).
 """
 
 from numba import njit, prange
@@ -27,7 +31,7 @@ from .damping import damp_acc_range, damp_towards
 from .goals import _goal_quad, _qhat
 
 
-@njit(**JIT)
+@njit(inline='always', **JIT)
 def _acc_lin(row, w, d0, d1, d2, q0, q1, q2):
     """Add one particle's w (x - ref) and w (x - ref) q^T to the accumulator row ``a``."""
     d0 *= w
@@ -47,7 +51,7 @@ def _acc_lin(row, w, d0, d1, d2, q0, q1, q2):
     row[11] += d2 * q2
 
 
-@njit(**JIT)
+@njit(inline='always', **JIT)
 def _acc_quad(row, w, d0, d1, d2, q0, q1, q2):
     """Quadratic accumulator: w (x - ref) and w (x - ref) q~^T (3 + 27 entries)."""
     d0 *= w
@@ -145,13 +149,15 @@ def _acc_single(start, end, quad, x, x0, mass, rest_lin, rest_off, ref, sums):
     row[11] += g20 * c20 + g21 * c21 + g22 * c22 + h2 * s2
 
 
-@njit(**JIT)
+@njit(inline='always', **JIT)
 def advance(x, v, i, p0, p1, p2, g0, g1, g2, alpha_h, h, dv0, dv1, dv2):
     """Eq. 13-14 for particle ``i`` at ``p`` (= x[i]) towards its goal g; returns |g - p|^2
     (not finite when p or the new velocity is not; when both are, so is x = p + h v).
 
     v <- v + (alpha / h) (g - p) + dv, then x <- p + h v, where dv is h times the external
-    acceleration.  Every integration loop calls this; it is inlined into them.  The caller
+    acceleration.  Every integration loop calls this; it is inlined into them by Numba
+    (``inline='always'``): left to LLVM the call stayed a call, and a loop with a call
+    does not vectorise (the one-cluster pass ran 4.5 ns/particle instead of about 1).  The caller
     loads ``p`` where the loop needs it first, so that the fast-math reassociation sees
     the same expressions whatever the loop (the results stay bit-identical).
     """
@@ -294,8 +300,10 @@ def accumulate_parallel(quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, par
                    rest_lin=rest_lin, rest_off=rest_off, ref=ref, part=part)
 
 
-#: Particles per block of the fused pass: integrated, then accumulated while in L1.
-BLOCK = 256
+#: Particles per block of the fused pass: integrated, then accumulated while in cache
+#: (1024: 72 KiB of x, v, x0, in L2; the vectorised loops cost little per particle, so a
+#: call per 256 particles cost 0.8 ns/particle more at 10k particles, one cluster).
+BLOCK = 1024
 
 
 @njit(**JIT)

@@ -30,9 +30,18 @@ from .linalg import sym3_solve
 def limit_speed(x, v, h, v_max):
     """Cap |v_i| at ``v_max`` (and the displacement made with the excess); return the count.
 
-    Reads every velocity; writes only the capped particles.
+    Reads every velocity; writes only the capped particles.  A first pass only counts the
+    speeds above the cap (vectorises: compares and a masked count over the unit-stride
+    columns of v); the capping loop, whose conditional stores do not vectorise, runs only
+    when that count is not zero (almost never: the cap is a guard).
     """
     lim2 = v_max * v_max
+    over = 0
+    for i in range(v.shape[0]):
+        v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
+        over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
+    if over == 0:
+        return 0
     count = 0
     for i in range(v.shape[0]):
         v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
