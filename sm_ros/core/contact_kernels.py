@@ -455,6 +455,8 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
                 pt = 0.0
                 if tl > 0.0:
                     pt = min(ground[2] * max(pn + qq * ih, 0.0), tl * m) / tl
+                if pn == 0.0 and qq == 0.0 and pt == 0.0:
+                    continue           # resting on it, nothing to change: not pended
                 dv[b, 0] -= bw[b] * pt * tx
                 dv[b, 1] -= bw[b] * pt * ty
                 dv[b, 2] += bw[b] * pn
@@ -500,6 +502,9 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
             w0, w1, w2 = -bom[b, 0], -bom[b, 1], -bom[b, 2]
         c0, c1, c2 = bc[b, 0], bc[b, 1], bc[b, 2]
         dv[b, :] = 0.0
+        if (u0 == 0.0 and u1 == 0.0 and u2 == 0.0 and e0 == 0.0 and e1 == 0.0 and e2 == 0.0
+                and w0 == 0.0 and w1 == 0.0 and w2 == 0.0):
+            continue                   # nothing moved it (a warm start taken back, say)
         for p in range(off[b], off[b + 1]):
             # the translation, and the spin stopped: dw x (x - centre)
             r0 = X[0, p] - c0
