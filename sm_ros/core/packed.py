@@ -34,7 +34,7 @@ from numba import njit, prange
 from numba.typed import List as TypedList
 
 from .kernels import BLOCK, JIT, NDAMP, _collide_range, limit_turn, solve_clusters
-from .kernels.damping import _rigid_fields
+from .kernels.damping import _rigid_fields, damp_acc_range
 from .kernels.integrate import _acc_single, _int_single_lin
 from .kernels.jit import FLOAT_MAX, U
 
@@ -270,7 +270,7 @@ def _step_chunk(P, counts, parts, lo, hi, h, gravity, has_col, ground, boxes, sp
             if dirty or turned or not row[C_FLAGS + 2] > 0.0:
                 for j in range(NDAMP):
                     dpart[0, 0, j] = 0.0
-                _dacc_single(0, n, x, v, mass, dpart[0])
+                damp_acc_range(0, n, x, v, mass, nocl, dpart[0])
             else:
                 for j in range(NDAMP):
                     dpart[0, 0, j] = row[C_DPART + j]
@@ -299,7 +299,7 @@ def _step_chunk(P, counts, parts, lo, hi, h, gravity, has_col, ground, boxes, sp
             _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
                         rest_off=rest_off, ref=ref, sums=sums)
             if damp:
-                _dacc_single(bs, be, x, v, mass, dsums)
+                damp_acc_range(bs, be, x, v, mass, nocl, dsums)
         counts[b, 0] += capped
         row[C_ERR] = err2
         row[C_FLAGS] = 0.0                     # the sums are those of the state just written
@@ -384,70 +384,3 @@ def _cap_range(start, end, x, v, h, v_max):
             v[i, 2] = v2 * f
             count += 1
     return count
-
-
-@njit(**JIT)
-def _dacc_single(start, end, x, v, mass, dsums):
-    """``damping.damp_acc_range`` of a one-cluster body (one set): row ``dsums[0]`` +=
-    the particles start..end, about the first particle's position the row met.
-
-    The reference and the 16 sums in locals and an unsigned index, so that the loop reads
-    only x, v, mass and can run several particles per instruction on the per-component
-    layout (``damp_acc_range`` walks runs of sets and stays scalar; ``inspect_asm`` of this
-    loop on AVX2: 36 ``ymm`` instructions, 4 particles a lane group, the 16 sums partly
-    spilled).  144-particle bodies: the damping cost 0.80 -> 0.45 us a body.)
-    """
-    row = dsums[0]
-    if end <= start:
-        return
-    if row[18] == 0.0:
-        row[15] = x[start, 0]
-        row[16] = x[start, 1]
-        row[17] = x[start, 2]
-        row[18] = 1.0
-    r0, r1, r2 = row[15], row[16], row[17]
-    a0 = a1 = a2 = b0 = b1 = b2 = c0 = c1 = c2 = 0.0
-    e00 = e11 = e22 = e01 = e12 = e20 = ms = 0.0
-    for k in range(np.uint64(start), np.uint64(end)):
-        w = mass[k]
-        d0 = x[k, 0] - r0
-        d1 = x[k, 1] - r1
-        d2 = x[k, 2] - r2
-        u0 = w * v[k, 0]
-        u1 = w * v[k, 1]
-        u2 = w * v[k, 2]
-        wd0 = w * d0
-        wd1 = w * d1
-        wd2 = w * d2
-        ms += w
-        a0 += wd0
-        a1 += wd1
-        a2 += wd2
-        b0 += u0
-        b1 += u1
-        b2 += u2
-        c0 += d1 * u2 - d2 * u1
-        c1 += d2 * u0 - d0 * u2
-        c2 += d0 * u1 - d1 * u0
-        e00 += wd0 * d0
-        e11 += wd1 * d1
-        e22 += wd2 * d2
-        e01 += wd0 * d1
-        e12 += wd1 * d2
-        e20 += wd2 * d0
-    row[0] += a0
-    row[1] += a1
-    row[2] += a2
-    row[3] += b0
-    row[4] += b1
-    row[5] += b2
-    row[6] += c0
-    row[7] += c1
-    row[8] += c2
-    row[9] += e00
-    row[10] += e11
-    row[11] += e22
-    row[12] += e01
-    row[13] += e12
-    row[14] += e20
-    row[19] += ms
