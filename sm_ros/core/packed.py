@@ -36,7 +36,7 @@ from numba.typed import List as TypedList
 from .kernels import BLOCK, JIT, NDAMP, _collide_range, limit_turn, solve_clusters
 from .kernels.damping import _rigid_fields, damp_acc_range
 from .kernels.integrate import _acc_single, _int_single_lin
-from .kernels.jit import FLOAT_MAX, U
+from .kernels.limits import limit_speed_range
 
 #: Counts pack builds (a pack build rebinds its bodies' attributes to its rows).
 PACK_EPOCH = [0]
@@ -295,7 +295,7 @@ def _step_chunk(P, counts, parts, lo, hi, h, gravity, has_col, ground, boxes, sp
                 _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes,
                                spheres=spheres, thresh=thresh)
             if v_max > 0.0:
-                capped += _cap_range(bs, be, x, v, h, v_max)
+                capped += limit_speed_range(bs, be, x, v, h, v_max)
             _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
                         rest_off=rest_off, ref=ref, sums=sums)
             if damp:
@@ -348,39 +348,3 @@ def _damp_field_one(dp, ref, lin, w3, m3a, m3b, m3c, m3d, dmp):
     dmp[0, 3] = w0
     dmp[0, 4] = w1
     dmp[0, 5] = w2
-
-
-@njit(**JIT)
-def _cap_range(start, end, x, v, h, v_max):
-    """``limits.limit_speed`` for particles start..end; returns the count.
-
-    The conditional update does not vectorise (written with selects neither; about 1 ns a
-    particle, the block already in L1), so a first loop only counts the speeds above the
-    cap: compares and a masked count over the unit-stride columns of v with an unsigned
-    index (``kernels.jit.U``), which vectorises; the update runs only when the count is not
-    zero (the cap is a guard: almost never).  NaN speeds are counted by neither loop.
-    """
-    lim2 = v_max * v_max
-    over = 0
-    for i in range(U(start), U(end)):
-        v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
-        over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
-    if over == 0:
-        return 0
-    count = 0
-    for i in range(start, end):
-        v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
-        s2 = v0 * v0 + v1 * v1 + v2 * v2
-        if s2 > lim2:
-            if not s2 <= FLOAT_MAX:
-                continue                       # left to the non-finite recovery
-            f = v_max / np.sqrt(s2)
-            d = h * (1.0 - f)
-            x[i, 0] -= d * v0
-            x[i, 1] -= d * v1
-            x[i, 2] -= d * v2
-            v[i, 0] = v0 * f
-            v[i, 1] = v1 * f
-            v[i, 2] = v2 * f
-            count += 1
-    return count

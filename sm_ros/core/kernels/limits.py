@@ -23,27 +23,38 @@ Both return how many particles / clusters they capped (counted in /diagnostics).
 from numba import njit
 import numpy as np
 
-from .jit import JIT, finite
+from .jit import JIT, U, finite
 from .linalg import sym3_solve
 
 @njit(**JIT)
 def limit_speed(x, v, h, v_max):
     """Cap |v_i| at ``v_max`` (and the displacement made with the excess); return the count.
 
-    Reads every velocity; writes only the capped particles.  A first pass only counts the
-    speeds above the cap (vectorises: compares and a masked count over the unit-stride
-    columns of v); the capping loop, whose conditional stores do not vectorise, runs only
-    when that count is not zero (almost never: the cap is a guard).
+    Reads every velocity; writes only the capped particles (``limit_speed_range`` over
+    all of them).
+    """
+    return limit_speed_range(0, v.shape[0], x, v, h, v_max)
+
+
+@njit(**JIT)
+def limit_speed_range(start, end, x, v, h, v_max):
+    """``limit_speed`` for particles start..end (the packed step caps block by block).
+
+    A first loop only counts the speeds above the cap: compares and a masked count over
+    the unit-stride columns of v with an unsigned index (``jit.U``), which vectorises; the
+    capping loop, whose conditional stores do not vectorise, runs only when that count is
+    not zero (almost never: the cap is a guard).  NaN speeds are counted by neither loop
+    (left to the non-finite recovery).
     """
     lim2 = v_max * v_max
     over = 0
-    for i in range(v.shape[0]):
+    for i in range(U(start), U(end)):
         v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
         over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
     if over == 0:
         return 0
     count = 0
-    for i in range(v.shape[0]):
+    for i in range(start, end):
         v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
         s2 = v0 * v0 + v1 * v1 + v2 * v2
         if s2 > lim2:
