@@ -196,6 +196,13 @@ def median_nn_distance(x, step):
 
 
 @njit(inline='always', **JIT)
+def _carried_velocity(vb, dv, b):
+    """A carried body's own velocity: its velocity at the pass's start plus what the pass
+    gave it so far (the law acts on it, not on the particle's)."""
+    return vb[b, 0] + dv[b, 0], vb[b, 1] + dv[b, 1], vb[b, 2] + dv[b, 2]
+
+
+@njit(inline='always', **JIT)
 def _pair_normal(sx, sy, sz, dx, dy, dz, d2, rr):
     """The unit normal of a pair: along its separation at the start of the step (s), else
     along its separation now (d, squared length d2), else along z when the two coincide
@@ -320,13 +327,9 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
             # the law acts on a carried body's own velocity (its momentum over its mass):
             # the particle's deviation from it is the shape match's to restore
             if ci:
-                vi0 = vb[bi, 0] + dv[bi, 0]
-                vi1 = vb[bi, 1] + dv[bi, 1]
-                vi2 = vb[bi, 2] + dv[bi, 2]
+                vi0, vi1, vi2 = _carried_velocity(vb, dv, bi)
             if cj:
-                vj0 = vb[bj, 0] + dv[bj, 0]
-                vj1 = vb[bj, 1] + dv[bj, 1]
-                vj2 = vb[bj, 2] + dv[bj, 2]
+                vj0, vj1, vj2 = _carried_velocity(vb, dv, bj)
             if not d2 == d2:
                 continue               # NaN (a body that blew up): left alone
             over = d2 < rr * rr
@@ -583,13 +586,9 @@ def _warm_start(X, V, W, B, R, pi, pj, npairs, mu, h, ground, off, bw, cpl, dv, 
         nx, ny, nz = _pair_normal(dx - h * (vi0 - vj0), dy - h * (vi1 - vj1),
                                   dz - h * (vi2 - vj2), dx, dy, dz, d2, R[i] + R[j])
         if ci:
-            vi0 = vb[bi, 0] + dv[bi, 0]
-            vi1 = vb[bi, 1] + dv[bi, 1]
-            vi2 = vb[bi, 2] + dv[bi, 2]
+            vi0, vi1, vi2 = _carried_velocity(vb, dv, bi)
         if cj:
-            vj0 = vb[bj, 0] + dv[bj, 0]
-            vj1 = vb[bj, 1] + dv[bj, 1]
-            vj2 = vb[bj, 2] + dv[bj, 2]
+            vj0, vj1, vj2 = _carried_velocity(vb, dv, bj)
         rx = vi0 - vj0
         ry = vi1 - vj1
         rz = vi2 - vj2
