@@ -155,4 +155,37 @@ def test_a_force_command_reaches_the_packed_row_without_repacking():
     assert np.allclose(body.momentum(), want, rtol=0.0, atol=1e-12 * np.abs(want).max())
     body.set_wrench(f, (0.0, 0.0, 1e-4))
     world.step(h)
-    assert world._split is not split and body not in world._split[2].bodies
+    assert world._split is not split and body not in world._split[1].bodies
+
+
+def test_two_worlds_stepped_in_turn_keep_their_packs():
+    """Two worlds stepping in turn (the live error estimate's coarse and fine copies, a
+    user's second world) keep their packs and splits: a pack is rebuilt only when one of
+    its own bodies was packed elsewhere (a global count of pack builds used to re-pack
+    both worlds at every turn, 30x the step of 64 bodies), and each world's states are
+    bit for bit those of stepping it alone."""
+    a = _run(_world(True), 1, events=False)
+    b = copy_world(a)
+    a_alone, b_alone = copy_world(a), copy_world(a)
+    h = 1.0 / 240.0
+    a.step(h)
+    b.step(h)
+    split_a, split_b = a._split, b._split
+    for _ in range(4):
+        a.step(h)
+        b.step(h)
+    assert a._split is split_a and b._split is split_b
+    for _ in range(5):
+        a_alone.step(h)
+    for _ in range(5):
+        b_alone.step(h)
+    for w, alone in ((a, a_alone), (b, b_alone)):
+        for g, r in zip(_states(w), _states(alone)):
+            assert np.array_equal(g[0], r[0]) and np.array_equal(g[1], r[1])
+    # a body of a stepped on its own leaves a's pack: only a re-splits
+    a.body('b1')._step(h, a._gravity, a._has_col, a._ground_row, a._box_rows,
+                       a._sphere_rows, 1e-3)
+    assert split_a[1].stale and not split_b[1].stale
+    a.step(h)
+    b.step(h)
+    assert a._split is not split_a and b._split is split_b

@@ -24,8 +24,10 @@ per-body 3x3 solve.
 ``Body._step`` steps such a body as a pack of one (``Body._one_pack``): the same machine
 code as ``World.step``, so both agree bit for bit (test_core_fused.py).  A body belongs to
 one pack at a time: building a pack copies the body's current state into its row and
-rebinds the attributes; ``PACK_EPOCH`` counts pack builds, so a world whose bodies were
-packed elsewhere (a body stepped on its own) packs them again before stepping.
+rebinds the attributes and marks the pack the body left ``stale``, so a world whose bodies
+were packed elsewhere (a body stepped on its own) packs them again before stepping, and
+only then: two worlds (the live error estimate's copies, a user's second world) each keep
+their packs while they step in turn.
 """
 
 import numba
@@ -37,9 +39,6 @@ from .kernels import BLOCK, JIT, NDAMP, _collide_range, limit_turn, solve_cluste
 from .kernels.damping import _rigid_fields, damp_acc_range
 from .kernels.integrate import _acc_single, _int_single_lin
 from .kernels.limits import limit_speed_range
-
-#: Counts pack builds (a pack build rebinds its bodies' attributes to its rows).
-PACK_EPOCH = [0]
 
 # Row layout: parameters (written at each pack build), then the body state the rows hold
 # (attribute, shape); each attribute becomes a view of its columns.
@@ -89,6 +88,8 @@ class Pack:
         self.P = np.zeros((max(nb, 1), NCOL))
         self.counts = np.zeros((max(nb, 1), 2), dtype=np.int64)
         self.parts = TypedList()
+        #: set when one of the bodies was packed since into another pack
+        self.stale = False
         for b, body in enumerate(self.bodies):
             p = body._params.at_step(h)
             body._at_step = (h, body._params, p)
@@ -105,11 +106,13 @@ class Pack:
                 setattr(body, name, view.reshape(shape))
             self.counts[b] = body._limit_counts
             body._limit_counts = self.counts[b]
+            old = getattr(body, '_pack_owner', None)
+            if old is not None and old is not self:
+                old.stale = True              # its row no longer holds this body's state
             body._pack_owner = self
             # x, v, x0 as their (3, N) blocks (``body.soa``): a one-particle body's (1, 3)
             # view would type C and the typed list takes one type; transposed back (F) below
             self.parts.append((body._x.T, body._v.T, body._x0.T, body.m))
-        PACK_EPOCH[0] += 1
 
     def __len__(self):
         return len(self.bodies)

@@ -10,7 +10,7 @@ from numba.typed import List as TypedList
 from . import body as body_mod
 from .body import Body
 from .kernels.world_step import step_bodies_parallel, step_single_bodies
-from .packed import PACK_EPOCH, Pack
+from .packed import Pack
 from .contact import COUPLE_ALPHA, BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
 from .world_colliders import WorldColliders
@@ -236,12 +236,12 @@ class World(WorldColliders):
         compiled-step records of the other covered bodies, bodies stepped one by one,
         whether the compiled calls run on several threads), rebuilt only when a body's
         buffers, parameters, grabs or wrench kind, the bodies, the step or the packing
-        (``packed.PACK_EPOCH``: a body was packed elsewhere) changed.  Python cost per step
+        (``Pack.stale``: one of its bodies was packed elsewhere since) changed.  Python cost per step
         does not grow with the number of bodies.  Threads as for one body: only from
         ``WORLD_PARALLEL_MIN_WORK`` particles (on shared cores fork/join costs more below)."""
         key = (body_mod._GENERATION[0], h, self._layout, self.compiled_step)
         split = self._split
-        if split is None or split[0] != key or split[1] != PACK_EPOCH[0]:
+        if split is None or split[0] != key or (split[1] is not None and split[1].stale):
             records, packed, slow, work = TypedList(), [], [], 0
             for body in self._bodies.values():
                 if self.compiled_step and body._packed_ok():
@@ -255,8 +255,8 @@ class World(WorldColliders):
             pack = Pack(packed, h) if packed else None
             parallel = (work >= WORLD_PARALLEL_MIN_WORK and len(records) + len(packed) > 1
                         and numba.get_num_threads() > 1)
-            split = self._split = (key, PACK_EPOCH[0], pack, records, slow, parallel)
-        return split[2], split[3], split[4], split[5]
+            split = self._split = (key, pack, records, slow, parallel)
+        return split[1], split[2], split[3], split[4]
 
     def _world_passes(self, h, thresh) -> bool:
         """Passes over the world's flat state after the bodies' step (flat.py); return
