@@ -328,7 +328,12 @@ class Contact:
         body_velocities(f.X, f.V, f.W, f.off, self.coupling, self._bw, self._vb, self._zlo,
                         self._bc, self._bom, self._biv)
         ncand = 0
+        # the end of solve_bodies puts a carried body's particles through the boxes and
+        # spheres only where one can be inside (its particles near them, ``cand``, or one
+        # moved by this margin or more); with none, only the ground is left (no margin)
+        margin = np.inf
         if has_col and (len(boxes) or len(spheres)):
+            margin = self.cell
             ncand = wall_candidates(f.X, f.off, self.coupling, self._bw, boxes, spheres,
                                     self.cell, self._cand, self._cptr)
             if ncand > len(self._cand):         # a particle near two of them: grow
@@ -344,7 +349,7 @@ class Contact:
                                   SWEEP_TOL * thresh, self._vb, self._noground,
                                   self._cand[:ncand], self._cptr, self._zlo, self._accg,
                                   WARM_START if self._warm else 0.0, self._bc, self._bom,
-                                  self._biv)
+                                  self._biv, margin)
         self._warm = True
 
     def fast_particles(self, h):

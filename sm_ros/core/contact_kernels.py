@@ -232,7 +232,7 @@ def _own(X, V, i, c, h, px, py, pz, q0, q1, q2):
 def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched, count,
                  deepest, has_col, ground, boxes, spheres, moved, off, bw, cpl, dv, pend,
                  active, acc, tg, tol, vb, noground, cand, cptr, zlo, accg, warm, bc, bom,
-                 biv):
+                 biv, margin=0.0):
     """Body-body contact under gravity, the stiff bodies carrying their contacts as a
     whole (README "Contact between bodies"; ``Contact.run`` calls ``solve_pairs``
     without gravity or without such bodies).
@@ -273,6 +273,12 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
     (``body_velocities``), is removed from its particles at the end (contacts translate
     carried bodies and never turn them, so nothing else would stop a spin picked up from
     the ground's friction).  ``biv`` is the bodies' inverse inertia (unused here).
+
+    At the end a carried body's particles are put out of the static colliders only where
+    one can be inside: below the ground's plane, moved by a pair (``moved``), of a body
+    with particles near a box or sphere (``cand``, found ``margin`` from them at the start
+    of the pass), or moved by ``margin`` or more (every particle with ``margin`` 0, the
+    default); elsewhere ``collide_point`` would return the particle unchanged.
     """
     found = 0
     ih = 1.0 / h
@@ -508,6 +514,13 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
         if (u0 == 0.0 and u1 == 0.0 and u2 == 0.0 and e0 == 0.0 and e1 == 0.0 and e2 == 0.0
                 and w0 == 0.0 and w1 == 0.0 and w2 == 0.0):
             continue                   # nothing moved it (a warm start taken back, say)
+        # every particle of a body near a box or sphere goes through them; the others
+        # only below the ground, moved by a pair, or moved by margin or more (a particle
+        # not in ``cand`` was at least margin out of every box and sphere)
+        near = cptr[b + 1] > cptr[b] if cand.shape[0] > 0 else False
+        gon = ground[0] > 0.5
+        gh = ground[1]
+        m2 = margin * margin
         for p in range(off[b], off[b + 1]):
             # the translation, and the spin stopped: dw x (x - centre)
             r0 = X[0, p] - c0
@@ -516,14 +529,19 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
             g0 = u0 + w1 * r2 - w2 * r1
             g1 = u1 + w2 * r0 - w0 * r2
             g2 = u2 + w0 * r1 - w1 * r0
-            X[0, p] += h * g0 + e0
-            X[1, p] += h * g1 + e1
-            X[2, p] += h * g2 + e2
+            d0 = h * g0 + e0
+            d1 = h * g1 + e1
+            d2 = h * g2 + e2
+            X[0, p] += d0
+            X[1, p] += d1
+            X[2, p] += d2
             V[0, p] += g0
             V[1, p] += g1
             V[2, p] += g2
+            mp = moved[p]
             moved[p] = 0
-            if has_col:
+            if has_col and (near or mp or (gon and X[2, p] < gh)
+                            or not d0 * d0 + d1 * d1 + d2 * d2 < m2):
                 X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p] = collide_point(
                     X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p], ground, boxes,
                     spheres, thresh)

@@ -1,0 +1,92 @@
+"""What the contact pass skips must never drop a contact (issue 13, contact cost).
+
+``solve_bodies`` puts a carried body's particles back through the boxes and spheres at
+its end only where one can be inside (``margin``: near them at the start of the pass,
+moved by a pair, below the ground, or moved by ``margin`` or more); these tests compare
+it with the full pass (``margin`` 0: every particle) in scenes where a body is pushed
+into a wall, and show that skipping without the rule would leave a particle inside.
+"""
+
+import numpy as np
+
+from sm_ros.core import contact as C
+
+H = 1 / 120
+THRESH = 2 * 9.81 * H
+WALL = np.array([[0.05, -1.0, -1.0, 0.2, 1.0, 1.0, 0.5, 0.0]])   # box x in [0.05, 0.2]
+
+
+def _scene():
+    """A light two-particle body A 3 mm from the wall, a heavy one-particle body B
+    overlapping A's first particle by 8 mm from the other side: B pushes A into the wall."""
+    X = np.ascontiguousarray(np.array([[0.047, 0.047, 0.035],
+                                       [0.0, 0.02, 0.0],
+                                       [0.3, 0.3, 0.3]]))
+    V = np.zeros((3, 3))
+    W = np.array([1 / 0.01, 1 / 0.01, 1 / 10.0])
+    B = np.array([0, 0, 1], np.int32)
+    off = np.array([0, 2, 3])
+    return X, V, W, B, off
+
+
+def _solve(X, V, W, B, off, boxes, ground, cand_margin, margin):
+    """Run the pass as ``Contact.run`` does (inverse masses, body velocities, wall
+    candidates ``cand_margin`` from the boxes, ``solve_bodies``); returns (X, V, found)."""
+    X = X.copy()
+    V = V.copy()
+    nb = len(off) - 1
+    R = np.full(X.shape[1], 0.01)
+    pi = np.array([0], np.int32)
+    pj = np.array([2], np.int32)
+    cpl = np.ones(nb, np.bool_)
+    bw = np.zeros(nb)
+    C.body_inverse_masses(W, off, bw)
+    vb, zlo, bc = np.zeros((nb, 3)), np.zeros((2, nb)), np.zeros((nb, 3))
+    bom, biv = np.zeros((nb, 3)), np.zeros((nb, 9))
+    C.body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv)
+    cand = np.zeros(X.shape[1], np.int64)
+    cptr = np.zeros(nb + 1, np.int64)
+    m = C.wall_candidates(X, off, cpl, bw, boxes, np.zeros((0, 6)), cand_margin, cand, cptr)
+    found = C.solve_bodies(
+        X, V, W, R, B, pi, pj, 1, 0.5, 0.0, THRESH, H, 8, np.zeros(nb, np.uint8),
+        np.zeros(nb, np.int64), np.zeros(nb), True, ground, boxes, np.zeros((0, 6)),
+        np.zeros(X.shape[1], np.uint8), off, bw, cpl, np.zeros((nb, 7)),
+        np.zeros(nb, np.uint8), np.zeros(1, np.int64), np.zeros((2, 1)), np.zeros(1),
+        0.01 * THRESH, vb, np.zeros(4), cand[:m], cptr, zlo, np.zeros((2, nb)), 0.0, bc,
+        bom, biv, margin)
+    return X, V, found
+
+
+def test_body_pushed_into_a_wall_is_put_out_like_the_full_pass():
+    X, V, W, B, off = _scene()
+    no_ground = np.zeros(4)
+    full = _solve(X, V, W, B, off, WALL, no_ground, 0.001, 0.0)
+    assert full[2] == 1
+    # the pair moves A by ~8 mm: without the put-out its particles end inside the wall
+    # (a skip that only looked at the wall candidates would drop this contact)
+    bad = _solve(X, V, W, B, off, WALL, no_ground, 0.001, np.inf)
+    assert bad[0][0, 0] > 0.051 and bad[0][0, 1] > 0.051
+    # the rule: moved by the margin or more -> through the colliders, as the full pass
+    # (candidates found 2 cm from the wall: A is pushed out inside the sweeps too)
+    for cm, margin in ((0.001, 0.001), (0.02, 0.02), (0.02, 0.001)):
+        full = _solve(X, V, W, B, off, WALL, no_ground, cm, 0.0)
+        got = _solve(X, V, W, B, off, WALL, no_ground, cm, margin)
+        np.testing.assert_array_equal(got[0], full[0])
+        np.testing.assert_array_equal(got[1], full[1])
+        assert got[0][0, :2].max() <= 0.05
+
+
+def test_resting_body_near_the_ground_is_put_out_like_the_full_pass():
+    # A rests 1 mm above the ground, B presses it down: the ground check alone (no box,
+    # the margin infinite as Contact.run passes it) gives the full pass's result
+    X, V, W, B, off = _scene()
+    X[0] = [0.0, 0.02, 0.0]
+    X[1] = 0.0
+    X[2] = [0.011, 0.011, 0.023]
+    ground = np.array([1.0, 0.01, 0.5, 0.0])
+    full = _solve(X, V, W, B, off, np.zeros((0, 8)), ground, 0.001, 0.0)
+    got = _solve(X, V, W, B, off, np.zeros((0, 8)), ground, 0.001, np.inf)
+    assert full[2] == 1
+    np.testing.assert_array_equal(got[0], full[0])
+    np.testing.assert_array_equal(got[1], full[1])
+    assert got[0][2].min() >= 0.01
