@@ -236,8 +236,8 @@ class World(WorldColliders):
         compiled-step records of the other covered bodies, bodies stepped one by one,
         whether the compiled calls run on several threads), rebuilt only when a body's
         buffers, parameters, grabs or wrench kind, the bodies, the step or the packing
-        (``Pack.stale``: one of its bodies was packed elsewhere since) changed.  Python cost per step
-        does not grow with the number of bodies.  Threads as for one body: only from
+        (``Pack.stale``: one of its bodies was packed elsewhere since) changed.  Python
+        cost per step does not grow with the number of bodies.  Threads as for one body: only from
         ``WORLD_PARALLEL_MIN_WORK`` particles (on shared cores fork/join costs more below)."""
         key = (body_mod._GENERATION[0], h, self._layout, self.compiled_step)
         split = self._split
