@@ -1,15 +1,19 @@
-"""What the contact pass skips must never drop a contact (issue 13, contact cost).
+"""Shortcuts of the contact pass (issue 13, contact cost): what it skips must never drop
+a contact, and what it gathers must be what the general path reads.
 
 ``solve_bodies`` puts a carried body's particles back through the boxes and spheres at
 its end only where one can be inside (``margin``: near them at the start of the pass,
 moved by a pair, below the ground, or moved by ``margin`` or more); these tests compare
 it with the full pass (``margin`` 0: every particle) in scenes where a body is pushed
 into a wall, and show that skipping without the rule would leave a particle inside.
+The later sweeps visit pairs of two carried bodies from compact rows
+(``_compact_pairs``), checked against a NumPy twin.
 """
 
 import numpy as np
 
 from sm_ros.core import contact as C
+from sm_ros.core import contact_kernels as CK
 
 H = 1 / 120
 THRESH = 2 * 9.81 * H
@@ -90,3 +94,35 @@ def test_resting_body_near_the_ground_is_put_out_like_the_full_pass():
     np.testing.assert_array_equal(got[0], full[0])
     np.testing.assert_array_equal(got[1], full[1])
     assert got[0][2].min() >= 0.01
+
+
+def test_compact_rows_match_numpy():
+    rng = np.random.default_rng(3)
+    n, nb = 40, 5
+    X = np.ascontiguousarray(rng.normal(size=(3, n)))
+    V = np.ascontiguousarray(rng.normal(size=(3, n)))
+    W = rng.uniform(0.5, 2.0, n)
+    W[7] = 0.0                                       # a pinned particle (body 0)
+    R = rng.uniform(0.005, 0.01, n)
+    B = np.repeat(np.arange(nb), n // nb).astype(np.int32)
+    pi = rng.integers(0, n, 60).astype(np.int32)
+    pj = rng.integers(0, n, 60).astype(np.int32)
+    active = rng.permutation(60)[:45].astype(np.int64)
+    cpl = np.array([True, True, False, True, True])
+    bw = np.array([0.0, 0.3, 0.2, 0.5, 0.1])         # body 0 has the pinned particle
+    vb = rng.normal(size=(nb, 3))
+    h = 1 / 120
+    cm = np.full(45, 7, np.uint8)
+    cij = np.zeros((4, 45), np.int32)
+    cf = np.zeros((12, 45))
+    CK._compact_pairs(X, V, W, R, B, pi, pj, active, 45, cpl, bw, vb, h, cm, cij, cf)
+    i, j = pi[active], pj[active]
+    bi, bj = B[i], B[j]
+    ok = (bi != bj) & cpl[bi] & cpl[bj] & (bw[bi] > 0) & (bw[bj] > 0) & (W[i] > 0) & (W[j] > 0)
+    assert ok.any() and not ok.all()
+    np.testing.assert_array_equal(cm, ok.astype(np.uint8))
+    np.testing.assert_array_equal(cij[:, ok], np.stack([i, j, bi, bj])[:, ok])
+    d = X[:, i] - X[:, j]
+    want = np.concatenate([d, d - h * (V[:, i] - V[:, j]), (vb[bi] - vb[bj]).T,
+                           (R[i] + R[j])[None], bw[bi][None], bw[bj][None]])
+    np.testing.assert_allclose(cf[:, ok], want[:, ok], rtol=0, atol=1e-15)

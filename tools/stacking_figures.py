@@ -138,9 +138,14 @@ def main():
                     help='pouring of paper_384 (0: skip)')
     ap.add_argument('--only', default='stack,pile,pile8,bin,bin2,paper',
                     help='parts to run')
+    ap.add_argument('--settings', default='per-particle,stacking',
+                    help='which settings to run (per-particle, stacking or both)')
     args = ap.parse_args()
     parts = args.only.split(',')
+    settings = args.settings.split(',')
     for stacking in (False, True):
+        if ('stacking' if stacking else 'per-particle') not in settings:
+            continue
         name = 'stacking (default)' if stacking else 'per particle (stacking=False)'
         if 'stack' in parts:
             print(f'{name}: stack: {stack(stacking)}', flush=True)

@@ -228,6 +228,7 @@ class Contact:
         # their inverse masses and moves, per-pair and per-particle impulses
         self.coupling = np.zeros(max(nb, 1), dtype=np.bool_)
         self._bw = np.zeros(max(nb, 1))
+        self._bw_version = -1                   # flat.w_version that _bw was computed at
         self._dv = np.zeros((max(nb, 1), 7))     # velocity, position changes; held
         self._pend = np.zeros(max(nb, 1), dtype=np.uint8)
         self._active = np.zeros(0, dtype=np.int64)
@@ -324,7 +325,9 @@ class Contact:
             self._acc = np.zeros((2, m))
             self._tg = np.zeros(m)
             self._active = np.zeros(m, dtype=np.int64)
-        body_inverse_masses(f.W, f.off, self._bw)
+        if self._bw_version != f.w_version:    # the bodies' masses, from W when it changed
+            body_inverse_masses(f.W, f.off, self._bw)
+            self._bw_version = f.w_version
         body_velocities(f.X, f.V, f.W, f.off, self.coupling, self._bw, self._vb, self._zlo,
                         self._bc, self._bom, self._biv)
         ncand = 0

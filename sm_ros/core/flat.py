@@ -93,6 +93,7 @@ class FlatState:
             self.X0[:, self.off[k]:self.off[k + 1]] = b.x_init.T
         self._kin_seen = [None] * nb
         self._mass_gen = None
+        self.w_version = 0
         self._flags_seen = None
         self._fl = None
         self.refresh_masses()
@@ -133,6 +134,7 @@ class FlatState:
             self.W[o0:o1] = 1.0 / b.m
             if len(kin):
                 self.W[o0 + kin] = 0.0
+            self.w_version += 1              # W changed (Contact keeps body masses of it)
             self._kin_seen[k] = kin
         self._mass_gen = gen
 
