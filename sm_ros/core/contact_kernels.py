@@ -331,8 +331,9 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
     velocity and position impulse of the pair so far, never negative, so a later sweep
     may take back what an earlier one gave too much) over at most ``iters`` symmetric
     Gauss-Seidel sweeps (forward, backward, ...: a one-way sweep drifts a stack towards
-    its end), stopping once a sweep changes no velocity by more than ``tol``; after the
-    first sweep only these pairs closer than 1.25 (r_i + r_j) (``active``) are visited.
+    its end), stopping once a sweep changes no velocity by more than ``tol`` (or the
+    first one changes nothing at all); after the first sweep only these pairs closer
+    than 1.25 (r_i + r_j) (``active``) are visited.
     Other pairs (two per-particle bodies, or one body) get the law of ``solve_pairs`` in
     the first sweep.  Friction: Coulomb, at most ``mu`` times the normal change (the
     position impulse's too, over h) and at most what stops the sliding.  Impulses are
@@ -592,8 +593,11 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
                         ch = np.sqrt((y0 - x0) ** 2 + (y1 - x1) ** 2 + (y2 - x2) ** 2) * ih
                         if ch > big:
                             big = ch
-        if not first and big <= tol:
-            break                      # converged
+        if big <= tol and (not first or big == 0.0):
+            # converged; or the first sweep changed nothing at all (no pair, ground or
+            # wall acted: a resting world), then a second one would see the same state
+            # and change nothing either (the resting bench bin: 1 sweep instead of 2)
+            break
     # the bodies' moves: every particle, then the static colliders
     for b in range(pend.shape[0]):
         if not pend[b]:
