@@ -164,10 +164,13 @@ class Body:
                 and not self._has_torque and not self._parallel)
 
     def _packed_ok(self) -> bool:
-        """Whether the packed world step (``packed.py``) may step this body: a body of
-        the compiled step with one cluster, rigid or linear."""
+        """Whether the packed world step (``packed.py``) may step this body: one cluster,
+        rigid or linear, no plasticity, grabs or torque (a body built for threads too:
+        the packed pass splits its particles over the threads, ``packed._pass_threads``)."""
         return (self._params.clusters == 1 and self._sets is None and not self._quad
-                and self._fast_ok())
+                and (self._fast_ok() or (self._parallel and not self._params.plastic
+                                         and len(self._kin_idx) == 0
+                                         and not self._has_torque)))
 
     def _one_pack(self, h):
         """A ``packed.Pack`` of this body alone, kept until a body changes, h does or the

@@ -23,7 +23,8 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     can round differently under fast math).
     """
     if body._packed_ok():
-        body._one_pack(h).step(h, gravity, has_col, ground, boxes, spheres, thresh)
+        body._one_pack(h).step(h, gravity, has_col, ground, boxes, spheres, thresh,
+                               body._parallel)
         return
     if body._fast_ok():
         K.step_single_bodies(body._one_record(h), h, gravity, has_col, ground, boxes, spheres,

@@ -37,8 +37,18 @@ from numba.typed import List as TypedList
 
 from .kernels import BLOCK, JIT, NDAMP, _collide_range, limit_turn, solve_clusters
 from .kernels.damping import _rigid_fields, damp_acc_range
-from .kernels.integrate import _acc_single, _int_single_lin
+from .kernels.integrate import _acc_single, _int_single_fused, _int_single_lin
 from .kernels.limits import limit_speed_range
+
+#: A packed body of at least this many particles runs its particle pass on all the Numba
+#: threads (its blocks split into one run per thread, each with its own sums, added up in
+#: thread order) when the pack steps in parallel; a smaller one runs on one thread (on 2
+#: shared cores a fork/join costs more below: the threshold of ``body.PARALLEL_MIN_WORK``).
+PASS_PARALLEL_MIN = 262144
+#: Particles per call of the fused one-loop pass of an undamped body (``_int_single_fused``;
+#: sums reduced once a call; a call with a speed over the cap is capped and summed again).
+#: A damped body takes ``BLOCK``: its damping sums are a second loop over the block.
+FUSED_BLOCK = 4096
 
 # Row layout: parameters (written at each pack build), then the body state the rows hold
 # (attribute, shape); each attribute becomes a view of its columns.
@@ -61,6 +71,8 @@ def _columns():
 
 
 COLS, NCOL = _columns()
+#: Row entries a body built for threads holds per chunk (leading axis: chunks).
+_CHUNKED = ('_part', '_err', '_dpart')
 C_FLAGS = COLS['_flags'][0]            # [dirty, shape error stale, damping sums valid]
 C_FACC = COLS['_facc'][0]
 C_REF = COLS['_ref'][0]
@@ -94,16 +106,26 @@ class Pack:
             p = body._params.at_step(h)
             body._at_step = (h, body._params, p)
             row = self.P[b]
+            rebuild = False
             row[:NPARAM] = (p.alpha, p.beta, p.damping, body._params.max_speed,
                             body._params.max_turn, body._params.max_turn / h, body._mode)
             for name, (off, size, shape) in COLS.items():
                 src = np.asarray(getattr(body, name))
+                if name in _CHUNKED and src.shape[1:] == shape[1:] and len(src) > 1:
+                    # a body built for threads (``body._parallel``) keeps its sums per
+                    # chunk: the row takes their total (shape error) or the pass takes
+                    # them again (shape match and damping sums: flags below)
+                    src = src.sum(axis=0, keepdims=True)
+                    rebuild = True
                 if src.shape != shape:
                     raise AssertionError(f'{body.name}.{name}: shape {src.shape}, packed '
                                          f'{shape}')
                 view = row[off:off + size]
                 view[:] = src.reshape(-1)
                 setattr(body, name, view.reshape(shape))
+            if rebuild:
+                row[C_FLAGS] = 1.0                # dirty: the shape-match sums are taken again
+                row[C_FLAGS + 2] = 0.0            # and the damping sums
             self.counts[b] = body._limit_counts
             body._limit_counts = self.counts[b]
             old = getattr(body, '_pack_owner', None)
@@ -120,73 +142,69 @@ class Pack:
     def step(self, h, gravity, has_col, ground, boxes, spheres, thresh, parallel=False):
         """Step every body of the pack once (on the threads with ``parallel``)."""
         if parallel:
-            step_packed(self.P, self.counts, self.parts, numba.get_num_threads(), h, gravity,
-                        has_col, ground, boxes, spheres, thresh)
+            step_packed(self.P, self.counts, self.parts, numba.get_num_threads(),
+                        PASS_PARALLEL_MIN, h, gravity, has_col, ground, boxes, spheres, thresh)
         else:
             step_packed_single(self.P, self.counts, self.parts, h, gravity, has_col,
                                ground, boxes, spheres, thresh)
 
 
-_THREADS = []
-
-
-def _thread_count_fns():
-    """(get, set) of the calling thread's Numba thread count.  The public
-    ``numba.get/set_num_threads`` check the threading layer at each call (~6 us for a get
-    and two sets, as much as two 144-particle bodies' steps); after the first call the
-    layer's own functions are used (about 1.3 us), where this Numba version has them."""
-    if not _THREADS:
-        numba.get_num_threads()                # launches the threading layer
-        try:
-            from numba.np.ufunc import parallel as layer
-            get, put = layer._get_num_threads, layer._set_num_threads
-            if get() != numba.get_num_threads():
-                raise AttributeError
-        except (ImportError, AttributeError, TypeError):
-            get, put = numba.get_num_threads, numba.set_num_threads
-        _THREADS.extend((get, put))
-    return _THREADS
-
-
 def step_packed_single(P, counts, parts, h, gravity, has_col, ground, boxes, spheres,
                        thresh):
-    """``step_packed`` on the calling thread alone (one machine code for every caller, as
-    ``kernels.world_step.step_single_bodies``)."""
-    get, put = _thread_count_fns()
-    threads = get()
-    if threads == 1:
-        step_packed(P, counts, parts, 1, h, gravity, has_col, ground, boxes, spheres, thresh)
-        return
-    put(1)
-    try:
-        step_packed(P, counts, parts, 1, h, gravity, has_col, ground, boxes, spheres, thresh)
-    finally:
-        put(threads)
-
-
-@njit(parallel=True, **JIT)
-def step_packed(P, counts, parts, threads, h, gravity, has_col, ground, boxes, spheres,
-                thresh):
-    """Every body of a pack, in ``threads`` chunks of consecutive bodies over the threads
-    (a body owns its row and its particles, so the chunking changes no result)."""
-    nb = len(parts)
-    nch = max(1, min(threads, nb))
-    for c in prange(nch):
-        lo = (c * nb) // nch
-        hi = ((c + 1) * nb) // nch
-        _step_chunk(P, counts, parts, lo, hi, h, gravity, has_col, ground, boxes, spheres,
-                    thresh)
+    """Every body of a pack on the calling thread: a serial compiled function (no parallel
+    region to launch, no thread count to set: ~5 of the ~8 us a call cost, as much as a
+    10k-particle body's pass at 0.5 ns/particle) running the same ``_step_chunk`` as
+    ``step_packed``, so both give the same states."""
+    step_packed_serial(P, counts, parts, h, gravity, has_col, ground, boxes, spheres, thresh)
 
 
 @njit(**JIT)
-def _step_chunk(P, counts, parts, lo, hi, h, gravity, has_col, ground, boxes, spheres,
-                thresh):
-    """Bodies lo..hi with one set of scratch buffers (shaped as ``solve_clusters`` and the
-    damping kernels take them for one cluster)."""
+def step_packed_serial(P, counts, parts, h, gravity, has_col, ground, boxes, spheres, thresh):
+    """``step_packed`` on the calling thread (see ``step_packed_single``)."""
+    _step_chunk(P, counts, parts, 0, len(parts), 0, 0, 1, h, gravity, has_col, ground, boxes,
+                spheres, thresh)
+
+
+@njit(parallel=True, **JIT)
+def step_packed(P, counts, parts, threads, pass_min, h, gravity, has_col, ground, boxes,
+                spheres, thresh):
+    """Every body of a pack on ``threads`` threads: the bodies of at least ``pass_min``
+    particles (``pass_min`` > 0) one after the other, each with its particle pass split
+    over the threads (``_pass_threads``), then the others in ``threads`` chunks of
+    consecutive bodies over the threads (a body owns its row and its particles, so the
+    chunking changes no result)."""
+    nb = len(parts)
+    big = 0
+    if threads > 1 and pass_min > 0:
+        for b in range(nb):
+            if parts[b][3].shape[0] >= pass_min:
+                big += 1
+    if big:
+        _step_chunk(P, counts, parts, 0, nb, 1, pass_min, threads, h, gravity, has_col,
+                    ground, boxes, spheres, thresh)
+        if big == nb:
+            return
+    which = 2 if big else 0
+    nch = max(1, min(threads, nb - big))
+    for c in prange(nch):
+        lo = (c * nb) // nch
+        hi = ((c + 1) * nb) // nch
+        _step_chunk(P, counts, parts, lo, hi, which, pass_min, 1, h, gravity, has_col,
+                    ground, boxes, spheres, thresh)
+
+
+@njit(**JIT)
+def _step_chunk(P, counts, parts, lo, hi, which, pass_min, threads, h, gravity, has_col,
+                ground, boxes, spheres, thresh):
+    """Bodies lo..hi (``which`` 0: all, 1: those of at least ``pass_min`` particles, with
+    their particle pass on ``threads`` threads, 2: the others) with one set of scratch
+    buffers (shaped as ``solve_clusters`` and the damping kernels take them for one
+    cluster)."""
     part = np.zeros((1, 1, 12))
     wsum = np.zeros(1)
     sum_q = np.zeros((1, 9))
     ref = np.zeros((1, 3))
+    pnt = np.zeros((1, 3))
     quat = np.zeros((1, 4))
     aqq3 = np.zeros((1, 3, 3))
     aqq9 = np.zeros((1, 9, 9))
@@ -214,9 +232,10 @@ def _step_chunk(P, counts, parts, lo, hi, h, gravity, has_col, ground, boxes, sp
     noptr = np.zeros(0, dtype=np.int64)
     nocl = np.zeros(0, dtype=np.int32)
     acc = np.zeros(3)
-    zero3 = np.zeros(3)
     for b in range(lo, hi):
         xt, vt, x0t, mass = parts[b]
+        if which != 0 and (mass.shape[0] >= pass_min) != (which == 1):
+            continue
         x, v, x0 = xt.T, vt.T, x0t.T
         row = P[b]
         # ---- load the body's state into the scratch (copies of ~70 numbers)
@@ -279,30 +298,32 @@ def _step_chunk(P, counts, parts, lo, hi, h, gravity, has_col, ground, boxes, sp
                     dpart[0, 0, j] = row[C_DPART + j]
             _damp_field_one(dp=dpart[0, 0], ref=ref, lin=lin, w3=w3, m3a=m3[0], m3b=m3[1],
                             m3c=m3[2], m3d=m3[3], dmp=dmp)
-        # ---- the one particle pass, block by block: damping + Eq. 13-14, colliders, speed
-        # limit, then the next step's sums while the block is in L1
+        # ---- the one particle pass: damping + Eq. 13-14, colliders, speed limit, then
+        # the next step's sums about the point pnt, which becomes the body's ref (the
+        # solver takes the centre of mass as ref + sum w (x - ref) / W: any point serves):
+        # damped, where the centre of mass goes (the field's velocity at ref, plus h acc:
+        # a body flying at 3e10 m/s is 3e9 m past its old ref after one step, and sums
+        # about that ref lose the body to rounding); undamped, ref (no velocity sums)
+        for j in range(3):
+            pnt[0, j] = ref[0, j] + (h * (dmp[0, j] + h * acc[j]) if damp else 0.0)
         for j in range(12):
             part[0, 0, j] = 0.0
         for j in range(NDAMP):
             dpart[0, 0, j] = 0.0
-        err2 = 0.0
-        capped = 0
-        sums = part[0]
-        dsums = dpart[0]
-        for bs in range(0, n, BLOCK):
-            be = min(bs + BLOCK, n)
-            err2 += _int_single_lin(start=bs, end=be, x=x, v=v, x0=x0, goal_lin=goal_lin,
-                                    goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=zero3,
-                                    com=zero3, damp=damp, k_damp=k_damp, dmp=dmp, ref=ref)
-            if has_col:
-                _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes,
-                               spheres=spheres, thresh=thresh)
-            if v_max > 0.0:
-                capped += limit_speed_range(bs, be, x, v, h, v_max)
-            _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
-                        rest_off=rest_off, ref=ref, sums=sums)
-            if damp:
-                damp_acc_range(bs, be, x, v, mass, nocl, dsums)
+        for j in range(3):
+            dpart[0, 0, 15 + j] = pnt[0, j]
+        dpart[0, 0, 18] = 1.0
+        if threads > 1:
+            err2, capped = _pass_threads(threads, x, v, x0, mass, goal_lin, goal_off, alpha,
+                                         h, acc, damp, k_damp, dmp, ref, pnt, rest_lin,
+                                         rest_off, v_max, has_col, ground, boxes, spheres,
+                                         thresh, part[0], dpart[0])
+        else:
+            err2, capped = _pass(0, n, x, v, x0, mass, goal_lin, goal_off, alpha, h, acc,
+                                 damp, k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max,
+                                 has_col, ground, boxes, spheres, thresh, part[0], dpart[0])
+        for j in range(3):
+            ref[0, j] = pnt[0, j]
         counts[b, 0] += capped
         row[C_ERR] = err2
         row[C_FLAGS] = 0.0                     # the sums are those of the state just written
@@ -317,6 +338,95 @@ def _step_chunk(P, counts, parts, lo, hi, h, gravity, has_col, ground, boxes, sp
             row[C_PART + j] = part[0, 0, j]
         for j in range(NDAMP):
             row[C_DPART + j] = dpart[0, 0, j]
+
+
+@njit(**JIT)
+def _pass(lo, hi, x, v, x0, mass, goal_lin, goal_off, alpha, h, acc, damp, k_damp, dmp, ref,
+          pnt, rest_lin, rest_off, v_max, has_col, ground, boxes, spheres, thresh, sums,
+          dsums):
+    """Particles lo..hi of a one-cluster body (see ``_step_chunk``); the next step's sums
+    are added to ``sums`` (12) and, with ``damp``, ``dsums`` (its point set by the caller).
+    Returns (shape-error sum, capped speeds).
+
+    Without colliders one loop does it all (``_int_single_fused``, ``FUSED_BLOCK``
+    particles a call; a call that finds a speed over the cap caps those particles and takes
+    their sums again), and a damped body's damping sums one more loop over the same
+    ``BLOCK`` while it is in cache.  With colliders, block by block (``BLOCK``, in L1): Eq. 13-14
+    (``_int_single_lin``, vectorised), the colliders, the speed limit, then the sums
+    (``_acc_single``, ``damp_acc_range``, vectorised) of what the colliders left.
+    """
+    err2 = 0.0
+    capped = 0
+    nocl = np.zeros(0, dtype=np.int32)
+    if not has_col:
+        step = BLOCK if damp else FUSED_BLOCK
+        for bs in range(lo, hi, step):
+            be = min(bs + step, hi)
+            e, over = _int_single_fused(start=bs, end=be, x=x, v=v, x0=x0, mass=mass,
+                                        goal_lin=goal_lin, goal_off=goal_off, alpha=alpha,
+                                        h=h, acc=acc, damp=damp, k_damp=k_damp, dmp=dmp,
+                                        ref=ref, pnt=pnt, rest_lin=rest_lin,
+                                        rest_off=rest_off, v_max=v_max, sums=sums)
+            err2 += e
+            if over:
+                capped += limit_speed_range(bs, be, x, v, h, v_max)
+                _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass,
+                            rest_lin=rest_lin, rest_off=rest_off, ref=pnt, sums=sums)
+            if damp:
+                damp_acc_range(bs, be, x, v, mass, nocl, dsums)
+        return err2, capped
+    zero3 = np.zeros(3)
+    for bs in range(lo, hi, BLOCK):
+        be = min(bs + BLOCK, hi)
+        err2 += _int_single_lin(start=bs, end=be, x=x, v=v, x0=x0, goal_lin=goal_lin,
+                                goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=zero3,
+                                com=zero3, damp=damp, k_damp=k_damp, dmp=dmp, ref=ref)
+        _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes,
+                       spheres=spheres, thresh=thresh)
+        if v_max > 0.0:
+            capped += limit_speed_range(bs, be, x, v, h, v_max)
+        _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
+                    rest_off=rest_off, ref=pnt, sums=sums)
+        if damp:
+            damp_acc_range(bs, be, x, v, mass, nocl, dsums)
+    return err2, capped
+
+
+@njit(parallel=True, **JIT)
+def _pass_threads(threads, x, v, x0, mass, goal_lin, goal_off, alpha, h, acc, damp, k_damp,
+                  dmp, ref, pnt, rest_lin, rest_off, v_max, has_col, ground, boxes, spheres,
+                  thresh, sums, dsums):
+    """``_pass`` over all particles split into ``threads`` runs of whole ``FUSED_BLOCK``
+    blocks, one a thread, each into its own sums (and damping sums about the same point),
+    added up afterwards in run order: the same states as ``_pass`` to round-off (the sums
+    are added in another order), the same on any machine for one ``threads``."""
+    n = x.shape[0]
+    nblk = (n + FUSED_BLOCK - 1) // FUSED_BLOCK
+    ps = np.zeros((threads, 1, 12))
+    pd = np.zeros((threads, 1, NDAMP))
+    pe = np.zeros(threads)
+    pc = np.zeros(threads, dtype=np.int64)
+    for t in prange(threads):
+        lo = min(n, ((t * nblk) // threads) * FUSED_BLOCK)
+        hi = min(n, (((t + 1) * nblk) // threads) * FUSED_BLOCK)
+        for j in range(15, 19):
+            pd[t, 0, j] = dsums[0, j]
+        e, c = _pass(lo, hi, x, v, x0, mass, goal_lin, goal_off, alpha, h, acc, damp,
+                     k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max, has_col, ground, boxes,
+                     spheres, thresh, ps[t], pd[t])
+        pe[t] = e
+        pc[t] = c
+    err2 = 0.0
+    capped = 0
+    for t in range(threads):
+        err2 += pe[t]
+        capped += pc[t]
+        for j in range(12):
+            sums[0, j] += ps[t, 0, j]
+        for j in range(15):
+            dsums[0, j] += pd[t, 0, j]
+        dsums[0, 19] += pd[t, 0, 19]
+    return err2, capped
 
 
 @njit(**JIT)

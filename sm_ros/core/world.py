@@ -10,6 +10,7 @@ from numba.typed import List as TypedList
 from . import body as body_mod
 from .body import Body
 from .kernels.world_step import step_bodies_parallel, step_single_bodies
+from . import packed as packed_mod
 from .packed import Pack
 from .contact import COUPLE_ALPHA, BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
@@ -56,6 +57,7 @@ class World(WorldColliders):
         if g.shape != (3,) or not np.all(np.isfinite(g)):
             raise ValueError(f'gravity must be 3 finite numbers, got {value!r}')
         self._gravity[:] = g
+        self._gnorm = float(np.linalg.norm(g))      # for the restitution threshold (step)
 
     def contact_stats(self):
         """{body name: (contacts, deepest penetration in m)} of the last step: the collider
@@ -188,7 +190,7 @@ class World(WorldColliders):
         if not (math.isfinite(h) and h > 0.0):
             raise ValueError(f'dt must be a finite number > 0, got {dt!r}')
         # restitution applies only above this approach speed, so resting contact stays put
-        thresh = max(1e-3, 2.0 * float(np.linalg.norm(self._gravity)) * h)
+        thresh = max(1e-3, 2.0 * self._gnorm * h)
         cs = self._cset
         if cs is not None:
             cs.advance(h, self.time)
@@ -237,24 +239,27 @@ class World(WorldColliders):
         whether the compiled calls run on several threads), rebuilt only when a body's
         buffers, parameters, grabs or wrench kind, the bodies, the step or the packing
         (``Pack.stale``: one of its bodies was packed elsewhere since) changed.  Python
-        cost per step does not grow with the number of bodies.  Threads as for one body: only from
-        ``WORLD_PARALLEL_MIN_WORK`` particles (on shared cores fork/join costs more below)."""
+        cost per step does not grow with the number of bodies.  Threads as for one body:
+        only from ``WORLD_PARALLEL_MIN_WORK`` particles (on shared cores fork/join costs
+        more below), and with several bodies or one packed body of at least
+        ``packed.PASS_PARALLEL_MIN`` particles (its particle pass split over the threads)."""
         key = (body_mod._GENERATION[0], h, self._layout, self.compiled_step)
         split = self._split
         if split is None or split[0] != key or (split[1] is not None and split[1].stale):
-            records, packed, slow, work = TypedList(), [], [], 0
+            records, packed, slow, work, big = TypedList(), [], [], 0, False
             for body in self._bodies.values():
                 if self.compiled_step and body._packed_ok():
                     packed.append(body)
                     work += body.n
+                    big = big or body.n >= packed_mod.PASS_PARALLEL_MIN
                 elif self.compiled_step and body._fast_ok():
                     records.append(body._fast_record(h))
                     work += body.n
                 else:
                     slow.append(body)
             pack = Pack(packed, h) if packed else None
-            parallel = (work >= WORLD_PARALLEL_MIN_WORK and len(records) + len(packed) > 1
-                        and numba.get_num_threads() > 1)
+            parallel = (work >= WORLD_PARALLEL_MIN_WORK and numba.get_num_threads() > 1
+                        and (len(records) + len(packed) > 1 or big))
             split = self._split = (key, pack, records, slow, parallel)
         return split[1], split[2], split[3], split[4]
 
