@@ -38,7 +38,8 @@ def _step_pack(world, threads, pass_min, steps, h=1.0 / 240.0):
     assert pack is not None and pack.bodies == [body]
     thresh = max(1e-3, 2.0 * 9.81 * h)
     for _ in range(steps):
-        packed.step_packed(pack.P, pack.counts, pack.parts, threads, pass_min, h,
+        scratch = np.zeros((threads, packed.SCRATCH))
+        packed.step_packed(pack.P, pack.counts, pack.parts, scratch, threads, pass_min, h,
                            world._gravity, world._has_col, world._ground_row,
                            world._box_rows, world._sphere_rows, thresh)
     return body

@@ -71,6 +71,9 @@ def _columns():
 
 
 COLS, NCOL = _columns()
+#: Numbers of scratch one chunk of bodies uses (``_step_chunk``: views of one row of
+#: ``Pack.scratch``).
+SCRATCH = 364 + NDAMP
 #: Row entries a body built for threads holds per chunk (leading axis: chunks).
 _CHUNKED = ('_part', '_err', '_dpart')
 C_FLAGS = COLS['_flags'][0]            # [dirty, shape error stale, damping sums valid]
@@ -100,6 +103,8 @@ class Pack:
         self.P = np.zeros((max(nb, 1), NCOL))
         self.counts = np.zeros((max(nb, 1), 2), dtype=np.int64)
         self.parts = TypedList()
+        #: ``SCRATCH`` numbers for each chunk of bodies (``_step_chunk``), one row a thread
+        self.scratch = np.zeros((1, SCRATCH))
         #: set when one of the bodies was packed since into another pack
         self.stale = False
         for b, body in enumerate(self.bodies):
@@ -142,33 +147,39 @@ class Pack:
     def step(self, h, gravity, has_col, ground, boxes, spheres, thresh, parallel=False):
         """Step every body of the pack once (on the threads with ``parallel``)."""
         if parallel:
-            step_packed(self.P, self.counts, self.parts, numba.get_num_threads(),
+            threads = numba.get_num_threads()
+            if len(self.scratch) < threads:
+                self.scratch = np.zeros((threads, SCRATCH))
+            step_packed(self.P, self.counts, self.parts, self.scratch, threads,
                         PASS_PARALLEL_MIN, h, gravity, has_col, ground, boxes, spheres, thresh)
         else:
-            step_packed_single(self.P, self.counts, self.parts, h, gravity, has_col,
-                               ground, boxes, spheres, thresh)
+            step_packed_single(self.P, self.counts, self.parts, self.scratch, h, gravity,
+                               has_col, ground, boxes, spheres, thresh)
 
 
-def step_packed_single(P, counts, parts, h, gravity, has_col, ground, boxes, spheres,
-                       thresh):
+def step_packed_single(P, counts, parts, scratch, h, gravity, has_col, ground, boxes,
+                       spheres, thresh):
     """Every body of a pack on the calling thread: a serial compiled function (no parallel
     region to launch, no thread count to set: ~5 of the ~8 us a call cost, as much as a
     10k-particle body's pass at 0.5 ns/particle) running the same ``_step_chunk`` as
     ``step_packed``, so both give the same states."""
-    step_packed_serial(P, counts, parts, h, gravity, has_col, ground, boxes, spheres, thresh)
+    step_packed_serial(P, counts, parts, scratch, h, gravity, has_col, ground, boxes, spheres,
+                       thresh)
 
 
 @njit(**JIT)
-def step_packed_serial(P, counts, parts, h, gravity, has_col, ground, boxes, spheres, thresh):
+def step_packed_serial(P, counts, parts, scratch, h, gravity, has_col, ground, boxes, spheres,
+                       thresh):
     """``step_packed`` on the calling thread (see ``step_packed_single``)."""
-    _step_chunk(P, counts, parts, 0, len(parts), 0, 0, 1, h, gravity, has_col, ground, boxes,
-                spheres, thresh)
+    _step_chunk(P, counts, parts, scratch[0], 0, len(parts), 0, 0, 1, h, gravity, has_col,
+                ground, boxes, spheres, thresh)
 
 
 @njit(parallel=True, **JIT)
-def step_packed(P, counts, parts, threads, pass_min, h, gravity, has_col, ground, boxes,
-                spheres, thresh):
-    """Every body of a pack on ``threads`` threads: the bodies of at least ``pass_min``
+def step_packed(P, counts, parts, scratch, threads, pass_min, h, gravity, has_col, ground,
+                boxes, spheres, thresh):
+    """Every body of a pack on ``threads`` threads (``scratch``: at least ``threads`` rows of
+    ``SCRATCH``): the bodies of at least ``pass_min``
     particles (``pass_min`` > 0) one after the other, each with its particle pass split
     over the threads (``_pass_threads``), then the others in ``threads`` chunks of
     consecutive bodies over the threads (a body owns its row and its particles, so the
@@ -180,8 +191,8 @@ def step_packed(P, counts, parts, threads, pass_min, h, gravity, has_col, ground
             if parts[b][3].shape[0] >= pass_min:
                 big += 1
     if big:
-        _step_chunk(P, counts, parts, 0, nb, 1, pass_min, threads, h, gravity, has_col,
-                    ground, boxes, spheres, thresh)
+        _step_chunk(P, counts, parts, scratch[0], 0, nb, 1, pass_min, threads, h, gravity,
+                    has_col, ground, boxes, spheres, thresh)
         if big == nb:
             return
     which = 2 if big else 0
@@ -189,49 +200,54 @@ def step_packed(P, counts, parts, threads, pass_min, h, gravity, has_col, ground
     for c in prange(nch):
         lo = (c * nb) // nch
         hi = ((c + 1) * nb) // nch
-        _step_chunk(P, counts, parts, lo, hi, which, pass_min, 1, h, gravity, has_col,
-                    ground, boxes, spheres, thresh)
+        _step_chunk(P, counts, parts, scratch[c], lo, hi, which, pass_min, 1, h, gravity,
+                    has_col, ground, boxes, spheres, thresh)
 
 
 @njit(**JIT)
-def _step_chunk(P, counts, parts, lo, hi, which, pass_min, threads, h, gravity, has_col,
-                ground, boxes, spheres, thresh):
+def _step_chunk(P, counts, parts, scr, lo, hi, which, pass_min, threads, h, gravity,
+                has_col, ground, boxes, spheres, thresh):
     """Bodies lo..hi (``which`` 0: all, 1: those of at least ``pass_min`` particles, with
     their particle pass on ``threads`` threads, 2: the others) with one set of scratch
     buffers (shaped as ``solve_clusters`` and the damping kernels take them for one
-    cluster)."""
-    part = np.zeros((1, 1, 12))
-    wsum = np.zeros(1)
-    sum_q = np.zeros((1, 9))
-    ref = np.zeros((1, 3))
-    pnt = np.zeros((1, 3))
-    quat = np.zeros((1, 4))
-    aqq3 = np.zeros((1, 3, 3))
-    aqq9 = np.zeros((1, 9, 9))
-    rest_lin = np.zeros((1, 3, 3))
-    rest_off = np.zeros((1, 3))
-    scale = np.zeros(1)
-    trans = np.zeros((1, 3, 9))
-    goal_lin = np.zeros((1, 3, 3))
-    goal_off = np.zeros((1, 3))
-    apq = np.zeros((1, 3, 3))
-    accbuf = np.zeros(32)
-    m3 = np.zeros((4, 3, 3))
-    m39 = np.zeros((3, 9))
-    n4 = np.zeros((4, 4))
-    v4 = np.zeros((4, 4))
-    nmat = np.zeros((1, 3, 3))
-    cdet = np.zeros(1)
-    dpart = np.zeros((1, 1, NDAMP))
-    lin = np.zeros((1, 13))
-    w3 = np.zeros((1, 3))
-    dmp = np.zeros((1, 6))
+    cluster; ``scr``: ``SCRATCH`` numbers of scratch)."""
+    # scratch: views of the chunk's row of ``Pack.scratch`` (about 30 small arrays
+    # allocated per call cost ~2.5 us, as much as 5k particles of the pass), zeroed as
+    # fresh arrays would be
+    for j in range(SCRATCH):
+        scr[j] = 0.0
+    part = scr[0:12].reshape((1, 1, 12))
+    wsum = scr[12:13]
+    sum_q = scr[13:22].reshape((1, 9))
+    ref = scr[22:25].reshape((1, 3))
+    pnt = scr[25:28].reshape((1, 3))
+    quat = scr[28:32].reshape((1, 4))
+    aqq3 = scr[32:41].reshape((1, 3, 3))
+    aqq9 = scr[41:122].reshape((1, 9, 9))
+    rest_lin = scr[122:131].reshape((1, 3, 3))
+    rest_off = scr[131:134].reshape((1, 3))
+    scale = scr[134:135]
+    trans = scr[135:162].reshape((1, 3, 9))
+    goal_lin = scr[162:171].reshape((1, 3, 3))
+    goal_off = scr[171:174].reshape((1, 3))
+    apq = scr[174:183].reshape((1, 3, 3))
+    accbuf = scr[183:215]
+    m3 = scr[215:251].reshape((4, 3, 3))
+    m39 = scr[251:278].reshape((3, 9))
+    n4 = scr[278:294].reshape((4, 4))
+    v4 = scr[294:310].reshape((4, 4))
+    nmat = scr[310:319].reshape((1, 3, 3))
+    cdet = scr[319:320]
+    lin = scr[320:333].reshape((1, 13))
+    w3 = scr[333:336].reshape((1, 3))
+    dmp = scr[336:342].reshape((1, 6))
+    lim_lin = scr[342:355].reshape((1, 13))
+    lim_w = scr[355:361].reshape((1, 6))
+    acc = scr[361:364]
+    dpart = scr[364:364 + NDAMP].reshape((1, 1, NDAMP))
     flagged = np.zeros(1, dtype=np.bool_)
-    lim_lin = np.zeros((1, 13))
-    lim_w = np.zeros((1, 6))
     noptr = np.zeros(0, dtype=np.int64)
     nocl = np.zeros(0, dtype=np.int32)
-    acc = np.zeros(3)
     for b in range(lo, hi):
         xt, vt, x0t, mass = parts[b]
         if which != 0 and (mass.shape[0] >= pass_min) != (which == 1):
