@@ -7,13 +7,12 @@ moved by a pair, below the ground, or moved by ``margin`` or more); these tests 
 it with the full pass (``margin`` 0: every particle) in scenes where a body is pushed
 into a wall, and show that skipping without the rule would leave a particle inside.
 The later sweeps visit pairs of two carried bodies from compact rows
-(``_compact_pairs``), checked against a NumPy twin.
+(``_compact_row``, written by the first sweep), checked against a NumPy twin.
 """
 
 import numpy as np
 
 from sm_ros.core import contact as C
-from sm_ros.core import contact_kernels as CK
 
 H = 1 / 120
 THRESH = 2 * 9.81 * H
@@ -97,35 +96,62 @@ def test_resting_body_near_the_ground_is_put_out_like_the_full_pass():
 
 
 def test_compact_rows_match_numpy():
+    # five bodies of two particles (body 3 soft: per particle; body 4 with a pinned
+    # particle) in two rows; pairs 21 mm apart (listed, active where a side is carried,
+    # not touching: nothing moves) and one 84 mm apart (not active); the rows the first
+    # sweep writes for the later ones against a NumPy twin
     rng = np.random.default_rng(3)
-    n, nb = 40, 5
-    X = np.ascontiguousarray(rng.normal(size=(3, n)))
-    V = np.ascontiguousarray(rng.normal(size=(3, n)))
-    W = rng.uniform(0.5, 2.0, n)
-    W[7] = 0.0                                       # a pinned particle (body 0)
-    R = rng.uniform(0.005, 0.01, n)
-    B = np.repeat(np.arange(nb), n // nb).astype(np.int32)
-    pi = rng.integers(0, n, 60).astype(np.int32)
-    pj = rng.integers(0, n, 60).astype(np.int32)
-    active = rng.permutation(60)[:45].astype(np.int64)
-    cpl = np.array([True, True, False, True, True])
-    bw = np.array([0.0, 0.3, 0.2, 0.5, 0.1])         # body 0 has the pinned particle
-    vb = rng.normal(size=(nb, 3))
-    h = 1 / 120
-    cm = np.full(45, 7, np.uint8)
-    cij = np.zeros((4, 45), np.int32)
-    cf = np.zeros((12, 45))
-    CK._compact_pairs(X, V, W, R, B, pi, pj, active, 45, cpl, bw, vb, h, cm, cij, cf)
-    i, j = pi[active], pj[active]
+    nb = 5
+    n = 2 * nb
+    X = np.zeros((3, n))
+    X[0] = 0.021 * (np.arange(n) // 2)               # body b: particles 2b, 2b + 1
+    X[1] = 0.3 * (np.arange(n) % 2)                  # its two particles 30 cm apart
+    X = np.ascontiguousarray(X)
+    V = np.ascontiguousarray(rng.normal(scale=0.01, size=(3, n)))
+    B = (np.arange(n) // 2).astype(np.int32)
+    off = np.arange(0, n + 1, 2)
+    W = np.full(n, 10.0)
+    W[9] = 0.0
+    R = np.full(n, 0.01)
+    pi = np.array([0, 2, 4, 6, 1, 3, 5, 7, 0], np.int32)
+    pj = np.array([2, 4, 6, 8, 3, 5, 7, 9, 8], np.int32)   # (0, 8): 84 mm
+    cpl = np.array([True, True, True, False, True])
+    bw = np.zeros(nb)
+    C.body_inverse_masses(W, off, bw)
+    vb, zlo, bc = np.zeros((nb, 3)), np.zeros((2, nb)), np.zeros((nb, 3))
+    bom, biv = np.zeros((nb, 3)), np.zeros((nb, 9))
+    C.body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv)
+    npairs = len(pi)
+    active = np.zeros(npairs, np.int64)
+    cf = np.full((12, npairs), np.nan)
+    cij = np.full((5, npairs), -1, np.int32)
+    x0, v0 = X.copy(), V.copy()
+    C.solve_bodies(
+        X, V, W, R, B, pi, pj, npairs, 0.5, 0.0, THRESH, H, 1, np.zeros(nb, np.uint8),
+        np.zeros(nb, np.int64), np.zeros(nb), False, np.zeros(4), np.zeros((0, 8)),
+        np.zeros((0, 6)), np.zeros(n, np.uint8), off, bw, cpl, np.zeros((nb, 7)),
+        np.zeros(nb, np.uint8), active, np.zeros((2, npairs)), np.zeros(npairs),
+        0.01 * THRESH, vb, np.zeros(4), np.zeros(0, np.int64), np.zeros(nb + 1, np.int64),
+        zlo, np.zeros((2, nb)), 0.0, bc, bom, biv, np.inf, cf, cij)
+    np.testing.assert_array_equal(X, x0)                 # nothing touched
+    # the twin: active pairs (a carried side, closer than 1.25 (r_i + r_j)), in order
+    i, j = pi.astype(int), pj.astype(int)
     bi, bj = B[i], B[j]
-    ok = (bi != bj) & cpl[bi] & cpl[bj] & (bw[bi] > 0) & (bw[bj] > 0) & (W[i] > 0) & (W[j] > 0)
-    assert ok.any() and not ok.all()
-    np.testing.assert_array_equal(cm, ok.astype(np.uint8))
-    np.testing.assert_array_equal(cij[:, ok], np.stack([i, j, bi, bj])[:, ok])
-    d = X[:, i] - X[:, j]
-    want = np.concatenate([d, d - h * (V[:, i] - V[:, j]), (vb[bi] - vb[bj]).T,
-                           (R[i] + R[j])[None], bw[bi][None], bw[bj][None]])
-    np.testing.assert_allclose(cf[:, ok], want[:, ok], rtol=0, atol=1e-15)
+    ci = (bi != bj) & cpl[bi] & (bw[bi] > 0) & (W[i] > 0)
+    cj = (bi != bj) & cpl[bj] & (bw[bj] > 0) & (W[j] > 0)
+    d = x0[:, i] - x0[:, j]
+    act = (ci | cj) & ((d ** 2).sum(axis=0) < (1.25 * 0.02) ** 2)
+    na = int(act.sum())
+    np.testing.assert_array_equal(active[:na], np.flatnonzero(act))
+    both = (ci & cj)[act]
+    assert both.any() and not both.all()
+    np.testing.assert_array_equal(cij[4, :na], both.astype(np.int32))
+    ia, ja = i[act][both], j[act][both]
+    np.testing.assert_array_equal(cij[:4, :na][:, both], np.stack([ia, ja, B[ia], B[ja]]))
+    da = x0[:, ia] - x0[:, ja]
+    want = np.concatenate([da, da - H * (v0[:, ia] - v0[:, ja]), (vb[B[ia]] - vb[B[ja]]).T,
+                           (R[ia] + R[ja])[None], bw[B[ia]][None], bw[B[ja]][None]])
+    np.testing.assert_allclose(cf[:, :na][:, both], want, rtol=0, atol=1e-15)
 
 
 def _solve_chain(X, iters):

@@ -234,6 +234,8 @@ class Contact:
         self._active = np.zeros(0, dtype=np.int64)
         self._acc = np.zeros((2, 0))
         self._tg = np.zeros(0)
+        self._cbuf = np.zeros((12, 0))
+        self._ibuf = np.zeros((5, 0), dtype=np.int32)
         self._vb = np.zeros((max(nb, 1), 3))
         self._zlo = np.zeros((2, max(nb, 1)))   # lowest particle per body: z, its v_z
         self._bc = np.zeros((max(nb, 1), 3))            # centre of mass
@@ -325,6 +327,8 @@ class Contact:
             self._acc = np.zeros((2, m))
             self._tg = np.zeros(m)
             self._active = np.zeros(m, dtype=np.int64)
+            self._cbuf = np.zeros((12, m))       # solve_bodies' compact rows
+            self._ibuf = np.zeros((5, m), dtype=np.int32)
         if self._bw_version != f.w_version:    # the bodies' masses, from W when it changed
             body_inverse_masses(f.W, f.off, self._bw)
             self._bw_version = f.w_version
@@ -352,7 +356,7 @@ class Contact:
                                   SWEEP_TOL * thresh, self._vb, self._noground,
                                   self._cand[:ncand], self._cptr, self._zlo, self._accg,
                                   WARM_START if self._warm else 0.0, self._bc, self._bom,
-                                  self._biv, margin)
+                                  self._biv, margin, self._cbuf, self._ibuf)
         self._warm = True
 
     def fast_particles(self, h):

@@ -3,8 +3,8 @@
 The model, the parameters and the Python-side pass (``Contact``) are in ``contact.py``;
 the pair list (a Verlet list on a cell grid, sorted by lower index) is built by
 ``contact_build.py``; this file holds what runs per step on that list.  Serial; nothing
-allocates but ``solve_bodies``'s compact rows of its later sweeps (once a call).  A world
-with one colliding body and no self-collision does not run the pass at all.
+allocates (``solve_bodies`` takes the buffers of its compact rows from ``Contact``).  A
+world with one colliding body and no self-collision does not run the pass at all.
 
 Everything here is serial and the pair order is fixed by the build, so the result does not
 depend on thread scheduling (bit-identical between runs).
@@ -272,45 +272,34 @@ def _body_move(dv, pend, b, c, px, py, pz, q0, q1, q2):
     pend[b] = 1
 
 
-@njit(**JIT)
-def _compact_pairs(X, V, W, R, B, pi, pj, active, nact, cpl, bw, vb, h, cm, cij, cf):
-    """The compact rows of ``solve_bodies``'s later sweeps, one per active pair a
-    (``active[:nact]``, in sweep order): ``cm[a]`` whether both of its particles are of
-    bodies carried as a whole (two bodies: ``cpl``, inverse mass ``bw`` > 0); for those
-    ``cij[:, a]`` = (i, j, body of i, body of j) and ``cf[:, a]`` = x_i - x_j (3), the
-    start-of-step separation x_i - x_j - h (v_i - v_j) (3), the bodies' velocity
-    difference (``vb``, 3), r_i + r_j, the bodies' inverse masses.  One streaming pass
-    over the active pairs (the loads a visit makes, gathered once)."""
-    for a in range(nact):
-        k = active[a]
-        i = pi[k]
-        j = pj[k]
-        bi = B[i]
-        bj = B[j]
-        ok = (bi != bj and cpl[bi] and bw[bi] > 0.0 and W[i] > 0.0 and cpl[bj]
-              and bw[bj] > 0.0 and W[j] > 0.0)
-        cm[a] = 1 if ok else 0
-        if not ok:
-            continue
-        cij[0, a] = i
-        cij[1, a] = j
-        cij[2, a] = bi
-        cij[3, a] = bj
-        for c in range(3):
-            d = X[c, i] - X[c, j]
-            cf[c, a] = d
-            cf[3 + c, a] = d - h * (V[c, i] - V[c, j])
-            cf[6 + c, a] = vb[bi, c] - vb[bj, c]
-        cf[9, a] = R[i] + R[j]
-        cf[10, a] = bw[bi]
-        cf[11, a] = bw[bj]
+@njit(inline='always', **JIT)
+def _compact_row(X, V, R, i, j, bi, bj, bw, vb, h, a, cij, cf):
+    """Row a of ``solve_bodies``'s compact rows, for the pair (i, j) of the carried bodies
+    bi, bj: ``cij[:, a]`` = (i, j, bi, bj, 1: the row is set) and ``cf[:, a]`` = x_i - x_j
+    (3), the start-of-step separation x_i - x_j - h (v_i - v_j) (3), the bodies' velocity
+    difference (``vb``, 3), r_i + r_j, the bodies' inverse masses ``bw``: what a visit of
+    the later sweeps reads, gathered in sweep order when the first sweep lists the pair
+    (its particles' own x, v: their bodies' moves are added from dv at each visit)."""
+    cij[0, a] = i
+    cij[1, a] = j
+    cij[2, a] = bi
+    cij[3, a] = bj
+    cij[4, a] = 1
+    for c in range(3):
+        d = X[c, i] - X[c, j]
+        cf[c, a] = d
+        cf[3 + c, a] = d - h * (V[c, i] - V[c, j])
+        cf[6 + c, a] = vb[bi, c] - vb[bj, c]
+    cf[9, a] = R[i] + R[j]
+    cf[10, a] = bw[bi]
+    cf[11, a] = bw[bj]
 
 
 @njit(**JIT)
 def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched, count,
                  deepest, has_col, ground, boxes, spheres, moved, off, bw, cpl, dv, pend,
                  active, acc, tg, tol, vb, noground, cand, cptr, zlo, accg, warm, bc, bom,
-                 biv, margin=0.0):
+                 biv, margin=0.0, cbuf=None, ibuf=None):
     """Body-body contact under gravity, the stiff bodies carrying their contacts as a
     whole (README "Contact between bodies"; ``Contact.run`` calls ``solve_pairs``
     without gravity or without such bodies).
@@ -362,25 +351,27 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
     found = 0
     ih = 1.0 / h
     nact = 0
-    cm = np.zeros(0, dtype=np.uint8)
-    cij = np.zeros((4, 0), dtype=np.int32)
-    cf = np.zeros((12, 0))
+    # the compact rows of the later sweeps: the caller's buffers (``Contact``: sized to
+    # the pair list's capacity, so nothing is allocated a step; a fresh 1.3 MB a call cost
+    # about 0.3 ms of page faults in paper_384) or, without them, allocated here
+    if cbuf is None:
+        cf = np.empty((12, npairs))
+    else:
+        cf = cbuf
+    if ibuf is None:
+        cij = np.empty((5, npairs), dtype=np.int32)
+    else:
+        cij = ibuf
+    if cf.shape[1] < npairs or cij.shape[1] < npairs:
+        cf = np.empty((12, npairs))
+        cij = np.empty((5, npairs), dtype=np.int32)
+    cm = cij[4]
     _warm_start(X, V, W, B, R, pi, pj, npairs, mu, h, ground, off, bw, cpl, dv, pend, acc,
                 vb, accg, warm, has_col and ground[0] > 0.5)
     for it in range(iters):
         first = it == 0
         todo = npairs if first else nact
         big = 0.0
-        if it == 1:
-            # the active pairs of two carried bodies, in sweep order, with what the later
-            # sweeps read of them: their particles do not move within the sweeps (their
-            # bodies' moves are kept in dv), so separation, start separation and bodies'
-            # velocity difference are fixed parts plus dv's (``_compact_pairs``)
-            cm = np.empty(nact, dtype=np.uint8)
-            cij = np.empty((4, nact), dtype=np.int32)
-            cf = np.empty((12, nact))
-            _compact_pairs(X, V, W, R, B, pi, pj, active, nact, cpl, bw, vb, h, cm, cij,
-                           cf)
         for kk in range(todo):
             # symmetric Gauss-Seidel: forward, then backward
             a = kk if it % 2 == 0 else todo - 1 - kk
@@ -477,6 +468,11 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
             held = acc[0, k] > 0.0 or acc[1, k] > 0.0
             if first and (ci or cj) and (over or d2 < 1.5625 * rr * rr):
                 active[nact] = k       # visited again by the later sweeps
+                # a pair of two carried bodies: its compact row for them (their particles
+                # do not move within the sweeps, their bodies' moves are kept in dv)
+                cm[nact] = 0
+                if ci and cj:
+                    _compact_row(X, V, R, i, j, bi, bj, bw, vb, h, nact, cij, cf)
                 nact += 1
             if not over and not held:
                 continue
