@@ -73,7 +73,7 @@ def test_small_body_never_takes_the_threaded_pass():
     assert (threads.x == serial.x).all() and (threads.v == serial.v).all()
     world = _world(0.05, False, 0.0)
     assert world._split_bodies(0.01)[3] is False
-    assert world.bodies[0].n < packed.PASS_PARALLEL_MIN <= world_mod.WORLD_PARALLEL_MIN_WORK
+    assert world.bodies[0].n < packed.PASS_PARALLEL_MIN
 
 
 def test_world_threads_one_big_body_only_from_the_threshold(monkeypatch):
@@ -87,6 +87,7 @@ def test_world_threads_one_big_body_only_from_the_threshold(monkeypatch):
     monkeypatch.setattr(packed, 'PASS_PARALLEL_MIN', 1000)
     world = _world(0.05, True, 2.0)
     assert world._split_bodies(0.01)[3] is (numba.get_num_threads() > 1)
+    assert world.bodies[0].n >= packed.PASS_PARALLEL_MIN
     ref = _world(0.05, True, 2.0)
     ref.compiled_step = True
     for _ in range(10):

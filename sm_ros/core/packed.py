@@ -42,9 +42,15 @@ from .kernels.limits import limit_speed_range
 
 #: A packed body of at least this many particles runs its particle pass on all the Numba
 #: threads (its blocks split into one run per thread, each with its own sums, added up in
-#: thread order) when the pack steps in parallel; a smaller one runs on one thread (on 2
-#: shared cores a fork/join costs more below: the threshold of ``body.PARALLEL_MIN_WORK``).
-PASS_PARALLEL_MIN = 262144
+#: thread order: ``_pass_threads``) when the pack steps in parallel; a smaller one runs on
+#: one thread.  Off (no body is that big): on this project's machine (2 cores shared by
+#: several processes, load 3-4) the threads never paid.  A 1M-particle body,
+#: ``step_packed`` medians: 5-6 ms on one thread; 48 ms split over 2 threads and 23 ms in
+#: one run inside the parallel region (libgomp's waiting thread spins on a core the
+#: others need), 6.5 ms with ``OMP_WAIT_POLICY=passive``; the body's own threaded kernels
+#: before it was packed: 8.6-13.5 ms.  Set it (e.g. 262144, ``body.PARALLEL_MIN_WORK``)
+#: where cores are free; ``test_packed_threads`` checks the split gives the same states.
+PASS_PARALLEL_MIN = 1 << 62
 #: Particles per call of the fused one-loop pass of an undamped body (``_int_single_fused``;
 #: sums reduced once a call; a call with a speed over the cap is capped and summed again).
 #: A damped body takes ``BLOCK``: its damping sums are a second loop over the block.
@@ -146,7 +152,9 @@ class Pack:
 
     def step(self, h, gravity, has_col, ground, boxes, spheres, thresh, parallel=False):
         """Step every body of the pack once (on the threads with ``parallel``)."""
-        if parallel:
+        if parallel and (len(self.bodies) > 1 or self.bodies[0].n >= PASS_PARALLEL_MIN):
+            # one body below PASS_PARALLEL_MIN: on the calling thread (a parallel region of
+            # one run would only add the other threads' wait)
             threads = numba.get_num_threads()
             if len(self.scratch) < threads:
                 self.scratch = np.zeros((threads, SCRATCH))
