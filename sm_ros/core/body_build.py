@@ -31,10 +31,12 @@ class _SetLayout:
     ``sid`` (N,) set of each particle, ``ptr``/``cl`` the clusters of each set (CSR),
     ``cnt`` their number, ``org`` (S, 3) a rest-space origin per set, ``y0`` (N, 3) the
     rest offsets from it, ``phi`` (S, 10) sum m phi(y), ``ref`` (S, 3) the reference point
-    of the per-set sums, ``gm`` (S, 3, 10) the goal maps; scratch ``wk``, ``pm``.
+    of the per-set sums, ``gm`` (S, 3, 10) the goal maps; ``tp`` (pairs, 3) the offset
+    org[s] - cm0[k] of each set-cluster pair (``cl`` order) from the cluster's rest centre
+    ``cm0``; scratch ``wk``, ``pm``, ``ck`` (clusters, 3, 10).
     """
 
-    def __init__(self, x0, m, ptr, cl, c0):
+    def __init__(self, x0, m, ptr, cl, c0, cm0):
         n = len(x0)
         counts = np.diff(ptr)
         rows = np.repeat(np.arange(n), counts)
@@ -71,6 +73,9 @@ class _SetLayout:
                              for j in range(10)], axis=1)
         self.ref = self.org + c0
         self.gm = np.zeros((ns, 3, 10))
+        self.tp = np.ascontiguousarray(np.repeat(self.org, valid.sum(axis=1), axis=0)
+                                       - cm0[self.cl])
+        self.ck = np.zeros((len(cm0), 3, 10))
         self.wk = np.zeros((2, 3, 10))
         self.pm = np.zeros((9, 10))
         self.pairs = len(self.cl)
@@ -137,19 +142,22 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     # linear mode: the unit-determinant frames of A_qq (kernels.unit_det_frames)
     body._nmat = np.zeros((nk if mode == 1 else 1, 3, 3))
     body._cdet = np.zeros(nk if mode == 1 else 1)
+    # linear mode: each cluster's eigenvectors of its last unit-determinant match, the
+    # warm start of the next (kernels.nearest_unit_det_warm)
+    body._udv = np.tile(np.eye(3), (nk if mode == 1 else 1, 1, 1))
     body._changed = np.ones(nk, dtype=np.bool_)
     body._refresh_rest(body._changed)
     na = 30 if body._quad else 12
     body._sets = None
     if p.clusters > 1:
-        sets = _SetLayout(x0, m, body._ptr, body._cl, body._c0)
+        sets = _SetLayout(x0, m, body._ptr, body._cl, body._c0, cm0)
         if sets.pairs * set_layout_min_ratio <= len(body._cl):
             body._sets = sets
     elif body._quad and single_quadratic_sets:
         # one set: the quadratic goal as one polynomial of x0 (27 multiply-adds less
         # per particle than features-then-transform)
         body._sets = _SetLayout(x0, m, np.arange(n + 1, dtype=np.int64),
-                                np.zeros(n, dtype=np.int32), body._c0)
+                                np.zeros(n, dtype=np.int32), body._c0, cm0)
     # work per step: one unit per particle (one cluster, set layout) or per membership
     work = len(body._cl) if p.clusters > 1 and body._sets is None else n
     body._parallel = work >= parallel_min_work and numba.get_num_threads() > 1
@@ -268,7 +276,8 @@ def fast_record(body, h):
             body._m39, body._n4, body._v4, body._nmat, body._cdet, body._acc, body._ang,
             body._com, body._err, body._dpart, body._dmp, body._dref, body._dacc, lin, w3,
             sptr, scl, scnt, body._quat_prev, body._flagged, body._lim_lin, body._lim_w,
-            body._facc, body._fstate, body._flags, body._limit_counts) + body._fast_sets()
+            body._facc, body._fstate, body._flags, body._limit_counts) + body._fast_sets() + (
+                body._udv,)
 
 
 def one_record(body, h):
@@ -285,8 +294,9 @@ def fast_sets(body):
     st = body._sets
     if st is not None:
         return (st.y0.T, st.sid, st.gm, st.ref, st.part, st.ptr, st.cl, st.cnt, st.phi,
-                st.org, st.wk, st.pm)
+                st.org, st.wk, st.pm, st.tp, st.ck)
     na = 30 if body._quad else 12
     return (np.zeros((3, 0)), _EMPTY_I32, np.zeros((0, 3, 10)), np.zeros((0, 3)),
             np.zeros((1, 0, na)), np.zeros(1, dtype=np.int64), _EMPTY_I32, np.zeros(0),
-            np.zeros((0, 10)), np.zeros((0, 3)), np.zeros((2, 3, 10)), np.zeros((9, 10)))
+            np.zeros((0, 10)), np.zeros((0, 3)), np.zeros((2, 3, 10)), np.zeros((9, 10)),
+            np.zeros((0, 3)), np.zeros((0, 3, 10)))

@@ -46,9 +46,8 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
             acc(quad=body._quad, x=x, y0=sets.y0, mass=body.m, sid=sets.sid, sref=sets.ref,
                 part=sets.part)
         K.sets_reduce(part=sets.part, sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sphi=sets.phi,
-                      sref=sets.ref, sorg=sets.org, rest_lin=body._rest_lin,
-                      rest_off=body._rest_off, ref=body._ref, quad=body._quad, out=body._part,
-                      wk=sets.wk, pm=sets.pm)
+                      sref=sets.ref, stp=sets.tp, rest_lin=body._rest_lin, ref=body._ref,
+                      quad=body._quad, out=body._part, wk=sets.wk, pm=sets.pm)
     elif body._dirty:
         acc = K.accumulate_parallel if body._parallel else K.accumulate_serial
         acc(quad=body._quad, x=x, x0=body._x0, mass=body.m, ptr=body._ptr, cl=body._cl,
@@ -56,13 +55,14 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     turn = body._params.max_turn
     if turn > 0.0:
         np.copyto(body._quat_prev, body._quat)
-    K.solve_clusters(part=body._part, wsum=body._wsum, sum_q=body._sum_q, ref=body._ref,
-                     quat=body._quat, aqq3=body._aqq3, aqq9=body._aqq9,
-                     rest_lin=body._rest_lin, rest_off=body._rest_off, scale=body._scale,
-                     trans=body._trans, goal_lin=body._goal_lin, goal_off=body._goal_off,
-                     mode=body._mode, beta=p.beta, apq=body._apq, acc=body._accbuf, m3a=s3[0],
-                     m3b=s3[1], m3c=s3[2], m39=body._m39, n4=body._n4, v4=body._v4,
-                     nmat=body._nmat, cdet=body._cdet)
+    K.solve_clusters_warm(part=body._part, wsum=body._wsum, sum_q=body._sum_q, ref=body._ref,
+                          quat=body._quat, aqq3=body._aqq3, aqq9=body._aqq9,
+                          rest_lin=body._rest_lin, rest_off=body._rest_off, scale=body._scale,
+                          trans=body._trans, goal_lin=body._goal_lin, goal_off=body._goal_off,
+                          mode=body._mode, beta=p.beta, apq=body._apq, acc=body._accbuf,
+                          m3a=s3[0], m3b=s3[1], m3c=s3[2], m39=body._m39, n4=body._n4,
+                          v4=body._v4, nmat=body._nmat, cdet=body._cdet, udv=body._udv,
+                          warm=True)
     if turn > 0.0:
         # |q_prev . q| = cos(angle / 2): clusters whose rotation turned more than
         # max_turn in the last step have their angular velocity measured and capped
@@ -83,10 +83,10 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
                                     q4=body._q4, m3a=s3[0], m3b=s3[1], m3c=s3[2], n4=body._n4,
                                     v4=body._v4)
     if sets is not None:
-        K.sets_maps(sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sorg=sets.org,
-                    rest_lin=body._rest_lin, rest_off=body._rest_off, trans=body._trans,
-                    goal_lin=body._goal_lin, goal_off=body._goal_off, ref=body._ref,
-                    quad=body._quad, gm=sets.gm, sref=sets.ref, pm=sets.pm)
+        K.sets_maps(sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sorg=sets.org, stp=sets.tp,
+                    rest_lin=body._rest_lin, trans=body._trans, goal_lin=body._goal_lin,
+                    goal_off=body._goal_off, ref=body._ref, quad=body._quad, gm=sets.gm,
+                    sref=sets.ref, pm=sets.pm, ck=sets.ck)
     np.add(body._facc, gravity, out=body._acc)
     if body._has_torque:
         np.dot(body._wsum, body._ref, out=body._com)

@@ -351,3 +351,38 @@ def collide(x, v, ground, boxes, spheres, thresh):
             x = c + s.radius * n
             v = _contact(v, n, s.friction, s.restitution, thresh)
     return x, v
+
+
+def cluster_sums(x, x0, m, ptr, cl, rest_lin, rest_off, ref, quad):
+    """Per-cluster accumulators (clusters, 12 or 30) straight from the particles: row k =
+    [sum w (x - ref_k), sum w (x - ref_k) f^T (row-major)] over k's members, w = m / (the
+    particle's number of clusters), f = q-hat = G_k x0 + h_k or its quadratic features q~.
+    Twin of ``kernels.sets_reduce`` (after ``sets_accumulate``) and ``accumulate_serial``."""
+    nk = len(rest_lin)
+    out = np.zeros((nk, 30 if quad else 12))
+    counts = np.diff(ptr)
+    for i in range(len(x)):
+        w = m[i] / counts[i]
+        for k in cl[ptr[i]:ptr[i + 1]]:
+            q = rest_lin[k] @ x0[i] + rest_off[k]
+            f = quadratic_terms(q[None])[0] if quad else q
+            d = w * (x[i] - ref[k])
+            out[k, :3] += d
+            out[k, 3:] += np.outer(d, f).reshape(-1)
+    return out
+
+
+def set_goals(x0, ptr, cl, rest_lin, rest_off, trans, goal_lin, goal_off, quad):
+    """Every particle's goal, the mean over its clusters of T_k q~ + goal_off_k (quadratic)
+    or goal_lin_k x0 + goal_off_k: what ``kernels.sets_maps``'s per-set polynomials give."""
+    g = np.zeros_like(x0)
+    for i in range(len(x0)):
+        ks = cl[ptr[i]:ptr[i + 1]]
+        for k in ks:
+            if quad:
+                q = rest_lin[k] @ x0[i] + rest_off[k]
+                g[i] += trans[k] @ quadratic_terms(q[None])[0] + goal_off[k]
+            else:
+                g[i] += goal_lin[k] @ x0[i] + goal_off[k]
+        g[i] /= len(ks)
+    return g

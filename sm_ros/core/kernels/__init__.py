@@ -31,14 +31,15 @@ from .colliders import _collide_range, collide_point, contact_velocity
 from .damping import (NDAMP, damp_acc_range, damp_accumulate, damp_kinematic, damp_rigid,
                       damp_velocity, damping_fields, damping_targets)
 from .goals import (STRETCH_LIMIT, _goal_quad, _logprod, _logx, _qhat, _stretch_ok,
-                    _unit_det_sum, invert_moments, moments, nearest_unit_det, quad_features,
-                    solve_clusters, unit_det_frames, unit_det_match, volume_preserving)
+                    _unit_det_sum, invert_moments, moments, nearest_unit_det,
+                    nearest_unit_det_warm, quad_features, solve_clusters, solve_clusters_warm,
+                    unit_det_frames, unit_det_match, unit_det_match_warm, volume_preserving)
 from .integrate import (BLOCK, accumulate_parallel, accumulate_serial,
                         advance, apply_kinematic, gather_rows, inertia, integrate_parallel,
                         integrate_serial)
 from .jit import FASTMATH, JIT
 from .limits import limit_speed, limit_turn
-from .linalg import det3, jacobi_eigh, matmul, norm2, pinv_sym
+from .linalg import det3, jacobi3, jacobi3_warm, jacobi_eigh, matmul, norm2, pinv_sym
 from .plasticity import _add_null_projector, _cap_plastic, plastic_update
 from .rotation import extract_rotation, quat_to_mat
 from .sets import (sets_accumulate_parallel, sets_accumulate_serial,
@@ -50,10 +51,12 @@ __all__ = ['_collide_range', 'contact_velocity', 'collide_point', 'NDAMP', 'damp
            'damp_accumulate', 'damp_kinematic', 'damp_rigid', 'damp_velocity', 'damping_fields',
            'damping_targets', 'STRETCH_LIMIT', '_goal_quad', '_logprod', '_logx', '_qhat',
            '_stretch_ok', '_unit_det_sum', 'invert_moments', 'moments', 'nearest_unit_det',
-           'quad_features', 'solve_clusters', 'unit_det_frames', 'unit_det_match',
+           'nearest_unit_det_warm', 'quad_features', 'solve_clusters', 'solve_clusters_warm',
+           'unit_det_frames', 'unit_det_match', 'unit_det_match_warm',
            'volume_preserving', 'BLOCK', 'accumulate_parallel', 'accumulate_serial', 'advance',
            'apply_kinematic', 'gather_rows', 'inertia', 'integrate_parallel', 'integrate_serial',
-           'FASTMATH', 'JIT', 'limit_speed', 'limit_turn', 'det3', 'jacobi_eigh', 'matmul',
+           'FASTMATH', 'JIT', 'limit_speed', 'limit_turn', 'det3', 'jacobi3', 'jacobi3_warm',
+           'jacobi_eigh', 'matmul',
            'norm2', 'pinv_sym', '_add_null_projector', '_cap_plastic', 'plastic_update',
            'extract_rotation', 'quat_to_mat', 'step_single_bodies', 'sets_accumulate_parallel',
            'sets_accumulate_serial', 'sets_integrate_parallel', 'sets_integrate_serial',

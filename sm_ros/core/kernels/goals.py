@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from .jit import JIT, finite
-from .linalg import det3, jacobi3, matmul, pinv_sym
+from .linalg import det3, jacobi3, jacobi3_warm, matmul, pinv_sym
 from .rotation import extract_rotation
 
 
@@ -153,6 +153,12 @@ def _unit_det_sum(s0, s1, s2, mu, kmin):
 
 @njit(**JIT)
 def nearest_unit_det(f, out, wa, wv):
+    """``nearest_unit_det_warm`` from a cold start (``jacobi3`` from the identity)."""
+    return nearest_unit_det_warm(f=f, out=out, wa=wa, wv=wv, vw=wv, warm=False)
+
+
+@njit(**JIT)
+def nearest_unit_det_warm(f, out, wa, wv, vw, warm):
     """C = argmin ||C - f||_F over det C = 1 (3x3), into ``out``; False if det f <= 0.
 
     C shares f's singular vectors; its singular values x_i solve x_i^2 - s_i x_i = mu with
@@ -160,7 +166,11 @@ def nearest_unit_det(f, out, wa, wv):
     with mu from mu = -s_min^2 / 4 (safeguarded Newton); when it is above 1 already there,
     the root is on the minus root of the smallest s (a strongly flattened f; bisection).
     ``out`` = f V diag(x / s) V^T, so f out^T is symmetric to rounding whatever the
-    accuracy of V.  NumPy twin: ``reference.nearest_unit_det``.
+    accuracy of V.  With ``warm`` the eigenvectors V of f^T f start from ``vw`` (in/out,
+    orthonormal 3x3: the last step's V of the same cluster; ``linalg.jacobi3_warm``, whose
+    scratch is ``out``): f^T f is invariant under rotations of the cluster and changes
+    only with its deformation, so a step needs one or two sweeps of small rotations
+    instead of three or four.  NumPy twin: ``reference.nearest_unit_det``.
     """
     for i in range(3):
         for j in range(3):
@@ -171,7 +181,10 @@ def nearest_unit_det(f, out, wa, wv):
     d = det3(f)
     if not (d > 0.0) or not finite(d):
         return False
-    jacobi3(wa, wv, 50)
+    if warm:
+        jacobi3_warm(wa, wv, vw, out)
+    else:
+        jacobi3(wa, wv, 50)
     s0 = np.sqrt(max(wa[0, 0], 0.0))
     s1 = np.sqrt(max(wa[1, 1], 0.0))
     s2 = np.sqrt(max(wa[2, 2], 0.0))
@@ -251,6 +264,13 @@ def _stretch_ok(b, rot, blend, work, wa, wv, limit):
 
 @njit(**JIT)
 def unit_det_match(apq, nmat, c_s, rot, out, w1, w2, wa, wv, limit):
+    """``unit_det_match_warm`` from a cold start."""
+    return unit_det_match_warm(apq=apq, nmat=nmat, c_s=c_s, rot=rot, out=out, w1=w1, w2=w2,
+                               wa=wa, wv=wv, limit=limit, vw=wv, warm=False)
+
+
+@njit(**JIT)
+def unit_det_match_warm(apq, nmat, c_s, rot, out, w1, w2, wa, wv, limit, vw, warm):
     """The linear mode's B = argmin sum w ||p - B q||^2 over det B = 1, into ``out``.
 
     ``apq`` = A_pq-hat (q in units of the cluster scale s), ``nmat`` = det(M)^(1/3) M^-1
@@ -259,15 +279,15 @@ def unit_det_match(apq, nmat, c_s, rot, out, w1, w2, wa, wv, limit):
     nearest unit-determinant matrix to F = A_pq-hat N / c_s, scaled back, and B = C N.
     Stationarity makes A_pq B^T symmetric: no torque, and the goals derive from an energy.
     Stretches beyond [1 / limit, limit] are pulled back to R + t (B - R), which keeps
-    A_pq B^T symmetric.  Returns False (use R) if det F <= 0.  Twin:
-    ``reference.unit_det_match``.
+    A_pq B^T symmetric.  Returns False (use R) if det F <= 0.  ``vw``, ``warm``: the warm
+    start of ``nearest_unit_det_warm``.  Twin: ``reference.unit_det_match``.
     """
     inv = 1.0 / c_s
     for i in range(3):
         for j in range(3):
             w1[i, j] = (apq[i, 0] * nmat[0, j] + apq[i, 1] * nmat[1, j]
                         + apq[i, 2] * nmat[2, j]) * inv
-    if not nearest_unit_det(w1, w2, wa, wv):
+    if not nearest_unit_det_warm(f=w1, out=w2, wa=wa, wv=wv, vw=vw, warm=warm):
         return False
     matmul(w2, nmat, out)
     if _stretch_ok(b=out, rot=rot, blend=1.0, work=w1, wa=wa, wv=wv, limit=limit):
@@ -370,6 +390,18 @@ def _goal_quad(trans, k, q0, q1, q2):
 def solve_clusters(part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin, rest_off, scale, trans,
                    goal_lin, goal_off, mode, beta, apq, acc, m3a, m3b, m3c, m39, n4, v4, nmat,
                    cdet):
+    """``solve_clusters_warm`` with the linear mode's eigen-solves started cold."""
+    solve_clusters_warm(part=part, wsum=wsum, sum_q=sum_q, ref=ref, quat=quat, aqq3=aqq3,
+                        aqq9=aqq9, rest_lin=rest_lin, rest_off=rest_off, scale=scale,
+                        trans=trans, goal_lin=goal_lin, goal_off=goal_off, mode=mode,
+                        beta=beta, apq=apq, acc=acc, m3a=m3a, m3b=m3b, m3c=m3c, m39=m39,
+                        n4=n4, v4=v4, nmat=nmat, cdet=cdet, udv=nmat, warm=False)
+
+
+@njit(**JIT)
+def solve_clusters_warm(part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin, rest_off, scale,
+                        trans, goal_lin, goal_off, mode, beta, apq, acc, m3a, m3b, m3c, m39, n4,
+                        v4, nmat, cdet, udv, warm):
     """Reduce the accumulators and build every cluster's goal transform.
 
     ``mode``: 0 rigid, 1 linear, 2 quadratic.  Outputs: ``ref`` <- centre of mass x_cm,
@@ -377,6 +409,8 @@ def solve_clusters(part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin, rest_off,
     rigid/linear modes, the affine goal map ``lm x0 + lb``; ``apq`` (clusters, 3, 3)
     <- A_pq-hat for ``plastic_update``; ``nmat``/``cdet``: ``unit_det_frames`` (linear).
     Plasticity is a kernel of its own, so a scene without it neither runs nor compiles it.
+    ``udv`` (clusters, 3, 3), with ``warm``: each linear cluster's eigenvectors of its last
+    unit-determinant match, the warm start of the next (``nearest_unit_det_warm``).
     """
     nchunks = part.shape[0]
     nk = part.shape[1]
@@ -427,9 +461,11 @@ def solve_clusters(part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin, rest_off,
                 # B = the unit-determinant minimiser (Eq. 18, see unit_det_match), written
                 # into t's 3x3 block; inverted, flat or line-like (det A <= 0): R
                 if (det > 1e-9 and finite(det) and cdet[k] > 0.0
-                        and unit_det_match(apq=m3a, nmat=nmat[k], c_s=s_k * cdet[k], rot=m3b,
-                                           out=m3c, w1=m39[:, 3:6], w2=m39[:, 6:9], wa=n4[:3, :3],
-                                           wv=v4[:3, :3], limit=STRETCH_LIMIT)):
+                        and unit_det_match_warm(apq=m3a, nmat=nmat[k], c_s=s_k * cdet[k],
+                                                rot=m3b, out=m3c, w1=m39[:, 3:6],
+                                                w2=m39[:, 6:9], wa=n4[:3, :3], wv=v4[:3, :3],
+                                                limit=STRETCH_LIMIT, vw=udv[k if warm else 0],
+                                                warm=warm)):
                     for i in range(3):
                         for j in range(3):
                             trans[k, i, j] = s_k * (beta * m3c[i, j] + (1.0 - beta) * m3b[i, j])

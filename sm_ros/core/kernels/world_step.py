@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit, prange
 
 from .damping import damp_accumulate, damp_rigid, damping_fields, damping_targets
-from .goals import solve_clusters
+from .goals import solve_clusters_warm
 from .integrate import accumulate_serial, integrate_serial
 from .jit import JIT
 from .limits import limit_speed, limit_turn
@@ -71,7 +71,7 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
      aqq9, scale, trans, goal_lin, goal_off, apq, accbuf, m3a, m3b, m3c, m3d, m39, n4, v4,
      nmat, cdet, acc, ang, com, err, dpart, dmp, dref, dacc, lin, w3, sptr, scl, scnt,
      quat_prev, flagged, lim_lin, lim_w, force, state, flags, counts, y0t, sid, gm, sref,
-     s_part, s_ptr, s_cl, s_cnt, s_phi, s_org, wk, pm) = record
+     s_part, s_ptr, s_cl, s_cnt, s_phi, s_org, wk, pm, s_tp, s_ck, udv) = record
     # the (3, N) blocks seen as (N, 3) arrays of layout F, as the bodies' own x, v
     x, v, x0, y0 = xt.T, vt.T, x0t.T, y0t.T
     alpha, beta, k_damp = state[0], state[1], state[2]
@@ -86,18 +86,17 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
             sets_accumulate_serial(quad=quad, x=x, y0=y0, mass=mass, sid=sid, sref=sref,
                                    part=s_part)
         sets_reduce(part=s_part, sptr=s_ptr, scl=s_cl, scnt=s_cnt, sphi=s_phi, sref=sref,
-                    sorg=s_org, rest_lin=rest_lin, rest_off=rest_off, ref=ref, quad=quad,
-                    out=part, wk=wk, pm=pm)
+                    stp=s_tp, rest_lin=rest_lin, ref=ref, quad=quad, out=part, wk=wk, pm=pm)
     elif dirty:
         accumulate_serial(quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
                           rest_lin=rest_lin, rest_off=rest_off, ref=ref, part=part)
     if turn > 0.0:
         quat_prev[:, :] = quat
-    solve_clusters(part=part, wsum=wsum, sum_q=sum_q, ref=ref, quat=quat, aqq3=aqq3,
-                   aqq9=aqq9, rest_lin=rest_lin, rest_off=rest_off, scale=scale,
-                   trans=trans, goal_lin=goal_lin, goal_off=goal_off, mode=mode, beta=beta,
-                   apq=apq, acc=accbuf, m3a=m3a, m3b=m3b, m3c=m3c, m39=m39, n4=n4, v4=v4,
-                   nmat=nmat, cdet=cdet)
+    solve_clusters_warm(part=part, wsum=wsum, sum_q=sum_q, ref=ref, quat=quat, aqq3=aqq3,
+                        aqq9=aqq9, rest_lin=rest_lin, rest_off=rest_off, scale=scale,
+                        trans=trans, goal_lin=goal_lin, goal_off=goal_off, mode=mode,
+                        beta=beta, apq=apq, acc=accbuf, m3a=m3a, m3b=m3b, m3c=m3c, m39=m39,
+                        n4=n4, v4=v4, nmat=nmat, cdet=cdet, udv=udv, warm=True)
     turned = 0
     if turn > 0.0:
         # |q_prev . q| = cos(angle / 2), as Body._step
@@ -114,9 +113,9 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
                                 m3c=m3c, m3d=m3d)
             counts[1] += turned
     if sets:
-        sets_maps(sptr=s_ptr, scl=s_cl, scnt=s_cnt, sorg=s_org, rest_lin=rest_lin,
-                  rest_off=rest_off, trans=trans, goal_lin=goal_lin, goal_off=goal_off,
-                  ref=ref, quad=quad, gm=gm, sref=sref, pm=pm)
+        sets_maps(sptr=s_ptr, scl=s_cl, scnt=s_cnt, sorg=s_org, stp=s_tp, rest_lin=rest_lin,
+                  trans=trans, goal_lin=goal_lin, goal_off=goal_off, ref=ref, quad=quad,
+                  gm=gm, sref=sref, pm=pm, ck=s_ck)
     for i in range(3):
         acc[i] = force[i] + gravity[i]
         ang[i] = 0.0
