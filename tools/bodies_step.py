@@ -97,7 +97,7 @@ def main(argv=None) -> int:
     ap.add_argument('--runs', type=int, default=3, help='processes per checkout (--compare)')
     ap.add_argument('--root', help='checkout whose sm_ros is measured (default: this one)')
     ap.add_argument('--clock', choices=('wall', 'thread'), default='wall',
-                    help='wall-clock time or the calling thread\'s CPU time (loaded machine)')
+                    help="wall-clock time or the calling thread's CPU time (loaded machine)")
     args = ap.parse_args(argv)
     if not args.compare:
         sys.path.insert(0, args.root or str(Path(__file__).resolve().parent.parent))

@@ -190,6 +190,7 @@ class Body:
         state = self.__dict__.copy()
         state.pop('_one', None)                # a typed list does not copy: rebuilt
         state.pop('_pack_owner', None)
+        state.pop('_arena', None)              # the copy's buffers are its own: packed again
         return state
 
     def _one_record(self, h):

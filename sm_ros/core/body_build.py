@@ -36,7 +36,7 @@ class _SetLayout:
     ``cm0``; scratch ``wk``, ``pm``, ``ck`` (clusters, 3, 10).
     """
 
-    def __init__(self, x0, m, ptr, cl, c0, cm0):
+    def __init__(self, x0, m, ptr, cl, c0, cm0, quad):
         n = len(x0)
         counts = np.diff(ptr)
         rows = np.repeat(np.arange(n), counts)
@@ -72,10 +72,11 @@ class _SetLayout:
         self.phi = np.stack([np.bincount(self.sid, weights=m * phi[:, j], minlength=ns)
                              for j in range(10)], axis=1)
         self.ref = self.org + c0
-        self.gm = np.zeros((ns, 3, 10))
+        # goal maps: 4 coefficients a row (rigid/linear) or 10 (quadratic)
+        self.gm = np.zeros((ns, 3, 10 if quad else 4))
         self.tp = np.ascontiguousarray(np.repeat(self.org, valid.sum(axis=1), axis=0)
                                        - cm0[self.cl])
-        self.ck = np.zeros((len(cm0), 3, 10))
+        self.ck = np.zeros((len(cm0) if quad else 0, 3, 10))
         self.wk = np.zeros((2, 3, 10))
         self.pm = np.zeros((9, 10))
         self.pairs = len(self.cl)
@@ -150,14 +151,14 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     na = 30 if body._quad else 12
     body._sets = None
     if p.clusters > 1:
-        sets = _SetLayout(x0, m, body._ptr, body._cl, body._c0, cm0)
+        sets = _SetLayout(x0, m, body._ptr, body._cl, body._c0, cm0, body._quad)
         if sets.pairs * set_layout_min_ratio <= len(body._cl):
             body._sets = sets
     elif body._quad and single_quadratic_sets:
         # one set: the quadratic goal as one polynomial of x0 (27 multiply-adds less
         # per particle than features-then-transform)
         body._sets = _SetLayout(x0, m, np.arange(n + 1, dtype=np.int64),
-                                np.zeros(n, dtype=np.int32), body._c0, cm0)
+                                np.zeros(n, dtype=np.int32), body._c0, cm0, True)
     # work per step: one unit per particle (one cluster, set layout) or per membership
     work = len(body._cl) if p.clusters > 1 and body._sets is None else n
     body._parallel = work >= parallel_min_work and numba.get_num_threads() > 1
@@ -203,6 +204,7 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     body._dacc = np.zeros(K.NDAMP)
     body._dirty = True
     body._flags[2] = 0.0                   # no fused damping sums yet
+    body._arena = None                     # fast_record packs the new buffers (compact)
     _GENERATION[0] += 1
 
 
@@ -252,8 +254,75 @@ def merge_kinematic(body):
     _GENERATION[0] += 1
 
 
+#: Per-body buffers of a compiled-step record that ``compact`` moves into one block.
+_ARENA_ATTRS = ('_rest_lin', '_rest_off', '_part', '_wsum', '_sum_q', '_ref', '_quat',
+                '_aqq3', '_aqq9', '_scale', '_trans', '_goal_lin', '_goal_off', '_apq',
+                '_accbuf', '_m39', '_n4', '_v4', '_nmat', '_cdet', '_acc', '_ang', '_com',
+                '_err', '_dpart', '_dmp', '_dref', '_dacc', '_lin', '_w3', '_quat_prev',
+                '_flagged', '_lim_lin', '_lim_w', '_facc', '_flags', '_limit_counts', '_udv',
+                '_ptr', '_cl')
+_ARENA_SETS = ('sid', 'gm', 'ref', 'part', 'ptr', 'cl', 'cnt', 'phi', 'org', 'wk', 'pm', 'tp',
+               'ck')
+#: Alignment (bytes) of each buffer in the block: a cache line.
+_ARENA_ALIGN = 64
+
+
+def compact(body):
+    """Move the small buffers a record holds into one contiguous block (``body._arena``)
+    and rebind the body's attributes to views of it (values kept; the particle arrays x,
+    v, x0, y0 and the masses stay where they are).
+
+    A record holds ~65 arrays, each its own allocation: a step of a 144-particle body
+    touched as many scattered cache lines and pages, and between two steps of the same
+    body (contact, the other bodies) they leave the caches.  In one block, 64-byte
+    aligned in the order the step uses them, they stream in.  Done once per build (at the
+    first ``fast_record``), so every record of the body sees the same buffers; the views
+    keep dtype, shape, C order and alignment, so the compiled step's types do not change.
+    """
+    items = []
+    for name in _ARENA_ATTRS:
+        items.append((body, name, None))
+    for i in range(len(body._s3)):
+        items.append((body._s3, i, None))
+    if body._sets is not None:
+        for name in _ARENA_SETS:
+            items.append((body._sets, name, None))
+    if body._dsets is not None and body._sets is None:
+        for i in range(3):
+            items.append((body._dsets, i, None))
+    chosen, total = [], 0
+    for owner, key, _ in items:
+        a = owner[key] if isinstance(owner, (list, tuple)) else getattr(owner, key)
+        if not isinstance(a, np.ndarray) or a.size == 0 or not a.flags.c_contiguous:
+            continue
+        chosen.append((owner, key, a, total))
+        total += -(-a.nbytes // _ARENA_ALIGN) * _ARENA_ALIGN
+    arena = np.zeros(total + _ARENA_ALIGN, dtype=np.uint8)
+    base = -arena.ctypes.data % _ARENA_ALIGN
+    dsets = list(body._dsets) if body._dsets is not None else None
+    for owner, key, a, off in chosen:
+        view = arena[base + off:base + off + a.nbytes].view(a.dtype).reshape(a.shape)
+        view[...] = a
+        if not a.flags.writeable:
+            view.flags.writeable = False
+        if isinstance(owner, list):
+            owner[key] = view
+        elif isinstance(owner, tuple):
+            dsets[key] = view
+        else:
+            setattr(owner, key, view)
+    if body._sets is not None and body._dsets is not None:
+        st = body._sets
+        dsets = [st.ptr, st.cl, st.cnt]      # the damping sets are the set layout's
+    if dsets is not None:
+        body._dsets = tuple(dsets)
+    body._arena = arena
+
+
 def fast_record(body, h):
     """The tuple of buffers ``kernels.world_step`` steps (valid until the next rebuild)."""
+    if getattr(body, '_arena', None) is None:
+        compact(body)
     p = body._params.at_step(h)
     body._at_step = (h, body._params, p)
     body._fstate = np.array([p.alpha, p.beta, p.damping, body._params.max_speed,
