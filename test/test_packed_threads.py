@@ -96,3 +96,28 @@ def test_world_threads_one_big_body_only_from_the_threshold(monkeypatch):
         ref._split_bodies(0.01)
         _step_pack(ref, 1, 0, 1, h=0.01)
     np.testing.assert_allclose(world.bodies[0].x, ref.bodies[0].x, rtol=0, atol=1e-12)
+
+
+def test_pack_of_one_body_below_the_threshold_steps_serially_when_asked_for_threads(
+        monkeypatch):
+    """``Pack.step(parallel=True)`` of one body below ``PASS_PARALLEL_MIN`` (a body built
+    for threads, stepped by ``Body._step``) takes the serial entry: bit for bit the states
+    of ``parallel=False``, and no parallel region is entered (``step_packed`` is not
+    called)."""
+    h = 1.0 / 240.0
+    a, b = _world(0.05, True, 2.0), _world(0.05, True, 2.0)
+    pa, pb = a._split_bodies(h)[0], b._split_bodies(h)[0]
+    calls = []
+    real = packed.step_packed
+
+    def spy(*args):
+        calls.append(args[4])
+        return real(*args)
+
+    monkeypatch.setattr(packed, 'step_packed', spy)
+    for _ in range(5):
+        for w, p, par in ((a, pa, True), (b, pb, False)):
+            p.step(h, w._gravity, w._has_col, w._ground_row, w._box_rows, w._sphere_rows,
+                   0.05, par)
+    assert calls == []
+    assert (a.bodies[0].x == b.bodies[0].x).all() and (a.bodies[0].v == b.bodies[0].v).all()
