@@ -165,22 +165,49 @@ class Pack:
                                has_col, ground, boxes, spheres, thresh)
 
 
+_THREADS = []
+
+
+def _thread_count_fns():
+    """(get, set) of the calling thread's Numba thread count.  The public
+    ``numba.get/set_num_threads`` check the threading layer at each call (~6 us for a get
+    and two sets); after the first call the layer's own functions are used (about 1.3 us),
+    where this Numba version has them."""
+    if not _THREADS:
+        numba.get_num_threads()                # launches the threading layer
+        try:
+            from numba.np.ufunc import parallel as layer
+            get, put = layer._get_num_threads, layer._set_num_threads
+            if get() != numba.get_num_threads():
+                raise AttributeError
+        except (ImportError, AttributeError, TypeError):
+            get, put = numba.get_num_threads, numba.set_num_threads
+        _THREADS.extend((get, put))
+    return _THREADS
+
+
 def step_packed_single(P, counts, parts, scratch, h, gravity, has_col, ground, boxes,
                        spheres, thresh):
-    """Every body of a pack on the calling thread: a serial compiled function (no parallel
-    region to launch, no thread count to set: ~5 of the ~8 us a call cost, as much as a
-    10k-particle body's pass at 0.5 ns/particle) running the same ``_step_chunk`` as
-    ``step_packed``, so both give the same states."""
-    step_packed_serial(P, counts, parts, scratch, h, gravity, has_col, ground, boxes, spheres,
-                       thresh)
-
-
-@njit(**JIT)
-def step_packed_serial(P, counts, parts, scratch, h, gravity, has_col, ground, boxes, spheres,
-                       thresh):
-    """``step_packed`` on the calling thread (see ``step_packed_single``)."""
-    _step_chunk(P, counts, parts, scratch[0], 0, len(parts), 0, 0, 1, h, gravity, has_col,
-                ground, boxes, spheres, thresh)
+    """Every body of a pack on the calling thread: ``step_packed`` with one thread (its
+    one chunk).  The same compiled function as the threaded call, on purpose: a serial
+    compiled entry calling ``_step_chunk`` (1-1.5 us a call cheaper) is a second
+    compilation of the chunk, and whether two compilations round alike under fast math
+    depends on how each was compiled: Numba inlines a callee compiled in the same process
+    but only links one loaded from the on-disk cache.  In a fresh clone the two entries
+    were compiled in different processes and the threaded world step and the bodies
+    stepped one by one differed in the last bit (test_core_packed, test_core_fused)."""
+    get, put = _thread_count_fns()
+    threads = get()
+    if threads == 1:
+        step_packed(P, counts, parts, scratch, 1, 0, h, gravity, has_col, ground, boxes,
+                    spheres, thresh)
+        return
+    put(1)
+    try:
+        step_packed(P, counts, parts, scratch, 1, 0, h, gravity, has_col, ground, boxes,
+                    spheres, thresh)
+    finally:
+        put(threads)
 
 
 @njit(parallel=True, **JIT)
