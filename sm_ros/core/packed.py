@@ -40,17 +40,6 @@ from .kernels.damping import _rigid_fields, damp_acc_range
 from .kernels.integrate import _acc_single, _int_single_fused, _int_single_lin
 from .kernels.limits import limit_speed_range
 
-#: A packed body of at least this many particles runs its particle pass on all the Numba
-#: threads (its blocks split into one run per thread, each with its own sums, added up in
-#: thread order: ``_pass_threads``) when the pack steps in parallel; a smaller one runs on
-#: one thread.  Off (no body is that big): on this project's machine (2 cores shared by
-#: several processes, load 3-4) the threads never paid.  A 1M-particle body,
-#: ``step_packed`` medians: 5-6 ms on one thread; 48 ms split over 2 threads and 23 ms in
-#: one run inside the parallel region (libgomp's waiting thread spins on a core the
-#: others need), 6.5 ms with ``OMP_WAIT_POLICY=passive``; the body's own threaded kernels
-#: before it was packed: 8.6-13.5 ms.  Set it (e.g. 262144, ``body.PARALLEL_MIN_WORK``)
-#: where cores are free; ``test_packed_threads`` checks the split gives the same states.
-PASS_PARALLEL_MIN = 1 << 62
 #: Particles per call of the fused one-loop pass of an undamped body (``_int_single_fused``;
 #: sums reduced once a call; a call with a speed over the cap is capped and summed again).
 #: A damped body takes ``BLOCK``: its damping sums are a second loop over the block.
@@ -152,14 +141,14 @@ class Pack:
 
     def step(self, h, gravity, has_col, ground, boxes, spheres, thresh, parallel=False):
         """Step every body of the pack once (on the threads with ``parallel``)."""
-        if parallel and (len(self.bodies) > 1 or self.bodies[0].n >= PASS_PARALLEL_MIN):
-            # one body below PASS_PARALLEL_MIN: on the calling thread (a parallel region of
-            # one run would only add the other threads' wait)
+        if parallel and len(self.bodies) > 1:
+            # one body: on the calling thread (a parallel region of one chunk would only
+            # add the other threads' wait)
             threads = numba.get_num_threads()
             if len(self.scratch) < threads:
                 self.scratch = np.zeros((threads, SCRATCH))
-            step_packed(self.P, self.counts, self.parts, self.scratch, threads,
-                        PASS_PARALLEL_MIN, h, gravity, has_col, ground, boxes, spheres, thresh)
+            step_packed(self.P, self.counts, self.parts, self.scratch, threads, h, gravity,
+                        has_col, ground, boxes, spheres, thresh)
         else:
             step_packed_single(self.P, self.counts, self.parts, self.scratch, h, gravity,
                                has_col, ground, boxes, spheres, thresh)
@@ -199,51 +188,39 @@ def step_packed_single(P, counts, parts, scratch, h, gravity, has_col, ground, b
     get, put = _thread_count_fns()
     threads = get()
     if threads == 1:
-        step_packed(P, counts, parts, scratch, 1, 0, h, gravity, has_col, ground, boxes,
-                    spheres, thresh)
+        step_packed(P, counts, parts, scratch, 1, h, gravity, has_col, ground, boxes, spheres,
+                    thresh)
         return
     put(1)
     try:
-        step_packed(P, counts, parts, scratch, 1, 0, h, gravity, has_col, ground, boxes,
-                    spheres, thresh)
+        step_packed(P, counts, parts, scratch, 1, h, gravity, has_col, ground, boxes, spheres,
+                    thresh)
     finally:
         put(threads)
 
 
 @njit(parallel=True, **JIT)
-def step_packed(P, counts, parts, scratch, threads, pass_min, h, gravity, has_col, ground,
-                boxes, spheres, thresh):
-    """Every body of a pack on ``threads`` threads (``scratch``: at least ``threads`` rows of
-    ``SCRATCH``): the bodies of at least ``pass_min``
-    particles (``pass_min`` > 0) one after the other, each with its particle pass split
-    over the threads (``_pass_threads``), then the others in ``threads`` chunks of
-    consecutive bodies over the threads (a body owns its row and its particles, so the
-    chunking changes no result)."""
+def step_packed(P, counts, parts, scratch, threads, h, gravity, has_col, ground, boxes,
+                spheres, thresh):
+    """Every body of a pack in ``threads`` chunks of consecutive bodies over the threads
+    (``scratch``: at least ``threads`` rows of ``SCRATCH``; a body owns its row and its
+    particles, so the chunking changes no result).  A body's particle pass is not split
+    over threads: a split pass (sums per thread, added in thread order) was built and
+    tested in this project's history and never paid on its shared 2-core machine (a 1M
+    body: 5-6 ms on one thread, 48 ms over 2), and it added ~17 s to the cold compile."""
     nb = len(parts)
-    big = 0
-    if threads > 1 and pass_min > 0:
-        for b in range(nb):
-            if parts[b][3].shape[0] >= pass_min:
-                big += 1
-    if big:
-        _step_chunk(P, counts, parts, scratch[0], 0, nb, 1, pass_min, threads, h, gravity,
-                    has_col, ground, boxes, spheres, thresh)
-        if big == nb:
-            return
-    which = 2 if big else 0
-    nch = max(1, min(threads, nb - big))
+    nch = max(1, min(threads, nb))
     for c in prange(nch):
         lo = (c * nb) // nch
         hi = ((c + 1) * nb) // nch
-        _step_chunk(P, counts, parts, scratch[c], lo, hi, which, pass_min, 1, h, gravity,
-                    has_col, ground, boxes, spheres, thresh)
+        _step_chunk(P, counts, parts, scratch[c], lo, hi, h, gravity, has_col, ground,
+                    boxes, spheres, thresh)
 
 
 @njit(**JIT)
-def _step_chunk(P, counts, parts, scr, lo, hi, which, pass_min, threads, h, gravity,
-                has_col, ground, boxes, spheres, thresh):
-    """Bodies lo..hi (``which`` 0: all, 1: those of at least ``pass_min`` particles, with
-    their particle pass on ``threads`` threads, 2: the others) with one set of scratch
+def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxes, spheres,
+                thresh):
+    """Bodies lo..hi with one set of scratch
     buffers (shaped as ``solve_clusters`` and the damping kernels take them for one
     cluster; ``scr``: ``SCRATCH`` numbers of scratch)."""
     # scratch: views of the chunk's row of ``Pack.scratch`` (about 30 small arrays
@@ -285,8 +262,6 @@ def _step_chunk(P, counts, parts, scr, lo, hi, which, pass_min, threads, h, grav
     nocl = np.zeros(0, dtype=np.int32)
     for b in range(lo, hi):
         xt, vt, x0t, mass = parts[b]
-        if which != 0 and (mass.shape[0] >= pass_min) != (which == 1):
-            continue
         x, v, x0 = xt.T, vt.T, x0t.T
         row = P[b]
         # ---- load the body's state into the scratch (copies of ~70 numbers)
@@ -364,15 +339,9 @@ def _step_chunk(P, counts, parts, scr, lo, hi, which, pass_min, threads, h, grav
         for j in range(3):
             dpart[0, 0, 15 + j] = pnt[0, j]
         dpart[0, 0, 18] = 1.0
-        if threads > 1:
-            err2, capped = _pass_threads(threads, x, v, x0, mass, goal_lin, goal_off, alpha,
-                                         h, acc, damp, k_damp, dmp, ref, pnt, rest_lin,
-                                         rest_off, v_max, has_col, ground, boxes, spheres,
-                                         thresh, part[0], dpart[0])
-        else:
-            err2, capped = _pass(0, n, x, v, x0, mass, goal_lin, goal_off, alpha, h, acc,
-                                 damp, k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max,
-                                 has_col, ground, boxes, spheres, thresh, part[0], dpart[0])
+        err2, capped = _pass(0, n, x, v, x0, mass, goal_lin, goal_off, alpha, h, acc, damp,
+                             k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max, has_col,
+                             ground, boxes, spheres, thresh, part[0], dpart[0])
         for j in range(3):
             ref[0, j] = pnt[0, j]
         counts[b, 0] += capped
@@ -440,43 +409,6 @@ def _pass(lo, hi, x, v, x0, mass, goal_lin, goal_off, alpha, h, acc, damp, k_dam
                     rest_off=rest_off, ref=pnt, sums=sums)
         if damp:
             damp_acc_range(bs, be, x, v, mass, nocl, dsums)
-    return err2, capped
-
-
-@njit(parallel=True, **JIT)
-def _pass_threads(threads, x, v, x0, mass, goal_lin, goal_off, alpha, h, acc, damp, k_damp,
-                  dmp, ref, pnt, rest_lin, rest_off, v_max, has_col, ground, boxes, spheres,
-                  thresh, sums, dsums):
-    """``_pass`` over all particles split into ``threads`` runs of whole ``FUSED_BLOCK``
-    blocks, one a thread, each into its own sums (and damping sums about the same point),
-    added up afterwards in run order: the same states as ``_pass`` to round-off (the sums
-    are added in another order), the same on any machine for one ``threads``."""
-    n = x.shape[0]
-    nblk = (n + FUSED_BLOCK - 1) // FUSED_BLOCK
-    ps = np.zeros((threads, 1, 12))
-    pd = np.zeros((threads, 1, NDAMP))
-    pe = np.zeros(threads)
-    pc = np.zeros(threads, dtype=np.int64)
-    for t in prange(threads):
-        lo = min(n, ((t * nblk) // threads) * FUSED_BLOCK)
-        hi = min(n, (((t + 1) * nblk) // threads) * FUSED_BLOCK)
-        for j in range(15, 19):
-            pd[t, 0, j] = dsums[0, j]
-        e, c = _pass(lo, hi, x, v, x0, mass, goal_lin, goal_off, alpha, h, acc, damp,
-                     k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max, has_col, ground, boxes,
-                     spheres, thresh, ps[t], pd[t])
-        pe[t] = e
-        pc[t] = c
-    err2 = 0.0
-    capped = 0
-    for t in range(threads):
-        err2 += pe[t]
-        capped += pc[t]
-        for j in range(12):
-            sums[0, j] += ps[t, 0, j]
-        for j in range(15):
-            dsums[0, j] += pd[t, 0, j]
-        dsums[0, 19] += pd[t, 0, 19]
     return err2, capped
 
 

@@ -10,7 +10,6 @@ from numba.typed import List as TypedList
 from . import body as body_mod
 from .body import Body
 from .kernels.world_step import step_bodies_parallel, step_single_bodies
-from . import packed as packed_mod
 from .packed import Pack
 from .contact import COUPLE_ALPHA, BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
@@ -241,17 +240,15 @@ class World(WorldColliders):
         (``Pack.stale``: one of its bodies was packed elsewhere since) changed.  Python
         cost per step does not grow with the number of bodies.  Threads as for one body:
         only from ``WORLD_PARALLEL_MIN_WORK`` particles (on shared cores fork/join costs
-        more below), and with several bodies or one packed body of at least
-        ``packed.PASS_PARALLEL_MIN`` particles (its particle pass split over the threads)."""
+        more below), and with several bodies."""
         key = (body_mod._GENERATION[0], h, self._layout, self.compiled_step)
         split = self._split
         if split is None or split[0] != key or (split[1] is not None and split[1].stale):
-            records, packed, slow, work, big = TypedList(), [], [], 0, False
+            records, packed, slow, work = TypedList(), [], [], 0
             for body in self._bodies.values():
                 if self.compiled_step and body._packed_ok():
                     packed.append(body)
                     work += body.n
-                    big = big or body.n >= packed_mod.PASS_PARALLEL_MIN
                 elif self.compiled_step and body._fast_ok():
                     records.append(body._fast_record(h))
                     work += body.n
@@ -259,7 +256,7 @@ class World(WorldColliders):
                     slow.append(body)
             pack = Pack(packed, h) if packed else None
             parallel = (work >= WORLD_PARALLEL_MIN_WORK and numba.get_num_threads() > 1
-                        and (len(records) + len(packed) > 1 or big))
+                        and len(records) + len(packed) > 1)
             split = self._split = (key, pack, records, slow, parallel)
         return split[1], split[2], split[3], split[4]
 
