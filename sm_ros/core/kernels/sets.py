@@ -358,6 +358,24 @@ def _sets_int_range(start, end, quad, x, v, y0, sid, gm, alpha, h, acc, ang, com
                          k_damp=k_damp, dmp=dmp, sref=sref)
 
 
+@njit(inline='always', **JIT)
+def _add_lin_sums(sums, s, a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23):
+    """Add a run's 12 rigid/linear set sums (sum w d and sum w d y0^T, rows d0..d2) to
+    set ``s``'s row (the run loops keep them in registers until the run ends)."""
+    sums[s, 0] += a00
+    sums[s, 1] += a01
+    sums[s, 2] += a02
+    sums[s, 3] += a03
+    sums[s, 4] += a10
+    sums[s, 5] += a11
+    sums[s, 6] += a12
+    sums[s, 7] += a13
+    sums[s, 8] += a20
+    sums[s, 9] += a21
+    sums[s, 10] += a22
+    sums[s, 11] += a23
+
+
 @njit(**JIT)
 def _sets_acc_lin(start, end, x, y0, mass, sid, sref, sums):
     """U_s += m (x - r_s) [1, y]^T for particles start..end, runs of one set in registers."""
@@ -391,18 +409,7 @@ def _sets_acc_lin(start, end, x, y0, mass, sid, sref, sums):
             a22 += d2 * y_1
             a23 += d2 * y_2
         i = j
-        sums[s, 0] += a00
-        sums[s, 1] += a01
-        sums[s, 2] += a02
-        sums[s, 3] += a03
-        sums[s, 4] += a10
-        sums[s, 5] += a11
-        sums[s, 6] += a12
-        sums[s, 7] += a13
-        sums[s, 8] += a20
-        sums[s, 9] += a21
-        sums[s, 10] += a22
-        sums[s, 11] += a23
+        _add_lin_sums(sums, s, a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23)
 
 
 @njit(**JIT)
@@ -478,18 +485,7 @@ def _sets_acc_damp_lin(start, end, x, v, y0, mass, sid, sref, sums, dsums):
             e12 += wf1 * f2
             e20 += wf2 * f0
         i = j
-        sums[s, 0] += a00
-        sums[s, 1] += a01
-        sums[s, 2] += a02
-        sums[s, 3] += a03
-        sums[s, 4] += a10
-        sums[s, 5] += a11
-        sums[s, 6] += a12
-        sums[s, 7] += a13
-        sums[s, 8] += a20
-        sums[s, 9] += a21
-        sums[s, 10] += a22
-        sums[s, 11] += a23
+        _add_lin_sums(sums, s, a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23)
         row[0] += e0
         row[1] += e1
         row[2] += e2
