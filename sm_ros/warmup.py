@@ -10,7 +10,9 @@ import argparse
 import importlib
 import os
 import pkgutil
+import subprocess
 import sys
+import tempfile
 import threading
 import time
 from typing import Callable, Optional, Sequence
@@ -109,19 +111,31 @@ def cold_start_note() -> Optional[str]:
             '`python -m sm_ros.warmup`) does it ahead of time')
 
 
-def warm_up(on_stage: Optional[Callable[[str], None]] = None) -> float:
+def warm_up(on_stage: Optional[Callable[[str], None]] = None, split: bool = True) -> float:
     """
     Compile the solver's Numba kernels on a throwaway world; return the seconds it took.
 
     Covers every deformation mode, clusters, plasticity, colliders, wrenches and kinematic
     particles, so the node's first tick does not pay for compilation. With Numba's on-disk
     cache warm this takes a fraction of a second.
+
+    On a cold cache (and ``split``) a second process (``python -m sm_ros.warmup --extra``,
+    :func:`warm_extra`) compiles the packed step of the one-cluster bodies and the rarer
+    variants at the same time on the second core, while this one compiles the per-body
+    kernels and the compiled step of the other bodies; Numba's cache files are written
+    whole (a temporary file, then renamed), so each process loads what the other has
+    finished.  Without a second process this one compiles the packed step itself.
     """
     from sm_ros.core import BodyParams, Box, Capsule, Ground, Sphere, World
+    from sm_ros.core.contact import ContactParams
     t0 = time.perf_counter()
-    g = np.linspace(-0.05, 0.05, 3)
-    cube = np.stack(np.meshgrid(g, g, g, indexing='ij'), axis=-1).reshape(-1, 3)
+    extra = _start_extra() if split and cold_kernels() else None
+    # body-body contact is warmed with the packed step (warm_packed), here only when
+    # there is no second process
+    contact = ContactParams(enabled=extra is None)
+    cube = _cube()
     world = World(gravity=(0.0, 0.0, -9.81))
+    world.contact_params = contact
     world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.0),
                         boxes=[Box(lo=(1.0, 1.0, 0.0), hi=(2.0, 2.0, 1.0))],
                         spheres=[Sphere(center=(-1.0, -1.0, 0.0), radius=0.5)],
@@ -138,24 +152,22 @@ def warm_up(on_stage: Optional[Callable[[str], None]] = None) -> float:
     world.move_collider('warm_finger', (0.3, 0.0, 0.05), (0.0, 0.0, 0.0, 1.0), 1.0 / 60.0)
     for _ in range(2):
         world.step(1.0 / 120.0)
-    # one body: the collider pass on the body's own buffers (another compiled variant)
-    solo = World(gravity=(0.0, 0.0, -9.81))
-    solo.set_colliders(capsules=[Capsule(center=(0.0, 0.0, 0.0), radius=0.05, length=0.1)])
-    solo.add_body(cube + (0.0, 0.0, 0.1), masses=0.01)
-    solo.step(1.0 / 120.0)
     # damping: the separate pass (small bodies) and the one fused into the particle pass
     # (bodies of FUSED_DAMPING_MIN particles and more; one cluster, and the set layout)
-    g11 = np.linspace(-0.05, 0.05, 11)
-    big = np.stack(np.meshgrid(g11, g11, g11, indexing='ij'), axis=-1).reshape(-1, 3)
+    big = _cube(11)
     damped = World(gravity=(0.0, 0.0, -9.81))
+    damped.contact_params = contact
     damped.set_colliders(ground=Ground(height=0.0))
     for i, (mode, k) in enumerate((('linear', 1), ('linear', 2), ('quadratic', 2))):
         damped.add_body(big + (0.3 * i, 0.0, 0.1), masses=0.01,
                         params=BodyParams(mode=mode, clusters=k, damping=0.05))
-    damped.add_body(cube + (-0.3, 0.0, 0.1), masses=0.01, params=BodyParams(damping=0.05))
     damped.bodies[0].set_kinematic(np.array([0]), big[:1] + (0.0, 0.0, 0.12))
     for _ in range(2):
         damped.step(1.0 / 120.0)
+    if extra is None:
+        warm_packed()
+    else:
+        _finish_extra(extra)
     if on_stage is not None:
         on_stage('world step')
     for b in bodies:
@@ -164,6 +176,105 @@ def warm_up(on_stage: Optional[Callable[[str], None]] = None) -> float:
             on_stage(b.params.mode)
     mark_warm()
     return time.perf_counter() - t0
+
+
+def _cube(n: int = 3, half: float = 0.05) -> np.ndarray:
+    g = np.linspace(-half, half, n)
+    return np.stack(np.meshgrid(g, g, g, indexing='ij'), axis=-1).reshape(-1, 3)
+
+
+def warm_packed() -> None:
+    """Step the one-cluster rigid and linear bodies (the packed step, ``core/packed.py``)
+    under the static and moving colliders, alone (the collider pass on the body's own
+    buffers) and several at once with contact under gravity (``solve_bodies``)."""
+    from sm_ros.core import BodyParams, Box, Capsule, Ground, Sphere, World
+    cube = _cube()
+    world = World(gravity=(0.0, 0.0, -9.81))
+    world.set_colliders(ground=Ground(height=0.0, friction=0.5),
+                        boxes=[Box(lo=(1.0, 1.0, 0.0), hi=(2.0, 2.0, 1.0))],
+                        spheres=[Sphere(center=(-1.0, -1.0, 0.0), radius=0.5)],
+                        capsules=[Capsule(center=(0.6, 0.0, 0.0), radius=0.05, length=0.2,
+                                          name='warm_finger', kinematic=True)])
+    for i, p in enumerate((BodyParams(mode='rigid', alpha=0.9), BodyParams(mode='linear'),
+                           BodyParams(damping=0.05))):
+        world.add_body(cube + (0.0, 0.0, 0.06 + 0.099 * i), masses=0.01, params=p)
+    world.move_collider('warm_finger', (0.6, 0.0, 0.05), (0.0, 0.0, 0.0, 1.0), 1.0 / 60.0)
+    for _ in range(2):
+        world.step(1.0 / 120.0)
+    solo = World(gravity=(0.0, 0.0, -9.81))
+    solo.set_colliders(capsules=[Capsule(center=(0.0, 0.0, 0.0), radius=0.05, length=0.1)])
+    solo.add_body(cube + (0.0, 0.0, 0.1), masses=0.01)
+    solo.step(1.0 / 120.0)
+
+
+def warm_extra() -> float:
+    """The second process of a cold warm-up (:func:`warm_up`): the packed step, then the
+    variants the node meets less often: contact without gravity (``solve_pairs``),
+    one-particle bodies (their (1, 3) arrays are C- and F-ordered at once, a specialisation
+    of their own) and the threaded kernels of one big body (``body.PARALLEL_MIN_WORK``
+    lowered here so that a small body takes them).  Return the seconds it took."""
+    import sm_ros.core.body as body_mod
+    from sm_ros.core import BodyParams, Ground, World
+    t0 = time.perf_counter()
+    warm_packed()
+    cube = _cube()
+    free = World(gravity=(0.0, 0.0, 0.0))
+    for i in range(2):
+        free.add_body(cube + (0.099 * i, 0.0, 0.0), masses=0.01,
+                      velocities=np.tile(((1.0 - 2.0 * i) * 0.1, 0.0, 0.0), (len(cube), 1)))
+    free.step(1.0 / 120.0)
+    plastic = dict(plastic_yield=0.01, plastic_creep=1.0, plastic_max=0.5)
+    one = World(gravity=(0.0, 0.0, -9.81))
+    one.set_colliders(ground=Ground(height=0.0))
+    for i, p in enumerate((BodyParams(mode='rigid', damping=0.05, **plastic),
+                           BodyParams(mode='linear', clusters=2, **plastic),
+                           BodyParams(mode='quadratic', **plastic),
+                           BodyParams(mode='quadratic', clusters=2, **plastic),
+                           BodyParams(mode='quadratic', clusters=2, damping=0.05))):
+        one.add_body(np.array([[0.5 * i, 0.0, 0.1]]), masses=0.01, params=p)
+    one.step(1.0 / 120.0)
+    threshold = body_mod.PARALLEL_MIN_WORK
+    body_mod.PARALLEL_MIN_WORK = 0
+    try:
+        big = World(gravity=(0.0, 0.0, -9.81))
+        big.set_colliders(ground=Ground(height=0.0))
+        for i, p in enumerate((BodyParams(mode='linear', **plastic),
+                               BodyParams(mode='quadratic', clusters=2))):
+            big.add_body(_cube(5) + (0.5 * i, 0.0, 0.1), masses=0.01, params=p)
+        big.step(1.0 / 120.0)
+    finally:
+        body_mod.PARALLEL_MIN_WORK = threshold
+    return time.perf_counter() - t0
+
+
+def _start_extra():
+    """Start :func:`warm_extra` in a second Python process; None when it cannot start."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ)
+    env['PYTHONPATH'] = os.pathsep.join(p for p in (root, env.get('PYTHONPATH')) if p)
+    err = tempfile.TemporaryFile()
+    try:
+        proc = subprocess.Popen([sys.executable, '-m', 'sm_ros.warmup', '--extra'], env=env,
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                stderr=err)
+    except OSError:
+        err.close()
+        return None
+    return proc, err
+
+
+def _finish_extra(extra) -> None:
+    """Wait for the second process; if it failed, say so and compile its part here."""
+    proc, err = extra
+    with err:
+        code = proc.wait()
+        if code != 0:
+            err.seek(0)
+            tail = err.read().decode(errors='replace').strip().splitlines()[-3:]
+            print('sm_ros: the second warm-up process failed (exit status '
+                  f'{code}): {" / ".join(tail)}; compiling its kernels here',
+                  file=sys.stderr, flush=True)
+            warm_extra()
 
 
 #: Stages ``warm_up`` reports to ``on_stage`` (one world step, then one per body).
@@ -184,7 +295,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(prog='python -m sm_ros.warmup', description=__doc__)
     ap.add_argument('scenes', nargs='*', default=['default'],
                     help="bundled scene names or YAML paths (default: 'default')")
+    ap.add_argument('--extra', action='store_true', help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.extra:                      # the second process of a cold warm_up
+        warm_extra()
+        return 0
     from sm_ros.progress import bar
     note = cold_start_note()
     print('sm_ros: ' + (note or 'loading the solver kernels from the cache'), flush=True)

@@ -718,8 +718,8 @@ def test_resting_pair_is_pushed_apart_without_speed():
                    np.zeros(2, np.uint8), off, bw, np.ones(2, np.bool_), np.zeros((2, 7)),
                    np.zeros(2, np.uint8), np.zeros(1, np.int64), acc, np.zeros(1), 1e-3,
                    np.zeros((2, 3)), np.zeros(4), np.zeros(0, np.int64), np.zeros(3, np.int64),
-                   np.zeros((2, 2)), np.zeros((2, 2)), False, X.T.copy(), np.zeros((2, 3)),
-                   np.zeros((2, 9)))
+                   np.zeros((2, 2)), np.zeros((2, 2)), 0.0, X.T.copy(), np.zeros((2, 3)),
+                   np.zeros((2, 9)), np.inf, np.zeros((12, 1)), np.zeros((5, 1), np.int32))
     assert X[2, 1] - X[2, 0] == pytest.approx(0.02)
     np.testing.assert_array_equal(V, 0.0)
     moves = (X - x0) / W                                  # mass x move: equal, opposite

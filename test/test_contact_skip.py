@@ -57,7 +57,7 @@ def _solve(X, V, W, B, off, boxes, ground, cand_margin, margin):
         np.zeros(X.shape[1], np.uint8), off, bw, cpl, np.zeros((nb, 7)),
         np.zeros(nb, np.uint8), np.zeros(1, np.int64), np.zeros((2, 1)), np.zeros(1),
         0.01 * THRESH, vb, np.zeros(4), cand[:m], cptr, zlo, np.zeros((2, nb)), 0.0, bc,
-        bom, biv, margin)
+        bom, biv, margin, np.zeros((12, 1)), np.zeros((5, 1), np.int32))
     return X, V, found
 
 
@@ -176,6 +176,9 @@ def _solve_chain(X, iters, cbuf=None, ibuf=None):
     """Three one-particle bodies carried as a whole on a line (C, B, A: particles 0, 1,
     2; pairs (0, 1), (1, 2) in that order), at rest, no colliders; ``solve_bodies``
     with at most ``iters`` sweeps.  Returns X, V after it."""
+    # every argument of the type Contact.run passes (one compiled specialisation)
+    cbuf = np.zeros((12, 2)) if cbuf is None else cbuf
+    ibuf = np.zeros((5, 2), np.int32) if ibuf is None else ibuf
     X = np.ascontiguousarray(X.copy())
     V = np.zeros((3, 3))
     W = np.full(3, 10.0)

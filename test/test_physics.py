@@ -566,20 +566,25 @@ def test_estimate_budget_sets_the_pace_and_a_physics_change_drops_it():
 
 def test_copies_of_the_world_keep_the_array_types():
     """A copy's arrays have the Numba types of the world's (read-only stays read-only), so
-    its first step runs the kernels the world already loaded."""
+    its first step runs the kernels the world already loaded: ``copy_world`` and a plain
+    deep copy or pickle alike (``Body.__setstate__``)."""
     import copy
+    import pickle
     import numba
     from sm_ros.error_estimate import copy_world
     from sm_ros.sim import Simulation
     world = Simulation({'scene': 'default'}).world
     twin = copy_world(world)
     plain = copy.deepcopy(world)
-    for b, t, p in zip(world.bodies, twin.bodies, plain.bodies):
+    pickled = pickle.loads(pickle.dumps(world))
+    for b, t, p, q in zip(world.bodies, twin.bodies, plain.bodies, pickled.bodies):
         arrays = [k for k, v in vars(b).items() if isinstance(v, np.ndarray)]
         assert {'m', 'x_init', '_x', '_v'} <= set(arrays)
-        assert not b.m.flags.writeable and p.m.flags.writeable   # what deepcopy does
+        assert not b.m.flags.writeable and not b.x_init.flags.writeable
         for k in arrays:
             assert numba.typeof(getattr(t, k)) == numba.typeof(getattr(b, k)), k
+            assert numba.typeof(getattr(p, k)) == numba.typeof(getattr(b, k)), k
+            assert numba.typeof(getattr(q, k)) == numba.typeof(getattr(b, k)), k
             assert getattr(t, k) is not getattr(b, k)
             np.testing.assert_array_equal(getattr(t, k), getattr(b, k))
     twin.step(1.0 / 120.0)

@@ -64,3 +64,34 @@ def test_warmup_command_prints_no_control_characters_into_a_pipe(warm):
     lines = out.stdout.splitlines()
     assert lines[0] == 'sm_ros: loading the solver kernels from the cache'
     assert lines[-1].startswith('sm_ros: kernels ready (')
+
+
+def test_a_failed_second_warm_up_process_is_reported_and_its_part_done_here(monkeypatch,
+                                                                             capsys):
+    import tempfile
+    from sm_ros import warmup
+    done = []
+    monkeypatch.setattr(warmup, 'warm_extra', lambda: done.append(1) or 0.0)
+    err = tempfile.TemporaryFile()
+    proc = subprocess.Popen([sys.executable, '-c',
+                             'import sys; print("boom", file=sys.stderr); sys.exit(3)'],
+                            stderr=err)
+    warmup._finish_extra((proc, err))
+    assert done == [1]
+    msg = capsys.readouterr().err
+    assert 'second warm-up process failed (exit status 3): boom' in msg
+    assert err.closed
+    # a process that succeeded: nothing said, nothing done again
+    err = tempfile.TemporaryFile()
+    warmup._finish_extra((subprocess.Popen([sys.executable, '-c', 'pass'], stderr=err), err))
+    assert done == [1] and capsys.readouterr().err == ''
+
+
+@pytest.mark.slow
+def test_second_warm_up_process_runs_its_part(warm):
+    # what a cold warm-up starts beside itself (here on the warm cache: seconds)
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    out = subprocess.run([sys.executable, '-m', 'sm_ros.warmup', '--extra'], cwd=ROOT,
+                         env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout == ''

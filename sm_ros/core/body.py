@@ -193,6 +193,14 @@ class Body:
         state.pop('_arena', None)              # the copy's buffers are its own: packed again
         return state
 
+    def __setstate__(self, state):
+        # a copy (copy.deepcopy, pickle) makes every array writeable; Numba types a
+        # read-only array differently, so the copy's first step would compile a second
+        # specialisation of every kernel that reads the masses (step_packed: ~25 s cold)
+        self.__dict__.update(state)
+        self.m.flags.writeable = False
+        self.x_init.flags.writeable = False
+
     def _one_record(self, h):
         """A typed list of this body's record alone (``body_build.one_record``)."""
         return body_build.one_record(self, h)

@@ -184,7 +184,7 @@ def goals(body) -> np.ndarray:
                      apq=np.zeros_like(body._apq), acc=np.zeros(32), m3a=s3[0], m3b=s3[1],
                      m3c=s3[2], m39=np.zeros((3, 9)), n4=np.zeros((4, 4)), v4=np.zeros((4, 4)),
                      nmat=body._nmat, cdet=body._cdet)
-    g = body._x.copy()
+    g = body._x.copy(order='K')            # the layout of x: the kernels' own specialisation
     K.integrate_serial(quad=body._quad, x=g, v=np.zeros_like(g), x0=body._x0, mass=body.m,
                        ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
                        rest_off=body._rest_off, trans=trans, goal_lin=goal_lin,
