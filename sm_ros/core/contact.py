@@ -234,7 +234,7 @@ class Contact:
         self._active = np.zeros(0, dtype=np.int64)
         self._acc = np.zeros((2, 0))
         self._tg = np.zeros(0)
-        self._cbuf = np.zeros((12, 0))
+        self._cbuf = np.zeros((7, 0))
         self._ibuf = np.zeros((5, 0), dtype=np.int32)
         self._vb = np.zeros((max(nb, 1), 3))
         self._zlo = np.zeros((2, max(nb, 1)))   # lowest particle per body: z, its v_z
@@ -327,7 +327,7 @@ class Contact:
             self._acc = np.zeros((2, m))
             self._tg = np.zeros(m)
             self._active = np.zeros(m, dtype=np.int64)
-            self._cbuf = np.zeros((12, m))       # solve_bodies' compact rows
+            self._cbuf = np.zeros((7, m))        # solve_bodies' compact rows
             self._ibuf = np.zeros((5, m), dtype=np.int32)
         if self._bw_version != f.w_version:    # the bodies' masses, from W when it changed
             body_inverse_masses(f.W, f.off, self._bw)
