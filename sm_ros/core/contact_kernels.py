@@ -275,11 +275,12 @@ def _body_move(dv, pend, b, c, px, py, pz, q0, q1, q2):
 @njit(inline='always', **JIT)
 def _compact_row(X, V, R, i, j, bi, bj, bw, vb, h, a, cij, cf):
     """Row a of ``solve_bodies``'s compact rows, for the pair (i, j) of the carried bodies
-    bi, bj: ``cij[:, a]`` = (i, j, bi, bj, 1: the row is set) and ``cf[:, a]`` = x_i - x_j
-    (3), the start-of-step separation x_i - x_j - h (v_i - v_j) (3), r_i + r_j: what a
-    visit of the later sweeps reads per pair, gathered in sweep order by the first sweep
-    or, for the pairs it listed before it changed anything, before the second sweep (its
-    particles' own x, v: their bodies' moves are added from dv at each visit).  What is
+    bi, bj: ``cij[:, a]`` = (i, j, bi, bj, 1: the row is set; ``solve_bodies`` makes it 3
+    while the pair holds impulses, 0 when the row takes the general path) and ``cf[:, a]`` =
+    x_i - x_j (3), the start-of-step separation x_i - x_j - h (v_i - v_j) (3), r_i + r_j:
+    what a visit of the later sweeps reads per pair, gathered in sweep order by the first
+    sweep or, for the pairs it listed before it changed anything, before the second sweep
+    (its particles' own x, v: their bodies' moves are added from dv at each visit).  What is
     the same for every pair of two bodies (their velocities ``vb``, inverse masses ``bw``)
     is read from the bodies' rows, which stay in cache (a row of 12 values cost
     ``paper_384``'s later sweeps about 15 % more: they stream the rows from memory)."""
@@ -389,19 +390,25 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
                         and bw[bj] > 0.0 and W[j] > 0.0):
                     _compact_row(X, V, R, i, j, bi, bj, bw, vb, h, r, cij, cf)
             # a row's law is fixed from here on (``tg``): rows whose law is not the
-            # carried one (not fixed in the first sweep) take the general path
+            # carried one (not fixed in the first sweep) take the general path; the
+            # others note whether they hold impulses (3), so that a visit of a row apart
+            # and holding nothing reads its row only (not acc: about 5 % of the pass)
             for r in range(nact):
-                if cm[r] and not tg[active[r]] >= 1.0:
-                    cm[r] = 0
+                if cm[r]:
+                    k = active[r]
+                    if not tg[k] >= 1.0:
+                        cm[r] = 0
+                    elif acc[0, k] > 0.0 or acc[1, k] > 0.0:
+                        cm[r] = 3      # compact, holding impulses (kept up by its visits)
         for kk in range(todo):
             # symmetric Gauss-Seidel: forward, then backward
             a = kk if it % 2 == 0 else todo - 1 - kk
-            if not first and cm[a]:
+            cma = cm[a] if not first else 0
+            if cma:
                 # a pair of two carried bodies, from its compact row (the same law as
                 # below with ci and cj; about a quarter faster a visit in paper_384's
                 # heap): unless a same-body pair moved one of its particles (then the
                 # general path; its law fixed in the first sweep: ``cm``)
-                k = active[a]
                 if not (selfp and (moved[cij[0, a]] or moved[cij[1, a]])):
                     bi = cij[2, a]
                     bj = cij[3, a]
@@ -418,8 +425,9 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
                     if not d2 == d2:
                         continue       # NaN (a body that blew up): left alone
                     rr = cf[6, a]
-                    if not (d2 < rr * rr or acc[0, k] > 0.0 or acc[1, k] > 0.0):
+                    if not (d2 < rr * rr or cma == 3):
                         continue       # apart and holding nothing
+                    k = active[a]
                     rx = (vb[bi, 0] - vb[bj, 0]) + u0
                     ry = (vb[bi, 1] - vb[bj, 1]) + u1
                     rz = (vb[bi, 2] - vb[bj, 2]) + u2
@@ -436,6 +444,7 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
                         vn0, mu, ih)
                     if ch > big:
                         big = ch
+                    cm[a] = 3 if acc[0, k] > 0.0 or acc[1, k] > 0.0 else 1
                     _body_move(dv, pend, bi, ki, px, py, pz, q0, q1, q2)
                     _body_move(dv, pend, bj, -kj, px, py, pz, q0, q1, q2)
                     continue
