@@ -317,9 +317,10 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
     the shape match's.  A pair with such a body is pushed apart by a position impulse (no
     speed: overlap does not turn into bounce) and its normal velocity goes to the law's
     target (0, or restitution times the approach above ``thresh``, fixed at the first
-    visit in ``tg``, + 2 for these pairs), with accumulated impulses (``acc`` (2, P):
-    velocity and position impulse of the pair so far, never negative, so a later sweep
-    may take back what an earlier one gave too much) over at most ``iters`` symmetric
+    visit in ``tg``, + 2 for these pairs; 0 for a pair apart at its first visit), with
+    accumulated impulses (``acc`` (2, P): velocity and position impulse of the pair so
+    far, never negative, so a later sweep may take back what an earlier one gave too
+    much) over at most ``iters`` symmetric
     Gauss-Seidel sweeps (forward, backward, ...: a one-way sweep drifts a stack towards
     its end), stopping once a sweep changes no velocity by more than ``tol`` (or the
     first one changes nothing at all); after the first sweep only these pairs closer
@@ -514,6 +515,13 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
                     nlazy = nact + 1
                 nact += 1
             if not over and not held:
+                if first and (ci or cj):
+                    # a pair of a carried body not touching at its first visit: the
+                    # carried law with target 0, should a later sweep push it together
+                    # (without it the row kept the law of whichever pair had its index
+                    # before: with the per-particle one, its overlap became a velocity,
+                    # up to 2 g h for a body at rest that a later pair pushed into it)
+                    tg[k] = 2.0
                 continue
             rx = vi0 - vj0
             ry = vi1 - vj1
