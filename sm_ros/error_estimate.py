@@ -39,12 +39,16 @@ often one starts, and /diagnostics gives the age of the last (``error_estimate_a
 Its value does not depend on the pace: the copies are independent of the live world once
 made, and the same copies and steps give the same estimate.
 
-The copies are deep copies that keep the read-only flags of the world's arrays
-(:func:`copy_world`): a plain ``copy.deepcopy`` makes them writeable, which Numba types
-differently, so the first step of every copy loaded a second set of compiled kernels
-(2.4 s on the 384-body paper scene). The first copy is made when the estimate starts (a
-snapshot of the live world); the second is made from the first, still unstepped, as the
-first piece of work, so no tick pays for both.
+The first estimate's copies are deep copies that keep the read-only flags of the world's
+arrays (:func:`copy_world`): a plain ``copy.deepcopy`` made them writeable, which Numba
+types differently, so the first step of every copy loaded a second set of compiled kernels
+(2.4 s on the 384-body paper scene). Later estimates write the world's state into the last
+estimate's copies instead (``sm_ros.world_sync.Twin``; the schedule keeps them): on
+``paper_384`` a deep copy took 0.2 s and the copy's first step another 0.14 s to re-pack
+its bodies, a sync 40-55 ms and no re-packing; a copy of another make (bodies added or
+rebuilt, buffers grown) is refused and deep-copied anew. The first copy is made when the
+estimate starts (a snapshot of the live world); the second is made from the first, still
+unstepped, as the first piece of work, so no tick pays for both.
 """
 
 import copy
@@ -135,18 +139,38 @@ class ErrorEstimate:
     COPY_UNITS = 3
 
     def __init__(self, world, dt: float, substeps: int = 1, order: float = ORDER,
-                 horizon: float = HORIZON_S, window: float = WINDOW_S, staged: bool = False):
+                 horizon: float = HORIZON_S, window: float = WINDOW_S, staged: bool = False,
+                 spares: Optional[Dict[str, Any]] = None):
         t0 = time.perf_counter()
         self.dt, self.order, self.horizon = float(dt), order, horizon
         self.source = world                                  # the world it estimates
         self.n = window_steps(dt, substeps, window)
-        self.coarse = copy_world(world)
-        self.fine = None if staged else copy_world(world)
+        #: the copies (``world_sync.Twin``) of the last estimate, to write this one's into
+        self._spares = dict(spares or {})
+        self._twins: Dict[str, Any] = {}
+        self.coarse = self._copy('coarse', world)
+        self.fine = None if staged else self._copy('fine', self.coarse)
         self.units = self.COPY_UNITS * (1 if staged else 2)
         self.d = []
         self._phase = 0         # the next unit: 0 coarse step, 1 and 2 the fine steps
         self.result: Optional[Dict[str, Any]] = None
         self.cost_s = time.perf_counter() - t0
+
+    def _copy(self, role: str, world):
+        """A copy of ``world``: the last estimate's copy in this role with ``world``'s state
+        written into it (``world_sync``: no allocation, its packed buffers and records
+        kept), or a new deep copy where that is refused or there is none."""
+        from sm_ros.world_sync import Twin
+        twin = self._spares.pop(role, None)
+        if twin is None or not twin.sync(world):
+            twin = Twin(copy_world(world))
+        self._twins[role] = twin
+        return twin.world
+
+    def spares(self) -> Dict[str, Any]:
+        """The copies this estimate made (``world_sync.Twin`` by role), for the next one
+        (``spares=``); their state is overwritten there."""
+        return dict(self._twins)
 
     @property
     def done(self) -> bool:
@@ -164,7 +188,7 @@ class ErrorEstimate:
         """Do the next unit: make the fine copy, or one step of one copy."""
         h = self.dt
         if self.fine is None:
-            self.fine = copy_world(self.coarse)
+            self.fine = self._copy('fine', self.coarse)
             self.units += self.COPY_UNITS
             return
         if self._phase == 0:
@@ -179,7 +203,7 @@ class ErrorEstimate:
                 self._finish()
 
     def _finish(self) -> None:
-        self.coarse = self.fine = self.source = None    # free the copies
+        self.coarse = self.fine = self.source = None    # the copies live on in spares()
         res = extrapolate(self.d, self.n * self.dt, self.order, self.horizon)
         res['steps'] = self.n
         res['units'] = self.units

@@ -204,7 +204,9 @@ class ErrorEstimateSchedule:
     ``error_estimate.budget``.
 
     ``result`` is the last finished estimate (None before the first), ``running`` the one
-    in progress or None, ``units`` the units of work done in the last ``advance``.
+    in progress or None, ``units`` the units of work done in the last ``advance``. The
+    copies of the last estimate are kept (while estimates are on) and the next estimate
+    writes the world's state into them (``ErrorEstimate``'s ``spares``).
     """
 
     def __init__(self):
@@ -216,10 +218,12 @@ class ErrorEstimateSchedule:
         self._started = -math.inf       # clock time the running estimate's copies were made
         self.result_started = None      # the same, of ``result`` (None before the first)
         self.units = 0
+        self._spares = {}               # the last estimate's copies, reused by the next
 
     def drop(self) -> None:
         """Abandon the estimate in progress (the configuration changed); start anew."""
         if self.running is not None:
+            self._spares = self.running.spares()
             self.running = None
             self._next = -math.inf
 
@@ -240,6 +244,7 @@ class ErrorEstimateSchedule:
         self.units = 0
         if rate <= 0.0 or (budget is not None and budget <= 0.0) or not world.bodies:
             self.running = None
+            self._spares = {}                    # off: the copies' memory goes
             return 0.0
         spent = 0.0
         now = clock()
@@ -251,13 +256,16 @@ class ErrorEstimateSchedule:
             from sm_ros.error_estimate import ErrorEstimate
             self._next = now + 1.0 / rate
             self._started = now
-            self.running = ErrorEstimate(world, dt, substeps, staged=budget is not None)
+            self.running = ErrorEstimate(world, dt, substeps, staged=budget is not None,
+                                         spares=self._spares)
+            self._spares = {}
             spent = self.running.cost_s
             self.units = self.running.units
             if budget is not None:
                 self._credit -= float(self.running.units)
         est = self.running
         if est is not None and (est.dt != dt or est.source is not world):
+            self._spares = est.spares()
             est = self.running = None            # the step or the scene changed: start anew
             self._next = now
         if budget is not None and (est is not None or self._credit < 0.0):
@@ -271,6 +279,7 @@ class ErrorEstimateSchedule:
                 self._credit -= est.units - before
             self.units += est.units - before
             if est.done:
+                self._spares = est.spares()
                 self.result = est.result
                 self.result_started = self._started
                 self.running = None

@@ -1,0 +1,283 @@
+"""Copy one world's state into another of the same make, in place (no ROS, no allocation).
+
+The live error estimate (``sm_ros.error_estimate``) steps two copies of the running world.
+A deep copy of the 384-body paper scene took 0.2 s, and each copy's first step another
+0.14 s to re-pack its bodies' buffers and rebuild its compiled-step records (a copy drops
+them: ``Body.__getstate__``, ``World.__getstate__``): the node's tick that made a copy took
+that long.  :func:`sync_world` instead writes the state of a world into a copy made of it
+earlier, which keeps its own packed buffers, records and pair lists: every array is copied
+into its counterpart (an array viewing a larger block, a body's ``_arena`` or a pack, copies
+that block once), plain values are assigned, what a copy drops (``__getstate__`` leaves it
+out: a body's packed block, typed lists of its buffers) stays the copy's own, and what a
+copy replaces (``World._split``, the compiled-step records, is None in a copy: rebuilt at
+the next step, for its step size) is replaced alike unless the copy's was built for the
+same key (bodies, step size) as the source's.  The copy steps
+afterwards exactly as a fresh deep copy would, bit for bit (``test/test_world_sync.py``).
+
+It refuses (returns False, and the caller makes a fresh copy) whenever the two differ in
+make: another set of bodies or of attributes, an array of another shape, dtype or place in
+its block, a read-only array (masses, rest shape) with other values, an object it does not
+know how to write into.  A refused sync may have written part of the copy: the copy must
+then be dropped.
+"""
+
+import dataclasses
+import enum
+import types
+
+import numpy as np
+
+#: Types whose values are immutable: assigned, never copied into.
+_LEAVES = (type(None), bool, int, float, complex, str, bytes, np.generic, range, slice,
+           types.FunctionType, types.BuiltinFunctionType, type, enum.Enum)
+
+
+#: Print why a sync was refused (for debugging a world of a new make).
+DEBUG = False
+
+
+#: Types assigned at once (the common plain values).
+_PLAIN = frozenset((type(None), bool, int, float, str, np.float64, np.int64, np.bool_))
+
+
+class _Mismatch(Exception):
+    """The two worlds are not of the same make."""
+
+
+def sync_world(dst, src) -> bool:
+    """Write ``src``'s state into ``dst`` (a deep copy of ``src`` made earlier, or a world
+    synced from it) in place; return True, or False when they are not of the same make
+    (``dst`` is then partly written and must be dropped).  :class:`Twin` keeps the walk's
+    plan between calls."""
+    return Twin(dst).sync(src)
+
+
+_CHK, _SET, _LEN = 0, 1, 2
+
+
+class Twin:
+    """A world kept as a copy of another: :meth:`sync` writes the other's state into it.
+
+    The first sync walks both worlds (``_Walk``) and records a plan: the objects found
+    at every place of the source and the copy (to be found there again), the plain
+    values to assign and the memory blocks to copy.  Later syncs from the same source
+    check the plan's places by identity (a body rebuilt, a buffer grown, an attribute
+    added: the plan is dropped and both are walked again), then assign and copy: about
+    a tenth of a walk.
+    """
+
+    def __init__(self, world):
+        """Wrap ``world`` (made by a deep copy of the worlds it will be synced from)."""
+        self.world = world
+        self._plan = None
+        self._source = None
+
+    def sync(self, src) -> bool:
+        """Write ``src``'s state into the twin; False when not of the same make (the twin
+        is then partly written and must be dropped)."""
+        if type(self.world) is not type(src):
+            return False
+        if self._source is src and self._plan is not None and self._replay(self._plan):
+            return True
+        walk = _Walk()
+        try:
+            walk.obj(self.world, src)
+        except _Mismatch as e:
+            self._plan = self._source = None
+            if DEBUG:
+                print('sync_world refused:', e)
+            return False
+        self._plan = (walk.checks, walk.sets, walk.copies, walk.caches, walk.keep) \
+            if walk.cacheable else None
+        self._source = src
+        return True
+
+    @staticmethod
+    def _replay(plan) -> bool:
+        checks, sets, copies, caches, _ = plan
+        for op in checks:
+            if op[0] == _CHK:
+                _, sc, k, sv, dc, dv = op
+                if sc[k] is not sv or dc[k] is not dv:
+                    return False
+            elif len(op[1]) != op[2]:
+                return False
+        for dc, k, sc in sets:
+            v = sc[k]
+            if type(v) not in _PLAIN and not _leaf(v):
+                return False
+            dc[k] = v
+        for d, s in copies:
+            np.copyto(d, s)
+        for dd, k, sd, w in caches:
+            _cache(dd, k, sd, w)
+        return True
+
+
+def _cache(dd, k, sd, w):
+    """A cache a copy replaces by ``w`` (``World._split`` by None: rebuilt at the next
+    step): kept when it is held as (key, ...) with the source's key (built for the same
+    bodies and step size), else replaced like a copy's."""
+    mine, theirs = dd.get(k), sd.get(k)
+    if not (type(mine) is tuple and type(theirs) is tuple and mine and theirs
+            and mine[0] == theirs[0]):
+        dd[k] = w
+
+
+def _root(a: np.ndarray):
+    """The array that owns the memory ``a`` views (``a`` itself when it owns it)."""
+    while isinstance(a.base, np.ndarray):
+        a = a.base
+    return a
+
+
+class _Walk:
+    def __init__(self):
+        self.memo = {}               # id(src object) -> its counterpart in dst
+        self.keep = []               # keep the src objects alive (ids stay unique)
+        self.blocks = {}             # id(src memory block) -> dst's block, once copied
+        self.checks = []             # (_CHK, src container, key, src value, dst container,
+        #                              dst value) and (_LEN, container, length)
+        self.sets = []               # (dst container, key, src container): plain values
+        self.copies = []             # (dst array, src array): memory to copy
+        self.caches = []             # (dst dict, key, src dict, what a copy holds)
+        self.cacheable = True
+
+    def item(self, dc, sc, k, dv, sv):
+        """The value at place ``k`` of the containers ``sc`` (src) and ``dc`` (dst)."""
+        if type(sv) in _PLAIN or (type(sv) is not np.ndarray and _leaf(sv)):
+            if type(dc) is not tuple:
+                self.sets.append((dc, k, sc))
+            return sv
+        if type(dc) is not tuple:
+            self.checks.append((_CHK, sc, k, sv, dc, dv))
+        try:
+            return self.value(dv, sv)
+        except _Mismatch as e:       # say where (only on the way out)
+            raise _Mismatch(f'[{k!r}]: {e}') from None
+
+    def value(self, d, s):
+        """Write ``s`` into ``d``; return what ``d``'s owner must hold afterwards."""
+        seen = self.memo.get(id(s))
+        if seen is not None:
+            return seen
+        if type(d) is not type(s):
+            raise _Mismatch(type(s).__name__)
+        self.memo[id(s)] = d
+        self.keep.append(s)
+        if type(s) is np.ndarray:
+            self.array(d, s)
+        elif isinstance(s, dict):
+            if d.keys() != s.keys():
+                raise _Mismatch('dict keys')
+            self.checks.append((_LEN, s, len(s)))
+            self.checks.append((_LEN, d, len(d)))
+            for k, v in s.items():
+                d[k] = self.item(d, s, k, d[k], v)
+        elif isinstance(s, list):
+            if len(d) != len(s):
+                raise _Mismatch('list length')
+            self.checks.append((_LEN, s, len(s)))
+            self.checks.append((_LEN, d, len(d)))
+            for i, v in enumerate(s):
+                d[i] = self.item(d, s, i, d[i], v)
+        elif isinstance(s, tuple):
+            if len(d) != len(s):
+                raise _Mismatch('tuple length')
+            out = tuple(self.item(d, s, i, a, b) for i, (a, b) in enumerate(zip(d, s)))
+            if any(a is not b for a, b in zip(out, d)):
+                del self.memo[id(s)]     # a new tuple: the owner takes it (walked each time)
+                self.cacheable = False
+                return out
+        elif hasattr(s, '__dict__') and not isinstance(s, (types.ModuleType,
+                                                           types.MethodType)):
+            self.obj(d, s)
+        else:
+            raise _Mismatch(type(s).__name__)
+        return d
+
+    def obj(self, d, s):
+        """Write the attributes of ``s`` a copy would carry into ``d``'s."""
+        self.memo[id(s)] = d
+        self.keep.append(s)
+        sd, dd = s.__dict__, d.__dict__
+        get = getattr(s, '__getstate__', None)
+        state = get() if get is not None else sd
+        if state is None and not sd:
+            return
+        if not isinstance(state, dict):
+            raise _Mismatch('state')
+        self.checks.append((_LEN, sd, len(sd)))
+        for k, v in sd.items():
+            if k not in state:
+                continue                 # a copy drops it: d keeps its own
+            if state[k] is not v:        # a copy holds another value (None: rebuilt)
+                w = state[k]
+                if not _leaf(w):
+                    raise _Mismatch(f'{type(s).__name__}.{k}: copied as an object')
+                self.caches.append((dd, k, sd, w))
+                _cache(dd, k, sd, w)
+                continue
+            if k not in dd:
+                raise _Mismatch(f'{type(s).__name__}.{k}: missing')
+            try:
+                dd[k] = self.item(dd, sd, k, dd[k], v)
+            except _Mismatch as e:
+                raise _Mismatch(f'{type(s).__name__}.{e}') from None
+
+    def array(self, d, s):
+        if d.shape != s.shape or d.dtype != s.dtype or s.dtype.hasobject \
+                or (d.strides != s.strides and s.size > 1):
+            raise _Mismatch('array')
+        if not s.flags.writeable or not d.flags.writeable:
+            if not np.array_equal(d, s):
+                raise _Mismatch('read-only values')
+            return
+        sr, dr = _root(s), _root(d)
+        # a view of a larger block (a body's arena, a pack's rows): the block is copied
+        # once, whole, when the first view met sits at the same place in both blocks up to
+        # one shift (an arena aligns its start); later views of it must view d's block
+        # too (same shapes throughout: the blocks were laid out alike)
+        done = self.blocks.get(id(sr))
+        if done is not None:
+            if done is not dr:
+                raise _Mismatch('views of another block')
+            return
+        if not (sr.nbytes == dr.nbytes and sr.flags.c_contiguous and dr.flags.c_contiguous
+                and sr.flags.writeable and dr.flags.writeable):
+            self.copy(d, s)
+            return
+        self.blocks[id(sr)] = dr
+        self.keep.append(sr)
+        if sr is s:
+            self.copy(d, s)
+            return
+        shift = (_address(d) - _address(dr)) - (_address(s) - _address(sr))
+        if shift == 0 and sr.shape == dr.shape and sr.dtype == dr.dtype:
+            self.copy(dr, sr)
+            return
+        n = sr.nbytes
+        sb, db = sr.reshape(-1).view(np.uint8), dr.reshape(-1).view(np.uint8)
+        lo, hi = max(0, -shift), min(n, n - shift)
+        self.copy(db[lo + shift:hi + shift], sb[lo:hi])
+
+    def copy(self, d, s):
+        np.copyto(d, s)
+        self.copies.append((d, s))
+
+
+def _address(a: np.ndarray) -> int:
+    return a.__array_interface__['data'][0]
+
+
+def _frozen(s) -> bool:
+    """A frozen dataclass of immutable values (parameters): shared, like a number."""
+    return (dataclasses.is_dataclass(s) and not isinstance(s, type)
+            and s.__dataclass_params__.frozen
+            and all(_leaf(getattr(s, f.name)) for f in dataclasses.fields(s)))
+
+
+def _leaf(v) -> bool:
+    if isinstance(v, tuple):
+        return all(_leaf(x) for x in v)
+    return isinstance(v, _LEAVES) or _frozen(v)
