@@ -69,8 +69,10 @@ def measure(steps, rounds, clock='wall'):
     threaded = f'all, {numba.get_num_threads()} threads'
 
     def step_threaded():
+        # as World.step runs paper_384: the pack on one thread (below
+        # WORLD_PARALLEL_MIN_WORK), the records shared with helper threads
         if pack is not None:
-            pack.step(*args, parallel=True)
+            pack.step(*args)
         step_bodies_parallel(records, *args)
 
     runs[threaded] = step_threaded

@@ -2,7 +2,9 @@
 The compiled world step on one thread against all of Numba's threads, side by side.
 
 ``World.step`` spreads its bodies over the Numba threads only from
-``world.WORLD_PARALLEL_MIN_WORK`` particles; a body's own kernels from
+``world.WORLD_PARALLEL_MIN_WORK`` particles (the compiled records alone, on helper
+threads, from ``world.RECORDS_PARALLEL_MIN_WORK``; ``--threads-for records`` times that
+alone); a body's own kernels from
 ``body.PARALLEL_MIN_WORK``. This script times, in one process and round-robin (blocks of
 ``--steps`` steps, medians over ``--rounds`` rounds), each scene with the bodies on one
 thread (``serial``) and on all threads (``threads``):
@@ -80,16 +82,17 @@ def _measure(a) -> dict:
     clock = time.perf_counter
 
     def bodies_step(w, dt, parallel):
-        # the bodies' own step alone (what the threshold decides), as World.step runs it:
+        # the bodies' own step alone (what the thresholds decide), as World.step runs it:
         # the packed one-cluster bodies, the compiled records, the bodies stepped alone
-        pack, records, slow, _ = w._split_bodies(dt)
+        pack, records, slow, parallel = w._split_bodies(dt)
+        helpers = w._split[5]
         args = (dt, w._gravity, w._has_col, w._ground_row, w._box_rows, w._sphere_rows,
                 max(1e-3, 2.0 * float((w._gravity ** 2).sum()) ** 0.5 * dt))
         t0 = clock()
         if pack is not None:
             pack.step(*args, parallel)
         if len(records):
-            (ws.step_bodies_parallel if parallel else ws.step_single_bodies)(records, *args)
+            (ws.step_bodies_parallel if helpers else ws.step_single_bodies)(records, *args)
         for body in slow:
             body._step(*args)
         return clock() - t0
@@ -107,10 +110,16 @@ def _measure(a) -> dict:
                         res.setdefault(f'{name} {variant}', []).append(clock() - t0)
                     continue
                 w = obj
-                world_mod.WORLD_PARALLEL_MIN_WORK = 0 if par else 1 << 40
+                # threads: everything (--threads-for all) or the records alone (helper
+                # threads, ``kernels.world_step.step_bodies_parallel``; as World.step
+                # runs paper_384 by default)
+                world_mod.WORLD_PARALLEL_MIN_WORK = (0 if par and a.threads_for == 'all'
+                                                     else 1 << 40)
+                world_mod.RECORDS_PARALLEL_MIN_WORK = 0 if par else 1 << 40
                 w._split = None                 # the dispatch is decided when rebuilt
                 w.step(dt)
-                assert w._split[-1] == (par and numba.get_num_threads() > 1)
+                assert w._split[5] == (par and numba.get_num_threads() > 1
+                                       and len(w._split[2]) > 1)
                 for _ in range(a.steps):
                     t0 = clock()
                     w.step(dt)
@@ -134,6 +143,9 @@ def main(argv=None) -> int:
     ap.add_argument('--env', action='append', default=None,
                     help="environment of one process: 'A=1,B=2' ('' = as inherited)")
     ap.add_argument('--repeat', type=int, default=1)
+    ap.add_argument('--threads-for', choices=('all', 'records'), default='all',
+                    help='threads variant: every body (the packed step too) or only the '
+                         'compiled records (helper threads)')
     ap.add_argument('--json', action='store_true', help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.env is None:
@@ -153,7 +165,7 @@ def main(argv=None) -> int:
                 env[k] = v
             args = [sys.executable, __file__, '--json', '--scenes', a.scenes,
                     '--rounds', str(a.rounds), '--steps', str(a.steps),
-                    '--settle', str(a.settle)]
+                    '--settle', str(a.settle), '--threads-for', a.threads_for]
             p = subprocess.run(args, env=env, capture_output=True, text=True, check=True)
             rows[e].append(json.loads(p.stdout.strip().splitlines()[-1]))
     _table(rows)

@@ -18,6 +18,12 @@ from .world_colliders import WorldColliders
 #: The compiled world step spreads its bodies over the threads from this many particles
 #: (the threshold of one body's multi-threaded kernels, ``body.PARALLEL_MIN_WORK``).
 WORLD_PARALLEL_MIN_WORK = 262144
+#: The compiled-step records (set-layout bodies, ``kernels.world_step``) are shared with
+#: helper threads (``step_bodies_parallel``) from this many particles in records: their
+#: step costs ~100-150 ns a particle on one thread (``paper_384``: ~45k particles, ~5 ms),
+#: and the calling thread never waits for a helper that gets no core, so the threshold is
+#: the cost of waking a helper (tens of microseconds), not of a fork/join on shared cores.
+RECORDS_PARALLEL_MIN_WORK = 16384
 
 
 class World(WorldColliders):
@@ -200,7 +206,7 @@ class World(WorldColliders):
                       self._sphere_rows, thresh, parallel)
         if len(records):
             # one compiled call for the bodies it covers (kernels/world_step.py)
-            run = step_bodies_parallel if parallel else step_single_bodies
+            run = step_bodies_parallel if self._split[5] else step_single_bodies
             run(records, h, self._gravity, self._has_col, self._ground_row, self._box_rows,
                 self._sphere_rows, thresh)
         for body in slow:
@@ -240,11 +246,14 @@ class World(WorldColliders):
         (``Pack.stale``: one of its bodies was packed elsewhere since) changed.  Python
         cost per step does not grow with the number of bodies.  Threads as for one body:
         only from ``WORLD_PARALLEL_MIN_WORK`` particles (on shared cores fork/join costs
-        more below), and with several bodies."""
+        more below), and with several bodies.  The records alone are also shared with
+        helper threads from ``RECORDS_PARALLEL_MIN_WORK`` particles in records (the
+        split's last entry: ``step_bodies_parallel`` never waits for a helper that has not
+        started)."""
         key = (body_mod._GENERATION[0], h, self._layout, self.compiled_step)
         split = self._split
         if split is None or split[0] != key or (split[1] is not None and split[1].stale):
-            records, packed, slow, work = TypedList(), [], [], 0
+            records, packed, slow, work, rec_work = TypedList(), [], [], 0, 0
             for body in self._bodies.values():
                 if self.compiled_step and body._packed_ok():
                     packed.append(body)
@@ -252,12 +261,16 @@ class World(WorldColliders):
                 elif self.compiled_step and body._fast_ok():
                     records.append(body._fast_record(h))
                     work += body.n
+                    rec_work += body.n
                 else:
                     slow.append(body)
             pack = Pack(packed, h) if packed else None
-            parallel = (work >= WORLD_PARALLEL_MIN_WORK and numba.get_num_threads() > 1
+            threads = numba.get_num_threads() > 1
+            parallel = (work >= WORLD_PARALLEL_MIN_WORK and threads
                         and len(records) + len(packed) > 1)
-            split = self._split = (key, pack, records, slow, parallel)
+            helpers = parallel or (threads and len(records) > 1
+                                   and rec_work >= RECORDS_PARALLEL_MIN_WORK)
+            split = self._split = (key, pack, records, slow, parallel, helpers)
         return split[1], split[2], split[3], split[4]
 
     def _world_passes(self, h, thresh) -> bool:

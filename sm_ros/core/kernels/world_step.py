@@ -20,9 +20,14 @@ damping, quadratic, set layout, max_turn / h], ``force`` the force over the tota
 limit counters; the set-layout buffers (``s_*``) are empty for one-cluster bodies.
 """
 
+import os
+import threading
+
 import numba
 import numpy as np
-from numba import njit, prange
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 from .damping import damp_accumulate, damp_rigid, damping_fields, damping_targets
 from .goals import solve_clusters_warm
@@ -32,36 +37,151 @@ from .limits import limit_speed, limit_turn
 from .sets import sets_accumulate_serial, sets_integrate_serial, sets_maps, sets_reduce
 
 
-@njit(parallel=True, **JIT)
-def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, thresh):
-    """``Body._step`` for every record of ``bodies``, bodies spread over the threads (each
-    record owns all the buffers it writes, so the order does not change any result)."""
+@intrinsic
+def _claim(typingctx, counter):
+    """``counter[0] += 1`` as one atomic operation (sequentially consistent); returns the
+    value before.  The threads of ``step_bodies_parallel`` take their bodies with it."""
+    if not (isinstance(counter, types.Array) and counter.dtype == types.int64
+            and counter.ndim == 1):
+        return None
+    sig = types.int64(counter)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        return builder.atomic_rmw('add', ary.data, ir.Constant(ir.IntType(64), 1), 'seq_cst')
+
+    return sig, codegen
+
+
+@njit(**JIT)
+def step_bodies_claimed(bodies, claim, h, gravity, has_col, ground, boxes, spheres, thresh):
+    """``Body._step`` for the records of ``bodies`` that this call claims: it takes the
+    next unclaimed record (``claim[0]``, counted up atomically) until none is left.
+
+    Called on one thread with ``claim`` = [0] it steps every record in order; called on
+    several threads with one shared ``claim`` (``step_bodies_parallel``) each record is
+    stepped exactly once, by whichever thread took it.  Each record owns all the buffers
+    it writes, so which thread steps it changes no result: every path runs this one
+    compiled function (the kernels compiled into two callers can round differently under
+    fast math), bit for bit.  Returns how many records this call stepped.
+    """
     n = len(bodies)
-    for b in prange(n):
-        # prange's index is unsigned; a typed list takes a signed one (an implicit cast
-        # warned NumbaTypeSafetyWarning on every compile)
-        _step_record(bodies[np.int64(b)], h, gravity, has_col, ground, boxes, spheres, thresh)
+    stepped = 0
+    while True:
+        b = _claim(claim)
+        if b >= n:
+            return stepped
+        _step_record(bodies[b], h, gravity, has_col, ground, boxes, spheres, thresh)
+        stepped += 1
 
 
 def step_single_bodies(bodies, h, gravity, has_col, ground, boxes, spheres, thresh):
-    """``Body._step`` for every record of ``bodies`` on the calling thread alone.
+    """``Body._step`` for every record of ``bodies`` on the calling thread alone."""
+    step_bodies_claimed(bodies, np.zeros(1, dtype=np.int64), h, gravity, has_col, ground,
+                        boxes, spheres, thresh)
 
-    The same compiled loop as ``step_bodies_parallel``, run with one Numba thread: the
-    kernels compiled into two different callers are optimised (inlined, reassociated
-    under fast math) differently and can round differently, so the one-thread world
-    step, the threaded one and ``Body._step`` (which steps a covered body as a list of
-    one record) run one machine code and agree bit for bit.  Setting the thread count
-    costs about a microsecond; the loop then runs on the calling thread.
+
+def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, thresh):
+    """``Body._step`` for every record of ``bodies``, on the calling thread and up to
+    ``numba.get_num_threads() - 1`` helper threads (``Helpers``) that claim records one at
+    a time (``step_bodies_claimed``; the kernels release the GIL).
+
+    Unlike a ``prange`` loop (static halves, and a join that waits for every thread), the
+    calling thread never waits for a helper that has not started: on shared cores where
+    the helper gets no core it steps every record itself, and a helper that wakes after
+    the last record was taken skips the job; it waits only for the records a helper is
+    stepping.  The helpers sleep between jobs (no spinning that would slow the serial
+    passes that follow).
     """
     threads = numba.get_num_threads()
-    if threads == 1:
-        step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, thresh)
+    claim = np.zeros(1, dtype=np.int64)
+    args = (bodies, claim, h, gravity, has_col, ground, boxes, spheres, thresh)
+    if threads < 2 or len(bodies) < 2:
+        step_bodies_claimed(*args)
         return
-    numba.set_num_threads(1)
-    try:
-        step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, thresh)
-    finally:
-        numba.set_num_threads(threads)
+    HELPERS.run(min(threads, len(bodies)) - 1, step_bodies_claimed, args)
+
+
+class Helpers:
+    """Helper threads that join the calling thread on one job at a time (``run``).
+
+    A job is a function and its arguments that every participant calls; the function
+    itself shares the work out (``step_bodies_claimed``: an atomic counter), so a job is
+    done once the calling thread's call returned and no helper is inside one.  A helper
+    that wakes after the calling thread closed the job does not start it.
+    """
+
+    def __init__(self):
+        self._cond = threading.Condition()
+        self._threads = []
+        self._job = None                       # (generation, fn, args) or None: closed
+        self._gen = 0
+        self._active = 0                       # helpers inside the current job's fn
+        self._error = None
+        self._busy = threading.Lock()          # one job at a time (see run)
+
+    def _loop(self):
+        seen = 0
+        while True:
+            with self._cond:
+                while self._job is None or self._job[0] == seen:
+                    self._cond.wait()
+                seen, fn, args = self._job
+                self._active += 1
+            try:
+                fn(*args)
+            except BaseException as exc:        # handed to the caller (run)
+                with self._cond:
+                    self._error = exc
+            finally:
+                with self._cond:
+                    self._active -= 1
+                    self._cond.notify_all()
+
+    def run(self, helpers, fn, args):
+        """Call ``fn(*args)`` here and on up to ``helpers`` helper threads; return when
+        this call has returned and no helper is still inside its call (an exception
+        raised in a helper is raised here).  While another thread's job runs (two worlds
+        stepped from two threads), ``fn`` runs on the calling thread alone."""
+        if not self._busy.acquire(blocking=False):
+            fn(*args)
+            return
+        try:
+            self._run(helpers, fn, args)
+        finally:
+            self._busy.release()
+
+    def _run(self, helpers, fn, args):
+        with self._cond:
+            while len(self._threads) < helpers:
+                t = threading.Thread(target=self._loop, daemon=True,
+                                     name=f'sm_ros-step-{len(self._threads) + 1}')
+                t.start()
+                self._threads.append(t)
+            self._gen += 1
+            self._job = (self._gen, fn, args)
+            self._error = None
+            self._cond.notify(helpers)
+        try:
+            fn(*args)
+        finally:
+            with self._cond:
+                self._job = None
+                while self._active:
+                    self._cond.wait()
+                error, self._error = self._error, None
+        if error is not None:
+            raise error
+
+    def _after_fork(self):
+        """In a forked child the helper threads do not exist: start over."""
+        self.__init__()
+
+
+#: The process's helper threads of ``step_bodies_parallel``.
+HELPERS = Helpers()
+if hasattr(os, 'register_at_fork'):
+    os.register_at_fork(after_in_child=HELPERS._after_fork)
 
 
 @njit(**JIT)

@@ -1,0 +1,82 @@
+"""The helper threads of the threaded world step (``kernels.world_step.Helpers``)."""
+
+import threading
+
+import pytest
+
+from sm_ros.core.kernels.world_step import Helpers
+
+
+def _claiming_job(n, entered, done, lock, who):
+    """A job in the manner of ``step_bodies_claimed``: every caller takes items from one
+    counter until none is left; the calling thread first waits for a helper to join."""
+    nxt = [0]
+
+    def fn():
+        if threading.current_thread() is threading.main_thread():
+            assert entered.wait(10.0), 'no helper joined'
+        else:
+            entered.set()
+        while True:
+            with lock:
+                k = nxt[0]
+                nxt[0] += 1
+            if k >= n:
+                return
+            with lock:
+                done[k] += 1
+                who.add(threading.current_thread().name)
+    return fn
+
+
+def test_helpers_share_a_job_and_every_item_is_done_once():
+    helpers = Helpers()
+    for _ in range(3):                      # the same helper thread, job after job
+        entered, lock, who = threading.Event(), threading.Lock(), set()
+        done = [0] * 200
+        helpers.run(1, _claiming_job(200, entered, done, lock, who), ())
+        assert done == [1] * 200 and entered.is_set()
+    assert len(helpers._threads) == 1 and helpers._active == 0 and helpers._job is None
+
+
+def test_an_exception_in_a_helper_is_raised_in_the_caller():
+    helpers = Helpers()
+    entered = threading.Event()
+    release = threading.Event()
+
+    def fn():
+        if threading.current_thread() is threading.main_thread():
+            assert entered.wait(10.0)
+            release.set()
+            return
+        entered.set()
+        release.wait(10.0)
+        raise ValueError('helper failed')
+
+    with pytest.raises(ValueError, match='helper failed'):
+        helpers.run(1, fn, ())
+    assert helpers._active == 0 and helpers._error is None
+
+
+def test_a_second_caller_runs_its_job_alone_while_one_is_running():
+    """Two worlds stepped from two threads: the job that finds the helpers busy runs on
+    its own thread, whole, and the first job is not disturbed."""
+    helpers = Helpers()
+    entered, inner_done = threading.Event(), []
+    lock, who, done = threading.Lock(), set(), [0] * 50
+
+    def outer():
+        if threading.current_thread() is threading.main_thread():
+            assert entered.wait(10.0)
+            # meanwhile another thread runs a job of its own: not shared, done whole
+            t = threading.Thread(target=lambda: helpers.run(
+                1, lambda: inner_done.append(threading.current_thread().name), ()))
+            t.start()
+            t.join(10.0)
+            assert inner_done and inner_done[0] == t.name
+        else:
+            entered.set()
+
+    helpers.run(1, outer, ())
+    helpers.run(1, _claiming_job(50, threading.Event(), done, lock, who), ())
+    assert done == [1] * 50 and len(inner_done) == 1
