@@ -1,10 +1,10 @@
-"""The helper threads of the threaded world step (``kernels.world_step.Helpers``)."""
+"""The helper threads of the threaded world step (``sm_ros.core.step_threads``)."""
 
 import threading
 
 import pytest
 
-from sm_ros.core.kernels.world_step import Helpers
+from sm_ros.core.step_threads import Helpers
 
 
 def _claiming_job(n, entered, done, lock, who):
@@ -34,8 +34,12 @@ def test_helpers_share_a_job_and_every_item_is_done_once():
     for _ in range(3):                      # the same helper thread, job after job
         entered, lock, who = threading.Event(), threading.Lock(), set()
         done = [0] * 200
-        helpers.run(1, _claiming_job(200, entered, done, lock, who), ())
+        before = []
+        helpers.run(1, _claiming_job(200, entered, done, lock, who), (),
+                    before=lambda b=before: b.append(threading.current_thread().name))
         assert done == [1] * 200 and entered.is_set()
+        # ``before`` ran once, on the calling thread (the helper may have started already)
+        assert before == [threading.current_thread().name]
     assert len(helpers._threads) == 1 and helpers._active == 0 and helpers._job is None
 
 

@@ -200,18 +200,28 @@ class World(WorldColliders):
         if cs is not None:
             cs.advance(h, self.time)
         pack, records, slow, parallel = self._split_bodies(h)
-        if pack is not None:
-            # the one-cluster rigid/linear bodies: one compiled call over their rows (packed.py)
-            pack.step(h, self._gravity, self._has_col, self._ground_row, self._box_rows,
-                      self._sphere_rows, thresh, parallel)
-        if len(records):
-            # one compiled call for the bodies it covers (kernels/world_step.py)
-            run = step_bodies_parallel if self._split[5] else step_single_bodies
-            run(records, h, self._gravity, self._has_col, self._ground_row, self._box_rows,
+        args = (h, self._gravity, self._has_col, self._ground_row, self._box_rows,
                 self._sphere_rows, thresh)
+
+        def step_pack():
+            # the one-cluster rigid/linear bodies: one compiled call over their rows (packed.py)
+            pack.step(*args, parallel)
+
+        if len(records) and self._split[5]:
+            # the records (kernels/world_step.py) shared with helper threads; a pack on one
+            # thread is stepped here while they wake
+            if pack is not None and parallel:
+                step_pack()
+            step_bodies_parallel(records, *args,
+                                 before=step_pack if pack is not None and not parallel else None)
+        else:
+            if pack is not None:
+                step_pack()
+            if len(records):
+                # one compiled call for the bodies it covers (kernels/world_step.py)
+                step_single_bodies(records, *args)
         for body in slow:
-            body._step(h, self._gravity, self._has_col, self._ground_row, self._box_rows,
-                       self._sphere_rows, thresh)
+            body._step(*args)
         self._flagged = not self._world_passes(h, thresh)
         if cs is not None:
             cs.imp_time += h

@@ -20,15 +20,13 @@ damping, quadratic, set layout, max_turn / h], ``force`` the force over the tota
 limit counters; the set-layout buffers (``s_*``) are empty for one-cluster bodies.
 """
 
-import os
-import threading
-
 import numba
 import numpy as np
 from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
+from ..step_threads import HELPERS
 from .damping import damp_accumulate, damp_rigid, damping_fields, damping_targets
 from .goals import solve_clusters_warm
 from .integrate import accumulate_serial, integrate_serial
@@ -81,10 +79,13 @@ def step_single_bodies(bodies, h, gravity, has_col, ground, boxes, spheres, thre
                         boxes, spheres, thresh)
 
 
-def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, thresh):
+def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, thresh,
+                         before=None):
     """``Body._step`` for every record of ``bodies``, on the calling thread and up to
-    ``numba.get_num_threads() - 1`` helper threads (``Helpers``) that claim records one at
-    a time (``step_bodies_claimed``; the kernels release the GIL).
+    ``numba.get_num_threads() - 1`` helper threads (``step_threads.Helpers``) that claim
+    records one at a time (``step_bodies_claimed``; the kernels release the GIL).
+    ``before()``, if given, runs on the calling thread after the helpers were woken and
+    before it joins them (``World.step``: the packed bodies, while the helpers start).
 
     Unlike a ``prange`` loop (static halves, and a join that waits for every thread), the
     calling thread never waits for a helper that has not started: on shared cores where
@@ -97,91 +98,11 @@ def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, th
     claim = np.zeros(1, dtype=np.int64)
     args = (bodies, claim, h, gravity, has_col, ground, boxes, spheres, thresh)
     if threads < 2 or len(bodies) < 2:
+        if before is not None:
+            before()
         step_bodies_claimed(*args)
         return
-    HELPERS.run(min(threads, len(bodies)) - 1, step_bodies_claimed, args)
-
-
-class Helpers:
-    """Helper threads that join the calling thread on one job at a time (``run``).
-
-    A job is a function and its arguments that every participant calls; the function
-    itself shares the work out (``step_bodies_claimed``: an atomic counter), so a job is
-    done once the calling thread's call returned and no helper is inside one.  A helper
-    that wakes after the calling thread closed the job does not start it.
-    """
-
-    def __init__(self):
-        self._cond = threading.Condition()
-        self._threads = []
-        self._job = None                       # (generation, fn, args) or None: closed
-        self._gen = 0
-        self._active = 0                       # helpers inside the current job's fn
-        self._error = None
-        self._busy = threading.Lock()          # one job at a time (see run)
-
-    def _loop(self):
-        seen = 0
-        while True:
-            with self._cond:
-                while self._job is None or self._job[0] == seen:
-                    self._cond.wait()
-                seen, fn, args = self._job
-                self._active += 1
-            try:
-                fn(*args)
-            except BaseException as exc:        # handed to the caller (run)
-                with self._cond:
-                    self._error = exc
-            finally:
-                with self._cond:
-                    self._active -= 1
-                    self._cond.notify_all()
-
-    def run(self, helpers, fn, args):
-        """Call ``fn(*args)`` here and on up to ``helpers`` helper threads; return when
-        this call has returned and no helper is still inside its call (an exception
-        raised in a helper is raised here).  While another thread's job runs (two worlds
-        stepped from two threads), ``fn`` runs on the calling thread alone."""
-        if not self._busy.acquire(blocking=False):
-            fn(*args)
-            return
-        try:
-            self._run(helpers, fn, args)
-        finally:
-            self._busy.release()
-
-    def _run(self, helpers, fn, args):
-        with self._cond:
-            while len(self._threads) < helpers:
-                t = threading.Thread(target=self._loop, daemon=True,
-                                     name=f'sm_ros-step-{len(self._threads) + 1}')
-                t.start()
-                self._threads.append(t)
-            self._gen += 1
-            self._job = (self._gen, fn, args)
-            self._error = None
-            self._cond.notify(helpers)
-        try:
-            fn(*args)
-        finally:
-            with self._cond:
-                self._job = None
-                while self._active:
-                    self._cond.wait()
-                error, self._error = self._error, None
-        if error is not None:
-            raise error
-
-    def _after_fork(self):
-        """In a forked child the helper threads do not exist: start over."""
-        self.__init__()
-
-
-#: The process's helper threads of ``step_bodies_parallel``.
-HELPERS = Helpers()
-if hasattr(os, 'register_at_fork'):
-    os.register_at_fork(after_in_child=HELPERS._after_fork)
+    HELPERS.run(min(threads, len(bodies)) - 1, step_bodies_claimed, args, before)
 
 
 @njit(**JIT)
