@@ -10,6 +10,28 @@ kernels' on-disk cache (``kernels.jit``: one stamp for the whole package).
 import os
 import threading
 
+#: ``cores_free``: the helpers are used while the 1-minute load average is below the CPUs
+#: this process may run on plus this margin.  On the shared 2-core machine the records of
+#: ``paper_384`` ran 1.5-1.9x faster with a helper while a core was free, and the tick ~8 %
+#: slower at load 3.2-4.0 (doc/benchmarks.md, "The records of paper_384 on helper
+#: threads"); the node's own busy thread counts about 1 of the load.
+LOAD_MARGIN = 0.5
+try:
+    _CPUS = len(os.sched_getaffinity(0))
+except AttributeError:                          # not on Linux
+    _CPUS = os.cpu_count() or 1
+
+
+def cores_free():
+    """Whether a helper is likely to find a core: the 1-minute load average below the
+    usable CPUs plus ``LOAD_MARGIN`` (True where the load average is not available).
+    Only speed depends on it: the helpers' results are bit for bit the serial ones."""
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):
+        return True
+    return load < _CPUS + LOAD_MARGIN
+
 
 class Helpers:
     """Helper threads that join the calling thread on one job at a time (``run``).

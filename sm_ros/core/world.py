@@ -8,6 +8,7 @@ import numba
 from numba.typed import List as TypedList
 
 from . import body as body_mod
+from . import step_threads
 from .body import Body
 from .kernels.world_step import step_bodies_parallel, step_single_bodies
 from .packed import Pack
@@ -23,6 +24,7 @@ WORLD_PARALLEL_MIN_WORK = 262144
 #: step costs ~100-150 ns a particle on one thread (``paper_384``: ~45k particles, ~5 ms),
 #: and the calling thread never waits for a helper that gets no core, so the threshold is
 #: the cost of waking a helper (tens of microseconds), not of a fork/join on shared cores.
+#: Not while the machine's cores are all busy (``step_threads.cores_free``: load average).
 RECORDS_PARALLEL_MIN_WORK = 16384
 
 
@@ -207,7 +209,7 @@ class World(WorldColliders):
             # the one-cluster rigid/linear bodies: one compiled call over their rows (packed.py)
             pack.step(*args, parallel)
 
-        if len(records) and self._split[5]:
+        if len(records) and self._split[5] and step_threads.cores_free():
             # the records (kernels/world_step.py) shared with helper threads; a pack on one
             # thread is stepped here while they wake
             if pack is not None and parallel:
