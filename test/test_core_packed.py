@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import sm_ros.core.body as body_mod
+import sm_ros.core.packed as packed
 import sm_ros.core.world as world_mod
 from sm_ros.core import BodyParams, Box, Ground, World
 from sm_ros.error_estimate import copy_world
@@ -99,6 +100,44 @@ def test_packed_step_matches_the_kernel_by_kernel_step(monkeypatch):
             assert np.abs(a - b).max() <= 1e-11 * np.abs(b).max()
         assert np.array_equal(g[3], w[3])
         assert abs(g[2] - w[2]) <= 1e-9 * w[2]
+
+
+@pytest.mark.parametrize('ground', [False, True])
+def test_packed_damping_of_bodies_of_one_mass_matches_the_kernel_by_kernel_step(monkeypatch,
+                                                                                 ground):
+    """The packed pass sums the damping of a body whose particles all have one mass
+    unweighted and scales the sums once a block (``packed._pass``): such bodies (rigid and
+    linear, several blocks, with and without a collider pass) and one of varied masses
+    step as the kernel-by-kernel step (``damp_rigid``'s weighted sums) to round-off."""
+    def build(damping=0.2):
+        world = World()
+        if ground:
+            world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.3))
+        rng = np.random.default_rng(5)
+        for i, (mode, uniform) in enumerate((('rigid', True), ('linear', True),
+                                              ('rigid', False))):
+            x0 = lattice(11) + (0.4 * i, 0.0, 0.02)
+            spin = np.cross(rng.standard_normal(3) * 20.0, x0 - x0.mean(axis=0))
+            masses = 0.01 if uniform else 0.01 + 0.01 * rng.random(len(x0))
+            world.add_body(x0, masses=masses, name=f'u{i}', velocities=spin,
+                           params=BodyParams(mode=mode, damping=damping, alpha=0.4))
+        return world
+
+    got = _run(build(), 4, events=False)
+    pack = got._split_bodies(1.0 / 240.0)[0]
+    assert [b.name for b in pack.bodies] == ['u0', 'u1', 'u2']
+    assert [row[packed.C_WUNI] > 0.0 for row in pack.P] == [True, True, False]
+    monkeypatch.setattr(body_mod.Body, '_fast_ok', lambda self: False)
+    want = _run(build(), 4, events=False)
+    assert want._split_bodies(1.0 / 240.0)[0] is None
+    for g, w in zip(_states(got), _states(want)):
+        for a, b in ((g[0], w[0]), (g[1], w[1])):
+            assert np.abs(a - b).max() <= 1e-11 * np.abs(b).max()
+        assert abs(g[2] - w[2]) <= 1e-9 * w[2]
+    # the damping sums matter to what is compared: undamped, every body steps elsewhere
+    free = _run(build(damping=0.0), 4, events=False)
+    for g, f in zip(_states(got), _states(free)):
+        assert np.abs(g[1] - f[1]).max() > 1e-4 * np.abs(f[1]).max()
 
 
 def test_packed_bodies_read_their_state_from_the_pack():

@@ -38,6 +38,7 @@ from numba.typed import List as TypedList
 from .kernels import BLOCK, JIT, NDAMP, _collide_range, limit_turn, solve_clusters
 from .kernels.damping import _rigid_fields, damp_acc_range
 from .kernels.integrate import _acc_single, _int_single_fused, _int_single_lin
+from .kernels.jit import U
 from .kernels.limits import limit_speed_range
 
 #: Particles per call of the fused one-loop pass of an undamped body (``_int_single_fused``;
@@ -47,8 +48,9 @@ FUSED_BLOCK = 4096
 
 # Row layout: parameters (written at each pack build), then the body state the rows hold
 # (attribute, shape); each attribute becomes a view of its columns.
-C_ALPHA, C_BETA, C_DAMP, C_VMAX, C_TURN, C_WMAX, C_MODE = range(7)
-NPARAM = 7
+# C_WUNI: the particles' one mass where all are equal (masses are read-only), else 0
+C_ALPHA, C_BETA, C_DAMP, C_VMAX, C_TURN, C_WMAX, C_MODE, C_WUNI = range(8)
+NPARAM = 8
 STATE = (('_flags', (3,)), ('_facc', (3,)), ('_ref', (1, 3)), ('_quat', (1, 4)),
          ('_rest_lin', (1, 3, 3)), ('_rest_off', (1, 3)), ('_sum_q', (1, 9)),
          ('_wsum', (1,)), ('_scale', (1,)), ('_cdet', (1,)), ('_aqq3', (1, 3, 3)),
@@ -107,8 +109,11 @@ class Pack:
             body._at_step = (h, body._params, p)
             row = self.P[b]
             rebuild = False
+            m = body.m
+            wuni = float(m[0]) if len(m) and m[0] > 0.0 and np.all(m == m[0]) else 0.0
             row[:NPARAM] = (p.alpha, p.beta, p.damping, body._params.max_speed,
-                            body._params.max_turn, body._params.max_turn / h, body._mode)
+                            body._params.max_turn, body._params.max_turn / h, body._mode,
+                            wuni)
             for name, (off, size, shape) in COLS.items():
                 src = np.asarray(getattr(body, name))
                 if name in _CHUNKED and src.shape[1:] == shape[1:] and len(src) > 1:
@@ -339,9 +344,14 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
         for j in range(3):
             dpart[0, 0, 15 + j] = pnt[0, j]
         dpart[0, 0, 18] = 1.0
-        err2, capped = _pass(0, n, x, v, x0, mass, goal_lin, goal_off, alpha, h, acc, damp,
-                             k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max, has_col,
-                             ground, boxes, spheres, thresh, part[0], dpart[0])
+        err2, capped = _pass(0, n, x, v, x0, mass, row[C_WUNI], goal_lin, goal_off, alpha, h,
+                             acc, damp, k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max,
+                             has_col, ground, boxes, spheres, thresh, part[0], dpart[0])
+        if damp:
+            # the damping row's W and sum w (x - pnt): the shape sums' (same point)
+            dpart[0, 0, 19] = wsum[0]
+            for j in range(3):
+                dpart[0, 0, j] = part[0, 0, j]
         for j in range(3):
             ref[0, j] = pnt[0, j]
         counts[b, 0] += capped
@@ -361,8 +371,8 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
 
 
 @njit(**JIT)
-def _pass(lo, hi, x, v, x0, mass, goal_lin, goal_off, alpha, h, acc, damp, k_damp, dmp, ref,
-          pnt, rest_lin, rest_off, v_max, has_col, ground, boxes, spheres, thresh, sums,
+def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp, k_damp, dmp,
+          ref, pnt, rest_lin, rest_off, v_max, has_col, ground, boxes, spheres, thresh, sums,
           dsums):
     """Particles lo..hi of a one-cluster body (see ``_step_chunk``); the next step's sums
     are added to ``sums`` (12) and, with ``damp``, ``dsums`` (its point set by the caller).
@@ -370,18 +380,21 @@ def _pass(lo, hi, x, v, x0, mass, goal_lin, goal_off, alpha, h, acc, damp, k_dam
 
     Without colliders one loop does it all (``_int_single_fused``, ``FUSED_BLOCK``
     particles a call; a call that finds a speed over the cap caps those particles and takes
-    their sums again), and a damped body's damping sums one more loop over the same
-    ``BLOCK`` while it is in cache.  With colliders, block by block (``BLOCK``, in L1): Eq. 13-14
-    (``_int_single_lin``, vectorised), the colliders, the speed limit, then the sums
-    (``_acc_single``, ``damp_acc_range``, vectorised) of what the colliders left.
+    their sums again; a damped body: ``BLOCK``).  With colliders, block by block (``BLOCK``,
+    in L1): Eq. 13-14 (``_int_single_lin``, vectorised), the colliders, the speed limit,
+    then the shape sums (``_acc_single``, vectorised) of what the colliders left.  Either
+    way a damped body's damping sums are one more loop over the block while it is in cache
+    (12 of the 20 sums of ``damp_acc_range``: the caller takes W and sum w d from the
+    shape sums); ``wuni`` > 0 (every particle of that mass) sums them unweighted.
     """
     err2 = 0.0
     capped = 0
-    nocl = np.zeros(0, dtype=np.int32)
-    if not has_col:
-        step = BLOCK if damp else FUSED_BLOCK
-        for bs in range(lo, hi, step):
-            be = min(bs + step, hi)
+    zero3 = np.zeros(3)
+    k0, k1, k2 = pnt[0, 0], pnt[0, 1], pnt[0, 2]
+    step = BLOCK if damp or has_col else FUSED_BLOCK
+    for bs in range(lo, hi, step):
+        be = min(bs + step, hi)
+        if not has_col:
             e, over = _int_single_fused(start=bs, end=be, x=x, v=v, x0=x0, mass=mass,
                                         goal_lin=goal_lin, goal_off=goal_off, alpha=alpha,
                                         h=h, acc=acc, damp=damp, k_damp=k_damp, dmp=dmp,
@@ -392,23 +405,90 @@ def _pass(lo, hi, x, v, x0, mass, goal_lin, goal_off, alpha, h, acc, damp, k_dam
                 capped += limit_speed_range(bs, be, x, v, h, v_max)
                 _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass,
                             rest_lin=rest_lin, rest_off=rest_off, ref=pnt, sums=sums)
-            if damp:
-                damp_acc_range(bs, be, x, v, mass, nocl, dsums)
-        return err2, capped
-    zero3 = np.zeros(3)
-    for bs in range(lo, hi, BLOCK):
-        be = min(bs + BLOCK, hi)
-        err2 += _int_single_lin(start=bs, end=be, x=x, v=v, x0=x0, goal_lin=goal_lin,
-                                goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=zero3,
-                                com=zero3, damp=damp, k_damp=k_damp, dmp=dmp, ref=ref)
-        _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes,
-                       spheres=spheres, thresh=thresh)
-        if v_max > 0.0:
-            capped += limit_speed_range(bs, be, x, v, h, v_max)
-        _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
-                    rest_off=rest_off, ref=pnt, sums=sums)
+        else:
+            err2 += _int_single_lin(start=bs, end=be, x=x, v=v, x0=x0, goal_lin=goal_lin,
+                                    goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=zero3,
+                                    com=zero3, damp=damp, k_damp=k_damp, dmp=dmp, ref=ref)
+            _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes,
+                           spheres=spheres, thresh=thresh)
+            if v_max > 0.0:
+                capped += limit_speed_range(bs, be, x, v, h, v_max)
+            _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass,
+                        rest_lin=rest_lin, rest_off=rest_off, ref=pnt, sums=sums)
         if damp:
-            damp_acc_range(bs, be, x, v, mass, nocl, dsums)
+            # the damping sums of the block about pnt (``damp_acc_range``'s rows 3-14) but
+            # its W and sum w d: the shape sums of the same state about the same point
+            # hold them (the caller copies them), so 12 accumulators, not 16.  Both loops
+            # vectorise across particles like ``damp_acc_range`` (unit-stride columns of
+            # x, v, unsigned index: one lane a particle, 12 vector accumulators).  The loop
+            # is bound by the FMA ports (12 products a particle), so a body of one mass
+            # (``wuni``) sums unweighted and scales once a block: 12 products, not 18
+            b0 = b1 = b2 = c0 = c1 = c2 = 0.0
+            e00 = e11 = e22 = e01 = e12 = e20 = 0.0
+            if wuni > 0.0:
+                for k in range(U(bs), U(be)):
+                    d0 = x[k, 0] - k0
+                    d1 = x[k, 1] - k1
+                    d2 = x[k, 2] - k2
+                    v0, v1, v2 = v[k, 0], v[k, 1], v[k, 2]
+                    b0 += v0
+                    b1 += v1
+                    b2 += v2
+                    c0 += d1 * v2 - d2 * v1
+                    c1 += d2 * v0 - d0 * v2
+                    c2 += d0 * v1 - d1 * v0
+                    e00 += d0 * d0
+                    e11 += d1 * d1
+                    e22 += d2 * d2
+                    e01 += d0 * d1
+                    e12 += d1 * d2
+                    e20 += d2 * d0
+                b0 *= wuni
+                b1 *= wuni
+                b2 *= wuni
+                c0 *= wuni
+                c1 *= wuni
+                c2 *= wuni
+                e00 *= wuni
+                e11 *= wuni
+                e22 *= wuni
+                e01 *= wuni
+                e12 *= wuni
+                e20 *= wuni
+            else:
+                for k in range(U(bs), U(be)):
+                    w = mass[k]
+                    d0 = x[k, 0] - k0
+                    d1 = x[k, 1] - k1
+                    d2 = x[k, 2] - k2
+                    v0, v1, v2 = v[k, 0], v[k, 1], v[k, 2]
+                    wd0 = w * d0
+                    wd1 = w * d1
+                    wd2 = w * d2
+                    b0 += w * v0
+                    b1 += w * v1
+                    b2 += w * v2
+                    c0 += wd1 * v2 - wd2 * v1
+                    c1 += wd2 * v0 - wd0 * v2
+                    c2 += wd0 * v1 - wd1 * v0
+                    e00 += wd0 * d0
+                    e11 += wd1 * d1
+                    e22 += wd2 * d2
+                    e01 += wd0 * d1
+                    e12 += wd1 * d2
+                    e20 += wd2 * d0
+            dsums[0, 3] += b0
+            dsums[0, 4] += b1
+            dsums[0, 5] += b2
+            dsums[0, 6] += c0
+            dsums[0, 7] += c1
+            dsums[0, 8] += c2
+            dsums[0, 9] += e00
+            dsums[0, 10] += e11
+            dsums[0, 11] += e22
+            dsums[0, 12] += e01
+            dsums[0, 13] += e12
+            dsums[0, 14] += e20
     return err2, capped
 
 
