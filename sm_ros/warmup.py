@@ -120,19 +120,17 @@ def warm_up(on_stage: Optional[Callable[[str], None]] = None, split: bool = True
     cache warm this takes a fraction of a second.
 
     On a cold cache (and ``split``) a second process (``python -m sm_ros.warmup --extra``,
-    :func:`warm_extra`) compiles the packed step of the one-cluster bodies and the rarer
-    variants at the same time on the second core, while this one compiles the per-body
-    kernels and the compiled step of the other bodies; Numba's cache files are written
-    whole (a temporary file, then renamed), so each process loads what the other has
-    finished.  Without a second process this one compiles the packed step itself.
+    :func:`warm_extra`) compiles the variants the node meets less often at the same time
+    on the second core, while this one compiles everything else; Numba's cache files are
+    written whole (a temporary file, then renamed), so each process loads what the other
+    has finished.  Without a second process those variants compile when first met.
     """
     from sm_ros.core import BodyParams, Box, Capsule, Ground, Sphere, World
     from sm_ros.core.contact import ContactParams
     t0 = time.perf_counter()
-    extra = _start_extra() if split and cold_kernels() else None
-    # body-body contact is warmed with the packed step (warm_packed), here only when
-    # there is no second process
-    contact = ContactParams(enabled=extra is None)
+    extra = _start_extra() if split and _cpus() > 1 and cold_kernels() else None
+    # body-body contact is warmed with the packed step (warm_packed, below)
+    contact = ContactParams(enabled=False)
     cube = _cube()
     world = World(gravity=(0.0, 0.0, -9.81))
     world.contact_params = contact
@@ -164,9 +162,8 @@ def warm_up(on_stage: Optional[Callable[[str], None]] = None, split: bool = True
     damped.bodies[0].set_kinematic(np.array([0]), big[:1] + (0.0, 0.0, 0.12))
     for _ in range(2):
         damped.step(1.0 / 120.0)
-    if extra is None:
-        warm_packed()
-    else:
+    warm_packed()
+    if extra is not None:
         _finish_extra(extra)
     if on_stage is not None:
         on_stage('world step')
@@ -208,15 +205,14 @@ def warm_packed() -> None:
 
 
 def warm_extra() -> float:
-    """The second process of a cold warm-up (:func:`warm_up`): the packed step, then the
-    variants the node meets less often: contact without gravity (``solve_pairs``),
+    """The second process of a cold warm-up (:func:`warm_up`): the variants the node
+    meets less often: contact without gravity (``solve_pairs``),
     one-particle bodies (their (1, 3) arrays are C- and F-ordered at once, a specialisation
     of their own) and the threaded kernels of one big body (``body.PARALLEL_MIN_WORK``
     lowered here so that a small body takes them).  Return the seconds it took."""
     import sm_ros.core.body as body_mod
     from sm_ros.core import BodyParams, Ground, World
     t0 = time.perf_counter()
-    warm_packed()
     cube = _cube()
     free = World(gravity=(0.0, 0.0, 0.0))
     for i in range(2):
@@ -245,6 +241,13 @@ def warm_extra() -> float:
     finally:
         body_mod.PARALLEL_MIN_WORK = threshold
     return time.perf_counter() - t0
+
+
+def _cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
 
 def _start_extra():
