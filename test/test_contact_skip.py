@@ -33,6 +33,19 @@ def _scene():
     return X, V, W, B, off
 
 
+def _body_rows(X, V, W, off, cpl=None):
+    """The per-body rows ``Contact.run`` gives ``solve_bodies`` (every body carried
+    unless ``cpl`` says otherwise): cpl, bw, vb, zlo, bc, bom, biv."""
+    nb = len(off) - 1
+    cpl = np.ones(nb, np.bool_) if cpl is None else cpl
+    bw = np.zeros(nb)
+    C.body_inverse_masses(W, off, bw)
+    vb, zlo, bc = np.zeros((nb, 3)), np.zeros((2, nb)), np.zeros((nb, 3))
+    bom, biv = np.zeros((nb, 3)), np.zeros((nb, 9))
+    C.body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv)
+    return cpl, bw, vb, zlo, bc, bom, biv
+
+
 def _solve(X, V, W, B, off, boxes, ground, cand_margin, margin):
     """Run the pass as ``Contact.run`` does (inverse masses, body velocities, wall
     candidates ``cand_margin`` from the boxes, ``solve_bodies``); returns (X, V, found)."""
@@ -42,12 +55,7 @@ def _solve(X, V, W, B, off, boxes, ground, cand_margin, margin):
     R = np.full(X.shape[1], 0.01)
     pi = np.array([0], np.int32)
     pj = np.array([2], np.int32)
-    cpl = np.ones(nb, np.bool_)
-    bw = np.zeros(nb)
-    C.body_inverse_masses(W, off, bw)
-    vb, zlo, bc = np.zeros((nb, 3)), np.zeros((2, nb)), np.zeros((nb, 3))
-    bom, biv = np.zeros((nb, 3)), np.zeros((nb, 9))
-    C.body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv)
+    cpl, bw, vb, zlo, bc, bom, biv = _body_rows(X, V, W, off)
     cand = np.zeros(X.shape[1], np.int64)
     cptr = np.zeros(nb + 1, np.int64)
     m = C.wall_candidates(X, off, cpl, bw, boxes, np.zeros((0, 6)), cand_margin, cand, cptr)
@@ -121,12 +129,8 @@ def test_compact_rows_match_numpy():
     R = np.full(n, 0.01)
     pi = np.array([8, 0, 2, 4, 6, 1, 3, 5, 7, 0], np.int32)
     pj = np.array([10, 2, 4, 6, 8, 3, 5, 7, 9, 8], np.int32)   # (0, 8): 84 mm
-    cpl = np.array([True, True, True, False, True, True])
-    bw = np.zeros(nb)
-    C.body_inverse_masses(W, off, bw)
-    vb, zlo, bc = np.zeros((nb, 3)), np.zeros((2, nb)), np.zeros((nb, 3))
-    bom, biv = np.zeros((nb, 3)), np.zeros((nb, 9))
-    C.body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv)
+    cpl, bw, vb, zlo, bc, bom, biv = _body_rows(
+        X, V, W, off, np.array([True, True, True, False, True, True]))
     npairs = len(pi)
     active = np.zeros(npairs, np.int64)
     cf = np.full((7, npairs), np.nan)
@@ -243,12 +247,7 @@ def _solve_chain_acc(self_pair):
     B = np.array([0, 1, 2, 2], np.int32)
     off = np.array([0, 1, 2, 4])
     nb = 3
-    cpl = np.ones(nb, np.bool_)
-    bw = np.zeros(nb)
-    C.body_inverse_masses(W, off, bw)
-    vb, zlo, bc = np.zeros((nb, 3)), np.zeros((2, nb)), np.zeros((nb, 3))
-    bom, biv = np.zeros((nb, 3)), np.zeros((nb, 9))
-    C.body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv)
+    cpl, bw, vb, zlo, bc, bom, biv = _body_rows(X, V, W, off)
     pi = np.array([0, 1, 2] if self_pair else [0, 1], np.int32)
     pj = np.array([1, 2, 3] if self_pair else [1, 2], np.int32)
     m = len(pi)
