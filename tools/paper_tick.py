@@ -1,0 +1,46 @@
+"""
+The node's tick on a scene, as users run it: ``Simulation.tick`` (substeps, checks, the
+live error estimate with its default budget; no ROS publishing), after pouring.
+
+Builds ``Simulation({'scene': --scene})``, steps the world ``--settle`` times, runs 3
+ticks, then times ``--ticks`` ticks and prints the median, 90th percentile and largest
+tick (wall) and the median process CPU (above wall when the record helpers had a core).
+Run it for two checkouts in turn (``PYTHONPATH=CHECKOUT``) to compare them.
+
+    .venv/bin/python tools/paper_tick.py --scene paper_384 --ticks 90
+"""
+
+import argparse
+import time
+
+import numpy as np
+
+from sm_ros.sim import Simulation
+
+
+def main():
+    """Time the ticks and print the figures."""
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--scene', default='paper_384')
+    ap.add_argument('--settle', type=int, default=360)
+    ap.add_argument('--ticks', type=int, default=90)
+    a = ap.parse_args()
+    sim = Simulation({'scene': a.scene})
+    dt = float(sim.params['dt'])
+    for _ in range(a.settle):
+        sim.world.step(dt)
+    for _ in range(3):
+        sim.tick()
+    wall, cpu = [], []
+    for _ in range(a.ticks):
+        t, c = time.perf_counter(), time.process_time()
+        sim.tick()
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    w, c = 1e3 * np.array(wall), 1e3 * np.array(cpu)
+    print(f'{a.scene}: tick median {np.median(w):.1f} ms, p90 {np.percentile(w, 90):.1f}, '
+          f'largest {w.max():.1f} | process CPU median {np.median(c):.1f} ms')
+
+
+if __name__ == '__main__':
+    main()
