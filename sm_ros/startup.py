@@ -61,6 +61,19 @@ def _fail(message: str) -> int:
     return 2
 
 
+def interrupt_noise(unraisable, interrupted: bool) -> bool:
+    """Whether an exception Python could not raise (``sys.unraisablehook``) is only the
+    echo of a Ctrl-C during the start-up: ctypes reports a KeyboardInterrupt it dropped
+    inside an LLVM callback, and after one that cut an llvmlite object's ``__init__``
+    short, its ``__del__`` fails (AttributeError ``_as_parameter_``) when it is collected.
+    """
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):
+        return True
+    where = getattr(unraisable.object, '__module__', None) or \
+        type(unraisable.object).__module__
+    return interrupted and str(where).startswith(('llvmlite', 'numba'))
+
+
 def run(node_class, args=None) -> int:
     """Start ``node_class()`` and spin it until Ctrl-C; exit code 2 for a bad configuration."""
     argv = sys.argv if args is None else args
@@ -94,8 +107,7 @@ def run(node_class, args=None) -> int:
             os._exit(0)
 
     def quiet_dropped_interrupt(unraisable):
-        # ctypes reports the dropped KeyboardInterrupt with a traceback: not for a Ctrl-C
-        if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+        if not interrupt_noise(unraisable, interrupted.is_set()):
             sys.__unraisablehook__(unraisable)
 
     signal.signal(signal.SIGINT, on_sigint)

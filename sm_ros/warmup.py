@@ -125,10 +125,21 @@ def warm_up(on_stage: Optional[Callable[[str], None]] = None, split: bool = True
     written whole (a temporary file, then renamed), so each process loads what the other
     has finished.  Without a second process those variants compile when first met.
     """
-    from sm_ros.core import BodyParams, Box, Capsule, Ground, Sphere, World
-    from sm_ros.core.contact import ContactParams
     t0 = time.perf_counter()
     extra = _start_extra() if split and _cpus() > 1 and cold_kernels() else None
+    try:
+        return _warm_up(on_stage, extra, t0)
+    except BaseException:                    # Ctrl-C, an error: the second process too
+        if extra is not None:
+            extra[0].kill()
+            extra[0].wait()
+            extra[1].close()
+        raise
+
+
+def _warm_up(on_stage, extra, t0) -> float:
+    from sm_ros.core import BodyParams, Box, Capsule, Ground, Sphere, World
+    from sm_ros.core.contact import ContactParams
     # body-body contact is warmed with the packed step (warm_packed, below)
     contact = ContactParams(enabled=False)
     cube = _cube()

@@ -116,3 +116,39 @@ def test_ctrl_c_during_start_up_is_clean(tmp_path, delay, cold):
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err
     assert 'Traceback' not in err + out
+
+
+def test_only_the_echoes_of_a_start_up_ctrl_c_are_kept_quiet():
+    from types import SimpleNamespace
+    from llvmlite.binding import ffi
+    from sm_ros.startup import interrupt_noise
+    ctypes_drop = SimpleNamespace(exc_value=KeyboardInterrupt(), object=None)
+    half_built = SimpleNamespace(exc_value=AttributeError('_as_parameter_'),
+                                 object=ffi.ObjectRef.__del__)
+    ours = SimpleNamespace(exc_value=AttributeError('x'), object=interrupt_noise)
+    assert interrupt_noise(ctypes_drop, False)
+    assert interrupt_noise(half_built, True)        # llvmlite's __del__ after a Ctrl-C
+    assert not interrupt_noise(half_built, False)   # without one: reported
+    assert not interrupt_noise(ours, True)          # anything else: reported
+
+
+def test_an_interrupted_warm_up_stops_its_second_process(monkeypatch):
+    from sm_ros import warmup
+    procs = []
+
+    def start():
+        import tempfile
+        p = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'])
+        procs.append(p)
+        return p, tempfile.TemporaryFile()
+
+    def interrupted(*_):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(warmup, '_start_extra', start)
+    monkeypatch.setattr(warmup, 'cold_kernels', lambda: 5)
+    monkeypatch.setattr(warmup, '_cpus', lambda: 2)
+    monkeypatch.setattr(warmup, '_warm_up', interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        warmup.warm_up()
+    assert len(procs) == 1 and procs[0].poll() is not None   # killed and reaped
