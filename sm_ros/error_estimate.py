@@ -107,11 +107,11 @@ def extrapolate(d, window: float, order: float = ORDER, horizon: float = HORIZON
 def copy_world(world):
     """Return a deep copy of ``world`` whose arrays have the types of the world's.
 
-    ``copy.deepcopy`` makes every array writeable; Numba types a read-only array
-    differently, so a copy's first step would load (or compile) a second specialisation of
-    every kernel that reads one (the masses, the rest shape). The copy's arrays are made
-    read-only where the world's are (found through the deep copy's memo, which holds every
-    object copied).
+    ``copy.deepcopy`` makes arrays writeable; Numba types a read-only array differently,
+    so a copy's first step would load (or compile) a second specialisation of every kernel
+    that reads one. A body keeps its own (the masses, the rest shape: ``Body.__setstate__``);
+    this makes any other array read-only where the world's is (found through the deep
+    copy's memo, which holds every object copied).
     """
     memo: Dict[int, Any] = {}
     twin = copy.deepcopy(world, memo)

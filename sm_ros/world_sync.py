@@ -32,10 +32,6 @@ _LEAVES = (type(None), bool, int, float, complex, str, bytes, np.generic, range,
            types.FunctionType, types.BuiltinFunctionType, type, enum.Enum)
 
 
-#: Print why a sync was refused (for debugging a world of a new make).
-DEBUG = False
-
-
 #: Types assigned at once (the common plain values).
 _PLAIN = frozenset((type(None), bool, int, float, str, np.float64, np.int64, np.bool_))
 
@@ -69,13 +65,17 @@ class Twin:
     def __init__(self, world):
         """Wrap ``world`` (made by a deep copy of the worlds it will be synced from)."""
         self.world = world
+        #: why the last sync was refused (where the makes differ), else None
+        self.refused = None
         self._plan = None
         self._source = None
 
     def sync(self, src) -> bool:
         """Write ``src``'s state into the twin; False when not of the same make (the twin
         is then partly written and must be dropped)."""
+        self.refused = None
         if type(self.world) is not type(src):
+            self.refused = f'{type(src).__name__}, not a {type(self.world).__name__}'
             return False
         if self._source is src and self._plan is not None and self._replay(self._plan):
             return True
@@ -84,8 +84,7 @@ class Twin:
             walk.obj(self.world, src)
         except _Mismatch as e:
             self._plan = self._source = None
-            if DEBUG:
-                print('sync_world refused:', e)
+            self.refused = str(e)
             return False
         self._plan = (walk.checks, walk.sets, walk.copies, walk.caches, walk.keep) \
             if walk.cacheable else None
@@ -151,10 +150,7 @@ class _Walk:
             return sv
         if type(dc) is not tuple:
             self.checks.append((_CHK, sc, k, sv, dc, dv))
-        try:
-            return self.value(dv, sv)
-        except _Mismatch as e:       # say where (only on the way out)
-            raise _Mismatch(f'[{k!r}]: {e}') from None
+        return self.value(dv, sv)
 
     def value(self, d, s):
         """Write ``s`` into ``d``; return what ``d``'s owner must hold afterwards."""
@@ -173,14 +169,20 @@ class _Walk:
             self.checks.append((_LEN, s, len(s)))
             self.checks.append((_LEN, d, len(d)))
             for k, v in s.items():
-                d[k] = self.item(d, s, k, d[k], v)
+                try:
+                    d[k] = self.item(d, s, k, d[k], v)
+                except _Mismatch as e:   # say where (only on the way out)
+                    raise _Mismatch(f'[{k!r}]: {e}') from None
         elif isinstance(s, list):
             if len(d) != len(s):
                 raise _Mismatch('list length')
             self.checks.append((_LEN, s, len(s)))
             self.checks.append((_LEN, d, len(d)))
             for i, v in enumerate(s):
-                d[i] = self.item(d, s, i, d[i], v)
+                try:
+                    d[i] = self.item(d, s, i, d[i], v)
+                except _Mismatch as e:
+                    raise _Mismatch(f'[{i}]: {e}') from None
         elif isinstance(s, tuple):
             if len(d) != len(s):
                 raise _Mismatch('tuple length')
@@ -223,7 +225,7 @@ class _Walk:
             try:
                 dd[k] = self.item(dd, sd, k, dd[k], v)
             except _Mismatch as e:
-                raise _Mismatch(f'{type(s).__name__}.{e}') from None
+                raise _Mismatch(f'{type(s).__name__}.{k}: {e}') from None
 
     def array(self, d, s):
         if d.shape != s.shape or d.dtype != s.dtype or s.dtype.hasobject \

@@ -52,6 +52,7 @@ def test_a_copy_of_another_make_is_refused():
     twin = Twin(copy_world(world))
     world.step(dt)
     assert not twin.sync(world)              # buffers a first step makes: the copy has none
+    assert twin.refused.endswith('missing'), twin.refused
     twin = Twin(copy_world(world))
     twin.world.step(dt)
     world.step(dt)
@@ -59,6 +60,7 @@ def test_a_copy_of_another_make_is_refused():
     world.add_body(np.zeros((8, 3)) + np.arange(8)[:, None] * 0.01 + (0.0, 0.0, 2.0),
                    masses=0.1, name='extra')
     assert not twin.sync(world)              # a body more (the plan's check, then the walk)
+    assert twin.refused == 'World._bodies: dict keys', twin.refused
     assert not sync_world(copy_world(_world('grasp')[0]), world)
     assert not sync_world(twin.world, object())
 

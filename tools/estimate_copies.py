@@ -29,8 +29,8 @@ def main():
     ap.add_argument('--settle', type=int, default=30)
     ap.add_argument('--rounds', type=int, default=5)
     a = ap.parse_args()
-    world = Simulation({'scene': a.scene}).world
-    sim_dt = 1.0 / 120.0
+    sim = Simulation({'scene': a.scene})
+    world, sim_dt = sim.world, float(sim.params['dt'])
     for _ in range(a.settle):
         world.step(sim_dt)
     twin = Twin(copy_world(world))
