@@ -24,8 +24,8 @@ KEYS = ('points', 'bodies', 'clusters', 'mode', 'step_ms_mean', 'step_ms_max',
         'real_time_factor', 'overruns', 'shape_error_rms_m', 'momentum_drift',
         'momentum_drift_measured', 'nonfinite_resets', 'refused_messages', 'tick_ms_mean',
         'other_ms_mean', 'recording', 'recorder_messages', 'recorder_dropped', 'contacts',
-        'contact_fast_particles', 'speed_limited', 'turn_limited', 'error_estimate_m',
-        'error_estimate_ms', 'error_estimate_age_s', 'error_estimate_ms_mean')
+        'contact_fast_particles', 'bodies_asleep', 'speed_limited', 'turn_limited',
+        'error_estimate_m', 'error_estimate_ms', 'error_estimate_age_s', 'error_estimate_ms_mean')
 
 
 def fmt(value: float) -> str:
@@ -86,6 +86,7 @@ def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, 
         'recorder_dropped': str(int(recorder_dropped)),
         'contacts': str(int(getattr(stats, 'contacts', 0))),
         'contact_fast_particles': str(int(getattr(stats, 'contact_fast_max', 0))),
+        'bodies_asleep': str(int(getattr(stats, 'asleep', 0))),
         'speed_limited': str(int(speed_limited)),
         'turn_limited': str(int(turn_limited)),
         'error_estimate_m': fmt(error_estimate_m),

@@ -194,6 +194,14 @@ TABLE: Tuple[Param, ...] = (
     Param('contact.stacking', True, 'Under gravity, stiff one-cluster bodies carry their '
           'contacts as a whole (stacks stand, piles come to rest at the default step; '
           'false: every particle on its own)'),
+    Param('contact.sleep', True, 'Bodies that have come to rest in a contact world sleep '
+          '(are not stepped) until a moving body touches them or an input changes them'),
+    Param('contact.sleep_speed', 0.01, 'A body falls asleep once no particle got farther '
+          'than this times contact.sleep_time from where it was contact.sleep_time '
+          'seconds before; 4 times this per step wakes the sleeping bodies it touches',
+          'm/s', 0.0, 10.0),
+    Param('contact.sleep_time', 0.5, 'Seconds a body must stay still before it falls '
+          'asleep', 's', 0.0, 3600.0),
     Param('grab_radius', 0.05, 'A gripper attaches the particles within this distance of '
           'its first pose (m)', 'm', 0.0, 100.0, positive=True),
     Param('force_timeout', 0.0, 'A force is cleared after this many seconds without a new '

@@ -79,7 +79,9 @@ def contact_from(scene_contact: Optional[Mapping[str, Any]],
     return ContactParams(enabled=bool(c['enabled']), friction=float(c['friction']),
                          restitution=float(c['restitution']),
                          radius_scale=float(c['radius_scale']),
-                         stacking=c['stacking']).validate()
+                         stacking=c['stacking'], sleep=c['sleep'],
+                         sleep_speed=float(c['sleep_speed']),
+                         sleep_time=float(c['sleep_time'])).validate()
 
 
 def body_contact_from(body: BodySpec):

@@ -435,6 +435,7 @@ class Simulation:
         contact = world.contact
         if contact is not None:
             stats.add_contact(contact.found, int(contact.fast_particles(dt).sum()))
+        stats.asleep = world.asleep_count
         reset = self.reset_nonfinite()
         if measure and not reset:
             self.momentum.track(world, before)

@@ -45,6 +45,7 @@ class TickStats:
         self.nonfinite: List[str] = []
         self.contacts = 0
         self.contact_fast_max = 0
+        self.asleep = 0
 
     def add_step(self, seconds: float) -> None:
         """Record one world.step."""

@@ -30,7 +30,7 @@ INTERFACE_PARAMS = ('mode', 'alpha', 'beta', 'plasticity.yield', 'plasticity.cre
                     'contact.radius_scale', 'max_speed', 'max_turn', 'error_estimate.rate')
 #: Parameters sm_ros adds to the interface (live view, recording, error estimate budget).
 EXTRA_PARAMS = ('foxglove.port', 'foxglove.host', 'record.path', 'error_estimate.budget',
-                'contact.stacking')
+                'contact.stacking', 'contact.sleep', 'contact.sleep_speed', 'contact.sleep_time')
 
 
 def set_param(node, name, value):
@@ -260,6 +260,16 @@ def test_contact_parameters(ros, scene_file):
     assert node.world.contact_params.stacking is False
     refused(node, 'contact.stacking', 'yes', 'type')
     refused(node, 'contact.stacking', 1, 'type')
+    assert c.sleep and (c.sleep_speed, c.sleep_time) == (0.01, 0.5)    # the defaults
+    assert set_param(node, 'contact.sleep', False).successful
+    assert set_param(node, 'contact.sleep_speed', 0.05).successful
+    assert set_param(node, 'contact.sleep_time', 2.0).successful
+    node.tick()
+    c = node.world.contact_params
+    assert (c.sleep, c.sleep_speed, c.sleep_time) == (False, 0.05, 2.0)
+    refused(node, 'contact.sleep', 'no', 'type')
+    refused(node, 'contact.sleep_speed', -0.01)
+    refused(node, 'contact.sleep_time', float('inf'))
     assert set_param(node, 'contact.enabled', False).successful
     node.tick()
     assert node.world.contact is None

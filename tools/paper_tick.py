@@ -6,8 +6,12 @@ Builds ``Simulation({'scene': --scene})``, steps the world ``--settle`` times, r
 ticks, then times ``--ticks`` ticks and prints the median, 90th percentile and largest
 tick (wall) and the median process CPU (above wall when the record helpers had a core).
 Run it for two checkouts in turn (``PYTHONPATH=CHECKOUT``) to compare them.
+``--sleep off`` turns sleeping bodies off (``contact.sleep``, README "Sleeping bodies");
+``--settle 0 --ticks 1200`` times the first 20 s from the start (the pour, then the heap
+at rest), and prints how many bodies sleep at the end.
 
     .venv/bin/python tools/paper_tick.py --scene paper_384 --ticks 90
+    .venv/bin/python tools/paper_tick.py --scene paper_384 --settle 0 --ticks 1200
 """
 
 import argparse
@@ -24,12 +28,13 @@ def main():
     ap.add_argument('--scene', default='paper_384')
     ap.add_argument('--settle', type=int, default=360)
     ap.add_argument('--ticks', type=int, default=90)
+    ap.add_argument('--sleep', choices=('on', 'off'), default='on')
     a = ap.parse_args()
-    sim = Simulation({'scene': a.scene})
+    sim = Simulation({'scene': a.scene, 'contact.sleep': a.sleep == 'on'})
     dt = float(sim.params['dt'])
     for _ in range(a.settle):
         sim.world.step(dt)
-    for _ in range(3):
+    for _ in range(3 if a.settle else 0):
         sim.tick()
     wall, cpu = [], []
     for _ in range(a.ticks):
@@ -39,7 +44,9 @@ def main():
         cpu.append(time.process_time() - c)
     w, c = 1e3 * np.array(wall), 1e3 * np.array(cpu)
     print(f'{a.scene}: tick median {np.median(w):.1f} ms, p90 {np.percentile(w, 90):.1f}, '
-          f'largest {w.max():.1f} | process CPU median {np.median(c):.1f} ms')
+          f'largest {w.max():.1f} | process CPU median {np.median(c):.1f} ms | sleep '
+          f'{a.sleep}: {sim.world.asleep_count} of {len(sim.world.bodies)} bodies asleep '
+          f'at the end')
 
 
 if __name__ == '__main__':

@@ -114,8 +114,10 @@ class Body:
         self._params = params
         self._at_step = (None, None, None)
         self._limit_counts = np.zeros(2, dtype=np.int64)
-        # [dirty, shape error stale, fused damping sums valid] (world_step, packed)
-        self._flags = np.zeros(3)
+        # [dirty, shape error stale, fused damping sums valid, sleep] (world_step, packed);
+        # sleep (``World`` sleeping, ``sm_ros.core.sleep``): 1 asleep (the steps skip the
+        # body), 0 awake, -1 held awake (a force, torque or grab acts on it)
+        self._flags = np.zeros(4)
         self._build()
         self._merge_kinematic()
 
@@ -156,6 +158,19 @@ class Body:
     @_dirty.setter
     def _dirty(self, value):
         self._flags[0] = 1.0 if value else 0.0
+
+    @property
+    def asleep(self) -> bool:
+        """Whether the body is asleep (``World`` sleeping: at rest in a contact world, not
+        stepped until something wakes it; README "Sleeping bodies")."""
+        return bool(self._flags[3] > 0.0)
+
+    def wake(self):
+        """Wake the body (it is stepped again from the next step); every input that
+        changes it (state, parameters, wrench, grabs, reset) wakes it too.  A force,
+        torque or grab keeps it awake while it acts."""
+        held = bool(self._force.any() or self._torque.any() or len(self._grab_idx))
+        self._flags[3] = -1.0 if held else 0.0
 
     def _fast_ok(self) -> bool:
         """Whether ``kernels.world_step`` may step this body (see its docstring)."""
@@ -261,6 +276,7 @@ class Body:
         if nv is not None:
             self._v[:] = nv
         self._dirty = True
+        self.wake()
 
     def set_params(self, params=None, **changes):
         """Apply new parameters from the next step on; rebuild only what they reshape."""
@@ -275,6 +291,7 @@ class Body:
         old = self._params
         self._params = new
         _GENERATION[0] += 1
+        self.wake()
         if (new.mode != old.mode or new.clusters != old.clusters or new.plastic != old.plastic
                 or (new.damping > 0) != (old.damping > 0)):
             self._build()
@@ -296,6 +313,7 @@ class Body:
         if torque != self._has_torque:
             _GENERATION[0] += 1
         self._has_torque = torque
+        self.wake()
 
     def clear_wrench(self):
         """Remove the external force and torque."""
@@ -305,6 +323,7 @@ class Body:
         if self._has_torque:                   # as set_wrench
             _GENERATION[0] += 1
         self._has_torque = False
+        self.wake()
 
     @property
     def wrench(self):
@@ -326,12 +345,14 @@ class Body:
         self._grab_idx = idx.astype(np.int64)
         self._grab_tgt = np.ascontiguousarray(tgt)
         self._merge_kinematic()
+        self.wake()
 
     def clear_kinematic(self):
         """Release every grabbed particle (pins stay)."""
         self._grab_idx = _EMPTY_I64
         self._grab_tgt = np.zeros((0, 3))
         self._merge_kinematic()
+        self.wake()
 
     @property
     def kinematic_indices(self) -> np.ndarray:

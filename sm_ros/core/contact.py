@@ -100,6 +100,10 @@ class ContactParams:
     (``COUPLE_ALPHA``, ``STACK_SWEEPS``, ``WARM_START``; README "Contact between bodies":
     stacks stand and heaps of such bodies come to rest at the node's step); False: every
     particle acts on its own (``solve_pairs``), as softer bodies always do.
+    ``sleep`` (on by default): a body whose particles all moved slower than
+    ``sleep_speed`` (m/s) for ``sleep_time`` seconds and that touches no moving body falls
+    asleep and is not stepped until something wakes it (``sleep.py``, README "Sleeping
+    bodies").
     """
 
     enabled: bool = True
@@ -108,6 +112,9 @@ class ContactParams:
     radius_scale: float = 1.0
     iterations: int = 1
     stacking: bool = True
+    sleep: bool = True
+    sleep_speed: float = 0.01
+    sleep_time: float = 0.5
 
     def validate(self) -> 'ContactParams':
         """Return a normalised copy; raise ValueError naming the bad field."""
@@ -123,6 +130,9 @@ class ContactParams:
                                  lo_open=True),
             iterations=int(it),
             stacking=_flag('contact.stacking', self.stacking),
+            sleep=_flag('contact.sleep', self.sleep),
+            sleep_speed=_finite('contact.sleep_speed', self.sleep_speed, 0.0, 10.0),
+            sleep_time=_finite('contact.sleep_time', self.sleep_time, 0.0, 3600.0),
         )
 
     @staticmethod

@@ -5,7 +5,9 @@ the world at once, so they read one set of arrays instead of one per body:
 
 * ``X``, ``V`` (3, N) float64, C-contiguous: positions and velocities; body ``b`` holds
   columns ``off[b]:off[b + 1]``;
-* ``W`` (N,) inverse mass, 0 for pinned and grabbed (kinematic) particles (infinite mass);
+* ``W`` (N,) inverse mass, 0 for pinned and grabbed (kinematic) particles and for the
+  particles of sleeping bodies (infinite mass; ``sleep.py``); ``Wa`` the same without the
+  sleeping bodies (what a body gets back when it wakes);
 * ``B`` (N,) int32 body index of each particle; ``R`` (N,) contact radius (metres);
 * ``X0`` (3, N) rest positions (``Body.x_init``), for the self-collision rest-distance test.
 
@@ -79,6 +81,7 @@ class FlatState:
         self.X = np.zeros((3, n))
         self.V = np.zeros((3, n))
         self.W = np.zeros(n)
+        self.Wa = np.zeros(n)
         self.B = np.repeat(np.arange(nb, dtype=np.int32), counts)
         self.R = np.zeros(n)
         self.X0 = np.zeros((3, n))
@@ -130,9 +133,11 @@ class FlatState:
             if kin is self._kin_seen[k]:
                 continue
             o0, o1 = self.off[k], self.off[k + 1]
-            self.W[o0:o1] = 1.0 / b.m
+            self.Wa[o0:o1] = 1.0 / b.m
             if len(kin):
-                self.W[o0 + kin] = 0.0
+                self.Wa[o0 + kin] = 0.0
+            if not b._flags[3] > 0.0:        # a sleeping body keeps W = 0 (sleep.py)
+                self.W[o0:o1] = self.Wa[o0:o1]
             self.w_version += 1              # W changed (Contact keeps body masses of it)
             self._kin_seen[k] = kin
         self._mass_gen = gen
@@ -143,10 +148,8 @@ class FlatState:
         gather_state(self._xs, self._vs, self.off, self.X, self.V)
         self.touched[:] = 0
 
-    def scatter(self):
-        """Copy the touched bodies back and flag them for a fresh accumulation."""
-        if not self.touched.any():
-            return
+    def flag_list(self):
+        """The bodies' flag arrays (``Body._flags``) as a typed list for the kernels."""
         # the bodies' flag arrays (``Body._dirty`` is ``_flags[0]``): a packed body's are
         # a view of its pack's row, replaced when it is packed again, so the typed list is
         # rebuilt when one of them is not the array it holds (a check of identities: the
@@ -156,4 +159,11 @@ class FlatState:
         if seen is None or any(map(operator.is_not, flags, seen)):
             self._fl = List(flags)
             self._flags_seen = flags
-        scatter_state(self._xs, self._vs, self.off, self.X, self.V, self.touched, self._fl)
+        return self._fl
+
+    def scatter(self):
+        """Copy the touched bodies back and flag them for a fresh accumulation."""
+        if not self.touched.any():
+            return
+        scatter_state(self._xs, self._vs, self.off, self.X, self.V, self.touched,
+                      self.flag_list())

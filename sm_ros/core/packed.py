@@ -51,7 +51,7 @@ FUSED_BLOCK = 4096
 # C_WUNI: the particles' one mass where all are equal (masses are read-only), else 0
 C_ALPHA, C_BETA, C_DAMP, C_VMAX, C_TURN, C_WMAX, C_MODE, C_WUNI = range(8)
 NPARAM = 8
-STATE = (('_flags', (3,)), ('_facc', (3,)), ('_ref', (1, 3)), ('_quat', (1, 4)),
+STATE = (('_flags', (4,)), ('_facc', (3,)), ('_ref', (1, 3)), ('_quat', (1, 4)),
          ('_rest_lin', (1, 3, 3)), ('_rest_off', (1, 3)), ('_sum_q', (1, 9)),
          ('_wsum', (1,)), ('_scale', (1,)), ('_cdet', (1,)), ('_aqq3', (1, 3, 3)),
          ('_nmat', (1, 3, 3)), ('_part', (1, 1, 12)), ('_err', (1,)),
@@ -73,7 +73,7 @@ COLS, NCOL = _columns()
 SCRATCH = 364 + NDAMP
 #: Row entries a body built for threads holds per chunk (leading axis: chunks).
 _CHUNKED = ('_part', '_err', '_dpart')
-C_FLAGS = COLS['_flags'][0]            # [dirty, shape error stale, damping sums valid]
+C_FLAGS = COLS['_flags'][0]            # [dirty, shape error stale, damping sums valid, sleep]
 C_FACC = COLS['_facc'][0]
 C_REF = COLS['_ref'][0]
 C_QUAT = COLS['_quat'][0]
@@ -266,9 +266,11 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
     noptr = np.zeros(0, dtype=np.int64)
     nocl = np.zeros(0, dtype=np.int32)
     for b in range(lo, hi):
+        row = P[b]
+        if row[C_FLAGS + 3] > 0.0:             # asleep (``sm_ros.core.sleep``): not stepped
+            continue
         xt, vt, x0t, mass = parts[b]
         x, v, x0 = xt.T, vt.T, x0t.T
-        row = P[b]
         # ---- load the body's state into the scratch (copies of ~70 numbers)
         for j in range(3):
             ref[0, j] = row[C_REF + j]

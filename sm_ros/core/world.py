@@ -14,6 +14,7 @@ from .kernels.world_step import step_bodies_parallel, step_single_bodies
 from .packed import Pack
 from .contact import COUPLE_ALPHA, BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
+from .sleep import Sleep
 from .world_colliders import WorldColliders
 
 #: The compiled world step spreads its bodies over the threads from this many particles
@@ -45,6 +46,8 @@ class World(WorldColliders):
         self._split = None                     # compiled-step records (_split_bodies)
         self._layout = 0                       # bumped when bodies are added or removed
         self._contact = None
+        self._sleep = None                     # sleep.Sleep with the contact pass
+        self._wake_key = None                  # the colliders and gravity last seen
         self._coll_stats = None                # (bodies, 2) contacts, deepest: collider pass
         self._zeros = np.zeros(0, dtype=np.int32)
         self._one_touch = np.zeros(1, dtype=np.uint8)
@@ -143,6 +146,8 @@ class World(WorldColliders):
             self._flat = None
         elif self._contact is not None:
             self._contact.params = new
+        if new != old and self._sleep is not None:
+            self._sleep.wake_all()             # new contact settings: every body awake
 
     def body_contact(self, name: str) -> BodyContact:
         """The contact settings of the body called ``name``."""
@@ -190,6 +195,49 @@ class World(WorldColliders):
             self._contact = Contact(self._flat, p, bcs, radii)
         else:
             self._contact = None
+        # sleeping needs the contact pass (sleep.py): a world of one body never sleeps
+        c = self._contact
+        self._sleep = Sleep(self._flat) if c is not None and c.needed else None
+        if self._sleep is None:
+            for b in bodies:
+                b._flags[3] = min(b._flags[3], 0.0)
+
+    @property
+    def asleep(self):
+        """Names of the sleeping bodies (README "Sleeping bodies")."""
+        return [b.name for b in self._bodies.values() if b._flags[3] > 0.0]
+
+    @property
+    def asleep_count(self) -> int:
+        """How many bodies are asleep (as of the last step; 0 without sleeping)."""
+        sl = self._sleep
+        return int(sl.slept.sum()) if sl is not None and self._flat is not None else 0
+
+    def wake(self):
+        """Wake every body (they are stepped again from the next step)."""
+        for b in self._bodies.values():
+            if b._flags[3] > 0.0:
+                b._flags[3] = 0.0
+        if self._sleep is not None:
+            self._sleep.wake_all()
+
+    def _sleep_check(self):
+        """Wake every body when gravity or the colliders changed; return whether every
+        body is asleep (then the step has nothing to do).  A world with collider-pass
+        colliders (named, oriented, moving: their wrenches are published) does not sleep:
+        a sleeping body would not weigh on them (README "Sleeping bodies")."""
+        sl = self._sleep
+        if sl is None:
+            return False
+        cs = self._cset
+        key = (self._gnorm, tuple(self._gravity), id(self._ground_row), id(self._box_rows),
+               id(self._sphere_rows), id(cs))
+        if key != self._wake_key or cs is not None:
+            self._wake_key = key
+            if sl.slept.any():
+                self.wake()
+            return False
+        return bool(sl.slept.all()) and sl.all_asleep()
 
     def step(self, dt: float):
         """Advance every body by one step of ``dt`` seconds (Eq. 13-14, then colliders)."""
@@ -201,6 +249,15 @@ class World(WorldColliders):
         cs = self._cset
         if cs is not None:
             cs.advance(h, self.time)
+        self._ensure_flat()
+        if self._sleep_check():
+            # every body asleep (sleep.py): nothing moves; the collider wrenches average
+            # over the time as before
+            self._flagged = True
+            if cs is not None:
+                cs.imp_time += h
+            self.time += h
+            return
         pack, records, slow, parallel = self._split_bodies(h)
         args = (h, self._gravity, self._has_col, self._ground_row, self._box_rows,
                 self._sphere_rows, thresh)
@@ -223,7 +280,8 @@ class World(WorldColliders):
                 # one compiled call for the bodies it covers (kernels/world_step.py)
                 step_single_bodies(records, *args)
         for body in slow:
-            body._step(*args)
+            if not body._flags[3] > 0.0:       # asleep: not stepped (sleep.py)
+                body._step(*args)
         self._flagged = not self._world_passes(h, thresh)
         if cs is not None:
             cs.imp_time += h
@@ -308,12 +366,17 @@ class World(WorldColliders):
             st = self._coll_stats = np.zeros((len(f.bodies), 2))
         if need_contact:
             self._contact_coupling(h)
+            sl = self._sleep
+            if sl is not None:
+                sl.sync()                      # bodies woken from outside: masses back
             f.gather()
             c.run(h, thresh, self._has_col, self._ground_row, self._box_rows,
                   self._sphere_rows, self._gravity)
             if cs is not None:
                 st[:] = 0.0
                 cs.collide(f.X, f.V, f.W, f.B, 0, f.n, h, thresh, st, f.touched)
+            if sl is not None and cs is None and self._contact_params.sleep:
+                sl.update(c, h, self._contact_params)
             f.scatter()
             return True
         f.refresh_masses()

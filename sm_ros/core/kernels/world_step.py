@@ -16,7 +16,8 @@ A record (``Body._fast_record``) is a tuple of the body's own buffers (x, v, x0,
 [alpha, beta, damping (per step), max_speed, max_turn, 1 / total mass, mode, fused
 damping, quadratic, set layout, max_turn / h], ``force`` the force over the total mass
 (both divided in Python, as ``Body._step`` does: fast math would round them otherwise),
-``flags`` [dirty, shape error stale], ``counts`` the
+``flags`` [dirty, shape error stale, fused damping sums valid, sleep: 1 asleep, then
+the record is not stepped], ``counts`` the
 limit counters; the set-layout buffers (``s_*``) are empty for one-cluster bodies.
 """
 
@@ -113,6 +114,8 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
      nmat, cdet, acc, ang, com, err, dpart, dmp, dref, dacc, lin, w3, sptr, scl, scnt,
      quat_prev, flagged, lim_lin, lim_w, force, state, flags, counts, y0t, sid, gm, sref,
      s_part, s_ptr, s_cl, s_cnt, s_phi, s_org, wk, pm, s_tp, s_ck, udv) = record
+    if flags[3] > 0.0:                         # asleep (``sm_ros.core.sleep``): not stepped
+        return
     # the (3, N) blocks seen as (N, 3) arrays of layout F, as the bodies' own x, v
     x, v, x0, y0 = xt.T, vt.T, x0t.T, y0t.T
     alpha, beta, k_damp = state[0], state[1], state[2]

@@ -1,0 +1,251 @@
+"""Sleeping bodies: a body at rest in a contact world is not stepped until something
+wakes it (README "Sleeping bodies").
+
+Physics engines put bodies that have come to rest to sleep (Box2D, Bullet, PhysX): a heap
+at rest then costs almost nothing.  Here, in a world where body-body contact runs
+(``Contact.needed``: two colliding bodies or more), with ``ContactParams.sleep``:
+
+* **Falling asleep.** After each step every awake body's particle moves are measured
+  (``sleep_update``).  A body none of whose particles got farther than ``sleep_speed``
+  times ``sleep_time`` from where they were ``sleep_time`` seconds ago (a still spell:
+  jiggling in place is still, a drift at ``sleep_speed`` is not), and that touches no
+  *restless* body (one moving faster than ``WAKE_FACTOR`` times ``sleep_speed`` in a
+  step, or held awake), falls asleep: its velocities are set to zero and it is no longer
+  stepped (``Body._flags[3]`` = 1: the compiled steps skip it).
+* **Asleep** it is an obstacle of infinite mass for contact (its inverse masses ``W`` are
+  0 in the flat state, as for pinned particles) and keeps its state bit for bit.
+* **Waking.** A sleeping body wakes when a restless body touches it (a pair closer than
+  ``TOUCH_FACTOR`` times the contact distance; it stays put for the step in which that is
+  found and is stepped from the next), and whenever an input changes it
+  (``Body.wake``: state, parameters, wrench, grabs, reset) or the world (gravity, the
+  colliders, the bodies, the contact settings).  A body with a force, torque or grab is
+  held awake (``_flags[3]`` = -1) while it acts.
+* A world of one colliding body (no contact pass) never sleeps: it pays nothing.
+
+The pass over the awake bodies' particles (one read of X and of the previous positions,
+one write) and over the pair list costs about as much as the gather copy; a world whose
+bodies are all asleep skips the bodies' step, the contact pass and this pass.
+"""
+
+import numpy as np
+from numba import njit
+
+from .kernels import JIT
+
+#: A body is restless (wakes the sleeping bodies it touches, keeps its neighbours awake)
+#: while a particle moves faster than this many times ``sleep_speed`` in a step.
+WAKE_FACTOR = 4.0
+#: A pair touches (for waking and for keeping awake) when closer than this many times
+#: its contact distance r_i + r_j (resting contacts sit at about 1).
+TOUCH_FACTOR = 1.1
+
+
+@njit(**JIT)
+def sleep_sync(flags, slept, off, W, Wa, calm):
+    """Bodies woken from outside since the last step (``flags[b][3]`` <= 0 while
+    ``slept[b]``): their inverse masses back from ``Wa``; returns how many."""
+    woken = 0
+    for b in range(len(flags)):
+        if slept[b] and flags[b][3] <= 0.0:
+            slept[b] = 0
+            calm[b] = 0.0
+            for k in range(off[b], off[b + 1]):
+                W[k] = Wa[k]
+            woken += 1
+    return woken
+
+
+@njit(**JIT)
+def all_asleep(flags):
+    """Whether every body is asleep (then a step has nothing to do)."""
+    for b in range(len(flags)):
+        if not flags[b][3] > 0.0:
+            return False
+    return len(flags) > 0
+
+
+@njit(**JIT)
+def body_moves(X, Xp, Xa, off, flags, step2, drift2):
+    """For each awake body b: ``step2[b]`` the largest squared move of a particle from
+    ``Xp`` (the last step's positions; ``Xp`` = ``X`` after), ``drift2[b]`` the largest
+    from ``Xa`` (where its still spell started); both 0 for a sleeping body."""
+    for b in range(len(flags)):
+        if flags[b][3] > 0.0:
+            step2[b] = 0.0
+            drift2[b] = 0.0
+            continue
+        s2 = 0.0
+        a2 = 0.0
+        # max-reductions over the body's particles, unit stride in each row of X, Xp, Xa
+        # (vectorises: nine loads, three stores, two max per particle)
+        for k in range(off[b], off[b + 1]):
+            x0, x1, x2 = X[0, k], X[1, k], X[2, k]
+            dx = x0 - Xp[0, k]
+            dy = x1 - Xp[1, k]
+            dz = x2 - Xp[2, k]
+            ex = x0 - Xa[0, k]
+            ey = x1 - Xa[1, k]
+            ez = x2 - Xa[2, k]
+            Xp[0, k] = x0
+            Xp[1, k] = x1
+            Xp[2, k] = x2
+            s2 = max(s2, dx * dx + dy * dy + dz * dz)
+            a2 = max(a2, ex * ex + ey * ey + ez * ez)
+        step2[b] = s2
+        drift2[b] = a2
+
+
+@njit(**JIT)
+def touch_restless(xs, off, R, B, pi, pj, npairs, restless, near):
+    """near[b] = 1 where a particle of body b touches (``TOUCH_FACTOR``) a particle of
+    another body with ``restless``; 0 elsewhere.  Positions from ``xs`` (the bodies' own
+    (3, n) blocks): before the contact pass, where a body thrown at a sleeping one
+    overlaps it (the pass then stops it where the step began, a gap away).  A pass over
+    the pair list that reads positions only of pairs with a restless side."""
+    near[:] = 0
+    for p in range(npairs):
+        i = pi[p]
+        j = pj[p]
+        bi = B[i]
+        bj = B[j]
+        if bi == bj or not (restless[bi] or restless[bj]):
+            continue
+        s = TOUCH_FACTOR * (R[i] + R[j])
+        xi = xs[bi]
+        xj = xs[bj]
+        ki = i - off[bi]
+        kj = j - off[bj]
+        dx = xi[0, ki] - xj[0, kj]
+        dy = xi[1, ki] - xj[1, kj]
+        dz = xi[2, ki] - xj[2, kj]
+        if dx * dx + dy * dy + dz * dz < s * s:
+            if restless[bj]:
+                near[bi] = 1
+            if restless[bi]:
+                near[bj] = 1
+
+
+@njit(**JIT)
+def sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, step2, drift2,
+                 restless, near, pi, pj, npairs, h, speed, t_sleep, allow, touched):
+    """One step's sleep bookkeeping (see the module); returns how many bodies fell asleep
+    or woke (their ``W`` changed).
+
+    A body is *still* while no particle is farther than ``speed * t_sleep`` from where
+    it was when its still spell began (``Xa``; a jiggle in place does not end the spell,
+    a slow drift does), and *restless* while a particle moves faster than
+    ``WAKE_FACTOR * speed`` in a step, or a force, torque or grab holds it.  ``step2``,
+    ``drift2``, ``restless``, ``near``: (bodies,) scratch.  ``X``, ``V``: the flat state
+    after the contact pass; ``xs``: the bodies' own positions, before it (who touches
+    whom, ``touch_restless``).  ``allow``: whether bodies may
+    fall asleep (False: only waking).  A body that falls asleep gets ``touched`` (the
+    flat state's scatter writes its zero velocities back).
+    """
+    nb = len(flags)
+    body_moves(X, Xp, Xa, off, flags, step2, drift2)
+    fast = WAKE_FACTOR * speed * h
+    fast2 = fast * fast
+    room = speed * t_sleep
+    room2 = room * room
+    for b in range(nb):
+        f = flags[b][3]
+        if f > 0.0:
+            restless[b] = 0
+            continue
+        restless[b] = 1 if (step2[b] > fast2 or f < 0.0) else 0
+        if drift2[b] <= room2 and f == 0.0:
+            calm[b] += h
+        else:                                  # a new still spell starts here
+            calm[b] = 0.0
+            for k in range(off[b], off[b + 1]):
+                Xa[0, k] = X[0, k]
+                Xa[1, k] = X[1, k]
+                Xa[2, k] = X[2, k]
+    touch_restless(xs, off, R, B, pi, pj, npairs, restless, near)
+    changed = 0
+    for b in range(nb):
+        f = flags[b][3]
+        o0 = off[b]
+        o1 = off[b + 1]
+        if f > 0.0:
+            if near[b]:                        # a restless body touches it: awake
+                flags[b][3] = 0.0
+                slept[b] = 0
+                calm[b] = 0.0
+                for k in range(o0, o1):
+                    W[k] = Wa[k]
+                    Xp[0, k] = X[0, k]
+                    Xp[1, k] = X[1, k]
+                    Xp[2, k] = X[2, k]
+                    Xa[0, k] = X[0, k]
+                    Xa[1, k] = X[1, k]
+                    Xa[2, k] = X[2, k]
+                changed += 1
+        elif allow and f == 0.0 and calm[b] >= t_sleep and not near[b]:
+            flags[b][3] = 1.0
+            slept[b] = 1
+            for k in range(o0, o1):
+                W[k] = 0.0
+                V[0, k] = 0.0
+                V[1, k] = 0.0
+                V[2, k] = 0.0
+            touched[b] = 1
+            changed += 1
+    return changed
+
+
+class Sleep:
+    """The sleep state of a ``FlatState``'s bodies (made by ``World`` with its contact
+    pass; see the module)."""
+
+    def __init__(self, flat):
+        nb = max(len(flat.bodies), 1)
+        self.flat = flat
+        self.slept = np.zeros(nb, dtype=np.uint8)  # asleep as of the last step
+        self.calm = np.zeros(nb)                   # seconds below the speed in a row
+        self.step2 = np.zeros(nb)
+        self.drift2 = np.zeros(nb)
+        self.restless = np.zeros(nb, dtype=np.uint8)
+        self.near = np.zeros(nb, dtype=np.uint8)
+        self.Xp = flat.X.copy()
+        self.Xa = flat.X.copy()
+        for b in flat.bodies:                      # a new flat state: every body awake
+            if b._flags[3] > 0.0:
+                b._flags[3] = 0.0
+
+    def count(self) -> int:
+        """How many bodies are asleep."""
+        return int(sum(1 for b in self.flat.bodies if b._flags[3] > 0.0))
+
+    def all_asleep(self) -> bool:
+        """Whether every body is asleep (one compiled call over the flags)."""
+        return bool(all_asleep(self.flat.flag_list()))
+
+    def sync(self):
+        """Restore the inverse masses of the bodies woken from outside (before contact)."""
+        f = self.flat
+        if self.slept.any() and sleep_sync(f.flag_list(), self.slept, f.off, f.W, f.Wa,
+                                           self.calm):
+            f.w_version += 1
+
+    def update(self, contact, h, params):
+        """After the contact pass, before the scatter (``sleep_update``)."""
+        f = self.flat
+        if sleep_update(f.X, self.Xp, self.Xa, f.V, f.W, f.Wa, f._xs, f.R, f.B, f.off,
+                        f.flag_list(), self.slept, self.calm, self.step2, self.drift2,
+                        self.restless, self.near, contact._pi, contact._pj, contact.npairs,
+                        float(h), float(params.sleep_speed), float(params.sleep_time),
+                        bool(params.sleep), f.touched):
+            f.w_version += 1
+
+    def wake_all(self):
+        """Every body awake (the world changed); inverse masses restored."""
+        for b in self.flat.bodies:
+            if b._flags[3] > 0.0:
+                b._flags[3] = 0.0
+        self.sync()
+        self.calm[:] = 0.0
+
+
+__all__ = ['Sleep', 'TOUCH_FACTOR', 'WAKE_FACTOR', 'all_asleep', 'body_moves', 'sleep_sync',
+           'sleep_update', 'touch_restless']

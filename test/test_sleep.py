@@ -1,0 +1,308 @@
+"""Sleeping bodies (sm_ros.core.sleep): a body at rest in a contact world is not stepped
+until a moving body touches it or an input changes it; kernels against NumPy twins."""
+
+import numpy as np
+import pytest
+from numba.typed import List
+
+from sm_ros.core import BodyParams, Ground, World
+from sm_ros.core import sleep as SL
+from sm_ros.core.contact import ContactParams
+
+S = 0.02
+H = 1 / 120
+
+
+def lattice(nx, ny, nz, s=S, center=(0.0, 0.0, 0.0)):
+    g = np.stack(np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing='ij'),
+                 -1).reshape(-1, 3) * s
+    return g - g.mean(axis=0) + np.asarray(center, dtype=float)
+
+
+def _flags(states):
+    out = List()
+    for s in states:
+        f = np.zeros(4)
+        f[3] = s
+        out.append(f)
+    return out
+
+
+# ---------------------------------------------------------------------------- kernels
+
+def test_body_moves_matches_numpy():
+    rng = np.random.default_rng(1)
+    off = np.array([0, 5, 9, 16])
+    X = rng.normal(size=(3, 16))
+    Xp = X + 0.01 * rng.normal(size=(3, 16))
+    Xa = X + 0.1 * rng.normal(size=(3, 16))
+    Xp0, Xa0 = Xp.copy(), Xa.copy()
+    flags = _flags([0.0, 1.0, -1.0])              # awake, asleep, held awake
+    step2, drift2 = np.full(3, -1.0), np.full(3, -1.0)
+    SL.body_moves(X, Xp, Xa, off, flags, step2, drift2)
+    for b in (0, 2):
+        sl = slice(off[b], off[b + 1])
+        assert step2[b] == pytest.approx(((X[:, sl] - Xp0[:, sl]) ** 2).sum(0).max(),
+                                         rel=1e-12)
+        assert drift2[b] == pytest.approx(((X[:, sl] - Xa0[:, sl]) ** 2).sum(0).max(),
+                                          rel=1e-12)
+        assert np.array_equal(Xp[:, sl], X[:, sl])            # the step's positions kept
+    assert step2[1] == 0.0 and drift2[1] == 0.0               # asleep: not measured
+    assert np.array_equal(Xp[:, 5:9], Xp0[:, 5:9])
+    assert np.array_equal(Xa, Xa0)                            # the anchors are not moved
+
+
+def test_touch_restless_matches_numpy():
+    rng = np.random.default_rng(2)
+    n, nb = 60, 6
+    X = rng.uniform(0, 0.35, size=(3, n))
+    R = np.full(n, 0.02)
+    B = np.repeat(np.arange(nb, dtype=np.int32), n // nb)
+    i, j = np.triu_indices(n, 1)
+    pi, pj = i.astype(np.int32), j.astype(np.int32)
+    restless = np.array([1, 0, 0, 1, 0, 0], dtype=np.uint8)
+    near = np.full(nb, 7, dtype=np.uint8)
+    off = np.arange(nb + 1) * (n // nb)
+    xs = List([X[:, off[b]:off[b + 1]].copy() for b in range(nb)])
+    SL.touch_restless(xs, off, R, B, pi, pj, len(pi), restless, near)
+    want = np.zeros(nb, dtype=np.uint8)
+    d = np.linalg.norm(X[:, i] - X[:, j], axis=0)
+    touch = (d < SL.TOUCH_FACTOR * (R[i] + R[j])) & (B[i] != B[j])
+    for a, b in zip(B[i][touch], B[j][touch]):
+        if restless[b]:
+            want[a] = 1
+        if restless[a]:
+            want[b] = 1
+    assert np.array_equal(near, want)
+    assert want.any() and not want.all()                      # the case means something
+
+
+def test_sleep_update_falls_asleep_wakes_and_holds():
+    # three one-particle bodies: 0 still for long enough, 1 still but touching 2, which
+    # moves fast; then 2 touches 0 while 0 sleeps
+    X = np.array([[0.0, 1.0, 1.03], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    Xp, Xa = X.copy(), X.copy()
+    V = np.ones((3, 3))
+    W = np.array([1.0, 2.0, 3.0])
+    Wa = W.copy()
+    R = np.full(3, 0.02)
+    B = np.arange(3, dtype=np.int32)
+    off = np.arange(4)
+    xs = List([X[:, k:k + 1] for k in range(3)])          # views: the same positions
+    flags = _flags([0.0, 0.0, 0.0])
+    slept = np.zeros(3, dtype=np.uint8)
+    calm = np.array([0.5, 0.5, 0.0])
+    scratch = [np.zeros(3), np.zeros(3), np.zeros(3, np.uint8), np.zeros(3, np.uint8)]
+    pi, pj = np.array([0, 1], dtype=np.int32), np.array([2, 2], dtype=np.int32)
+    touched = np.zeros(3, dtype=np.uint8)
+    Xp[0, 2] -= 0.01                          # body 2 moved 1 cm in the step: restless
+    n = SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch,
+                        pi, pj, 2, H, 0.01, 0.5, True, touched)
+    assert n == 1
+    assert flags[0][3] == 1.0 and slept[0] == 1 and touched[0] == 1    # asleep
+    assert W[0] == 0.0 and np.all(V[:, 0] == 0.0)
+    assert flags[1][3] == 0.0 and flags[2][3] == 0.0         # 1 touches restless 2
+    assert np.all(V[:, 1:] == 1.0) and np.array_equal(W[1:], Wa[1:])
+    # body 2 jumps to touch the sleeping body 0: 0 wakes, W restored; body 1, no longer
+    # touched by a restless body, falls asleep
+    X[0, 2] = 0.03
+    n = SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch,
+                        pi, pj, 2, H, 0.01, 0.5, True, touched)
+    assert n == 2 and flags[0][3] == 0.0 and slept[0] == 0 and W[0] == 1.0
+    assert flags[1][3] == 1.0 and W[1] == 0.0
+    flags[1][3] = 0.0                         # woken from outside (Body.wake)
+    assert SL.sleep_sync(flags, slept, off, W, Wa, calm) == 1
+    assert W[1] == 2.0 and slept[1] == 0
+    # held awake (-1): never sleeps, and counts as restless
+    flags[1][3] = -1.0
+    calm[1] = 10.0
+    SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch,
+                    pi, pj, 0, H, 0.01, 0.5, True, touched)
+    assert flags[1][3] == -1.0 and calm[1] == 0.0
+
+
+# ---------------------------------------------------------------------------- worlds
+
+def _two_boxes(contact=None):
+    w = World()
+    w.contact_params = contact or ContactParams(sleep_time=0.25)
+    w.set_colliders(ground=Ground())
+    p = BodyParams(mode='rigid', alpha=0.99, damping=0.5)
+    a = w.add_body(lattice(4, 4, 3, center=(0, 0, 0.02)), 0.01, p, 'a')
+    b = w.add_body(lattice(4, 4, 3, center=(0, 0, 0.02 + 3 * S)), 0.01, p, 'b')
+    return w, a, b
+
+
+def _until_asleep(w, names, seconds=4.0):
+    for _ in range(int(seconds / H)):
+        w.step(H)
+        if sorted(w.asleep) == sorted(names):
+            return True
+    return False
+
+
+def test_a_stack_falls_asleep_and_keeps_its_state_bit_for_bit():
+    w, a, b = _two_boxes()
+    assert _until_asleep(w, ['a', 'b'])
+    assert w.asleep_count == 2 and a.asleep and b.asleep
+    assert np.all(a.v == 0.0) and np.all(b.v == 0.0)          # at rest: no momentum
+    xa, xb = a.x.copy(), b.x.copy()
+    for _ in range(60):
+        w.step(H)
+    assert np.array_equal(a.x, xa) and np.array_equal(b.x, xb)
+    assert np.all(a.v == 0.0) and np.all(b.v == 0.0)
+    assert b.com()[2] > a.com()[2] + 2.5 * S                  # it sleeps where it rests
+
+
+def test_sleep_off_never_sleeps_and_turning_it_off_wakes():
+    w, a, b = _two_boxes(ContactParams(sleep=False, sleep_time=0.25))
+    for _ in range(180):
+        w.step(H)
+    assert w.asleep == [] and w.asleep_count == 0
+    w.contact_params = ContactParams(sleep_time=0.25)
+    assert _until_asleep(w, ['a', 'b'])
+    w.contact_params = ContactParams(sleep=False)
+    assert w.asleep == []
+    w.step(H)
+    assert not np.all(a.v == 0.0)                             # stepped again: gravity
+
+
+def test_a_moving_body_wakes_the_sleeping_body_it_hits():
+    w, a, b = _two_boxes()
+    p = BodyParams(mode='rigid', alpha=0.99, damping=0.5)
+    c = w.add_body(lattice(4, 4, 3, center=(0.15, 0, 0.02)), 0.01, p, 'c')
+    assert _until_asleep(w, ['a', 'b', 'c'])
+    c.set_state(v=np.tile([-1.5, 0.0, 0.0], (c.n, 1)))       # pushed at the stack
+    assert not c.asleep and a.asleep
+    xa = a.x.copy()
+    woke = False
+    for _ in range(60):
+        w.step(H)
+        woke = woke or not a.asleep
+    assert woke
+    assert not np.array_equal(a.x, xa)                        # pushed: it moved
+    assert (a.x[:, 0].max() < c.x[:, 0].min() + 0.6 * S)      # and did not pass through
+
+
+@pytest.mark.parametrize('change', ['state', 'params', 'wrench', 'grab', 'reset'])
+def test_an_input_wakes_a_sleeping_body(change):
+    w, a, b = _two_boxes()
+    assert _until_asleep(w, ['a', 'b'])
+    if change == 'state':
+        b.set_state(x=b.x + [0.0, 0.0, 0.05])
+    elif change == 'params':
+        b.set_params(alpha=0.9)
+    elif change == 'wrench':
+        b.set_wrench([0.0, 0.0, 5.0])
+    elif change == 'grab':
+        b.set_kinematic([0], b.x[:1] + [0.0, 0.0, 0.05])
+    else:
+        b.reset()
+    assert not b.asleep and a.asleep
+    x, v = b.x.copy(), b.v.copy()
+    w.step(H)
+    assert not (np.array_equal(b.x, x) and np.array_equal(b.v, v))     # stepped
+    if change in ('wrench', 'grab'):                          # held awake while it acts
+        for _ in range(120):
+            w.step(H)
+        assert not b.asleep
+        assert b._flags[3] == -1.0
+
+
+@pytest.mark.parametrize('change', ['gravity', 'colliders', 'wake'])
+def test_a_world_change_wakes_every_body(change):
+    w, a, b = _two_boxes()
+    assert _until_asleep(w, ['a', 'b'])
+    if change == 'gravity':
+        w.gravity = (0.0, 0.0, 9.81)
+    elif change == 'colliders':
+        w.set_colliders(ground=Ground(height=-0.01))
+    else:
+        w.wake()
+    w.step(H)
+    assert w.asleep == []
+    assert np.all(w.contact.flat.W > 0.0)                     # masses back
+
+
+def test_one_body_never_sleeps():
+    w = World()
+    w.contact_params = ContactParams(sleep_time=0.1)
+    w.set_colliders(ground=Ground())
+    a = w.add_body(lattice(4, 4, 3, center=(0, 0, 0.02)), 0.01,
+                   BodyParams(mode='rigid', alpha=0.99, damping=0.5), 'a')
+    for _ in range(120):
+        w.step(H)
+    assert not a.asleep and w.asleep_count == 0 and w._sleep is None
+
+
+def test_adding_a_body_wakes_every_body():
+    w, a, b = _two_boxes()
+    assert _until_asleep(w, ['a', 'b'])
+    w.add_body(lattice(2, 2, 2, center=(0.5, 0, 0.5)), 0.01, BodyParams(), 'c')
+    w.step(H)
+    assert w.asleep == []
+
+
+@pytest.mark.parametrize('key, value', [('sleep', 'yes'), ('sleep_speed', -0.1),
+                                        ('sleep_speed', float('nan')),
+                                        ('sleep_time', 1e9), ('sleep_time', True)])
+def test_bad_sleep_settings_are_refused(key, value):
+    w, a, b = _two_boxes()
+    before = w.contact_params
+    with pytest.raises(ValueError, match=f'contact.{key}'):
+        w.contact_params = ContactParams(**{key: value})
+    assert w.contact_params == before
+
+
+def test_scene_contact_keys_set_sleep():
+    from sm_ros.scene import SceneError, parse_scene
+    spec = parse_scene({'bodies': [{'shape': 'box', 'size': [0.1, 0.1, 0.1]}],
+                        'contact': {'sleep': False, 'sleep_speed': 0.05, 'sleep_time': 2}})
+    assert spec.contact == {'sleep': False, 'sleep_speed': 0.05, 'sleep_time': 2.0}
+    with pytest.raises(SceneError, match='contact.sleep_time'):
+        parse_scene({'bodies': [{'shape': 'box', 'size': [0.1, 0.1, 0.1]}],
+                     'contact': {'sleep_time': -1}})
+
+
+def test_a_world_with_pass_colliders_does_not_sleep():
+    # a named collider's wrench is published: a sleeping body would not weigh on it
+    from sm_ros.core import Box
+    w, a, b = _two_boxes()
+    assert _until_asleep(w, ['a', 'b'])
+    w.set_colliders(ground=Ground(), boxes=[Box(lo=(0.5, 0.5, 0.0), hi=(0.6, 0.6, 0.1),
+                                                name='table')])
+    for _ in range(120):
+        w.step(H)
+        assert w.asleep == []
+
+
+def test_the_node_tick_reports_the_sleeping_bodies(tmp_path):
+    from sm_ros.diagnostics import KEYS
+    from sm_ros.sim import Simulation
+    scene = tmp_path / 'two.yaml'
+    scene.write_text(
+        'colliders: {ground: {}}\n'
+        'contact: {sleep_time: 0.25}\n'
+        'bodies:\n'
+        '  - {name: a, shape: box, size: [0.1, 0.1, 0.06], spacing: 0.02, mode: rigid,\n'
+        '     alpha: 0.99, damping: 0.5, position: [0, 0, 0.03]}\n'
+        '  - {name: b, shape: box, size: [0.1, 0.1, 0.06], spacing: 0.02, mode: rigid,\n'
+        '     alpha: 0.99, damping: 0.5, position: [0, 0, 0.1]}\n')
+    sim = Simulation({'scene': str(scene)})
+    assert 'bodies_asleep' in KEYS
+    for _ in range(180):
+        sim.tick()
+        if sim.stats.asleep == 2:
+            break
+    assert sim.stats.asleep == 2 == sim.world.asleep_count
+    assert sorted(sim.world.asleep) == ['a', 'b']
+    b = sim.world.body('b')
+    b.set_wrench([0.0, 0.0, 1.0])       # a force message: b awake, held awake, and it
+    sim.tick()                          # wakes a, which it touches
+    assert sim.stats.asleep == 0 and not b.asleep
+    b.clear_wrench()
+    for _ in range(180):
+        sim.tick()
+        if sim.stats.asleep == 2:
+            break
+    assert sorted(sim.world.asleep) == ['a', 'b']
