@@ -209,6 +209,17 @@ def warm_packed() -> None:
     world.move_collider('warm_finger', (0.6, 0.0, 0.05), (0.0, 0.0, 0.0, 1.0), 1.0 / 60.0)
     for _ in range(2):
         world.step(1.0 / 120.0)
+    # sleeping bodies (core/sleep.py): a pile without collider-pass colliders
+    pile = World(gravity=(0.0, 0.0, -9.81))
+    pile.set_colliders(ground=Ground(height=0.0, friction=0.5))
+    for i in range(2):
+        pile.add_body(cube + (0.0, 0.0, 0.06 + 0.099 * i), masses=0.01,
+                      params=BodyParams(mode='rigid', alpha=0.9))
+    pile.step(1.0 / 120.0)
+    sl = pile._sleep
+    sl.all_asleep()
+    sl.slept[0] = 1                            # as if body 0 was woken from outside
+    sl.sync()
     solo = World(gravity=(0.0, 0.0, -9.81))
     solo.set_colliders(capsules=[Capsule(center=(0.0, 0.0, 0.0), radius=0.05, length=0.1)])
     solo.add_body(cube + (0.0, 0.0, 0.1), masses=0.01)
