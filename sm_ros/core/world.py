@@ -68,6 +68,7 @@ class World(WorldColliders):
             raise ValueError(f'gravity must be 3 finite numbers, got {value!r}')
         self._gravity[:] = g
         self._gnorm = float(np.linalg.norm(g))      # for the restitution threshold (step)
+        self._world_version = getattr(self, '_world_version', 0) + 1    # wakes (sleep.py)
 
     def contact_stats(self):
         """{body name: (contacts, deepest penetration in m)} of the last step: the collider
@@ -230,8 +231,7 @@ class World(WorldColliders):
         if sl is None:
             return False
         cs = self._cset
-        key = (self._gnorm, tuple(self._gravity), id(self._ground_row), id(self._box_rows),
-               id(self._sphere_rows), id(cs))
+        key = self._world_version              # gravity or colliders set since
         if key != self._wake_key or cs is not None:
             self._wake_key = key
             if sl.slept.any():

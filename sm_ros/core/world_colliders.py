@@ -53,6 +53,7 @@ class WorldColliders:
         self._ground_row, self._box_rows, self._sphere_rows = g, b, s
         self._has_col = ground is not None or len(b) > 0 or len(s) > 0
         self._cset = cset
+        self._world_version = getattr(self, '_world_version', 0) + 1    # wakes (sleep.py)
 
     @property
     def collider_names(self):
