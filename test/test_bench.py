@@ -136,17 +136,22 @@ def test_contact_subcommand_smoke(tmp_path):
     threads = numba.get_num_threads()
     out = tmp_path / 'contact'
     assert main(['contact', '--out', str(out), '--blocks', '24', '--steps', '3', '--settle',
-                 '2', '--scales', '1,2', '--paper-seconds', '0', '--one-body-side', '6']) == 0
+                 '2', '--scales', '1,2', '--paper-seconds', '0', '--one-body-side', '6',
+                 '--sleep-scene', 'many', '--sleep-seconds', '0.1']) == 0
     assert numba.get_num_threads() == threads      # the caller's thread count is given back
     res = json.loads((out / 'contact.json').read_text())
     assert res['N'] == 24 * 144 and res['settle']['steps'] == 3
     assert [r['blocks'] for r in res['scaling']] == [24, 48]
     assert res['one_body']['n'] == 6 ** 3 and res['paper_384'] is None
+    sl = res['sleeping']                # 64 falling bodies: none asleep within 0.1 s
+    assert (sl['scene'], sl['ticks'], sl['bodies'], sl['asleep_end']) == ('many', 6, 64, 0)
+    assert sl['all_asleep_s'] is None
     b = res['builders']                 # the builders side by side list the same pairs
     assert b['before']['pairs_listed'] == b['serial']['pairs_listed'] == \
         b['parallel']['pairs_listed'] > 0
     text = (out / 'contact.md').read_text()
     assert 'pair-list rebuild alone' in text and 'cKDTree' in text
+    assert 'sleeping bodies on / off' in text
     assert 'build_pairs_cells' in text and 'per step while moving' in text
 
 

@@ -20,7 +20,14 @@ written to ``--out``:
 - scaling: the contact pass on 1x, 2x, 4x, 10x the blocks (log-log slope in N);
 - ``paper_384``: the node's tick (``Simulation.tick``: 2 substeps, no ROS publishing) once
   the heap has formed (``--paper-seconds`` of simulated pouring first), and the contact
-  pass's share of it per builder (ticks taken in turn with each).
+  pass's share of it per builder (ticks taken in turn with each), sleeping bodies off
+  (``contact.sleep``: the contact pass is what is timed);
+- sleeping bodies: ``--sleep-scene`` (``paper_384``) as users run it, from the start for
+  ``--sleep-seconds`` of simulated time, with sleeping on and off (two simulations ticked
+  in turn): the median tick over the whole run and once every body sleeps.
+
+The bin, the scaling and the builders time the contact pass, so their worlds do not sleep
+(asleep, a resting bin would skip the pass).
 
 ``--write-doc`` replaces the contact section of ``doc/benchmarks.md`` with the tables.
 scipy is needed for the baseline (extra ``bench``); without it that column is empty.
@@ -55,6 +62,10 @@ def add_arguments(p: argparse.ArgumentParser):
                    help='simulated pouring of paper_384 before its ticks are timed '
                         '(0: skip paper_384)')
     p.add_argument('--paper-ticks', type=int, default=60, help='timed ticks of paper_384')
+    p.add_argument('--sleep-scene', default='paper_384',
+                   help='scene of the sleeping-bodies rows')
+    p.add_argument('--sleep-seconds', type=float, default=20.0,
+                   help='simulated time of the sleeping-bodies rows (0: skip them)')
     p.add_argument('--threads', type=int, default=1, help='Numba threads (issue: one)')
     p.add_argument('--build-threads', type=int, default=2,
                    help='threads of the parallel pair-list builder, timed side by side')
@@ -65,16 +76,17 @@ def add_arguments(p: argparse.ArgumentParser):
                    help='write the tables into doc/benchmarks.md')
 
 
-def ball_pile(stacking: bool, clusters: int = 1):
+def ball_pile(stacking: bool, clusters: int = 1, sleep: bool = True):
     """(World, bodies): 27 stiff balls (81 particles each, spacing 2 cm) above a 0.4 m x
     0.4 m bin, to be poured by stepping (issue 13's pile; ``test/test_contact.py`` and
     ``tools/stacking_figures.py`` step it).  ``clusters`` > 1: linear balls of that many
-    clusters per axis (``paper_384``'s stiff many-cluster bodies) instead of rigid ones."""
+    clusters per axis (``paper_384``'s stiff many-cluster bodies) instead of rigid ones.
+    ``sleep``: ``ContactParams.sleep`` (the default: on)."""
     from sm_ros import shapes
     from sm_ros.core import BodyParams, Box, Ground, World
     from sm_ros.core.contact import ContactParams
     w = World()
-    w.contact_params = ContactParams(stacking=stacking)
+    w.contact_params = ContactParams(stacking=stacking, sleep=sleep)
     w.set_colliders(ground=Ground(), boxes=[
         Box(lo=(-0.3, -0.3, 0), hi=(-0.2, 0.3, 0.6)), Box(lo=(0.2, -0.3, 0), hi=(0.3, 0.3, 0.6)),
         Box(lo=(-0.2, -0.3, 0), hi=(0.2, -0.2, 0.6)), Box(lo=(-0.2, 0.2, 0), hi=(0.2, 0.3, 0.6))])
@@ -88,7 +100,7 @@ def ball_pile(stacking: bool, clusters: int = 1):
     return w, bodies
 
 
-def block_bin(n_blocks: int = 384, seed: int = 1, layers: int = 1):
+def block_bin(n_blocks: int = 384, seed: int = 1, layers: int = 1, sleep: bool = False):
     """A World of n_blocks 6x6x4 blocks resting in a bin, faces one spacing apart.
 
     Neighbouring blocks touch: the facing particles of two blocks are exactly one spacing
@@ -97,9 +109,11 @@ def block_bin(n_blocks: int = 384, seed: int = 1, layers: int = 1):
     outer blocks' particles.  (Until this layout the faces were 0.95 spacing apart and the
     blocks started 2 cm into the ground; with stacking, blocks pushed apart then jammed
     against the walls and the bin never came to rest.)  One layer by default: 24 blocks a
-    row.
+    row.  ``sleep`` off by default: the bin times the contact pass, which a bin asleep
+    would skip (``ContactParams.sleep``).
     """
     from sm_ros.core import BodyParams, Box, Ground, World
+    from sm_ros.core.contact import ContactParams
     rng = np.random.default_rng(seed)
     nz = layers
     nx = 24 if layers == 1 else 8
@@ -109,6 +123,7 @@ def block_bin(n_blocks: int = 384, seed: int = 1, layers: int = 1):
     g = np.stack(np.meshgrid(*[np.arange(k) for k in BLOCK], indexing='ij'),
                  -1).reshape(-1, 3) * SPACING
     w = World()
+    w.contact_params = ContactParams(sleep=sleep)
     lo = -0.5 * pitch[:2] - 0.01
     hi = (np.array([nx, ny]) - 0.5) * pitch[:2] + 0.01
     w.set_colliders(ground=Ground(), boxes=[
@@ -369,7 +384,7 @@ def paper_tick(seconds: float, ticks: int, build_threads: int = 2) -> Optional[D
     if seconds <= 0:
         return None
     from sm_ros.sim import Simulation
-    sim = Simulation({'scene': 'paper_384'})
+    sim = Simulation({'scene': 'paper_384', 'contact.sleep': False})
     world = sim.world
     dt = float(sim.params['dt'])
     for _ in range(int(round(seconds / dt))):
@@ -427,6 +442,39 @@ def paper_tick(seconds: float, ticks: int, build_threads: int = 2) -> Optional[D
     return out
 
 
+def sleeping(scene: str, seconds: float) -> Optional[Dict[str, Any]]:
+    """The node's tick of ``scene`` from the start for ``seconds`` of simulated time with
+    sleeping bodies on and off (``contact.sleep``), the two simulations ticked in turn:
+    median and 90th percentile over the run, the median once every body sleeps and when
+    that happened (README "Sleeping bodies")."""
+    if seconds <= 0:
+        return None
+    from sm_ros.sim import Simulation
+    sims = {on: Simulation({'scene': scene, 'contact.sleep': on}) for on in (True, False)}
+    dt = float(sims[True].params['dt']) * int(sims[True].params['substeps'])
+    ticks = max(1, int(round(seconds / dt)))
+    ts = {True: [], False: []}
+    all_at = None
+    for k in range(ticks):
+        for on in (True, False):
+            t0 = time.perf_counter()
+            sims[on].tick()
+            ts[on].append(time.perf_counter() - t0)
+        w = sims[True].world
+        if all_at is None and w.asleep_count == len(w.bodies):
+            all_at = k + 1
+    out = {'scene': scene, 'seconds': ticks * dt, 'ticks': ticks,
+           'bodies': len(sims[True].world.bodies),
+           'asleep_end': sims[True].world.asleep_count,
+           'all_asleep_s': None if all_at is None else all_at * dt}
+    for on, name in ((True, 'on'), (False, 'off')):
+        t = ts[on]
+        out[name] = {'median_ms': _median_ms(t), 'p90_ms': 1e3 * float(np.percentile(t, 90))}
+    out['on']['asleep_median_ms'] = _median_ms(ts[True][all_at:]) \
+        if all_at is not None and all_at < ticks else None
+    return out
+
+
 def run(args, out: Path) -> Dict[str, Any]:
     """Run every part; return the findings (also written as JSON and markdown)."""
     import numba
@@ -462,6 +510,8 @@ def _run(args, out: Path) -> Dict[str, Any]:
         res['slope_step'] = bc.loglog_slope(xs, [r['step_ms'] for r in res['scaling']])
     bc.log('contact: paper_384')
     res['paper_384'] = paper_tick(args.paper_seconds, args.paper_ticks, args.build_threads)
+    bc.log('contact: sleeping bodies')
+    res['sleeping'] = sleeping(args.sleep_scene, args.sleep_seconds)
     text = markdown(res)
     (out / 'contact.md').write_text(text)
     (out / 'contact.json').write_text(json.dumps(res, indent=1, default=float))
@@ -527,6 +577,17 @@ def markdown(r: Dict[str, Any]) -> str:
                          f"({reb} rebuilds a tick) |")
         lines += _builder_rows(pp.get('builders'), f"`paper_384` after {pp['poured_s']:g} s "
                                f"of pouring and {r.get('paper_ticks', 0)} ticks")
+    sl = r.get('sleeping')
+    if sl:
+        at = (f"every body asleep after {sl['all_asleep_s']:.1f} s, then "
+              f"{sl['on']['asleep_median_ms']:.2f} ms median" if sl['all_asleep_s'] is not None
+              and sl['on']['asleep_median_ms'] is not None else
+              f"{sl['asleep_end']} of {sl['bodies']} bodies asleep at the end")
+        lines.append(f"| `{sl['scene']}` tick from the start, {sl['seconds']:g} s (the pour, "
+                     f"then the heap at rest), sleeping bodies on / off (two simulations "
+                     f"ticked in turn) | <= 8.3 ms (60 Hz) | {sl['on']['median_ms']:.1f} / "
+                     f"{sl['off']['median_ms']:.1f} ms median (p90 {sl['on']['p90_ms']:.1f} / "
+                     f"{sl['off']['p90_ms']:.1f}); {at} |")
     lines += ['', '| particles | blocks | rebuild ms | per step ms |', '| --- | --- | --- | --- |']
     for row in r['scaling']:
         lines.append(f"| {row['N']:,} | {row['blocks']} | {row['rebuild_ms']:.1f} | "
