@@ -11,7 +11,7 @@ Run it for two checkouts in turn (``PYTHONPATH=CHECKOUT``) to compare them.
 at rest), and prints how many bodies sleep at the end.
 
     .venv/bin/python tools/paper_tick.py --scene paper_384 --ticks 90
-    .venv/bin/python tools/paper_tick.py --scene paper_384 --settle 0 --ticks 1200
+    .venv/bin/python tools/paper_tick.py --scene paper_384 --settle 0 --ticks 1200 --timeline
 """
 
 import argparse
@@ -29,6 +29,8 @@ def main():
     ap.add_argument('--settle', type=int, default=360)
     ap.add_argument('--ticks', type=int, default=90)
     ap.add_argument('--sleep', choices=('on', 'off'), default='on')
+    ap.add_argument('--timeline', action='store_true',
+                    help='also print the median tick and the bodies asleep every 60 ticks')
     a = ap.parse_args()
     sim = Simulation({'scene': a.scene, 'contact.sleep': a.sleep == 'on'})
     dt = float(sim.params['dt'])
@@ -42,6 +44,10 @@ def main():
         sim.tick()
         wall.append(time.perf_counter() - t)
         cpu.append(time.process_time() - c)
+        if a.timeline and len(wall) % 60 == 0:
+            print(f'ticks {len(wall) - 59}-{len(wall)}: median '
+                  f'{1e3 * np.median(wall[-60:]):.2f} ms, {sim.world.asleep_count} asleep',
+                  flush=True)
     w, c = 1e3 * np.array(wall), 1e3 * np.array(cpu)
     print(f'{a.scene}: tick median {np.median(w):.1f} ms, p90 {np.percentile(w, 90):.1f}, '
           f'largest {w.max():.1f} | process CPU median {np.median(c):.1f} ms | sleep '
