@@ -11,6 +11,7 @@ from sm_ros.core.contact import ContactParams
 
 S = 0.02
 H = 1 / 120
+UP = np.array([0.0, 0.0, 1.0])
 
 
 def lattice(nx, ny, nz, s=S, center=(0.0, 0.0, 0.0)):
@@ -60,26 +61,29 @@ def test_touch_restless_matches_numpy():
     B = np.repeat(np.arange(nb, dtype=np.int32), n // nb)
     i, j = np.triu_indices(n, 1)
     pi, pj = i.astype(np.int32), j.astype(np.int32)
-    restless = np.array([1, 0, 0, 1, 0, 0], dtype=np.uint8)
+    level = np.array([2, 0, 1, 2, 0, 1], dtype=np.uint8)   # restless, settled, unsettled
     near = np.full(nb, 7, dtype=np.uint8)
     off = np.arange(nb + 1) * (n // nb)
     xs = List([X[:, off[b]:off[b + 1]].copy() for b in range(nb)])
-    SL.touch_restless(xs, off, R, B, pi, pj, len(pi), restless, near)
-    want = np.zeros(nb, dtype=np.uint8)
     d = np.linalg.norm(X[:, i] - X[:, j], axis=0)
     touch = (d < SL.TOUCH_FACTOR * (R[i] + R[j])) & (B[i] != B[j])
-    for a, b in zip(B[i][touch], B[j][touch]):
-        if restless[b]:
-            want[a] = 1
-        if restless[a]:
-            want[b] = 1
-    assert np.array_equal(near, want)
-    assert want.any() and not want.all()                      # the case means something
+    for up in (np.zeros(3), np.array([0.0, 0.0, 1.0]), np.array([0.6, 0.0, -0.8])):
+        SL.touch_restless(xs, off, R, B, pi, pj, len(pi), level, up, near)
+        want = np.zeros(nb, dtype=np.uint8)
+        for a, b, above in zip(B[i][touch], B[j][touch], (X[:, i] - X[:, j]).T[touch] @ up):
+            # a level 1 counts only from below (any side without gravity); 2 always
+            if level[b] == 2 or (level[b] == 1 and (not up.any() or above > 0)):
+                want[a] = max(want[a], level[b])
+            if level[a] == 2 or (level[a] == 1 and (not up.any() or above < 0)):
+                want[b] = max(want[b], level[a])
+        assert np.array_equal(near, want)
+        assert want.any()
 
 
 def test_sleep_update_falls_asleep_wakes_and_holds():
     # three one-particle bodies: 0 still for long enough, 1 still but touching 2, which
-    # moves fast; then 2 touches 0 while 0 sleeps
+    # moves fast (restless: in this step and the one before); then 2 touches 0 while 0
+    # sleeps
     X = np.array([[0.0, 1.0, 1.03], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
     Xp, Xa = X.copy(), X.copy()
     V = np.ones((3, 3))
@@ -92,12 +96,14 @@ def test_sleep_update_falls_asleep_wakes_and_holds():
     flags = _flags([0.0, 0.0, 0.0])
     slept = np.zeros(3, dtype=np.uint8)
     calm = np.array([0.5, 0.5, 0.0])
-    scratch = [np.zeros(3), np.zeros(3), np.zeros(3, np.uint8), np.zeros(3, np.uint8)]
+    # fast (body 2 moved fast in the step before too), step2, drift2, level, near
+    scratch = [np.array([0, 0, 1], np.uint8), np.zeros(3), np.zeros(3), np.zeros(3, np.uint8),
+               np.zeros(3, np.uint8)]
     pi, pj = np.array([0, 1], dtype=np.int32), np.array([2, 2], dtype=np.int32)
     touched = np.zeros(3, dtype=np.uint8)
     Xp[0, 2] -= 0.01                          # body 2 moved 1 cm in the step: restless
     n = SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch,
-                        pi, pj, 2, H, 0.01, 0.5, True, touched)
+                        pi, pj, 2, UP, H, 0.01, 0.5, True, touched)
     assert n == 1
     assert flags[0][3] == 1.0 and slept[0] == 1 and touched[0] == 1    # asleep
     assert W[0] == 0.0 and np.all(V[:, 0] == 0.0)
@@ -107,7 +113,7 @@ def test_sleep_update_falls_asleep_wakes_and_holds():
     # touched by a restless body, falls asleep
     X[0, 2] = 0.03
     n = SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch,
-                        pi, pj, 2, H, 0.01, 0.5, True, touched)
+                        pi, pj, 2, UP, H, 0.01, 0.5, True, touched)
     assert n == 2 and flags[0][3] == 0.0 and slept[0] == 0 and W[0] == 1.0
     assert flags[1][3] == 1.0 and W[1] == 0.0
     flags[1][3] = 0.0                         # woken from outside (Body.wake)
@@ -117,8 +123,57 @@ def test_sleep_update_falls_asleep_wakes_and_holds():
     flags[1][3] = -1.0
     calm[1] = 10.0
     SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch,
-                    pi, pj, 0, H, 0.01, 0.5, True, touched)
+                    pi, pj, 0, UP, H, 0.01, 0.5, True, touched)
     assert flags[1][3] == -1.0 and calm[1] == 0.0
+
+
+def test_no_body_falls_asleep_on_a_support_that_still_moves_slowly():
+    # body 0 still for long enough, resting on body 1 below it, which drifts slowly
+    # (unsettled: not still for sleep_time, not fast enough to be restless): 0 stays
+    # awake; once 1 has been still for sleep_time both fall asleep together; a sleeping
+    # body is not woken by an unsettled one; beside (not below) it, an unsettled body
+    # does not keep it awake
+    X = np.array([[0.0, 0.0], [0.0, 0.0], [0.03, 0.0]])
+    Xp, Xa = X.copy(), X.copy()
+    Xa[0, 1] -= 0.01                          # 1 cm from where its still spell began
+    V = np.zeros((3, 2))
+    W = np.ones(2)
+    Wa = W.copy()
+    R = np.full(2, 0.02)
+    B = np.arange(2, dtype=np.int32)
+    off = np.arange(3)
+    xs = List([X[:, k:k + 1] for k in range(2)])
+    flags = _flags([0.0, 0.0])
+    slept = np.zeros(2, dtype=np.uint8)
+    calm = np.array([1.0, 0.4])
+    scratch = [np.zeros(2, np.uint8), np.zeros(2), np.zeros(2), np.zeros(2, np.uint8),
+               np.zeros(2, np.uint8)]
+    pi, pj = np.array([0], dtype=np.int32), np.array([1], dtype=np.int32)
+    touched = np.zeros(2, dtype=np.uint8)
+    args = (pi, pj, 1, UP, H, 0.01, 0.5, True, touched)
+    assert SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm,
+                           *scratch, *args) == 0
+    assert calm[1] == 0.0 and scratch[3][1] == 1 and scratch[4][0] == 1     # unsettled
+    assert flags[0][3] == 0.0
+    for _ in range(int(0.5 / H)):             # 1 now still: settles after sleep_time
+        SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch,
+                        *args)
+        assert flags[0][3] == flags[1][3]     # together
+    assert flags[0][3] == 1.0 and flags[1][3] == 1.0
+    flags[1][3] = 0.0                         # 1 woken from outside, moves slowly
+    SL.sleep_sync(flags, slept, off, W, Wa, calm)
+    X[0, 1] += 0.0001
+    SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch, *args)
+    assert flags[0][3] == 1.0 and flags[1][3] == 0.0          # 0 sleeps on
+    # side by side: 0 wakes from outside, 1 beside it is unsettled; 0 falls asleep
+    X[:, 0] = (-0.03, 0.0, 0.0)
+    flags[0][3] = 0.0
+    SL.sleep_sync(flags, slept, off, W, Wa, calm)
+    Xp[:, 0] = Xa[:, 0] = X[:, 0]
+    calm[0] = 1.0
+    Xa[0, 1] -= 0.01
+    SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch, *args)
+    assert scratch[3][1] == 1 and flags[0][3] == 1.0
 
 
 # ---------------------------------------------------------------------------- worlds
@@ -306,3 +361,29 @@ def test_the_node_tick_reports_the_sleeping_bodies(tmp_path):
         if sim.stats.asleep == 2:
             break
     assert sorted(sim.world.asleep) == ['a', 'b']
+
+
+def test_one_fast_step_is_not_restless():
+    # a body that moves fast in one step only (the body it rests on just fell asleep and
+    # stopped giving way) does not wake its sleeping neighbour; in two steps in a row it does
+    X = np.array([[0.0, 0.03], [0.0, 0.0], [0.0, 0.0]])
+    Xp, Xa = X.copy(), X.copy()
+    V, W = np.zeros((3, 2)), np.array([0.0, 1.0])
+    Wa = np.ones(2)
+    R = np.full(2, 0.02)
+    B = np.arange(2, dtype=np.int32)
+    off = np.arange(3)
+    xs = List([X[:, k:k + 1] for k in range(2)])
+    flags = _flags([1.0, 0.0])
+    slept = np.array([1, 0], dtype=np.uint8)
+    calm = np.zeros(2)
+    scratch = [np.zeros(2, np.uint8), np.zeros(2), np.zeros(2), np.zeros(2, np.uint8),
+               np.zeros(2, np.uint8)]
+    args = (np.array([0], np.int32), np.array([1], np.int32), 1, UP, H, 0.01, 0.5, True,
+            np.zeros(2, np.uint8))
+    Xp[0, 1] -= 0.001                         # 1 mm in a step: 0.12 m/s
+    SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch, *args)
+    assert scratch[0][1] == 1 and scratch[3][1] == 1 and flags[0][3] == 1.0
+    Xp[0, 1] -= 0.001                         # and again
+    SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch, *args)
+    assert scratch[3][1] == 2 and flags[0][3] == 0.0 and W[0] == 1.0

@@ -6,12 +6,15 @@ at rest then costs almost nothing.  Here, in a world where body-body contact run
 (``Contact.needed``: two colliding bodies or more), with ``ContactParams.sleep``:
 
 * **Falling asleep.** After each step every awake body's particle moves are measured
-  (``sleep_update``).  A body none of whose particles got farther than ``sleep_speed``
-  times ``sleep_time`` from where they were ``sleep_time`` seconds ago (a still spell:
-  jiggling in place is still, a drift at ``sleep_speed`` is not), and that touches no
-  *restless* body (one moving faster than ``WAKE_FACTOR`` times ``sleep_speed`` in a
-  step, or held awake), falls asleep: its velocities are set to zero and it is no longer
-  stepped (``Body._flags[3]`` = 1: the compiled steps skip it).
+  (``sleep_update``).  A body is *settled* once none of its particles got farther than
+  ``sleep_speed`` times ``sleep_time`` from where they were ``sleep_time`` seconds ago (a
+  still spell: jiggling in place is still, a drift at ``sleep_speed`` is not).  A settled
+  body falls asleep unless a restless body touches it (one moving faster than
+  ``WAKE_FACTOR`` times ``sleep_speed`` in a step, or held awake by a force, torque or
+  grab) or an unsettled one supports it (touches it from below): its velocities are set
+  to zero and it is no longer stepped (``Body._flags[3]`` = 1: the compiled steps skip
+  it).  So no body falls asleep on a support that still slides or sinks (it would float
+  once the support moved on), while bodies beside a slowly creeping one may.
 * **Asleep** it is an obstacle of infinite mass for contact (its inverse masses ``W`` are
   0 in the flat state, as for pinned particles) and keeps its state bit for bit.
 * **Waking.** A sleeping body wakes when a restless body touches it (a pair closer than
@@ -32,8 +35,8 @@ from numba import njit
 
 from .kernels import JIT
 
-#: A body is restless (wakes the sleeping bodies it touches, keeps its neighbours awake)
-#: while a particle moves faster than this many times ``sleep_speed`` in a step.
+#: A body is restless (wakes the sleeping bodies it touches) while a particle moves
+#: faster than this many times ``sleep_speed`` in two steps in a row.
 WAKE_FACTOR = 4.0
 #: A pair touches (for waking and for keeping awake) when closer than this many times
 #: its contact distance r_i + r_j (resting contacts sit at about 1).
@@ -96,19 +99,24 @@ def body_moves(X, Xp, Xa, off, flags, step2, drift2):
 
 
 @njit(**JIT)
-def touch_restless(xs, off, R, B, pi, pj, npairs, restless, near):
-    """near[b] = 1 where a particle of body b touches (``TOUCH_FACTOR``) a particle of
-    another body with ``restless``; 0 elsewhere.  Positions from ``xs`` (the bodies' own
-    (3, n) blocks): before the contact pass, where a body thrown at a sleeping one
-    overlaps it (the pass then stops it where the step began, a gap away).  A pass over
-    the pair list that reads positions only of pairs with a restless side."""
+def touch_restless(xs, off, R, B, pi, pj, npairs, level, up, near):
+    """near[b] = the largest ``level`` of the other bodies a particle of body b touches
+    (``TOUCH_FACTOR``), where a level 1 (unsettled) counts only from a body below b's
+    particle (along ``up``, the unit vector against gravity; every direction when it is
+    zero: a support that still moves); 0 where none counts.  Positions from ``xs`` (the
+    bodies' own (3, n) blocks): before the contact pass, where a body thrown at a
+    sleeping one overlaps it (the pass then stops it where the step began, a gap away).
+    A pass over the pair list that reads positions only of pairs with a side above 0."""
     near[:] = 0
+    anyway = up[0] == 0.0 and up[1] == 0.0 and up[2] == 0.0
     for p in range(npairs):
         i = pi[p]
         j = pj[p]
         bi = B[i]
         bj = B[j]
-        if bi == bj or not (restless[bi] or restless[bj]):
+        li = level[bi]
+        lj = level[bj]
+        if bi == bj or (li == 0 and lj == 0) or (lj <= near[bi] and li <= near[bj]):
             continue
         s = TOUCH_FACTOR * (R[i] + R[j])
         xi = xs[bi]
@@ -119,23 +127,31 @@ def touch_restless(xs, off, R, B, pi, pj, npairs, restless, near):
         dy = xi[1, ki] - xj[1, kj]
         dz = xi[2, ki] - xj[2, kj]
         if dx * dx + dy * dy + dz * dz < s * s:
-            if restless[bj]:
-                near[bi] = 1
-            if restless[bi]:
-                near[bj] = 1
+            above = dx * up[0] + dy * up[1] + dz * up[2]      # > 0: i above j
+            if lj > near[bi] and (lj == 2 or anyway or above > 0.0):
+                near[bi] = lj
+            if li > near[bj] and (li == 2 or anyway or above < 0.0):
+                near[bj] = li
 
 
 @njit(**JIT)
-def sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, step2, drift2,
-                 restless, near, pi, pj, npairs, h, speed, t_sleep, allow, touched):
+def sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, fast, step2,
+                 drift2, level, near, pi, pj, npairs, up, h, speed, t_sleep, allow, touched):
     """One step's sleep bookkeeping (see the module); returns how many bodies fell asleep
     or woke (their ``W`` changed).
 
     A body is *still* while no particle is farther than ``speed * t_sleep`` from where
     it was when its still spell began (``Xa``; a jiggle in place does not end the spell,
-    a slow drift does), and *restless* while a particle moves faster than
-    ``WAKE_FACTOR * speed`` in a step, or a force, torque or grab holds it.  ``step2``,
-    ``drift2``, ``restless``, ``near``: (bodies,) scratch.  ``X``, ``V``: the flat state
+    a slow drift does), *settled* when asleep or still for ``t_sleep`` (``level`` 0),
+    *restless* while a particle moved faster than ``WAKE_FACTOR * speed`` in each of the
+    last two steps (``fast``: (bodies,) uint8, the count of such steps in a row, up to 2;
+    one step is not enough: when a body falls asleep the one resting on it settles by up
+    to g h^2 in one step), or a force, torque or grab holds it (``level`` 2), and
+    unsettled otherwise (1).  A body
+    falls asleep once settled while no restless body touches it and no unsettled one
+    supports it (touches it from below, along ``up``: against gravity; from any side
+    without gravity); a sleeping body wakes when a restless one touches it.  ``step2``, ``drift2``, ``level``, ``near``:
+    (bodies,) scratch.  ``X``, ``V``: the flat state
     after the contact pass; ``xs``: the bodies' own positions, before it (who touches
     whom, ``touch_restless``).  ``allow``: whether bodies may
     fall asleep (False: only waking).  A body that falls asleep gets ``touched`` (the
@@ -143,16 +159,15 @@ def sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, step2, 
     """
     nb = len(flags)
     body_moves(X, Xp, Xa, off, flags, step2, drift2)
-    fast = WAKE_FACTOR * speed * h
-    fast2 = fast * fast
+    quick = WAKE_FACTOR * speed * h
+    fast2 = quick * quick
     room = speed * t_sleep
     room2 = room * room
     for b in range(nb):
         f = flags[b][3]
         if f > 0.0:
-            restless[b] = 0
+            level[b] = 0
             continue
-        restless[b] = 1 if (step2[b] > fast2 or f < 0.0) else 0
         if drift2[b] <= room2 and f == 0.0:
             calm[b] += h
         else:                                  # a new still spell starts here
@@ -161,14 +176,19 @@ def sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, step2, 
                 Xa[0, k] = X[0, k]
                 Xa[1, k] = X[1, k]
                 Xa[2, k] = X[2, k]
-    touch_restless(xs, off, R, B, pi, pj, npairs, restless, near)
+        fast[b] = min(fast[b] + 1, 2) if step2[b] > fast2 else 0
+        if fast[b] >= 2 or f < 0.0:
+            level[b] = 2
+        else:
+            level[b] = 0 if calm[b] >= t_sleep else 1
+    touch_restless(xs, off, R, B, pi, pj, npairs, level, up, near)
     changed = 0
     for b in range(nb):
         f = flags[b][3]
         o0 = off[b]
         o1 = off[b + 1]
         if f > 0.0:
-            if near[b]:                        # a restless body touches it: awake
+            if near[b] == 2:                   # a restless body touches it: awake
                 flags[b][3] = 0.0
                 slept[b] = 0
                 calm[b] = 0.0
@@ -181,7 +201,7 @@ def sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, step2, 
                     Xa[1, k] = X[1, k]
                     Xa[2, k] = X[2, k]
                 changed += 1
-        elif allow and f == 0.0 and calm[b] >= t_sleep and not near[b]:
+        elif allow and f == 0.0 and calm[b] >= t_sleep and near[b] == 0:
             flags[b][3] = 1.0
             slept[b] = 1
             for k in range(o0, o1):
@@ -203,9 +223,10 @@ class Sleep:
         self.flat = flat
         self.slept = np.zeros(nb, dtype=np.uint8)  # asleep as of the last step
         self.calm = np.zeros(nb)                   # seconds below the speed in a row
+        self.fast = np.zeros(nb, dtype=np.uint8)   # steps above the restless speed in a row
         self.step2 = np.zeros(nb)
         self.drift2 = np.zeros(nb)
-        self.restless = np.zeros(nb, dtype=np.uint8)
+        self.level = np.zeros(nb, dtype=np.uint8)
         self.near = np.zeros(nb, dtype=np.uint8)
         self.Xp = flat.X.copy()
         self.Xa = flat.X.copy()
@@ -228,13 +249,16 @@ class Sleep:
                                            self.calm):
             f.w_version += 1
 
-    def update(self, contact, h, params):
+    def update(self, contact, h, params, gravity):
         """After the contact pass, before the scatter (``sleep_update``)."""
         f = self.flat
+        g = float(np.linalg.norm(gravity))
+        up = -gravity / g if g > 0.0 else np.zeros(3)
         if sleep_update(f.X, self.Xp, self.Xa, f.V, f.W, f.Wa, f._xs, f.R, f.B, f.off,
-                        f.flag_list(), self.slept, self.calm, self.step2, self.drift2,
-                        self.restless, self.near, contact._pi, contact._pj, contact.npairs,
-                        float(h), float(params.sleep_speed), float(params.sleep_time),
+                        f.flag_list(), self.slept, self.calm, self.fast, self.step2,
+                        self.drift2,
+                        self.level, self.near, contact._pi, contact._pj, contact.npairs,
+                        up, float(h), float(params.sleep_speed), float(params.sleep_time),
                         bool(params.sleep), f.touched):
             f.w_version += 1
 

@@ -376,7 +376,7 @@ class World(WorldColliders):
                 st[:] = 0.0
                 cs.collide(f.X, f.V, f.W, f.B, 0, f.n, h, thresh, st, f.touched)
             if sl is not None and cs is None and self._contact_params.sleep:
-                sl.update(c, h, self._contact_params)
+                sl.update(c, h, self._contact_params, self._gravity)
             f.scatter()
             return True
         f.refresh_masses()
