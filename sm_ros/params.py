@@ -198,7 +198,8 @@ TABLE: Tuple[Param, ...] = (
           '(are not stepped) until a moving body touches them or an input changes them'),
     Param('contact.sleep_speed', 0.01, 'A body falls asleep once no particle got farther '
           'than this times contact.sleep_time from where it was contact.sleep_time '
-          'seconds before; 4 times this per step wakes the sleeping bodies it touches',
+          'seconds before; 4 times this in two steps in a row wakes the sleeping bodies it '
+          'touches',
           'm/s', 0.0, 10.0),
     Param('contact.sleep_time', 0.5, 'Seconds a body must stay still before it falls '
           'asleep', 's', 0.0, 3600.0),
