@@ -32,7 +32,7 @@ from typing import Optional
 import numba
 import numpy as np
 
-from .contact_build import (build_pairs, build_pairs_cells, build_pairs_grid,
+from .contact_build import (body_overlaps, build_pairs, build_pairs_cells, build_pairs_grid,
                             build_pairs_grid_par, max_moved2, sort_pairs)
 from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_bodies, solve_pairs,
@@ -203,6 +203,13 @@ class Contact:
         n = flat.n
         rmax = float(self.radii[self.act[:nb]].max()) if nb and self.act[:nb].any() else 0.0
         self.skin = SKIN_FACTOR * rmax
+        # the broad phase of a build (``body_overlaps``): per-body box growth, scratch,
+        # and which bodies the builders take
+        self._grow = np.zeros(max(nb, 1))
+        self._grow[:nb] = self.radii + 0.5 * self.skin
+        self._box = np.zeros((max(nb, 1), 6))
+        self._order = np.zeros(max(nb, 1), dtype=np.int64)
+        self._act_eff = np.zeros(max(nb, 1), dtype=np.bool_)
         self.cell = max(2.0 * rmax + self.skin, 1e-12)
         self.needed = nb > 0 and rmax > 0.0 and (int(self.act[:nb].sum()) >= 2
                                                   or bool(self.selfc[:nb].any()))
@@ -274,23 +281,28 @@ class Contact:
     def _build(self):
         f = self.flat
         nt = self._grid_builder()
+        # broad phase: only bodies whose boxes (grown by r + skin / 2) meet another's go
+        # into the grid; valid until the next build (no particle moves skin / 2 before it)
+        act = self._act_eff
+        body_overlaps(f.X, f.off, self.act, self.selfc, self._grow, self._box, self._order,
+                      act)
         while True:
             if nt == 'cells':
-                m = build_pairs_cells(f.X, f.R, f.B, self.act, self.selfc, f.X0, self.cell,
+                m = build_pairs_cells(f.X, f.R, f.B, act, self.selfc, f.X0, self.cell,
                                       self.skin, SELF_REST_FACTOR, self._hb, self._cnt,
                                       self._srt, self._sco, self._pi, self._pj)
             elif nt == 1:
-                m = build_pairs_grid(f.X, f.R, f.B, self.act, self.selfc, f.X0, self.cell,
+                m = build_pairs_grid(f.X, f.R, f.B, act, self.selfc, f.X0, self.cell,
                                      self.skin, SELF_REST_FACTOR, self._hb, self._cnt,
                                      self._srt, self._P, self._sb, self._cb, self._pi,
                                      self._pj)
             else:
-                m = build_pairs_grid_par(f.X, f.R, f.B, self.act, self.selfc, f.X0, self.cell,
+                m = build_pairs_grid_par(f.X, f.R, f.B, act, self.selfc, f.X0, self.cell,
                                          self.skin, SELF_REST_FACTOR, self._hb, self._cnt,
                                          self._srt, self._P, self._sb, self._cb, self._pi,
                                          self._pj, nt)
             if m < 0:                           # sparse world: hashed cells
-                m = build_pairs(f.X, f.R, f.B, self.act, self.selfc, f.X0, self.cell,
+                m = build_pairs(f.X, f.R, f.B, act, self.selfc, f.X0, self.cell,
                                 self.skin, SELF_REST_FACTOR, self._hb, self._cnt, self._srt,
                                 self._skey, self._sco, self._pi, self._pj)
             if m <= len(self._pi):
@@ -379,6 +391,7 @@ class Contact:
 
 __all__ = ['ContactParams', 'BodyContact', 'Contact', 'default_radius', 'SELF_REST_FACTOR',
            'COUPLE_ALPHA', 'STACK_SWEEPS', 'PARALLEL_BUILD_MIN', 'body_inverse_masses',
+           'body_overlaps',
            'body_velocities', 'build_pairs', 'build_pairs_cells', 'build_pairs_grid',
            'build_pairs_grid_par', 'contact_velocity', 'count_fast', 'inverse_sym3',
            'max_moved2',

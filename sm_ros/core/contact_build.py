@@ -298,6 +298,67 @@ def build_pairs_cells(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt, sr
 
 
 @njit(**JIT)
+def body_overlaps(X, off, act, selfc, grow, box, order, out):
+    """The broad phase of a pair-list build: out[b] = 1 for a colliding body (``act``)
+    that self-collides or whose bounding box, grown by ``grow[b]`` on every side, overlaps
+    another colliding body's grown box; 0 otherwise (none of its particles can come within
+    a contact distance plus the skin of another body's: the builders may leave it out).
+
+    ``box`` (bodies, 6) and ``order`` (bodies,) int64: scratch.  One pass over the
+    colliding particles (min/max per row: vectorises over a body's particles), then a
+    sweep over the boxes sorted by their low x (each box meets only those that start
+    before it ends).  A body whose box is not finite is kept, with every other (out 1).
+    """
+    nb = off.shape[0] - 1
+    m = 0
+    for b in range(nb):
+        out[b] = 0
+        if not act[b]:
+            continue
+        g = grow[b]
+        for r in range(3):
+            lo = np.inf
+            hi = -np.inf
+            for k in range(off[b], off[b + 1]):
+                v = X[r, k]
+                lo = min(lo, v)
+                hi = max(hi, v)
+            box[b, r] = lo - g
+            box[b, 3 + r] = hi + g
+        ok = True
+        for r in range(6):
+            if not np.isfinite(box[b, r]):
+                ok = False
+        if selfc[b]:
+            out[b] = 1                         # its own pairs are listed whatever the rest
+        if not ok:
+            out[b] = 1
+            box[b, 0] = -np.inf                # meets every box in the sweep below
+            box[b, 3] = np.inf
+            box[b, 1] = box[b, 2] = -np.inf
+            box[b, 4] = box[b, 5] = np.inf
+        order[m] = b
+        m += 1
+    keys = np.empty(m)
+    for a in range(m):
+        keys[a] = box[order[a], 0]
+    rank = np.argsort(keys)
+    srt = np.empty(m, dtype=np.int64)
+    for a in range(m):
+        srt[a] = order[rank[a]]
+    for a in range(m):
+        b = srt[a]
+        for c_ in range(a + 1, m):
+            c = srt[c_]
+            if box[c, 0] > box[b, 3]:
+                break                          # sorted by low x: no later box meets b
+            if (box[c, 1] <= box[b, 4] and box[b, 1] <= box[c, 4]
+                    and box[c, 2] <= box[b, 5] and box[b, 2] <= box[c, 5]):
+                out[b] = 1
+                out[c] = 1
+
+
+@njit(**JIT)
 def max_moved2(X, Xref, B, act):
     """Largest squared displacement of a colliding particle since ``Xref`` (NaN -> inf)."""
     best = 0.0
