@@ -387,3 +387,21 @@ def test_one_fast_step_is_not_restless():
     Xp[0, 1] -= 0.001                         # and again
     SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch, *args)
     assert scratch[3][1] == 2 and flags[0][3] == 0.0 and W[0] == 1.0
+
+
+def test_without_gravity_nothing_sleeps_and_momentum_is_kept():
+    # two bodies drifting together slower than sleep_speed, touching, in zero gravity:
+    # nothing rests, so nothing sleeps, and the momentum stays what it was
+    w = World(gravity=(0.0, 0.0, 0.0))
+    w.contact_params = ContactParams(sleep_time=0.1)
+    p = BodyParams(mode='rigid', alpha=0.99)
+    a = w.add_body(lattice(3, 3, 3, center=(0, 0, 0)), 0.01, p, 'a')
+    b = w.add_body(lattice(3, 3, 3, center=(3 * S, 0, 0)), 0.01, p, 'b')
+    for body in (a, b):
+        body.set_state(v=np.tile([0.004, 0.001, 0.0], (body.n, 1)))
+    p0 = a.momentum() + b.momentum()
+    for _ in range(120):
+        w.step(H)
+    assert w.asleep == []
+    np.testing.assert_allclose(a.momentum() + b.momentum(), p0, atol=1e-15)
+    assert np.linalg.norm(p0) > 0.0

@@ -23,7 +23,9 @@ at rest then costs almost nothing.  Here, in a world where body-body contact run
   (``Body.wake``: state, parameters, wrench, grabs, reset) or the world (gravity, the
   colliders, the bodies, the contact settings).  A body with a force, torque or grab is
   held awake (``_flags[3]`` = -1) while it acts.
-* A world of one colliding body (no contact pass) never sleeps: it pays nothing.
+* A world of one colliding body (no contact pass) never sleeps: it pays nothing.  Nor
+  does a world without gravity (nothing rests; freezing a drift would take momentum out
+  of a conservative world) or with collider-pass colliders (``World._sleep_check``).
 
 The pass over the awake bodies' particles (reads of X, the previous positions and the
 spell's anchors, one write) and over the pair list costs about as much as the gather copy

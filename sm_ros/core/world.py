@@ -375,7 +375,9 @@ class World(WorldColliders):
             if cs is not None:
                 st[:] = 0.0
                 cs.collide(f.X, f.V, f.W, f.B, 0, f.n, h, thresh, st, f.touched)
-            if sl is not None and cs is None and self._contact_params.sleep:
+            # bodies sleep only under gravity: without it nothing rests on anything, and
+            # freezing a slow drift would take momentum out of a conservative world
+            if sl is not None and cs is None and self._contact_params.sleep and self._gnorm:
                 sl.update(c, h, self._contact_params, self._gravity)
             f.scatter()
             return True
