@@ -35,10 +35,11 @@ import numpy as np
 from numba import njit, prange
 from numba.typed import List as TypedList
 
-from .kernels import BLOCK, JIT, NDAMP, _collide_range, limit_turn, solve_clusters
+from .kernels import (BLOCK, JIT, NDAMP, STRETCH_LIMIT, _collide_range, det3, extract_rotation,
+                      limit_turn, unit_det_match_warm)
 from .kernels.damping import _rigid_fields, damp_acc_range
 from .kernels.integrate import _acc_single, _int_single_fused, _int_single_lin
-from .kernels.jit import U
+from .kernels.jit import U, finite
 from .kernels.limits import limit_speed_range
 
 #: Particles per call of the fused one-loop pass of an undamped body (``_int_single_fused``;
@@ -55,7 +56,7 @@ STATE = (('_flags', (4,)), ('_facc', (3,)), ('_ref', (1, 3)), ('_quat', (1, 4)),
          ('_rest_lin', (1, 3, 3)), ('_rest_off', (1, 3)), ('_sum_q', (1, 9)),
          ('_wsum', (1,)), ('_scale', (1,)), ('_cdet', (1,)), ('_aqq3', (1, 3, 3)),
          ('_nmat', (1, 3, 3)), ('_part', (1, 1, 12)), ('_err', (1,)),
-         ('_dpart', (1, 1, NDAMP)))
+         ('_dpart', (1, 1, NDAMP)), ('_udv', (1, 3, 3)))
 
 
 def _columns():
@@ -70,7 +71,7 @@ def _columns():
 COLS, NCOL = _columns()
 #: Numbers of scratch one chunk of bodies uses (``_step_chunk``: views of one row of
 #: ``Pack.scratch``).
-SCRATCH = 364 + NDAMP
+SCRATCH = 203 + NDAMP
 #: Row entries a body built for threads holds per chunk (leading axis: chunks).
 _CHUNKED = ('_part', '_err', '_dpart')
 C_FLAGS = COLS['_flags'][0]            # [dirty, shape error stale, damping sums valid, sleep]
@@ -88,6 +89,7 @@ C_NMAT = COLS['_nmat'][0]
 C_PART = COLS['_part'][0]
 C_ERR = COLS['_err'][0]
 C_DPART = COLS['_dpart'][0]
+C_UDV = COLS['_udv'][0]
 
 
 class Pack:
@@ -225,43 +227,47 @@ def step_packed(P, counts, parts, scratch, threads, h, gravity, has_col, ground,
 @njit(**JIT)
 def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxes, spheres,
                 thresh):
-    """Bodies lo..hi with one set of scratch
-    buffers (shaped as ``solve_clusters`` and the damping kernels take them for one
-    cluster; ``scr``: ``SCRATCH`` numbers of scratch)."""
+    """Bodies lo..hi with one set of scratch buffers (``scr``: ``SCRATCH`` numbers, the
+    3x3 and 4x4 work arrays of the kernels called here, viewed once per chunk).
+
+    A body's one-cluster shape match is written out here on scalars read from its row
+    (what ``goals.solve_clusters_warm`` does for one cluster of one chunk) instead of
+    calling the general kernel: that one took 26 arrays (scratch copies of ~70 numbers of
+    state, each array argument passed as a struct with a reference count taken and given
+    back at every call) and looped over clusters and chunks; here only Horn's rotation
+    (``extract_rotation``) and the linear mode's minimiser (``unit_det_match_warm``, warm
+    started from the body's last eigenvectors ``_udv``, as ``Body._step`` and the
+    record step do) are calls.  384 bodies of 144 particles: ~0.65 -> ~0.5 ms a step."""
     # scratch: views of the chunk's row of ``Pack.scratch`` (about 30 small arrays
     # allocated per call cost ~2.5 us, as much as 5k particles of the pass), zeroed as
     # fresh arrays would be
     for j in range(SCRATCH):
         scr[j] = 0.0
-    part = scr[0:12].reshape((1, 1, 12))
-    wsum = scr[12:13]
-    sum_q = scr[13:22].reshape((1, 9))
-    ref = scr[22:25].reshape((1, 3))
-    pnt = scr[25:28].reshape((1, 3))
-    quat = scr[28:32].reshape((1, 4))
-    aqq3 = scr[32:41].reshape((1, 3, 3))
-    aqq9 = scr[41:122].reshape((1, 9, 9))
-    rest_lin = scr[122:131].reshape((1, 3, 3))
-    rest_off = scr[131:134].reshape((1, 3))
-    scale = scr[134:135]
-    trans = scr[135:162].reshape((1, 3, 9))
-    goal_lin = scr[162:171].reshape((1, 3, 3))
-    goal_off = scr[171:174].reshape((1, 3))
-    apq = scr[174:183].reshape((1, 3, 3))
-    accbuf = scr[183:215]
-    m3 = scr[215:251].reshape((4, 3, 3))
-    m39 = scr[251:278].reshape((3, 9))
-    n4 = scr[278:294].reshape((4, 4))
-    v4 = scr[294:310].reshape((4, 4))
-    nmat = scr[310:319].reshape((1, 3, 3))
-    cdet = scr[319:320]
-    lin = scr[320:333].reshape((1, 13))
-    w3 = scr[333:336].reshape((1, 3))
-    dmp = scr[336:342].reshape((1, 6))
-    lim_lin = scr[342:355].reshape((1, 13))
-    lim_w = scr[355:361].reshape((1, 6))
-    acc = scr[361:364]
-    dpart = scr[364:364 + NDAMP].reshape((1, 1, NDAMP))
+    part0 = scr[0:12].reshape((1, 12))
+    ref = scr[12:15].reshape((1, 3))
+    pnt = scr[15:18].reshape((1, 3))
+    quat1 = scr[18:22]
+    rest_lin = scr[22:31].reshape((1, 3, 3))
+    rest_off = scr[31:34].reshape((1, 3))
+    goal_lin = scr[34:43].reshape((1, 3, 3))
+    goal_off = scr[43:46].reshape((1, 3))
+    m3 = scr[46:82].reshape((4, 3, 3))
+    ma, mb, mc, md = m3[0], m3[1], m3[2], m3[3]
+    m39 = scr[82:109].reshape((3, 9))
+    w1, w2 = m39[:, 3:6], m39[:, 6:9]
+    n4 = scr[109:125].reshape((4, 4))
+    v4 = scr[125:141].reshape((4, 4))
+    wa, wv = n4[:3, :3], v4[:3, :3]
+    nmat0 = scr[141:150].reshape((3, 3))
+    udv0 = scr[150:159].reshape((3, 3))
+    lin = scr[159:172].reshape((1, 13))
+    w3 = scr[172:175].reshape((1, 3))
+    dmp = scr[175:181].reshape((1, 6))
+    lim_lin = scr[181:194].reshape((1, 13))
+    lim_w = scr[194:200].reshape((1, 6))
+    acc = scr[200:203]
+    dpart0 = scr[203:203 + NDAMP].reshape((1, NDAMP))
+    dp = dpart0[0]
     flagged = np.zeros(1, dtype=np.bool_)
     noptr = np.zeros(0, dtype=np.int64)
     nocl = np.zeros(0, dtype=np.int32)
@@ -271,22 +277,13 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
             continue
         xt, vt, x0t, mass = parts[b]
         x, v, x0 = xt.T, vt.T, x0t.T
-        # ---- load the body's state into the scratch (copies of ~70 numbers)
+        # ---- the body's parameters and the state the pass reads as arrays (rest map, ref)
         for j in range(3):
             ref[0, j] = row[C_REF + j]
             rest_off[0, j] = row[C_ROFF + j]
-        for j in range(4):
-            quat[0, j] = row[C_QUAT + j]
         for i in range(3):
             for j in range(3):
                 rest_lin[0, i, j] = row[C_RLIN + 3 * i + j]
-                aqq3[0, i, j] = row[C_AQQ3 + 3 * i + j]
-                nmat[0, i, j] = row[C_NMAT + 3 * i + j]
-        for j in range(9):
-            sum_q[0, j] = row[C_SUMQ + j]
-        wsum[0] = row[C_WSUM]
-        scale[0] = row[C_SCALE]
-        cdet[0] = row[C_CDET]
         alpha, beta, k_damp = row[C_ALPHA], row[C_BETA], row[C_DAMP]
         v_max, turn = row[C_VMAX], row[C_TURN]
         mode = int(row[C_MODE])
@@ -295,27 +292,80 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
         n = x.shape[0]
         if dirty:
             for j in range(12):
-                part[0, 0, j] = 0.0
+                part0[0, j] = 0.0
             _acc_single(start=0, end=n, quad=False, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
-                        rest_off=rest_off, ref=ref, sums=part[0])
+                        rest_off=rest_off, ref=ref, sums=part0)
         else:
             for j in range(12):
-                part[0, 0, j] = row[C_PART + j]
-        q0, q1, q2, q3 = quat[0, 0], quat[0, 1], quat[0, 2], quat[0, 3]
-        solve_clusters(part=part, wsum=wsum, sum_q=sum_q, ref=ref, quat=quat, aqq3=aqq3,
-                       aqq9=aqq9, rest_lin=rest_lin, rest_off=rest_off, scale=scale,
-                       trans=trans, goal_lin=goal_lin, goal_off=goal_off, mode=mode, beta=beta,
-                       apq=apq, acc=accbuf, m3a=m3[0], m3b=m3[1], m3c=m3[2], m39=m39, n4=n4,
-                       v4=v4, nmat=nmat, cdet=cdet)
+                part0[0, j] = row[C_PART + j]
+        # ---- the one-cluster shape match (``goals.solve_clusters_warm`` for one cluster of
+        # one chunk, rigid or linear), its 3x3 algebra on scalars: x_cm = ref + sum w d / W,
+        # A_pq-hat = sum w d q^T - (x_cm - ref) (sum w q)^T, R (Horn, ``extract_rotation``),
+        # linear: B (``unit_det_match_warm``, warm started from the last step's V), then
+        # the affine goal map T (G x0 + h) + x_cm
+        inv_w = 1.0 / row[C_WSUM]
+        d0 = part0[0, 0] * inv_w
+        d1 = part0[0, 1] * inv_w
+        d2 = part0[0, 2] * inv_w
+        for j in range(3):
+            ma[0, j] = part0[0, 3 + j] - d0 * row[C_SUMQ + j]
+            ma[1, j] = part0[0, 6 + j] - d1 * row[C_SUMQ + j]
+            ma[2, j] = part0[0, 9 + j] - d2 * row[C_SUMQ + j]
+        r0 = ref[0, 0] + d0
+        r1 = ref[0, 1] + d1
+        r2 = ref[0, 2] + d2
+        ref[0, 0] = r0
+        ref[0, 1] = r1
+        ref[0, 2] = r2
+        q0, q1, q2, q3 = row[C_QUAT], row[C_QUAT + 1], row[C_QUAT + 2], row[C_QUAT + 3]
+        quat1[0] = q0
+        quat1[1] = q1
+        quat1[2] = q2
+        quat1[3] = q3
+        extract_rotation(mat=ma, quat=quat1, rot=mb, n4=n4, v4=v4)        # mb = R
+        s_k = row[C_SCALE]
+        lin_b = False
+        if mode == 1:
+            # A s = A_pq-hat A_qq-hat (``matmul``), its determinant over s^3
+            for i in range(3):
+                for j in range(3):
+                    mc[i, j] = (ma[i, 0] * row[C_AQQ3 + j] + ma[i, 1] * row[C_AQQ3 + 3 + j]
+                                + ma[i, 2] * row[C_AQQ3 + 6 + j])
+            det = det3(mc) / (s_k * s_k * s_k)
+            c_det = row[C_CDET]
+            if det > 1e-9 and finite(det) and c_det > 0.0:
+                for i in range(9):
+                    nmat0[i // 3, i % 3] = row[C_NMAT + i]
+                    udv0[i // 3, i % 3] = row[C_UDV + i]
+                lin_b = unit_det_match_warm(apq=ma, nmat=nmat0, c_s=s_k * c_det, rot=mb,
+                                            out=mc, w1=w1, w2=w2, wa=wa, wv=wv,
+                                            limit=STRETCH_LIMIT, vw=udv0, warm=True)
+                for i in range(9):
+                    row[C_UDV + i] = udv0[i // 3, i % 3]
+        # T = s (beta B + (1 - beta) R) or s R, then the goal map
+        for i in range(3):
+            if lin_b:
+                t0 = s_k * (beta * mc[i, 0] + (1.0 - beta) * mb[i, 0])
+                t1 = s_k * (beta * mc[i, 1] + (1.0 - beta) * mb[i, 1])
+                t2 = s_k * (beta * mc[i, 2] + (1.0 - beta) * mb[i, 2])
+            else:
+                t0 = s_k * mb[i, 0]
+                t1 = s_k * mb[i, 1]
+                t2 = s_k * mb[i, 2]
+            for j in range(3):
+                goal_lin[0, i, j] = (t0 * rest_lin[0, 0, j] + t1 * rest_lin[0, 1, j]
+                                     + t2 * rest_lin[0, 2, j])
+            goal_off[0, i] = (t0 * rest_off[0, 0] + t1 * rest_off[0, 1] + t2 * rest_off[0, 2]
+                              + ref[0, i])
         turned = 0
         if turn > 0.0:
             # |q_prev . q| = cos(angle / 2), as Body._step
-            dot = q0 * quat[0, 0] + q1 * quat[0, 1] + q2 * quat[0, 2] + q3 * quat[0, 3]
+            dot = q0 * quat1[0] + q1 * quat1[1] + q2 * quat1[2] + q3 * quat1[3]
             flagged[0] = abs(dot) < np.cos(0.5 * turn)
             if flagged[0]:
                 turned = limit_turn(x=x, v=v, mass=mass, ptr=noptr, cl=nocl, flagged=flagged,
-                                    w_max=row[C_WMAX], lin=lim_lin, w3=lim_w, m3a=m3[0],
-                                    m3b=m3[1], m3c=m3[2], m3d=m3[3])
+                                    w_max=row[C_WMAX], lin=lim_lin, w3=lim_w, m3a=ma,
+                                    m3b=mb, m3c=mc, m3d=md)
                 counts[b, 1] += turned
         for i in range(3):
             acc[i] = row[C_FACC + i] + gravity[i]
@@ -324,13 +374,13 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
             # again if the state changed since: set by hand, contact, turn limit, not damped)
             if dirty or turned or not row[C_FLAGS + 2] > 0.0:
                 for j in range(NDAMP):
-                    dpart[0, 0, j] = 0.0
-                damp_acc_range(0, n, x, v, mass, nocl, dpart[0])
+                    dpart0[0, j] = 0.0
+                damp_acc_range(0, n, x, v, mass, nocl, dpart0)
             else:
                 for j in range(NDAMP):
-                    dpart[0, 0, j] = row[C_DPART + j]
-            _damp_field_one(dp=dpart[0, 0], ref=ref, lin=lin, w3=w3, m3a=m3[0], m3b=m3[1],
-                            m3c=m3[2], m3d=m3[3], dmp=dmp)
+                    dpart0[0, j] = row[C_DPART + j]
+            _damp_field_one(dp=dp, ref=ref, lin=lin, w3=w3, m3a=ma, m3b=mb, m3c=mc, m3d=md,
+                            dmp=dmp)
         # ---- the one particle pass: damping + Eq. 13-14, colliders, speed limit, then
         # the next step's sums about the point pnt, which becomes the body's ref (the
         # solver takes the centre of mass as ref + sum w (x - ref) / W: any point serves):
@@ -340,20 +390,20 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
         for j in range(3):
             pnt[0, j] = ref[0, j] + (h * (dmp[0, j] + h * acc[j]) if damp else 0.0)
         for j in range(12):
-            part[0, 0, j] = 0.0
+            part0[0, j] = 0.0
         for j in range(NDAMP):
-            dpart[0, 0, j] = 0.0
+            dpart0[0, j] = 0.0
         for j in range(3):
-            dpart[0, 0, 15 + j] = pnt[0, j]
-        dpart[0, 0, 18] = 1.0
+            dp[15 + j] = pnt[0, j]
+        dp[18] = 1.0
         err2, capped = _pass(0, n, x, v, x0, mass, row[C_WUNI], goal_lin, goal_off, alpha, h,
                              acc, damp, k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max,
-                             has_col, ground, boxes, spheres, thresh, part[0], dpart[0])
+                             has_col, ground, boxes, spheres, thresh, part0, dpart0)
         if damp:
             # the damping row's W and sum w (x - pnt): the shape sums' (same point)
-            dpart[0, 0, 19] = wsum[0]
+            dp[19] = row[C_WSUM]
             for j in range(3):
-                dpart[0, 0, j] = part[0, 0, j]
+                dpart0[0, j] = part0[0, j]
         for j in range(3):
             ref[0, j] = pnt[0, j]
         counts[b, 0] += capped
@@ -365,11 +415,11 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
         for j in range(3):
             row[C_REF + j] = ref[0, j]
         for j in range(4):
-            row[C_QUAT + j] = quat[0, j]
+            row[C_QUAT + j] = quat1[j]
         for j in range(12):
-            row[C_PART + j] = part[0, 0, j]
+            row[C_PART + j] = part0[0, j]
         for j in range(NDAMP):
-            row[C_DPART + j] = dpart[0, 0, j]
+            row[C_DPART + j] = dpart0[0, j]
 
 
 @njit(**JIT)
