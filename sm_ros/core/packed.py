@@ -37,10 +37,11 @@ from numba.typed import List as TypedList
 
 from .kernels import (BLOCK, JIT, NDAMP, STRETCH_LIMIT, _collide_range, det3, extract_rotation,
                       limit_turn, unit_det_match_warm)
-from .kernels.damping import _rigid_fields, damp_acc_range
+from .kernels.damping import damp_acc_range
 from .kernels.integrate import _acc_single, _int_single_fused, _int_single_lin
 from .kernels.jit import U, finite
 from .kernels.limits import limit_speed_range
+from .kernels.linalg import sym3_solve
 
 #: Particles per call of the fused one-loop pass of an undamped body (``_int_single_fused``;
 #: sums reduced once a call; a call with a speed over the cap is capped and summed again).
@@ -260,8 +261,6 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
     wa, wv = n4[:3, :3], v4[:3, :3]
     nmat0 = scr[141:150].reshape((3, 3))
     udv0 = scr[150:159].reshape((3, 3))
-    lin = scr[159:172].reshape((1, 13))
-    w3 = scr[172:175].reshape((1, 3))
     dmp = scr[175:181].reshape((1, 6))
     lim_lin = scr[181:194].reshape((1, 13))
     lim_w = scr[194:200].reshape((1, 6))
@@ -271,6 +270,7 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
     flagged = np.zeros(1, dtype=np.bool_)
     noptr = np.zeros(0, dtype=np.int64)
     nocl = np.zeros(0, dtype=np.int32)
+    zero3 = np.zeros(3)
     for b in range(lo, hi):
         row = P[b]
         if row[C_FLAGS + 3] > 0.0:             # asleep (``sm_ros.core.sleep``): not stepped
@@ -379,8 +379,35 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
             else:
                 for j in range(NDAMP):
                     dpart0[0, j] = row[C_DPART + j]
-            _damp_field_one(dp=dp, ref=ref, lin=lin, w3=w3, m3a=ma, m3b=mb, m3c=mc, m3d=md,
-                            dmp=dmp)
+            # the rigid field c + omega x (x - ref) of the damping sums (about their point p =
+            # dp[15:18]; ``damping._rigid_fields`` for one cluster, on scalars): v_cm and L
+            # about the centre of mass, the inertia tensor I, omega = I^+ L
+            # (``sym3_solve``: the adjugate where I is well posed)
+            wk = dp[19]
+            u0, u1, u2 = dp[3] / wk, dp[4] / wk, dp[5] / wk
+            e0, e1, e2 = dp[0] / wk, dp[1] / wk, dp[2] / wk
+            l0 = dp[6] - wk * (e1 * u2 - e2 * u1)
+            l1 = dp[7] - wk * (e2 * u0 - e0 * u2)
+            l2 = dp[8] - wk * (e0 * u1 - e1 * u0)
+            ee = e0 * e0 + e1 * e1 + e2 * e2
+            ma[0, 0] = (dp[10] + dp[11]) - wk * (ee - e0 * e0)
+            ma[1, 1] = (dp[9] + dp[11]) - wk * (ee - e1 * e1)
+            ma[2, 2] = (dp[9] + dp[10]) - wk * (ee - e2 * e2)
+            ma[0, 1] = ma[1, 0] = -dp[12] + wk * e0 * e1
+            ma[1, 2] = ma[2, 1] = -dp[13] + wk * e1 * e2
+            ma[2, 0] = ma[0, 2] = -dp[14] + wk * e2 * e0
+            o0, o1, o2 = sym3_solve(mat=ma, b0=l0, b1=l1, b2=l2, rcond=1e-12, wout=mb, wa=mc,
+                                    wv=md)
+            # the field about the body's ref: (v_cm - omega x d) + omega x (ref - p)
+            f0 = ref[0, 0] - dp[15]
+            f1 = ref[0, 1] - dp[16]
+            f2 = ref[0, 2] - dp[17]
+            dmp[0, 0] = u0 - (o1 * e2 - o2 * e1) + o1 * f2 - o2 * f1
+            dmp[0, 1] = u1 - (o2 * e0 - o0 * e2) + o2 * f0 - o0 * f2
+            dmp[0, 2] = u2 - (o0 * e1 - o1 * e0) + o0 * f1 - o1 * f0
+            dmp[0, 3] = o0
+            dmp[0, 4] = o1
+            dmp[0, 5] = o2
         # ---- the one particle pass: damping + Eq. 13-14, colliders, speed limit, then
         # the next step's sums about the point pnt, which becomes the body's ref (the
         # solver takes the centre of mass as ref + sum w (x - ref) / W: any point serves):
@@ -398,7 +425,7 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
         dp[18] = 1.0
         err2, capped = _pass(0, n, x, v, x0, mass, row[C_WUNI], goal_lin, goal_off, alpha, h,
                              acc, damp, k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max,
-                             has_col, ground, boxes, spheres, thresh, part0, dpart0)
+                             has_col, ground, boxes, spheres, thresh, part0, dpart0, zero3)
         if damp:
             # the damping row's W and sum w (x - pnt): the shape sums' (same point)
             dp[19] = row[C_WSUM]
@@ -425,10 +452,11 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
 @njit(**JIT)
 def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp, k_damp, dmp,
           ref, pnt, rest_lin, rest_off, v_max, has_col, ground, boxes, spheres, thresh, sums,
-          dsums):
+          dsums, zero3):
     """Particles lo..hi of a one-cluster body (see ``_step_chunk``); the next step's sums
     are added to ``sums`` (12) and, with ``damp``, ``dsums`` (its point set by the caller).
-    Returns (shape-error sum, capped speeds).
+    Returns (shape-error sum, capped speeds).  ``zero3``: three zeros (no torque; the
+    caller's, so that a body's pass allocates nothing).
 
     Without colliders one loop does it all (``_int_single_fused``, ``FUSED_BLOCK``
     particles a call; a call that finds a speed over the cap caps those particles and takes
@@ -441,7 +469,6 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
     """
     err2 = 0.0
     capped = 0
-    zero3 = np.zeros(3)
     k0, k1, k2 = pnt[0, 0], pnt[0, 1], pnt[0, 2]
     step = BLOCK if damp or has_col else FUSED_BLOCK
     for bs in range(lo, hi, step):
@@ -542,37 +569,3 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
             dsums[0, 13] += e12
             dsums[0, 14] += e20
     return err2, capped
-
-
-@njit(**JIT)
-def _damp_field_one(dp, ref, lin, w3, m3a, m3b, m3c, m3d, dmp):
-    """``damping_fields`` + ``damping_targets`` for one cluster of one set (one chunk):
-    the rigid field c + omega x (x - ref) of the damping row ``dp`` (sums about its point
-    p = ``dp[15:18]``) into ``dmp[0]``, without the general loops over sets and chunks."""
-    lin[0, 0] = dp[19]
-    lin[0, 1] = dp[3]
-    lin[0, 2] = dp[4]
-    lin[0, 3] = dp[5]
-    w3[0, 0] = dp[0]
-    w3[0, 1] = dp[1]
-    w3[0, 2] = dp[2]
-    lin[0, 4] = dp[6]
-    lin[0, 5] = dp[7]
-    lin[0, 6] = dp[8]
-    lin[0, 7] = dp[10] + dp[11]
-    lin[0, 8] = dp[9] + dp[11]
-    lin[0, 9] = dp[9] + dp[10]
-    lin[0, 10] = -dp[12]
-    lin[0, 11] = -dp[13]
-    lin[0, 12] = -dp[14]
-    _rigid_fields(lin=lin, w3=w3, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
-    t0 = ref[0, 0] - dp[15]
-    t1 = ref[0, 1] - dp[16]
-    t2 = ref[0, 2] - dp[17]
-    w0, w1, w2 = w3[0, 0], w3[0, 1], w3[0, 2]
-    dmp[0, 0] = lin[0, 1] + w1 * t2 - w2 * t1
-    dmp[0, 1] = lin[0, 2] + w2 * t0 - w0 * t2
-    dmp[0, 2] = lin[0, 3] + w0 * t1 - w1 * t0
-    dmp[0, 3] = w0
-    dmp[0, 4] = w1
-    dmp[0, 5] = w2
