@@ -2,7 +2,7 @@
 The contact pass and its pair-list rebuilds per step of a bundled scene, as it pours:
 ``Contact.run`` and ``Contact._build`` wrapped in ``time.thread_time`` (thread CPU time,
 less sensitive to a shared machine than wall time), ``World.step`` at ``--dt``, sleeping
-bodies off (they would skip the pass).  Every 60 steps: the pass per step, a rebuild and
+bodies off (they would skip the pass; ``--sleep on``: as the scene has it).  Every 60 steps: the pass per step, a rebuild and
 how many, and how many bodies the last rebuild's broad phase put into the grid.  Run it
 for two checkouts in turn (``PYTHONPATH=CHECKOUT``) to compare them.
 
@@ -23,6 +23,7 @@ def main():
     ap.add_argument('--scene', default='paper_384')
     ap.add_argument('--steps', type=int, default=360)
     ap.add_argument('--dt', type=float, default=1 / 120)
+    ap.add_argument('--sleep', choices=('on', 'off'), default='off')
     a = ap.parse_args()
     acc = {'build': 0.0, 'run': 0.0, 'n': 0}
     build, run = C.Contact._build, C.Contact.run
@@ -40,7 +41,7 @@ def main():
 
     C.Contact._build, C.Contact.run = timed_build, timed_run
     w, _ = build_world(load_scene(a.scene))
-    w.contact_params = dataclasses.replace(w.contact_params, sleep=False)
+    w.contact_params = dataclasses.replace(w.contact_params, sleep=a.sleep == 'on')
     for k in range(a.steps):
         w.step(a.dt)
         if k % 60 == 59:
@@ -49,7 +50,8 @@ def main():
                 c, '_act_eff') else -1
             print(f"steps {k - 59}-{k}: contact pass {1e3 * acc['run'] / 60:.2f} ms a step, "
                   f"a rebuild {1e3 * acc['build'] / max(acc['n'], 1):.2f} ms x {acc['n']}, "
-                  f"bodies in the last build {inside} of {len(w.bodies)}", flush=True)
+                  f"bodies in the last build {inside} of {len(w.bodies)}, "
+                  f"{len(w.asleep)} asleep", flush=True)
             acc.update(build=0.0, run=0.0, n=0)
 
 
