@@ -2,8 +2,9 @@
 The contact pass and its pair-list rebuilds per step of a bundled scene, as it pours:
 ``Contact.run`` and ``Contact._build`` wrapped in ``time.thread_time`` (thread CPU time,
 less sensitive to a shared machine than wall time), ``World.step`` at ``--dt``, sleeping
-bodies off (they would skip the pass; ``--sleep on``: as the scene has it).  Every 60 steps: the pass per step, a rebuild and
-how many, and how many bodies the last rebuild's broad phase put into the grid.  Run it
+bodies off (they would skip the pass; ``--sleep on``: as the scene has it).  Every 60
+steps: the pass per step, a rebuild and how many, how many bodies the last rebuild's
+broad phase put into the grid and how many are asleep.  Run it
 for two checkouts in turn (``PYTHONPATH=CHECKOUT``) to compare them.
 
     .venv/bin/python tools/contact_pass_cost.py --scene many --steps 180
