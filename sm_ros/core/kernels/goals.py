@@ -416,6 +416,8 @@ def solve_clusters_warm(part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin, rest
     nk = part.shape[1]
     na = part.shape[2]
     nq = 9 if mode == 2 else 3
+    # the linear mode's 3x3 scratch views, made once (not once a cluster)
+    w1, w2, wa, wv = m39[:, 3:6], m39[:, 6:9], n4[:3, :3], v4[:3, :3]
     for k in range(nk):
         for a in range(na):
             s = 0.0
@@ -462,10 +464,9 @@ def solve_clusters_warm(part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin, rest
                 # into t's 3x3 block; inverted, flat or line-like (det A <= 0): R
                 if (det > 1e-9 and finite(det) and cdet[k] > 0.0
                         and unit_det_match_warm(apq=m3a, nmat=nmat[k], c_s=s_k * cdet[k],
-                                                rot=m3b, out=m3c, w1=m39[:, 3:6],
-                                                w2=m39[:, 6:9], wa=n4[:3, :3], wv=v4[:3, :3],
-                                                limit=STRETCH_LIMIT, vw=udv[k if warm else 0],
-                                                warm=warm)):
+                                                rot=m3b, out=m3c, w1=w1, w2=w2, wa=wa,
+                                                wv=wv, limit=STRETCH_LIMIT,
+                                                vw=udv[k if warm else 0], warm=warm)):
                     for i in range(3):
                         for j in range(3):
                             trans[k, i, j] = s_k * (beta * m3c[i, j] + (1.0 - beta) * m3b[i, j])

@@ -155,45 +155,110 @@ def jacobi3_warm(mat, vecs, warm, work):
     products of rotations drift from orthonormality by rounding, step after step); a
     ``warm`` that is not finite or not orthonormal within 1e-6 (never set, or a
     non-finite state went through it) is replaced by the identity: a cold start.
-    ``work`` is 3x3 scratch.
+    ``work`` (3x3 scratch) is no longer written: every product is on scalar locals.
     """
-    err = 0.0
-    for i in range(3):
-        for j in range(3):
-            g = (warm[0, i] * warm[0, j] + warm[1, i] * warm[1, j] + warm[2, i] * warm[2, j]
-                 - (1.0 if i == j else 0.0))
-            work[i, j] = g
-            err += g * g
+    # on scalar locals throughout (the same operations as through ``work``, ``warm``,
+    # ``vecs`` and ``jacobi3``: every store into one of those could alias the next loads,
+    # and each rotation of a sweep waited on its stores)
+    w00, w01, w02 = warm[0, 0], warm[0, 1], warm[0, 2]
+    w10, w11, w12 = warm[1, 0], warm[1, 1], warm[1, 2]
+    w20, w21, w22 = warm[2, 0], warm[2, 1], warm[2, 2]
+    # G = W^T W - I
+    g00 = w00 * w00 + w10 * w10 + w20 * w20 - 1.0
+    g01 = w00 * w01 + w10 * w11 + w20 * w21
+    g02 = w00 * w02 + w10 * w12 + w20 * w22
+    g10 = w01 * w00 + w11 * w10 + w21 * w20
+    g11 = w01 * w01 + w11 * w11 + w21 * w21 - 1.0
+    g12 = w01 * w02 + w11 * w12 + w21 * w22
+    g20 = w02 * w00 + w12 * w10 + w22 * w20
+    g21 = w02 * w01 + w12 * w11 + w22 * w21
+    g22 = w02 * w02 + w12 * w12 + w22 * w22 - 1.0
+    err = (g00 * g00 + g01 * g01 + g02 * g02 + g10 * g10 + g11 * g11 + g12 * g12
+           + g20 * g20 + g21 * g21 + g22 * g22)
     if not (err < 1e-12):
-        for i in range(3):
-            for j in range(3):
-                warm[i, j] = 1.0 if i == j else 0.0
+        w00, w01, w02 = 1.0, 0.0, 0.0
+        w10, w11, w12 = 0.0, 1.0, 0.0
+        w20, w21, w22 = 0.0, 0.0, 1.0
     else:
         # W <- W (I - (W^T W - I) / 2)
-        for i in range(3):
-            w0, w1, w2 = warm[i, 0], warm[i, 1], warm[i, 2]
-            for j in range(3):
-                warm[i, j] = (w0 * ((1.0 if j == 0 else 0.0) - 0.5 * work[0, j])
-                              + w1 * ((1.0 if j == 1 else 0.0) - 0.5 * work[1, j])
-                              + w2 * ((1.0 if j == 2 else 0.0) - 0.5 * work[2, j]))
-    # work = mat W, then mat <- W^T mat W
-    for i in range(3):
-        for j in range(3):
-            work[i, j] = mat[i, 0] * warm[0, j] + mat[i, 1] * warm[1, j] + mat[i, 2] * warm[2, j]
-    for i in range(3):
-        for j in range(i, 3):
-            mat[i, j] = warm[0, i] * work[0, j] + warm[1, i] * work[1, j] + warm[2, i] * work[2, j]
-    mat[1, 0] = mat[0, 1]
-    mat[2, 0] = mat[0, 2]
-    mat[2, 1] = mat[1, 2]
-    jacobi3(mat, work, 50)
-    for i in range(3):
-        for j in range(3):
-            vecs[i, j] = (warm[i, 0] * work[0, j] + warm[i, 1] * work[1, j]
-                          + warm[i, 2] * work[2, j])
-    for i in range(3):
-        for j in range(3):
-            warm[i, j] = vecs[i, j]
+        h00, h01, h02 = 1.0 - 0.5 * g00, 0.0 - 0.5 * g01, 0.0 - 0.5 * g02
+        h10, h11, h12 = 0.0 - 0.5 * g10, 1.0 - 0.5 * g11, 0.0 - 0.5 * g12
+        h20, h21, h22 = 0.0 - 0.5 * g20, 0.0 - 0.5 * g21, 1.0 - 0.5 * g22
+        w00, w01, w02 = (w00 * h00 + w01 * h10 + w02 * h20, w00 * h01 + w01 * h11 + w02 * h21,
+                         w00 * h02 + w01 * h12 + w02 * h22)
+        w10, w11, w12 = (w10 * h00 + w11 * h10 + w12 * h20, w10 * h01 + w11 * h11 + w12 * h21,
+                         w10 * h02 + w11 * h12 + w12 * h22)
+        w20, w21, w22 = (w20 * h00 + w21 * h10 + w22 * h20, w20 * h01 + w21 * h11 + w22 * h21,
+                         w20 * h02 + w21 * h12 + w22 * h22)
+    # M W, then the upper triangle of W^T M W
+    m00, m01, m02 = mat[0, 0], mat[0, 1], mat[0, 2]
+    m10, m11, m12 = mat[1, 0], mat[1, 1], mat[1, 2]
+    m20, m21, m22 = mat[2, 0], mat[2, 1], mat[2, 2]
+    k00 = m00 * w00 + m01 * w10 + m02 * w20
+    k01 = m00 * w01 + m01 * w11 + m02 * w21
+    k02 = m00 * w02 + m01 * w12 + m02 * w22
+    k10 = m10 * w00 + m11 * w10 + m12 * w20
+    k11 = m10 * w01 + m11 * w11 + m12 * w21
+    k12 = m10 * w02 + m11 * w12 + m12 * w22
+    k20 = m20 * w00 + m21 * w10 + m22 * w20
+    k21 = m20 * w01 + m21 * w11 + m22 * w21
+    k22 = m20 * w02 + m21 * w12 + m22 * w22
+    a00 = w00 * k00 + w10 * k10 + w20 * k20
+    a01 = w00 * k01 + w10 * k11 + w20 * k21
+    a02 = w00 * k02 + w10 * k12 + w20 * k22
+    a11 = w01 * k01 + w11 * k11 + w21 * k21
+    a12 = w01 * k02 + w11 * k12 + w21 * k22
+    a22 = w02 * k02 + w12 * k12 + w22 * k22
+    # jacobi3 on the six entries, its eigenvectors V in v00..v22
+    v00, v01, v02 = 1.0, 0.0, 0.0
+    v10, v11, v12 = 0.0, 1.0, 0.0
+    v20, v21, v22 = 0.0, 0.0, 1.0
+    for _ in range(50):
+        off = a01 * a01 + a02 * a02 + a12 * a12
+        diag = a00 * a00 + a11 * a11 + a22 * a22
+        if off <= 1e-32 * diag or off == 0.0:
+            break
+        if a01 != 0.0:                          # (p, q) = (0, 1)
+            a00, a11, c, sn = _jacobi_angle(a00, a11, a01)
+            a01 = 0.0
+            a02, a12 = c * a02 - sn * a12, sn * a02 + c * a12
+            v00, v01 = c * v00 - sn * v01, sn * v00 + c * v01
+            v10, v11 = c * v10 - sn * v11, sn * v10 + c * v11
+            v20, v21 = c * v20 - sn * v21, sn * v20 + c * v21
+        if a02 != 0.0:                          # (0, 2)
+            a00, a22, c, sn = _jacobi_angle(a00, a22, a02)
+            a02 = 0.0
+            a01, a12 = c * a01 - sn * a12, sn * a01 + c * a12
+            v00, v02 = c * v00 - sn * v02, sn * v00 + c * v02
+            v10, v12 = c * v10 - sn * v12, sn * v10 + c * v12
+            v20, v22 = c * v20 - sn * v22, sn * v20 + c * v22
+        if a12 != 0.0:                          # (1, 2)
+            a11, a22, c, sn = _jacobi_angle(a11, a22, a12)
+            a12 = 0.0
+            a01, a02 = c * a01 - sn * a02, sn * a01 + c * a02
+            v01, v02 = c * v01 - sn * v02, sn * v01 + c * v02
+            v11, v12 = c * v11 - sn * v12, sn * v11 + c * v12
+            v21, v22 = c * v21 - sn * v22, sn * v21 + c * v22
+    mat[0, 0], mat[1, 1], mat[2, 2] = a00, a11, a22
+    mat[0, 1] = mat[1, 0] = a01
+    mat[0, 2] = mat[2, 0] = a02
+    mat[1, 2] = mat[2, 1] = a12
+    # W V: the eigenvectors of ``mat``, and the next call's warm start
+    e00 = w00 * v00 + w01 * v10 + w02 * v20
+    e01 = w00 * v01 + w01 * v11 + w02 * v21
+    e02 = w00 * v02 + w01 * v12 + w02 * v22
+    e10 = w10 * v00 + w11 * v10 + w12 * v20
+    e11 = w10 * v01 + w11 * v11 + w12 * v21
+    e12 = w10 * v02 + w11 * v12 + w12 * v22
+    e20 = w20 * v00 + w21 * v10 + w22 * v20
+    e21 = w20 * v01 + w21 * v11 + w22 * v21
+    e22 = w20 * v02 + w21 * v12 + w22 * v22
+    vecs[0, 0], vecs[0, 1], vecs[0, 2] = e00, e01, e02
+    vecs[1, 0], vecs[1, 1], vecs[1, 2] = e10, e11, e12
+    vecs[2, 0], vecs[2, 1], vecs[2, 2] = e20, e21, e22
+    warm[0, 0], warm[0, 1], warm[0, 2] = e00, e01, e02
+    warm[1, 0], warm[1, 1], warm[1, 2] = e10, e11, e12
+    warm[2, 0], warm[2, 1], warm[2, 2] = e20, e21, e22
 
 
 @njit(**JIT)
