@@ -25,16 +25,11 @@ import time
 from pathlib import Path
 
 
-def measure(steps, rounds, clock='wall'):
-    """The figures of this checkout (ms per world step, medians)."""
-    now = time.thread_time if clock == 'thread' else time.perf_counter
-    import numba
-    from numba.typed import List as TypedList
-
-    from sm_ros.bench.scaling import build_many
-    from sm_ros.core.kernels.world_step import step_bodies_parallel, step_single_bodies
+def paper_records(steps):
+    """``paper_384`` after ``steps`` world steps of pouring: (dt, its pack, its typed list
+    of compiled-step records, the packed bodies, the bodies stepped apart, the step's
+    arguments, {kind: records}) (also ``tools/record_stages.py``'s bodies)."""
     from sm_ros.sim import Simulation
-
     sim = Simulation({'scene': 'paper_384'})
     world = sim.world
     dt = float(sim.params['dt'])
@@ -48,6 +43,19 @@ def measure(steps, rounds, clock='wall'):
     kinds = {}
     for b, r in zip(bodies, records):
         kinds.setdefault(b.name.rstrip('0123456789_'), []).append(r)
+    return dt, pack, records, packed, slow, args, kinds
+
+
+def measure(steps, rounds, clock='wall'):
+    """The figures of this checkout (ms per world step, medians)."""
+    now = time.thread_time if clock == 'thread' else time.perf_counter
+    import numba
+    from numba.typed import List as TypedList
+
+    from sm_ros.bench.scaling import build_many
+    from sm_ros.core.kernels.world_step import step_bodies_parallel, step_single_bodies
+
+    dt, pack, records, packed, slow, args, kinds = paper_records(steps)
 
     def step_all():
         if pack is not None:

@@ -30,7 +30,8 @@ def measure(steps, rounds):
 
     from sm_ros.core.kernels.goals import solve_clusters_warm
     from sm_ros.core.kernels.world_step import _step_record
-    from sm_ros.sim import Simulation
+
+    from bodies_step import paper_records      # tools/: the same bodies as bodies_step
 
     @njit
     def stage(recs, which, h, gravity, has_col, ground, boxes, spheres, thresh):
@@ -53,19 +54,7 @@ def measure(steps, rounds):
             elif which == 1:
                 _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh)
 
-    sim = Simulation({'scene': 'paper_384'})
-    world = sim.world
-    dt = float(sim.params['dt'])
-    for _ in range(steps):
-        world.step(dt)
-    pack, records, slow, _ = world._split_bodies(dt)
-    packed = pack.bodies if pack is not None else []
-    bodies = [b for b in world.bodies if b not in slow and b not in packed]
-    args = (dt, world._gravity, world._has_col, world._ground_row, world._box_rows,
-            world._sphere_rows, 1e-3)
-    kinds = {}
-    for b, r in zip(bodies, records):
-        kinds.setdefault(b.name.rstrip('0123456789_'), []).append(r)
+    dt, pack, records, packed, slow, args, kinds = paper_records(steps)
     out = {}
     for kind, recs in kinds.items():
         tl = TypedList(recs)
