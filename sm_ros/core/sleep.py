@@ -237,10 +237,6 @@ class Sleep:
             if b._flags[3] > 0.0:
                 b._flags[3] = 0.0
 
-    def count(self) -> int:
-        """How many bodies are asleep."""
-        return int(sum(1 for b in self.flat.bodies if b._flags[3] > 0.0))
-
     def all_asleep(self) -> bool:
         """Whether every body is asleep (one compiled call over the flags)."""
         return bool(all_asleep(self.flat.flag_list()))
