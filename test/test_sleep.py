@@ -405,3 +405,34 @@ def test_without_gravity_nothing_sleeps_and_momentum_is_kept():
     assert w.asleep == []
     np.testing.assert_allclose(a.momentum() + b.momentum(), p0, atol=1e-15)
     assert np.linalg.norm(p0) > 0.0
+
+
+def test_pair_pass_skipped_while_no_body_is_settled_or_asleep():
+    # while every body moves (none asleep, none still for sleep_time) nothing can fall
+    # asleep or wake: the pass over the pairs is skipped (``near`` is left as it was);
+    # once one body has been still for sleep_time it runs and decides
+    X = np.array([[0.0, 0.03], [0.0, 0.0], [0.0, 0.0]])
+    Xa = X.copy()
+    V = np.ones((3, 2))
+    W = np.ones(2)
+    R = np.full(2, 0.02)
+    B = np.arange(2, dtype=np.int32)
+    off = np.arange(3)
+    xs = List([X[:, k:k + 1] for k in range(2)])
+    pi, pj = np.array([0], dtype=np.int32), np.array([1], dtype=np.int32)
+    for calm0, decides in ((0.2, False), (0.5, True)):
+        flags = _flags([0.0, 0.0])
+        near = np.full(2, 7, dtype=np.uint8)
+        scratch = [np.zeros(2, np.uint8), np.zeros(2), np.zeros(2), np.zeros(2, np.uint8),
+                   near]
+        calm = np.array([calm0, 0.0])
+        touched = np.zeros(2, dtype=np.uint8)
+        n = SL.sleep_update(X, X.copy(), Xa, V, W, W.copy(), xs, R, B, off, flags,
+                            np.zeros(2, np.uint8), calm, *scratch, pi, pj, 1, UP, H, 0.01,
+                            0.5, True, touched)
+        if decides:
+            # body 0 settled; body 1 beside it is unsettled, not below it: 0 sleeps
+            assert n == 1 and flags[0][3] == 1.0 and near[0] == 0
+        else:
+            assert n == 0 and np.all(near == 7) and flags[0][3] == 0.0
+            assert calm[0] == pytest.approx(calm0 + H)

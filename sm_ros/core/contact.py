@@ -33,7 +33,7 @@ import numba
 import numpy as np
 
 from .contact_build import (body_overlaps, build_pairs, build_pairs_cells, build_pairs_grid,
-                            build_pairs_grid_par, max_moved2, sort_pairs)
+                            build_pairs_grid_par, moved_spread2, sort_pairs)
 from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_bodies, solve_pairs,
                               wall_candidates)
@@ -282,7 +282,7 @@ class Contact:
         f = self.flat
         nt = self._grid_builder()
         # broad phase: only bodies whose boxes (grown by r + skin / 2) meet another's go
-        # into the grid; valid until the next build (no particle moves skin / 2 before it)
+        # into the grid; valid until the next build (no pair comes closer by the skin)
         act = self._act_eff
         body_overlaps(f.X, f.off, self.act, self.selfc, self._grow, self._box, self._order,
                       act)
@@ -331,7 +331,9 @@ class Contact:
         """
         f = self.flat
         half = 0.5 * self.skin
-        if not self.valid or max_moved2(f.X, self._xref, f.B, self.act) > half * half:
+        # rebuilt once the displacements since the last build no longer fit in a ball of
+        # radius skin / 2 (no pair came closer by more than the skin; contact_build)
+        if not self.valid or moved_spread2(f.X, self._xref, f.B, self.act) > half * half:
             self._build()
         self.count[:] = 0
         self.deepest[:] = 0.0
@@ -394,6 +396,6 @@ __all__ = ['ContactParams', 'BodyContact', 'Contact', 'default_radius', 'SELF_RE
            'body_overlaps',
            'body_velocities', 'build_pairs', 'build_pairs_cells', 'build_pairs_grid',
            'build_pairs_grid_par', 'contact_velocity', 'count_fast', 'inverse_sym3',
-           'max_moved2',
+           'moved_spread2',
            'median_nn_distance', 'solve_bodies', 'solve_pairs', 'sort_pairs',
            'wall_candidates']

@@ -4,8 +4,10 @@
 per-step solve.  Nothing here allocates (scratch comes from ``Contact``).
 
 Every candidate pair closer than ``r_i + r_j + skin`` is listed.  The list stays valid while
-no particle has moved more than ``skin / 2`` since it was built, which one pass over the
-positions checks each step (``max_moved2``).  Pairs of one body are skipped (unless the body
+no pair's distance can have shrunk by ``skin`` since it was built: while the particles'
+displacements since then fit in a ball of radius ``skin / 2``, which one pass over the
+positions checks each step (``moved_spread2``; a common motion, such as bodies falling
+together, does not count).  Pairs of one body are skipped (unless the body
 self-collides, and then only pairs farther apart than the rest-distance rule).
 
 ``build_pairs_grid`` (the default): a dense cell grid of side ``r_i + r_j + skin`` (largest)
@@ -359,19 +361,41 @@ def body_overlaps(X, off, act, selfc, grow, box, order, out):
 
 
 @njit(**JIT)
-def max_moved2(X, Xref, B, act):
-    """Largest squared displacement of a colliding particle since ``Xref`` (NaN -> inf)."""
-    best = 0.0
+def moved_spread2(X, Xref, B, act):
+    """Squared radius of a ball that holds every colliding particle's displacement since
+    ``Xref`` (NaN -> inf): the half diagonal of the displacements' bounding box.
+
+    A pair's distance changes by at most the difference of its two displacements, at most
+    twice this radius, whatever the common motion: bodies falling together, or a whole
+    heap carried along, keep their list (the largest displacement itself, the test before,
+    rebuilt it at every step of a fall).  Min/max reductions over the three rows of X and
+    Xref (unit stride; vectorises apart from the body test).
+    """
+    lo0 = lo1 = lo2 = np.inf
+    hi0 = hi1 = hi2 = -np.inf
+    nan = 0.0                          # NaN once a displacement is NaN or infinite
     for i in range(X.shape[1]):
         if not act[B[i]]:
             continue
         dx = X[0, i] - Xref[0, i]
         dy = X[1, i] - Xref[1, i]
         dz = X[2, i] - Xref[2, i]
-        d2 = dx * dx + dy * dy + dz * dz
-        if not d2 <= best:             # also catches NaN
-            best = d2 if d2 == d2 else np.inf
-    return best
+        nan += 0.0 * (dx + dy + dz)
+        lo0 = min(lo0, dx)
+        hi0 = max(hi0, dx)
+        lo1 = min(lo1, dy)
+        hi1 = max(hi1, dy)
+        lo2 = min(lo2, dz)
+        hi2 = max(hi2, dz)
+    if nan != nan:
+        return np.inf
+    if hi0 < lo0:                      # nothing colliding
+        return 0.0
+    e0 = 0.5 * (hi0 - lo0)
+    e1 = 0.5 * (hi1 - lo1)
+    e2 = 0.5 * (hi2 - lo2)
+    r2 = e0 * e0 + e1 * e1 + e2 * e2
+    return r2 if r2 == r2 else np.inf
 
 
 @njit(**JIT)

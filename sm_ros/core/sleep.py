@@ -28,9 +28,11 @@ at rest then costs almost nothing.  Here, in a world where body-body contact run
   of a conservative world) or with collider-pass colliders (``World._sleep_check``).
 
 The pass over the awake bodies' particles (reads of X, the previous positions and the
-spell's anchors, one write) and over the pair list costs about as much as the gather copy
-(~0.1 ms a step for ``paper_384`` awake); the gather skips sleeping bodies, and a world
-whose bodies are all asleep skips the bodies' step, the contact pass and this pass.
+spell's anchors, one write) costs about as much as the gather copy (~0.1 ms a step for
+``paper_384`` awake); the pass over the pair list (who touches whom) runs only while a
+body sleeps or has settled, so not while the bodies pour; the gather skips sleeping
+bodies, and a world whose bodies are all asleep skips the bodies' step, the contact pass
+and this pass.
 """
 
 import numpy as np
@@ -184,6 +186,15 @@ def sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, fast, s
             level[b] = 2
         else:
             level[b] = 0 if calm[b] >= t_sleep else 1
+    # who touches whom matters only to a sleeping body (woken?) or to a settled awake one
+    # (falls asleep?); while bodies pour, none is either and the pair pass is skipped
+    decide = False
+    for b in range(nb):
+        if flags[b][3] > 0.0 or (flags[b][3] == 0.0 and calm[b] >= t_sleep):
+            decide = True
+            break
+    if not decide:
+        return 0
     touch_restless(xs, off, R, B, pi, pj, npairs, level, up, near)
     changed = 0
     for b in range(nb):
