@@ -35,7 +35,8 @@ import numpy as np
 from sm_ros import params as table
 from sm_ros.inputs import checked_points, checked_wrench, Forces, Grippers, InputError
 from sm_ros.params import MAX_COORDINATE
-from sm_ros.stats import ErrorEstimateSchedule, MomentumDrift, solver_figures, TickStats
+from sm_ros.stats import (ErrorEstimateSchedule, MomentumDrift, TickStats, estimate_waits,
+                          solver_figures)
 
 #: Seconds between two log lines about bodies that went non-finite.
 NONFINITE_LOG_PERIOD = 1.0
@@ -426,10 +427,12 @@ class Simulation:
         # drift is read (diagnostics), not twice every tick
         before = self.momentum.measure(world) \
             if measure and self.momentum.needs_reference() else None
+        c0 = self.clock()
         for _ in range(substeps):
             s = time.perf_counter()
             world.step(dt)
             stats.add_step(time.perf_counter() - s)
+        steps_s = self.clock() - c0
         self.sim_ns += substeps * int(round(dt * 1e9))
         self.collider_wrenches = world.take_collider_wrenches()
         contact = world.contact
@@ -442,12 +445,15 @@ class Simulation:
         else:
             self.momentum.forget()
         # the live error estimate (stats.ErrorEstimateSchedule): at most one every
-        # 1 / error_estimate.rate s, its copies stepped within error_estimate.budget; its
-        # time counted in the tick but not as an overrun
+        # 1 / error_estimate.rate s, its copies stepped within error_estimate.budget, and
+        # only in ticks whose steps leave it room in the period (stats.estimate_waits);
+        # its time counted in the tick but not as an overrun
+        budget = float(self.params['error_estimate.budget'])
         estimate_s = self._estimates.advance(world, dt, substeps,
                                              float(self.params['error_estimate.rate']),
-                                             self.clock,
-                                             float(self.params['error_estimate.budget']))
+                                             self.clock, budget,
+                                             wait=estimate_waits(steps_s, budget,
+                                                                 float(self.params['rate'])))
         tp = time.perf_counter()
         for fn in self._tick_listeners:
             fn(self)

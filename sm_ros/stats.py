@@ -188,6 +188,19 @@ class MomentumDrift:
         self._stale = False
 
 
+#: The live error estimate waits (does no work that tick) while a tick's own steps, with
+#: the budget's share added, would take more than this share of the tick period: a
+#: diagnostic does not cost the simulation its rate (``estimate_waits``).
+ESTIMATE_ROOM = 0.75
+
+
+def estimate_waits(steps_s: float, budget: float, rate: float) -> bool:
+    """Whether the live error estimate waits this tick: the tick's steps took
+    ``steps_s`` seconds, the estimate may add ``budget`` times their work, and the node
+    ticks at ``rate`` Hz (``ESTIMATE_ROOM``)."""
+    return rate > 0.0 and steps_s * (1.0 + budget) > ESTIMATE_ROOM / rate
+
+
 class ErrorEstimateSchedule:
     """The live error estimate of a running simulation, one every 1 / rate s at most.
 
@@ -233,11 +246,14 @@ class ErrorEstimateSchedule:
         return None if self.result_started is None else now - self.result_started
 
     def advance(self, world, dt: float, substeps: int, rate: float,
-                clock: Callable[[], float], budget: Optional[float] = None) -> float:
+                clock: Callable[[], float], budget: Optional[float] = None,
+                wait: bool = False) -> float:
         """Advance the estimate by a tick of ``world``; start one when due (``rate`` > 0:
         estimates per second) with ``budget`` x ``substeps`` units of work per tick (None:
         ``substeps`` coarse steps a tick, 3 units each, so the copies keep pace with the
-        simulation and cost 3x its steps while a window runs).
+        simulation and cost 3x its steps while a window runs).  ``wait``: this tick has
+        no room for the estimate (``estimate_waits``): nothing is done or earned, the
+        estimate in progress goes on at the next tick with room.
 
         Returns the seconds spent this tick: they count in ``tick_ms_max`` /
         ``tick_ms_mean`` but not as an overrun.
@@ -246,6 +262,8 @@ class ErrorEstimateSchedule:
         if rate <= 0.0 or (budget is not None and budget <= 0.0) or not world.bodies:
             self.running = None
             self._spares = {}                    # off: the copies' memory goes
+            return 0.0
+        if wait:
             return 0.0
         spent = 0.0
         now = clock()

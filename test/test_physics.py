@@ -611,3 +611,52 @@ def test_estimate_in_progress_is_dropped_when_the_step_or_the_world_changes():
         sched.advance(other, 0.02, 1, 1.0, clock)
     assert sched.result is not None and sched.result['steps'] == 25
     assert sched.advance(other, 0.02, 1, 0.0, clock) == 0.0 and sched.running is None
+
+
+def test_estimate_waits_while_the_steps_leave_it_no_room():
+    """The live error estimate does no work in a tick whose steps, with the budget's share
+    added, take more than ``ESTIMATE_ROOM`` of the period, and goes on where it was once
+    there is room again."""
+    from sm_ros.sim import Simulation
+    from sm_ros.stats import ESTIMATE_ROOM, estimate_waits
+    assert ESTIMATE_ROOM == 0.75
+    # 60 Hz: 16.7 ms a tick, 12.5 ms of it for steps x 1.25: steps of 10 ms at most
+    assert not estimate_waits(0.0099, 0.25, 60.0) and estimate_waits(0.0101, 0.25, 60.0)
+    assert estimate_waits(0.0051, 0.25, 120.0) and not estimate_waits(0.0049, 0.25, 120.0)
+    assert estimate_waits(0.0063, 1.0, 60.0) and not estimate_waits(0.0062, 1.0, 60.0)
+    assert not estimate_waits(1.0, 0.25, 0.0)              # no period: never waits
+    now = [0.0]
+    step_s = [0.0]
+    sims = [Simulation({'scene': 'default'}, clock=lambda: now[0]) for _ in range(2)]
+    heavy, light = sims
+    step = heavy.world.step
+
+    def slow_step(dt):                                     # the clock runs while it steps
+        step(dt)
+        now[0] += step_s[0]
+    heavy.world.step = slow_step
+    ticks = _budget_ticks(int(np.ceil(0.5 / heavy.params['dt'])), 0.25,
+                          heavy.params['substeps'])
+    step_s[0] = 0.007                                      # 2 x 7 ms x 1.25 > 12.5 ms
+    for _ in range(50):
+        heavy.tick()
+        assert heavy._estimates.units == 0 and heavy._estimator is None
+    step_s[0] = 0.001
+    for _ in range(ticks):
+        heavy.tick()
+    for _ in range(50 + ticks):
+        light.tick()
+    assert heavy.error_estimate is not None and light.error_estimate is not None
+    # the heavy one started 50 ticks late, from the state it had then
+    assert heavy.error_estimate['steps'] == light.error_estimate['steps']
+    for _ in range(2000):                                  # until the next one is under way
+        heavy.tick()
+        if heavy._estimator is not None and heavy._estimator.units > 3:
+            break
+    running = heavy._estimator
+    assert running is not None and not running.done
+    done = running.units
+    step_s[0] = 0.007
+    for _ in range(20):
+        heavy.tick()
+        assert heavy._estimator is running and running.units == done
