@@ -449,11 +449,12 @@ class Simulation:
         # only in ticks whose steps leave it room in the period (stats.estimate_waits);
         # its time counted in the tick but not as an overrun
         budget = float(self.params['error_estimate.budget'])
-        estimate_s = self._estimates.advance(world, dt, substeps,
-                                             float(self.params['error_estimate.rate']),
-                                             self.clock, budget,
-                                             wait=estimate_waits(steps_s, budget,
-                                                                 float(self.params['rate'])))
+        sched = self._estimates
+        wait = estimate_waits(steps_s, sched.expected_s(budget, substeps, steps_s),
+                              float(self.params['rate']))
+        estimate_s = sched.advance(world, dt, substeps,
+                                   float(self.params['error_estimate.rate']), self.clock,
+                                   budget, wait=wait)
         tp = time.perf_counter()
         for fn in self._tick_listeners:
             fn(self)

@@ -188,17 +188,18 @@ class MomentumDrift:
         self._stale = False
 
 
-#: The live error estimate waits (does no work that tick) while a tick's own steps, with
-#: the budget's share added, would take more than this share of the tick period: a
+#: The live error estimate waits (does no work that tick) while a tick's own steps and the
+#: estimate's expected share would take more than this share of the tick period: a
 #: diagnostic does not cost the simulation its rate (``estimate_waits``).
 ESTIMATE_ROOM = 0.75
 
 
-def estimate_waits(steps_s: float, budget: float, rate: float) -> bool:
-    """Whether the live error estimate waits this tick: the tick's steps took
-    ``steps_s`` seconds, the estimate may add ``budget`` times their work, and the node
-    ticks at ``rate`` Hz (``ESTIMATE_ROOM``)."""
-    return rate > 0.0 and steps_s * (1.0 + budget) > ESTIMATE_ROOM / rate
+def estimate_waits(steps_s: float, estimate_s: float, rate: float) -> bool:
+    """Whether the live error estimate waits this tick: the tick's steps took ``steps_s``
+    seconds, the estimate's work would take about ``estimate_s``
+    (``ErrorEstimateSchedule.expected_s``), and the node ticks at ``rate`` Hz
+    (``ESTIMATE_ROOM``)."""
+    return rate > 0.0 and steps_s + estimate_s > ESTIMATE_ROOM / rate
 
 
 class ErrorEstimateSchedule:
@@ -240,6 +241,17 @@ class ErrorEstimateSchedule:
             self._spares = self.running.spares()
             self.running = None
             self._next = -math.inf
+
+    def expected_s(self, budget: float, substeps: int, steps_s: float) -> float:
+        """About how long this tick's share of the estimate would take: ``budget`` x
+        ``substeps`` units at the running estimate's cost per unit so far, or, before it
+        has one, at the cost of one of this tick's ``substeps`` steps (``steps_s`` in all:
+        a unit is one step of a copy of the world)."""
+        units = budget * max(int(substeps), 1)
+        est = self.running
+        if est is not None and est.units > 0:
+            return units * est.cost_s / est.units
+        return units * steps_s / max(int(substeps), 1)
 
     def age(self, now: float) -> Optional[float]:
         """Seconds since the copies of the last finished estimate were made, or None."""

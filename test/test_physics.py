@@ -614,17 +614,20 @@ def test_estimate_in_progress_is_dropped_when_the_step_or_the_world_changes():
 
 
 def test_estimate_waits_while_the_steps_leave_it_no_room():
-    """The live error estimate does no work in a tick whose steps, with the budget's share
-    added, take more than ``ESTIMATE_ROOM`` of the period, and goes on where it was once
-    there is room again."""
+    """The live error estimate does no work in a tick whose steps and the estimate's
+    expected share (its cost per unit so far, or a step's before it has one) take more
+    than ``ESTIMATE_ROOM`` of the period, and goes on where it was once there is room
+    again."""
     from sm_ros.sim import Simulation
-    from sm_ros.stats import ESTIMATE_ROOM, estimate_waits
+    from sm_ros.stats import ESTIMATE_ROOM, ErrorEstimateSchedule, estimate_waits
     assert ESTIMATE_ROOM == 0.75
-    # 60 Hz: 16.7 ms a tick, 12.5 ms of it for steps x 1.25: steps of 10 ms at most
-    assert not estimate_waits(0.0099, 0.25, 60.0) and estimate_waits(0.0101, 0.25, 60.0)
-    assert estimate_waits(0.0051, 0.25, 120.0) and not estimate_waits(0.0049, 0.25, 120.0)
-    assert estimate_waits(0.0063, 1.0, 60.0) and not estimate_waits(0.0062, 1.0, 60.0)
-    assert not estimate_waits(1.0, 0.25, 0.0)              # no period: never waits
+    # 60 Hz: 16.7 ms a tick, 12.5 ms of it for the steps and the estimate
+    assert not estimate_waits(0.0099, 0.0025, 60.0) and estimate_waits(0.0101, 0.0025, 60.0)
+    assert estimate_waits(0.0001, 0.0125, 60.0) and not estimate_waits(0.0001, 0.0123, 60.0)
+    assert estimate_waits(0.0051, 0.0013, 120.0) and not estimate_waits(0.0049, 0.0012, 120.0)
+    assert not estimate_waits(1.0, 1.0, 0.0)               # no period: never waits
+    sched = ErrorEstimateSchedule()                        # before an estimate: a step
+    assert sched.expected_s(0.25, 2, 0.010) == pytest.approx(0.25 * 0.010)
     now = [0.0]
     step_s = [0.0]
     sims = [Simulation({'scene': 'default'}, clock=lambda: now[0]) for _ in range(2)]
@@ -660,3 +663,14 @@ def test_estimate_waits_while_the_steps_leave_it_no_room():
     for _ in range(20):
         heavy.tick()
         assert heavy._estimator is running and running.units == done
+    # fast steps, but the estimate's own steps have cost 50 ms a unit: 25 ms a tick
+    step_s[0] = 0.0
+    assert heavy._estimates.expected_s(0.25, 2, 0.0) == pytest.approx(
+        0.5 * running.cost_s / running.units)
+    running.cost_s = 0.05 * running.units
+    heavy.tick()
+    assert heavy._estimates.units == 0 and running.units == done
+    running.cost_s = 0.0
+    for _ in range(2):                                     # half a unit of credit a tick
+        heavy.tick()
+    assert running.units > done
