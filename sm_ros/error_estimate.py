@@ -154,6 +154,8 @@ class ErrorEstimate:
         self.d = []
         self._phase = 0         # the next unit: 0 coarse step, 1 and 2 the fine steps
         self.result: Optional[Dict[str, Any]] = None
+        #: seconds a unit took in the last piece of work that did some (None before one)
+        self.unit_s: Optional[float] = None
         self.cost_s = time.perf_counter() - t0
 
     def _copy(self, role: str, world):
@@ -211,10 +213,13 @@ class ErrorEstimate:
 
     def _timed(self, more) -> float:
         t0 = time.perf_counter()
+        u0 = self.units
         while self.result is None and more():
             self._unit()
         spent = time.perf_counter() - t0
         self.cost_s += spent
+        if self.units > u0:
+            self.unit_s = spent / (self.units - u0)
         if self.result is not None:
             self.result['cost_s'] = self.cost_s
         return spent

@@ -247,9 +247,10 @@ TABLE: Tuple[Param, ...] = (
           'every other tick at 2 substeps. An estimate takes 3 x 0.5 s / dt steps and two '
           'copies of about 3 steps each, so (1.5 / dt + 6) / (substeps x budget) ticks (372, '
           '6.2 s at 60 Hz, with the defaults). The estimate waits in ticks whose steps and its '
-          'share (at its cost so far) would take more than 75 % of the tick period (1 / '
-          'rate): a heavy scene keeps its rate, and the estimate goes on once there is '
-          'room', '',
+          'share (at what its last step cost) would take more than 75 % of the tick period '
+          '(1 / rate): a heavy scene keeps its rate; the estimate goes on once there is '
+          'room, or is dropped after waiting 2 s in a row and the next copies the world as '
+          'it is then', '',
           0.0, 100.0, positive=True),
 )
 

@@ -192,6 +192,10 @@ class MomentumDrift:
 #: estimate's expected share would take more than this share of the tick period: a
 #: diagnostic does not cost the simulation its rate (``estimate_waits``).
 ESTIMATE_ROOM = 0.75
+#: An estimate that has waited this long (s, in a row) is dropped; the next starts from
+#: the world as it is then (its copies of a heap that was still moving may never fit in a
+#: tick, a copy of the heap at rest does).
+ESTIMATE_DROP_S = 2.0
 
 
 def estimate_waits(steps_s: float, estimate_s: float, rate: float) -> bool:
@@ -234,6 +238,7 @@ class ErrorEstimateSchedule:
         self.result_started = None      # the same, of ``result`` (None before the first)
         self.units = 0
         self._spares = {}               # the last estimate's copies, reused by the next
+        self._waiting = None            # clock time the running estimate began to wait
 
     def drop(self) -> None:
         """Abandon the estimate in progress (the configuration changed); start anew."""
@@ -244,13 +249,14 @@ class ErrorEstimateSchedule:
 
     def expected_s(self, budget: float, substeps: int, steps_s: float) -> float:
         """About how long this tick's share of the estimate would take: ``budget`` x
-        ``substeps`` units at the running estimate's cost per unit so far, or, before it
-        has one, at the cost of one of this tick's ``substeps`` steps (``steps_s`` in all:
-        a unit is one step of a copy of the world)."""
+        ``substeps`` units at what a unit of the running estimate last cost
+        (``ErrorEstimate.unit_s``), or, before that is known, at the cost of one of this
+        tick's ``substeps`` steps (``steps_s`` in all: a unit is one step of a copy of
+        the world)."""
         units = budget * max(int(substeps), 1)
         est = self.running
-        if est is not None and est.units > 0:
-            return units * est.cost_s / est.units
+        if est is not None and est.unit_s is not None:
+            return units * est.unit_s
         return units * steps_s / max(int(substeps), 1)
 
     def age(self, now: float) -> Optional[float]:
@@ -265,7 +271,8 @@ class ErrorEstimateSchedule:
         ``substeps`` coarse steps a tick, 3 units each, so the copies keep pace with the
         simulation and cost 3x its steps while a window runs).  ``wait``: this tick has
         no room for the estimate (``estimate_waits``): nothing is done or earned, the
-        estimate in progress goes on at the next tick with room.
+        estimate in progress goes on at the next tick with room, or is dropped once it
+        has waited ``ESTIMATE_DROP_S`` in a row.
 
         Returns the seconds spent this tick: they count in ``tick_ms_max`` /
         ``tick_ms_mean`` but not as an overrun.
@@ -276,7 +283,14 @@ class ErrorEstimateSchedule:
             self._spares = {}                    # off: the copies' memory goes
             return 0.0
         if wait:
+            now = clock()
+            if self.running is None or self._waiting is None:
+                self._waiting = now
+            elif now - self._waiting > ESTIMATE_DROP_S:
+                self.drop()                      # the next starts from the world as it is
+                self._waiting = None
             return 0.0
+        self._waiting = None
         spent = 0.0
         now = clock()
         if budget is None:

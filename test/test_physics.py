@@ -663,14 +663,26 @@ def test_estimate_waits_while_the_steps_leave_it_no_room():
     for _ in range(20):
         heavy.tick()
         assert heavy._estimator is running and running.units == done
-    # fast steps, but the estimate's own steps have cost 50 ms a unit: 25 ms a tick
+    # fast steps, but a unit of the estimate's last cost 50 ms: 25 ms a tick
     step_s[0] = 0.0
-    assert heavy._estimates.expected_s(0.25, 2, 0.0) == pytest.approx(
-        0.5 * running.cost_s / running.units)
-    running.cost_s = 0.05 * running.units
+    assert running.unit_s is not None
+    assert heavy._estimates.expected_s(0.25, 2, 0.0) == pytest.approx(0.5 * running.unit_s)
+    running.unit_s = 0.05
     heavy.tick()
     assert heavy._estimates.units == 0 and running.units == done
-    running.cost_s = 0.0
+    running.unit_s = 0.0
     for _ in range(2):                                     # half a unit of credit a tick
         heavy.tick()
-    assert running.units > done
+    assert running.units > done and running.unit_s > 0.0  # measured again
+    # waiting 2 s in a row (ESTIMATE_DROP_S) drops it; the next starts when there is room
+    step_s[0] = 0.007
+    t0 = now[0]
+    while now[0] - t0 <= 2.0:
+        assert heavy._estimator is running
+        heavy.tick()
+    heavy.tick()
+    assert heavy._estimator is None
+    step_s[0] = 0.0
+    for _ in range(10):
+        heavy.tick()
+    assert heavy._estimator is not None and heavy._estimator is not running
