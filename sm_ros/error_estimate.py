@@ -104,6 +104,23 @@ def extrapolate(d, window: float, order: float = ORDER, horizon: float = HORIZON
     return {'error_m': factor * late * scale, 'window_m': factor * late, 'growth': q}
 
 
+def at_rest(dt: float, substeps: int = 1, order: float = ORDER, horizon: float = HORIZON_S,
+            window: float = WINDOW_S) -> Dict[str, Any]:
+    """The estimate of a world whose bodies all sleep (``World.all_asleep``): a step
+    of such a world does nothing, so both copies would stand still and every difference
+    be 0; the result of that window, with nothing copied or stepped (``units`` and
+    ``cost_s`` 0)."""
+    n = window_steps(dt, substeps, window)
+    res = extrapolate([0.0] * n, n * dt, order, horizon)
+    res.update(steps=n, units=0, cost_s=0.0)
+    return res
+
+
+def all_asleep(world) -> bool:
+    """Whether ``world`` has bodies and every one sleeps (``World.all_asleep``)."""
+    return bool(getattr(world, 'all_asleep', False))
+
+
 def copy_world(world):
     """Return a deep copy of ``world`` whose arrays have the types of the world's.
 

@@ -248,9 +248,8 @@ TABLE: Tuple[Param, ...] = (
           'copies of about 3 steps each, so (1.5 / dt + 6) / (substeps x budget) ticks (372, '
           '6.2 s at 60 Hz, with the defaults). The estimate waits in ticks whose steps and its '
           'share (at what its last step cost) would take more than 75 % of the tick period '
-          '(1 / rate): a heavy scene keeps its rate; the estimate goes on once there is '
-          'room, or is dropped after waiting 2 s in a row and the next copies the world as '
-          'it is then', '',
+          '(1 / rate): a heavy scene keeps its rate, and the estimate goes on once there is '
+          'room', '',
           0.0, 100.0, positive=True),
 )
 

@@ -11,6 +11,8 @@ from typing import Any, Callable, Dict, Iterable, List, Mapping, Optional, Tuple
 
 import numpy as np
 
+from sm_ros.error_estimate import all_asleep, at_rest
+
 
 class TickStats:
     """
@@ -192,10 +194,6 @@ class MomentumDrift:
 #: estimate's expected share would take more than this share of the tick period: a
 #: diagnostic does not cost the simulation its rate (``estimate_waits``).
 ESTIMATE_ROOM = 0.75
-#: An estimate that has waited this long (s, in a row) is dropped; the next starts from
-#: the world as it is then (its copies of a heap that was still moving may never fit in a
-#: tick, a copy of the heap at rest does).
-ESTIMATE_DROP_S = 2.0
 
 
 def estimate_waits(steps_s: float, estimate_s: float, rate: float) -> bool:
@@ -238,7 +236,6 @@ class ErrorEstimateSchedule:
         self.result_started = None      # the same, of ``result`` (None before the first)
         self.units = 0
         self._spares = {}               # the last estimate's copies, reused by the next
-        self._waiting = None            # clock time the running estimate began to wait
 
     def drop(self) -> None:
         """Abandon the estimate in progress (the configuration changed); start anew."""
@@ -271,8 +268,8 @@ class ErrorEstimateSchedule:
         ``substeps`` coarse steps a tick, 3 units each, so the copies keep pace with the
         simulation and cost 3x its steps while a window runs).  ``wait``: this tick has
         no room for the estimate (``estimate_waits``): nothing is done or earned, the
-        estimate in progress goes on at the next tick with room, or is dropped once it
-        has waited ``ESTIMATE_DROP_S`` in a row.
+        estimate in progress goes on at the next tick with room.  While every body of
+        ``world`` sleeps the estimate is ``error_estimate.at_rest`` (nothing copied).
 
         Returns the seconds spent this tick: they count in ``tick_ms_max`` /
         ``tick_ms_mean`` but not as an overrun.
@@ -283,16 +280,20 @@ class ErrorEstimateSchedule:
             self._spares = {}                    # off: the copies' memory goes
             return 0.0
         if wait:
-            now = clock()
-            if self.running is None or self._waiting is None:
-                self._waiting = now
-            elif now - self._waiting > ESTIMATE_DROP_S:
-                self.drop()                      # the next starts from the world as it is
-                self._waiting = None
             return 0.0
-        self._waiting = None
         spent = 0.0
         now = clock()
+        if all_asleep(world) and (self.running is not None or now >= self._next):
+            # every body sleeps: copies of the world would stand still (error 0), so
+            # nothing is copied or stepped; one in progress (copies of a world that still
+            # moved, each step of them as dear as an awake world's) gives way to this
+            if self.running is not None:
+                self._spares = self.running.spares()
+                self.running = None
+            self._next = now + 1.0 / rate
+            self.result = at_rest(dt, substeps)
+            self.result_started = self._started = now
+            return 0.0
         if budget is None:
             self._credit = 0.0
         # a new estimate starts only once the copies of the last are paid for (a dropped

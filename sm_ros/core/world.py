@@ -214,6 +214,13 @@ class World(WorldColliders):
         sl = self._sleep
         return int(sl.slept.sum()) if sl is not None and self._flat is not None else 0
 
+    @property
+    def all_asleep(self) -> bool:
+        """Whether there are bodies and every one is asleep now (their flags: a body
+        woken since the last step counts as awake; one compiled call)."""
+        sl = self._sleep
+        return sl is not None and self._flat is not None and sl.all_asleep()
+
     def wake(self):
         """Wake every body (they are stepped again from the next step)."""
         for b in self._bodies.values():
