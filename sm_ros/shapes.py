@@ -314,6 +314,18 @@ class Surface:
         offset = v0 - np.einsum('vk,vkd->vd', w, x0[idx])
         return cls(faces, v0, idx, w, offset)
 
+    def reordered(self, order: np.ndarray) -> 'Surface':
+        """The same surface for the particles stored in ``order`` (row i of the new
+        positions is particle ``order[i]`` of the old ones, as ``Body.order``): the
+        particle indices are remapped, the vertices, weights and offsets kept."""
+        order = np.asarray(order, dtype=np.int64)
+        inv = np.empty(len(order), dtype=np.int64)
+        inv[order] = np.arange(len(order))
+        if self.index is None:                  # direct: the vertices are the particles
+            return Surface(inv[self.faces], self.rest_vertices[order])
+        return Surface(self.faces, self.rest_vertices, inv[self.index], self.weights,
+                       self.offset)
+
     def vertices(self, x: np.ndarray) -> np.ndarray:
         """Deformed surface vertices (V, 3) for current particle positions x (N, 3)."""
         if self.index is None:

@@ -57,11 +57,37 @@ def _as_points(points, name='points'):
     return a
 
 
+def set_order(points, params=None, masses=1.0) -> np.ndarray:
+    """The order that stores a body's particles set by set: a permutation of ``points``.
+
+    For a body of ``points`` (N, 3) with ``params`` (``BodyParams``, default ones) and
+    ``masses``: ``points[perm]`` lists the particles cluster set by cluster set (every set
+    of the set layout one run of consecutive particles, the given order kept within a
+    set), so that the set-layout kernels (``kernels.sets_*``) run over long runs with a
+    set's map in registers.  The identity where the body takes no set layout (one cluster,
+    memberships that do not pass ``SET_LAYOUT_MIN_RATIO``).  ``Body(..., order='set')``
+    (``World.add_body(..., order='set')``) applies it; its ``order`` is this permutation
+    (or None for the identity).  Cost: the cluster memberships, no body build.
+    """
+    x = _as_points(points)
+    m = np.broadcast_to(np.asarray(masses, dtype=np.float64), (len(x),))
+    params = (params or BodyParams()).validate()
+    perm, _ = body_build.set_order(x - (m @ x) / m.sum(), params.clusters,
+                                   SET_LAYOUT_MIN_RATIO)
+    return np.arange(len(x), dtype=np.int64) if perm is None else perm
+
+
 class Body:
-    """One shape-matched body; made by ``World.add_body``."""
+    """One shape-matched body; made by ``World.add_body``.
+
+    ``order``: None or 'given' keep the particles in the given order (``x[i]`` is
+    ``points[i]``); 'set' stores them set by set (``set_order``): ``x[i]`` is then
+    ``points[order[i]]``, and ``pinned`` (given as indices of ``points``) and every later
+    index (``set_kinematic``, ``pinned``, ``kinematic_indices``) refer to the stored rows.
+    """
 
     def __init__(self, points, masses=1.0, params=None, name='body', velocities=None,
-                 pinned=None):
+                 pinned=None, order=None):
         self.name = str(name)
         x = _as_points(points)
         n = len(x)
@@ -75,7 +101,24 @@ class Body:
             if v.shape != x.shape:
                 raise ValueError(f'velocities must have shape {x.shape}, got {v.shape}')
         params = (params or BodyParams()).validate()
-        self._pinned = self._check_indices(pinned if pinned is not None else [], n, 'pinned')
+        pins = self._check_indices(pinned if pinned is not None else [], n, 'pinned')
+        if order not in (None, 'given', 'set'):
+            raise ValueError(f"order must be None, 'given' or 'set', got {order!r}")
+        # order='set': the particles stored set by set (``set_order``); ``order`` maps
+        # a stored row to the given one, the members are reused by the first build
+        self.order = None
+        self._members = None
+        if order == 'set':
+            perm, self._members = body_build.set_order(
+                x - (m @ x) / m.sum(), params.clusters, SET_LAYOUT_MIN_RATIO)
+            if perm is not None:
+                x, m, v = x[perm], np.ascontiguousarray(m[perm]), v[perm]
+                inv = np.empty(n, dtype=np.int64)
+                inv[perm] = np.arange(n)
+                pins = np.sort(inv[pins])
+                self.order = perm
+                self.order.flags.writeable = False
+        self._pinned = pins
         self.n = n
         self.m = m
         self.m.flags.writeable = False

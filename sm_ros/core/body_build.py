@@ -25,6 +25,61 @@ _GENERATION = [0]
 _EMPTY_I32 = np.zeros(0, dtype=np.int32)
 
 
+def group_sets(ptr, cl):
+    """The sets of a particle-major membership CSR (``ptr``, ``cl``): ``(sid, uniq)``.
+
+    ``sid`` (N,) int64 is each particle's set, ``uniq`` (S, width) the clusters of each
+    set padded with -1 (set ids in the order of the sets' hash keys, which does not depend
+    on the particles' order).
+    """
+    n = len(ptr) - 1
+    counts = np.diff(ptr)
+    rows = np.repeat(np.arange(n), counts)
+    pos = np.arange(len(cl)) - ptr[rows]
+    pad = np.full((n, int(counts.max())), -1, dtype=np.int64)
+    pad[rows, pos] = cl
+    # group equal membership lists by a 64-bit hash (np.unique over rows is ~50x
+    # slower), then check that every particle's list equals its set's first one
+    mult = np.random.default_rng(12345).integers(1, 2 ** 62, pad.shape[1],
+                                                 dtype=np.uint64) | np.uint64(1)
+    key = ((pad + 1).astype(np.uint64) * mult).sum(axis=1, dtype=np.uint64)
+    _, first, sid = np.unique(key, return_index=True, return_inverse=True)
+    sid = sid.reshape(-1)
+    uniq = pad[first]
+    if not np.array_equal(uniq[sid], pad):     # a hash collision: exact grouping
+        uniq, sid = np.unique(pad, axis=0, return_inverse=True)
+    return sid.reshape(-1), uniq
+
+
+def set_order(x0, clusters, set_layout_min_ratio):
+    """The order of the particles by cluster set, for a body of rest positions ``x0``
+    (N, 3) with ``clusters`` cubes per axis: ``(perm, members)``.
+
+    ``perm`` (N,) int64 lists the particles set by set (each set one run of consecutive
+    particles, the given order kept within a set), or is None where the body takes no
+    set layout (one cluster, or memberships that do not pass ``set_layout_min_ratio``, as
+    in ``build``) or the particles are in that order already.  ``members`` is
+    ``(clusters, ptr, cl, n_clusters, (sid, uniq))`` of the reordered particles (``build``
+    reuses it: the memberships and sets are computed once; None for one cluster).
+
+    Cost: the memberships (``build_memberships``) and the grouping, no body build.
+    """
+    if clusters <= 1:
+        return None, None
+    ptr, cl, nk = build_memberships(x0, clusters)
+    sid, uniq = group_sets(ptr, cl)
+    if ((uniq >= 0).sum() * set_layout_min_ratio > len(cl)     # no set layout (``build``)
+            or np.all(sid[1:] >= sid[:-1])):
+        return None, (clusters, ptr, cl, nk, (sid, uniq))
+    perm = np.argsort(sid, kind='stable').astype(np.int64)
+    counts = np.diff(ptr)[perm]
+    nptr = np.zeros(len(ptr), dtype=np.int64)
+    np.cumsum(counts, out=nptr[1:])
+    # the memberships of particle perm[i], moved to row i
+    src = np.repeat(ptr[:-1][perm] - nptr[:-1], counts) + np.arange(len(cl))
+    return perm, (clusters, nptr, np.ascontiguousarray(cl[src]), nk, (sid[perm], uniq))
+
+
 class _SetLayout:
     """Particles grouped by the set of clusters they belong to (see ``kernels.sets_*``).
 
@@ -36,25 +91,11 @@ class _SetLayout:
     ``cm0``; scratch ``wk``, ``pm``, ``ck`` (clusters, 3, 10).
     """
 
-    def __init__(self, x0, m, ptr, cl, c0, cm0, quad):
+    def __init__(self, x0, m, ptr, cl, c0, cm0, quad, groups=None):
         n = len(x0)
-        counts = np.diff(ptr)
-        rows = np.repeat(np.arange(n), counts)
-        pos = np.arange(len(cl)) - ptr[rows]
-        pad = np.full((n, int(counts.max())), -1, dtype=np.int64)
-        pad[rows, pos] = cl
-        # group equal membership lists by a 64-bit hash (np.unique over rows is ~50x
-        # slower), then check that every particle's list equals its set's first one
-        mult = np.random.default_rng(12345).integers(1, 2 ** 62, pad.shape[1],
-                                                     dtype=np.uint64) | np.uint64(1)
-        key = ((pad + 1).astype(np.uint64) * mult).sum(axis=1, dtype=np.uint64)
-        _, first, sid = np.unique(key, return_index=True, return_inverse=True)
-        sid = sid.reshape(-1)
-        uniq = pad[first]
-        if not np.array_equal(uniq[sid], pad):     # a hash collision: exact grouping
-            uniq, sid = np.unique(pad, axis=0, return_inverse=True)
+        sid, uniq = group_sets(ptr, cl) if groups is None else groups
         ns = len(uniq)
-        self.sid = np.ascontiguousarray(sid.reshape(-1), dtype=np.int32)
+        self.sid = np.ascontiguousarray(sid, dtype=np.int32)
         valid = uniq >= 0
         self.cnt = valid.sum(axis=1).astype(np.float64)
         self.ptr = np.zeros(ns + 1, dtype=np.int64)
@@ -99,13 +140,18 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     body._quad = mode == 2
     body._need3 = mode == 1 or p.plastic
     body._need9 = body._quad
+    groups = None
     if p.clusters == 1:
         body._ptr, body._cl, nk = _EMPTY_I64, _EMPTY_I32, 1
         w = m
         member = np.zeros(n, dtype=np.int64)
         rows = np.arange(n)
     else:
-        body._ptr, body._cl, nk = build_memberships(x0, p.clusters)
+        pre = getattr(body, '_members', None)   # from set_order (Body order='set')
+        if pre is not None and pre[0] == p.clusters:
+            body._ptr, body._cl, nk, groups = pre[1:]
+        else:
+            body._ptr, body._cl, nk = build_memberships(x0, p.clusters)
         counts = np.diff(body._ptr)
         rows = np.repeat(np.arange(n), counts)
         w = (m / counts)[rows]
@@ -151,7 +197,7 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     na = 30 if body._quad else 12
     body._sets = None
     if p.clusters > 1:
-        sets = _SetLayout(x0, m, body._ptr, body._cl, body._c0, cm0, body._quad)
+        sets = _SetLayout(x0, m, body._ptr, body._cl, body._c0, cm0, body._quad, groups)
         if sets.pairs * set_layout_min_ratio <= len(body._cl):
             body._sets = sets
     elif body._quad and single_quadratic_sets:

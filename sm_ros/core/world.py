@@ -97,8 +97,9 @@ class World(WorldColliders):
         return self._bodies[name]
 
     def add_body(self, points, masses=1.0, params=None, name=None, velocities=None,
-                 pinned=None, contact=None) -> Body:
-        """Build a body from a point set (N, 3); see ``Body``.
+                 pinned=None, contact=None, order=None) -> Body:
+        """Build a body from a point set (N, 3); see ``Body`` (``order='set'``: the
+        particles stored set by set, ``body.order`` the permutation; default: as given).
 
         ``contact``: a ``BodyContact`` (collide with other bodies, contact radius,
         self-collision); default: collides, radius half the median neighbour distance.
@@ -114,7 +115,7 @@ class World(WorldColliders):
         if not isinstance(contact, BodyContact):
             raise ValueError('contact must be a BodyContact or None')
         contact = contact.validate()
-        body = Body(points, masses, params, name, velocities, pinned)
+        body = Body(points, masses, params, name, velocities, pinned, order)
         r0 = default_radius(body.x_init) if contact.radius is None else contact.radius
         self._bodies[name] = body
         self._contacts[name] = (contact, r0)
