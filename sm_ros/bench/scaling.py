@@ -7,8 +7,10 @@ cluster parameter is the number of cubes per axis: 1, 2, 4 give 1, 8, 64 cluster
 configuration runs in three variants, timed round-robin in one run: ``plain`` (no damping,
 one step per tick), ``damped`` (damping 0.05, what 6 of the 7 bundled scenes use) and
 ``substeps2`` (damping 0.05, two steps of dt / 2 per tick, the node's default); the times
-are per tick.  ``many``: 64 and 384 bodies of 144 particles in one world (the paper's
-Fig. 7 body count, contact off), timed round-robin too.
+are per tick.  ``--variants`` adds ``damped_pass`` (damping in a pass of its own) and
+``sorted`` / ``damped_sorted`` (plain / damped with the particles stored set by set, as
+scene bodies are: ``World.add_body(order='set')``).  ``many``: 64 and 384 bodies of 144
+particles in one world (the paper's Fig. 7 body count, contact off), timed round-robin too.
 
 In the same run: the NumPy reference (``sm_ros.core.reference``), the peer pypbd (one
 configuration per subprocess: ``sm_ros.bench.pypbd_driver``), and the memory bandwidth of a
@@ -31,9 +33,14 @@ GRAVITY = (0.0, 0.0, -9.81)
 MODES = ('rigid', 'linear', 'quadratic')
 CLUSTER_NAMES = {1: 1, 2: 8, 3: 27, 4: 64}
 #: variant -> (damping, steps per tick); ``damped_pass`` damps in a pass of its own (the
-#: solver before issue 11), for the side-by-side figure of what fusing it saved
+#: solver before issue 11), for the side-by-side figure of what fusing it saved;
+#: ``sorted`` and ``damped_sorted`` are ``plain`` and ``damped`` with the lattice's
+#: particles stored set by set (``World.add_body(order='set')``, as scene bodies are):
+#: the set layout's runs are then one per set, not ~15 particles long (8 clusters)
 VARIANTS = {'plain': (0.0, 1), 'damped': (0.05, 1), 'substeps2': (0.05, 2),
-            'damped_pass': (0.05, 1)}
+            'damped_pass': (0.05, 1), 'sorted': (0.0, 1), 'damped_sorted': (0.05, 1)}
+#: the variants whose body is built with ``order='set'``
+SORTED_VARIANTS = ('sorted', 'damped_sorted')
 DEFAULT_VARIANTS = ('plain', 'damped', 'substeps2')
 #: particles of one body of the ``many`` rows (4 x 6 x 6 lattice)
 MANY_BODY = (4, 6, 6)
@@ -58,7 +65,8 @@ def add_arguments(p: argparse.ArgumentParser):
                    help='array size of the streaming copy (MB)')
     p.add_argument('--variants', default=','.join(DEFAULT_VARIANTS),
                    help='plain (no damping), damped (0.05), substeps2 (0.05, 2 substeps), '
-                        'damped_pass (0.05 in a separate pass, as before)')
+                        'damped_pass (0.05 in a separate pass, as before), sorted and '
+                        'damped_sorted (plain and damped, particles stored set by set)')
     p.add_argument('--many', default='64,384',
                    help='body counts of the many-bodies rows ("" to skip)')
 
@@ -159,13 +167,15 @@ def bytes_per_particle(body) -> int:
 # sm_ros (Numba)
 # ---------------------------------------------------------------------------------------
 
-def build_world(n_side: int, mode: str, k: int, alpha: float = 1.0, damping: float = 0.0):
-    """Build a world with one n^3 lattice body (unit masses) and gravity; no colliders."""
+def build_world(n_side: int, mode: str, k: int, alpha: float = 1.0, damping: float = 0.0,
+                order: Optional[str] = None):
+    """Build a world with one n^3 lattice body (unit masses) and gravity; no colliders
+    (``order``: as ``World.add_body``, None keeps the lattice order)."""
     from sm_ros.core import BodyParams, World
     world = World(gravity=GRAVITY)
     body = world.add_body(bc.cube_lattice(n_side), masses=1.0, name='cube',
                           params=BodyParams(mode=mode, alpha=alpha, beta=0.5, clusters=k,
-                                            damping=damping))
+                                            damping=damping), order=order)
     return world, body
 
 
@@ -206,7 +216,9 @@ def time_size(n_side: int, modes, ks, min_time: float,
             for variant in variants:
                 damping, substeps = VARIANTS[variant]
                 t0 = time.perf_counter()
-                world, body = build_world(n_side, mode, k, damping=damping)
+                world, body = build_world(n_side, mode, k, damping=damping,
+                                          order='set' if variant in SORTED_VARIANTS
+                                          else None)
                 if variant == 'damped_pass':
                     body._damp_fused = False
                 build_s = time.perf_counter() - t0
@@ -234,10 +246,13 @@ def time_size(n_side: int, modes, ks, min_time: float,
         memberships = len(body._cl) if len(getattr(body, '_cl', ())) else n
         layout = 'single' if k == 1 else ('sets' if getattr(body, '_sets', None) is not None
                                           else 'memberships')
+        # runs of consecutive particles of one set (the set-layout loops' unit)
+        sid = body._sets.sid if getattr(body, '_sets', None) is not None else None
+        set_runs = 1 + int(np.count_nonzero(np.diff(sid))) if sid is not None else None
         out.append({'N': n, 'mode': mode, 'k': k, 'clusters': body.num_clusters,
                     'variant': variant, 'damping': VARIANTS[variant][0],
                     'substeps': VARIANTS[variant][1],
-                    'memberships': memberships, 'layout': layout,
+                    'memberships': memberships, 'layout': layout, 'set_runs': set_runs,
                     'ms_median': 1e3 * float(np.median(s)), 'ms_min': 1e3 * float(s.min()),
                     'ns_per_particle': 1e9 * float(np.median(s)) / n, 'build_s': build_s,
                     'parallel': bool(getattr(body, '_parallel', False)),
@@ -353,10 +368,13 @@ def run(args, out: Path) -> Dict[str, Any]:
     findings['bandwidth'] = bw
 
     t = bc.Table('scaling', ['N', 'mode', 'clusters', 'variant', 'memberships', 'layout',
-                             'ms_median', 'ms_min', 'ns_per_particle', 'parallel', 'build_s'],
+                             'set_runs', 'ms_median', 'ms_min', 'ns_per_particle', 'parallel',
+                             'build_s'],
                  'ms per tick against N (World.step, dt = 5 ms per tick, gravity, no '
                  'colliders; variants: plain, damped = damping 0.05, substeps2 = damping '
-                 '0.05 in two steps of 2.5 ms; the configurations of one N timed round-robin)')
+                 '0.05 in two steps of 2.5 ms, sorted / damped_sorted = plain / damped with '
+                 'the particles stored set by set; set_runs: runs of one set in the set '
+                 'layout; the configurations of one N timed round-robin)')
     results: List[Dict[str, Any]] = []
     for n_side in sizes:
         bc.log(f'[scaling] sm_ros N={n_side ** 3}: {len(modes) * len(ks) * len(variants)} '
@@ -364,7 +382,8 @@ def run(args, out: Path) -> Dict[str, Any]:
         for r in time_size(n_side, modes, ks, args.min_time, variants):
             results.append(r)
             t.add(N=r['N'], mode=r['mode'], clusters=r['clusters'], variant=r['variant'],
-                  memberships=r['memberships'], layout=r['layout'], ms_median=r['ms_median'],
+                  memberships=r['memberships'], layout=r['layout'], set_runs=r['set_runs'],
+                  ms_median=r['ms_median'],
                   ms_min=r['ms_min'], ns_per_particle=r['ns_per_particle'],
                   parallel=r['parallel'], build_s=r['build_s'])
     t.write(out)
@@ -379,8 +398,10 @@ def run(args, out: Path) -> Dict[str, Any]:
 
     # the variants side by side: what damping and substeps cost (same run, round-robin)
     vt = bc.Table('scaling_variants', ['N', 'mode', 'clusters', 'plain_ms', 'damped_ms',
-                                       'substeps2_ms', 'damped_pass_ms', 'damped_over_plain',
-                                       'substeps2_over_damped', 'damped_pass_over_plain'],
+                                       'substeps2_ms', 'damped_pass_ms', 'sorted_ms',
+                                       'damped_sorted_ms', 'damped_over_plain',
+                                       'substeps2_over_damped', 'damped_pass_over_plain',
+                                       'sorted_over_plain', 'damped_sorted_over_damped'],
                   'ms per tick of the variants (medians of one interleaved run) and their '
                   'ratios')
     findings['variants'] = []
@@ -399,7 +420,13 @@ def run(args, out: Path) -> Dict[str, Any]:
                                                   else None),
                            damped_pass_over_plain=(ms['damped_pass'] / ms['plain']
                                                    if ms['damped_pass'] and ms['plain']
-                                                   else None))
+                                                   else None),
+                           sorted_ms=ms['sorted'], damped_sorted_ms=ms['damped_sorted'],
+                           sorted_over_plain=(ms['sorted'] / ms['plain']
+                                              if ms['sorted'] and ms['plain'] else None),
+                           damped_sorted_over_damped=(ms['damped_sorted'] / ms['damped']
+                                                      if ms['damped_sorted'] and ms['damped']
+                                                      else None))
                 vt.add(**row)
                 findings['variants'].append(row)
     vt.write(out)
