@@ -2,6 +2,8 @@
 and scene bodies built that way: same physics, pins and surfaces on the same particles,
 user bodies in the caller's order."""
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -86,6 +88,8 @@ def test_user_bodies_keep_the_callers_order_unless_asked():
     # the pins are remapped to the same physical particles
     assert np.array_equal(np.sort(s.order[s.pinned]), pins)
     assert np.array_equal(s.x[s.pinned][np.argsort(s.order[s.pinned])], pts[pins])
+    c = copy.deepcopy(s)
+    assert np.array_equal(c.order, s.order) and not c.order.flags.writeable
     with pytest.raises(ValueError, match='order must be'):
         w.add_body(pts, name='bad', order='sid')
 
@@ -189,3 +193,27 @@ def test_scene_surfaces_follow_the_same_points(tmp_path, fill):
     tri_p = vp[pm[0].surface.faces]
     tri_o = vo[om[0].surface.faces]
     assert np.allclose(tri_o, tri_p, rtol=0.0, atol=1e-10)
+
+
+def test_a_scene_swap_carries_the_state_across_orders():
+    from sm_ros.sim import carry_state
+    scene = {'contact': {'enabled': False}, 'bodies': [dict(SCENE['bodies'][0])]}
+    del scene['bodies'][0]['clusters']                 # from the node's parameter
+    spec = parse_scene(scene)
+    one, _ = build_world(spec, dict(scene_defaults(), clusters=1))
+    two, _ = build_world(spec, dict(scene_defaults(), clusters=2))
+    three, _ = build_world(spec, dict(scene_defaults(), clusters=3))
+    assert one.bodies[0].order is None and two.bodies[0].order is not None
+    assert three.bodies[0].order is not None
+    assert not np.array_equal(two.bodies[0].order, three.bodies[0].order)
+    for _ in range(20):
+        two.step(DT)
+    moved = two.bodies[0]
+    carry_state(two, one)                              # sorted -> scene order
+    assert np.array_equal(one.bodies[0].x[moved.order], moved.x)
+    assert np.array_equal(one.bodies[0].v[moved.order], moved.v)
+    carry_state(two, three)                            # one set order -> another
+    inv = np.argsort(moved.order)
+    assert np.array_equal(three.bodies[0].x, moved.x[inv][three.bodies[0].order])
+    carry_state(one, two)                              # and back
+    assert np.array_equal(two.bodies[0].x, moved.x)

@@ -258,6 +258,8 @@ class Body:
         self.__dict__.update(state)
         self.m.flags.writeable = False
         self.x_init.flags.writeable = False
+        if self.__dict__.get('order') is not None:
+            self.order.flags.writeable = False
 
     def _one_record(self, h):
         """A typed list of this body's record alone (``body_build.one_record``)."""
