@@ -246,10 +246,10 @@ TABLE: Tuple[Param, ...] = (
           "add to a tick, as a share of the tick's own steps (substeps): 0.25 adds one step "
           'every other tick at 2 substeps. An estimate takes 3 x 0.5 s / dt steps and two '
           'copies of about 3 steps each, so (1.5 / dt + 6) / (substeps x budget) ticks (372, '
-          '6.2 s at 60 Hz, with the defaults). The estimate waits in ticks whose steps and its '
-          'share (at what its last step cost) would take more than 75 % of the tick period '
-          '(1 / rate): a heavy scene keeps its rate, and the estimate goes on once there is '
-          'room', '',
+          '6.2 s at 60 Hz, with the defaults). Each piece of the estimate (a copy, or its share '
+          'of steps) runs only in a tick whose steps leave it room, 75 % of the tick period '
+          '(1 / rate) less the steps, against what that piece last cost: a heavy scene keeps '
+          'its rate (a start that waited 10 s goes ahead)', '',
           0.0, 100.0, positive=True),
 )
 

@@ -35,7 +35,7 @@ import numpy as np
 from sm_ros import params as table
 from sm_ros.inputs import checked_points, checked_wrench, Forces, Grippers, InputError
 from sm_ros.params import MAX_COORDINATE
-from sm_ros.stats import (ErrorEstimateSchedule, MomentumDrift, TickStats, estimate_waits,
+from sm_ros.stats import (ErrorEstimateSchedule, MomentumDrift, TickStats, estimate_room,
                           solver_figures)
 
 #: Seconds between two log lines about bodies that went non-finite.
@@ -454,16 +454,14 @@ class Simulation:
         else:
             self.momentum.forget()
         # the live error estimate (stats.ErrorEstimateSchedule): at most one every
-        # 1 / error_estimate.rate s, its copies stepped within error_estimate.budget, and
-        # only in ticks whose steps leave it room in the period (stats.estimate_waits);
-        # its time counted in the tick but not as an overrun
-        budget = float(self.params['error_estimate.budget'])
-        sched = self._estimates
-        wait = estimate_waits(steps_s, sched.expected_s(budget, substeps, steps_s),
-                              float(self.params['rate']))
-        estimate_s = sched.advance(world, dt, substeps,
-                                   float(self.params['error_estimate.rate']), self.clock,
-                                   budget, wait=wait)
+        # 1 / error_estimate.rate s, its copies stepped within error_estimate.budget, each
+        # piece of it only in a tick whose steps leave it room (stats.estimate_room); its
+        # time counted in the tick but not as an overrun
+        estimate_s = self._estimates.advance(
+            world, dt, substeps, float(self.params['error_estimate.rate']), self.clock,
+            float(self.params['error_estimate.budget']),
+            room_s=estimate_room(steps_s, float(self.params['rate'])),
+            step_s=steps_s / max(substeps, 1))
         tp = time.perf_counter()
         for fn in self._tick_listeners:
             fn(self)

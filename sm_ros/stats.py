@@ -190,18 +190,21 @@ class MomentumDrift:
         self._stale = False
 
 
-#: The live error estimate waits (does no work that tick) while a tick's own steps and the
-#: estimate's expected share would take more than this share of the tick period: a
-#: diagnostic does not cost the simulation its rate (``estimate_waits``).
+#: The live error estimate's share of a tick: what is left of this share of the tick
+#: period after the tick's own steps (``estimate_room``); a piece of its work that would
+#: not fit waits for a tick with room, so a diagnostic does not cost the simulation its
+#: rate.
 ESTIMATE_ROOM = 0.75
+#: A new estimate, due but waiting this long (s) for a tick with room for its copy,
+#: starts anyway: a scene whose copy never fits still gets an estimate, one long tick at
+#: most this often.
+ESTIMATE_FORCE_S = 10.0
 
 
-def estimate_waits(steps_s: float, estimate_s: float, rate: float) -> bool:
-    """Whether the live error estimate waits this tick: the tick's steps took ``steps_s``
-    seconds, the estimate's work would take about ``estimate_s``
-    (``ErrorEstimateSchedule.expected_s``), and the node ticks at ``rate`` Hz
-    (``ESTIMATE_ROOM``)."""
-    return rate > 0.0 and steps_s + estimate_s > ESTIMATE_ROOM / rate
+def estimate_room(steps_s: float, rate: float) -> float:
+    """Seconds the live error estimate may take in a tick whose steps took ``steps_s`` at
+    ``rate`` Hz (``ESTIMATE_ROOM``; unbounded without a rate)."""
+    return ESTIMATE_ROOM / rate - steps_s if rate > 0.0 else math.inf
 
 
 class ErrorEstimateSchedule:
@@ -236,6 +239,9 @@ class ErrorEstimateSchedule:
         self.result_started = None      # the same, of ``result`` (None before the first)
         self.units = 0
         self._spares = {}               # the last estimate's copies, reused by the next
+        #: seconds the last copy of the world took (None before the first)
+        self.copy_s: Optional[float] = None
+        self._waited = None             # clock time a due start first had no room
 
     def drop(self) -> None:
         """Abandon the estimate in progress (the configuration changed); start anew."""
@@ -244,17 +250,20 @@ class ErrorEstimateSchedule:
             self.running = None
             self._next = -math.inf
 
-    def expected_s(self, budget: float, substeps: int, steps_s: float) -> float:
-        """About how long this tick's share of the estimate would take: ``budget`` x
+    def expected_s(self, budget: float, substeps: int, step_s: float) -> float:
+        """About how long this tick's piece of the estimate would take: making a copy (a
+        new estimate's first, or the second: as long as the last copy took, or
+        ``COPY_UNITS`` steps of ``step_s`` before one was made), or ``budget`` x
         ``substeps`` units at what a unit of the running estimate last cost
-        (``ErrorEstimate.unit_s``), or, before that is known, at the cost of one of this
-        tick's ``substeps`` steps (``steps_s`` in all: a unit is one step of a copy of
-        the world)."""
-        units = budget * max(int(substeps), 1)
+        (``ErrorEstimate.unit_s``; before that is known, ``step_s``: a unit is one step
+        of a copy of the world)."""
+        from sm_ros.error_estimate import ErrorEstimate
         est = self.running
-        if est is not None and est.unit_s is not None:
-            return units * est.unit_s
-        return units * steps_s / max(int(substeps), 1)
+        if est is None or est.next_units == ErrorEstimate.COPY_UNITS:
+            return self.copy_s if self.copy_s is not None \
+                else ErrorEstimate.COPY_UNITS * step_s
+        units = budget * max(int(substeps), 1)
+        return units * (est.unit_s if est.unit_s is not None else step_s)
 
     def age(self, now: float) -> Optional[float]:
         """Seconds since the copies of the last finished estimate were made, or None."""
@@ -262,14 +271,17 @@ class ErrorEstimateSchedule:
 
     def advance(self, world, dt: float, substeps: int, rate: float,
                 clock: Callable[[], float], budget: Optional[float] = None,
-                wait: bool = False) -> float:
+                room_s: float = math.inf, step_s: float = 0.0) -> float:
         """Advance the estimate by a tick of ``world``; start one when due (``rate`` > 0:
         estimates per second) with ``budget`` x ``substeps`` units of work per tick (None:
         ``substeps`` coarse steps a tick, 3 units each, so the copies keep pace with the
-        simulation and cost 3x its steps while a window runs).  ``wait``: this tick has
-        no room for the estimate (``estimate_waits``): nothing is done or earned, the
-        estimate in progress goes on at the next tick with room.  While every body of
-        ``world`` sleeps the estimate is ``error_estimate.at_rest`` (nothing copied).
+        simulation and cost 3x its steps while a window runs).  ``room_s``: the seconds
+        this tick leaves the estimate (``estimate_room``); a piece of work expected to
+        take longer (``expected_s``, with ``step_s`` the tick's time a step) waits:
+        nothing is done or earned, and the estimate goes on at the next tick with room (a
+        new one that waited ``ESTIMATE_FORCE_S`` for room for its copy starts anyway).
+        While every body of ``world`` sleeps the estimate is ``error_estimate.at_rest``
+        (nothing copied).
 
         Returns the seconds spent this tick: they count in ``tick_ms_max`` /
         ``tick_ms_mean`` but not as an overrun.
@@ -278,8 +290,6 @@ class ErrorEstimateSchedule:
         if rate <= 0.0 or (budget is not None and budget <= 0.0) or not world.bodies:
             self.running = None
             self._spares = {}                    # off: the copies' memory goes
-            return 0.0
-        if wait:
             return 0.0
         spent = 0.0
         now = clock()
@@ -298,14 +308,24 @@ class ErrorEstimateSchedule:
             self._credit = 0.0
         # a new estimate starts only once the copies of the last are paid for (a dropped
         # one's too), so parameter changes every tick cannot copy the world every tick
-        if self.running is None and now >= self._next and self._credit >= 0.0:
+        starting = self.running is None and now >= self._next and self._credit >= 0.0
+        if (starting or self.running is not None) and \
+                self.expected_s(budget or 0.0, substeps, step_s) > room_s:
+            if not starting:
+                return 0.0                       # no room this tick: nothing done or earned
+            if self._waited is None:
+                self._waited = now
+            if now - self._waited < ESTIMATE_FORCE_S:
+                return 0.0
+        if starting:
+            self._waited = None
             from sm_ros.error_estimate import ErrorEstimate
             self._next = now + 1.0 / rate
             self._started = now
             self.running = ErrorEstimate(world, dt, substeps, staged=budget is not None,
                                          spares=self._spares)
             self._spares = {}
-            spent = self.running.cost_s
+            spent = self.copy_s = self.running.cost_s
             self.units = self.running.units
             if budget is not None:
                 self._credit -= float(self.running.units)

@@ -614,20 +614,22 @@ def test_estimate_in_progress_is_dropped_when_the_step_or_the_world_changes():
 
 
 def test_estimate_waits_while_the_steps_leave_it_no_room():
-    """The live error estimate does no work in a tick whose steps and the estimate's
-    expected share (its cost per unit so far, or a step's before it has one) take more
-    than ``ESTIMATE_ROOM`` of the period, and goes on where it was once there is room
-    again."""
+    """Each piece of the live error estimate (a copy of the world, or its share of copy
+    steps) runs only in a tick whose steps leave it room: ``ESTIMATE_ROOM`` of the period
+    less the steps, against what the piece is expected to take (the last copy, or the
+    last unit of the running estimate; a step of the world before either is known); it
+    goes on where it was once there is room, and a start that waited ``ESTIMATE_FORCE_S``
+    for room goes ahead anyway."""
+    from sm_ros.error_estimate import ErrorEstimate
     from sm_ros.sim import Simulation
-    from sm_ros.stats import ESTIMATE_ROOM, ErrorEstimateSchedule, estimate_waits
-    assert ESTIMATE_ROOM == 0.75
-    # 60 Hz: 16.7 ms a tick, 12.5 ms of it for the steps and the estimate
-    assert not estimate_waits(0.0099, 0.0025, 60.0) and estimate_waits(0.0101, 0.0025, 60.0)
-    assert estimate_waits(0.0001, 0.0125, 60.0) and not estimate_waits(0.0001, 0.0123, 60.0)
-    assert estimate_waits(0.0051, 0.0013, 120.0) and not estimate_waits(0.0049, 0.0012, 120.0)
-    assert not estimate_waits(1.0, 1.0, 0.0)               # no period: never waits
-    sched = ErrorEstimateSchedule()                        # before an estimate: a step
-    assert sched.expected_s(0.25, 2, 0.010) == pytest.approx(0.25 * 0.010)
+    from sm_ros.stats import (ESTIMATE_FORCE_S, ESTIMATE_ROOM, ErrorEstimateSchedule,
+                              estimate_room)
+    assert ESTIMATE_ROOM == 0.75 and ESTIMATE_FORCE_S == 10.0
+    assert estimate_room(0.004, 60.0) == pytest.approx(0.0125 - 0.004)
+    assert estimate_room(0.004, 0.0) == math.inf             # no period: no limit
+    sched = ErrorEstimateSchedule()                          # before any copy: 3 steps
+    assert sched.expected_s(0.25, 2, 0.010) == pytest.approx(
+        ErrorEstimate.COPY_UNITS * 0.010)
     now = [0.0]
     step_s = [0.0]
     sims = [Simulation({'scene': 'default'}, clock=lambda: now[0]) for _ in range(2)]
@@ -640,11 +642,11 @@ def test_estimate_waits_while_the_steps_leave_it_no_room():
     heavy.world.step = slow_step
     ticks = _budget_ticks(int(np.ceil(0.5 / heavy.params['dt'])), 0.25,
                           heavy.params['substeps'])
-    step_s[0] = 0.007                                      # 2 x 7 ms x 1.25 > 12.5 ms
+    step_s[0] = 0.0035               # 2 x 3.5 ms of steps, a copy guessed at 3 x 3.5 ms
     for _ in range(50):
         heavy.tick()
         assert heavy._estimates.units == 0 and heavy._estimator is None
-    step_s[0] = 0.001
+    step_s[0] = 0.0005
     for _ in range(ticks):
         heavy.tick()
     for _ in range(50 + ticks):
@@ -652,6 +654,8 @@ def test_estimate_waits_while_the_steps_leave_it_no_room():
     assert heavy.error_estimate is not None and light.error_estimate is not None
     # the heavy one started 50 ticks late, from the state it had then
     assert heavy.error_estimate['steps'] == light.error_estimate['steps']
+    sched = heavy._estimates
+    assert sched.copy_s is not None
     for _ in range(2000):                                  # until the next one is under way
         heavy.tick()
         if heavy._estimator is not None and heavy._estimator.units > 3:
@@ -659,18 +663,35 @@ def test_estimate_waits_while_the_steps_leave_it_no_room():
     running = heavy._estimator
     assert running is not None and not running.done
     done = running.units
-    step_s[0] = 0.007
+    step_s[0] = 0.005                # 10 ms of steps: 2.5 ms left, a unit's 0.5 is more
+    running.unit_s = 0.006
     for _ in range(20):
         heavy.tick()
         assert heavy._estimator is running and running.units == done
     # fast steps, but a unit of the estimate's last cost 50 ms: 25 ms a tick
     step_s[0] = 0.0
-    assert running.unit_s is not None
-    assert heavy._estimates.expected_s(0.25, 2, 0.0) == pytest.approx(0.5 * running.unit_s)
+    assert sched.expected_s(0.25, 2, 0.0) == pytest.approx(0.5 * running.unit_s)
     running.unit_s = 0.05
     heavy.tick()
-    assert heavy._estimates.units == 0 and running.units == done
+    assert sched.units == 0 and running.units == done
     running.unit_s = 0.0
     for _ in range(2):                                     # half a unit of credit a tick
         heavy.tick()
     assert running.units > done and running.unit_s > 0.0  # measured again
+    # a start whose copy never fits: after ESTIMATE_FORCE_S of waiting it goes ahead
+    sched.drop()
+    for _ in range(400):                                   # pay the dropped one's copies
+        heavy.tick()
+        if sched._credit >= 0.0 and heavy._estimator is not None:
+            break
+    sched.drop()
+    sched._credit = 0.0
+    sched.copy_s = 1.0                                     # a copy takes 1 s
+    t0 = now[0]
+    while now[0] - t0 < ESTIMATE_FORCE_S - 0.5:
+        now[0] += 0.5
+        heavy.tick()
+        assert heavy._estimator is None and sched.units == 0
+    now[0] += 1.0
+    heavy.tick()
+    assert heavy._estimator is not None and sched.units == ErrorEstimate.COPY_UNITS
