@@ -11,7 +11,7 @@ from typing import Any, Callable, Dict, Iterable, List, Mapping, Optional, Tuple
 
 import numpy as np
 
-from sm_ros.error_estimate import all_asleep, at_rest
+from sm_ros.error_estimate import ErrorEstimate, all_asleep, at_rest
 
 
 class TickStats:
@@ -257,7 +257,6 @@ class ErrorEstimateSchedule:
         ``substeps`` units at what a unit of the running estimate last cost
         (``ErrorEstimate.unit_s``; before that is known, ``step_s``: a unit is one step
         of a copy of the world)."""
-        from sm_ros.error_estimate import ErrorEstimate
         est = self.running
         if est is None or est.next_units == ErrorEstimate.COPY_UNITS:
             return self.copy_s if self.copy_s is not None \
@@ -319,7 +318,6 @@ class ErrorEstimateSchedule:
                 return 0.0
         if starting:
             self._waited = None
-            from sm_ros.error_estimate import ErrorEstimate
             self._next = now + 1.0 / rate
             self._started = now
             self.running = ErrorEstimate(world, dt, substeps, staged=budget is not None,
