@@ -52,6 +52,7 @@ class World(WorldColliders):
         self._zeros = np.zeros(0, dtype=np.int32)
         self._one_touch = np.zeros(1, dtype=np.uint8)
         self._coupling_key = None
+        self._flat_builds = 0                  # flat states built (keys what was made of one)
         self._flagged = False                  # see state_flagged
         self.time = 0.0
         self.set_colliders()
@@ -190,6 +191,7 @@ class World(WorldColliders):
             if b.name not in self._contacts:
                 self._contacts[b.name] = (BodyContact(), default_radius(b.x_init))
         self._flat = FlatState(bodies)
+        self._flat_builds += 1
         p = self._contact_params
         if p.enabled and bodies:
             bcs = [self._contacts[b.name][0] for b in bodies]
@@ -404,8 +406,10 @@ class World(WorldColliders):
         """Mark the bodies that carry their contacts as a whole (``Contact.coupling``):
         alpha at the step at least ``contact.COUPLE_ALPHA``, with one cluster or many
         (README "Contact between bodies").  Recomputed when a body, its parameters or the
-        step change."""
-        key = (body_mod._GENERATION[0], h, id(self._flat))
+        step change.  Keyed by the count of flat states built, not the flat state's id: a
+        copy of the world (deep, or synced: ``sm_ros.world_sync``) holds the coupling flags
+        with the key they were set for, and keeps them."""
+        key = (body_mod._GENERATION[0], h, self._flat_builds)
         if self._coupling_key == key:
             return
         c = self._contact.coupling
