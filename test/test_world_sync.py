@@ -7,7 +7,7 @@ import pytest
 from sm_ros.error_estimate import ErrorEstimate, copy_world, estimate
 from sm_ros.sim import Simulation
 from sm_ros.stats import ErrorEstimateSchedule
-from sm_ros.world_sync import Twin, sync_world
+from sm_ros.world_sync import Twin, copy_blocks, sync_world
 
 
 def _world(scene):
@@ -96,3 +96,83 @@ def test_schedule_hands_the_copies_on_and_drops_them_when_off():
     assert sched.running.coarse is coarse
     sched.advance(world, dt, 1, 0.0, clock)            # off
     assert sched._spares == {} and sched.running is None
+
+
+@pytest.mark.parametrize('scene', ['grasp', 'many', 'paper_8_clusters'])
+def test_compiled_replay_writes_what_the_python_replay_writes(scene):
+    world, dt = _world(scene)
+    for _ in range(4):
+        world.step(dt)
+    twins = [Twin(copy_world(world)), Twin(copy_world(world))]
+    for twin in twins:
+        twin.world.step(dt)
+        assert twin.sync(world)               # the walk: plans made
+    twins[1]._plan.compiled = False           # np.copyto block by block
+    assert len(twins[0]._plan._blocks) > 20
+    for _ in range(3):
+        for twin in twins:
+            twin.world.step(dt)
+        world.step(dt)
+        plans = [t._plan for t in twins]
+        assert all(t.sync(world) for t in twins)
+        assert [t._plan for t in twins] == plans   # replayed, not walked again
+        assert _same(twins[0].world, twins[1].world) and _same(twins[0].world, world)
+        for twin in twins:
+            twin.world.step(dt)
+        assert _same(twins[0].world, twins[1].world)
+
+
+def test_copy_blocks_copies_as_numpy():
+    rng = np.random.default_rng(3)
+    src = [rng.random(n) for n in (1, 7, 1000)] + [rng.integers(0, 9, (4, 5)).T,
+                                                   np.arange(6, dtype=np.uint8)]
+    dst = [np.zeros_like(a) for a in src]
+    addr = lambda arrs: np.array([a.ctypes.data for a in arrs], dtype=np.int64)  # noqa: E731
+    copy_blocks(addr(dst), addr(src), np.array([a.nbytes for a in src], dtype=np.int64))
+    for d, s in zip(dst, src):
+        assert np.array_equal(d, s) and d.strides == s.strides
+
+
+def test_a_replaced_array_on_either_side_is_walked_again():
+    world, dt = _world('many')
+    world.step(dt)
+    twin = Twin(copy_world(world))
+    twin.world.step(dt)
+    world.step(dt)
+    assert twin.sync(world)
+    plan = twin._plan
+    b = twin.world.bodies[3]
+    b._grab_tgt = np.zeros((0, 3))            # the copy's own place holds another array
+    assert twin.sync(world) and twin._plan is not plan
+    plan = twin._plan
+    assert twin.sync(world) and twin._plan is plan
+    world.bodies[5]._grab_tgt = np.zeros((2, 3))    # the source's: of another shape
+    assert not twin.sync(world)
+    assert twin.refused.endswith('_grab_tgt: array'), twin.refused
+
+
+def test_a_plain_place_that_holds_an_array_is_refused():
+    world, dt = _world('many')
+    world.step(dt)
+    twin = Twin(copy_world(world))
+    world.step(dt)
+    twin.world.step(dt)
+    assert twin.sync(world) and twin.sync(world)
+    world.bodies[0]._shape_err = np.zeros(1)  # was a float (or None): a plain value
+    assert not twin.sync(world)
+    assert 'Body._shape_err' in twin.refused, twin.refused
+
+
+def test_a_synced_copy_keeps_its_flag_list_and_coupling_flags():
+    world, dt = _world('many')
+    world.step(dt)
+    twin = Twin(copy_world(world))
+    twin.world.step(dt)
+    world.step(dt)
+    for _ in range(2):                        # the walk, then a replay
+        assert twin.sync(world)
+        fl, key = twin.world._flat._fl, twin.world._coupling_key
+        assert fl is not None and key == world._coupling_key
+        twin.world.step(dt)
+        assert twin.world._flat._fl is fl and twin.world._coupling_key is key
+        world.step(dt)
