@@ -103,10 +103,11 @@ def _getter(keys):
 class _Plan:
     """What a walk found, replayed in bulk (Python cost per place, not per call).
 
-    * places: the containers (dicts, lists) the walk went through, each with the keys
-      whose values were walked into, on both sides; the values found there after the
-      walk, as ids in one list (``_ids``), with the values themselves held (``_held``: an
-      id is then no other live object's), and the containers' lengths;
+    * places: the containers (dicts, lists) the walk went through, on both sides, with
+      their lengths and (dicts) their keys in order; the places among their values that
+      the walk went into (``_pos``, in all the containers' values one after another) and
+      the ids of what they held after the walk (``_ids``), the objects themselves held
+      (``_held``: an id is then no other live object's);
     * sets: per container, the keys of plain values (``_LEAVES``) to assign; a place of a
       ``_PLAIN`` value must hold one again (one type check each), a place of another
       leaf (parameters: a frozen dataclass, a tuple of leaves) the same object or a leaf
@@ -123,11 +124,23 @@ class _Plan:
     compiled = True
 
     def __init__(self, walk):
-        self._places = [(_getter(tuple(keys)), c) for c, keys in walk.places.values()]
-        self._held = [g(c) for g, c in self._places]
-        self._ids = list(map(id, itertools.chain.from_iterable(self._held)))
-        self._len_of = [c for c, _ in walk.lens]
-        self._lens = [n for _, n in walk.lens]
+        self._total = 0
+        conts, pos, held = [], [], []
+        for c, keys in walk.places.values():
+            at = {k: i for i, k in enumerate(c)} if isinstance(c, dict) else None
+            for k in keys:
+                pos.append(self._total + (k if at is None else at[k]))
+                held.append(c[k])
+            conts.append(c)
+            self._total += len(c)
+        self._values = [c.values() if isinstance(c, dict) else c for c in conts]
+        self._keys_of = [c.keys() for c in conts if isinstance(c, dict)]
+        self._keys = list(itertools.chain.from_iterable(self._keys_of))
+        self._pos = np.array(pos, dtype=np.intp)
+        self._held = held
+        self._ids = np.fromiter(map(id, held), np.intp, len(held))
+        self._len_of = [c for c, _ in walk.lens] + conts
+        self._lens = list(map(len, self._len_of))
         self._sets = [(dc, isinstance(dc, dict), keys if len(keys) > 1 else keys * 2,
                        _getter(keys), sc)
                       for dc, sc, keys in ((dc, sc, tuple(ks))
@@ -138,28 +151,40 @@ class _Plan:
         self._plain = _getter(plain) if plain else None
         self._other = _getter(other) if other else None
         self._other_seen = self._other(seen) if other else ()
+        self._copies = walk.copies
+        self._blocks = None                  # made at the first replay (``_split_copies``)
+        self._caches = walk.caches
+        self._keep = walk.keep
+
+    def _split_copies(self):
+        """The copies as blocks of bytes (addresses, sizes) and the others; made at the
+        first replay, not by the walk (~25 ms for ``paper_384``: the tick of the walk is
+        the longer one)."""
         blocks, self._slow = [], []
-        for d, s in walk.copies:
+        for d, s in self._copies:
             if s.size:                       # nothing to copy in an empty array
                 (blocks if _flat_bytes(d, s) else self._slow).append((d, s))
-        self._blocks = blocks                # held: the addresses below stay theirs
         self._dst = np.array([d.ctypes.data for d, _ in blocks], dtype=np.int64)
         self._src = np.array([s.ctypes.data for _, s in blocks], dtype=np.int64)
         self._nbytes = np.array([s.nbytes for _, s in blocks], dtype=np.int64)
-        self._caches = walk.caches
-        self._keep = walk.keep
+        self._blocks = blocks                # held: the addresses stay theirs
 
     def replay(self) -> bool:
         """Check the places, then assign and copy; False (nothing written) when a place
         holds another object or a container another length, or a plain place another
         kind of value."""
+        # the containers' lengths, their keys in order, then the ids of all their values
+        # (a list or a dict's values read at C speed) at the places the walk went into
+        if list(map(len, self._len_of)) != self._lens \
+                or list(itertools.chain.from_iterable(self._keys_of)) != self._keys:
+            return False
+        ids = np.fromiter(map(id, itertools.chain.from_iterable(self._values)), np.intp,
+                          self._total)
+        if not np.array_equal(ids[self._pos], self._ids):
+            return False
         try:
-            held = [g(c) for g, c in self._places]
-            if list(map(len, self._len_of)) != self._lens \
-                    or list(map(id, itertools.chain.from_iterable(held))) != self._ids:
-                return False
             vals = [g(sc) for _, _, _, g, sc in self._sets]
-        except (KeyError, IndexError):
+        except (KeyError, IndexError):       # a container of plain values only, renamed
             return False
         flat = list(itertools.chain.from_iterable(vals))
         # places of plain values must hold plain values (a type check each); the others
@@ -177,6 +202,8 @@ class _Plan:
             else:
                 for k, x in zip(keys, v):
                     dc[k] = x
+        if self._blocks is None:
+            self._split_copies()
         if self.compiled:
             copy_blocks(self._dst, self._src, self._nbytes)
         else:
