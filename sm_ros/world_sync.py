@@ -105,9 +105,8 @@ class _Plan:
 
     * places: the containers (dicts, lists) the walk went through, on both sides, with
       their lengths and (dicts) their keys in order; the places among their values that
-      the walk went into (``_pos``, in all the containers' values one after another) and
-      the ids of what they held after the walk (``_ids``), the objects themselves held
-      (``_held``: an id is then no other live object's);
+      the walk went into (``_pick``: positions in all the containers' values one after
+      another) and what they held after the walk (``_held``);
     * sets: per container, the keys of plain values (``_LEAVES``) to assign; a place of a
       ``_PLAIN`` value must hold one again (one type check each), a place of another
       leaf (parameters: a frozen dataclass, a tuple of leaves) the same object or a leaf
@@ -136,9 +135,8 @@ class _Plan:
         self._values = [c.values() if isinstance(c, dict) else c for c in conts]
         self._keys_of = [c.keys() for c in conts if isinstance(c, dict)]
         self._keys = list(itertools.chain.from_iterable(self._keys_of))
-        self._pos = np.array(pos, dtype=np.intp)
-        self._held = held
-        self._ids = np.fromiter(map(id, held), np.intp, len(held))
+        self._pick = _getter(pos) if pos else (lambda values: ())
+        self._held = tuple(held * 2 if len(pos) == 1 else held)
         self._len_of = [c for c, _ in walk.lens] + conts
         self._lens = list(map(len, self._len_of))
         self._sets = [(dc, isinstance(dc, dict), keys if len(keys) > 1 else keys * 2,
@@ -173,14 +171,13 @@ class _Plan:
         """Check the places, then assign and copy; False (nothing written) when a place
         holds another object or a container another length, or a plain place another
         kind of value."""
-        # the containers' lengths, their keys in order, then the ids of all their values
-        # (a list or a dict's values read at C speed) at the places the walk went into
+        # the containers' lengths, their keys in order, then all their values (a list or
+        # a dict's values read at C speed), those at the places the walk went into
+        # compared by identity
         if list(map(len, self._len_of)) != self._lens \
-                or list(itertools.chain.from_iterable(self._keys_of)) != self._keys:
-            return False
-        ids = np.fromiter(map(id, itertools.chain.from_iterable(self._values)), np.intp,
-                          self._total)
-        if not np.array_equal(ids[self._pos], self._ids):
+                or list(itertools.chain.from_iterable(self._keys_of)) != self._keys \
+                or not all(map(operator.is_, self._pick(
+                    list(itertools.chain.from_iterable(self._values))), self._held)):
             return False
         try:
             vals = [g(sc) for _, _, _, g, sc in self._sets]

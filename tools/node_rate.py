@@ -9,6 +9,8 @@ venv``).  With ``--shm`` both processes use the repository's Fast DDS profile
 (``config/fastdds_shm.xml``, README "Large clouds across processes").
 
     .venv/bin/python tools/node_rate.py --scene paper_384 --seconds 24 --shm
+    .venv/bin/python tools/node_rate.py --scene paper_384 --seconds 45 --shm \
+        --param contact.sleep:=false          # bodies never sleep: estimates keep starting
 """
 
 import argparse
@@ -27,6 +29,8 @@ def main():
     ap.add_argument('--seconds', type=float, default=24.0)
     ap.add_argument('--no-cloud', action='store_true', help='no points subscriber')
     ap.add_argument('--shm', action='store_true', help='the Fast DDS shared-memory profile')
+    ap.add_argument('--param', action='append', default=[], metavar='NAME:=VALUE',
+                    help="a node parameter more (repeatable), e.g. 'contact.sleep:=false'")
     a = ap.parse_args()
     env = dict(os.environ)
     if a.shm:
@@ -39,7 +43,8 @@ def main():
     from sensor_msgs.msg import PointCloud2
     node_exe = pathlib.Path(sys.executable).with_name('sim_node')
     proc = subprocess.Popen([str(node_exe), '--ros-args', '-p', f'scene:={a.scene}',
-                             '-p', 'foxglove.port:=0', '-p', 'diagnostics_rate:=2.0'],
+                             '-p', 'foxglove.port:=0', '-p', 'diagnostics_rate:=2.0']
+                            + [x for p in a.param for x in ('-p', p)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
     rclpy.init()
     n = Node('node_rate_watch')
@@ -81,7 +86,7 @@ def main():
         print(f'{a.scene}: lowest rate {min(r[1] for r in later):.1f} Hz, median tick '
               f'{statistics.median(r[2] for r in later):.2f} ms over {len(later)} windows '
               f'after the first ({"no cloud subscriber" if a.no_cloud else "one cloud subscriber"}'
-              f'{", shm profile" if a.shm else ""})')
+              f'{", shm profile" if a.shm else ""}{"".join(", " + p for p in a.param)})')
 
 
 if __name__ == '__main__':
