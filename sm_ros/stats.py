@@ -199,6 +199,10 @@ ESTIMATE_ROOM = 0.75
 #: starts anyway: a scene whose copy never fits still gets an estimate, one long tick at
 #: most this often.
 ESTIMATE_FORCE_S = 10.0
+#: Before the first copy of the world is made, it is expected to cost this many of the
+#: tick's steps (a deep copy and its first step: 20 steps of ``paper_384`` pouring, 70 of
+#: the default scene, 15-46 for the other bundled scenes measured).
+COPY_GUESS_STEPS = 40
 
 
 def estimate_room(steps_s: float, rate: float) -> float:
@@ -253,14 +257,13 @@ class ErrorEstimateSchedule:
     def expected_s(self, budget: float, substeps: int, step_s: float) -> float:
         """About how long this tick's piece of the estimate would take: making a copy (a
         new estimate's first, or the second: as long as the last copy took, or
-        ``COPY_UNITS`` steps of ``step_s`` before one was made), or ``budget`` x
+        ``COPY_GUESS_STEPS`` steps of ``step_s`` before one was made), or ``budget`` x
         ``substeps`` units at what a unit of the running estimate last cost
         (``ErrorEstimate.unit_s``; before that is known, ``step_s``: a unit is one step
         of a copy of the world)."""
         est = self.running
         if est is None or est.next_units == ErrorEstimate.COPY_UNITS:
-            return self.copy_s if self.copy_s is not None \
-                else ErrorEstimate.COPY_UNITS * step_s
+            return self.copy_s if self.copy_s is not None else COPY_GUESS_STEPS * step_s
         units = budget * max(int(substeps), 1)
         return units * (est.unit_s if est.unit_s is not None else step_s)
 

@@ -622,14 +622,13 @@ def test_estimate_waits_while_the_steps_leave_it_no_room():
     for room goes ahead anyway."""
     from sm_ros.error_estimate import ErrorEstimate
     from sm_ros.sim import Simulation
-    from sm_ros.stats import (ESTIMATE_FORCE_S, ESTIMATE_ROOM, ErrorEstimateSchedule,
-                              estimate_room)
-    assert ESTIMATE_ROOM == 0.75 and ESTIMATE_FORCE_S == 10.0
+    from sm_ros.stats import (COPY_GUESS_STEPS, ESTIMATE_FORCE_S, ESTIMATE_ROOM,
+                              ErrorEstimateSchedule, estimate_room)
+    assert ESTIMATE_ROOM == 0.75 and ESTIMATE_FORCE_S == 10.0 and COPY_GUESS_STEPS == 40
     assert estimate_room(0.004, 60.0) == pytest.approx(0.0125 - 0.004)
     assert estimate_room(0.004, 0.0) == math.inf             # no period: no limit
-    sched = ErrorEstimateSchedule()                          # before any copy: 3 steps
-    assert sched.expected_s(0.25, 2, 0.010) == pytest.approx(
-        ErrorEstimate.COPY_UNITS * 0.010)
+    sched = ErrorEstimateSchedule()                          # before any copy: 40 steps
+    assert sched.expected_s(0.25, 2, 0.010) == pytest.approx(40 * 0.010)
     now = [0.0]
     step_s = [0.0]
     sims = [Simulation({'scene': 'default'}, clock=lambda: now[0]) for _ in range(2)]
@@ -642,11 +641,11 @@ def test_estimate_waits_while_the_steps_leave_it_no_room():
     heavy.world.step = slow_step
     ticks = _budget_ticks(int(np.ceil(0.5 / heavy.params['dt'])), 0.25,
                           heavy.params['substeps'])
-    step_s[0] = 0.0035               # 2 x 3.5 ms of steps, a copy guessed at 3 x 3.5 ms
+    step_s[0] = 0.00035              # 0.7 ms of steps, a first copy guessed at 14 ms
     for _ in range(50):
         heavy.tick()
         assert heavy._estimates.units == 0 and heavy._estimator is None
-    step_s[0] = 0.0005
+    step_s[0] = 0.0001
     for _ in range(ticks):
         heavy.tick()
     for _ in range(50 + ticks):
@@ -657,6 +656,7 @@ def test_estimate_waits_while_the_steps_leave_it_no_room():
     sched = heavy._estimates
     assert sched.copy_s is not None
     for _ in range(2000):                                  # until the next one is under way
+        now[0] += 0.005
         heavy.tick()
         if heavy._estimator is not None and heavy._estimator.units > 3:
             break
