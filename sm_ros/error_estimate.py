@@ -45,7 +45,8 @@ types differently, so the first step of every copy loaded a second set of compil
 (2.4 s on the 384-body paper scene). Later estimates write the world's state into the last
 estimate's copies instead (``sm_ros.world_sync.Twin``; the schedule keeps them): on
 ``paper_384`` a deep copy took 0.2 s and the copy's first step another 0.14 s to re-pack
-its bodies, a sync 40-55 ms and no re-packing; a copy of another make (bodies added or
+its bodies, a sync about 16 ms (``world_sync``'s plan replayed in bulk) and no
+re-packing; a copy of another make (bodies added or
 rebuilt, buffers grown) is refused and deep-copied anew. The first copy is made when the
 estimate starts (a snapshot of the live world); the second is made from the first, still
 unstepped, as the first piece of work, so no tick pays for both.
