@@ -133,12 +133,19 @@ def test_copy_blocks_copies_as_numpy():
         assert np.array_equal(d, s) and d.strides == s.strides
 
 
-def test_a_replaced_array_on_either_side_is_walked_again():
-    world, dt = _world('many')
+def _stepped_twin(name):
+    """A world of scene ``name`` and a twin of it, each stepped on its own since the copy
+    was made (so a sync has state to write): (world, twin, dt)."""
+    world, dt = _world(name)
     world.step(dt)
     twin = Twin(copy_world(world))
     twin.world.step(dt)
     world.step(dt)
+    return world, twin, dt
+
+
+def test_a_replaced_array_on_either_side_is_walked_again():
+    world, twin, dt = _stepped_twin('many')
     assert twin.sync(world)
     plan = twin._plan
     b = twin.world.bodies[3]
@@ -152,11 +159,7 @@ def test_a_replaced_array_on_either_side_is_walked_again():
 
 
 def test_a_plain_place_that_holds_an_array_is_refused():
-    world, dt = _world('many')
-    world.step(dt)
-    twin = Twin(copy_world(world))
-    world.step(dt)
-    twin.world.step(dt)
+    world, twin, dt = _stepped_twin('many')
     assert twin.sync(world) and twin.sync(world)
     world.bodies[0]._shape_err = np.zeros(1)  # was a float (or None): a plain value
     assert not twin.sync(world)
@@ -164,11 +167,7 @@ def test_a_plain_place_that_holds_an_array_is_refused():
 
 
 def test_a_synced_copy_keeps_its_flag_list_and_coupling_flags():
-    world, dt = _world('many')
-    world.step(dt)
-    twin = Twin(copy_world(world))
-    twin.world.step(dt)
-    world.step(dt)
+    world, twin, dt = _stepped_twin('many')
     for _ in range(2):                        # the walk, then a replay
         assert twin.sync(world)
         fl, key = twin.world._flat._fl, twin.world._coupling_key
