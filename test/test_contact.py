@@ -770,11 +770,23 @@ def test_body_velocities_match_numpy():
     X = np.ascontiguousarray(rng.normal(size=(3, off[-1])) + 3.0)
     V = np.ascontiguousarray(rng.normal(size=(3, off[-1])))
     W = rng.uniform(0.5, 2.0, off[-1])
+    X[2, 3] = X[2, 5] = X[2, :7].min() - 1.0     # two lowest: the first one's velocity
     cpl = np.array([True, True, False])
     bw = np.array([1 / (1 / W[off[b]:off[b + 1]]).sum() for b in range(3)])
     vb, zlo, bc, bom, biv = (np.zeros((3, 3)), np.zeros((2, 3)), np.zeros((3, 3)),
                              np.zeros((3, 3)), np.zeros((3, 9)))
-    C.body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv)
+    Xref = X + rng.normal(scale=0.01, size=X.shape)
+    act = np.array([True, False, True])
+    dbox = np.zeros(6)
+    spread2 = C.body_velocities(X, V, 1.0 / W, off, cpl, bw, vb, zlo, bc, bom, biv, Xref,
+                                act, dbox)
+    # the colliding bodies' displacements (body 1 does not collide), as moved_spread2
+    assert spread2 == C.moved_spread2(X, Xref, off.astype(np.int64), act)
+    keep = np.repeat(act, n)
+    d = (X - Xref)[:, keep]
+    e = 0.5 * (d.max(axis=1) - d.min(axis=1))
+    assert spread2 == pytest.approx(e @ e, rel=1e-12)
+    np.testing.assert_array_equal(dbox, np.concatenate([d.min(axis=1), d.max(axis=1)]))
     for b in range(2):
         s = slice(off[b], off[b + 1])
         m, x, v = 1 / W[s], X[:, s].T, V[:, s].T
@@ -789,6 +801,7 @@ def test_body_velocities_match_numpy():
         np.testing.assert_allclose(biv[b].reshape(3, 3), np.linalg.inv(inertia), rtol=1e-9)
         np.testing.assert_allclose(bom[b], np.linalg.solve(inertia, ang), rtol=1e-9)
     np.testing.assert_array_equal(vb[2], 0.0)
+    assert zlo[1, 0] == V[2, 3] != V[2, 5]
 
 
 def test_spin_of_a_body_held_by_another_is_stopped():
@@ -884,18 +897,19 @@ def test_moved_spread_against_numpy():
     n, nb = 500, 6
     B = np.sort(rng.integers(0, nb, n)).astype(np.int32)
     act = np.array([True, True, False, True, False, True])
+    off = np.searchsorted(B, np.arange(nb + 1)).astype(np.int64)
     Xref = rng.normal(size=(3, n))
     X = Xref + np.array([[0.3], [-2.0], [5.0]]) + rng.uniform(-0.01, 0.01, (3, n))
-    got = C.moved_spread2(X, Xref, B, act)
+    got = C.moved_spread2(X, Xref, off, act)
     assert got == pytest.approx(_spread2_numpy(X, Xref, B, act), rel=1e-12, abs=1e-15)
     assert got < 3 * 0.01 ** 2                 # the common shift does not count
     X[:, B == 2] += 1.0                        # a body that does not collide: ignored
-    assert C.moved_spread2(X, Xref, B, act) == pytest.approx(got, rel=1e-12)
+    assert C.moved_spread2(X, Xref, off, act) == pytest.approx(got, rel=1e-12)
     for bad in (np.nan, np.inf):
         Y = X.copy()
         Y[1, np.flatnonzero(B == 3)[0]] = bad
-        assert C.moved_spread2(Y, Xref, B, act) == np.inf == _spread2_numpy(Y, Xref, B, act)
-    assert C.moved_spread2(X, Xref, B, np.zeros(nb, np.bool_)) == 0.0
+        assert C.moved_spread2(Y, Xref, off, act) == np.inf == _spread2_numpy(Y, Xref, B, act)
+    assert C.moved_spread2(X, Xref, off, np.zeros(nb, np.bool_)) == 0.0
 
 
 def test_pair_list_kept_for_a_common_motion_and_always_complete():

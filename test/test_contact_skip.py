@@ -35,15 +35,20 @@ def _scene():
 
 def _body_rows(X, V, W, off, cpl=None):
     """The per-body rows ``Contact.run`` gives ``solve_bodies`` (every body carried
-    unless ``cpl`` says otherwise): cpl, bw, vb, zlo, bc, bom, biv."""
+    unless ``cpl`` says otherwise): cpl, bw, vb, zlo, bc, bom, biv, and the bodies'
+    bounding boxes (``wall_candidates``)."""
     nb = len(off) - 1
     cpl = np.ones(nb, np.bool_) if cpl is None else cpl
     bw = np.zeros(nb)
     C.body_inverse_masses(W, off, bw)
     vb, zlo, bc = np.zeros((nb, 3)), np.zeros((2, nb)), np.zeros((nb, 3))
     bom, biv = np.zeros((nb, 3)), np.zeros((nb, 9))
-    C.body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv)
-    return cpl, bw, vb, zlo, bc, bom, biv
+    C.body_velocities(X, V, 1.0 / W, off, cpl, bw, vb, zlo, bc, bom, biv, X.copy(),
+                      np.ones(nb, np.bool_), np.zeros(6))
+    # the boxes of the bodies at a pair-list build just now (``body_overlaps``)
+    box = np.array([np.concatenate([X[:, off[b]:off[b + 1]].min(axis=1),
+                                    X[:, off[b]:off[b + 1]].max(axis=1)]) for b in range(nb)])
+    return cpl, bw, vb, zlo, bc, bom, biv, box
 
 
 def _solve(X, V, W, B, off, boxes, ground, cand_margin, margin):
@@ -55,10 +60,11 @@ def _solve(X, V, W, B, off, boxes, ground, cand_margin, margin):
     R = np.full(X.shape[1], 0.01)
     pi = np.array([0], np.int32)
     pj = np.array([2], np.int32)
-    cpl, bw, vb, zlo, bc, bom, biv = _body_rows(X, V, W, off)
+    cpl, bw, vb, zlo, bc, bom, biv, box = _body_rows(X, V, W, off)
     cand = np.zeros(X.shape[1], np.int64)
     cptr = np.zeros(nb + 1, np.int64)
-    m = C.wall_candidates(X, off, cpl, bw, boxes, np.zeros((0, 6)), cand_margin, cand, cptr)
+    m = C.wall_candidates(X, off, cpl, bw, boxes, np.zeros((0, 6)), cand_margin, cand, cptr,
+                          np.ones(nb, np.bool_), box, np.zeros(6))
     found = C.solve_bodies(
         X, V, W, R, B, pi, pj, 1, 0.5, 0.0, THRESH, H, 8, np.zeros(nb, np.uint8),
         np.zeros(nb, np.int64), np.zeros(nb), True, ground, boxes, np.zeros((0, 6)),
@@ -129,7 +135,7 @@ def test_compact_rows_match_numpy():
     R = np.full(n, 0.01)
     pi = np.array([8, 0, 2, 4, 6, 1, 3, 5, 7, 0], np.int32)
     pj = np.array([10, 2, 4, 6, 8, 3, 5, 7, 9, 8], np.int32)   # (0, 8): 84 mm
-    cpl, bw, vb, zlo, bc, bom, biv = _body_rows(
+    cpl, bw, vb, zlo, bc, bom, biv, _ = _body_rows(
         X, V, W, off, np.array([True, True, True, False, True, True]))
     npairs = len(pi)
     active = np.zeros(npairs, np.int64)
@@ -193,7 +199,8 @@ def _solve_chain(X, iters, cbuf=None, ibuf=None):
     bw = W.copy()
     vb, zlo, bc = np.zeros((nb, 3)), np.zeros((2, nb)), np.zeros((nb, 3))
     bom, biv = np.zeros((nb, 3)), np.zeros((nb, 9))
-    C.body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv)
+    C.body_velocities(X, V, 1.0 / W, off, cpl, bw, vb, zlo, bc, bom, biv, X.copy(),
+                      np.ones(nb, np.bool_), np.zeros(6))
     C.solve_bodies(
         X, V, W, np.full(3, 0.01), B, np.array([0, 1], np.int32), np.array([1, 2], np.int32),
         2, 0.5, 0.0, THRESH, H, iters, np.zeros(nb, np.uint8), np.zeros(nb, np.int64),
@@ -247,7 +254,7 @@ def _solve_chain_acc(self_pair):
     B = np.array([0, 1, 2, 2], np.int32)
     off = np.array([0, 1, 2, 4])
     nb = 3
-    cpl, bw, vb, zlo, bc, bom, biv = _body_rows(X, V, W, off)
+    cpl, bw, vb, zlo, bc, bom, biv, _ = _body_rows(X, V, W, off)
     pi = np.array([0, 1, 2] if self_pair else [0, 1], np.int32)
     pj = np.array([1, 2, 3] if self_pair else [1, 2], np.int32)
     m = len(pi)

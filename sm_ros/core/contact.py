@@ -258,6 +258,7 @@ class Contact:
         self._bc = np.zeros((max(nb, 1), 3))            # centre of mass
         self._bom = np.zeros((max(nb, 1), 3))           # spin
         self._biv = np.zeros((max(nb, 1), 9))           # inverse inertia tensor
+        self._dbox = np.zeros(6)        # displacements since the last build: their box
         self._accg = np.zeros((2, max(nb, 1)))          # ground impulses per body
         self._warm = False              # acc, accg hold the last step's impulses (list kept)
         self._noground = np.zeros(4)
@@ -331,15 +332,28 @@ class Contact:
         """
         f = self.flat
         half = 0.5 * self.skin
-        # rebuilt once the displacements since the last build no longer fit in a ball of
-        # radius skin / 2 (no pair came closer by more than the skin; contact_build)
-        if not self.valid or moved_spread2(f.X, self._xref, f.B, self.act) > half * half:
-            self._build()
-        self.count[:] = 0
-        self.deepest[:] = 0.0
         p = self.params
         grav = gravity is not None and bool(np.any(gravity != 0.0))
-        if not (p.stacking and grav and self.coupling.any()):
+        carried = p.stacking and grav and self.coupling.any()
+        if carried:
+            if self._bw_version != f.w_version:    # the bodies' masses, from W if changed
+                body_inverse_masses(f.W, f.off, self._bw)
+                self._bw_version = f.w_version
+            # the carried bodies' velocities, boxes and the displacements since the last
+            # build in one pass over the positions
+            spread2 = body_velocities(f.X, f.V, f.M, f.off, self.coupling, self._bw,
+                                      self._vb, self._zlo, self._bc, self._bom, self._biv,
+                                      self._xref, self.act, self._dbox)
+        else:
+            spread2 = moved_spread2(f.X, self._xref, f.off, self.act)
+        # rebuilt once the displacements since the last build no longer fit in a ball of
+        # radius skin / 2 (no pair came closer by more than the skin; contact_build)
+        if not self.valid or spread2 > half * half:
+            self._build()
+            self._dbox[:] = 0.0                # nothing moved since this build
+        self.count[:] = 0
+        self.deepest[:] = 0.0
+        if not carried:
             self._warm = False
             self.found = solve_pairs(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
                                      p.friction, p.restitution, thresh, float(h), p.iterations,
@@ -353,11 +367,6 @@ class Contact:
             self._active = np.zeros(m, dtype=np.int64)
             self._cbuf = np.zeros((7, m))        # solve_bodies' compact rows
             self._ibuf = np.zeros((5, m), dtype=np.int32)
-        if self._bw_version != f.w_version:    # the bodies' masses, from W when it changed
-            body_inverse_masses(f.W, f.off, self._bw)
-            self._bw_version = f.w_version
-        body_velocities(f.X, f.V, f.W, f.off, self.coupling, self._bw, self._vb, self._zlo,
-                        self._bc, self._bom, self._biv)
         ncand = 0
         # the end of solve_bodies puts a carried body's particles through the boxes and
         # spheres only where one can be inside (its particles near them, ``cand``, or one
@@ -366,11 +375,13 @@ class Contact:
         if has_col and (len(boxes) or len(spheres)):
             margin = self.cell
             ncand = wall_candidates(f.X, f.off, self.coupling, self._bw, boxes, spheres,
-                                    self.cell, self._cand, self._cptr)
+                                    self.cell, self._cand, self._cptr, self.act,
+                                    self._box, self._dbox)
             if ncand > len(self._cand):         # a particle near two of them: grow
                 self._cand = np.zeros(ncand, dtype=np.int64)
                 ncand = wall_candidates(f.X, f.off, self.coupling, self._bw, boxes,
-                                        spheres, self.cell, self._cand, self._cptr)
+                                        spheres, self.cell, self._cand, self._cptr,
+                                        self.act, self._box, self._dbox)
         self.found = solve_bodies(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
                                   p.friction, p.restitution, thresh, float(h),
                                   max(p.iterations, STACK_SWEEPS), f.touched, self.count,

@@ -39,7 +39,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .kernels.jit import JIT
+from .kernels.jit import JIT, U
 
 #: ``cb`` of a cell without particles (``grid_sort``).
 EMPTY = -2
@@ -361,32 +361,34 @@ def body_overlaps(X, off, act, selfc, grow, box, order, out):
 
 
 @njit(**JIT)
-def moved_spread2(X, Xref, B, act):
+def moved_spread2(X, Xref, off, act):
     """Squared radius of a ball that holds every colliding particle's displacement since
     ``Xref`` (NaN -> inf): the half diagonal of the displacements' bounding box.
 
     A pair's distance changes by at most the difference of its two displacements, at most
     twice this radius, whatever the common motion: bodies falling together, or a whole
     heap carried along, keep their list (the largest displacement itself, the test before,
-    rebuilt it at every step of a fall).  Min/max reductions over the three rows of X and
-    Xref (unit stride; vectorises apart from the body test).
+    rebuilt it at every step of a fall).  Body by body (``off``; a body with ``act`` off
+    is skipped whole), min/max reductions over the three rows of X and Xref: the loop
+    over a body's particles vectorises (unit stride, unsigned index).
     """
     lo0 = lo1 = lo2 = np.inf
     hi0 = hi1 = hi2 = -np.inf
     nan = 0.0                          # NaN once a displacement is NaN or infinite
-    for i in range(X.shape[1]):
-        if not act[B[i]]:
+    for b in range(off.shape[0] - 1):
+        if not act[b]:
             continue
-        dx = X[0, i] - Xref[0, i]
-        dy = X[1, i] - Xref[1, i]
-        dz = X[2, i] - Xref[2, i]
-        nan += 0.0 * (dx + dy + dz)
-        lo0 = min(lo0, dx)
-        hi0 = max(hi0, dx)
-        lo1 = min(lo1, dy)
-        hi1 = max(hi1, dy)
-        lo2 = min(lo2, dz)
-        hi2 = max(hi2, dz)
+        for i in range(U(off[b]), U(off[b + 1])):
+            dx = X[0, i] - Xref[0, i]
+            dy = X[1, i] - Xref[1, i]
+            dz = X[2, i] - Xref[2, i]
+            nan += 0.0 * (dx + dy + dz)
+            lo0 = min(lo0, dx)
+            hi0 = max(hi0, dx)
+            lo1 = min(lo1, dy)
+            hi1 = max(hi1, dy)
+            lo2 = min(lo2, dz)
+            hi2 = max(hi2, dz)
     if nan != nan:
         return np.inf
     if hi0 < lo0:                      # nothing colliding

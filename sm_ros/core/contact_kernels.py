@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from .kernels.colliders import collide_point
-from .kernels.jit import JIT
+from .kernels.jit import JIT, U
 
 
 @njit(**JIT)
@@ -827,36 +827,82 @@ def inverse_sym3(a, out):
     out[8] = (a[0] * a[4] - a[1] * a[3]) * idet
 
 
+@njit(inline='always', **JIT)
+def _moved_box(X, Xref, o, e, dlo, dhi):
+    """dlo, dhi (3,): widened to hold the displacements X - Xref of particles o..e; returns
+    0.0, or NaN when one is not finite (a vectorised min/max reduction)."""
+    lo0, lo1, lo2 = dlo[0], dlo[1], dlo[2]
+    hi0, hi1, hi2 = dhi[0], dhi[1], dhi[2]
+    nan = 0.0
+    for i in range(U(o), U(e)):
+        dx = X[0, i] - Xref[0, i]
+        dy = X[1, i] - Xref[1, i]
+        dz = X[2, i] - Xref[2, i]
+        nan += 0.0 * (dx + dy + dz)
+        lo0 = min(lo0, dx)
+        hi0 = max(hi0, dx)
+        lo1 = min(lo1, dy)
+        hi1 = max(hi1, dy)
+        lo2 = min(lo2, dz)
+        hi2 = max(hi2, dz)
+    dlo[0], dlo[1], dlo[2] = lo0, lo1, lo2
+    dhi[0], dhi[1], dhi[2] = hi0, hi1, hi2
+    return nan
+
+
 @njit(**JIT)
-def body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv):
+def body_velocities(X, V, M, off, cpl, bw, vb, zlo, bc, bom, biv, Xref, act, dbox):
     """For the bodies ``solve_bodies`` carries as a whole (``cpl[b]``, ``bw[b]`` > 0):
     vb[b] the velocity of the centre of mass (momentum / mass), zlo[:, b] the lowest
     particle's height and vertical velocity, bc[b] the centre of mass, biv[b] (9,) the
     inverse of the inertia tensor about it, bom[b] its spin (angular momentum about it
-    times that).  One pass
-    over the body's particles for the sums (about the first particle, for round-off)."""
+    times that) from the particles' masses ``M`` (a carried body has no pinned or grabbed
+    particle).  Returns what ``contact_build.moved_spread2`` returns for the colliding
+    bodies (``act``) and ``Xref``, and writes the displacements' bounding box to ``dbox``
+    (6,) (lo x y z, hi x y z; for ``wall_candidates``): the pass over X that the sums
+    make anyway takes the displacements too, so the contact pass reads its positions
+    once for both.  One pass over a carried body's particles for all of it (sums about
+    the first particle, for round-off), then a search for the first particle at the
+    lowest height."""
     a = np.zeros(9)
+    dlo = np.full(3, np.inf)
+    dhi = np.full(3, -np.inf)
+    nan = 0.0
     for b in range(off.shape[0] - 1):
         vb[b, 0] = vb[b, 1] = vb[b, 2] = 0.0
         bom[b, 0] = bom[b, 1] = bom[b, 2] = 0.0
-        if not cpl[b] or not bw[b] > 0.0:
-            continue
         o = off[b]
+        if not cpl[b] or not bw[b] > 0.0:
+            if act[b]:
+                nan += _moved_box(X, Xref, o, off[b + 1], dlo, dhi)
+            continue
         q0, q1, q2 = X[0, o], X[1, o], X[2, o]
         p0 = p1 = p2 = 0.0             # momentum
         s0 = s1 = s2 = 0.0             # first moment about q
         l0 = l1 = l2 = 0.0             # angular momentum about q
         xx = yy = zz = xy = yz = zx = 0.0   # second moments about q
-        lo = np.inf
-        klo = o
-        for k in range(o, off[b + 1]):
-            if X[2, k] < lo:
-                lo = X[2, k]
-                klo = k
-            m = 1.0 / W[k]
-            y0 = X[0, k] - q0
-            y1 = X[1, k] - q1
-            y2 = X[2, k] - q2
+        lo = np.inf                    # the lowest height
+        mlo0, mlo1, mlo2 = dlo[0], dlo[1], dlo[2]     # displacements since Xref
+        mhi0, mhi1, mhi2 = dhi[0], dhi[1], dhi[2]
+        moved = act[b]
+        for k in range(U(o), U(off[b + 1])):
+            x0, x1, x2 = X[0, k], X[1, k], X[2, k]
+            lo = min(lo, x2)
+            if moved:
+                dx = x0 - Xref[0, k]
+                dy = x1 - Xref[1, k]
+                dz = x2 - Xref[2, k]
+                nan += 0.0 * (dx + dy + dz)
+                mlo0 = min(mlo0, dx)
+                mhi0 = max(mhi0, dx)
+                mlo1 = min(mlo1, dy)
+                mhi1 = max(mhi1, dy)
+                mlo2 = min(mlo2, dz)
+                mhi2 = max(mhi2, dz)
+            m = M[k]
+            y0 = x0 - q0
+            y1 = x1 - q1
+            y2 = x2 - q2
             u0 = m * V[0, k]
             u1 = m * V[1, k]
             u2 = m * V[2, k]
@@ -875,6 +921,11 @@ def body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv):
             xy += m * y0 * y1
             yz += m * y1 * y2
             zx += m * y2 * y0
+        dlo[0], dlo[1], dlo[2] = mlo0, mlo1, mlo2
+        dhi[0], dhi[1], dhi[2] = mhi0, mhi1, mhi2
+        klo = o
+        while klo < off[b + 1] - 1 and not X[2, klo] == lo:
+            klo += 1
         iw = bw[b]
         vb[b, 0] = p0 * iw
         vb[b, 1] = p1 * iw
@@ -908,28 +959,50 @@ def body_velocities(X, V, W, off, cpl, bw, vb, zlo, bc, bom, biv):
         bom[b, 0] = biv[b, 0] * l0 + biv[b, 1] * l1 + biv[b, 2] * l2
         bom[b, 1] = biv[b, 3] * l0 + biv[b, 4] * l1 + biv[b, 5] * l2
         bom[b, 2] = biv[b, 6] * l0 + biv[b, 7] * l1 + biv[b, 8] * l2
+    for r in range(3):
+        dbox[r] = dlo[r]
+        dbox[3 + r] = dhi[r]
+    if nan != nan:
+        return np.inf
+    if not dlo[0] <= dhi[0]:           # nothing colliding
+        dbox[:] = 0.0
+        return 0.0
+    e0 = 0.5 * (dhi[0] - dlo[0])
+    e1 = 0.5 * (dhi[1] - dlo[1])
+    e2 = 0.5 * (dhi[2] - dlo[2])
+    r2 = e0 * e0 + e1 * e1 + e2 * e2
+    return r2 if r2 == r2 else np.inf
 
 
 @njit(**JIT)
-def wall_candidates(X, off, cpl, bw, boxes, spheres, margin, cand, cptr):
+def wall_candidates(X, off, cpl, bw, boxes, spheres, margin, cand, cptr, act, bbox, dbox):
     """The particles of the bodies ``solve_bodies`` carries as a whole (``cpl[b]``,
     ``bw[b]`` > 0) that are within ``margin`` of a box or a sphere, body by body:
     ``cand[cptr[b]:cptr[b + 1]]``; returns their number.  A body's bounding box is
-    tested first, so a body far from them costs one pass over its particles."""
+    tested first, so a body far from them costs nothing more: for a colliding body
+    (``act``) its box at the last pair-list build (``bbox[b]``, ``body_overlaps``: the
+    box grown by its radius and half the skin) widened by the bounding box of every
+    colliding particle's displacement since then (``dbox``, ``body_velocities``), which
+    holds each of its particles now without a pass over them; for another, a pass over
+    its particles."""
     m = 0
     for b in range(off.shape[0] - 1):
         cptr[b] = m
         if not cpl[b] or not bw[b] > 0.0:
             continue
-        lo0 = lo1 = lo2 = np.inf
-        hi0 = hi1 = hi2 = -np.inf
-        for p in range(off[b], off[b + 1]):
-            lo0 = min(lo0, X[0, p])
-            lo1 = min(lo1, X[1, p])
-            lo2 = min(lo2, X[2, p])
-            hi0 = max(hi0, X[0, p])
-            hi1 = max(hi1, X[1, p])
-            hi2 = max(hi2, X[2, p])
+        if act[b]:
+            lo0, lo1, lo2 = bbox[b, 0] + dbox[0], bbox[b, 1] + dbox[1], bbox[b, 2] + dbox[2]
+            hi0, hi1, hi2 = bbox[b, 3] + dbox[3], bbox[b, 4] + dbox[4], bbox[b, 5] + dbox[5]
+        else:
+            lo0 = lo1 = lo2 = np.inf
+            hi0 = hi1 = hi2 = -np.inf
+            for p in range(off[b], off[b + 1]):
+                lo0 = min(lo0, X[0, p])
+                lo1 = min(lo1, X[1, p])
+                lo2 = min(lo2, X[2, p])
+                hi0 = max(hi0, X[0, p])
+                hi1 = max(hi1, X[1, p])
+                hi2 = max(hi2, X[2, p])
         for k in range(boxes.shape[0]):
             if not (lo0 - margin < boxes[k, 3] and hi0 + margin > boxes[k, 0]
                     and lo1 - margin < boxes[k, 4] and hi1 + margin > boxes[k, 1]

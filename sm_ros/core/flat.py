@@ -5,6 +5,7 @@ the world at once, so they read one set of arrays instead of one per body:
 
 * ``X``, ``V`` (3, N) float64, C-contiguous: positions and velocities; body ``b`` holds
   columns ``off[b]:off[b + 1]``;
+* ``M`` (N,) the particles' masses (``Body.m``);
 * ``W`` (N,) inverse mass, 0 for pinned and grabbed (kinematic) particles and for the
   particles of sleeping bodies (infinite mass; ``sleep.py``); ``Wa`` the same without the
   sleeping bodies (what a body gets back when it wakes);
@@ -85,6 +86,7 @@ class FlatState:
         self.V = np.zeros((3, n))
         self.W = np.zeros(n)
         self.Wa = np.zeros(n)
+        self.M = np.zeros(n)                 # masses (``Body.m``), for the contact pass's sums
         self.B = np.repeat(np.arange(nb, dtype=np.int32), counts)
         self.R = np.zeros(n)
         self.X0 = np.zeros((3, n))
@@ -142,6 +144,7 @@ class FlatState:
                 continue
             o0, o1 = self.off[k], self.off[k + 1]
             self.Wa[o0:o1] = 1.0 / b.m
+            self.M[o0:o1] = b.m
             if len(kin):
                 self.Wa[o0 + kin] = 0.0
             if not b._flags[3] > 0.0:        # a sleeping body keeps W = 0 (sleep.py)
