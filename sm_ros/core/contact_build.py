@@ -39,7 +39,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .kernels.jit import JIT, U
+from .kernels.jit import JIT
+from .kernels.spread import moved_box, spread_of
 
 #: ``cb`` of a cell without particles (``grid_sort``).
 EMPTY = -2
@@ -369,35 +370,15 @@ def moved_spread2(X, Xref, off, act):
     twice this radius, whatever the common motion: bodies falling together, or a whole
     heap carried along, keep their list (the largest displacement itself, the test before,
     rebuilt it at every step of a fall).  Body by body (``off``; a body with ``act`` off
-    is skipped whole), min/max reductions over the three rows of X and Xref: the loop
-    over a body's particles vectorises (unit stride, unsigned index).
+    is skipped whole, ``moved_box``).
     """
-    lo0 = lo1 = lo2 = np.inf
-    hi0 = hi1 = hi2 = -np.inf
-    nan = 0.0                          # NaN once a displacement is NaN or infinite
+    dlo = np.full(3, np.inf)
+    dhi = np.full(3, -np.inf)
+    nan = 0.0
     for b in range(off.shape[0] - 1):
-        if not act[b]:
-            continue
-        for i in range(U(off[b]), U(off[b + 1])):
-            dx = X[0, i] - Xref[0, i]
-            dy = X[1, i] - Xref[1, i]
-            dz = X[2, i] - Xref[2, i]
-            nan += 0.0 * (dx + dy + dz)
-            lo0 = min(lo0, dx)
-            hi0 = max(hi0, dx)
-            lo1 = min(lo1, dy)
-            hi1 = max(hi1, dy)
-            lo2 = min(lo2, dz)
-            hi2 = max(hi2, dz)
-    if nan != nan:
-        return np.inf
-    if hi0 < lo0:                      # nothing colliding
-        return 0.0
-    e0 = 0.5 * (hi0 - lo0)
-    e1 = 0.5 * (hi1 - lo1)
-    e2 = 0.5 * (hi2 - lo2)
-    r2 = e0 * e0 + e1 * e1 + e2 * e2
-    return r2 if r2 == r2 else np.inf
+        if act[b]:
+            nan += moved_box(X, Xref, off[b], off[b + 1], dlo, dhi)
+    return spread_of(dlo, dhi, nan)
 
 
 @njit(**JIT)

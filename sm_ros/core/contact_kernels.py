@@ -20,6 +20,7 @@ from numba import njit
 
 from .kernels.colliders import collide_point
 from .kernels.jit import JIT, U
+from .kernels.spread import moved_box, spread_of
 
 
 @njit(**JIT)
@@ -827,29 +828,6 @@ def inverse_sym3(a, out):
     out[8] = (a[0] * a[4] - a[1] * a[3]) * idet
 
 
-@njit(inline='always', **JIT)
-def _moved_box(X, Xref, o, e, dlo, dhi):
-    """dlo, dhi (3,): widened to hold the displacements X - Xref of particles o..e; returns
-    0.0, or NaN when one is not finite (a vectorised min/max reduction)."""
-    lo0, lo1, lo2 = dlo[0], dlo[1], dlo[2]
-    hi0, hi1, hi2 = dhi[0], dhi[1], dhi[2]
-    nan = 0.0
-    for i in range(U(o), U(e)):
-        dx = X[0, i] - Xref[0, i]
-        dy = X[1, i] - Xref[1, i]
-        dz = X[2, i] - Xref[2, i]
-        nan += 0.0 * (dx + dy + dz)
-        lo0 = min(lo0, dx)
-        hi0 = max(hi0, dx)
-        lo1 = min(lo1, dy)
-        hi1 = max(hi1, dy)
-        lo2 = min(lo2, dz)
-        hi2 = max(hi2, dz)
-    dlo[0], dlo[1], dlo[2] = lo0, lo1, lo2
-    dhi[0], dhi[1], dhi[2] = hi0, hi1, hi2
-    return nan
-
-
 @njit(**JIT)
 def body_velocities(X, V, M, off, cpl, bw, vb, zlo, bc, bom, biv, Xref, act, dbox):
     """For the bodies ``solve_bodies`` carries as a whole (``cpl[b]``, ``bw[b]`` > 0):
@@ -874,7 +852,7 @@ def body_velocities(X, V, M, off, cpl, bw, vb, zlo, bc, bom, biv, Xref, act, dbo
         o = off[b]
         if not cpl[b] or not bw[b] > 0.0:
             if act[b]:
-                nan += _moved_box(X, Xref, o, off[b + 1], dlo, dhi)
+                nan += moved_box(X, Xref, o, off[b + 1], dlo, dhi)
             continue
         q0, q1, q2 = X[0, o], X[1, o], X[2, o]
         p0 = p1 = p2 = 0.0             # momentum
@@ -882,7 +860,8 @@ def body_velocities(X, V, M, off, cpl, bw, vb, zlo, bc, bom, biv, Xref, act, dbo
         l0 = l1 = l2 = 0.0             # angular momentum about q
         xx = yy = zz = xy = yz = zx = 0.0   # second moments about q
         lo = np.inf                    # the lowest height
-        mlo0, mlo1, mlo2 = dlo[0], dlo[1], dlo[2]     # displacements since Xref
+        # displacements since Xref, as kernels.spread.moved_box, in the loop of the sums
+        mlo0, mlo1, mlo2 = dlo[0], dlo[1], dlo[2]
         mhi0, mhi1, mhi2 = dhi[0], dhi[1], dhi[2]
         moved = act[b]
         for k in range(U(o), U(off[b + 1])):
@@ -960,18 +939,9 @@ def body_velocities(X, V, M, off, cpl, bw, vb, zlo, bc, bom, biv, Xref, act, dbo
         bom[b, 1] = biv[b, 3] * l0 + biv[b, 4] * l1 + biv[b, 5] * l2
         bom[b, 2] = biv[b, 6] * l0 + biv[b, 7] * l1 + biv[b, 8] * l2
     for r in range(3):
-        dbox[r] = dlo[r]
-        dbox[3 + r] = dhi[r]
-    if nan != nan:
-        return np.inf
-    if not dlo[0] <= dhi[0]:           # nothing colliding
-        dbox[:] = 0.0
-        return 0.0
-    e0 = 0.5 * (dhi[0] - dlo[0])
-    e1 = 0.5 * (dhi[1] - dlo[1])
-    e2 = 0.5 * (dhi[2] - dlo[2])
-    r2 = e0 * e0 + e1 * e1 + e2 * e2
-    return r2 if r2 == r2 else np.inf
+        dbox[r] = dlo[r] if dlo[0] <= dhi[0] else 0.0    # empty: nothing colliding
+        dbox[3 + r] = dhi[r] if dlo[0] <= dhi[0] else 0.0
+    return spread_of(dlo, dhi, nan)
 
 
 @njit(**JIT)

@@ -45,6 +45,7 @@ from .rotation import extract_rotation, quat_to_mat
 from .sets import (sets_accumulate_parallel, sets_accumulate_serial,
                    sets_integrate_parallel, sets_integrate_serial, sets_kinematic, sets_maps,
                    sets_reduce)
+from .spread import moved_box, spread_of
 from .world_step import step_single_bodies
 
 __all__ = ['_collide_range', 'contact_velocity', 'collide_point', 'NDAMP', 'damp_acc_range',
@@ -58,6 +59,7 @@ __all__ = ['_collide_range', 'contact_velocity', 'collide_point', 'NDAMP', 'damp
            'FASTMATH', 'JIT', 'limit_speed', 'limit_turn', 'det3', 'jacobi3', 'jacobi3_warm',
            'jacobi_eigh', 'matmul',
            'norm2', 'pinv_sym', '_add_null_projector', '_cap_plastic', 'plastic_update',
-           'extract_rotation', 'quat_to_mat', 'step_single_bodies', 'sets_accumulate_parallel',
+           'extract_rotation', 'quat_to_mat', 'moved_box', 'spread_of', 'step_single_bodies',
+           'sets_accumulate_parallel',
            'sets_accumulate_serial', 'sets_integrate_parallel', 'sets_integrate_serial',
            'sets_kinematic', 'sets_maps', 'sets_reduce']
