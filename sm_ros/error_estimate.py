@@ -117,11 +117,6 @@ def at_rest(dt: float, substeps: int = 1, order: float = ORDER, horizon: float =
     return res
 
 
-def all_asleep(world) -> bool:
-    """Whether ``world`` has bodies and every one sleeps (``World.all_asleep``)."""
-    return bool(getattr(world, 'all_asleep', False))
-
-
 def copy_world(world):
     """Return a deep copy of ``world`` whose arrays have the types of the world's.
 

@@ -11,7 +11,7 @@ from typing import Any, Callable, Dict, Iterable, List, Mapping, Optional, Tuple
 
 import numpy as np
 
-from sm_ros.error_estimate import ErrorEstimate, all_asleep, at_rest
+from sm_ros.error_estimate import ErrorEstimate, at_rest
 
 
 class TickStats:
@@ -282,8 +282,8 @@ class ErrorEstimateSchedule:
         take longer (``expected_s``, with ``step_s`` the tick's time a step) waits:
         nothing is done or earned, and the estimate goes on at the next tick with room (a
         new one that waited ``ESTIMATE_FORCE_S`` for room for its copy starts anyway).
-        While every body of ``world`` sleeps the estimate is ``error_estimate.at_rest``
-        (nothing copied).
+        While every body of ``world`` sleeps (``World.all_asleep``) the estimate is
+        ``error_estimate.at_rest`` (nothing copied).
 
         Returns the seconds spent this tick: they count in ``tick_ms_max`` /
         ``tick_ms_mean`` but not as an overrun.
@@ -295,7 +295,7 @@ class ErrorEstimateSchedule:
             return 0.0
         spent = 0.0
         now = clock()
-        if all_asleep(world) and (self.running is not None or now >= self._next):
+        if world.all_asleep and (self.running is not None or now >= self._next):
             # every body sleeps: copies of the world would stand still (error 0), so
             # nothing is copied or stepped; one in progress (copies of a world that still
             # moved, each step of them as dear as an awake world's) gives way to this

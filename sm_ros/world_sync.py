@@ -310,6 +310,7 @@ class _Walk:
         if g is None:
             g = self.places[id(c)] = (c, {})
         g[1][k] = None
+
     def value(self, d, s):
         """Write ``s`` into ``d``; return what ``d``'s owner must hold afterwards."""
         seen = self.memo.get(id(s))

@@ -41,6 +41,10 @@ VARIANTS = {'plain': (0.0, 1), 'damped': (0.05, 1), 'substeps2': (0.05, 2),
             'damped_pass': (0.05, 1), 'sorted': (0.0, 1), 'damped_sorted': (0.05, 1)}
 #: the variants whose body is built with ``order='set'``
 SORTED_VARIANTS = ('sorted', 'damped_sorted')
+#: the columns of the variants table: each variant's ms, then these ratios (num / den)
+VARIANT_COLUMNS = ('plain', 'damped', 'substeps2', 'damped_pass', 'sorted', 'damped_sorted')
+VARIANT_RATIOS = (('damped', 'plain'), ('substeps2', 'damped'), ('damped_pass', 'plain'),
+                  ('sorted', 'plain'), ('damped_sorted', 'damped'))
 DEFAULT_VARIANTS = ('plain', 'damped', 'substeps2')
 #: particles of one body of the ``many`` rows (4 x 6 x 6 lattice)
 MANY_BODY = (4, 6, 6)
@@ -397,11 +401,9 @@ def run(args, out: Path) -> Dict[str, Any]:
         return None
 
     # the variants side by side: what damping and substeps cost (same run, round-robin)
-    vt = bc.Table('scaling_variants', ['N', 'mode', 'clusters', 'plain_ms', 'damped_ms',
-                                       'substeps2_ms', 'damped_pass_ms', 'sorted_ms',
-                                       'damped_sorted_ms', 'damped_over_plain',
-                                       'substeps2_over_damped', 'damped_pass_over_plain',
-                                       'sorted_over_plain', 'damped_sorted_over_damped'],
+    vt = bc.Table('scaling_variants', ['N', 'mode', 'clusters']
+                  + [f'{v}_ms' for v in VARIANT_COLUMNS]
+                  + [f'{num}_over_{den}' for num, den in VARIANT_RATIOS],
                   'ms per tick of the variants (medians of one interleaved run) and their '
                   'ratios')
     findings['variants'] = []
@@ -411,22 +413,10 @@ def run(args, out: Path) -> Dict[str, Any]:
                 got = {v: pick(n_side ** 3, mode, k, v) for v in VARIANTS}
                 ms = {v: (r['ms_median'] if r else None) for v, r in got.items()}
                 row = dict(N=n_side ** 3, mode=mode, clusters=CLUSTER_NAMES.get(k, k ** 3),
-                           plain_ms=ms['plain'], damped_ms=ms['damped'],
-                           substeps2_ms=ms['substeps2'], damped_pass_ms=ms['damped_pass'],
-                           damped_over_plain=(ms['damped'] / ms['plain']
-                                              if ms['damped'] and ms['plain'] else None),
-                           substeps2_over_damped=(ms['substeps2'] / ms['damped']
-                                                  if ms['substeps2'] and ms['damped']
-                                                  else None),
-                           damped_pass_over_plain=(ms['damped_pass'] / ms['plain']
-                                                   if ms['damped_pass'] and ms['plain']
-                                                   else None),
-                           sorted_ms=ms['sorted'], damped_sorted_ms=ms['damped_sorted'],
-                           sorted_over_plain=(ms['sorted'] / ms['plain']
-                                              if ms['sorted'] and ms['plain'] else None),
-                           damped_sorted_over_damped=(ms['damped_sorted'] / ms['damped']
-                                                      if ms['damped_sorted'] and ms['damped']
-                                                      else None))
+                           **{f'{v}_ms': ms[v] for v in VARIANT_COLUMNS})
+                for num, den in VARIANT_RATIOS:        # None where one was not run
+                    row[f'{num}_over_{den}'] = (ms[num] / ms[den] if ms[num] and ms[den]
+                                                else None)
                 vt.add(**row)
                 findings['variants'].append(row)
     vt.write(out)
