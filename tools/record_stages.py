@@ -42,7 +42,7 @@ def measure(steps, rounds):
              m39, n4, v4, nmat, cdet, acc, ang, com, err, dpart, dmp, dref, dacc, lin, w3,
              sptr, scl, scnt, quat_prev, flagged, lim_lin, lim_w, force, state, flags,
              counts, y0t, sid, gm, sref, s_part, s_ptr, s_cl, s_cnt, s_phi, s_org, wk, pm,
-             s_tp, s_ck, udv) = record
+             s_tp, s_ck, s_runs, udv) = record
             if which == 0:
                 solve_clusters_warm(part=part, wsum=wsum, sum_q=sum_q, ref=ref, quat=quat,
                                     aqq3=aqq3, aqq9=aqq9, rest_lin=rest_lin,

@@ -48,6 +48,11 @@ def soa(a):
     return np.ascontiguousarray(np.asarray(a, dtype=np.float64).T).T
 
 
+def uniform_mass(m) -> float:
+    """The one mass of every particle of ``m`` where all are equal and positive, else 0."""
+    return float(m[0]) if len(m) and m[0] > 0.0 and np.all(m == m[0]) else 0.0
+
+
 def _as_points(points, name='points'):
     a = np.array(points, dtype=np.float64, order='C', copy=True)
     if a.ndim != 2 or a.shape[1] != 3 or a.shape[0] == 0:
@@ -123,6 +128,9 @@ class Body:
         self.m = m
         self.m.flags.writeable = False
         self.total_mass = float(m.sum())
+        #: the particles' one mass where all are equal, else 0 (the damping sums of such a
+        #: body are taken unweighted: ``kernels.damping.damp_sums_range``)
+        self._wuni = uniform_mass(m)
         self.x_init = x.copy()
         self.x_init.flags.writeable = False
         self._v_init = v.copy()
@@ -256,6 +264,7 @@ class Body:
         # read-only array differently, so the copy's first step would compile a second
         # specialisation of every kernel that reads the masses (step_packed: ~25 s cold)
         self.__dict__.update(state)
+        self.__dict__.setdefault('_wuni', uniform_mass(self.m))
         self.m.flags.writeable = False
         self.x_init.flags.writeable = False
         if self.__dict__.get('order') is not None:

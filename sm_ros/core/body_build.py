@@ -88,7 +88,9 @@ class _SetLayout:
     rest offsets from it, ``phi`` (S, 10) sum m phi(y), ``ref`` (S, 3) the reference point
     of the per-set sums, ``gm`` (S, 3, 10) the goal maps; ``tp`` (pairs, 3) the offset
     org[s] - cm0[k] of each set-cluster pair (``cl`` order) from the cluster's rest centre
-    ``cm0``; scratch ``wk``, ``pm``, ``ck`` (clusters, 3, 10).
+    ``cm0``; scratch ``wk``, ``pm``, ``ck`` (clusters, 3, 10); ``runs`` (R + 1,) the first
+    particle of each run of consecutive particles of one set, then N (``sets._sets_fused_lin``
+    steps run by run without looking for the ends).
     """
 
     def __init__(self, x0, m, ptr, cl, c0, cm0, quad, groups=None):
@@ -96,6 +98,8 @@ class _SetLayout:
         sid, uniq = group_sets(ptr, cl) if groups is None else groups
         ns = len(uniq)
         self.sid = np.ascontiguousarray(sid, dtype=np.int32)
+        self.runs = np.concatenate(([0], np.flatnonzero(np.diff(self.sid)) + 1, [n])).astype(
+            np.int64)
         valid = uniq >= 0
         self.cnt = valid.sum(axis=1).astype(np.float64)
         self.ptr = np.zeros(ns + 1, dtype=np.int64)
@@ -375,7 +379,7 @@ def fast_record(body, h):
                              body._params.max_turn, 1.0 / body.total_mass, body._mode,
                              1.0 if body._damp_fused else 0.0, 1.0 if body._quad else 0.0,
                              1.0 if body._sets is not None else 0.0,
-                             body._params.max_turn / h])
+                             body._params.max_turn / h, body._wuni])
     sptr, scl, scnt = body._dsets if body._dsets else (
         np.zeros(2, dtype=np.int64), np.zeros(1, dtype=np.int32), np.ones(1))
     lin = body._lin if body._lin is not None else np.zeros((body.num_clusters, 13))
@@ -409,9 +413,9 @@ def fast_sets(body):
     st = body._sets
     if st is not None:
         return (st.y0.T, st.sid, st.gm, st.ref, st.part, st.ptr, st.cl, st.cnt, st.phi,
-                st.org, st.wk, st.pm, st.tp, st.ck)
+                st.org, st.wk, st.pm, st.tp, st.ck, st.runs)
     na = 30 if body._quad else 12
     return (np.zeros((3, 0)), _EMPTY_I32, np.zeros((0, 3, 10)), np.zeros((0, 3)),
             np.zeros((1, 0, na)), np.zeros(1, dtype=np.int64), _EMPTY_I32, np.zeros(0),
             np.zeros((0, 10)), np.zeros((0, 3)), np.zeros((2, 3, 10)), np.zeros((9, 10)),
-            np.zeros((0, 3)), np.zeros((0, 3, 10)))
+            np.zeros((0, 3)), np.zeros((0, 3, 10)), np.zeros(1, dtype=np.int64))

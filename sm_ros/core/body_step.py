@@ -123,13 +123,18 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     kin = len(body._kin_idx) > 0
     if kin:
         K.gather_rows(x, body._kin_idx, body._kin_prev)
+    capped = 0
     if sets is not None:
+        # the speeds capped block by block before the sums are taken: the sums stay valid
         integ = K.sets_integrate_parallel if body._parallel else K.sets_integrate_serial
-        integ(quad=body._quad, x=x, v=v, y0=sets.y0, mass=body.m, sid=sets.sid, gm=sets.gm,
-              sref=sets.ref, alpha=p.alpha, h=h, acc=body._acc, ang=body._ang, com=body._com,
-              part=sets.part, err=body._err, has_col=has_col, ground=ground, boxes=boxes,
-              spheres=spheres, thresh=thresh, damp=fused, k_damp=p.damping, dmp=body._dmp,
-              dpart=body._dpart)
+        capped = integ(quad=body._quad, x=x, v=v, y0=sets.y0, mass=body.m, wuni=body._wuni,
+                       sid=sets.sid, runs=sets.runs, gm=sets.gm, sref=sets.ref, alpha=p.alpha,
+                       h=h,
+                       acc=body._acc, ang=body._ang, com=body._com, part=sets.part,
+                       err=body._err, has_col=has_col, ground=ground, boxes=boxes,
+                       spheres=spheres, thresh=thresh, damp=fused, k_damp=p.damping,
+                       dmp=body._dmp, dpart=body._dpart, v_max=body._params.max_speed)
+        body._limit_counts[0] += capped
     else:
         integ = K.integrate_parallel if body._parallel else K.integrate_serial
         integ(quad=body._quad, x=x, v=v, x0=body._x0, mass=body.m, ptr=body._ptr, cl=body._cl,
@@ -138,10 +143,9 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
               h=h, acc=body._acc, ang=body._ang, com=body._com, part=body._part, err=body._err,
               has_col=has_col, ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
               damp=fused, k_damp=p.damping, dmp=body._dmp, dpart=body._dpart)
-    capped = 0
-    if body._params.max_speed > 0.0:
-        capped = K.limit_speed(x=x, v=v, h=h, v_max=body._params.max_speed)
-        body._limit_counts[0] += capped
+        if body._params.max_speed > 0.0:
+            capped = K.limit_speed(x=x, v=v, h=h, v_max=body._params.max_speed)
+            body._limit_counts[0] += capped
     if kin and fused:                      # their damping sums follow them
         K.damp_kinematic(x=x, v=v, mass=body.m, sid=dsid, dpart=body._dpart,
                          idx=body._kin_idx, sign=-1.0)
@@ -159,7 +163,9 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
                          idx=body._kin_idx, sign=1.0)
     body._shape_err = None                 # computed from body._err when asked
     body._flags[2] = 1.0 if fused else 0.0
-    body._dirty = capped > 0               # capped positions: the sums are stale
+    # capped positions: the membership layout's sums are stale (the set layout caps
+    # before it sums)
+    body._dirty = capped > 0 and sets is None
     if nchanged:
         body._refresh_rest(body._changed)
         # the per-set sums do not depend on the rest shape; the per-cluster ones do

@@ -37,9 +37,9 @@ from numba.typed import List as TypedList
 
 from .kernels import (BLOCK, JIT, NDAMP, STRETCH_LIMIT, _collide_range, det3, extract_rotation,
                       limit_turn, unit_det_match_warm)
-from .kernels.damping import damp_acc_range
+from .kernels.damping import damp_acc_range, damp_sums_range
 from .kernels.integrate import _acc_single, _int_single_fused, _int_single_lin
-from .kernels.jit import U, finite
+from .kernels.jit import finite
 from .kernels.limits import limit_speed_range
 from .kernels.linalg import sym3_solve
 
@@ -112,11 +112,9 @@ class Pack:
             body._at_step = (h, body._params, p)
             row = self.P[b]
             rebuild = False
-            m = body.m
-            wuni = float(m[0]) if len(m) and m[0] > 0.0 and np.all(m == m[0]) else 0.0
             row[:NPARAM] = (p.alpha, p.beta, p.damping, body._params.max_speed,
                             body._params.max_turn, body._params.max_turn / h, body._mode,
-                            wuni)
+                            body._wuni)
             for name, (off, size, shape) in COLS.items():
                 src = np.asarray(getattr(body, name))
                 if name in _CHUNKED and src.shape[1:] == shape[1:] and len(src) > 1:
@@ -497,75 +495,9 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
         if damp:
             # the damping sums of the block about pnt (``damp_acc_range``'s rows 3-14) but
             # its W and sum w d: the shape sums of the same state about the same point
-            # hold them (the caller copies them), so 12 accumulators, not 16.  Both loops
-            # vectorise across particles like ``damp_acc_range`` (unit-stride columns of
-            # x, v, unsigned index: one lane a particle, 12 vector accumulators).  The loop
-            # is bound by the FMA ports (12 products a particle), so a body of one mass
-            # (``wuni``) sums unweighted and scales once a block: 12 products, not 18
-            b0 = b1 = b2 = c0 = c1 = c2 = 0.0
-            e00 = e11 = e22 = e01 = e12 = e20 = 0.0
-            if wuni > 0.0:
-                for k in range(U(bs), U(be)):
-                    d0 = x[k, 0] - k0
-                    d1 = x[k, 1] - k1
-                    d2 = x[k, 2] - k2
-                    v0, v1, v2 = v[k, 0], v[k, 1], v[k, 2]
-                    b0 += v0
-                    b1 += v1
-                    b2 += v2
-                    c0 += d1 * v2 - d2 * v1
-                    c1 += d2 * v0 - d0 * v2
-                    c2 += d0 * v1 - d1 * v0
-                    e00 += d0 * d0
-                    e11 += d1 * d1
-                    e22 += d2 * d2
-                    e01 += d0 * d1
-                    e12 += d1 * d2
-                    e20 += d2 * d0
-                b0 *= wuni
-                b1 *= wuni
-                b2 *= wuni
-                c0 *= wuni
-                c1 *= wuni
-                c2 *= wuni
-                e00 *= wuni
-                e11 *= wuni
-                e22 *= wuni
-                e01 *= wuni
-                e12 *= wuni
-                e20 *= wuni
-            else:
-                for k in range(U(bs), U(be)):
-                    w = mass[k]
-                    d0 = x[k, 0] - k0
-                    d1 = x[k, 1] - k1
-                    d2 = x[k, 2] - k2
-                    v0, v1, v2 = v[k, 0], v[k, 1], v[k, 2]
-                    wd0 = w * d0
-                    wd1 = w * d1
-                    wd2 = w * d2
-                    b0 += w * v0
-                    b1 += w * v1
-                    b2 += w * v2
-                    c0 += wd1 * v2 - wd2 * v1
-                    c1 += wd2 * v0 - wd0 * v2
-                    c2 += wd0 * v1 - wd1 * v0
-                    e00 += wd0 * d0
-                    e11 += wd1 * d1
-                    e22 += wd2 * d2
-                    e01 += wd0 * d1
-                    e12 += wd1 * d2
-                    e20 += wd2 * d0
-            dsums[0, 3] += b0
-            dsums[0, 4] += b1
-            dsums[0, 5] += b2
-            dsums[0, 6] += c0
-            dsums[0, 7] += c1
-            dsums[0, 8] += c2
-            dsums[0, 9] += e00
-            dsums[0, 10] += e11
-            dsums[0, 11] += e22
-            dsums[0, 12] += e01
-            dsums[0, 13] += e12
-            dsums[0, 14] += e20
+            # hold them (the caller copies them), so 12 accumulators, not 16
+            # (``damp_sums_range``)
+            t = damp_sums_range(bs, be, x, v, mass, wuni, k0, k1, k2)
+            for j in range(12):
+                dsums[0, 3 + j] += t[j]
     return err2, capped

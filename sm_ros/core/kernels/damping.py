@@ -225,6 +225,66 @@ def damp_towards(v, i, r0, r1, r2, c0, c1, c2, o0, o1, o2, k_damp):
     v[i, 2] += k_damp * (c2 + o0 * r1 - o1 * r0 - v[i, 2])
 
 
+@njit(inline='always', **JIT)
+def damp_sums_range(lo, hi, x, v, mass, wuni, k0, k1, k2):
+    """The damping sums of particles lo..hi about the point k (rows 3-14 of ``NDAMP``:
+    sum w v, sum w d x v, the six second moments of d = x - k), then their mass sum (row
+    19); rows 0-2 (sum w d) are left to the caller, whose shape-match sums about the same
+    point hold them.  12 accumulators: both loops vectorise across particles like
+    ``damp_acc_range`` (unit-stride columns of x, v, unsigned index: one lane a particle,
+    12 vector accumulators).  The loop is bound by the FMA ports (12 products a particle),
+    so with ``wuni`` > 0 (every particle of that mass) it sums unweighted and scales once:
+    12 products, not 18.  Inlined by Numba into ``packed._pass`` (a block of a one-cluster
+    body) and ``sets._sets_fused_lin`` (a run of one set)."""
+    b0 = b1 = b2 = c0 = c1 = c2 = 0.0
+    e00 = e11 = e22 = e01 = e12 = e20 = 0.0
+    ms = 0.0
+    if wuni > 0.0:
+        for k in range(U(lo), U(hi)):
+            d0 = x[k, 0] - k0
+            d1 = x[k, 1] - k1
+            d2 = x[k, 2] - k2
+            v0, v1, v2 = v[k, 0], v[k, 1], v[k, 2]
+            b0 += v0
+            b1 += v1
+            b2 += v2
+            c0 += d1 * v2 - d2 * v1
+            c1 += d2 * v0 - d0 * v2
+            c2 += d0 * v1 - d1 * v0
+            e00 += d0 * d0
+            e11 += d1 * d1
+            e22 += d2 * d2
+            e01 += d0 * d1
+            e12 += d1 * d2
+            e20 += d2 * d0
+        return (wuni * b0, wuni * b1, wuni * b2, wuni * c0, wuni * c1, wuni * c2,
+                wuni * e00, wuni * e11, wuni * e22, wuni * e01, wuni * e12, wuni * e20,
+                wuni * (hi - lo))
+    for k in range(U(lo), U(hi)):
+        w = mass[k]
+        d0 = x[k, 0] - k0
+        d1 = x[k, 1] - k1
+        d2 = x[k, 2] - k2
+        v0, v1, v2 = v[k, 0], v[k, 1], v[k, 2]
+        wd0 = w * d0
+        wd1 = w * d1
+        wd2 = w * d2
+        ms += w
+        b0 += w * v0
+        b1 += w * v1
+        b2 += w * v2
+        c0 += wd1 * v2 - wd2 * v1
+        c1 += wd2 * v0 - wd0 * v2
+        c2 += wd0 * v1 - wd1 * v0
+        e00 += wd0 * d0
+        e11 += wd1 * d1
+        e22 += wd2 * d2
+        e01 += wd0 * d1
+        e12 += wd1 * d2
+        e20 += wd2 * d0
+    return b0, b1, b2, c0, c1, c2, e00, e11, e22, e01, e12, e20, ms
+
+
 @njit(**JIT)
 def damp_acc_range(start, end, x, v, mass, sid, dsums):
     """Rows ``dsums[s]`` += the particles start..end (``sid`` empty: all in set 0).

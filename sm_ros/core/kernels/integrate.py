@@ -113,10 +113,20 @@ def _acc_single(start, end, quad, x, x0, mass, rest_lin, rest_off, ref, sums):
         return
     # sum w d q^T = (sum w d x0^T) G^T + (sum w d) h^T: accumulate in rest coordinates
     # (9 multiply-adds per particle less) and map once per block
+    t = _rest_sums(start, end, x, x0, mass, r0, r1, r2)
+    _add_rest_sums(rest_lin, rest_off, sums[0], t[0], t[1], t[2], t[3], t[4], t[5], t[6], t[7],
+                   t[8], t[9], t[10], t[11])
+
+
+@njit(inline='always', **JIT)
+def _rest_sums(start, end, x, x0, mass, r0, r1, r2):
+    """The 12 one-cluster sums of particles start..end in rest coordinates, about the point
+    r: (sum w d, sum w d x0^T row by row), d = x - r.  12 accumulators in registers;
+    vectorises across particles (unit-stride columns of x, x0, unsigned index: one lane a
+    particle, 12 vector accumulators).  Inlined by Numba into its callers (``_acc_single``;
+    ``sets._sets_fused_lin`` with x0 the set offsets y)."""
     s0 = s1 = s2 = 0.0
     c00 = c01 = c02 = c10 = c11 = c12 = c20 = c21 = c22 = 0.0
-    # 12 accumulators in registers; vectorises across particles (unit-stride columns of
-    # x, x0, unsigned index: one lane a particle, 12 vector accumulators)
     for i in range(U(start), U(end)):
         a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
         w = mass[i]
@@ -135,8 +145,7 @@ def _acc_single(start, end, quad, x, x0, mass, rest_lin, rest_off, ref, sums):
         c20 += d2 * a0
         c21 += d2 * a1
         c22 += d2 * a2
-    _add_rest_sums(rest_lin, rest_off, sums[0], s0, s1, s2, c00, c01, c02, c10, c11, c12,
-                   c20, c21, c22)
+    return s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22
 
 
 @njit(inline='always', **JIT)
@@ -266,35 +275,58 @@ def _int_single_fused(start, end, x, v, x0, mass, goal_lin, goal_off, alpha, h, 
     """The one-cluster pass over particles start..end in one loop (no torque, no pass
     colliders): the damping towards ``dmp[0]`` about ``ref[0]`` (with ``damp``), Eq. 13-14,
     the count of speeds above ``v_max`` (0: no cap), and the shape match's 12 sums of the
-    new state about the point ``pnt[0]`` (``_acc_single``) into ``sums[0]``.
+    new state about the point ``pnt[0]`` (``_acc_single``) into ``sums[0]``
+    (``_fused_range``, the loop).
 
     Returns (sum of |g - p|^2 as ``advance``, speeds over the cap).  The sums are added
     only when no speed is over the cap: otherwise the caller caps the range and takes its
-    sums again (``_acc_single``), so a capped particle is summed as capped.  One loop reads
-    x, v, x0 and m once and writes x and v once (the block-wise passes read x twice more).
-    Vectorises across particles like ``_int_single_lin`` (unit-stride columns, unsigned
-    index, every constant in a local): one lane a particle, the 12 sums, the error and the
-    count as vector accumulators reduced once per call.  The damping's 20 sums stay a loop
-    of their own (``damping.damp_acc_range``, over the same block while it is in cache):
-    in this loop they spilled registers (97k particles: 4.1 ns/particle against 3.4).
+    sums again (``_acc_single``), so a capped particle is summed as capped.  The damping's
+    sums stay a loop of their own (``damping.damp_sums_range``, over the same block while
+    it is in cache): in this loop they spilled registers (97k particles: 4.1 ns/particle
+    against 3.4).
     """
-    l00, l01, l02 = goal_lin[0, 0, 0], goal_lin[0, 0, 1], goal_lin[0, 0, 2]
-    l10, l11, l12 = goal_lin[0, 1, 0], goal_lin[0, 1, 1], goal_lin[0, 1, 2]
-    l20, l21, l22 = goal_lin[0, 2, 0], goal_lin[0, 2, 1], goal_lin[0, 2, 2]
-    b0, b1, b2 = goal_off[0, 0], goal_off[0, 1], goal_off[0, 2]
-    alpha_h = alpha / h
-    hx, hy, hz = h * acc[0], h * acc[1], h * acc[2]
-    r0, r1, r2 = ref[0, 0], ref[0, 1], ref[0, 2]
-    k0, k1, k2 = pnt[0, 0], pnt[0, 1], pnt[0, 2]
-    # damping v += k (f + o x (p - r) - v) = (1 - k) v + (k f - k o x r) + k o x p: the
-    # constants folded so that it costs 3 multiply-adds a component in the loop
-    kd = k_damp if damp else 0.0
-    km = 1.0 - kd
-    o0, o1, o2 = kd * dmp[0, 3], kd * dmp[0, 4], kd * dmp[0, 5]
-    f0 = kd * dmp[0, 0] - (o1 * r2 - o2 * r1)
-    f1 = kd * dmp[0, 1] - (o2 * r0 - o0 * r2)
-    f2 = kd * dmp[0, 2] - (o0 * r1 - o1 * r0)
+    gmap = (goal_lin[0, 0, 0], goal_lin[0, 0, 1], goal_lin[0, 0, 2], goal_lin[0, 1, 0],
+            goal_lin[0, 1, 1], goal_lin[0, 1, 2], goal_lin[0, 2, 0], goal_lin[0, 2, 1],
+            goal_lin[0, 2, 2], goal_off[0, 0], goal_off[0, 1], goal_off[0, 2])
+    field = damp_constants(damp, k_damp, dmp[0, 0], dmp[0, 1], dmp[0, 2], dmp[0, 3],
+                           dmp[0, 4], dmp[0, 5], ref[0, 0], ref[0, 1], ref[0, 2])
     lim2 = v_max * v_max if v_max > 0.0 else np.inf
+    out = _fused_range(start, end, x, v, x0, mass, gmap, damp, field, alpha / h, h,
+                       h * acc[0], h * acc[1], h * acc[2], pnt[0, 0], pnt[0, 1], pnt[0, 2],
+                       lim2)
+    err2, over = out[0], out[1]
+    if over == 0:
+        _add_rest_sums(rest_lin, rest_off, sums[0], out[2], out[3], out[4], out[5], out[6],
+                       out[7], out[8], out[9], out[10], out[11], out[12], out[13])
+    return err2, over
+
+
+@njit(inline='always', **JIT)
+def damp_constants(damp, k_damp, c0, c1, c2, o0, o1, o2, r0, r1, r2):
+    """The damping v += k (c + o x (p - r) - v) of a field (c, o) about r, folded into
+    v <- km v + f + o' x p: returns (km, f0, f1, f2, o'0, o'1, o'2), the identity map
+    (1, 0, ..., 0) without ``damp`` (``_fused_range``: 3 multiply-adds a component)."""
+    kd = k_damp if damp else 0.0
+    q0, q1, q2 = kd * o0, kd * o1, kd * o2
+    return (1.0 - kd, kd * c0 - (q1 * r2 - q2 * r1), kd * c1 - (q2 * r0 - q0 * r2),
+            kd * c2 - (q0 * r1 - q1 * r0), q0, q1, q2)
+
+
+@njit(inline='always', **JIT)
+def _fused_range(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, hy, hz, k0,
+                 k1, k2, lim2):
+    """One loop over particles start..end: the damping (``field``, ``damp_constants``;
+    with ``damp``), Eq. 13-14 towards the goal G x0 + b (``gmap``: G row by row, then b),
+    and the 12 sums of the new state about the point k (``_rest_sums``'s).  Returns (sum of
+    |g - p|^2 as ``advance``, speeds over sqrt(lim2), the 12 sums).
+
+    Vectorises across particles (unit-stride columns, unsigned index, every constant in a
+    local: one lane a particle; the 12 sums, the error and the count as vector accumulators
+    reduced once a call).  Inlined by Numba into ``_int_single_fused`` (one cluster, x0 the
+    rest positions) and ``sets._sets_fused_lin`` (a run of one set, x0 its offsets y).
+    """
+    l00, l01, l02, l10, l11, l12, l20, l21, l22, b0, b1, b2 = gmap
+    km, f0, f1, f2, o0, o1, o2 = field
     err2 = 0.0
     over = 0
     s0 = s1 = s2 = 0.0
@@ -303,7 +335,7 @@ def _int_single_fused(start, end, x, v, x0, mass, goal_lin, goal_off, alpha, h, 
         for i in range(U(start), U(end)):
             a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
             p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
-            # damp_towards, its constants folded (above)
+            # damp_towards, its constants folded (damp_constants)
             u0 = km * v[i, 0] + f0 + o1 * p2 - o2 * p1
             u1 = km * v[i, 1] + f1 + o2 * p0 - o0 * p2
             u2 = km * v[i, 2] + f2 + o0 * p1 - o1 * p0
@@ -379,10 +411,7 @@ def _int_single_fused(start, end, x, v, x0, mass, goal_lin, goal_off, alpha, h, 
             c20 += wd2 * a0
             c21 += wd2 * a1
             c22 += wd2 * a2
-    if over == 0:
-        _add_rest_sums(rest_lin, rest_off, sums[0], s0, s1, s2, c00, c01, c02, c10, c11,
-                       c12, c20, c21, c22)
-    return err2, over
+    return (err2, over, s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22)
 
 
 @njit(**JIT)

@@ -17,12 +17,14 @@ loop); runs shorter than a vector (lattice rows cut by the cluster faces) take t
 remainder loop.  The quadratic loops fetch the map per particle: scalar.
 """
 
+import numpy as np
 from numba import njit, prange
 
 from .jit import JIT, U
 from .colliders import _collide_range
-from .damping import damp_acc_range, damp_towards
-from .integrate import BLOCK, advance
+from .damping import damp_acc_range, damp_sums_range, damp_towards
+from .integrate import BLOCK, _fused_range, _rest_sums, advance, damp_constants
+from .limits import limit_speed_range
 
 
 @njit(**JIT)
@@ -627,10 +629,80 @@ def sets_accumulate_parallel(quad, x, y0, mass, sid, sref, part):
 
 
 @njit(**JIT)
-def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, sid, gm, sref, alpha, h, acc, ang, com,
-                    part, err, has_col, ground, boxes, spheres, thresh, damp, k_damp, dmp, dpart):
-    """Damp, integrate, collide and accumulate a chunk block by block (one pass over
-    memory); ``dpart[chunk]`` receives the damping sums of the next step."""
+def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha_h, h, hx,
+                    hy, hz, damp, k_damp, dmp, v_max, sums, dsums):
+    """The whole pass of particles start..end of a rigid/linear set-layout body without
+    torque or pass colliders, run by run (``integrate._fused_range``: one loop reads and
+    writes each particle once): the damping towards the set's field, Eq. 13-14 with the
+    set's map, the count of speeds over ``v_max``, and the set's 12 sums of the new state;
+    damped, then the run's 12 damping sums (``damping.damp_sums_range``) while it is in
+    cache.  Returns (sum of |g - x|^2, capped speeds): a run with a speed over the cap is
+    capped (``limits.limit_speed_range``) and summed again, so the sums are of the capped
+    state and the step leaves them valid.
+
+    The sums of a set are taken about one point P_s, its shape sums and damping sums alike
+    (so the damping row's sum w d and W are the shape sums' own: 12 damping accumulators,
+    not 16): undamped the set's reference ``sref[s]``; damped where the set goes, sref +
+    h (c_s + h acc) with c_s the damping field's velocity at sref, so that the second
+    moments of a body far out at huge speed do not lose it to rounding (as ``packed``).
+    The damping row holds P_s (its entries 15-17); ``sets_integrate_*`` makes it the
+    set's reference for the next step's ``sets_reduce``.  The runs' ends come from
+    ``runs`` (looking for them particle by particle cost 0.3-0.5 ns a particle).
+    """
+    lim2 = v_max * v_max if v_max > 0.0 else np.inf
+    err2 = 0.0
+    capped = 0
+    r = np.searchsorted(runs, start, side='right') - 1     # the run holding start
+    i = start
+    while i < end:
+        s = sid[i]
+        r += 1
+        j = min(runs[r], end)
+        gmap = (gm[s, 0, 1], gm[s, 0, 2], gm[s, 0, 3], gm[s, 1, 1], gm[s, 1, 2], gm[s, 1, 3],
+                gm[s, 2, 1], gm[s, 2, 2], gm[s, 2, 3], gm[s, 0, 0], gm[s, 1, 0], gm[s, 2, 0])
+        r0, r1, r2 = sref[s, 0], sref[s, 1], sref[s, 2]
+        s_d = s if damp else 0
+        field = damp_constants(damp, k_damp, dmp[s_d, 0], dmp[s_d, 1], dmp[s_d, 2],
+                               dmp[s_d, 3], dmp[s_d, 4], dmp[s_d, 5], r0, r1, r2)
+        if damp:
+            r0 += h * (dmp[s, 0] + hx)
+            r1 += h * (dmp[s, 1] + hy)
+            r2 += h * (dmp[s, 2] + hz)
+        t = _fused_range(i, j, x, v, y0, mass, gmap, damp, field, alpha_h, h, hx, hy, hz, r0,
+                         r1, r2, lim2)
+        err2 += t[0]
+        if t[1] > 0:
+            capped += limit_speed_range(i, j, x, v, h, v_max)
+            t = (t[0], t[1]) + _rest_sums(i, j, x, y0, mass, r0, r1, r2)
+        # the set sums' layout: per row of d, [sum w d, sum w d y^T]
+        _add_lin_sums(sums, s, t[2], t[5], t[6], t[7], t[3], t[8], t[9], t[10], t[4], t[11],
+                      t[12], t[13])
+        if damp:
+            row = dsums[s]
+            row[15] = r0
+            row[16] = r1
+            row[17] = r2
+            row[18] = 1.0
+            row[0] += t[2]
+            row[1] += t[3]
+            row[2] += t[4]
+            d = damp_sums_range(i, j, x, v, mass, wuni, r0, r1, r2)
+            for k in range(12):
+                row[3 + k] += d[k]
+            row[19] += d[12]
+        i = j
+    return err2, capped
+
+
+@njit(**JIT)
+def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha, h,
+                    acc, ang, com, part, err, has_col, ground, boxes, spheres, thresh, damp,
+                    k_damp, dmp, dpart, v_max):
+    """Damp, integrate, collide, cap the speeds and accumulate a chunk block by block (one
+    pass over memory); ``dpart[chunk]`` receives the damping sums of the next step.
+    Returns the capped speeds: the block's speeds are capped (``limits.limit_speed_range``)
+    before its sums are taken, so the sums stay valid.  Rigid/linear without torque or
+    pass colliders: ``_sets_fused_lin``."""
     n = x.shape[0]
     start = (chunk * n) // nchunks
     end = ((chunk + 1) * n) // nchunks
@@ -644,14 +716,27 @@ def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, sid, gm, sref, alpha, 
             for j in range(dsums.shape[1]):
                 dsums[s, j] = 0.0
     err2 = 0.0
+    capped = 0
+    fused = _fused_pass(quad, has_col, ang)
     for bs in range(start, end, BLOCK):
         be = min(bs + BLOCK, end)
+        if fused:
+            e, c = _sets_fused_lin(start=bs, end=be, x=x, v=v, y0=y0, mass=mass, wuni=wuni,
+                                   sid=sid, runs=runs, gm=gm, sref=sref, alpha_h=alpha / h, h=h,
+                                   hx=h * acc[0], hy=h * acc[1], hz=h * acc[2], damp=damp,
+                                   k_damp=k_damp, dmp=dmp, v_max=v_max, sums=sums,
+                                   dsums=dpart[chunk])
+            err2 += e
+            capped += c
+            continue
         err2 += _sets_int_range(start=bs, end=be, quad=quad, x=x, v=v, y0=y0, sid=sid, gm=gm,
                                 alpha=alpha, h=h, acc=acc, ang=ang, com=com, damp=damp,
                                 k_damp=k_damp, dmp=dmp, sref=sref)
         if has_col:
             _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes, spheres=spheres,
                            thresh=thresh)
+        if v_max > 0.0:
+            capped += limit_speed_range(bs, be, x, v, h, v_max)
         if damp and not quad:
             _sets_acc_damp_lin(start=bs, end=be, x=x, v=v, y0=y0, mass=mass, sid=sid,
                                sref=sref, sums=sums, dsums=dpart[chunk])
@@ -661,33 +746,69 @@ def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, sid, gm, sref, alpha, 
         if damp:
             damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass, sid=sid, dsums=dpart[chunk])
     err[chunk] = err2
+    return capped
+
+
+@njit(inline='always', **JIT)
+def _fused_pass(quad, has_col, ang):
+    """Whether a pass takes ``_sets_fused_lin``: rigid/linear, no pass colliders, no torque."""
+    return not quad and not has_col and ang[0] == 0.0 and ang[1] == 0.0 and ang[2] == 0.0
 
 
 @njit(**JIT)
-def sets_integrate_serial(quad, x, v, y0, mass, sid, gm, sref, alpha, h, acc, ang, com, part, err,
-                          has_col, ground, boxes, spheres, thresh, damp, k_damp, dmp, dpart):
-    """Fused step pass of a set-layout body, one thread."""
+def _fused_refs(quad, has_col, ang, damp, sref, dpart):
+    """After a damped ``_sets_fused_lin`` pass: each set's reference becomes the point its
+    sums were taken about (the damping row's P_s, alike in every chunk), which the next
+    step's ``sets_reduce`` expects."""
+    if not (damp and _fused_pass(quad, has_col, ang)):
+        return
+    for s in range(sref.shape[0]):
+        for c in range(dpart.shape[0]):
+            row = dpart[c, s]
+            if row[18] > 0.0:
+                sref[s, 0] = row[15]
+                sref[s, 1] = row[16]
+                sref[s, 2] = row[17]
+                break
+
+
+@njit(**JIT)
+def sets_integrate_serial(quad, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha, h, acc, ang,
+                          com, part, err, has_col, ground, boxes, spheres, thresh, damp, k_damp,
+                          dmp, dpart, v_max):
+    """Fused step pass of a set-layout body, one thread; returns the capped speeds."""
     nchunks = part.shape[0]
+    capped = 0
     for chunk in range(nchunks):
-        _sets_int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v, y0=y0, mass=mass,
-                        sid=sid, gm=gm, sref=sref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
-                        part=part, err=err, has_col=has_col, ground=ground, boxes=boxes,
-                        spheres=spheres, thresh=thresh, damp=damp, k_damp=k_damp, dmp=dmp,
-                        dpart=dpart)
+        capped += _sets_int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v, y0=y0,
+                                  mass=mass, wuni=wuni, sid=sid, runs=runs, gm=gm, sref=sref,
+                                  alpha=alpha,
+                                  h=h, acc=acc, ang=ang, com=com, part=part, err=err,
+                                  has_col=has_col, ground=ground, boxes=boxes, spheres=spheres,
+                                  thresh=thresh, damp=damp, k_damp=k_damp, dmp=dmp,
+                                  dpart=dpart, v_max=v_max)
+    _fused_refs(quad, has_col, ang, damp, sref, dpart)
+    return capped
 
 
 @njit(parallel=True, **JIT)
-def sets_integrate_parallel(quad, x, v, y0, mass, sid, gm, sref, alpha, h, acc, ang, com, part,
-                            err, has_col, ground, boxes, spheres, thresh, damp, k_damp, dmp,
-                            dpart):
-    """Fused step pass of a set-layout body, one chunk per thread."""
+def sets_integrate_parallel(quad, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha, h, acc, ang,
+                            com, part, err, has_col, ground, boxes, spheres, thresh, damp, k_damp,
+                            dmp, dpart, v_max):
+    """Fused step pass of a set-layout body, one chunk per thread; returns the capped
+    speeds."""
     nchunks = part.shape[0]
+    capped = 0
     for chunk in prange(nchunks):
-        _sets_int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v, y0=y0, mass=mass,
-                        sid=sid, gm=gm, sref=sref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
-                        part=part, err=err, has_col=has_col, ground=ground, boxes=boxes,
-                        spheres=spheres, thresh=thresh, damp=damp, k_damp=k_damp, dmp=dmp,
-                        dpart=dpart)
+        capped += _sets_int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v, y0=y0,
+                                  mass=mass, wuni=wuni, sid=sid, runs=runs, gm=gm, sref=sref,
+                                  alpha=alpha,
+                                  h=h, acc=acc, ang=ang, com=com, part=part, err=err,
+                                  has_col=has_col, ground=ground, boxes=boxes, spheres=spheres,
+                                  thresh=thresh, damp=damp, k_damp=k_damp, dmp=dmp,
+                                  dpart=dpart, v_max=v_max)
+    _fused_refs(quad, has_col, ang, damp, sref, dpart)
+    return capped
 
 
 @njit(**JIT)

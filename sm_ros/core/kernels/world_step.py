@@ -14,11 +14,11 @@ record.
 A record (``Body._fast_record``) is a tuple of the body's own buffers (x, v, x0, y0 as their
 (3, N) blocks, transposed back to (N, 3) views of layout F here); ``state`` holds
 [alpha, beta, damping (per step), max_speed, max_turn, 1 / total mass, mode, fused
-damping, quadratic, set layout, max_turn / h], ``force`` the force over the total mass
-(both divided in Python, as ``Body._step`` does: fast math would round them otherwise),
-``flags`` [dirty, shape error stale, fused damping sums valid, sleep: 1 asleep, then
-the record is not stepped], ``counts`` the
-limit counters; the set-layout buffers (``s_*``) are empty for one-cluster bodies.
+damping, quadratic, set layout, max_turn / h, the particles' one mass or 0
+(``Body._wuni``)], ``force`` the force over the total mass (both divided in Python, as
+``Body._step`` does: fast math would round them otherwise), ``flags`` [dirty, shape error
+stale, fused damping sums valid, sleep: 1 asleep, then the record is not stepped],
+``counts`` the limit counters; the set-layout buffers (``s_*``) are empty for one-cluster bodies.
 """
 
 import numba
@@ -113,7 +113,7 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
      aqq9, scale, trans, goal_lin, goal_off, apq, accbuf, m3a, m3b, m3c, m3d, m39, n4, v4,
      nmat, cdet, acc, ang, com, err, dpart, dmp, dref, dacc, lin, w3, sptr, scl, scnt,
      quat_prev, flagged, lim_lin, lim_w, force, state, flags, counts, y0t, sid, gm, sref,
-     s_part, s_ptr, s_cl, s_cnt, s_phi, s_org, wk, pm, s_tp, s_ck, udv) = record
+     s_part, s_ptr, s_cl, s_cnt, s_phi, s_org, wk, pm, s_tp, s_ck, s_runs, udv) = record
     if flags[3] > 0.0:                         # asleep (``sm_ros.core.sleep``): not stepped
         return
     # the (3, N) blocks seen as (N, 3) arrays of layout F, as the bodies' own x, v
@@ -176,12 +176,18 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
     elif k_damp > 0.0:
         damp_rigid(x=x, v=v, mass=mass, ptr=ptr, cl=cl, ref=ref, k_damp=k_damp, lin=lin,
                    w3=w3, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
+    capped = 0
     if sets:
-        sets_integrate_serial(quad=quad, x=x, v=v, y0=y0, mass=mass, sid=sid, gm=gm,
-                              sref=sref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
-                              part=s_part, err=err, has_col=has_col, ground=ground,
-                              boxes=boxes, spheres=spheres, thresh=thresh, damp=fused,
-                              k_damp=k_damp, dmp=dmp, dpart=dpart)
+        # the speeds capped block by block before the sums are taken: the sums stay valid
+        capped = sets_integrate_serial(quad=quad, x=x, v=v, y0=y0, mass=mass, wuni=state[11],
+                                       sid=sid, runs=s_runs, gm=gm, sref=sref, alpha=alpha,
+                                       h=h, acc=acc,
+                                       ang=ang, com=com, part=s_part, err=err,
+                                       has_col=has_col, ground=ground, boxes=boxes,
+                                       spheres=spheres, thresh=thresh, damp=fused,
+                                       k_damp=k_damp, dmp=dmp, dpart=dpart, v_max=v_max)
+        counts[0] += capped
+        flags[0] = 0.0
     else:
         integrate_serial(quad=quad, x=x, v=v, x0=x0, mass=mass, ptr=ptr, cl=cl,
                          rest_lin=rest_lin, rest_off=rest_off, trans=trans,
@@ -189,9 +195,8 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
                          acc=acc, ang=ang, com=com, part=part, err=err, has_col=has_col,
                          ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
                          damp=fused, k_damp=k_damp, dmp=dmp, dpart=dpart)
-    capped = 0
-    if v_max > 0.0:
-        capped = limit_speed(x=x, v=v, h=h, v_max=v_max)
-        counts[0] += capped
-    flags[0] = 1.0 if capped > 0 else 0.0
+        if v_max > 0.0:
+            capped = limit_speed(x=x, v=v, h=h, v_max=v_max)
+            counts[0] += capped
+        flags[0] = 1.0 if capped > 0 else 0.0
     flags[1] = 1.0
