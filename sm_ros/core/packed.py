@@ -472,7 +472,7 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
     for bs in range(lo, hi, step):
         be = min(bs + step, hi)
         if not has_col:
-            e, over = _int_single_fused(start=bs, end=be, x=x, v=v, x0=x0, mass=mass,
+            e, over = _int_single_fused(start=bs, end=be, x=x, v=v, x0=x0, mass=mass, wuni=wuni,
                                         goal_lin=goal_lin, goal_off=goal_off, alpha=alpha,
                                         h=h, acc=acc, damp=damp, k_damp=k_damp, dmp=dmp,
                                         ref=ref, pnt=pnt, rest_lin=rest_lin,

@@ -270,8 +270,8 @@ def _int_single_lin(start, end, x, v, x0, goal_lin, goal_off, alpha, h, acc, ang
 
 
 @njit(**JIT)
-def _int_single_fused(start, end, x, v, x0, mass, goal_lin, goal_off, alpha, h, acc, damp,
-                      k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max, sums):
+def _int_single_fused(start, end, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc,
+                      damp, k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max, sums):
     """The one-cluster pass over particles start..end in one loop (no torque, no pass
     colliders): the damping towards ``dmp[0]`` about ``ref[0]`` (with ``damp``), Eq. 13-14,
     the count of speeds above ``v_max`` (0: no cap), and the shape match's 12 sums of the
@@ -291,7 +291,7 @@ def _int_single_fused(start, end, x, v, x0, mass, goal_lin, goal_off, alpha, h, 
     field = damp_constants(damp, k_damp, dmp[0, 0], dmp[0, 1], dmp[0, 2], dmp[0, 3],
                            dmp[0, 4], dmp[0, 5], ref[0, 0], ref[0, 1], ref[0, 2])
     lim2 = v_max * v_max if v_max > 0.0 else np.inf
-    out = _fused_range(start, end, x, v, x0, mass, gmap, damp, field, alpha / h, h,
+    out = _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha / h, h,
                        h * acc[0], h * acc[1], h * acc[2], pnt[0, 0], pnt[0, 1], pnt[0, 2],
                        lim2)
     err2, over = out[0], out[1]
@@ -313,8 +313,8 @@ def damp_constants(damp, k_damp, c0, c1, c2, o0, o1, o2, r0, r1, r2):
 
 
 @njit(inline='always', **JIT)
-def _fused_range(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, hy, hz, k0,
-                 k1, k2, lim2):
+def _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha_h, h, hx, hy, hz,
+                 k0, k1, k2, lim2):
     """One loop over particles start..end: the damping (``field``, ``damp_constants``;
     with ``damp``), Eq. 13-14 towards the goal G x0 + b (``gmap``: G row by row, then b),
     and the 12 sums of the new state about the point k (``_rest_sums``'s).  Returns (sum of
@@ -324,7 +324,10 @@ def _fused_range(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, 
     local: one lane a particle; the 12 sums, the error and the count as vector accumulators
     reduced once a call).  Inlined by Numba into ``_int_single_fused`` (one cluster, x0 the
     rest positions) and ``sets._sets_fused_lin`` (a run of one set, x0 its offsets y).
+    With ``wuni`` > 0 (every particle of that mass) the sums are taken unweighted and scaled
+    once: the masses are not read (LLVM versions the loop on the invariant test).
     """
+    unit = wuni > 0.0
     l00, l01, l02, l10, l11, l12, l20, l21, l22, b0, b1, b2 = gmap
     km, f0, f1, f2, o0, o1, o2 = field
     err2 = 0.0
@@ -358,7 +361,7 @@ def _fused_range(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, 
             err2 += e0 * e0 + e1 * e1 + e2 * e2 + 0.0 * (v0 + v1 + v2)
             over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
             # the next step's shape-match sums of the new state
-            w = mass[i]
+            w = 1.0 if unit else mass[i]
             wd0 = w * (y0 - k0)
             wd1 = w * (y1 - k1)
             wd2 = w * (y2 - k2)
@@ -395,7 +398,7 @@ def _fused_range(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, 
             v[i, 2] = v2
             err2 += e0 * e0 + e1 * e1 + e2 * e2 + 0.0 * (v0 + v1 + v2)
             over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
-            w = mass[i]
+            w = 1.0 if unit else mass[i]
             wd0 = w * (y0 - k0)
             wd1 = w * (y1 - k1)
             wd2 = w * (y2 - k2)
@@ -411,6 +414,10 @@ def _fused_range(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, 
             c20 += wd2 * a0
             c21 += wd2 * a1
             c22 += wd2 * a2
+    if unit:
+        return (err2, over, wuni * s0, wuni * s1, wuni * s2, wuni * c00, wuni * c01,
+                wuni * c02, wuni * c10, wuni * c11, wuni * c12, wuni * c20, wuni * c21,
+                wuni * c22)
     return (err2, over, s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22)
 
 

@@ -1,0 +1,190 @@
+"""The set layout's one-loop pass (``kernels.sets._sets_fused_lin``) against a NumPy twin
+and against the two-loop pass it replaces on long runs.
+
+A rigid/linear body stored set by set (``order='set'``) without torque or pass colliders
+is stepped run by run in one loop: damping towards the set's field, Eq. 13-14, the speed
+count, the set's sums of the new state and, damped, the damping sums, all about one point
+per set (where the set goes).  These tests fail if a sum, the damping point, the unweighted
+sums of a one-mass body, the speed cap or the choice of pass changes.
+"""
+
+import numpy as np
+import pytest
+
+from sm_ros.core import BodyParams, World
+from sm_ros.core import kernels as K
+from sm_ros.core.kernels import sets as KS
+
+H = 1.0 / 120.0
+
+
+def _lattice(n, spacing=0.04):
+    g = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing='ij'), axis=-1).reshape(-1, 3)
+    return g * spacing
+
+
+def _fused(body):
+    """Whether ``body``'s pass takes the one-loop pass (``sets._fused_pass``'s run test)."""
+    runs = body._sets.runs
+    return (len(runs) - 1) * KS.FUSED_MIN_RUN <= runs[-1]
+
+
+def _world(n, order, masses, damping, max_speed=100.0, seed=4):
+    rng = np.random.default_rng(seed)
+    x0 = _lattice(n) + rng.uniform(-0.006, 0.006, (n ** 3, 3)) + (0.2, -0.1, 0.6)
+    m = 1.5 if masses == 'one' else rng.uniform(0.5, 2.0, len(x0))
+    world = World(gravity=(0.0, 0.0, -9.81))
+    body = world.add_body(x0, m, BodyParams(mode='linear', alpha=0.6, beta=0.5, clusters=2,
+                                            damping=damping, max_speed=max_speed),
+                          order=order)
+    v = rng.normal(scale=0.6, size=x0.shape) + np.cross((0.0, 0.0, 3.0), x0 - x0.mean(0))
+    if body.order is not None:
+        v = v[body.order]
+    body.set_state(v=v)
+    return world, body
+
+
+def _twin(x, v, y0, mass, wuni, sid, runs, gm, sref, alpha, h, acc, damp, k_damp, dmp, v_max,
+          nsets):
+    """NumPy twin of ``_sets_fused_lin`` over all particles: returns (x, v, set sums
+    (S, 12), damping rows (S, 20), sum |g - x|^2, capped)."""
+    x, v = x.copy(), v.copy()
+    sums = np.zeros((nsets, 12))
+    dsums = np.zeros((nsets, K.NDAMP))
+    err2, capped = 0.0, 0
+    for r in range(len(runs) - 1):
+        i, j = runs[r], runs[r + 1]
+        s = sid[i]
+        p, y = x[i:j], y0[i:j]
+        g = gm[s, :, 0] + y @ gm[s, :, 1:4].T
+        point = sref[s].copy()
+        u = v[i:j]
+        if damp:
+            c, o = dmp[s, :3], dmp[s, 3:]
+            u = u + k_damp * (c + np.cross(o, p - sref[s]) - u)
+            point = sref[s] + h * (c + h * acc)
+        vn = u + (alpha / h) * (g - p) + h * acc
+        xn = p + h * vn
+        err2 += ((g - p) ** 2).sum()
+        speed = np.linalg.norm(vn, axis=1)
+        over = speed > v_max
+        if over.any():
+            f = v_max / speed[over]
+            xn[over] -= (h * (1.0 - f))[:, None] * vn[over]
+            vn[over] *= f[:, None]
+            capped += int(over.sum())
+        x[i:j], v[i:j] = xn, vn
+        d = mass[i:j, None] * (xn - point)
+        for a in range(3):
+            sums[s, 4 * a] += d[:, a].sum()
+            sums[s, 4 * a + 1:4 * a + 4] += d[:, a] @ y
+        if damp:
+            e = xn - point
+            w = mass[i:j]
+            row = dsums[s]
+            row[0:3] += d.sum(axis=0)
+            row[3:6] += w @ vn
+            row[6:9] += (w[:, None] * np.cross(e, vn)).sum(axis=0)
+            row[9:12] += w @ (e * e)
+            row[12:15] += w @ (e * np.roll(e, -1, axis=1))
+            row[15:18] = point
+            row[18] = 1.0
+            row[19] += w.sum()
+    return x, v, sums, dsums, err2, capped
+
+
+@pytest.mark.parametrize('damping', [0.0, 0.08])
+@pytest.mark.parametrize('masses', ['one', 'many'])
+def test_fused_set_pass_matches_its_numpy_twin(masses, damping):
+    """One call over a whole body (one block) against the twin: positions, velocities, the
+    set sums, the damping rows (their point where the set goes), the error sum and the
+    capped speeds, with a cap low enough to catch some particles."""
+    world, body = _world(10, 'set', masses, damping, max_speed=2.0)
+    for _ in range(3):
+        world.step(H)                      # moving, deformed: sums, fields, maps of a step
+    assert _fused(body)
+    st = body._sets
+    rng = np.random.default_rng(9)
+    v = np.array(body._v)
+    v[rng.choice(body.n, 25, replace=False)] *= 4.0      # over the cap
+    body.set_state(v=v)
+    x0, v0 = np.array(body._x), np.array(body._v)
+    nsets = len(st.cnt)
+    dmp = rng.normal(scale=0.3, size=(nsets, 6)) if damping else np.zeros((nsets, 6))
+    acc = np.array([0.3, -0.2, -9.81])
+    sums = np.zeros((nsets, 12))
+    dsums = np.zeros((nsets, K.NDAMP))
+    wuni = body._wuni
+    assert (wuni > 0.0) == (masses == 'one')
+    err2, capped = KS._sets_fused_lin(
+        start=0, end=body.n, x=body._x, v=body._v, y0=st.y0, mass=body.m, wuni=wuni,
+        sid=st.sid, runs=st.runs, gm=st.gm, sref=st.ref, alpha_h=0.6 / H, h=H,
+        hx=H * acc[0], hy=H * acc[1], hz=H * acc[2], damp=damping > 0.0, k_damp=damping,
+        dmp=dmp, v_max=2.0, sums=sums, dsums=dsums)
+    tx, tv, tsums, tds, terr, tcapped = _twin(
+        x0, v0, np.asarray(st.y0), body.m, wuni, st.sid, st.runs, st.gm, st.ref, 0.6, H, acc,
+        damping > 0.0, damping, dmp, 2.0, nsets)
+    assert capped == tcapped > 0
+    np.testing.assert_allclose(body._x, tx, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(body._v, tv, rtol=0, atol=1e-11)
+    assert err2 == pytest.approx(terr, rel=1e-10)
+    np.testing.assert_allclose(sums, tsums, rtol=1e-9, atol=1e-12 * np.abs(tsums).max())
+    np.testing.assert_allclose(dsums, tds, rtol=1e-9, atol=1e-12 * np.abs(tds).max())
+
+
+@pytest.mark.parametrize('damping', [0.0, 0.05])
+@pytest.mark.parametrize('masses', ['one', 'many'])
+def test_fused_set_pass_steps_as_the_two_loop_pass(masses, damping):
+    """The same body stored set by set (long runs: the one-loop pass) and in the given
+    order (runs of a few particles: the two-loop pass) agree to round-off over 40 steps,
+    a few speeds capped on the way, and count the same capped speeds."""
+    a_world, a = _world(10, 'set', masses, damping, max_speed=3.0)
+    b_world, b = _world(10, None, masses, damping, max_speed=3.0)
+    assert _fused(a) and not _fused(b)
+    for _ in range(40):
+        a_world.step(H)
+        b_world.step(H)
+    inv = np.argsort(a.order)
+    np.testing.assert_allclose(a.x[inv], b.x, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(a.v[inv], b.v, rtol=0, atol=1e-8)
+    assert a.limit_counts == b.limit_counts and a.limit_counts[0] > 0
+
+
+def test_capped_speeds_leave_the_set_sums_valid():
+    """The set layout caps each block's speeds before it sums the block, so after a step
+    that capped speeds the stored sums are those of the state (not marked stale)."""
+    world, body = _world(10, 'set', 'many', 0.05, max_speed=1.0)
+    world.step(H)
+    assert body.limit_counts[0] > 0 and not body._dirty
+    st = body._sets
+    fresh = np.zeros_like(st.part)
+    K.sets_accumulate_serial(quad=False, x=body._x, y0=st.y0, mass=body.m, sid=st.sid,
+                             sref=st.ref, part=fresh)
+    np.testing.assert_allclose(st.part, fresh, rtol=1e-10,
+                               atol=1e-12 * np.abs(fresh).max())
+
+
+def test_damping_of_a_set_layout_body_flying_far_out_at_huge_speed():
+    """The one-loop pass takes its damping sums about where each set goes: 1e6 N on 1,000
+    particles of 1e-6 kg, 20 steps of 0.1 s (2e9 m/s, 2e9 m out); the deformation then
+    decays and the body keeps its size (sums about the last step's reference would lose
+    the second moments to rounding)."""
+    x0 = _lattice(10, 0.02)
+    world = World(gravity=(0.0, 0.0, 0.0))
+    body = world.add_body(x0, masses=1e-6, order='set',
+                          params=BodyParams(mode='linear', alpha=0.01, beta=0.0, clusters=2,
+                                            damping=0.1, material_dt=0.1, max_speed=0.0))
+    assert _fused(body)
+    body.set_state(x=body.x + np.random.default_rng(1).uniform(-0.004, 0.004, x0.shape))
+    body.set_wrench((6e5, -6.4e5, 4.8e5))
+    for _ in range(20):
+        world.step(0.1)
+    body.clear_wrench()
+    world.step(0.1)
+    start = body.shape_error_rms()
+    for _ in range(200):
+        world.step(0.1)
+    assert np.abs(body.com()).max() > 1e9
+    assert body.shape_error_rms() < 0.1 * start
+    spread = np.ptp(body.x - body.com(), axis=0).max()
+    assert spread < 2.0 * np.ptp(x0, axis=0).max()
