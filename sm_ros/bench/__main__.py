@@ -178,9 +178,13 @@ def _write_targets(f: Dict[str, Any], out: Path):
     rows = [x for x in sc.get('pypbd', []) if x['N'] == 22 ** 3 and x['clusters'] == 8]
     if rows:
         x = rows[0]
+        # the scenes store a body's particles set by set (``World.add_body(order='set')``);
+        # the lattice order is what a body added with the given order runs
         t.add(target='rigid, 8 clusters, damping 0.05, 10k points, against pypbd',
-              goal='>= 8x', measured=f'{x["speedup_rigid_damped"]:.1f}x',
-              met=x['speedup_rigid_damped'] >= 8)
+              goal='>= 8x',
+              measured=f'{x["speedup_rigid_damped_sorted"]:.1f}x stored set by set (as the '
+                       f'scenes store bodies); {x["speedup_rigid_damped"]:.1f}x in lattice '
+                       'order', met=x['speedup_rigid_damped_sorted'] >= 8)
     rows = sc.get('pypbd', [])
     if rows:
         worst = min(rows, key=lambda x: x['speedup_rigid'])
