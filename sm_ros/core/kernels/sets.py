@@ -15,6 +15,13 @@ registers, and vectorise across the particles of the run as ``integrate.py``'s o
 loops do (unit-stride columns, unsigned index, no array but x, v, y0, mass read in the
 loop); runs shorter than a vector (lattice rows cut by the cluster faces) take the scalar
 remainder loop.  The quadratic loops fetch the map per particle: scalar.
+
+A rigid/linear body stored set by set (``World.add_body(order='set')``: one run a set)
+without torque or pass colliders takes one loop a run (``_sets_fused_lin``, the loop of the
+one-cluster pass ``integrate._fused_range``): each particle read and written once, its
+set's sums taken in the same loop, the damping sums in a second loop over the run while it
+is in cache, all about one point per set; the runs' ends precomputed (``runs``).  Every
+pass caps the speeds block by block before it sums the block, so the sums stay valid.
 """
 
 import numpy as np
