@@ -11,7 +11,7 @@ sums of a one-mass body, the speed cap or the choice of pass changes.
 import numpy as np
 import pytest
 
-from sm_ros.core import BodyParams, World
+from sm_ros.core import BodyParams, Ground, World
 from sm_ros.core import kernels as K
 from sm_ros.core.kernels import sets as KS
 
@@ -29,11 +29,13 @@ def _fused(body):
     return (len(runs) - 1) * KS.FUSED_MIN_RUN <= runs[-1]
 
 
-def _world(n, order, masses, damping, max_speed=100.0, seed=4):
+def _world(n, order, masses, damping, max_speed=100.0, seed=4, ground=False):
     rng = np.random.default_rng(seed)
     x0 = _lattice(n) + rng.uniform(-0.006, 0.006, (n ** 3, 3)) + (0.2, -0.1, 0.6)
     m = 1.5 if masses == 'one' else rng.uniform(0.5, 2.0, len(x0))
     world = World(gravity=(0.0, 0.0, -9.81))
+    if ground:                             # reached within the first steps
+        world.set_colliders(ground=Ground(height=0.5, friction=0.4, restitution=0.3))
     body = world.add_body(x0, m, BodyParams(mode='linear', alpha=0.6, beta=0.5, clusters=2,
                                             damping=damping, max_speed=max_speed),
                           order=order)
@@ -120,7 +122,8 @@ def test_fused_set_pass_matches_its_numpy_twin(masses, damping):
         start=0, end=body.n, x=body._x, v=body._v, y0=st.y0, mass=body.m, wuni=wuni,
         sid=st.sid, runs=st.runs, gm=st.gm, sref=st.ref, alpha_h=0.6 / H, h=H,
         hx=H * acc[0], hy=H * acc[1], hz=H * acc[2], damp=damping > 0.0, k_damp=damping,
-        dmp=dmp, v_max=2.0, sums=sums, dsums=dsums)
+        dmp=dmp, v_max=2.0, sums=sums, dsums=dsums, has_col=False, ground=np.zeros(4),
+        boxes=np.zeros((0, 8)), spheres=np.zeros((0, 6)), thresh=1e-3)
     tx, tv, tsums, tds, terr, tcapped = _twin(
         x0, v0, np.asarray(st.y0), body.m, wuni, st.sid, st.runs, st.gm, st.ref, 0.6, H, acc,
         damping > 0.0, damping, dmp, 2.0, nsets)
@@ -132,30 +135,39 @@ def test_fused_set_pass_matches_its_numpy_twin(masses, damping):
     np.testing.assert_allclose(dsums, tds, rtol=1e-9, atol=1e-12 * np.abs(tds).max())
 
 
+@pytest.mark.parametrize('ground', [False, True])
 @pytest.mark.parametrize('damping', [0.0, 0.05])
 @pytest.mark.parametrize('masses', ['one', 'many'])
-def test_fused_set_pass_steps_as_the_two_loop_pass(masses, damping):
+def test_fused_set_pass_steps_as_the_two_loop_pass(masses, damping, ground):
     """The same body stored set by set (long runs: the one-loop pass) and in the given
     order (runs of a few particles: the two-loop pass) agree to round-off over 40 steps,
-    a few speeds capped on the way, and count the same capped speeds."""
-    a_world, a = _world(10, 'set', masses, damping, max_speed=3.0)
-    b_world, b = _world(10, None, masses, damping, max_speed=3.0)
+    a few speeds capped on the way, and count the same capped speeds; with a ground the
+    body lands on it (the runs it reaches summed again after the colliders)."""
+    a_world, a = _world(10, 'set', masses, damping, max_speed=2.0, ground=ground)
+    b_world, b = _world(10, None, masses, damping, max_speed=2.0, ground=ground)
     assert _fused(a) and not _fused(b)
     for _ in range(40):
         a_world.step(H)
         b_world.step(H)
+    if ground:
+        assert a.x[:, 2].min() == pytest.approx(0.5, abs=0.02)   # on the ground
+        assert a._fast_ok()                # stepped by the world step's records
     inv = np.argsort(a.order)
     np.testing.assert_allclose(a.x[inv], b.x, rtol=0, atol=1e-10)
     np.testing.assert_allclose(a.v[inv], b.v, rtol=0, atol=1e-8)
     assert a.limit_counts == b.limit_counts and a.limit_counts[0] > 0
 
 
-def test_capped_speeds_leave_the_set_sums_valid():
-    """The set layout caps each block's speeds before it sums the block, so after a step
-    that capped speeds the stored sums are those of the state (not marked stale)."""
-    world, body = _world(10, 'set', 'many', 0.05, max_speed=1.0)
+@pytest.mark.parametrize('order', ['set', None])
+def test_capped_and_collided_runs_leave_the_set_sums_valid(order):
+    """Both passes cap each block's speeds (and project onto the colliders) before they sum
+    it, so after a step that capped speeds on the ground the stored sums are those of the
+    state (not marked stale)."""
+    world, body = _world(10, order, 'many', 0.05, max_speed=1.0, ground=True)
+    body.set_state(x=body.x - (0.0, 0.0, 0.11))          # the lowest layer under the ground
     world.step(H)
     assert body.limit_counts[0] > 0 and not body._dirty
+    assert _fused(body) == (order == 'set')
     st = body._sets
     fresh = np.zeros_like(st.part)
     K.sets_accumulate_serial(quad=False, x=body._x, y0=st.y0, mass=body.m, sid=st.sid,

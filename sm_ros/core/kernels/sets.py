@@ -17,10 +17,11 @@ loop); runs shorter than a vector (lattice rows cut by the cluster faces) take t
 remainder loop.  The quadratic loops fetch the map per particle: scalar.
 
 A rigid/linear body stored set by set (``World.add_body(order='set')``: one run a set)
-without torque or pass colliders takes one loop a run (``_sets_fused_lin``, the loop of the
+without torque takes one loop a run (``_sets_fused_lin``, the loop of the
 one-cluster pass ``integrate._fused_range``): each particle read and written once, its
 set's sums taken in the same loop, the damping sums in a second loop over the run while it
-is in cache, all about one point per set; the runs' ends precomputed (``runs``).  Every
+is in cache, all about one point per set; the static colliders and the speed cap after the
+loop, a run they may have moved summed again; the runs' ends precomputed (``runs``).  Every
 pass caps the speeds block by block before it sums the block, so the sums stay valid.
 """
 
@@ -649,15 +650,19 @@ FUSED_SETS_BLOCK = 4096
 
 @njit(**JIT)
 def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha_h, h, hx,
-                    hy, hz, damp, k_damp, dmp, v_max, sums, dsums):
+                    hy, hz, damp, k_damp, dmp, v_max, sums, dsums, has_col, ground, boxes,
+                    spheres, thresh):
     """The whole pass of particles start..end of a rigid/linear set-layout body without
-    torque or pass colliders, run by run (``integrate._fused_range``: one loop reads and
-    writes each particle once): the damping towards the set's field, Eq. 13-14 with the
-    set's map, the count of speeds over ``v_max``, and the set's 12 sums of the new state;
-    damped, then the run's 12 damping sums (``damping.damp_sums_range``) while it is in
-    cache.  Returns (sum of |g - x|^2, capped speeds): a run with a speed over the cap is
-    capped (``limits.limit_speed_range``) and summed again, so the sums are of the capped
-    state and the step leaves them valid.
+    torque, run by run (``integrate._fused_range``: one loop reads and writes each particle
+    once): the damping towards the set's field, Eq. 13-14 with the set's map, the count of
+    speeds over ``v_max``, and the set's 12 sums of the new state; then the static
+    colliders on the run (``colliders._collide_range``: a run no collider can reach costs
+    one bounds pass) and the speed cap (``limits.limit_speed_range``, only where a speed
+    was over it), in the order of the two-loop pass; a run they may have moved is summed
+    again (``integrate._rest_sums``), so the sums are of the final state and the step
+    leaves them valid; damped, then the run's 12 damping sums
+    (``damping.damp_sums_range``) while it is in cache.  Returns (sum of |g - x|^2, capped
+    speeds).
 
     The sums of a set are taken about one point P_s, its shape sums and damping sums alike
     (so the damping row's sum w d and W are the shape sums' own: 12 damping accumulators,
@@ -690,8 +695,12 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
         t = _fused_range(i, j, x, v, y0, mass, wuni, gmap, damp, field, alpha_h, h, hx, hy, hz, r0,
                          r1, r2, lim2)
         err2 += t[0]
+        moved = has_col and _collide_range(start=i, end=j, x=x, v=v, ground=ground,
+                                           boxes=boxes, spheres=spheres, thresh=thresh)
         if t[1] > 0:
             capped += limit_speed_range(i, j, x, v, h, v_max)
+            moved = True
+        if moved:
             t = (t[0], t[1]) + _rest_sums(i, j, x, y0, mass, r0, r1, r2)
         # the set sums' layout: per row of d, [sum w d, sum w d y^T]
         _add_lin_sums(sums, s, t[2], t[5], t[6], t[7], t[3], t[8], t[9], t[10], t[4], t[11],
@@ -720,8 +729,8 @@ def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, wuni, sid, runs, gm, s
     """Damp, integrate, collide, cap the speeds and accumulate a chunk block by block (one
     pass over memory); ``dpart[chunk]`` receives the damping sums of the next step.
     Returns the capped speeds: the block's speeds are capped (``limits.limit_speed_range``)
-    before its sums are taken, so the sums stay valid.  Rigid/linear without torque or
-    pass colliders: ``_sets_fused_lin``."""
+    before its sums are taken, so the sums stay valid.  Rigid/linear without torque, long
+    runs: ``_sets_fused_lin``."""
     n = x.shape[0]
     start = (chunk * n) // nchunks
     end = ((chunk + 1) * n) // nchunks
@@ -745,7 +754,8 @@ def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, wuni, sid, runs, gm, s
                                    sid=sid, runs=runs, gm=gm, sref=sref, alpha_h=alpha / h, h=h,
                                    hx=h * acc[0], hy=h * acc[1], hz=h * acc[2], damp=damp,
                                    k_damp=k_damp, dmp=dmp, v_max=v_max, sums=sums,
-                                   dsums=dpart[chunk])
+                                   dsums=dpart[chunk], has_col=has_col, ground=ground,
+                                   boxes=boxes, spheres=spheres, thresh=thresh)
             err2 += e
             capped += c
             continue
@@ -771,9 +781,9 @@ def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, wuni, sid, runs, gm, s
 
 @njit(inline='always', **JIT)
 def _fused_pass(quad, has_col, ang, runs):
-    """Whether a pass takes ``_sets_fused_lin``: rigid/linear, no pass colliders, no
-    torque, runs of ``FUSED_MIN_RUN`` particles or more on average."""
-    return (not quad and not has_col and ang[0] == 0.0 and ang[1] == 0.0 and ang[2] == 0.0
+    """Whether a pass takes ``_sets_fused_lin``: rigid/linear, no torque, runs of
+    ``FUSED_MIN_RUN`` particles or more on average (``has_col``: either way)."""
+    return (not quad and ang[0] == 0.0 and ang[1] == 0.0 and ang[2] == 0.0
             and (runs.shape[0] - 1) * FUSED_MIN_RUN <= runs[runs.shape[0] - 1])
 
 
