@@ -38,13 +38,20 @@ CLUSTER_NAMES = {1: 1, 2: 8, 3: 27, 4: 64}
 #: particles stored set by set (``World.add_body(order='set')``, as scene bodies are):
 #: the set layout's runs are then one per set, not ~15 particles long (8 clusters)
 VARIANTS = {'plain': (0.0, 1), 'damped': (0.05, 1), 'substeps2': (0.05, 2),
-            'damped_pass': (0.05, 1), 'sorted': (0.0, 1), 'damped_sorted': (0.05, 1)}
+            'damped_pass': (0.05, 1), 'sorted': (0.0, 1), 'damped_sorted': (0.05, 1),
+            'ground_sorted': (0.0, 1), 'damped_ground_sorted': (0.05, 1)}
 #: the variants whose body is built with ``order='set'``
-SORTED_VARIANTS = ('sorted', 'damped_sorted')
+SORTED_VARIANTS = ('sorted', 'damped_sorted', 'ground_sorted', 'damped_ground_sorted')
+#: the variants with a ground under the lattice (the bundled scenes all have one): the
+#: lattice's lowest layer starts on it, and it settles onto it within each timed batch
+GROUND_VARIANTS = ('ground_sorted', 'damped_ground_sorted')
 #: the columns of the variants table: each variant's ms, then these ratios (num / den)
-VARIANT_COLUMNS = ('plain', 'damped', 'substeps2', 'damped_pass', 'sorted', 'damped_sorted')
+VARIANT_COLUMNS = ('plain', 'damped', 'substeps2', 'damped_pass', 'sorted', 'damped_sorted',
+                   'ground_sorted', 'damped_ground_sorted')
 VARIANT_RATIOS = (('damped', 'plain'), ('substeps2', 'damped'), ('damped_pass', 'plain'),
-                  ('sorted', 'plain'), ('damped_sorted', 'damped'))
+                  ('sorted', 'plain'), ('damped_sorted', 'damped'),
+                  ('damped_sorted', 'sorted'), ('ground_sorted', 'sorted'),
+                  ('damped_ground_sorted', 'ground_sorted'))
 DEFAULT_VARIANTS = ('plain', 'damped', 'substeps2')
 #: particles of one body of the ``many`` rows (4 x 6 x 6 lattice)
 MANY_BODY = (4, 6, 6)
@@ -70,7 +77,9 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument('--variants', default=','.join(DEFAULT_VARIANTS),
                    help='plain (no damping), damped (0.05), substeps2 (0.05, 2 substeps), '
                         'damped_pass (0.05 in a separate pass, as before), sorted and '
-                        'damped_sorted (plain and damped, particles stored set by set)')
+                        'damped_sorted (plain and damped, particles stored set by set), '
+                        'ground_sorted and damped_ground_sorted (the same on a ground, as '
+                        'in the bundled scenes)')
     p.add_argument('--many', default='64,384',
                    help='body counts of the many-bodies rows ("" to skip)')
 
@@ -172,11 +181,14 @@ def bytes_per_particle(body) -> int:
 # ---------------------------------------------------------------------------------------
 
 def build_world(n_side: int, mode: str, k: int, alpha: float = 1.0, damping: float = 0.0,
-                order: Optional[str] = None):
-    """Build a world with one n^3 lattice body (unit masses) and gravity; no colliders
+                order: Optional[str] = None, ground: bool = False):
+    """Build a world with one n^3 lattice body (unit masses) and gravity; no colliders, or
+    with ``ground`` a ground at the lattice's lowest layer (friction 0.5, restitution 0.1)
     (``order``: as ``World.add_body``, None keeps the lattice order)."""
-    from sm_ros.core import BodyParams, World
+    from sm_ros.core import BodyParams, Ground, World
     world = World(gravity=GRAVITY)
+    if ground:
+        world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.1))
     body = world.add_body(bc.cube_lattice(n_side), masses=1.0, name='cube',
                           params=BodyParams(mode=mode, alpha=alpha, beta=0.5, clusters=k,
                                             damping=damping), order=order)
@@ -222,7 +234,7 @@ def time_size(n_side: int, modes, ks, min_time: float,
                 t0 = time.perf_counter()
                 world, body = build_world(n_side, mode, k, damping=damping,
                                           order='set' if variant in SORTED_VARIANTS
-                                          else None)
+                                          else None, ground=variant in GROUND_VARIANTS)
                 if variant == 'damped_pass':
                     body._damp_fused = False
                 build_s = time.perf_counter() - t0
@@ -375,10 +387,12 @@ def run(args, out: Path) -> Dict[str, Any]:
                              'set_runs', 'ms_median', 'ms_min', 'ns_per_particle', 'parallel',
                              'build_s'],
                  'ms per tick against N (World.step, dt = 5 ms per tick, gravity, no '
-                 'colliders; variants: plain, damped = damping 0.05, substeps2 = damping '
-                 '0.05 in two steps of 2.5 ms, sorted / damped_sorted = plain / damped with '
-                 'the particles stored set by set; set_runs: runs of one set in the set '
-                 'layout; the configurations of one N timed round-robin)')
+                 'colliders but in the ground variants; variants: plain, damped = damping '
+                 '0.05, substeps2 = damping 0.05 in two steps of 2.5 ms, sorted / '
+                 'damped_sorted = plain / damped with the particles stored set by set, '
+                 'ground_sorted / damped_ground_sorted = the same settling on a ground; '
+                 'set_runs: runs of one set in the set layout; the configurations of one N '
+                 'timed round-robin)')
     results: List[Dict[str, Any]] = []
     for n_side in sizes:
         bc.log(f'[scaling] sm_ros N={n_side ** 3}: {len(modes) * len(ks) * len(variants)} '
