@@ -38,7 +38,8 @@ from numba.typed import List as TypedList
 from .kernels import (BLOCK, JIT, NDAMP, STRETCH_LIMIT, _collide_range, det3, extract_rotation,
                       limit_turn, unit_det_match_warm)
 from .kernels.damping import damp_acc_range, damp_sums_range
-from .kernels.integrate import _acc_single, _int_single_fused, _int_single_lin
+from .kernels.colliders import ground_range
+from .kernels.integrate import _acc_single, _int_single_fused
 from .kernels.jit import finite
 from .kernels.limits import limit_speed_range
 from .kernels.linalg import sym3_solve
@@ -268,7 +269,6 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
     flagged = np.zeros(1, dtype=np.bool_)
     noptr = np.zeros(0, dtype=np.int64)
     nocl = np.zeros(0, dtype=np.int32)
-    zero3 = np.zeros(3)
     for b in range(lo, hi):
         row = P[b]
         if row[C_FLAGS + 3] > 0.0:             # asleep (``sm_ros.core.sleep``): not stepped
@@ -423,7 +423,7 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
         dp[18] = 1.0
         err2, capped = _pass(0, n, x, v, x0, mass, row[C_WUNI], goal_lin, goal_off, alpha, h,
                              acc, damp, k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max,
-                             has_col, ground, boxes, spheres, thresh, part0, dpart0, zero3)
+                             has_col, ground, boxes, spheres, thresh, part0, dpart0)
         if damp:
             # the damping row's W and sum w (x - pnt): the shape sums' (same point)
             dp[19] = row[C_WSUM]
@@ -450,45 +450,44 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
 @njit(**JIT)
 def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp, k_damp, dmp,
           ref, pnt, rest_lin, rest_off, v_max, has_col, ground, boxes, spheres, thresh, sums,
-          dsums, zero3):
+          dsums):
     """Particles lo..hi of a one-cluster body (see ``_step_chunk``); the next step's sums
     are added to ``sums`` (12) and, with ``damp``, ``dsums`` (its point set by the caller).
-    Returns (shape-error sum, capped speeds).  ``zero3``: three zeros (no torque; the
-    caller's, so that a body's pass allocates nothing).
+    Returns (shape-error sum, capped speeds).
 
-    Without colliders one loop does it all (``_int_single_fused``, ``FUSED_BLOCK``
-    particles a call; a call that finds a speed over the cap caps those particles and takes
-    their sums again; a damped body: ``BLOCK``).  With colliders, block by block (``BLOCK``,
-    in L1): Eq. 13-14 (``_int_single_lin``, vectorised), the colliders, the speed limit,
-    then the shape sums (``_acc_single``, vectorised) of what the colliders left.  Either
-    way a damped body's damping sums are one more loop over the block while it is in cache
+    One loop does it all (``_int_single_fused``, ``FUSED_BLOCK`` particles a call; with
+    damping or colliders ``BLOCK``, in L1).  A block with a speed over the cap or a height
+    below the ground, or any block in a world with boxes or spheres, is then projected onto
+    the colliders (the ground alone: ``ground_range``, no bounds pass), capped and summed
+    again (``_acc_single``, vectorised): a body in the air or resting on the ground on a
+    few of its blocks pays one loop for the others.  A damped body's damping sums are one
+    more loop over the block while it is in cache
     (12 of the 20 sums of ``damp_acc_range``: the caller takes W and sum w d from the
     shape sums); ``wuni`` > 0 (every particle of that mass) sums them unweighted.
     """
     err2 = 0.0
     capped = 0
     k0, k1, k2 = pnt[0, 0], pnt[0, 1], pnt[0, 2]
+    boxed = has_col and (boxes.shape[0] > 0 or spheres.shape[0] > 0)
+    gz = ground[1] if has_col and ground[0] > 0.5 else -np.inf
     step = BLOCK if damp or has_col else FUSED_BLOCK
     for bs in range(lo, hi, step):
         be = min(bs + step, hi)
-        if not has_col:
-            e, over = _int_single_fused(start=bs, end=be, x=x, v=v, x0=x0, mass=mass, wuni=wuni,
-                                        goal_lin=goal_lin, goal_off=goal_off, alpha=alpha,
-                                        h=h, acc=acc, damp=damp, k_damp=k_damp, dmp=dmp,
-                                        ref=ref, pnt=pnt, rest_lin=rest_lin,
-                                        rest_off=rest_off, v_max=v_max, sums=sums)
-            err2 += e
+        e, over, low = _int_single_fused(start=bs, end=be, x=x, v=v, x0=x0, mass=mass,
+                                         wuni=wuni, goal_lin=goal_lin, goal_off=goal_off,
+                                         alpha=alpha, h=h, acc=acc, damp=damp, k_damp=k_damp,
+                                         dmp=dmp, ref=ref, pnt=pnt, rest_lin=rest_lin,
+                                         rest_off=rest_off, v_max=v_max, gz=gz, boxed=boxed,
+                                         sums=sums)
+        err2 += e
+        if over or low or boxed:
+            # the loop did not add the sums: colliders, cap, then the sums of what they left
+            if boxed:
+                _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes,
+                               spheres=spheres, thresh=thresh)
+            elif low:
+                ground_range(bs, be, x, v, ground, thresh)
             if over:
-                capped += limit_speed_range(bs, be, x, v, h, v_max)
-                _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass,
-                            rest_lin=rest_lin, rest_off=rest_off, ref=pnt, sums=sums)
-        else:
-            err2 += _int_single_lin(start=bs, end=be, x=x, v=v, x0=x0, goal_lin=goal_lin,
-                                    goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=zero3,
-                                    com=zero3, damp=damp, k_damp=k_damp, dmp=dmp, ref=ref)
-            _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes,
-                           spheres=spheres, thresh=thresh)
-            if v_max > 0.0:
                 capped += limit_speed_range(bs, be, x, v, h, v_max)
             _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass,
                         rest_lin=rest_lin, rest_off=rest_off, ref=pnt, sums=sums)

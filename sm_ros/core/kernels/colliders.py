@@ -144,6 +144,21 @@ def _range_reach(start, end, x, ground, boxes, spheres):
     return on_ground, False
 
 
+@njit(inline='always', **JIT)
+def ground_range(start, end, x, v, ground, thresh):
+    """``collide_point`` for the ground alone on particles start..end (a resting body has a
+    whole layer of particles in contact every step: the call, not the test, is what costs).
+    ``_collide_range`` and the one-loop passes, which know from their own count that a
+    particle is below the ground, call it."""
+    gz, mu, e = ground[1], ground[2], ground[3]
+    for i in range(start, end):
+        if x[i, 2] < gz:
+            x[i, 2] = gz
+            v[i, 0], v[i, 1], v[i, 2] = contact_velocity(vx=v[i, 0], vy=v[i, 1], vz=v[i, 2],
+                                                         nx=0.0, ny=0.0, nz=1.0, friction=mu,
+                                                         restitution=e, thresh=thresh)
+
+
 @njit(**JIT)
 def _collide_range(start, end, x, v, ground, boxes, spheres, thresh):
     """Colliders for particles start..end.
@@ -162,15 +177,7 @@ def _collide_range(start, end, x, v, ground, boxes, spheres, thresh):
     if not others:
         if not on_ground:
             return False
-        # collide_point for the ground alone, inlined (a resting body has a whole layer
-        # of particles in contact every step)
-        gz, mu, e = ground[1], ground[2], ground[3]
-        for i in range(start, end):
-            if x[i, 2] < gz:
-                x[i, 2] = gz
-                v[i, 0], v[i, 1], v[i, 2] = contact_velocity(vx=v[i, 0], vy=v[i, 1], vz=v[i, 2],
-                                                             nx=0.0, ny=0.0, nz=1.0, friction=mu,
-                                                             restitution=e, thresh=thresh)
+        ground_range(start, end, x, v, ground, thresh)
         return True
     for i in range(start, end):
         x[i, 0], x[i, 1], x[i, 2], v[i, 0], v[i, 1], v[i, 2] = collide_point(px=x[i, 0],

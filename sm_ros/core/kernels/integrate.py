@@ -271,19 +271,20 @@ def _int_single_lin(start, end, x, v, x0, goal_lin, goal_off, alpha, h, acc, ang
 
 @njit(**JIT)
 def _int_single_fused(start, end, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc,
-                      damp, k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max, sums):
-    """The one-cluster pass over particles start..end in one loop (no torque, no pass
-    colliders): the damping towards ``dmp[0]`` about ``ref[0]`` (with ``damp``), Eq. 13-14,
-    the count of speeds above ``v_max`` (0: no cap), and the shape match's 12 sums of the
-    new state about the point ``pnt[0]`` (``_acc_single``) into ``sums[0]``
-    (``_fused_range``, the loop).
+                      damp, k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max, gz, boxed, sums):
+    """The one-cluster pass over particles start..end in one loop (no torque): the damping
+    towards ``dmp[0]`` about ``ref[0]`` (with ``damp``), Eq. 13-14, the count of speeds
+    above ``v_max`` (0: no cap) and of new heights below ``gz`` (the ground's height, or
+    -inf), and the shape match's 12 sums of the new state about the point ``pnt[0]``
+    (``_acc_single``) into ``sums[0]`` (``_fused_range``, the loop).
 
-    Returns (sum of |g - p|^2 as ``advance``, speeds over the cap).  The sums are added
-    only when no speed is over the cap: otherwise the caller caps the range and takes its
-    sums again (``_acc_single``), so a capped particle is summed as capped.  The damping's
-    sums stay a loop of their own (``damping.damp_sums_range``, over the same block while
-    it is in cache): in this loop they spilled registers (97k particles: 4.1 ns/particle
-    against 3.4).
+    Returns (sum of |g - p|^2 as ``advance``, speeds over the cap, heights below the
+    ground).  The sums are added only when no speed is over the cap, no height below the
+    ground and no box or sphere is in the world (``boxed``): otherwise the caller projects
+    the range onto the colliders, caps it and takes its sums again (``_acc_single``), so a
+    moved particle is summed where it ends.  The damping's sums stay a loop of their own
+    (``damping.damp_sums_range``, over the same block while it is in cache): in this loop
+    they spilled registers (97k particles: 4.1 ns/particle against 3.4).
     """
     gmap = (goal_lin[0, 0, 0], goal_lin[0, 0, 1], goal_lin[0, 0, 2], goal_lin[0, 1, 0],
             goal_lin[0, 1, 1], goal_lin[0, 1, 2], goal_lin[0, 2, 0], goal_lin[0, 2, 1],
@@ -293,12 +294,12 @@ def _int_single_fused(start, end, x, v, x0, mass, wuni, goal_lin, goal_off, alph
     lim2 = v_max * v_max if v_max > 0.0 else np.inf
     out = _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha / h, h,
                        h * acc[0], h * acc[1], h * acc[2], pnt[0, 0], pnt[0, 1], pnt[0, 2],
-                       lim2)
-    err2, over = out[0], out[1]
-    if over == 0:
+                       lim2, gz)
+    err2, over, low = out[0], out[1], out[14]
+    if over == 0 and low == 0 and not boxed:
         _add_rest_sums(rest_lin, rest_off, sums[0], out[2], out[3], out[4], out[5], out[6],
                        out[7], out[8], out[9], out[10], out[11], out[12], out[13])
-    return err2, over
+    return err2, over, low
 
 
 @njit(inline='always', **JIT)
@@ -314,11 +315,12 @@ def damp_constants(damp, k_damp, c0, c1, c2, o0, o1, o2, r0, r1, r2):
 
 @njit(inline='always', **JIT)
 def _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha_h, h, hx, hy, hz,
-                 k0, k1, k2, lim2):
+                 k0, k1, k2, lim2, gz):
     """One loop over particles start..end: the damping (``field``, ``damp_constants``;
     with ``damp``), Eq. 13-14 towards the goal G x0 + b (``gmap``: G row by row, then b),
     and the 12 sums of the new state about the point k (``_rest_sums``'s).  Returns (sum of
-    |g - p|^2 as ``advance``, speeds over sqrt(lim2), the 12 sums).
+    |g - p|^2 as ``advance``, speeds over sqrt(lim2), the 12 sums, new heights below gz:
+    the ground's test, so that a run the ground cannot reach skips its collider pass).
 
     Vectorises across particles (unit-stride columns, unsigned index, every constant in a
     local: one lane a particle; the 12 sums, the error and the count as vector accumulators
@@ -332,6 +334,7 @@ def _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha_h, h
     km, f0, f1, f2, o0, o1, o2 = field
     err2 = 0.0
     over = 0
+    low = 0
     s0 = s1 = s2 = 0.0
     c00 = c01 = c02 = c10 = c11 = c12 = c20 = c21 = c22 = 0.0
     if damp:
@@ -360,6 +363,7 @@ def _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha_h, h
             v[i, 2] = v2
             err2 += e0 * e0 + e1 * e1 + e2 * e2 + 0.0 * (v0 + v1 + v2)
             over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
+            low += y2 < gz
             # the next step's shape-match sums of the new state
             w = 1.0 if unit else mass[i]
             wd0 = w * (y0 - k0)
@@ -398,6 +402,7 @@ def _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha_h, h
             v[i, 2] = v2
             err2 += e0 * e0 + e1 * e1 + e2 * e2 + 0.0 * (v0 + v1 + v2)
             over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
+            low += y2 < gz
             w = 1.0 if unit else mass[i]
             wd0 = w * (y0 - k0)
             wd1 = w * (y1 - k1)
@@ -417,8 +422,8 @@ def _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha_h, h
     if unit:
         return (err2, over, wuni * s0, wuni * s1, wuni * s2, wuni * c00, wuni * c01,
                 wuni * c02, wuni * c10, wuni * c11, wuni * c12, wuni * c20, wuni * c21,
-                wuni * c22)
-    return (err2, over, s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22)
+                wuni * c22, low)
+    return (err2, over, s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22, low)
 
 
 @njit(**JIT)

@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit, prange
 
 from .jit import JIT, U
-from .colliders import _collide_range
+from .colliders import _collide_range, ground_range
 from .damping import damp_acc_range, damp_sums_range, damp_towards
 from .integrate import BLOCK, _fused_range, _rest_sums, advance, damp_constants
 from .limits import limit_speed_range
@@ -674,6 +674,8 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     ``runs`` (looking for them particle by particle cost 0.3-0.5 ns a particle).
     """
     lim2 = v_max * v_max if v_max > 0.0 else np.inf
+    ground_only = boxes.shape[0] == 0 and spheres.shape[0] == 0
+    gz = ground[1] if has_col and ground[0] > 0.5 else -np.inf
     err2 = 0.0
     capped = 0
     r = np.searchsorted(runs, start, side='right') - 1     # the run holding start
@@ -693,15 +695,22 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
             r1 += h * (dmp[s, 1] + hy)
             r2 += h * (dmp[s, 2] + hz)
         t = _fused_range(i, j, x, v, y0, mass, wuni, gmap, damp, field, alpha_h, h, hx, hy, hz, r0,
-                         r1, r2, lim2)
+                         r1, r2, lim2, gz)
         err2 += t[0]
-        moved = has_col and _collide_range(start=i, end=j, x=x, v=v, ground=ground,
-                                           boxes=boxes, spheres=spheres, thresh=thresh)
+        # a ground alone: only a run with a height below it can be moved (the loop counts
+        # them): projected without the bounds pass, the others skip the colliders
+        moved = False
+        if has_col and not ground_only:
+            moved = _collide_range(start=i, end=j, x=x, v=v, ground=ground, boxes=boxes,
+                                   spheres=spheres, thresh=thresh)
+        elif t[14] > 0:
+            ground_range(i, j, x, v, ground, thresh)
+            moved = True
         if t[1] > 0:
             capped += limit_speed_range(i, j, x, v, h, v_max)
             moved = True
         if moved:
-            t = (t[0], t[1]) + _rest_sums(i, j, x, y0, mass, r0, r1, r2)
+            t = (t[0], t[1]) + _rest_sums(i, j, x, y0, mass, r0, r1, r2) + (t[14],)
         # the set sums' layout: per row of d, [sum w d, sum w d y^T]
         _add_lin_sums(sums, s, t[2], t[5], t[6], t[7], t[3], t[8], t[9], t[10], t[4], t[11],
                       t[12], t[13])
