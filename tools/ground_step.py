@@ -49,6 +49,7 @@ def measure(settle, steps, rounds):
 
 
 def main():
+    """Measure here, or compare two checkouts (``--compare``)."""
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     p.add_argument('--settle', type=int, default=150)
     p.add_argument('--steps', type=int, default=50)

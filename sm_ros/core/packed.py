@@ -469,16 +469,19 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
     capped = 0
     k0, k1, k2 = pnt[0, 0], pnt[0, 1], pnt[0, 2]
     boxed = has_col and (boxes.shape[0] > 0 or spheres.shape[0] > 0)
-    gz = ground[1] if has_col and ground[0] > 0.5 else -np.inf
+    grounded = has_col and ground[0] > 0.5
     step = BLOCK if damp or has_col else FUSED_BLOCK
     for bs in range(lo, hi, step):
         be = min(bs + step, hi)
-        e, over, low = _int_single_fused(start=bs, end=be, x=x, v=v, x0=x0, mass=mass,
-                                         wuni=wuni, goal_lin=goal_lin, goal_off=goal_off,
-                                         alpha=alpha, h=h, acc=acc, damp=damp, k_damp=k_damp,
-                                         dmp=dmp, ref=ref, pnt=pnt, rest_lin=rest_lin,
-                                         rest_off=rest_off, v_max=v_max, gz=gz, boxed=boxed,
-                                         sums=sums)
+        # two call sites: the loop without a ground is compiled without the ground's test
+        if grounded:
+            e, over, low = _int_single_fused(bs, be, x, v, x0, mass, wuni, goal_lin, goal_off,
+                                             alpha, h, acc, damp, k_damp, dmp, ref, pnt,
+                                             rest_lin, rest_off, v_max, ground[1], boxed, sums)
+        else:
+            e, over, low = _int_single_fused(bs, be, x, v, x0, mass, wuni, goal_lin, goal_off,
+                                             alpha, h, acc, damp, k_damp, dmp, ref, pnt,
+                                             rest_lin, rest_off, v_max, None, boxed, sums)
         err2 += e
         if over or low or boxed:
             # the loop did not add the sums: colliders, cap, then the sums of what they left

@@ -651,7 +651,7 @@ FUSED_SETS_BLOCK = 4096
 @njit(**JIT)
 def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha_h, h, hx,
                     hy, hz, damp, k_damp, dmp, v_max, sums, dsums, has_col, ground, boxes,
-                    spheres, thresh):
+                    spheres, thresh, gz):
     """The whole pass of particles start..end of a rigid/linear set-layout body without
     torque, run by run (``integrate._fused_range``: one loop reads and writes each particle
     once): the damping towards the set's field, Eq. 13-14 with the set's map, the count of
@@ -662,7 +662,8 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     again (``integrate._rest_sums``), so the sums are of the final state and the step
     leaves them valid; damped, then the run's 12 damping sums
     (``damping.damp_sums_range``) while it is in cache.  Returns (sum of |g - x|^2, capped
-    speeds).
+    speeds).  ``gz``: the ground's height, None without a ground (compiled without the
+    ground's test, ``integrate.below_ground``).
 
     The sums of a set are taken about one point P_s, its shape sums and damping sums alike
     (so the damping row's sum w d and W are the shape sums' own: 12 damping accumulators,
@@ -675,7 +676,6 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     """
     lim2 = v_max * v_max if v_max > 0.0 else np.inf
     ground_only = boxes.shape[0] == 0 and spheres.shape[0] == 0
-    gz = ground[1] if has_col and ground[0] > 0.5 else -np.inf
     err2 = 0.0
     capped = 0
     r = np.searchsorted(runs, start, side='right') - 1     # the run holding start
@@ -755,16 +755,21 @@ def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, wuni, sid, runs, gm, s
     err2 = 0.0
     capped = 0
     fused = _fused_pass(quad, has_col, ang, runs)
+    grounded = has_col and ground[0] > 0.5
     step = FUSED_SETS_BLOCK if fused else BLOCK
     for bs in range(start, end, step):
         be = min(bs + step, end)
         if fused:
-            e, c = _sets_fused_lin(start=bs, end=be, x=x, v=v, y0=y0, mass=mass, wuni=wuni,
-                                   sid=sid, runs=runs, gm=gm, sref=sref, alpha_h=alpha / h, h=h,
-                                   hx=h * acc[0], hy=h * acc[1], hz=h * acc[2], damp=damp,
-                                   k_damp=k_damp, dmp=dmp, v_max=v_max, sums=sums,
-                                   dsums=dpart[chunk], has_col=has_col, ground=ground,
-                                   boxes=boxes, spheres=spheres, thresh=thresh)
+            if grounded:
+                e, c = _sets_fused_lin(bs, be, x, v, y0, mass, wuni, sid, runs, gm, sref,
+                                       alpha / h, h, h * acc[0], h * acc[1], h * acc[2], damp,
+                                       k_damp, dmp, v_max, sums, dpart[chunk], has_col,
+                                       ground, boxes, spheres, thresh, ground[1])
+            else:                          # compiled without the ground's test
+                e, c = _sets_fused_lin(bs, be, x, v, y0, mass, wuni, sid, runs, gm, sref,
+                                       alpha / h, h, h * acc[0], h * acc[1], h * acc[2], damp,
+                                       k_damp, dmp, v_max, sums, dpart[chunk], has_col,
+                                       ground, boxes, spheres, thresh, None)
             err2 += e
             capped += c
             continue
