@@ -229,14 +229,15 @@ def damp_towards(v, i, r0, r1, r2, c0, c1, c2, o0, o1, o2, k_damp):
 def damp_sums_range(lo, hi, x, v, mass, wuni, k0, k1, k2):
     """The damping sums of particles lo..hi about the point k (rows 3-14 of ``NDAMP``:
     sum w v, sum w d x v, the six second moments of d = x - k), then their mass sum (row
-    19); rows 0-2 (sum w d) are left to the caller, whose shape-match sums about the same
-    point hold them.  12 accumulators: both loops vectorise across particles like
-    ``damp_acc_range`` (unit-stride columns of x, v, unsigned index: one lane a particle,
-    12 vector accumulators).  The loop is bound by the FMA ports (12 products a particle),
-    so with ``wuni`` > 0 (every particle of that mass) it sums unweighted and scales once:
-    12 products, not 18.  Inlined by Numba into ``packed._pass`` (a block of a one-cluster
-    body) and ``sets._sets_fused_lin`` (a run of one set)."""
-    b0 = b1 = b2 = c0 = c1 = c2 = 0.0
+    19) and sum w d (rows 0-2), 16 values.  The one-loop passes take sum w d from their
+    shape-match sums about the same point and leave it unused (LLVM drops its
+    accumulators); ``damp_acc_range`` takes all 16.  Both loops vectorise across particles
+    (unit-stride columns of x, v, unsigned index: one lane a particle, a vector
+    accumulator a sum).  The loop is bound by the FMA ports (12 products a particle), so
+    with ``wuni`` > 0 (every particle of that mass) it sums unweighted and scales once: 12
+    products, not 18.  Inlined by Numba into ``packed._pass`` (a block of a one-cluster
+    body), ``sets._sets_fused_lin`` (a run of one set) and ``damp_acc_range``."""
+    a0 = a1 = a2 = b0 = b1 = b2 = c0 = c1 = c2 = 0.0
     e00 = e11 = e22 = e01 = e12 = e20 = 0.0
     ms = 0.0
     if wuni > 0.0:
@@ -245,6 +246,9 @@ def damp_sums_range(lo, hi, x, v, mass, wuni, k0, k1, k2):
             d1 = x[k, 1] - k1
             d2 = x[k, 2] - k2
             v0, v1, v2 = v[k, 0], v[k, 1], v[k, 2]
+            a0 += d0
+            a1 += d1
+            a2 += d2
             b0 += v0
             b1 += v1
             b2 += v2
@@ -259,7 +263,7 @@ def damp_sums_range(lo, hi, x, v, mass, wuni, k0, k1, k2):
             e20 += d2 * d0
         return (wuni * b0, wuni * b1, wuni * b2, wuni * c0, wuni * c1, wuni * c2,
                 wuni * e00, wuni * e11, wuni * e22, wuni * e01, wuni * e12, wuni * e20,
-                wuni * (hi - lo))
+                wuni * (hi - lo), wuni * a0, wuni * a1, wuni * a2)
     for k in range(U(lo), U(hi)):
         w = mass[k]
         d0 = x[k, 0] - k0
@@ -270,6 +274,9 @@ def damp_sums_range(lo, hi, x, v, mass, wuni, k0, k1, k2):
         wd1 = w * d1
         wd2 = w * d2
         ms += w
+        a0 += wd0
+        a1 += wd1
+        a2 += wd2
         b0 += w * v0
         b1 += w * v1
         b2 += w * v2
@@ -282,18 +289,17 @@ def damp_sums_range(lo, hi, x, v, mass, wuni, k0, k1, k2):
         e01 += wd0 * d1
         e12 += wd1 * d2
         e20 += wd2 * d0
-    return b0, b1, b2, c0, c1, c2, e00, e11, e22, e01, e12, e20, ms
+    return b0, b1, b2, c0, c1, c2, e00, e11, e22, e01, e12, e20, ms, a0, a1, a2
 
 
 @njit(**JIT)
 def damp_acc_range(start, end, x, v, mass, sid, dsums):
     """Rows ``dsums[s]`` += the particles start..end (``sid`` empty: all in set 0).
 
-    The loop runs over one run of a set at a time with its 20 sums in registers; it
-    vectorises across the particles of the run (a reduction over the unit-stride columns
-    of x, v with an unsigned index, one lane a particle: 8 a ``zmm`` on AVX-512), so a
-    one-cluster body (one run) pays little for it; short runs (set-layout bodies whose
-    particle order jumps between sets) fall back to the scalar remainder loop.
+    One run of a set at a time, its sums about the set's row point (the first particle
+    met) taken by ``damp_sums_range`` (in registers, vectorised across the particles of
+    the run), so a one-cluster body (one run) pays little for it; short runs (set-layout
+    bodies whose particle order jumps between sets) fall back to the scalar remainder loop.
     """
     single = sid.shape[0] == 0
     i = start
@@ -306,56 +312,18 @@ def damp_acc_range(start, end, x, v, mass, sid, dsums):
             row[17] = x[i, 2]
             row[18] = 1.0
         r0, r1, r2 = row[15], row[16], row[17]
-        a0 = a1 = a2 = b0 = b1 = b2 = c0 = c1 = c2 = 0.0
-        e00 = e11 = e22 = e01 = e12 = e20 = ms = 0.0
         j = end
         if not single:
             j = i + 1
             while j < end and sid[j] == s:
                 j += 1
-        for k in range(U(i), U(j)):
-            w = mass[k]
-            d0 = x[k, 0] - r0
-            d1 = x[k, 1] - r1
-            d2 = x[k, 2] - r2
-            u0 = w * v[k, 0]
-            u1 = w * v[k, 1]
-            u2 = w * v[k, 2]
-            wd0 = w * d0
-            wd1 = w * d1
-            wd2 = w * d2
-            ms += w
-            a0 += wd0
-            a1 += wd1
-            a2 += wd2
-            b0 += u0
-            b1 += u1
-            b2 += u2
-            c0 += d1 * u2 - d2 * u1
-            c1 += d2 * u0 - d0 * u2
-            c2 += d0 * u1 - d1 * u0
-            e00 += wd0 * d0
-            e11 += wd1 * d1
-            e22 += wd2 * d2
-            e01 += wd0 * d1
-            e12 += wd1 * d2
-            e20 += wd2 * d0
-        row[0] += a0
-        row[1] += a1
-        row[2] += a2
-        row[3] += b0
-        row[4] += b1
-        row[5] += b2
-        row[6] += c0
-        row[7] += c1
-        row[8] += c2
-        row[9] += e00
-        row[10] += e11
-        row[11] += e22
-        row[12] += e01
-        row[13] += e12
-        row[14] += e20
-        row[19] += ms
+        t = damp_sums_range(i, j, x, v, mass, 0.0, r0, r1, r2)
+        row[0] += t[13]
+        row[1] += t[14]
+        row[2] += t[15]
+        for k in range(12):
+            row[3 + k] += t[k]
+        row[19] += t[12]
         i = j
 
 
