@@ -490,6 +490,8 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
                                spheres=spheres, thresh=thresh)
             elif low:
                 ground_range(bs, be, x, v, ground, thresh)
+            # the speeds were counted before the colliders, which never speed a particle up
+            # (``colliders.contact_velocity``)
             if over:
                 capped += limit_speed_range(bs, be, x, v, h, v_max)
             _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass,

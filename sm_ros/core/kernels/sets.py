@@ -637,12 +637,13 @@ def sets_accumulate_parallel(quad, x, y0, mass, sid, sref, part):
 
 
 #: Particles a run of one set must hold on average for a body's pass to take
-#: ``_sets_fused_lin``: each run costs it about 250 ns (the vector loops' setup, their
-#: reductions and remainders, the sums written out), a loss on short runs (lattice order:
-#: runs of ~7), where the two-loop pass finds and sums the runs particle by particle.
+#: ``_sets_fused_lin``: each run costs it 73 ns undamped, 117 ns damped
+#: (``tools/set_pass_cost.py``; the vector loops' setup, their reductions and remainders, the
+#: sums written out), a loss on short runs (lattice order: runs of ~7), where the two-loop
+#: pass finds and sums the runs particle by particle.
 FUSED_MIN_RUN = 32
-#: Particles per block of ``_sets_fused_lin``: each block adds a segment to the runs (about
-#: 250 ns each), and a damped run is read twice, the second time from L2 either way (1024
+#: Particles per block of ``_sets_fused_lin``: each block adds a segment to the runs (as
+#: costly as a run), and a damped run is read twice, the second time from L2 either way (1024
 #: particles' x and v alone fill L1).  10,648 particles in 27 runs, damped: 47.5 us a step
 #: with 1024, 44.9 with 4096, 44.7 unblocked.
 FUSED_SETS_BLOCK = 4096
@@ -706,6 +707,9 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
         elif t[14] > 0:
             ground_range(i, j, x, v, ground, thresh)
             moved = True
+        # the loop counted the speeds before the colliders: a static collider never speeds
+        # a particle up (``colliders.contact_velocity``: restitution <= 1, friction only
+        # slows), so a run with none over the cap has none after them either
         if t[1] > 0:
             capped += limit_speed_range(i, j, x, v, h, v_max)
             moved = True
