@@ -46,8 +46,12 @@ What every case asserts (the issue's list):
 - det S^P = 1 for every cluster's plastic state, within the cap c_max; S^P = I without
   plasticity.
 
-Below the matrix: named regressions for the core bugs it found, and long runs of inverted
-and flattened bodies. ``SM_STABILITY_REPORT=1 pytest -s`` prints every case's margins.
+A second matrix covers the same pairs for bodies the set layout's one-loop pass steps
+(rigid and linear 10x10x10 lattices, 1e-6, 0.1 and 1e4 m, in 8 clusters stored set by
+set: ``SET_CASES``), with the same assertions.
+
+Below the matrices: named regressions for the core bugs they found, and long runs of
+inverted and flattened bodies. ``SM_STABILITY_REPORT=1 pytest -s`` prints every case's margins.
 """
 
 import itertools
@@ -131,6 +135,12 @@ def covering_array(axes: dict, seed: int = 6, candidates: int = 40) -> list:
 
 
 CASES = covering_array(AXES)
+# the same pairs for bodies that take the set layout's one-loop pass (``kernels.sets.
+# _sets_fused_lin``: rigid/linear, runs of 32 particles or more): 10^3 lattices in 8
+# clusters stored set by set (27 runs of ~37 particles)
+SET_AXES = dict(AXES, mode=('rigid', 'linear'), clusters=(2,), shape=('lattice', 'tiny',
+                                                                       'huge'))
+SET_CASES = [dict(c, side=10, order='set') for c in covering_array(SET_AXES, seed=11)]
 
 
 def case_id(c: dict) -> str:
@@ -155,14 +165,14 @@ def lattice(n: int, side: float) -> np.ndarray:
     return np.stack(np.meshgrid(a, a, a, indexing='ij'), axis=-1).reshape(-1, 3)
 
 
-def make_shape(name: str, rng) -> np.ndarray:
-    """Rest positions of a named shape (before placement)."""
+def make_shape(name: str, rng, side: int = 4) -> np.ndarray:
+    """Rest positions of a named shape (before placement; lattices of ``side``^3)."""
     if name == 'lattice':
-        return lattice(4, SIZE)
+        return lattice(side, SIZE)
     if name == 'tiny':
-        return lattice(4, 1e-6)
+        return lattice(side, 1e-6)
     if name == 'huge':
-        return lattice(4, 1e4)
+        return lattice(side, 1e4)
     if name == 'one':
         return np.zeros((1, 3))
     if name == 'two':
@@ -202,7 +212,7 @@ def build(case: dict, seed: int):
     """World, body and bookkeeping for one case."""
     rng = np.random.default_rng(seed)
     rot = random_rotation(rng)
-    x0 = make_shape(case['shape'], rng) @ rot.T
+    x0 = make_shape(case['shape'], rng, case.get('side', 4)) @ rot.T
     size = float(np.ptp(x0, axis=0).max()) if len(x0) > 1 else 0.0
     scale = size if size > 0.0 else SIZE            # for displacements and offsets
     x0 = x0 + rng.uniform(-3.0, 3.0, 3) * scale     # somewhere away from the origin
@@ -236,7 +246,8 @@ def build(case: dict, seed: int):
             omega = min(1e3 / rim, 0.2 / case['dt'])
             v = omega * r
     world = World(gravity=(0.0, 0.0, 0.0))
-    body = world.add_body(x0, masses=m, params=params, name='b', velocities=v)
+    body = world.add_body(x0, masses=m, params=params, name='b', velocities=v,
+                          order=case.get('order'))
     body.set_state(x=x)
     load = case['load']
     if load.startswith('gravity'):
@@ -388,6 +399,21 @@ def spin_free(case: dict) -> bool:
 
 @pytest.mark.parametrize('case', CASES, ids=[case_id(c) for c in CASES])
 def test_stability_matrix(case):
+    check_case(case)
+
+
+@pytest.mark.parametrize('case', SET_CASES, ids=[case_id(c) for c in SET_CASES])
+def test_stability_matrix_of_the_one_loop_set_pass(case):
+    """The matrix's bounds for bodies stepped by the set layout's one-loop pass."""
+    from sm_ros.core.kernels.sets import FUSED_MIN_RUN
+    world, body = build(case, 0)
+    runs = body._sets.runs
+    assert (len(runs) - 1) * FUSED_MIN_RUN <= runs[-1]
+    check_case(case)
+
+
+def check_case(case: dict):
+    """Run one case and assert the matrix's bounds (extent, error after the load, decay)."""
     r = run_case(case)
     if os.environ.get('SM_STABILITY_REPORT'):       # margins, for tuning by hand
         print(f"\n{case_id(case)} extent x{r['worst_extent'] / max(r['e_ref'], 1e-300):.3g}")
