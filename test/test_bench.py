@@ -37,7 +37,9 @@ def test_quick_run_writes_tables(tmp_path):
     assert {r['clusters'] for r in rows} == {'1', '8', '64'}
     # every configuration in every variant, once; figures consistent with each other
     keys = [(r['N'], r['mode'], r['clusters'], r['variant']) for r in rows]
-    assert len(keys) == len(set(keys)) == 2 * 3 * 3 * 3
+    assert len(keys) == len(set(keys)) == 2 * 3 * 3 * 5
+    assert {r['variant'] for r in rows} == {'plain', 'damped', 'substeps2', 'damped_sorted',
+                                            'damped_ground_sorted'}
     for r in rows:
         assert float(r['ms_min']) <= float(r['ms_median'])
         assert float(r['ns_per_particle']) == pytest.approx(
@@ -48,6 +50,8 @@ def test_quick_run_writes_tables(tmp_path):
     for r in var:
         assert float(r['damped_over_plain']) == pytest.approx(
             float(r['damped_ms']) / float(r['plain_ms']), rel=1e-3)
+        assert float(r['damped_sorted_over_damped']) == pytest.approx(
+            float(r['damped_sorted_ms']) / float(r['damped_ms']), rel=1e-3)
     many = _rows(out / 'many.csv')
     assert [(r['bodies'], r['particles']) for r in many] == [('2', '288'), ('6', '864')]
     acc = _rows(out / 'accuracy.csv')
