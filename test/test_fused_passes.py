@@ -173,7 +173,7 @@ def test_capped_and_collided_runs_leave_the_set_sums_valid(order):
     st = body._sets
     fresh = np.zeros_like(st.part)
     K.sets_accumulate_serial(quad=False, x=body._x, y0=st.y0, mass=body.m, sid=st.sid,
-                             sref=st.ref, part=fresh)
+                             runs=st.runs, sref=st.ref, part=fresh)
     np.testing.assert_allclose(st.part, fresh, rtol=1e-10,
                                atol=1e-12 * np.abs(fresh).max())
 

@@ -43,8 +43,8 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
         if body._dirty:
             acc = K.sets_accumulate_parallel if body._parallel else \
                 K.sets_accumulate_serial
-            acc(quad=body._quad, x=x, y0=sets.y0, mass=body.m, sid=sets.sid, sref=sets.ref,
-                part=sets.part)
+            acc(quad=body._quad, x=x, y0=sets.y0, mass=body.m, sid=sets.sid, runs=sets.runs,
+                sref=sets.ref, part=sets.part)
         K.sets_reduce(part=sets.part, sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sphi=sets.phi,
                       sref=sets.ref, stp=sets.tp, rest_lin=body._rest_lin, ref=body._ref,
                       quad=body._quad, out=body._part, wk=sets.wk, pm=sets.pm)

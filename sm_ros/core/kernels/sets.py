@@ -234,8 +234,16 @@ def sets_maps(sptr, scl, scnt, sorg, stp, rest_lin, trans, goal_lin, goal_off, r
                 gm[s, a, fi] *= inv_n
 
 
+@njit(inline='always', **JIT)
+def first_run(runs, start):
+    """The run holding particle ``start`` (``runs``: the first particle of each run of one
+    set, then N; ``_SetLayout.runs``): the loops over runs take each run's end from it,
+    not from looking for it particle by particle."""
+    return np.searchsorted(runs, start, side='right') - 1
+
+
 @njit(**JIT)
-def _sets_int_lin(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1, w2, damp,
+def _sets_int_lin(start, end, x, v, y0, sid, runs, gm, alpha_h, h, ax, ay, az, w0, w1, w2, damp,
                   k_damp, dmp, sref):
     """Rigid/linear goals: each run of one set with its 3 x 4 map in registers.
 
@@ -247,6 +255,7 @@ def _sets_int_lin(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1,
     torque = w0 != 0.0 or w1 != 0.0 or w2 != 0.0
     hx, hy, hz = h * ax, h * ay, h * az
     err2 = 0.0
+    r = first_run(runs, start)
     i = start
     while i < end:
         s = sid[i]
@@ -257,9 +266,8 @@ def _sets_int_lin(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1,
         s_d = s if damp else 0
         c0, c1, c2 = dmp[s_d, 0], dmp[s_d, 1], dmp[s_d, 2]
         o0, o1, o2 = dmp[s_d, 3], dmp[s_d, 4], dmp[s_d, 5]
-        j = i + 1
-        while j < end and sid[j] == s:
-            j += 1
+        r += 1
+        j = min(runs[r], end)                  # the run's end (``_SetLayout.runs``)
         if damp and not torque:
             for k in range(U(i), U(j)):
                 y_0, y_1, y_2 = y0[k, 0], y0[k, 1], y0[k, 2]
@@ -299,7 +307,7 @@ def _sets_int_lin(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1,
 
 
 @njit(**JIT)
-def _sets_int_quad(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1, w2, damp,
+def _sets_int_quad(start, end, x, v, y0, sid, runs, gm, alpha_h, h, ax, ay, az, w0, w1, w2, damp,
                    k_damp, dmp, sref):
     """Quadratic goals: gm[s] (3 x 10) times phi(y); damping as in ``_sets_int_lin``.
 
@@ -309,6 +317,7 @@ def _sets_int_quad(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1
     30 coefficients after each store and cost three times the undamped one).
     """
     err2 = 0.0
+    r = first_run(runs, start)
     i = start
     while i < end:
         s = sid[i]
@@ -322,9 +331,8 @@ def _sets_int_quad(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1
         s_d = s if damp else 0
         c0, c1, c2 = dmp[s_d, 0], dmp[s_d, 1], dmp[s_d, 2]
         o0, o1, o2 = dmp[s_d, 3], dmp[s_d, 4], dmp[s_d, 5]
-        j = i + 1
-        while j < end and sid[j] == s:
-            j += 1
+        r += 1
+        j = min(runs[r], end)                  # the run's end (``_SetLayout.runs``)
         for k in range(U(i), U(j)):
             y_0, y_1, y_2 = y0[k, 0], y0[k, 1], y0[k, 2]
             f4 = y_0 * y_0
@@ -351,8 +359,8 @@ def _sets_int_quad(start, end, x, v, y0, sid, gm, alpha_h, h, ax, ay, az, w0, w1
 
 
 @njit(**JIT)
-def _sets_int_range(start, end, quad, x, v, y0, sid, gm, alpha, h, acc, ang, com, damp, k_damp,
-                    dmp, sref):
+def _sets_int_range(start, end, quad, x, v, y0, sid, runs, gm, alpha, h, acc, ang, com, damp,
+                    k_damp, dmp, sref):
     """Eq. 13-14 for particles start..end with the set goal maps; returns sum |g - x|^2."""
     w0, w1, w2 = ang[0], ang[1], ang[2]
     # acc + ang x (p - com) = (acc - ang x com) + ang x p
@@ -360,10 +368,11 @@ def _sets_int_range(start, end, quad, x, v, y0, sid, gm, alpha, h, acc, ang, com
     ay = acc[1] - (w2 * com[0] - w0 * com[2])
     az = acc[2] - (w0 * com[1] - w1 * com[0])
     if quad:
-        return _sets_int_quad(start=start, end=end, x=x, v=v, y0=y0, sid=sid, gm=gm,
+        return _sets_int_quad(start=start, end=end, x=x, v=v, y0=y0, sid=sid, runs=runs, gm=gm,
                               alpha_h=alpha / h, h=h, ax=ax, ay=ay, az=az, w0=w0, w1=w1, w2=w2,
                               damp=damp, k_damp=k_damp, dmp=dmp, sref=sref)
-    return _sets_int_lin(start=start, end=end, x=x, v=v, y0=y0, sid=sid, gm=gm, alpha_h=alpha / h,
+    return _sets_int_lin(start=start, end=end, x=x, v=v, y0=y0, sid=sid, runs=runs, gm=gm,
+                         alpha_h=alpha / h,
                          h=h, ax=ax, ay=ay, az=az, w0=w0, w1=w1, w2=w2, damp=damp,
                          k_damp=k_damp, dmp=dmp, sref=sref)
 
@@ -387,8 +396,9 @@ def _add_lin_sums(sums, s, a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22
 
 
 @njit(**JIT)
-def _sets_acc_lin(start, end, x, y0, mass, sid, sref, sums):
+def _sets_acc_lin(start, end, x, y0, mass, sid, runs, sref, sums):
     """U_s += m (x - r_s) [1, y]^T for particles start..end, runs of one set in registers."""
+    r = first_run(runs, start)
     i = start
     while i < end:
         s = sid[i]
@@ -396,9 +406,8 @@ def _sets_acc_lin(start, end, x, y0, mass, sid, sref, sums):
         a00 = a01 = a02 = a03 = 0.0
         a10 = a11 = a12 = a13 = 0.0
         a20 = a21 = a22 = a23 = 0.0
-        j = i + 1
-        while j < end and sid[j] == s:
-            j += 1
+        r += 1
+        j = min(runs[r], end)                  # the run's end (``_SetLayout.runs``)
         # a reduction over the run: vectorises (module docstring)
         for k in range(U(i), U(j)):
             w = mass[k]
@@ -423,13 +432,14 @@ def _sets_acc_lin(start, end, x, y0, mass, sid, sref, sums):
 
 
 @njit(**JIT)
-def _sets_acc_damp_lin(start, end, x, v, y0, mass, sid, sref, sums, dsums):
+def _sets_acc_damp_lin(start, end, x, v, y0, mass, sid, runs, sref, sums, dsums):
     """``_sets_acc_lin`` and ``damping.damp_acc_range`` in one loop over the runs: each run
     (particles of one set) is found once and read once, with its 12 set sums and 16
     damping sums (row layout of ``damping.NDAMP``; the reference p_s is the set's first
     particle met, as there) in registers.  Bodies of a few hundred particles have runs of
     1-3 particles, where finding the run and writing its sums cost more than its
     particles: one loop instead of two.  Vectorises across a long run like both."""
+    r = first_run(runs, start)
     i = start
     while i < end:
         s = sid[i]
@@ -446,9 +456,8 @@ def _sets_acc_damp_lin(start, end, x, v, y0, mass, sid, sref, sums, dsums):
         a20 = a21 = a22 = a23 = 0.0
         e0 = e1 = e2 = b0 = b1 = b2 = c0 = c1 = c2 = 0.0
         e00 = e11 = e22 = e01 = e12 = e20 = ms = 0.0
-        j = i + 1
-        while j < end and sid[j] == s:
-            j += 1
+        r += 1
+        j = min(runs[r], end)                  # the run's end (``_SetLayout.runs``)
         for k in range(U(i), U(j)):
             w = mass[k]
             p0, p1, p2 = x[k, 0], x[k, 1], x[k, 2]
@@ -600,40 +609,42 @@ def _sets_acc_quad(start, end, x, y0, mass, sid, sref, sums):
 
 
 @njit(**JIT)
-def _sets_acc_range(start, end, quad, x, y0, mass, sid, sref, sums):
+def _sets_acc_range(start, end, quad, x, y0, mass, sid, runs, sref, sums):
     if quad:
         _sets_acc_quad(start=start, end=end, x=x, y0=y0, mass=mass, sid=sid, sref=sref, sums=sums)
     else:
-        _sets_acc_lin(start=start, end=end, x=x, y0=y0, mass=mass, sid=sid, sref=sref, sums=sums)
+        _sets_acc_lin(start=start, end=end, x=x, y0=y0, mass=mass, sid=sid, runs=runs, sref=sref,
+                      sums=sums)
 
 
 @njit(**JIT)
-def _sets_acc_chunk(chunk, nchunks, quad, x, y0, mass, sid, sref, part):
+def _sets_acc_chunk(chunk, nchunks, quad, x, y0, mass, sid, runs, sref, part):
     n = x.shape[0]
     sums = part[chunk]
     for s in range(sums.shape[0]):
         for j in range(sums.shape[1]):
             sums[s, j] = 0.0
     _sets_acc_range(start=(chunk * n) // nchunks, end=((chunk + 1) * n) // nchunks, quad=quad, x=x,
+                    runs=runs,
                     y0=y0, mass=mass, sid=sid, sref=sref, sums=sums)
 
 
 @njit(**JIT)
-def sets_accumulate_serial(quad, x, y0, mass, sid, sref, part):
+def sets_accumulate_serial(quad, x, y0, mass, sid, runs, sref, part):
     """Per-set sums of the current state (when it was changed outside a step), one thread."""
     nchunks = part.shape[0]
     for chunk in range(nchunks):
         _sets_acc_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, y0=y0, mass=mass, sid=sid,
-                        sref=sref, part=part)
+                        runs=runs, sref=sref, part=part)
 
 
 @njit(parallel=True, **JIT)
-def sets_accumulate_parallel(quad, x, y0, mass, sid, sref, part):
+def sets_accumulate_parallel(quad, x, y0, mass, sid, runs, sref, part):
     """Per-set sums of the current state, one chunk per thread."""
     nchunks = part.shape[0]
     for chunk in prange(nchunks):
         _sets_acc_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, y0=y0, mass=mass, sid=sid,
-                        sref=sref, part=part)
+                        runs=runs, sref=sref, part=part)
 
 
 #: Particles a run of one set must hold on average for a body's pass to take
@@ -679,7 +690,7 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     ground_only = boxes.shape[0] == 0 and spheres.shape[0] == 0
     err2 = 0.0
     capped = 0
-    r = np.searchsorted(runs, start, side='right') - 1     # the run holding start
+    r = first_run(runs, start)
     i = start
     while i < end:
         s = sid[i]
@@ -777,7 +788,8 @@ def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, wuni, sid, runs, gm, s
             err2 += e
             capped += c
             continue
-        err2 += _sets_int_range(start=bs, end=be, quad=quad, x=x, v=v, y0=y0, sid=sid, gm=gm,
+        err2 += _sets_int_range(start=bs, end=be, quad=quad, x=x, v=v, y0=y0, sid=sid, runs=runs,
+                                gm=gm,
                                 alpha=alpha, h=h, acc=acc, ang=ang, com=com, damp=damp,
                                 k_damp=k_damp, dmp=dmp, sref=sref)
         if has_col:
@@ -786,10 +798,11 @@ def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, wuni, sid, runs, gm, s
         if v_max > 0.0:
             capped += limit_speed_range(bs, be, x, v, h, v_max)
         if damp and not quad:
-            _sets_acc_damp_lin(start=bs, end=be, x=x, v=v, y0=y0, mass=mass, sid=sid,
+            _sets_acc_damp_lin(start=bs, end=be, x=x, v=v, y0=y0, mass=mass, sid=sid, runs=runs,
                                sref=sref, sums=sums, dsums=dpart[chunk])
             continue
-        _sets_acc_range(start=bs, end=be, quad=quad, x=x, y0=y0, mass=mass, sid=sid, sref=sref,
+        _sets_acc_range(start=bs, end=be, quad=quad, x=x, y0=y0, mass=mass, sid=sid, runs=runs,
+                        sref=sref,
                         sums=sums)
         if damp:
             damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass, sid=sid, dsums=dpart[chunk])

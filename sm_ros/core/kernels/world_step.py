@@ -127,8 +127,8 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
     dirty = flags[0] > 0.0
     if sets:
         if dirty:
-            sets_accumulate_serial(quad=quad, x=x, y0=y0, mass=mass, sid=sid, sref=sref,
-                                   part=s_part)
+            sets_accumulate_serial(quad=quad, x=x, y0=y0, mass=mass, sid=sid, runs=s_runs,
+                                   sref=sref, part=s_part)
         sets_reduce(part=s_part, sptr=s_ptr, scl=s_cl, scnt=s_cnt, sphi=s_phi, sref=sref,
                     stp=s_tp, rest_lin=rest_lin, ref=ref, quad=quad, out=part, wk=wk, pm=pm)
     elif dirty:
