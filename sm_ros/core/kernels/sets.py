@@ -21,8 +21,9 @@ without torque takes one loop a run (``_sets_fused_lin``, the loop of the
 one-cluster pass ``integrate._fused_range``): each particle read and written once, its
 set's sums taken in the same loop, the damping sums in a second loop over the run while it
 is in cache, all about one point per set; the static colliders and the speed cap after the
-loop, a run they may have moved summed again; the runs' ends precomputed (``runs``).  Every
-pass caps the speeds block by block before it sums the block, so the sums stay valid.
+loop, a run they may have moved summed again.  Every pass takes the runs' ends from
+``runs`` (precomputed at build, ``first_run``) and caps the speeds block by block before it
+sums the block, so the sums stay valid.
 """
 
 import numpy as np
