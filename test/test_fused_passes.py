@@ -27,8 +27,7 @@ def _lattice(n, spacing=0.04):
 
 def _fused(body):
     """Whether ``body``'s pass takes the one-loop pass (``sets._fused_pass``'s run test)."""
-    runs = body._sets.runs
-    return (len(runs) - 1) * KS.FUSED_MIN_RUN <= runs[-1]
+    return KS.long_runs(body._sets.runs)
 
 
 def _world(n, order, masses, damping, max_speed=100.0, seed=4, ground=False):

@@ -405,10 +405,9 @@ def test_stability_matrix(case):
 @pytest.mark.parametrize('case', SET_CASES, ids=[case_id(c) for c in SET_CASES])
 def test_stability_matrix_of_the_one_loop_set_pass(case):
     """The matrix's bounds for bodies stepped by the set layout's one-loop pass."""
-    from sm_ros.core.kernels.sets import FUSED_MIN_RUN
+    from sm_ros.core.kernels.sets import long_runs
     world, body = build(case, 0)
-    runs = body._sets.runs
-    assert (len(runs) - 1) * FUSED_MIN_RUN <= runs[-1]
+    assert long_runs(body._sets.runs)
     check_case(case)
 
 
