@@ -11,7 +11,7 @@ import numpy as np
 
 from . import body_build, body_step
 from . import kernels as K
-from .body_build import _EMPTY_I64, _GENERATION
+from .body_build import _EMPTY_I64, _GENERATION, soa  # noqa: F401 (body.soa)
 from .packed import Pack
 from .params import BodyParams
 
@@ -35,17 +35,6 @@ FUSED_DAMPING_MIN_SETS = 0
 SET_LAYOUT_MIN_RATIO = 8
 #: Single-cluster quadratic bodies use the set layout too (one set).
 SINGLE_QUADRATIC_SETS = True
-
-
-def soa(a):
-    """``a`` (N, 3) stored per component: the transpose of a C-contiguous (3, N) block.
-
-    The result is an F-contiguous (N, 3) array: ``a[:, j]`` is unit-stride, so the compiled
-    particle loops (which index ``x[i, j]``, typed with layout F) run over i with unit
-    stride and vectorise across particles; ``a.T`` is the (3, N) block itself.  Every
-    body's per-particle state (x, v, rest positions) is kept this way (issue 11 item 1).
-    """
-    return np.ascontiguousarray(np.asarray(a, dtype=np.float64).T).T
 
 
 def uniform_mass(m) -> float:
