@@ -16,6 +16,7 @@ import pytest
 from sm_ros.core import BodyParams, Ground, World
 from sm_ros.core import kernels as K
 from sm_ros.core.kernels import sets as KS
+from sm_ros.core.packed import FUSED_BLOCK
 
 H = 1.0 / 120.0
 
@@ -205,12 +206,13 @@ def test_damping_of_a_set_layout_body_flying_far_out_at_huge_speed():
 
 @pytest.mark.parametrize('mode', ['rigid', 'linear'])
 def test_one_cluster_body_landing_on_the_ground_matches_the_numpy_twin(mode):
-    """The packed one-cluster pass on a body of two blocks (1,728 particles) landing on a
-    ground: a block the ground reaches is projected and summed again, one it cannot reach
-    keeps the loop's sums; the states follow the NumPy reference to round-off."""
+    """The packed one-cluster pass on a body of two blocks (4,913 particles, stored layer by
+    layer from the bottom) landing on a ground: the lower block, which the ground reaches,
+    is projected and summed again, the upper one keeps the loop's sums; the states follow
+    the NumPy reference to round-off."""
     from sm_ros.core.reference import ReferenceBody
     rng = np.random.default_rng(5)
-    x0 = _lattice(12) + rng.uniform(-0.004, 0.004, (12 ** 3, 3)) + (0.0, 0.0, 0.03)
+    x0 = _lattice(17)[:, ::-1] + rng.uniform(-0.004, 0.004, (17 ** 3, 3)) + (0.0, 0.0, 0.03)
     m = rng.uniform(0.5, 2.0, len(x0))
     params = BodyParams(mode=mode, alpha=0.5, beta=0.5)
     ground = Ground(height=0.0, friction=0.4, restitution=0.2)
@@ -221,11 +223,13 @@ def test_one_cluster_body_landing_on_the_ground_matches_the_numpy_twin(mode):
     v0 = rng.normal(scale=0.2, size=x0.shape)
     body.set_state(v=v0)
     ref.v = v0.copy()
-    assert body._packed_ok() and body.n > K.BLOCK
+    assert body._packed_ok() and FUSED_BLOCK < body.n <= 2 * FUSED_BLOCK
+    # the upper block lies above every particle of the lower one
+    assert x0[FUSED_BLOCK:, 2].min() > x0[:FUSED_BLOCK, 2].min() + 0.4
     for _ in range(60):
         world.step(H)
         ref.step(H, world.gravity, ground)
     assert np.abs(body.x - ref.x).max() < 1e-9
     assert np.abs(body.v - ref.v).max() < 1e-9 / H
     assert body.x[:, 2].min() == pytest.approx(0.0, abs=1e-12)   # resting on it
-    assert body.x[:, 2].max() > 0.3                              # blocks above it
+    assert body.x[FUSED_BLOCK:, 2].min() > 0.3                   # the upper block above it

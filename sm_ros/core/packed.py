@@ -13,10 +13,10 @@ writes, and the compiled loop reads a body's state from ``P[b]`` with no array f
 but the four particle arrays (x, v, x0, m).  Scratch (3x3, 4x4, ...) is allocated once
 per chunk of bodies, not per body.
 
-One pass over a body's particles does what four did: in blocks of ``BLOCK`` particles,
+One pass over a body's particles does what four did: in blocks of ``FUSED_BLOCK`` particles,
 the damping (the rigid field of the last pass's sums), Eq. 13-14, the static colliders,
 the speed limit and the sums of the next step (shape match and damping) while the block
-is in L1.  The speed limit comes before the sums, so a capped particle no longer forces a
+is in cache.  The speed limit comes before the sums, so a capped particle no longer forces a
 re-accumulation the next step.  The damping is the fused damping of ``kernels.damping``
 (sums per step taken in the pass, the field from them by ``damping_fields``), with its
 per-body 3x3 solve.
@@ -35,7 +35,7 @@ import numpy as np
 from numba import njit, prange
 from numba.typed import List as TypedList
 
-from .kernels import (BLOCK, JIT, NDAMP, STRETCH_LIMIT, _collide_range, det3, extract_rotation,
+from .kernels import (JIT, NDAMP, STRETCH_LIMIT, _collide_range, det3, extract_rotation,
                       limit_turn, unit_det_match_warm)
 from .kernels.damping import damp_acc_range, damp_sums_range
 from .kernels.colliders import ground_range
@@ -44,9 +44,12 @@ from .kernels.jit import finite
 from .kernels.limits import limit_speed_range
 from .kernels.linalg import sym3_solve
 
-#: Particles per call of the fused one-loop pass of an undamped body (``_int_single_fused``;
-#: sums reduced once a call; a call with a speed over the cap is capped and summed again).
-#: A damped body takes ``BLOCK``: its damping sums are a second loop over the block.
+#: Particles per call of the fused one-loop pass (``_int_single_fused``; sums reduced once a
+#: call; a call with a speed over the cap or a height below the ground is projected, capped
+#: and summed again; a damped body's damping sums are a second loop over the block, in L2).
+#: Damped bodies and bodies with colliders took ``BLOCK`` (1,024) before: 4,096 is as fast
+#: or faster (10k damped, one cluster: 0.0315 / 0.0310 -> 0.0298 / 0.0286 ms; on a ground
+#: 45.1 -> 44.7 us; doc/benchmarks.md), as for the set layout (``sets.FUSED_SETS_BLOCK``).
 FUSED_BLOCK = 4096
 
 # Row layout: parameters (written at each pack build), then the body state the rows hold
@@ -455,22 +458,21 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
     are added to ``sums`` (12) and, with ``damp``, ``dsums`` (its point set by the caller).
     Returns (shape-error sum, capped speeds).
 
-    One loop does it all (``_int_single_fused``, ``FUSED_BLOCK`` particles a call; with
-    damping or colliders ``BLOCK``, in L1).  A block with a speed over the cap or a height
-    below the ground, or any block in a world with boxes or spheres, is then projected onto
-    the colliders (the ground alone: ``ground_range``, no bounds pass), capped and summed
-    again (``_acc_single``, vectorised): a body in the air or resting on the ground on a
-    few of its blocks pays one loop for the others.  A damped body's damping sums are one
-    more loop over the block while it is in cache
-    (12 of the 20 sums of ``damp_acc_range``: the caller takes W and sum w d from the
-    shape sums); ``wuni`` > 0 (every particle of that mass) sums them unweighted.
+    One loop does it all (``_int_single_fused``, ``FUSED_BLOCK`` particles a call). A block
+    with a speed over the cap or a height below the ground, or any block in a world with boxes
+    or spheres, is then projected onto the colliders (the ground alone: ``ground_range``, no
+    bounds pass), capped and summed again (``_acc_single``, vectorised): a body in the air or
+    resting on the ground on a few of its blocks pays one loop for the others. A damped body's
+    damping sums are one more loop over the block while it is in cache (12 of the 20 sums of
+    ``damp_acc_range``: the caller takes W and sum w d from the shape sums); ``wuni`` > 0
+    (every particle of that mass) sums them unweighted.
     """
     err2 = 0.0
     capped = 0
     k0, k1, k2 = pnt[0, 0], pnt[0, 1], pnt[0, 2]
     boxed = has_col and (boxes.shape[0] > 0 or spheres.shape[0] > 0)
     grounded = has_col and ground[0] > 0.5
-    step = BLOCK if damp or has_col else FUSED_BLOCK
+    step = FUSED_BLOCK
     for bs in range(lo, hi, step):
         be = min(bs + step, hi)
         # two call sites: the loop without a ground is compiled without the ground's test
