@@ -176,3 +176,37 @@ def test_contact_block_bin_starts_touching_on_the_ground():
                                                                  for k in range(0, 46, 2)]:
         near = np.linalg.norm(a[:, None] - b[None], axis=-1).min()
         assert SPACING - 1e-12 < near < np.hypot(SPACING, 1e-3)     # touching (z: 0-1 mm)
+
+
+def _targets(tmp_path, variants):
+    """targets.csv rows by target for findings with the 100k 8-cluster linear ``variants``
+    ({variant: ms a step})."""
+    from sm_ros.bench.__main__ import _write_targets
+    rows = [dict(N=46 ** 3, mode='linear', k=2, variant=v, ms_median=ms,
+                 ns_per_particle=1e6 * ms / 46 ** 3) for v, ms in variants.items()]
+    f = dict(scaling=dict(scaling=rows), command='python -m sm_ros.bench scaling', wall_s=1.0,
+             machine=dict(cpu='cpu', cpus=2, numba='0', numba_threads=1, numpy='0'))
+    _write_targets(f, tmp_path)
+    return {r['target']: r for r in _rows(tmp_path / 'targets.csv')}
+
+
+def test_targets_judge_the_100k_rows_as_the_scenes_store_bodies(tmp_path):
+    """With the set-by-set variants in the run, the 100k damped row and the damping
+    overhead are those of bodies stored set by set (the scenes' order), the lattice order
+    beside them; without them, the lattice order's."""
+    t = _targets(tmp_path, dict(plain=0.5, damped=0.7, sorted=0.28, damped_sorted=0.33))
+    row = t['linear, 8 clusters, damping 0.05, 100k points']
+    assert row['measured'] == ('0.33 ms stored set by set (as the scenes store bodies); '
+                               '0.7 ms in lattice order')
+    assert row['met'] == 'True'
+    row = t['damping overhead (same, damped / undamped)']
+    assert row['measured'] == ('1.18x stored set by set (as the scenes store bodies); '
+                               '1.40x in lattice order')
+    assert row['met'] == 'False'
+    t = _targets(tmp_path, dict(plain=0.5, damped=0.55, sorted=0.28, damped_sorted=0.95))
+    assert t['linear, 8 clusters, damping 0.05, 100k points']['met'] == 'False'
+    assert t['damping overhead (same, damped / undamped)']['met'] == 'False'
+    t = _targets(tmp_path, dict(plain=0.5, damped=0.55))
+    assert t['linear, 8 clusters, damping 0.05, 100k points']['measured'] == '0.55 ms'
+    row = t['damping overhead (same, damped / undamped)']
+    assert (row['measured'], row['met']) == ('1.10x', 'True')

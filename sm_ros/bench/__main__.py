@@ -139,12 +139,28 @@ def _write_targets(f: Dict[str, Any], out: Path):
     t.add(target='rigid, 1 cluster, 10k points', goal='<= 1.5 ns/particle',
           measured='-' if not r else f'{r["ns_per_particle"]:.2f} ns/particle',
           met=None if not r else r['ns_per_particle'] <= 1.5)
+    # the 100k rows as the scenes store a body (set by set: ``sorted`` variants) when the
+    # run has them, judged on those, with the lattice order beside; else the lattice order
     r, r0 = pick(46, 'linear', 2, 'damped'), pick(46, 'linear', 2)
+    s, s0 = pick(46, 'linear', 2, 'damped_sorted'), pick(46, 'linear', 2, 'sorted')
+
+    def ratio(a, b):
+        return None if not (a and b) else a['ms_median'] / b['ms_median']
+
+    def both(fmt, sorted_value, lattice_value):
+        if sorted_value is None:
+            return '-' if lattice_value is None else fmt(lattice_value)
+        text = f'{fmt(sorted_value)} stored set by set (as the scenes store bodies)'
+        return text if lattice_value is None else f'{text}; {fmt(lattice_value)} in lattice order'
+
+    ms = (s or r) and (s or r)['ms_median']
     t.add(target='linear, 8 clusters, damping 0.05, 100k points', goal='<= 0.9 ms/step',
-          measured=_fmt_ms(r and r['ms_median']), met=None if not r else r['ms_median'] <= 0.9)
+          measured=both(_fmt_ms, s and s['ms_median'], r and r['ms_median']),
+          met=None if ms is None else ms <= 0.9)
+    over = ratio(s, s0) if s and s0 else ratio(r, r0)
     t.add(target='damping overhead (same, damped / undamped)', goal='<= 1.15x',
-          measured='-' if not (r and r0) else f'{r["ms_median"] / r0["ms_median"]:.2f}x',
-          met=None if not (r and r0) else r['ms_median'] / r0['ms_median'] <= 1.15)
+          measured=both(lambda x: f'{x:.2f}x', ratio(s, s0), ratio(r, r0)),
+          met=None if over is None else over <= 1.15)
     for row in sc.get('many', []):
         goal = 0.2 if row['bodies'] <= 64 else 1.0
         t.add(target=f'{row["bodies"]} bodies of {row["particles"] // row["bodies"]} '
