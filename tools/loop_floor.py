@@ -14,8 +14,12 @@ batches, the state restored before each batch:
   needs (sum d, sum d q^T, d = x - k);
 - ``pass_loop``: the project's loop (``integrate._fused_range``, mass None: Eq. 13-14,
   the 12 sums, the shape error and the speed count), as the one-cluster pass inlines it;
+- ``pass_loop_masses``: the same loop weighted by the masses (a body of several masses);
 - ``damping_sums``: the damping's own loop (``damping.damp_sums_range``, unit masses: sum
   v, sum d x v and the second moments of d), which a damped step adds.
+
+``--offset B`` starts the loops' blocks B bytes past a 64-byte boundary (numpy's own
+allocations start 16 or 48 past one): the cost of unaligned state.
 
 Then ``World.step`` of one-cluster rigid lattices of 6^3 to 28^3 particles (undamped, no
 ground, the state reset between batches so that no speed reaches the cap): the fitted
@@ -121,6 +125,22 @@ def _pass_loop(x, v, x0, g, reps):
 
 
 @njit(**FM)
+def _one_pass_masses(x, v, x0, mass, g, field):
+    return _fused_range(0, x.shape[0], x, v, x0, mass, 0.0, g, False, field, 100.0, 0.005,
+                        0.0, 0.0, -0.05, g[9], g[10], g[11], 1e4, None)
+
+
+@njit(**FM)
+def _pass_loop_masses(x, v, x0, g, reps):
+    field = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    mass = np.ones(x.shape[0])
+    out = 0.0
+    for _ in range(reps):
+        out += _one_pass_masses(x, v, x0, mass, g, field)[2]
+    return out
+
+
+@njit(**FM)
 def _one_damp(x, v, k0, k1, k2):
     return damp_sums_range(0, x.shape[0], x, v, v[:, 0], 1.0, k0, k1, k2)
 
@@ -134,16 +154,29 @@ def _damping_sums(x, v, x0, g, reps):
 
 
 LOOPS = {'stream': _stream, 'eq13_14': _eq_only, 'eq13_14_sums': _eq_sums,
-         'pass_loop': _pass_loop, 'damping_sums': _damping_sums}
+         'pass_loop': _pass_loop, 'pass_loop_masses': _pass_loop_masses,
+         'damping_sums': _damping_sums}
 
 
-def loops(n_side, rounds, reps):
+def _block(a, offset):
+    """``a`` (N, 3) as ``soa`` stores it, its block ``offset`` bytes past a 64-byte
+    boundary (0: as bodies keep it)."""
+    if offset == 0:
+        return soa(a)
+    buf = np.empty(a.size + 16)
+    start = (-buf.ctypes.data % 64 + offset) // 8
+    block = buf[start:start + a.size].reshape(3, -1)
+    block[:] = a.T
+    return block.T
+
+
+def loops(n_side, rounds, reps, offset=0):
     """{loop: ns a particle} on the n_side^3 lattice, every loop round-robin."""
     from sm_ros.bench import common as bc
     q = bc.cube_lattice(n_side)
     q = q - q.mean(axis=0)
     n = len(q)
-    x, v, x0 = soa(q + (0.1, 0.2, 0.3)), soa(np.zeros((n, 3))), soa(q)
+    x, v, x0 = (_block(a, offset) for a in (q + (0.1, 0.2, 0.3), np.zeros((n, 3)), q))
     # a goal map of a small turn about z, offset to where x is (the particles move little)
     c, s = np.cos(1e-3), np.sin(1e-3)
     g = (c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0, 0.1, 0.2, 0.3)
@@ -194,9 +227,12 @@ def main(argv=None):
     ap.add_argument('--rounds', type=int, default=15)
     ap.add_argument('--reps', type=int, default=50, help='passes a timed batch (50)')
     ap.add_argument('--steps', type=int, default=200, help='World.step a batch (200)')
+    ap.add_argument('--offset', type=int, default=0, choices=range(0, 64, 8),
+                    help="bytes past a 64-byte boundary the loops' blocks start (0)")
     a = ap.parse_args(argv)
-    n, ns = loops(a.side, a.rounds, a.reps)
-    out = {'n': n, 'loops_ns_particle': ns, 'world_step': world_steps(a.rounds, a.steps)}
+    n, ns = loops(a.side, a.rounds, a.reps, a.offset)
+    out = {'n': n, 'offset': a.offset, 'loops_ns_particle': ns,
+           'world_step': world_steps(a.rounds, a.steps)}
     print(json.dumps(out))
 
 

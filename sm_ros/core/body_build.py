@@ -17,8 +17,9 @@ from .clusters import build_memberships
 
 
 #: Bytes a state block's first element is aligned to: the particle loops' 256-bit loads
-#: and stores of a column that starts off a 32-byte boundary cost 7-10 % more (the
-#: one-cluster loop at 10k particles: 1.55 against 1.45 ns a particle, issue 11).
+#: and stores of a column that starts off a 32-byte boundary cost more (the one-cluster
+#: pass's loop at 10k particles: 1.29-1.36 against 1.16-1.23 ns a particle, Eq. 13-14
+#: alone 0.97-1.01 against 0.85-0.87; ``tools/loop_floor.py --offset 16`` / ``0``).
 STATE_ALIGN = 64
 
 
@@ -31,7 +32,8 @@ def soa(a):
     body's per-particle state (x, v, rest positions, set offsets) is kept this way (issue
     11 item 1).  The block starts on a ``STATE_ALIGN`` boundary (numpy's own allocations
     start 16 bytes past one), so its first column is aligned, and all three when N is a
-    multiple of 4.
+    multiple of 4.  A copy (pickle, ``copy.deepcopy``) has numpy's allocation: the same
+    values and layout, its loops a little slower.
     """
     a = np.asarray(a, dtype=np.float64)
     n = a.shape[0]

@@ -355,7 +355,9 @@ def _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha_h, h
     With ``wuni`` > 0 (every particle of that mass) the sums are taken unweighted and
     scaled once: the loop is a second compilation, without the masses (``_fused_loop``
     with ``mass`` None).  A test of ``wuni`` inside the loop was not hoisted by LLVM (the
-    loop is too large to unswitch): 1.57 against 1.39 ns a particle at 10k (issue 11).
+    loop is too large to unswitch): 1.57 against 1.39 ns a particle at 10k in a throwaway
+    harness (``wuni`` an argument against a constant).  ``tools/loop_floor.py`` times both
+    compilations (``pass_loop``, ``pass_loop_masses``).
     """
     if wuni > 0.0:
         t = _fused_loop(start, end, x, v, x0, None, gmap, damp, field, alpha_h, h, hx, hy,
