@@ -97,12 +97,14 @@ def _twin(x, v, y0, mass, wuni, sid, runs, gm, sref, alpha, h, acc, damp, k_damp
     return x, v, sums, dsums, err2, capped
 
 
+@pytest.mark.parametrize('cap', [2.0, 100.0])
 @pytest.mark.parametrize('damping', [0.0, 0.08])
 @pytest.mark.parametrize('masses', ['one', 'many'])
-def test_fused_set_pass_matches_its_numpy_twin(masses, damping):
+def test_fused_set_pass_matches_its_numpy_twin(masses, damping, cap):
     """One call over a whole body (one block) against the twin: positions, velocities, the
     set sums, the damping rows (their point where the set goes), the error sum and the
-    capped speeds, with a cap low enough to catch some particles."""
+    capped speeds.  With a cap low enough to catch some particles (their runs summed again
+    after the cap) and with none capped (every sum the loop's own)."""
     world, body = _world(10, 'set', masses, damping, max_speed=2.0)
     for _ in range(3):
         world.step(H)                      # moving, deformed: sums, fields, maps of a step
@@ -110,7 +112,8 @@ def test_fused_set_pass_matches_its_numpy_twin(masses, damping):
     st = body._sets
     rng = np.random.default_rng(9)
     v = np.array(body._v)
-    v[rng.choice(body.n, 25, replace=False)] *= 4.0      # over the cap
+    if cap < 100.0:
+        v[rng.choice(body.n, 25, replace=False)] *= 4.0      # over the cap
     body.set_state(v=v)
     x0, v0 = np.array(body._x), np.array(body._v)
     nsets = len(st.cnt)
@@ -124,12 +127,12 @@ def test_fused_set_pass_matches_its_numpy_twin(masses, damping):
         start=0, end=body.n, x=body._x, v=body._v, y0=st.y0, mass=body.m, wuni=wuni,
         sid=st.sid, runs=st.runs, gm=st.gm, sref=st.ref, alpha_h=0.6 / H, h=H,
         hx=H * acc[0], hy=H * acc[1], hz=H * acc[2], damp=damping > 0.0, k_damp=damping,
-        dmp=dmp, v_max=2.0, sums=sums, dsums=dsums, has_col=False, ground=np.zeros(4),
+        dmp=dmp, v_max=cap, sums=sums, dsums=dsums, has_col=False, ground=np.zeros(4),
         boxes=np.zeros((0, 8)), spheres=np.zeros((0, 6)), thresh=1e-3, gz=None)
     tx, tv, tsums, tds, terr, tcapped = _twin(
         x0, v0, np.asarray(st.y0), body.m, wuni, st.sid, st.runs, st.gm, st.ref, 0.6, H, acc,
-        damping > 0.0, damping, dmp, 2.0, nsets)
-    assert capped == tcapped > 0
+        damping > 0.0, damping, dmp, cap, nsets)
+    assert capped == tcapped and (capped > 0) == (cap < 100.0)
     np.testing.assert_allclose(body._x, tx, rtol=0, atol=1e-13)
     np.testing.assert_allclose(body._v, tv, rtol=0, atol=1e-11)
     assert err2 == pytest.approx(terr, rel=1e-10)
@@ -233,3 +236,107 @@ def test_one_cluster_body_landing_on_the_ground_matches_the_numpy_twin(mode):
     assert np.abs(body.v - ref.v).max() < 1e-9 / H
     assert body.x[:, 2].min() == pytest.approx(0.0, abs=1e-12)   # resting on it
     assert body.x[FUSED_BLOCK:, 2].min() > 0.3                   # the upper block above it
+
+
+def _sums_about(x, v, x0, w, k):
+    """NumPy: the 12 shape sums (sum w d, sum w d x0^T, d = x - k) and the damping sums
+    (sum w v, sum w d x v, sum w d d^T as xx, yy, zz, xy, yz, zx)."""
+    d = x - k
+    wd = w[:, None] * d
+    shape = np.concatenate([wd.sum(axis=0), (wd.T @ x0).reshape(-1)])
+    damp = np.concatenate([w @ v, (w[:, None] * np.cross(d, v)).sum(axis=0),
+                           (wd * d).sum(axis=0), (wd * np.roll(d, -1, axis=1)).sum(axis=0)])
+    return shape, damp
+
+
+@pytest.mark.parametrize('damp', [False, True])
+@pytest.mark.parametrize('masses', ['one', 'many'])
+def test_ground_projection_corrects_the_sums_it_changes(masses, damp):
+    """``colliders.ground_range_sums`` projects the particles below the ground as
+    ``ground_range`` does and returns what that changed in the sums the one-loop pass took
+    before it: sums before + its deltas = the sums of the projected state (NumPy), and
+    nothing for the damping sums without ``damp``."""
+    from sm_ros.core.kernels.colliders import ground_range, ground_range_sums
+    rng = np.random.default_rng(11)
+    n = 300
+    x = np.asfortranarray(rng.uniform(-0.5, 0.5, (n, 3)) + (3.0, -2.0, 0.4))
+    v = np.asfortranarray(rng.normal(scale=1.5, size=(n, 3)))
+    x0 = np.asfortranarray(rng.uniform(-0.5, 0.5, (n, 3)))
+    w = np.full(n, 1.5) if masses == 'one' else rng.uniform(0.5, 2.0, n)
+    wuni = 1.5 if masses == 'one' else 0.0
+    ground = np.array([1.0, 0.35, 0.4, 0.3])             # on, height, friction, restitution
+    k = np.array([3.1, -1.9, 0.5])
+    below = x[:, 2] < ground[1]
+    assert 20 < below.sum() < n - 20
+    shape0, damp0 = _sums_about(x, v, x0, w, k)
+    xr, vr = np.asfortranarray(x.copy()), np.asfortranarray(v.copy())
+    ground_range(0, n, xr, vr, ground, 1e-3)
+    g = np.array(ground_range_sums(0, n, x, v, x0, w, wuni, ground, 1e-3, k[0], k[1], k[2],
+                                   damp))
+    assert np.array_equal(x, xr) and np.array_equal(v, vr)   # the same projection
+    shape1, damp1 = _sums_about(x, v, x0, w, k)
+    want = shape1 - shape0
+    assert np.all(want[[0, 1, 3, 4, 5, 6, 7, 8]] == 0.0)      # x, y and their rows unchanged
+    np.testing.assert_allclose(g[:4], want[[2, 9, 10, 11]], rtol=1e-12, atol=1e-12)
+    if damp:
+        assert np.all((damp1 - damp0)[[6, 7, 9]] == 0.0)     # d_x^2, d_y^2, d_x d_y
+        want = (damp1 - damp0)[[0, 1, 2, 3, 4, 5, 8, 10, 11]]
+        np.testing.assert_allclose(g[4:], want, rtol=1e-11, atol=1e-11)
+        assert np.abs(g[4:]).min() > 0.0
+    else:
+        assert np.all(g[4:] == 0.0)
+
+
+
+@pytest.mark.parametrize('layout', ['packed', 'sets'])
+def test_sums_stay_those_of_the_state_on_the_ground(layout):
+    """A damped body landing on the ground, no speed capped: the one-loop passes take the
+    shape and damping sums in their loop and correct them for what the ground's
+    projection moved (``ground_range_sums``), so after every step the stored sums equal
+    the sums of the state taken afresh (one-cluster pack: two blocks, the lower one on the
+    ground; set layout: the runs of the lower sets)."""
+    from sm_ros.core.kernels.damping import damp_acc_range
+    from sm_ros.core.kernels.integrate import _acc_single
+    rng = np.random.default_rng(6)
+    side = 17 if layout == 'packed' else 10
+    x0 = _lattice(side)[:, ::-1] + rng.uniform(-0.004, 0.004, (side ** 3, 3)) + (0, 0, 0.02)
+    m = rng.uniform(0.5, 2.0, len(x0))
+    world = World(gravity=(0.0, 0.0, -9.81))
+    world.set_colliders(ground=Ground(height=0.0, friction=0.4, restitution=0.2))
+    params = BodyParams(mode='linear', alpha=0.5, beta=0.5, damping=0.05,
+                        clusters=1 if layout == 'packed' else 2)
+    body = world.add_body(x0, m, params, order=None if layout == 'packed' else 'set')
+    body.set_state(v=rng.normal(scale=0.3, size=x0.shape) + (0.0, 0.0, -0.5))
+    assert body._packed_ok() == (layout == 'packed')
+    assert layout == 'packed' or _fused(body)
+    projected = 0
+    for _ in range(12):
+        world.step(H)
+        assert body.limit_counts[0] == 0
+        on = int((body.x[:, 2] == 0.0).sum())
+        projected += on
+        if layout == 'packed':
+            shape = np.zeros((1, 12))
+            _acc_single(start=0, end=body.n, quad=False, x=body._x, x0=body._x0, mass=body.m,
+                        rest_lin=body._rest_lin, rest_off=body._rest_off, ref=body._ref,
+                        sums=shape)
+            stored = body._part[0]
+            sid = np.zeros(0, dtype=np.int32)
+        else:
+            st = body._sets
+            shape = np.zeros_like(st.part)
+            K.sets_accumulate_serial(quad=False, x=body._x, y0=st.y0, mass=body.m,
+                                     sid=st.sid, runs=st.runs, sref=st.ref, part=shape)
+            stored, sid = st.part, st.sid
+        np.testing.assert_allclose(stored, shape, rtol=1e-10, atol=1e-12 * np.abs(shape).max())
+        # the damping rows, chunk by chunk (a chunk's rows sum its particles about its points)
+        nch = body._dpart.shape[0]
+        for c in range(nch):
+            lo, hi = c * body.n // nch, (c + 1) * body.n // nch
+            dstored = body._dpart[c]
+            fresh = np.zeros_like(dstored)
+            fresh[:, 15:19] = dstored[:, 15:19]           # about the same points
+            damp_acc_range(lo, hi, body._x, body._v, body.m, sid, fresh)
+            np.testing.assert_allclose(dstored, fresh, rtol=1e-10,
+                                       atol=1e-12 * np.abs(fresh).max())
+    assert projected > 100                                # the ground moved particles

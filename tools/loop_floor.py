@@ -15,8 +15,12 @@ batches, the state restored before each batch:
 - ``pass_loop``: the project's loop (``integrate._fused_range``, mass None: Eq. 13-14,
   the 12 sums, the shape error and the speed count), as the one-cluster pass inlines it;
 - ``pass_loop_masses``: the same loop weighted by the masses (a body of several masses);
-- ``damping_sums``: the damping's own loop (``damping.damp_sums_range``, unit masses: sum
-  v, sum d x v and the second moments of d), which a damped step adds.
+- ``pass_loop_damped``: the damped loop (the damping towards a field, and the damping
+  sums of the new state in the same loop);
+- ``damping_sums``: the damping sums as a loop of their own (``damping.damp_sums_range``,
+  unit masses: sum v, sum d x v and the second moments of d), what a damped step added
+  before they moved into the pass's loop (now only for a block the speed cap or a box or
+  sphere moved).
 
 ``--offset B`` starts the loops' blocks B bytes past a 64-byte boundary (numpy's own
 allocations start 16 or 48 past one): the cost of unaligned state.
@@ -141,6 +145,22 @@ def _pass_loop_masses(x, v, x0, g, reps):
 
 
 @njit(**FM)
+def _one_pass_damped(x, v, x0, g, field):
+    return _fused_range(0, x.shape[0], x, v, x0, None, 1.0, g, True, field, 100.0, 0.005,
+                        0.0, 0.0, -0.05, g[9], g[10], g[11], 1e4, None)
+
+
+@njit(**FM)
+def _pass_loop_damped(x, v, x0, g, reps):
+    # km = 1 - k, f and o of a small field (``integrate.damp_constants``)
+    field = (0.95, 0.001, -0.002, 0.0005, 0.0, 0.0, 0.01)
+    out = 0.0
+    for _ in range(reps):
+        out += _one_pass_damped(x, v, x0, g, field)[2]
+    return out
+
+
+@njit(**FM)
 def _one_damp(x, v, k0, k1, k2):
     return damp_sums_range(0, x.shape[0], x, v, v[:, 0], 1.0, k0, k1, k2)
 
@@ -155,7 +175,7 @@ def _damping_sums(x, v, x0, g, reps):
 
 LOOPS = {'stream': _stream, 'eq13_14': _eq_only, 'eq13_14_sums': _eq_sums,
          'pass_loop': _pass_loop, 'pass_loop_masses': _pass_loop_masses,
-         'damping_sums': _damping_sums}
+         'pass_loop_damped': _pass_loop_damped, 'damping_sums': _damping_sums}
 
 
 def _block(a, offset):

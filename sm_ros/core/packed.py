@@ -38,8 +38,8 @@ from numba.typed import List as TypedList
 from .kernels import (JIT, NDAMP, STRETCH_LIMIT, _collide_range, det3, extract_rotation,
                       limit_turn, unit_det_match_warm)
 from .kernels.damping import damp_acc_range, damp_sums_range
-from .kernels.colliders import ground_range
-from .kernels.integrate import _acc_single, _int_single_fused
+from .kernels.colliders import ground_range, ground_range_sums
+from .kernels.integrate import _acc_single, _add_rest_sums, _int_single_fused
 from .kernels.jit import finite
 from .kernels.limits import limit_speed_range
 from .kernels.linalg import sym3_solve
@@ -463,9 +463,10 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
     or spheres, is then projected onto the colliders (the ground alone: ``ground_range``, no
     bounds pass), capped and summed again (``_acc_single``, vectorised): a body in the air or
     resting on the ground on a few of its blocks pays one loop for the others. A damped body's
-    damping sums are one more loop over the block while it is in cache (12 of the 20 sums of
-    ``damp_acc_range``: the caller takes W and sum w d from the shape sums); ``wuni`` > 0
-    (every particle of that mass) sums them unweighted.
+    damping sums (12 of the 20 sums of ``damp_acc_range``: the caller takes W and sum w d
+    from the shape sums) are the loop's too, or, for a block the colliders or the cap moved,
+    one more loop over it while it is in cache (``damp_sums_range``); ``wuni`` > 0 (every
+    particle of that mass) sums them unweighted.
     """
     err2 = 0.0
     capped = 0
@@ -479,13 +480,28 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
         if grounded:
             e, over, low = _int_single_fused(bs, be, x, v, x0, mass, wuni, goal_lin, goal_off,
                                              alpha, h, acc, damp, k_damp, dmp, ref, pnt,
-                                             rest_lin, rest_off, v_max, ground[1], boxed, sums)
+                                             rest_lin, rest_off, v_max, ground[1], boxed, sums,
+                                             dsums)
         else:
             e, over, low = _int_single_fused(bs, be, x, v, x0, mass, wuni, goal_lin, goal_off,
                                              alpha, h, acc, damp, k_damp, dmp, ref, pnt,
-                                             rest_lin, rest_off, v_max, None, boxed, sums)
+                                             rest_lin, rest_off, v_max, None, boxed, sums,
+                                             dsums)
         err2 += e
-        if over or low or boxed:
+        if low and not (over or boxed):
+            # the loop added its sums: the ground's projection, and what it changed in them
+            g = ground_range_sums(bs, be, x, v, x0, mass, wuni, ground, thresh, k0, k1, k2,
+                                  damp)
+            _add_rest_sums(rest_lin, rest_off, sums[0], 0.0, 0.0, g[0], 0.0, 0.0, 0.0, 0.0,
+                           0.0, 0.0, g[1], g[2], g[3])
+            if damp:
+                # rows 3-8: sum w v, sum w d x v; 11, 13, 14: sum w dz^2, dy dz, dz dx
+                for j in range(6):
+                    dsums[0, 3 + j] += g[4 + j]
+                dsums[0, 11] += g[10]
+                dsums[0, 13] += g[11]
+                dsums[0, 14] += g[12]
+        elif over or low or boxed:
             # the loop did not add the sums: colliders, cap, then the sums of what they left
             if boxed:
                 _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes,
@@ -498,12 +514,10 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
                 capped += limit_speed_range(bs, be, x, v, h, v_max)
             _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass,
                         rest_lin=rest_lin, rest_off=rest_off, ref=pnt, sums=sums)
-        if damp:
-            # the damping sums of the block about pnt (``damp_acc_range``'s rows 3-14) but
-            # its W and sum w d: the shape sums of the same state about the same point
-            # hold them (the caller copies them), so 12 accumulators, not 16
-            # (``damp_sums_range``)
-            t = damp_sums_range(bs, be, x, v, mass, wuni, k0, k1, k2)
-            for j in range(12):
-                dsums[0, 3 + j] += t[j]
+            if damp:
+                # the damping sums of what they left about pnt (``damp_acc_range``'s rows
+                # 3-14; its W and sum w d are the shape sums', the caller copies them)
+                t = damp_sums_range(bs, be, x, v, mass, wuni, k0, k1, k2)
+                for j in range(12):
+                    dsums[0, 3 + j] += t[j]
     return err2, capped

@@ -159,6 +159,52 @@ def ground_range(start, end, x, v, ground, thresh):
                                                          restitution=e, thresh=thresh)
 
 
+@njit(inline='always', **JIT)
+def ground_range_sums(start, end, x, v, x0, mass, wuni, ground, thresh, k0, k1, k2, damp):
+    """``ground_range`` for a range whose sums the one-loop pass has just taken about the
+    point k: returns what the projection changed in them, so that the sums stay those of
+    the final state without a second pass over the range (a body resting on the ground has
+    a layer of particles in contact in every block it is stored in).
+
+    A projected particle only moves up (z -> the ground's height, dz) and changes its
+    velocity v -> v', so with w its weight (``wuni`` > 0: every particle's, else
+    ``mass[i]``), d = x - k and a = x0[i]: (delta sum w d_z, delta sum w d_z a^T (3), then
+    the damping sums' deltas: sum w v (3), sum w d x v (3), sum w d_z^2, sum w d_y d_z,
+    sum w d_z d_x; zeros without ``damp``), 13 numbers; the other sums do not change.
+    """
+    gz, mu, e = ground[1], ground[2], ground[3]
+    s2 = c20 = c21 = c22 = 0.0
+    b0 = b1 = b2 = a0 = a1 = a2 = e22 = e12 = e20 = 0.0
+    for i in range(start, end):
+        z = x[i, 2]
+        if z < gz:
+            w = wuni if wuni > 0.0 else mass[i]
+            u0, u1, u2 = v[i, 0], v[i, 1], v[i, 2]
+            n0, n1, n2 = contact_velocity(vx=u0, vy=u1, vz=u2, nx=0.0, ny=0.0, nz=1.0,
+                                          friction=mu, restitution=e, thresh=thresh)
+            x[i, 2] = gz
+            v[i, 0], v[i, 1], v[i, 2] = n0, n1, n2
+            d0, d1, d2 = x[i, 0] - k0, x[i, 1] - k1, z - k2
+            dz = gz - z
+            f2 = d2 + dz                     # d_z after the projection
+            s2 += w * dz
+            c20 += w * dz * x0[i, 0]
+            c21 += w * dz * x0[i, 1]
+            c22 += w * dz * x0[i, 2]
+            if not damp:
+                continue
+            b0 += w * (n0 - u0)
+            b1 += w * (n1 - u1)
+            b2 += w * (n2 - u2)
+            a0 += w * ((d1 * n2 - f2 * n1) - (d1 * u2 - d2 * u1))
+            a1 += w * ((f2 * n0 - d0 * n2) - (d2 * u0 - d0 * u2))
+            a2 += w * ((d0 * n1 - d1 * n0) - (d0 * u1 - d1 * u0))
+            e22 += w * (f2 * f2 - d2 * d2)
+            e12 += w * d1 * dz
+            e20 += w * d0 * dz
+    return s2, c20, c21, c22, b0, b1, b2, a0, a1, a2, e22, e12, e20
+
+
 @njit(**JIT)
 def _collide_range(start, end, x, v, ground, boxes, spheres, thresh):
     """Colliders for particles start..end.

@@ -272,21 +272,23 @@ def _int_single_lin(start, end, x, v, x0, goal_lin, goal_off, alpha, h, acc, ang
 
 @njit(**JIT)
 def _int_single_fused(start, end, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc,
-                      damp, k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max, gz, boxed, sums):
+                      damp, k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max, gz, boxed, sums,
+                      dsums):
     """The one-cluster pass over particles start..end in one loop (no torque): the damping
     towards ``dmp[0]`` about ``ref[0]`` (with ``damp``), Eq. 13-14, the count of speeds
     above ``v_max`` (0: no cap) and of new heights below ``gz`` (the ground's height; None:
     no ground, compiled without the test), and the shape match's 12 sums of the new state
     about the point ``pnt[0]`` (``_acc_single``) into ``sums[0]`` (``_fused_range``, the
-    loop).
+    loop), and with ``damp`` its 12 damping sums about the same point into ``dsums[0, 3:15]``
+    (``damp_acc_range``'s rows; W and sum w d are the caller's).
 
     Returns (sum of |g - p|^2 as ``advance``, speeds over the cap, heights below the
-    ground).  The sums are added only when no speed is over the cap, no height below the
-    ground and no box or sphere is in the world (``boxed``): otherwise the caller projects
-    the range onto the colliders, caps it and takes its sums again (``_acc_single``), so a
-    moved particle is summed where it ends.  The damping's sums stay a loop of their own
-    (``damping.damp_sums_range``, over the same block while it is in cache): in this loop
-    they spilled registers (97k particles: 4.1 ns/particle against 3.4).
+    ground).  The sums are added only when no speed is over the cap and no box or sphere is
+    in the world (``boxed``): otherwise the caller projects the range onto the colliders,
+    caps it and takes its sums again (``_acc_single``, ``damping.damp_sums_range``), so a
+    moved particle is summed where it ends.  With heights below the ground (and neither),
+    the caller projects them and adds what that changed in the sums
+    (``colliders.ground_range_sums``).
     """
     gmap = (goal_lin[0, 0, 0], goal_lin[0, 0, 1], goal_lin[0, 0, 2], goal_lin[0, 1, 0],
             goal_lin[0, 1, 1], goal_lin[0, 1, 2], goal_lin[0, 2, 0], goal_lin[0, 2, 1],
@@ -298,9 +300,13 @@ def _int_single_fused(start, end, x, v, x0, mass, wuni, goal_lin, goal_off, alph
                        h * acc[0], h * acc[1], h * acc[2], pnt[0, 0], pnt[0, 1], pnt[0, 2],
                        lim2, gz)
     err2, over, low = out[0], out[1], out[14]
-    if over == 0 and low == 0 and not boxed:
+    if over == 0 and not boxed:
         _add_rest_sums(rest_lin, rest_off, sums[0], out[2], out[3], out[4], out[5], out[6],
                        out[7], out[8], out[9], out[10], out[11], out[12], out[13])
+        if damp:
+            d = out[15:27]
+            for j in range(12):
+                dsums[0, 3 + j] += d[j]
     return err2, over, low
 
 
@@ -350,7 +356,10 @@ def _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha_h, h
     and the 12 sums of the new state about the point k (``_rest_sums``'s).  Returns (sum of
     |g - p|^2 as ``advance``, speeds over sqrt(lim2), the 12 sums, new heights below gz:
     the ground's test, so that a run the ground cannot reach skips its collider pass; with
-    gz None the loops are compiled without it: it cost 10 % of an 8-cluster step).
+    gz None the loops are compiled without it: it cost 10 % of an 8-cluster step), then,
+    with ``damp``, the next step's 13 damping sums of the new state about the same point
+    (``damping.damp_sums_range``'s first 13: sum w v, sum w d x v, the six second moments
+    of d, W; zeros without ``damp``).
 
     With ``wuni`` > 0 (every particle of that mass) the sums are taken unweighted and
     scaled once: the loop is a second compilation, without the masses (``_fused_loop``
@@ -364,7 +373,10 @@ def _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha_h, h
                         hz, k0, k1, k2, lim2, gz)
         return (t[0], t[1], wuni * t[2], wuni * t[3], wuni * t[4], wuni * t[5], wuni * t[6],
                 wuni * t[7], wuni * t[8], wuni * t[9], wuni * t[10], wuni * t[11],
-                wuni * t[12], wuni * t[13], t[14])
+                wuni * t[12], wuni * t[13], t[14], wuni * t[15], wuni * t[16], wuni * t[17],
+                wuni * t[18], wuni * t[19], wuni * t[20], wuni * t[21], wuni * t[22],
+                wuni * t[23], wuni * t[24], wuni * t[25], wuni * t[26],
+                wuni * (end - start) if damp else 0.0)
     return _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, hy, hz,
                        k0, k1, k2, lim2, gz)
 
@@ -378,6 +390,12 @@ def _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, h
     local: one lane a particle; the 12 sums, the error and the count as vector accumulators
     reduced once a call).  Inlined by Numba into ``_int_single_fused`` (one cluster, x0 the
     rest positions) and ``sets._sets_fused_lin`` (a run of one set, x0 its offsets y).
+
+    Damped, the loop also takes the damping sums of the new state (13 accumulators more, 28
+    in all: they fit AVX-512VL's 32 vector registers at 256 bits).  A second loop over the
+    block (``damp_sums_range``, what the passes did before) cost 0.6 ns a particle more
+    where the first loop streams its state from L3: 97k damped, 8 clusters stored set by
+    set, 0.336 / 0.342 -> 0.292 / 0.293 ms a step, the same at 10k (doc/benchmarks.md).
     """
     l00, l01, l02, l10, l11, l12, l20, l21, l22, b0, b1, b2 = gmap
     km, f0, f1, f2, o0, o1, o2 = field
@@ -386,6 +404,9 @@ def _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, h
     low = 0
     s0 = s1 = s2 = 0.0
     c00 = c01 = c02 = c10 = c11 = c12 = c20 = c21 = c22 = 0.0
+    # the damping sums: momentum, angular momentum about k, second moments of d, mass
+    pm0 = pm1 = pm2 = am0 = am1 = am2 = 0.0
+    e00 = e11 = e22 = e01 = e12 = e20 = ms = 0.0
     if damp:
         for i in range(U(start), U(end)):
             a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
@@ -430,6 +451,21 @@ def _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, h
             c20 += wd2 * a0
             c21 += wd2 * a1
             c22 += wd2 * a2
+            # the next step's damping sums of the new state (``damp_sums_range``'s)
+            d0, d1, d2 = y0 - k0, y1 - k1, y2 - k2
+            ms += w
+            pm0 += w * v0
+            pm1 += w * v1
+            pm2 += w * v2
+            am0 += wd1 * v2 - wd2 * v1
+            am1 += wd2 * v0 - wd0 * v2
+            am2 += wd0 * v1 - wd1 * v0
+            e00 += wd0 * d0
+            e11 += wd1 * d1
+            e22 += wd2 * d2
+            e01 += wd0 * d1
+            e12 += wd1 * d2
+            e20 += wd2 * d0
     else:
         for i in range(U(start), U(end)):
             a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
@@ -472,7 +508,8 @@ def _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, h
     # err2 takes it once a call, not per particle (4 operations a particle of ~46), so that
     # ``Body._err`` still flags the state the pass wrote (``World.state_flagged``).
     err2 += 0.0 * (s0 + s1 + s2)
-    return (err2, over, s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22, low)
+    return (err2, over, s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22, low,
+            pm0, pm1, pm2, am0, am1, am2, e00, e11, e22, e01, e12, e20, ms)
 
 
 @njit(**JIT)

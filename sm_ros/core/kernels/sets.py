@@ -19,18 +19,17 @@ remainder loop.  The quadratic loops fetch the map per particle: scalar.
 A rigid/linear body stored set by set (``World.add_body(order='set')``: one run a set)
 without torque takes one loop a run (``_sets_fused_lin``, the loop of the
 one-cluster pass ``integrate._fused_range``): each particle read and written once, its
-set's sums taken in the same loop, the damping sums in a second loop over the run while it
-is in cache, all about one point per set; the static colliders and the speed cap after the
-loop, a run they may have moved summed again.  Every pass takes the runs' ends from
-``runs`` (precomputed at build, ``first_run``) and caps the speeds block by block before it
-sums the block, so the sums stay valid.
+set's sums and damping sums taken in the same loop, all about one point per set; the
+static colliders and the speed cap after the loop, a run they may have moved summed again.
+Every pass takes the runs' ends from ``runs`` (precomputed at build, ``first_run``) and
+caps the speeds block by block before it sums the block, so the sums stay valid.
 """
 
 import numpy as np
 from numba import njit, prange
 
 from .jit import JIT, U
-from .colliders import _collide_range, ground_range
+from .colliders import _collide_range, ground_range_sums
 from .damping import damp_acc_range, damp_sums_range, damp_towards
 from .integrate import BLOCK, _fused_range, _rest_sums, advance, damp_constants
 from .limits import limit_speed_range
@@ -675,10 +674,10 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     one bounds pass) and the speed cap (``limits.limit_speed_range``, only where a speed
     was over it), in the order of the two-loop pass; a run they may have moved is summed
     again (``integrate._rest_sums``), so the sums are of the final state and the step
-    leaves them valid; damped, then the run's 12 damping sums
-    (``damping.damp_sums_range``) while it is in cache.  Returns (sum of |g - x|^2, capped
-    speeds).  ``gz``: the ground's height, None without a ground (compiled without the
-    ground's test, ``integrate.below_ground``).
+    leaves them valid.  Damped, the loop also takes the run's 12 damping sums and W (a run
+    that was moved: ``damping.damp_sums_range``, while it is in cache).  Returns (sum of
+    |g - x|^2, capped speeds).  ``gz``: the ground's height, None without a ground
+    (compiled without the ground's test, ``integrate.below_ground``).
 
     The sums of a set are taken about one point P_s, its shape sums and damping sums alike
     (so the damping row's sum w d and W are the shape sums' own: 12 damping accumulators,
@@ -712,15 +711,23 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
         t = _fused_range(i, j, x, v, y0, mass, wuni, gmap, damp, field, alpha_h, h, hx, hy, hz, r0,
                          r1, r2, lim2, gz)
         err2 += t[0]
+        ss = t[2:14]                   # the run's 12 shape sums: sum w d, sum w d y0^T
+        dsum = t[15:]                  # and damping sums (damped)
         # a ground alone: only a run with a height below it can be moved (the loop counts
-        # them): projected without the bounds pass, the others skip the colliders
+        # them): projected without the bounds pass, its sums corrected for what the
+        # projection moved (``ground_range_sums``); the others skip the colliders
         moved = False
         if has_col and not ground_only:
             moved = _collide_range(start=i, end=j, x=x, v=v, ground=ground, boxes=boxes,
                                    spheres=spheres, thresh=thresh)
         elif t[14] > 0:
-            ground_range(i, j, x, v, ground, thresh)
-            moved = True
+            g = ground_range_sums(i, j, x, v, y0, mass, wuni, ground, thresh, r0, r1, r2,
+                                  damp)
+            ss = (ss[0], ss[1], ss[2] + g[0], ss[3], ss[4], ss[5], ss[6], ss[7], ss[8],
+                  ss[9] + g[1], ss[10] + g[2], ss[11] + g[3])
+            dsum = (dsum[0] + g[4], dsum[1] + g[5], dsum[2] + g[6], dsum[3] + g[7],
+                    dsum[4] + g[8], dsum[5] + g[9], dsum[6], dsum[7], dsum[8] + g[10],
+                    dsum[9], dsum[10] + g[11], dsum[11] + g[12], dsum[12])
         # the loop counted the speeds before the colliders: a static collider never speeds
         # a particle up (``colliders.contact_velocity``: restitution <= 1, friction only
         # slows), so a run with none over the cap has none after them either
@@ -728,23 +735,24 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
             capped += limit_speed_range(i, j, x, v, h, v_max)
             moved = True
         if moved:
-            t = (t[0], t[1]) + _rest_sums(i, j, x, y0, mass, r0, r1, r2) + (t[14],)
+            ss = _rest_sums(i, j, x, y0, mass, r0, r1, r2)
+            if damp:
+                dsum = damp_sums_range(i, j, x, v, mass, wuni, r0, r1, r2)[:13]
         # the set sums' layout: per row of d, [sum w d, sum w d y^T]
-        _add_lin_sums(sums, s, t[2], t[5], t[6], t[7], t[3], t[8], t[9], t[10], t[4], t[11],
-                      t[12], t[13])
+        _add_lin_sums(sums, s, ss[0], ss[3], ss[4], ss[5], ss[1], ss[6], ss[7], ss[8], ss[2],
+                      ss[9], ss[10], ss[11])
         if damp:
             row = dsums[s]
             row[15] = r0
             row[16] = r1
             row[17] = r2
             row[18] = 1.0
-            row[0] += t[2]
-            row[1] += t[3]
-            row[2] += t[4]
-            d = damp_sums_range(i, j, x, v, mass, wuni, r0, r1, r2)
+            row[0] += ss[0]
+            row[1] += ss[1]
+            row[2] += ss[2]
             for k in range(12):
-                row[3 + k] += d[k]
-            row[19] += d[12]
+                row[3 + k] += dsum[k]
+            row[19] += dsum[12]
         i = j
     return err2, capped
 
