@@ -1,6 +1,7 @@
 """
 ``World.step`` of one lattice body resting on a ground, as the bundled scenes have one:
-a 22^3 lattice (10,648 particles, unit masses, spacing 1/21 m), one cluster or 8 linear
+a 22^3 lattice (10,648 particles; ``--side 46``: 97,336, the node benchmark's size; unit
+masses, spanning 1 m), one cluster or 8 linear
 clusters stored set by set, alpha 0.5, damping 0 and 0.05, ground friction 0.5 and
 restitution 0.1, after ``--settle`` steps of 5 ms; medians of ``--steps`` steps, one
 thread, every configuration round-robin in one process (us a step).  Prints one JSON line,
@@ -23,7 +24,7 @@ import time
 CONFIGS = [(clusters, damping) for clusters in (1, 2) for damping in (0.0, 0.05)]
 
 
-def measure(settle, steps, rounds):
+def measure(settle, steps, rounds, side=22):
     """{config name: median us a step}."""
     import numpy as np
     from sm_ros.core import BodyParams, Ground, World
@@ -31,7 +32,7 @@ def measure(settle, steps, rounds):
     for clusters, damping in CONFIGS:
         world = World(gravity=(0.0, 0.0, -9.81))
         world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.1))
-        a = np.linspace(0.0, 1.0, 22)
+        a = np.linspace(0.0, 1.0, side)
         x = np.stack(np.meshgrid(a, a, a, indexing='ij'), axis=-1).reshape(-1, 3)
         world.add_body(x + (0.0, 0.0, 0.01), masses=1.0, order='set',
                        params=BodyParams(mode='linear', alpha=0.5, beta=0.5,
@@ -56,9 +57,11 @@ def main():
     p.add_argument('--rounds', type=int, default=8)
     p.add_argument('--compare', nargs=2, metavar=('A', 'B'))
     p.add_argument('--runs', type=int, default=2)
+    p.add_argument('--side', type=int, default=22,
+                   help='lattice side (22: 10,648 particles; 46: 97,336)')
     args = p.parse_args()
     if not args.compare:
-        print(json.dumps(measure(args.settle, args.steps, args.rounds)))
+        print(json.dumps(measure(args.settle, args.steps, args.rounds, args.side)))
         return
     got = {path: [] for path in args.compare}
     for _ in range(args.runs):
@@ -66,7 +69,8 @@ def main():
             env = dict(os.environ, PYTHONPATH=os.path.abspath(path))
             out = subprocess.run([sys.executable, os.path.abspath(__file__), '--settle',
                                   str(args.settle), '--steps', str(args.steps), '--rounds',
-                                  str(args.rounds)], env=env, capture_output=True, text=True,
+                                  str(args.rounds), '--side', str(args.side)], env=env,
+                                 capture_output=True, text=True,
                                  check=True)
             got[path].append(json.loads(out.stdout.strip().splitlines()[-1]))
     names = list(got[args.compare[0]][0])
