@@ -114,50 +114,36 @@ def _eq_sums(x, v, x0, g, reps):
 
 
 @njit(**FM)
-def _one_pass(x, v, x0, g, field):
-    return _fused_range(0, x.shape[0], x, v, x0, None, 1.0, g, False, field, 100.0, 0.005,
+def _one_pass(x, v, x0, mass, wuni, damp, g, field):
+    return _fused_range(0, x.shape[0], x, v, x0, mass, wuni, g, damp, field, 100.0, 0.005,
                         0.0, 0.0, -0.05, g[9], g[10], g[11], 1e4, None)
 
 
 @njit(**FM)
+def _passes(x, v, x0, g, reps, mass, wuni, damp, field):
+    """``reps`` calls of the pass's loop: compiled once with ``mass`` None (one-mass bodies)
+    and once with an array, ``damp`` a run-time flag as in the passes."""
+    out = 0.0
+    for _ in range(reps):
+        out += _one_pass(x, v, x0, mass, wuni, damp, g, field)[2]
+    return out
+
+
+_IDLE = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+# km = 1 - k, f and o of a small field (``integrate.damp_constants``)
+_FIELD = (0.95, 0.001, -0.002, 0.0005, 0.0, 0.0, 0.01)
+
+
 def _pass_loop(x, v, x0, g, reps):
-    field = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    out = 0.0
-    for _ in range(reps):
-        out += _one_pass(x, v, x0, g, field)[2]
-    return out
+    return _passes(x, v, x0, g, reps, None, 1.0, False, _IDLE)
 
 
-@njit(**FM)
-def _one_pass_masses(x, v, x0, mass, g, field):
-    return _fused_range(0, x.shape[0], x, v, x0, mass, 0.0, g, False, field, 100.0, 0.005,
-                        0.0, 0.0, -0.05, g[9], g[10], g[11], 1e4, None)
-
-
-@njit(**FM)
 def _pass_loop_masses(x, v, x0, g, reps):
-    field = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    mass = np.ones(x.shape[0])
-    out = 0.0
-    for _ in range(reps):
-        out += _one_pass_masses(x, v, x0, mass, g, field)[2]
-    return out
+    return _passes(x, v, x0, g, reps, np.ones(x.shape[0]), 0.0, False, _IDLE)
 
 
-@njit(**FM)
-def _one_pass_damped(x, v, x0, g, field):
-    return _fused_range(0, x.shape[0], x, v, x0, None, 1.0, g, True, field, 100.0, 0.005,
-                        0.0, 0.0, -0.05, g[9], g[10], g[11], 1e4, None)
-
-
-@njit(**FM)
 def _pass_loop_damped(x, v, x0, g, reps):
-    # km = 1 - k, f and o of a small field (``integrate.damp_constants``)
-    field = (0.95, 0.001, -0.002, 0.0005, 0.0, 0.0, 0.01)
-    out = 0.0
-    for _ in range(reps):
-        out += _one_pass_damped(x, v, x0, g, field)[2]
-    return out
+    return _passes(x, v, x0, g, reps, None, 1.0, True, _FIELD)
 
 
 @njit(**FM)
