@@ -44,9 +44,9 @@ from .kernels.jit import finite
 from .kernels.limits import limit_speed_range
 from .kernels.linalg import sym3_solve
 
-#: Particles per call of the fused one-loop pass (``_int_single_fused``; sums reduced once a
-#: call; a call with a speed over the cap or a height below the ground is projected, capped
-#: and summed again; a damped body's damping sums are a second loop over the block, in L2).
+#: Particles per call of the fused one-loop pass (``_int_single_fused``; sums, the damping
+#: sums too, reduced once a call; a call with a speed over the cap, or in a world with boxes
+#: or spheres, is projected, capped and summed again while it is in L2).
 #: Damped bodies and bodies with colliders took ``BLOCK`` (1,024) before: 4,096 is as fast
 #: or faster (10k damped, one cluster: 0.0315 / 0.0310 -> 0.0298 / 0.0286 ms; on a ground
 #: 45.1 -> 44.7 us; doc/benchmarks.md), as for the set layout (``sets.FUSED_SETS_BLOCK``).
@@ -458,15 +458,14 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
     are added to ``sums`` (12) and, with ``damp``, ``dsums`` (its point set by the caller).
     Returns (shape-error sum, capped speeds).
 
-    One loop does it all (``_int_single_fused``, ``FUSED_BLOCK`` particles a call). A block
-    with a speed over the cap or a height below the ground, or any block in a world with boxes
-    or spheres, is then projected onto the colliders (the ground alone: ``ground_range``, no
-    bounds pass), capped and summed again (``_acc_single``, vectorised): a body in the air or
-    resting on the ground on a few of its blocks pays one loop for the others. A damped body's
-    damping sums (12 of the 20 sums of ``damp_acc_range``: the caller takes W and sum w d
-    from the shape sums) are the loop's too, or, for a block the colliders or the cap moved,
-    one more loop over it while it is in cache (``damp_sums_range``); ``wuni`` > 0 (every
-    particle of that mass) sums them unweighted.
+    One loop does it all (``_int_single_fused``, ``FUSED_BLOCK`` particles a call), the
+    damped body's damping sums included (12 of the 20 sums of ``damp_acc_range``: the
+    caller takes W and sum w d from the shape sums; ``wuni`` > 0, every particle of that
+    mass: unweighted).  A block with heights below the ground (and nothing else) is
+    projected by ``ground_range_sums``, which corrects the loop's sums for the particles
+    it moved.  A block with a speed over the cap, or any block in a world with boxes or
+    spheres, is projected onto the colliders (the ground alone: ``ground_range``, no bounds
+    pass), capped and summed again (``_acc_single``, ``damp_sums_range``, vectorised).
     """
     err2 = 0.0
     capped = 0
@@ -495,12 +494,8 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
             _add_rest_sums(rest_lin, rest_off, sums[0], 0.0, 0.0, g[0], 0.0, 0.0, 0.0, 0.0,
                            0.0, 0.0, g[1], g[2], g[3])
             if damp:
-                # rows 3-8: sum w v, sum w d x v; 11, 13, 14: sum w dz^2, dy dz, dz dx
-                for j in range(6):
+                for j in range(12):                # rows 3-14, damp_sums_range's order
                     dsums[0, 3 + j] += g[4 + j]
-                dsums[0, 11] += g[10]
-                dsums[0, 13] += g[11]
-                dsums[0, 14] += g[12]
         elif over or low or boxed:
             # the loop did not add the sums: colliders, cap, then the sums of what they left
             if boxed:

@@ -169,8 +169,9 @@ def ground_range_sums(start, end, x, v, x0, mass, wuni, ground, thresh, k0, k1, 
     A projected particle only moves up (z -> the ground's height, dz) and changes its
     velocity v -> v', so with w its weight (``wuni`` > 0: every particle's, else
     ``mass[i]``), d = x - k and a = x0[i]: (delta sum w d_z, delta sum w d_z a^T (3), then
-    the damping sums' deltas: sum w v (3), sum w d x v (3), sum w d_z^2, sum w d_y d_z,
-    sum w d_z d_x; zeros without ``damp``), 13 numbers; the other sums do not change.
+    the 12 damping sums' deltas in ``damping.damp_sums_range``'s order: sum w v, sum w d x v,
+    sum w d d^T as xx, yy, zz, xy, yz, zx, of which xx, yy and xy do not change; zeros
+    without ``damp``), 16 numbers.  The other shape sums do not change.
     """
     gz, mu, e = ground[1], ground[2], ground[3]
     s2 = c20 = c21 = c22 = 0.0
@@ -202,7 +203,7 @@ def ground_range_sums(start, end, x, v, x0, mass, wuni, ground, thresh, k0, k1, 
             e22 += w * (f2 * f2 - d2 * d2)
             e12 += w * d1 * dz
             e20 += w * d0 * dz
-    return s2, c20, c21, c22, b0, b1, b2, a0, a1, a2, e22, e12, e20
+    return s2, c20, c21, c22, b0, b1, b2, a0, a1, a2, 0.0, 0.0, e22, 0.0, e12, e20
 
 
 @njit(**JIT)

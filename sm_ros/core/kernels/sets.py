@@ -20,7 +20,8 @@ A rigid/linear body stored set by set (``World.add_body(order='set')``: one run 
 without torque takes one loop a run (``_sets_fused_lin``, the loop of the
 one-cluster pass ``integrate._fused_range``): each particle read and written once, its
 set's sums and damping sums taken in the same loop, all about one point per set; the
-static colliders and the speed cap after the loop, a run they may have moved summed again.
+static colliders and the speed cap after the loop: the ground's projection corrects the
+run's sums for what it moved, a run the cap or a box or sphere moved is summed again.
 Every pass takes the runs' ends from ``runs`` (precomputed at build, ``first_run``) and
 caps the speeds block by block before it sums the block, so the sums stay valid.
 """
@@ -672,8 +673,10 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     speeds over ``v_max``, and the set's 12 sums of the new state; then the static
     colliders on the run (``colliders._collide_range``: a run no collider can reach costs
     one bounds pass) and the speed cap (``limits.limit_speed_range``, only where a speed
-    was over it), in the order of the two-loop pass; a run they may have moved is summed
-    again (``integrate._rest_sums``), so the sums are of the final state and the step
+    was over it), in the order of the two-loop pass; the ground alone corrects the run's
+    sums for the particles it projected (``colliders.ground_range_sums``), a run the cap
+    or a box or sphere moved is summed again (``integrate._rest_sums``), so the sums are of
+    the final state and the step
     leaves them valid.  Damped, the loop also takes the run's 12 damping sums and W (a run
     that was moved: ``damping.damp_sums_range``, while it is in cache).  Returns (sum of
     |g - x|^2, capped speeds).  ``gz``: the ground's height, None without a ground
@@ -726,8 +729,9 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
             ss = (ss[0], ss[1], ss[2] + g[0], ss[3], ss[4], ss[5], ss[6], ss[7], ss[8],
                   ss[9] + g[1], ss[10] + g[2], ss[11] + g[3])
             dsum = (dsum[0] + g[4], dsum[1] + g[5], dsum[2] + g[6], dsum[3] + g[7],
-                    dsum[4] + g[8], dsum[5] + g[9], dsum[6], dsum[7], dsum[8] + g[10],
-                    dsum[9], dsum[10] + g[11], dsum[11] + g[12], dsum[12])
+                    dsum[4] + g[8], dsum[5] + g[9], dsum[6] + g[10], dsum[7] + g[11],
+                    dsum[8] + g[12], dsum[9] + g[13], dsum[10] + g[14], dsum[11] + g[15],
+                    dsum[12])
         # the loop counted the speeds before the colliders: a static collider never speeds
         # a particle up (``colliders.contact_velocity``: restitution <= 1, friction only
         # slows), so a run with none over the cap has none after them either
