@@ -13,10 +13,17 @@ batches, the state restored before each batch:
 - ``eq13_14_sums``: the same and the 12 sums of the new state that the next shape match
   needs (sum d, sum d q^T, d = x - k);
 - ``pass_loop``: the project's loop (``integrate._fused_range``, mass None: Eq. 13-14,
-  the 12 sums, the shape error and the speed count), as the one-cluster pass inlines it;
+  the 12 sums, the shape error and the speed count) at LLVM's vector width (256 bits
+  here), as the set layout's one loop a run compiles it;
+- ``pass_loop_wide``: the same loop 512 bits wide, as the one-cluster pass compiles it
+  (``integrate._int_single_fused``, ``jit.wide_vectors``);
 - ``pass_loop_masses``: the same loop weighted by the masses (a body of several masses);
-- ``pass_loop_damped``: the damped loop (the damping towards a field, and the damping
-  sums of the new state in the same loop);
+- ``pass_loop_damped``, ``pass_loop_damped_wide``: the damped loop (the damping towards a
+  field, and the damping sums of the new state in the same loop), both widths;
+
+The pass loops take their constants (alpha / h, h, h acc, the speed cap) as run-time
+values and use every result, as the passes do (before 2026-12-05 they used one sum and
+took the constants as literals, which LLVM folded: their floors were too low).
 - ``damping_sums``: the damping sums as a loop of their own (``damping.damp_sums_range``,
   unit masses: sum v, sum d x v and the second moments of d), what a damped step added
   before they moved into the pass's loop (now only for a block the speed cap or a box or
@@ -38,12 +45,12 @@ import statistics
 import time
 
 import numpy as np
-from numba import njit
+from numba import literal_unroll, njit
 
 from sm_ros.core.body_build import soa
 from sm_ros.core.kernels.damping import damp_sums_range
 from sm_ros.core.kernels.integrate import _fused_range
-from sm_ros.core.kernels.jit import FASTMATH, U
+from sm_ros.core.kernels.jit import FASTMATH, U, wide_vectors
 
 FM = dict(fastmath=FASTMATH)
 H = 0.005
@@ -114,18 +121,41 @@ def _eq_sums(x, v, x0, g, reps):
 
 
 @njit(**FM)
-def _one_pass(x, v, x0, mass, wuni, damp, g, field):
-    return _fused_range(0, x.shape[0], x, v, x0, mass, wuni, g, damp, field, 100.0, 0.005,
-                        0.0, 0.0, -0.05, g[9], g[10], g[11], 1e4, None)
+def _one_pass(x, v, x0, mass, wuni, damp, g, field, c):
+    return _fused_range(0, x.shape[0], x, v, x0, mass, wuni, g, damp, field, c[0], c[1],
+                        c[2], c[3], c[4], g[9], g[10], g[11], c[5], None)
 
 
 @njit(**FM)
-def _passes(x, v, x0, g, reps, mass, wuni, damp, field):
+def _one_pass_wide(x, v, x0, mass, wuni, damp, g, field, c):
+    wide_vectors()
+    return _fused_range(0, x.shape[0], x, v, x0, mass, wuni, g, damp, field, c[0], c[1],
+                        c[2], c[3], c[4], g[9], g[10], g[11], c[5], None)
+
+
+@njit(**FM)
+def _passes(x, v, x0, g, reps, mass, wuni, damp, field, wide, c):
     """``reps`` calls of the pass's loop: compiled once with ``mass`` None (one-mass bodies)
-    and once with an array, ``damp`` a run-time flag as in the passes."""
+    and once with an array, ``damp`` a run-time flag as in the passes, ``wide``: 512 bits
+    wide as the one-cluster pass compiles it (``integrate._int_single_fused``).  The
+    constants ``c`` (alpha / h, h, h acc, the speed cap) are run-time values and every
+    result is used, as in the passes: a constant acceleration of 0 or an unused sum would
+    be folded away by LLVM and the floor would be too low."""
     out = 0.0
     for _ in range(reps):
-        out += _one_pass(x, v, x0, mass, wuni, damp, g, field)[2]
+        if wide:
+            out += _total(_one_pass_wide(x, v, x0, mass, wuni, damp, g, field, c))
+        else:
+            out += _total(_one_pass(x, v, x0, mass, wuni, damp, g, field, c))
+    return out
+
+
+@njit(**FM)
+def _total(t):
+    """The sum of every result of a loop (none of them left for LLVM to drop)."""
+    out = 0.0
+    for e in literal_unroll(t):
+        out += e
     return out
 
 
@@ -134,16 +164,29 @@ _IDLE = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 _FIELD = (0.95, 0.001, -0.002, 0.0005, 0.0, 0.0, 0.01)
 
 
+# alpha / h, h, h acc (x, y, z), the speed cap squared
+_CONSTS = np.array([100.0, 0.005, 0.0, 0.0, -0.05, 1e4])
+
+
 def _pass_loop(x, v, x0, g, reps):
-    return _passes(x, v, x0, g, reps, None, 1.0, False, _IDLE)
+    return _passes(x, v, x0, g, reps, None, 1.0, False, _IDLE, False, _CONSTS)
+
+
+def _pass_loop_wide(x, v, x0, g, reps):
+    return _passes(x, v, x0, g, reps, None, 1.0, False, _IDLE, True, _CONSTS)
 
 
 def _pass_loop_masses(x, v, x0, g, reps):
-    return _passes(x, v, x0, g, reps, np.ones(x.shape[0]), 0.0, False, _IDLE)
+    return _passes(x, v, x0, g, reps, np.ones(x.shape[0]), 0.0, False, _IDLE, False,
+                   _CONSTS)
 
 
 def _pass_loop_damped(x, v, x0, g, reps):
-    return _passes(x, v, x0, g, reps, None, 1.0, True, _FIELD)
+    return _passes(x, v, x0, g, reps, None, 1.0, True, _FIELD, False, _CONSTS)
+
+
+def _pass_loop_damped_wide(x, v, x0, g, reps):
+    return _passes(x, v, x0, g, reps, None, 1.0, True, _FIELD, True, _CONSTS)
 
 
 @njit(**FM)
@@ -155,13 +198,14 @@ def _one_damp(x, v, k0, k1, k2):
 def _damping_sums(x, v, x0, g, reps):
     out = 0.0
     for _ in range(reps):
-        out += _one_damp(x, v, g[9], g[10], g[11])[3]
+        out += _total(_one_damp(x, v, g[9], g[10], g[11]))
     return out
 
 
 LOOPS = {'stream': _stream, 'eq13_14': _eq_only, 'eq13_14_sums': _eq_sums,
-         'pass_loop': _pass_loop, 'pass_loop_masses': _pass_loop_masses,
-         'pass_loop_damped': _pass_loop_damped, 'damping_sums': _damping_sums}
+         'pass_loop': _pass_loop, 'pass_loop_wide': _pass_loop_wide,
+         'pass_loop_masses': _pass_loop_masses, 'pass_loop_damped': _pass_loop_damped,
+         'pass_loop_damped_wide': _pass_loop_damped_wide, 'damping_sums': _damping_sums}
 
 
 def _block(a, offset):

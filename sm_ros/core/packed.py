@@ -10,8 +10,9 @@ keep their per-body scalars and per-cluster state in one row each of a world-lev
 ``Pack.P`` (nb, NCOL): the body's own attributes (``_ref``, ``_quat``, ``_part``, ...)
 become views of its row, so every reader of the body sees the state the packed step
 writes, and the compiled loop reads a body's state from ``P[b]`` with no array fetched
-but the four particle arrays (x, v, x0, m).  Scratch (3x3, 4x4, ...) is allocated once
-per chunk of bodies, not per body.
+but the four particle arrays (x, v, x0, m), viewed from their addresses (``Pack.ptrs``,
+``jit.address_view``: no typed list to unbox, no reference counts).  Scratch (3x3, 4x4,
+...) is allocated once per chunk of bodies, not per body.
 
 One pass over a body's particles does what four did: in blocks of ``FUSED_BLOCK`` particles,
 the damping (the rigid field of the last pass's sums), Eq. 13-14, the static colliders,
@@ -33,14 +34,13 @@ their packs while they step in turn.
 import numba
 import numpy as np
 from numba import njit, prange
-from numba.typed import List as TypedList
 
 from .kernels import (JIT, NDAMP, STRETCH_LIMIT, _collide_range, det3, extract_rotation,
                       limit_turn, unit_det_match_warm)
 from .kernels.damping import damp_acc_range, damp_sums_range
 from .kernels.colliders import ground_range, ground_range_sums
 from .kernels.integrate import _acc_single, _add_rest_sums, _int_single_fused
-from .kernels.jit import finite
+from .kernels.jit import address_view, finite, scratch_view
 from .kernels.limits import limit_speed_range
 from .kernels.linalg import sym3_solve
 
@@ -106,11 +106,16 @@ class Pack:
         self.h = h
         self.P = np.zeros((max(nb, 1), NCOL))
         self.counts = np.zeros((max(nb, 1), 2), dtype=np.int64)
-        self.parts = TypedList()
+        #: per body the addresses of x, v, x0 as (3, N) blocks and of the masses, and N
+        #: (``jit.address_view``); ``_held`` keeps those arrays alive
+        self.ptrs = np.zeros((nb, 5), dtype=np.int64)
+        self._held = []
         #: ``SCRATCH`` numbers for each chunk of bodies (``_step_chunk``), one row a thread
         self.scratch = np.zeros((1, SCRATCH))
         #: set when one of the bodies was packed since into another pack
         self.stale = False
+        #: ``_resolve``'s compiled entry of the one-chunk call, and what it was resolved for
+        self._entry = None
         for b, body in enumerate(self.bodies):
             p = body._params.at_step(h)
             body._at_step = (h, body._params, p)
@@ -142,12 +147,26 @@ class Pack:
             if old is not None and old is not self:
                 old.stale = True              # its row no longer holds this body's state
             body._pack_owner = self
-            # x, v, x0 as their (3, N) blocks (``body.soa``): a one-particle body's (1, 3)
-            # view would type C and the typed list takes one type; transposed back (F) below
-            self.parts.append((body._x.T, body._v.T, body._x0.T, body.m))
+            # x, v, x0 as their (3, N) blocks (``body.soa``), viewed (3, N) and transposed
+            # back (F) in the compiled step
+            arrays = (body._x.T, body._v.T, body._x0.T, body.m)
+            n = body.n
+            for a, shape in zip(arrays, ((3, n), (3, n), (3, n), (n,))):
+                if (a.dtype != np.float64 or a.shape != shape
+                        or not a.flags['C_CONTIGUOUS']):
+                    raise AssertionError(f'{body.name}: particle array {a.shape} '
+                                         f'{a.dtype} is not a C-contiguous float64 {shape}')
+            self._held.append(arrays)
+            self.ptrs[b] = [a.ctypes.data for a in arrays] + [n]
 
     def __len__(self):
         return len(self.bodies)
+
+    def __reduce__(self):
+        # ``ptrs`` holds the addresses of the bodies' arrays: a copy would step them, not
+        # the copies' (worlds and bodies drop their packs when copied and pack again)
+        raise TypeError("a Pack holds the addresses of its bodies' arrays and is not "
+                        'copied: pack the copied bodies again')
 
     def step(self, h, gravity, has_col, ground, boxes, spheres, thresh, parallel=False):
         """Step every body of the pack once (on the threads with ``parallel``)."""
@@ -157,11 +176,62 @@ class Pack:
             threads = numba.get_num_threads()
             if len(self.scratch) < threads:
                 self.scratch = np.zeros((threads, SCRATCH))
-            step_packed(self.P, self.counts, self.parts, self.scratch, threads, h, gravity,
+            step_packed(self.P, self.counts, self.ptrs, self.scratch, threads, h, gravity,
                         has_col, ground, boxes, spheres, thresh)
-        else:
-            step_packed_single(self.P, self.counts, self.parts, self.scratch, h, gravity,
-                               has_col, ground, boxes, spheres, thresh)
+            return
+        # one chunk on one thread: the same compiled function as the threaded call, on
+        # purpose.  A serial compiled entry calling ``_step_chunk`` (1-1.5 us a call
+        # cheaper) is a second compilation of the chunk, and whether two compilations
+        # round alike under fast math depends on how each was compiled: Numba inlines a
+        # callee compiled in the same process but only links one loaded from the on-disk
+        # cache.  In a fresh clone the two entries were compiled in different processes
+        # and the threaded world step and the bodies stepped one by one differed in the
+        # last bit (test_core_packed, test_core_fused).  Such an entry, tried again in
+        # stop 24, also made ``many`` 64 about 30 % slower (0.35 us a body; perf: the
+        # reference counts' atomics 27 % of its samples against 7 %).
+        call = self._entry
+        if (call is None or call[1] is not gravity or call[2] is not ground
+                or call[3] is not boxes or call[4] is not spheres):
+            call = self._entry = self._resolve(gravity, ground, boxes, spheres)
+        args = (self.P, self.counts, self.ptrs, self.scratch, 1, float(h), gravity,
+                bool(has_col), ground, boxes, spheres, float(thresh))
+        if numba.config.NUMBA_NUM_THREADS == 1:
+            # a pool of one thread: nothing to set (and no ~80 ns query of the count)
+            call[0](*args)
+            return
+        get, put = _thread_count_fns()
+        threads = get()
+        if threads == 1:
+            call[0](*args)
+            return
+        put(1)
+        try:
+            call[0](*args)
+        finally:
+            put(threads)
+
+    def _resolve(self, gravity, ground, boxes, spheres):
+        """(compiled entry of ``step_packed`` for these arrays, the arrays): the entry
+        point of its compiled specialisation, called without Numba's dispatch.
+
+        The dispatch types every argument at each call (~0.35 us more than the entry for
+        these 12).  The entry unboxes the arguments as the types it was compiled for, so it is
+        used only while the collider arrays and gravity are the very objects it was
+        resolved for (the world replaces them when they change), with the pack's own
+        arrays and the scalars converted to the types of the first call.  Where
+        ``step_packed`` is not a Numba dispatcher (a test's spy), it is called as it is.
+        """
+        fn = step_packed
+        entry = fn
+        overloads = getattr(fn, 'overloads', None)
+        if overloads is not None:
+            args = (self.P, self.counts, self.ptrs, self.scratch, 1, 0.0, gravity, False,
+                    ground, boxes, spheres, 0.0)
+            sig = tuple(fn.typeof_pyval(a) for a in args)
+            if sig not in overloads:
+                fn.compile(sig)
+            entry = overloads[sig].entry_point
+        return entry, gravity, ground, boxes, spheres
 
 
 _THREADS = []
@@ -185,32 +255,8 @@ def _thread_count_fns():
     return _THREADS
 
 
-def step_packed_single(P, counts, parts, scratch, h, gravity, has_col, ground, boxes,
-                       spheres, thresh):
-    """Every body of a pack on the calling thread: ``step_packed`` with one thread (its
-    one chunk).  The same compiled function as the threaded call, on purpose: a serial
-    compiled entry calling ``_step_chunk`` (1-1.5 us a call cheaper) is a second
-    compilation of the chunk, and whether two compilations round alike under fast math
-    depends on how each was compiled: Numba inlines a callee compiled in the same process
-    but only links one loaded from the on-disk cache.  In a fresh clone the two entries
-    were compiled in different processes and the threaded world step and the bodies
-    stepped one by one differed in the last bit (test_core_packed, test_core_fused)."""
-    get, put = _thread_count_fns()
-    threads = get()
-    if threads == 1:
-        step_packed(P, counts, parts, scratch, 1, h, gravity, has_col, ground, boxes, spheres,
-                    thresh)
-        return
-    put(1)
-    try:
-        step_packed(P, counts, parts, scratch, 1, h, gravity, has_col, ground, boxes, spheres,
-                    thresh)
-    finally:
-        put(threads)
-
-
 @njit(parallel=True, **JIT)
-def step_packed(P, counts, parts, scratch, threads, h, gravity, has_col, ground, boxes,
+def step_packed(P, counts, ptrs, scratch, threads, h, gravity, has_col, ground, boxes,
                 spheres, thresh):
     """Every body of a pack in ``threads`` chunks of consecutive bodies over the threads
     (``scratch``: at least ``threads`` rows of ``SCRATCH``; a body owns its row and its
@@ -218,17 +264,17 @@ def step_packed(P, counts, parts, scratch, threads, h, gravity, has_col, ground,
     over threads: a split pass (sums per thread, added in thread order) was built and
     tested in this project's history and never paid on its shared 2-core machine (a 1M
     body: 5-6 ms on one thread, 48 ms over 2), and it added ~17 s to the cold compile."""
-    nb = len(parts)
+    nb = ptrs.shape[0]
     nch = max(1, min(threads, nb))
     for c in prange(nch):
         lo = (c * nb) // nch
         hi = ((c + 1) * nb) // nch
-        _step_chunk(P, counts, parts, scratch[c], lo, hi, h, gravity, has_col, ground,
+        _step_chunk(P, counts, ptrs, scratch[c], lo, hi, h, gravity, has_col, ground,
                     boxes, spheres, thresh)
 
 
 @njit(**JIT)
-def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxes, spheres,
+def _step_chunk(P, counts, ptrs, scr, lo, hi, h, gravity, has_col, ground, boxes, spheres,
                 thresh):
     """Bodies lo..hi with one set of scratch buffers (``scr``: ``SCRATCH`` numbers, the
     3x3 and 4x4 work arrays of the kernels called here, viewed once per chunk).
@@ -242,41 +288,43 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
     started from the body's last eigenvectors ``_udv``, as ``Body._step`` and the
     record step do) are calls.  384 bodies of 144 particles: ~0.65 -> ~0.5 ms a step."""
     # scratch: views of the chunk's row of ``Pack.scratch`` (about 30 small arrays
-    # allocated per call cost ~2.5 us, as much as 5k particles of the pass), zeroed as
-    # fresh arrays would be
+    # allocated per call cost ~2.5 us, as much as 5k particles of the pass; views by
+    # reshape ~1 us: ``jit.scratch_view``), zeroed as fresh arrays would be
     for j in range(SCRATCH):
         scr[j] = 0.0
-    part0 = scr[0:12].reshape((1, 12))
-    ref = scr[12:15].reshape((1, 3))
-    pnt = scr[15:18].reshape((1, 3))
-    quat1 = scr[18:22]
-    rest_lin = scr[22:31].reshape((1, 3, 3))
-    rest_off = scr[31:34].reshape((1, 3))
-    goal_lin = scr[34:43].reshape((1, 3, 3))
-    goal_off = scr[43:46].reshape((1, 3))
-    m3 = scr[46:82].reshape((4, 3, 3))
+    part0 = scratch_view(scr, 0, (1, 12))
+    ref = scratch_view(scr, 12, (1, 3))
+    pnt = scratch_view(scr, 15, (1, 3))
+    quat1 = scratch_view(scr, 18, (4,))
+    rest_lin = scratch_view(scr, 22, (1, 3, 3))
+    rest_off = scratch_view(scr, 31, (1, 3))
+    goal_lin = scratch_view(scr, 34, (1, 3, 3))
+    goal_off = scratch_view(scr, 43, (1, 3))
+    m3 = scratch_view(scr, 46, (4, 3, 3))
     ma, mb, mc, md = m3[0], m3[1], m3[2], m3[3]
-    m39 = scr[82:109].reshape((3, 9))
+    m39 = scratch_view(scr, 82, (3, 9))
     w1, w2 = m39[:, 3:6], m39[:, 6:9]
-    n4 = scr[109:125].reshape((4, 4))
-    v4 = scr[125:141].reshape((4, 4))
+    n4 = scratch_view(scr, 109, (4, 4))
+    v4 = scratch_view(scr, 125, (4, 4))
     wa, wv = n4[:3, :3], v4[:3, :3]
-    nmat0 = scr[141:150].reshape((3, 3))
-    udv0 = scr[150:159].reshape((3, 3))
-    dmp = scr[175:181].reshape((1, 6))
-    lim_lin = scr[181:194].reshape((1, 13))
-    lim_w = scr[194:200].reshape((1, 6))
-    acc = scr[200:203]
-    dpart0 = scr[203:203 + NDAMP].reshape((1, NDAMP))
+    nmat0 = scratch_view(scr, 141, (3, 3))
+    udv0 = scratch_view(scr, 150, (3, 3))
+    dmp = scratch_view(scr, 175, (1, 6))
+    lim_lin = scratch_view(scr, 181, (1, 13))
+    lim_w = scratch_view(scr, 194, (1, 6))
+    acc = scratch_view(scr, 200, (3,))
+    dpart0 = scratch_view(scr, 203, (1, NDAMP))
     dp = dpart0[0]
-    flagged = np.zeros(1, dtype=np.bool_)
-    noptr = np.zeros(0, dtype=np.int64)
-    nocl = np.zeros(0, dtype=np.int32)
     for b in range(lo, hi):
         row = P[b]
         if row[C_FLAGS + 3] > 0.0:             # asleep (``sm_ros.core.sleep``): not stepped
             continue
-        xt, vt, x0t, mass = parts[b]
+        # the body's particle arrays (``Pack.ptrs``: no typed list, no reference counts)
+        n = ptrs[b, 4]
+        xt = address_view(ptrs[b, 0], (3, n))
+        vt = address_view(ptrs[b, 1], (3, n))
+        x0t = address_view(ptrs[b, 2], (3, n))
+        mass = address_view(ptrs[b, 3], (n,))
         x, v, x0 = xt.T, vt.T, x0t.T
         # ---- the body's parameters and the state the pass reads as arrays (rest map, ref)
         for j in range(3):
@@ -290,7 +338,6 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
         mode = int(row[C_MODE])
         damp = k_damp > 0.0
         dirty = row[C_FLAGS] > 0.0
-        n = x.shape[0]
         if dirty:
             for j in range(12):
                 part0[0, j] = 0.0
@@ -362,8 +409,11 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
         if turn > 0.0:
             # |q_prev . q| = cos(angle / 2), as Body._step
             dot = q0 * quat1[0] + q1 * quat1[1] + q2 * quat1[2] + q3 * quat1[3]
-            flagged[0] = abs(dot) < np.cos(0.5 * turn)
-            if flagged[0]:
+            if abs(dot) < np.cos(0.5 * turn):
+                # the arrays of one cluster (allocated here, not at every call: ~50 ns each)
+                flagged = np.ones(1, dtype=np.bool_)
+                noptr = np.zeros(0, dtype=np.int64)
+                nocl = np.zeros(0, dtype=np.int32)
                 turned = limit_turn(x=x, v=v, mass=mass, ptr=noptr, cl=nocl, flagged=flagged,
                                     w_max=row[C_WMAX], lin=lim_lin, w3=lim_w, m3a=ma,
                                     m3b=mb, m3c=mc, m3d=md)
@@ -376,7 +426,7 @@ def _step_chunk(P, counts, parts, scr, lo, hi, h, gravity, has_col, ground, boxe
             if dirty or turned or not row[C_FLAGS + 2] > 0.0:
                 for j in range(NDAMP):
                     dpart0[0, j] = 0.0
-                damp_acc_range(0, n, x, v, mass, nocl, dpart0)
+                damp_acc_range(0, n, x, v, mass, np.zeros(0, dtype=np.int32), dpart0)
             else:
                 for j in range(NDAMP):
                     dpart0[0, j] = row[C_DPART + j]

@@ -259,8 +259,9 @@ class World(WorldColliders):
         cs = self._cset
         if cs is not None:
             cs.advance(h, self.time)
-        self._ensure_flat()
-        if self._sleep_check():
+        if self._flat is None:
+            self._ensure_flat()
+        if self._sleep is not None and self._sleep_check():
             # every body asleep (sleep.py): nothing moves; the collider wrenches average
             # over the time as before
             self._flagged = True
@@ -268,31 +269,36 @@ class World(WorldColliders):
                 cs.imp_time += h
             self.time += h
             return
-        pack, records, slow, parallel = self._split_bodies(h)
+        _, pack, records, slow, parallel, helpers, nrec = self._split_now(h)
         args = (h, self._gravity, self._has_col, self._ground_row, self._box_rows,
                 self._sphere_rows, thresh)
-
-        def step_pack():
-            # the one-cluster rigid/linear bodies: one compiled call over their rows (packed.py)
-            pack.step(*args, parallel)
-
-        if len(records) and self._split[5] and step_threads.cores_free():
+        if nrec and helpers and step_threads.cores_free():
             # the records (kernels/world_step.py) shared with helper threads; a pack on one
             # thread is stepped here while they wake
             if pack is not None and parallel:
-                step_pack()
+                pack.step(*args, True)
+
+            def step_pack():
+                # the one-cluster rigid/linear bodies: one compiled call over their rows
+                pack.step(*args, False)
             step_bodies_parallel(records, *args,
                                  before=step_pack if pack is not None and not parallel else None)
         else:
             if pack is not None:
-                step_pack()
-            if len(records):
+                # the one-cluster rigid/linear bodies: one compiled call over their rows
+                # (packed.py)
+                pack.step(*args, parallel)
+            if nrec:
                 # one compiled call for the bodies it covers (kernels/world_step.py)
                 step_single_bodies(records, *args)
         for body in slow:
             if not body._flags[3] > 0.0:       # asleep: not stepped (sleep.py)
                 body._step(*args)
-        self._flagged = not self._world_passes(h, thresh)
+        c = self._contact
+        if cs is None and (c is None or not c.needed):
+            self._flagged = True               # no world pass (``_world_passes``)
+        else:
+            self._flagged = not self._world_passes(h, thresh)
         if cs is not None:
             cs.imp_time += h
         self.time += h
@@ -321,15 +327,23 @@ class World(WorldColliders):
     def _split_bodies(self, h):
         """(``packed.Pack`` of the one-cluster rigid/linear bodies or None, typed list of
         compiled-step records of the other covered bodies, bodies stepped one by one,
-        whether the compiled calls run on several threads), rebuilt only when a body's
-        buffers, parameters, grabs or wrench kind, the bodies, the step or the packing
-        (``Pack.stale``: one of its bodies was packed elsewhere since) changed.  Python
-        cost per step does not grow with the number of bodies.  Threads as for one body:
-        only from ``WORLD_PARALLEL_MIN_WORK`` particles (on shared cores fork/join costs
-        more below), and with several bodies.  The records alone are also shared with
-        helper threads from ``RECORDS_PARALLEL_MIN_WORK`` particles in records (the
-        split's last entry: ``step_bodies_parallel`` never waits for a helper that has not
-        started)."""
+        whether the compiled calls run on several threads): ``_split_now``'s."""
+        return self._split_now(h)[1:5]
+
+    def _split_now(self, h):
+        """The split of the bodies at the step ``h``: (key, ``packed.Pack`` of the
+        one-cluster rigid/linear bodies or None, typed list of compiled-step records of the
+        other covered bodies, bodies stepped one by one, whether the compiled calls run on
+        several threads, whether the records are shared with helper threads, how many
+        records), rebuilt only when a body's buffers, parameters, grabs or wrench kind,
+        the bodies, the step or the packing (``Pack.stale``: one of its bodies was packed
+        elsewhere since) changed.  Python cost per step does not grow with the number of
+        bodies.  Threads as for one body: only from ``WORLD_PARALLEL_MIN_WORK`` particles
+        (on shared cores fork/join costs more below), and with several bodies.  The
+        records alone are also shared with helper threads from
+        ``RECORDS_PARALLEL_MIN_WORK`` particles in records (the split's sixth entry:
+        ``step_bodies_parallel`` never waits for a helper that has not started).  The
+        record count is kept: a typed list's ``len`` is a compiled call."""
         key = (body_mod._GENERATION[0], h, self._layout, self.compiled_step)
         split = self._split
         if split is None or split[0] != key or (split[1] is not None and split[1].stale):
@@ -350,8 +364,9 @@ class World(WorldColliders):
                         and len(records) + len(packed) > 1)
             helpers = parallel or (threads and len(records) > 1
                                    and rec_work >= RECORDS_PARALLEL_MIN_WORK)
-            split = self._split = (key, pack, records, slow, parallel, helpers)
-        return split[1], split[2], split[3], split[4]
+            split = self._split = (key, pack, records, slow, parallel, helpers,
+                                   len(records))
+        return split
 
     def _world_passes(self, h, thresh) -> bool:
         """Passes over the world's flat state after the bodies' step (flat.py); return

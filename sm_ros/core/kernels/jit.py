@@ -21,8 +21,11 @@ import os
 
 import numpy as np
 
+from numba import carray as _carray
 from numba import njit as _njit
+from numba import types as _types
 from numba.core import caching
+from numba.extending import intrinsic as _intrinsic
 
 # Numba's registry of cache locators (renamed from ``_CacheImpl`` in Numba 0.58).
 _CACHE_IMPL = getattr(caching, 'CacheImpl', None) or caching._CacheImpl
@@ -133,3 +136,82 @@ def finite(x):
     and are False for nan (``test/test_nonfinite_kernels.py``).
     """
     return -FLOAT_MAX <= x <= FLOAT_MAX
+
+
+@_intrinsic
+def wide_vectors(typingctx):
+    """Let LLVM vectorise the loops of the jitted function that calls this 512 bits wide.
+
+    Numba builds every kernel for the host with LLVM's choice of vector width, which on
+    AVX-512 hosts is 256 bits (the ``prefer-256-bit`` tuning; this machine kind's 32
+    vector registers hold 8 doubles each, only 4 are used).  Numba has no per-function
+    width, and 512 bits for every kernel (``NUMBA_CPU_FEATURES``) made the lattice-order
+    8-cluster steps 9-50 % slower (doc/benchmarks.md).  This sets the LLVM function
+    attribute ``"prefer-vector-width"="512"`` on the calling function only, which the X86
+    backend reads per function; on a host without AVX-512 the widest legal vectors are
+    used instead (256 bits on AVX2), so nothing changes there.  The loops vectorised in
+    that function's own compilation keep the width when LLVM later inlines it into a
+    caller.  ``test_kernel_jit.py`` checks that a caller's loop gets 512-bit registers.
+    """
+    def codegen(context, builder, sig, args):
+        # llvmlite's attribute set takes only its list of known names: a string
+        # attribute (key=value) is added to the set as LLVM IR writes it
+        set.add(builder.function.attributes, '"prefer-vector-width"="512"')
+        return context.get_dummy_value()
+    return _types.none(), codegen
+
+
+
+@_intrinsic
+def _element_pointer(typingctx, arr, i):
+    """Pointer to element ``i`` of a 1-D C-contiguous array (no bounds check)."""
+    if not (isinstance(arr, _types.Array) and arr.ndim == 1 and arr.layout == 'C'):
+        return None
+    sig = _types.CPointer(arr.dtype)(arr, _types.intp)
+
+    def codegen(context, builder, sig, args):
+        ary = context.make_array(sig.args[0])(context, builder, args[0])
+        return builder.gep(ary.data, [args[1]])
+    return sig, codegen
+
+
+@_njit(inline='always', **JIT)
+def scratch_view(buf, start, shape):
+    """A C-contiguous array of ``shape`` on ``buf[start:]`` (1-D, C-contiguous) that takes
+    no reference count: valid while ``buf`` is, so only for scratch a compiled function
+    views at its start and drops before it returns (``packed._step_chunk``).
+
+    ``buf[a:b].reshape(shape)`` calls Numba's run-time reshape helper and moves the
+    buffer's reference count up and down (atomic): ~34 ns a view passed to a call, 0.4 ns
+    this way (a throwaway harness of six views).  IndexError past the end of ``buf``.
+    """
+    size = 1
+    for s in shape:
+        size *= s
+    if start < 0 or start + size > buf.shape[0]:
+        raise IndexError('scratch view past the end of its buffer')
+    return _carray(_element_pointer(buf, start), shape)
+
+
+@_intrinsic
+def _address_pointer(typingctx, addr):
+    """A float64 pointer to the address ``addr`` (an integer)."""
+    sig = _types.CPointer(_types.float64)(_types.intp)
+
+    def codegen(context, builder, sig, args):
+        return builder.inttoptr(args[0], context.get_value_type(sig.return_type))
+    return sig, codegen
+
+
+@_njit(inline='always', **JIT)
+def address_view(addr, shape):
+    """The C-contiguous float64 array of ``shape`` at the address ``addr`` (an array's
+    ``ctypes.data``), taking no reference count: valid only while that array lives and
+    keeps its buffer, with no bounds known (``packed.Pack`` holds its bodies' particle
+    arrays and checks their sizes when it takes their addresses).
+
+    The pack passed its bodies' arrays in a typed list before: unboxing the list cost
+    ~0.3 us a call (an array argument ~25 ns), and fetching a body's tuple moved four
+    reference counts up and down (atomic) per body.
+    """
+    return _carray(_address_pointer(addr), shape)

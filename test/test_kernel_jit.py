@@ -1,0 +1,146 @@
+"""The compilation helpers of ``sm_ros.core.kernels.jit``: the per-function vector width
+(``wide_vectors``) and the scratch views that take no reference count (``scratch_view``),
+and the packed step's compiled entry (``packed.Pack._resolve``) that they serve."""
+
+import llvmlite.binding as llvm
+import numpy as np
+import pytest
+from numba import njit
+
+import sm_ros.core.packed as packed
+from sm_ros.core import Ground, World
+from sm_ros.core.kernels.jit import FASTMATH, U, scratch_view, wide_vectors
+
+
+def _loop(wide):
+    """A fresh compilation (no cache) of a loop with 12 sums, as the one-cluster pass."""
+    @njit(fastmath=FASTMATH)
+    def sums(x, y):
+        if wide:
+            wide_vectors()
+        s0 = s1 = s2 = s3 = 0.0
+        for i in range(U(0), U(x.shape[0])):
+            a = x[i] * 1.5 + y[i]
+            s0 += a
+            s1 += a * x[i]
+            s2 += a * y[i]
+            s3 += x[i] * y[i]
+        return s0 + s1 + s2 + s3
+    return sums
+
+
+def test_wide_vectors_widens_only_the_function_that_calls_it():
+    """On an AVX-512 host (this machine kind) the loop of a function that calls
+    ``wide_vectors`` runs on 512-bit registers and the same loop without it on 256-bit
+    ones (LLVM's choice for the host); elsewhere neither uses 512-bit registers.  Both
+    give the same sum to round-off."""
+    x, y = np.linspace(0.0, 1.0, 1000), np.linspace(1.0, 2.0, 1000)
+    wide, narrow = _loop(True), _loop(False)
+    assert wide(x, y) == pytest.approx(narrow(x, y), rel=1e-12)
+    asm_wide = wide.inspect_asm(wide.signatures[0])
+    asm_narrow = narrow.inspect_asm(narrow.signatures[0])
+    assert 'zmm' not in asm_narrow and 'ymm' in asm_narrow
+    avx512 = '+avx512f' in llvm.get_host_cpu_features().flatten().split(',')
+    assert ('zmm' in asm_wide) == avx512
+    llvm_ir = wide.inspect_llvm(wide.signatures[0])
+    assert '"prefer-vector-width"="512"' in llvm_ir
+    assert '"prefer-vector-width"' not in narrow.inspect_llvm(narrow.signatures[0])
+
+
+@njit
+def _views(buf, start):
+    a = scratch_view(buf, start, (2, 3))
+    b = scratch_view(buf, start + 6, (1, 2, 2))
+    a[1, 2] = -1.0
+    b[0, 1, 0] = -2.0
+    return a.sum() + b.sum()
+
+
+@njit
+def _view_past(buf, start, n):
+    return scratch_view(buf, start, (n,)).sum()
+
+
+def test_scratch_view_reads_and_writes_the_buffer_and_refuses_past_its_end():
+    """The views are the buffer's elements (C order, writes go through), and a view past
+    either end of the buffer is an IndexError, not a read of other memory."""
+    buf = np.arange(14.0)
+    want = buf.copy()
+    want[3 + 5] = -1.0                      # a[1, 2]: element 5 from the start
+    want[3 + 6 + 2] = -2.0                  # b[0, 1, 0]: element 2 of b
+    got = _views(buf, 3)
+    assert np.array_equal(buf, want)
+    assert got == want[3:13].sum()
+    assert _view_past(buf, 0, 14) == buf.sum()
+    with pytest.raises(IndexError):
+        _view_past(buf, 1, 14)
+    with pytest.raises(IndexError):
+        _view_past(buf, -1, 2)
+
+
+def _world():
+    world = World()
+    world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.2))
+    g = np.arange(6) * 0.02
+    x0 = np.stack(np.meshgrid(g, g, g, indexing='ij'), axis=-1).reshape(-1, 3) + 0.01
+    world.add_body(x0, masses=0.01, velocities=np.tile((0.0, 0.0, -1.0), (len(x0), 1)))
+    return world
+
+
+def test_pack_entry_follows_the_colliders_and_steps_as_the_dispatcher():
+    """The one-chunk pack step calls ``step_packed``'s compiled entry resolved for the
+    world's collider arrays and gravity; replacing the colliders resolves it again, and
+    the states are bit for bit those of calls through Numba's dispatcher."""
+    from sm_ros.core import Box
+    h = 1.0 / 240.0
+    got, want = _world(), _world()
+    # the reference world's pack calls the dispatcher itself (typed at every call)
+    ref_pack = want._split_bodies(h)[0]
+    ref_pack._resolve = lambda g, gr, bx, sp: (packed.step_packed, g, gr, bx, sp)
+    want.step(h)
+    assert ref_pack._entry[0] is packed.step_packed
+    got.step(h)
+    pack = got._split_bodies(h)[0]
+    entry = pack._entry
+    assert entry[0] is not packed.step_packed and callable(entry[0])
+    assert entry[2] is got._ground_row and entry[3] is got._box_rows
+    for step in range(1, 40):
+        if step == 20:
+            for w in (got, want):
+                # a step under the half x < 0.05 of the body, which rests on the ground
+                w.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.2),
+                                boxes=[Box(lo=(-1.0, -1.0, -0.1), hi=(0.05, 1.0, 0.03))])
+        got.step(h)
+        want.step(h)
+        if step == 20:
+            assert pack._entry is not entry and pack._entry[3] is got._box_rows
+            assert len(got._box_rows) == 1
+    assert ref_pack._entry[0] is packed.step_packed and want._split_bodies(h)[0] is ref_pack
+    b, r = got.bodies[0], want.bodies[0]
+    assert np.array_equal(b.x, r.x) and np.array_equal(b.v, r.v)
+    assert b.shape_error_rms() == r.shape_error_rms()
+    assert r.x[r.x[:, 0] < 0.04, 2].min() > 0.02      # the box lifted that half
+
+
+def test_a_copied_world_steps_its_own_bodies_and_a_pack_is_not_copied():
+    """A pack holds the addresses of its bodies' particle arrays (``Pack.ptrs``): copying
+    it is refused, and a deep copy of a stepped world packs its own bodies again, so that
+    stepping the copy leaves the original's state as it was (and both step alike)."""
+    import copy
+    h = 1.0 / 240.0
+    world = _world()
+    for _ in range(3):
+        world.step(h)
+    pack = world._split_bodies(h)[0]
+    with pytest.raises(TypeError, match='addresses'):
+        copy.deepcopy(pack)
+    twin = copy.deepcopy(world)
+    x, v = world.bodies[0].x.copy(), world.bodies[0].v.copy()
+    for _ in range(5):
+        twin.step(h)
+    assert np.array_equal(world.bodies[0].x, x) and np.array_equal(world.bodies[0].v, v)
+    assert twin._split_bodies(h)[0] is not pack
+    for _ in range(5):
+        world.step(h)
+    assert np.array_equal(world.bodies[0].x, twin.bodies[0].x)
+    assert not np.array_equal(world.bodies[0].x, x)
