@@ -19,7 +19,13 @@ from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterVal
                               ParameterException)
 from rclpy.executors import ExternalShutdownException
 from rclpy.signals import install_signal_handlers, SignalHandlerOptions
+from sm_ros import warmup
 from sm_ros.sim import ConfigError
+
+
+#: Seconds a Ctrl-C during the start-up waits for it to reach its safe point (the node
+#: built) before the process ends without unwinding (``run``).
+START_UP_GRACE_S = 1.0
 
 
 def check_params_files(argv: Sequence[str]) -> Optional[str]:
@@ -94,16 +100,23 @@ def run(node_class, args=None) -> int:
     interrupted = threading.Event()
 
     def on_sigint(signum, frame):
+        # No KeyboardInterrupt into the start-up: it lands inside Numba's compiler or
+        # llvmlite (a cold warm-up is nearly all compiling), where an exception can cut an
+        # object's set-up or tear-down short: a traceback from its __del__, a hang, or
+        # glibc's "double free detected" and an abort (seen in a fresh-clone CI run).  The
+        # start-up ends at its next safe point, once the node is built (below), or the
+        # watchdog ends the process.
         interrupted.set()
-        raise KeyboardInterrupt
 
     def start_up_watchdog():
-        # A Ctrl-C during the cold warm-up can be raised where it is dropped (inside an
-        # LLVM -> ctypes callback while Numba writes its cache): if the start-up is still
-        # running a little after the Ctrl-C, leave at once (nothing is spinning yet).
+        # Still starting a moment after the Ctrl-C (a cold warm-up takes minutes): stop
+        # the second warm-up process and leave at once (nothing is spinning yet).
         interrupted.wait()
-        time.sleep(2.0)
+        time.sleep(START_UP_GRACE_S)
         if starting.is_set():
+            warmup.stop_helpers()
+            sys.stdout.flush()
+            sys.stderr.flush()
             os._exit(0)
 
     def quiet_dropped_interrupt(unraisable):

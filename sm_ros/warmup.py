@@ -127,14 +127,35 @@ def warm_up(on_stage: Optional[Callable[[str], None]] = None, split: bool = True
     """
     t0 = time.perf_counter()
     extra = _start_extra() if split and _cpus() > 1 and cold_kernels() else None
+    if extra is not None:
+        _HELPERS.append(extra)
     try:
         return _warm_up(on_stage, extra, t0)
     except BaseException:                    # Ctrl-C, an error: the second process too
         if extra is not None:
-            extra[0].kill()
-            extra[0].wait()
-            extra[1].close()
+            _stop(extra)
         raise
+    finally:
+        if extra is not None and extra in _HELPERS:
+            _HELPERS.remove(extra)
+
+
+#: The second warm-up processes running now (``warm_up``), for ``stop_helpers``.
+_HELPERS = []
+
+
+def _stop(extra) -> None:
+    proc, err = extra
+    proc.kill()
+    proc.wait()
+    err.close()
+
+
+def stop_helpers() -> None:
+    """Kill and reap the second warm-up processes still running: a Ctrl-C while the node
+    starts ends the process without unwinding the warm-up (``startup.run``)."""
+    for extra in list(_HELPERS):
+        _stop(extra)
 
 
 def _warm_up(on_stage, extra, t0) -> float:

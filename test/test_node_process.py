@@ -152,3 +152,31 @@ def test_an_interrupted_warm_up_stops_its_second_process(monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         warmup.warm_up()
     assert len(procs) == 1 and procs[0].poll() is not None   # killed and reaped
+
+
+def test_the_start_up_watchdog_stops_a_running_second_warm_up(monkeypatch):
+    """A Ctrl-C while the node starts ends the process from ``startup.run``'s watchdog,
+    without unwinding the warm-up; ``warmup.stop_helpers`` (what the watchdog calls
+    first) kills and reaps the second warm-up process that is running, and a finished
+    warm-up leaves none behind."""
+    from sm_ros import warmup
+    procs = []
+
+    def start():
+        import tempfile
+        p = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'])
+        procs.append(p)
+        return p, tempfile.TemporaryFile()
+
+    def body(on_stage, extra, t0):
+        assert warmup._HELPERS == [extra] and procs[0].poll() is None
+        warmup.stop_helpers()                 # the watchdog, on a Ctrl-C
+        assert procs[0].poll() is not None    # killed and reaped
+        return 0.0
+
+    monkeypatch.setattr(warmup, '_start_extra', start)
+    monkeypatch.setattr(warmup, 'cold_kernels', lambda: 5)
+    monkeypatch.setattr(warmup, '_cpus', lambda: 2)
+    monkeypatch.setattr(warmup, '_warm_up', body)
+    assert warmup.warm_up() >= 0.0
+    assert len(procs) == 1 and warmup._HELPERS == []
