@@ -87,9 +87,9 @@ def run(node_class, args=None) -> int:
     if reason:
         return _fail(reason)
     try:
-        # No rclpy signal handlers while starting: Ctrl-C during the (possibly long, cold
-        # Numba cache) warm-up raises KeyboardInterrupt right away; rclpy's handlers take
-        # over once the node exists, for a clean shutdown of the spinning node.
+        # No rclpy signal handlers while starting: a Ctrl-C during the (possibly long,
+        # cold Numba cache) warm-up is ``on_sigint``'s below; rclpy's handlers take over
+        # once the node exists, for a clean shutdown of the spinning node.
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # noqa: B902 - rcl reports bad arguments as RCLError
         return _fail(_short_error(exc))
