@@ -29,6 +29,9 @@ took the constants as literals, which LLVM folded: their floors were too low).
   before they moved into the pass's loop (now only for a block the speed cap or a box or
   sphere moved).
 
+``--sides 4,5,6,10,16,22`` times the pass loops at each lattice size instead (64 to
+10,648 particles), 256 and 512 bits wide: where the wide loop pays.
+
 ``--offset B`` starts the loops' blocks B bytes past a 64-byte boundary (numpy's own
 allocations start 16 or 48 past one): the cost of unaligned state.
 
@@ -279,7 +282,22 @@ def main(argv=None):
     ap.add_argument('--steps', type=int, default=200, help='World.step a batch (200)')
     ap.add_argument('--offset', type=int, default=0, choices=range(0, 64, 8),
                     help="bytes past a 64-byte boundary the loops' blocks start (0)")
+    ap.add_argument('--sides', default='',
+                    help='comma-separated lattice sides: the pass loops at each size, 256 '
+                         'and 512 bits wide, and their ratio (no World.step)')
     a = ap.parse_args(argv)
+    if a.sides:
+        out = {}
+        for side in (int(s) for s in a.sides.split(',')):
+            # about 500k particle updates a timed batch, whatever the size
+            n, ns = loops(side, a.rounds, max(a.reps, 500000 // side ** 3), a.offset)
+            out[n] = {k: ns[k] for k in ('pass_loop', 'pass_loop_wide', 'pass_loop_damped',
+                                         'pass_loop_damped_wide')}
+            out[n]['wide_over_narrow'] = round(ns['pass_loop_wide'] / ns['pass_loop'], 2)
+            out[n]['damped_wide_over_narrow'] = round(
+                ns['pass_loop_damped_wide'] / ns['pass_loop_damped'], 2)
+        print(json.dumps(out))
+        return
     n, ns = loops(a.side, a.rounds, a.reps, a.offset)
     out = {'n': n, 'offset': a.offset, 'loops_ns_particle': ns,
            'world_step': world_steps(a.rounds, a.steps)}
