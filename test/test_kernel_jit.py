@@ -88,7 +88,7 @@ def _world():
 
 
 def test_pack_entry_follows_the_colliders_and_steps_as_the_dispatcher():
-    """The one-chunk pack step calls ``step_packed``'s compiled entry resolved for the
+    """The one-chunk pack step calls ``step_packed_one``'s compiled entry resolved for the
     world's collider arrays and gravity; replacing the colliders resolves it again, and
     the states are bit for bit those of calls through Numba's dispatcher."""
     from sm_ros.core import Box
@@ -96,13 +96,13 @@ def test_pack_entry_follows_the_colliders_and_steps_as_the_dispatcher():
     got, want = _world(), _world()
     # the reference world's pack calls the dispatcher itself (typed at every call)
     ref_pack = want._split_bodies(h)[0]
-    ref_pack._resolve = lambda g, gr, bx, sp: (packed.step_packed, g, gr, bx, sp)
+    ref_pack._resolve = lambda g, gr, bx, sp: (packed.step_packed_one, g, gr, bx, sp)
     want.step(h)
-    assert ref_pack._entry[0] is packed.step_packed
+    assert ref_pack._entry[0] is packed.step_packed_one
     got.step(h)
     pack = got._split_bodies(h)[0]
     entry = pack._entry
-    assert entry[0] is not packed.step_packed and callable(entry[0])
+    assert entry[0] is not packed.step_packed_one and callable(entry[0])
     assert entry[2] is got._ground_row and entry[3] is got._box_rows
     for step in range(1, 40):
         if step == 20:
@@ -115,7 +115,7 @@ def test_pack_entry_follows_the_colliders_and_steps_as_the_dispatcher():
         if step == 20:
             assert pack._entry is not entry and pack._entry[3] is got._box_rows
             assert len(got._box_rows) == 1
-    assert ref_pack._entry[0] is packed.step_packed and want._split_bodies(h)[0] is ref_pack
+    assert ref_pack._entry[0] is packed.step_packed_one and want._split_bodies(h)[0] is ref_pack
     b, r = got.bodies[0], want.bodies[0]
     assert np.array_equal(b.x, r.x) and np.array_equal(b.v, r.v)
     assert b.shape_error_rms() == r.shape_error_rms()

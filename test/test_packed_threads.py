@@ -1,6 +1,6 @@
 """Packs and threads: a pack runs on the threads only with several bodies (chunks of
-bodies); one body, however big, steps on the calling thread, through the same compiled
-function as the threaded call."""
+bodies); one body, however big, steps on the calling thread without a parallel region
+(``packed.step_packed_one``), bit for bit as the threaded call would step it."""
 
 import numpy as np
 
@@ -50,21 +50,26 @@ def test_world_of_one_packed_body_steps_it_on_one_thread(monkeypatch):
 def test_pack_of_one_body_steps_on_one_thread_when_asked_for_threads(monkeypatch):
     """``Pack.step(parallel=True)`` of one body (a body built for threads, stepped by
     ``Body._step``) steps it on one thread: bit for bit the states of ``parallel=False``,
-    and ``step_packed`` is called with one thread only."""
+    both through ``step_packed_one`` (no parallel region), never ``step_packed``."""
     h = 1.0 / 240.0
     a, b = _world(0.05, True, 2.0), _world(0.05, True, 2.0)
     pa, pb = a._split_bodies(h)[0], b._split_bodies(h)[0]
     calls = []
-    real = packed.step_packed
+    real_one, real_par = packed.step_packed_one, packed.step_packed
 
-    def spy(*args):
-        calls.append(args[4])
-        return real(*args)
+    def spy_one(*args):
+        calls.append('one')
+        return real_one(*args)
 
-    monkeypatch.setattr(packed, 'step_packed', spy)
+    def spy_par(*args):
+        calls.append('threads')
+        return real_par(*args)
+
+    monkeypatch.setattr(packed, 'step_packed_one', spy_one)
+    monkeypatch.setattr(packed, 'step_packed', spy_par)
     for _ in range(5):
         for w, p, par in ((a, pa, True), (b, pb, False)):
             p.step(h, w._gravity, w._has_col, w._ground_row, w._box_rows, w._sphere_rows,
                    0.05, par)
-    assert calls == [1] * 10
+    assert calls == ['one'] * 10
     assert (a.bodies[0].x == b.bodies[0].x).all() and (a.bodies[0].v == b.bodies[0].v).all()

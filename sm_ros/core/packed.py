@@ -40,7 +40,7 @@ from .kernels import (JIT, NDAMP, STRETCH_LIMIT, _collide_range, det3, extract_r
 from .kernels.damping import damp_acc_range, damp_sums_range
 from .kernels.colliders import ground_range, ground_range_sums
 from .kernels.integrate import _acc_single, _add_rest_sums, _int_single_fused
-from .kernels.jit import address_view, finite, scratch_view
+from .kernels.jit import address_view, finite, never_inline, scratch_view
 from .kernels.limits import limit_speed_range
 from .kernels.linalg import sym3_solve
 
@@ -179,80 +179,41 @@ class Pack:
             step_packed(self.P, self.counts, self.ptrs, self.scratch, threads, h, gravity,
                         has_col, ground, boxes, spheres, thresh)
             return
-        # one chunk on one thread: the same compiled function as the threaded call, on
-        # purpose.  A serial compiled entry calling ``_step_chunk`` (1-1.5 us a call
-        # cheaper) is a second compilation of the chunk, and whether two compilations
-        # round alike under fast math depends on how each was compiled: Numba inlines a
-        # callee compiled in the same process but only links one loaded from the on-disk
-        # cache.  In a fresh clone the two entries were compiled in different processes
-        # and the threaded world step and the bodies stepped one by one differed in the
-        # last bit (test_core_packed, test_core_fused).  Such an entry, tried again in
-        # stop 24, also made ``many`` 64 about 30 % slower (0.35 us a body; perf: the
-        # reference counts' atomics 27 % of its samples against 7 %).
+        # one chunk, on the calling thread: ``step_packed_one``, no parallel region (its
+        # launch, even on one thread, allocates a schedule, takes locks and makes a
+        # system call: ~1 us) and no thread count to set.  It and the threaded
+        # ``step_packed`` run one machine code of ``_step_chunk`` (never inlined), so the
+        # two round alike (test_core_packed, test_core_fused, test_packed_threads).
         call = self._entry
         if (call is None or call[1] is not gravity or call[2] is not ground
                 or call[3] is not boxes or call[4] is not spheres):
             call = self._entry = self._resolve(gravity, ground, boxes, spheres)
-        args = (self.P, self.counts, self.ptrs, self.scratch, 1, float(h), gravity,
+        call[0](self.P, self.counts, self.ptrs, self.scratch, float(h), gravity,
                 bool(has_col), ground, boxes, spheres, float(thresh))
-        if numba.config.NUMBA_NUM_THREADS == 1:
-            # a pool of one thread: nothing to set (and no ~80 ns query of the count)
-            call[0](*args)
-            return
-        get, put = _thread_count_fns()
-        threads = get()
-        if threads == 1:
-            call[0](*args)
-            return
-        put(1)
-        try:
-            call[0](*args)
-        finally:
-            put(threads)
 
     def _resolve(self, gravity, ground, boxes, spheres):
-        """(compiled entry of ``step_packed`` for these arrays, the arrays): the entry
-        point of its compiled specialisation, called without Numba's dispatch.
+        """(compiled entry of ``step_packed_one`` for these arrays, the arrays): the
+        entry point of its compiled specialisation, called without Numba's dispatch.
 
-        The dispatch types every argument at each call (~0.35 us more than the entry for
-        these 12).  The entry unboxes the arguments as the types it was compiled for, so it is
-        used only while the collider arrays and gravity are the very objects it was
+        The dispatch types every argument at each call (~0.3 us more than the entry for
+        these 11).  The entry unboxes the arguments as the types it was compiled for, so
+        it is used only while the collider arrays and gravity are the very objects it was
         resolved for (the world replaces them when they change), with the pack's own
         arrays and the scalars converted to the types of the first call.  Where
-        ``step_packed`` is not a Numba dispatcher (a test's spy), it is called as it is.
+        ``step_packed_one`` is not a Numba dispatcher (a test's spy), it is called as it
+        is.
         """
-        fn = step_packed
+        fn = step_packed_one
         entry = fn
         overloads = getattr(fn, 'overloads', None)
         if overloads is not None:
-            args = (self.P, self.counts, self.ptrs, self.scratch, 1, 0.0, gravity, False,
+            args = (self.P, self.counts, self.ptrs, self.scratch, 0.0, gravity, False,
                     ground, boxes, spheres, 0.0)
             sig = tuple(fn.typeof_pyval(a) for a in args)
             if sig not in overloads:
                 fn.compile(sig)
             entry = overloads[sig].entry_point
         return entry, gravity, ground, boxes, spheres
-
-
-_THREADS = []
-
-
-def _thread_count_fns():
-    """(get, set) of the calling thread's Numba thread count.  The public
-    ``numba.get/set_num_threads`` check the threading layer at each call (~6 us for a get
-    and two sets); after the first call the layer's own functions are used (about 1.3 us),
-    where this Numba version has them."""
-    if not _THREADS:
-        numba.get_num_threads()                # launches the threading layer
-        try:
-            from numba.np.ufunc import parallel as layer
-            get, put = layer._get_num_threads, layer._set_num_threads
-            if get() != numba.get_num_threads():
-                raise AttributeError
-        except (ImportError, AttributeError, TypeError):
-            get, put = numba.get_num_threads, numba.set_num_threads
-        _THREADS.extend((get, put))
-    return _THREADS
 
 
 @njit(parallel=True, **JIT)
@@ -274,6 +235,24 @@ def step_packed(P, counts, ptrs, scratch, threads, h, gravity, has_col, ground, 
 
 
 @njit(**JIT)
+def step_packed_one(P, counts, ptrs, scratch, h, gravity, has_col, ground, boxes, spheres,
+                    thresh):
+    """Every body of a pack on the calling thread, without a parallel region (one chunk
+    of ``step_packed``; ``scratch``: at least one row of ``SCRATCH``).
+
+    ``_step_chunk`` is never inlined (``jit.never_inline``): this entry and the threaded
+    one call its own machine code, optimised from one IR, so they round alike.  Before,
+    one compiled function served both, because two compilations of the chunk inlined
+    into their callers had differed in the last bit in a fresh clone (Numba inlines a
+    callee compiled in the same process, but only links one loaded from the on-disk
+    cache).  A serial entry also took ~0.35 us a body more in ``many`` while the chunk's
+    views and particle arrays moved reference counts (``jit.scratch_view``,
+    ``jit.address_view`` took them out)."""
+    _step_chunk(P, counts, ptrs, scratch[0], 0, ptrs.shape[0], h, gravity, has_col, ground,
+                boxes, spheres, thresh)
+
+
+@njit(**JIT)
 def _step_chunk(P, counts, ptrs, scr, lo, hi, h, gravity, has_col, ground, boxes, spheres,
                 thresh):
     """Bodies lo..hi with one set of scratch buffers (``scr``: ``SCRATCH`` numbers, the
@@ -287,6 +266,7 @@ def _step_chunk(P, counts, ptrs, scr, lo, hi, h, gravity, has_col, ground, boxes
     (``extract_rotation``) and the linear mode's minimiser (``unit_det_match_warm``, warm
     started from the body's last eigenvectors ``_udv``, as ``Body._step`` and the
     record step do) are calls.  384 bodies of 144 particles: ~0.65 -> ~0.5 ms a step."""
+    never_inline()                    # one machine code for both entries (``Pack.step``)
     # scratch: views of the chunk's row of ``Pack.scratch`` (about 30 small arrays
     # allocated per call cost ~2.5 us, as much as 5k particles of the pass; views by
     # reshape ~1 us: ``jit.scratch_view``), zeroed as fresh arrays would be

@@ -217,3 +217,16 @@ def address_view(addr, shape):
     reference counts up and down (atomic) per body.
     """
     return _carray(_address_pointer(addr), shape)
+
+
+@_intrinsic
+def never_inline(typingctx):
+    """Keep LLVM from inlining the jitted function that calls this into its callers (the
+    ``noinline`` attribute).  Each caller's compiled module then calls the function's own
+    machine code, optimised once from the same IR, instead of a copy optimised in the
+    caller's context: under fast math two such copies may round differently
+    (``packed._step_chunk``, called by the one-thread and the threaded pack steps)."""
+    def codegen(context, builder, sig, args):
+        builder.function.attributes.add('noinline')
+        return context.get_dummy_value()
+    return _types.none(), codegen
