@@ -181,7 +181,8 @@ class Pack:
             return
         # one chunk, on the calling thread: ``step_packed_one``, no parallel region (its
         # launch, even on one thread, allocates a schedule, takes locks and makes a
-        # system call: ~1 us) and no thread count to set.  It and the threaded
+        # system call: ~0.55 us more than this call through the dispatcher,
+        # ``tools/pack_call.py``) and no thread count to set.  It and the threaded
         # ``step_packed`` run one machine code of ``_step_chunk`` (never inlined), so the
         # two round alike (test_core_packed, test_core_fused, test_packed_threads).
         call = self._entry
@@ -195,11 +196,12 @@ class Pack:
         """(compiled entry of ``step_packed_one`` for these arrays, the arrays): the
         entry point of its compiled specialisation, called without Numba's dispatch.
 
-        The dispatch types every argument at each call (~0.3 us more than the entry for
-        these 11).  The entry unboxes the arguments as the types it was compiled for, so
-        it is used only while the collider arrays and gravity are the very objects it was
-        resolved for (the world replaces them when they change), with the pack's own
-        arrays and the scalars converted to the types of the first call.  Where
+        The dispatch types every argument at each call (~0.2 us more than the entry for
+        these 11: ``tools/pack_call.py``'s ``dispatch`` against ``entry``).  The entry
+        unboxes the arguments as the types it was compiled for, so it is used only while
+        the collider arrays and gravity are the very objects it was resolved for (the
+        world replaces them when they change), with the pack's own arrays and the scalars
+        converted to the types of the first call.  Where
         ``step_packed_one`` is not a Numba dispatcher (a test's spy), it is called as it
         is.
         """
@@ -245,9 +247,9 @@ def step_packed_one(P, counts, ptrs, scratch, h, gravity, has_col, ground, boxes
     one compiled function served both, because two compilations of the chunk inlined
     into their callers had differed in the last bit in a fresh clone (Numba inlines a
     callee compiled in the same process, but only links one loaded from the on-disk
-    cache).  A serial entry also took ~0.35 us a body more in ``many`` while the chunk's
-    views and particle arrays moved reference counts (``jit.scratch_view``,
-    ``jit.address_view`` took them out)."""
+    cache).  A serial entry had also made ``many`` slower while the chunk's views and
+    particle arrays moved reference counts (``jit.scratch_view``, ``jit.address_view``
+    took them out; doc/benchmarks.md, "The 10k one-cluster step")."""
     _step_chunk(P, counts, ptrs, scratch[0], 0, ptrs.shape[0], h, gravity, has_col, ground,
                 boxes, spheres, thresh)
 
@@ -268,8 +270,8 @@ def _step_chunk(P, counts, ptrs, scr, lo, hi, h, gravity, has_col, ground, boxes
     record step do) are calls.  384 bodies of 144 particles: ~0.65 -> ~0.5 ms a step."""
     never_inline()                    # one machine code for both entries (``Pack.step``)
     # scratch: views of the chunk's row of ``Pack.scratch`` (about 30 small arrays
-    # allocated per call cost ~2.5 us, as much as 5k particles of the pass; views by
-    # reshape ~1 us: ``jit.scratch_view``), zeroed as fresh arrays would be
+    # allocated per call cost ~2.5 us, as much as 5k particles of the pass; 22 views by
+    # reshape ~30 ns each: ``jit.scratch_view``), zeroed as fresh arrays would be
     for j in range(SCRATCH):
         scr[j] = 0.0
     part0 = scratch_view(scr, 0, (1, 12))
@@ -390,7 +392,7 @@ def _step_chunk(P, counts, ptrs, scr, lo, hi, h, gravity, has_col, ground, boxes
             # |q_prev . q| = cos(angle / 2), as Body._step
             dot = q0 * quat1[0] + q1 * quat1[1] + q2 * quat1[2] + q3 * quat1[3]
             if abs(dot) < np.cos(0.5 * turn):
-                # the arrays of one cluster (allocated here, not at every call: ~50 ns each)
+                # the arrays of one cluster (allocated here, not at every call)
                 flagged = np.ones(1, dtype=np.bool_)
                 noptr = np.zeros(0, dtype=np.int64)
                 nocl = np.zeros(0, dtype=np.int32)
