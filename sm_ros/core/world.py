@@ -295,10 +295,10 @@ class World(WorldColliders):
             if not body._flags[3] > 0.0:       # asleep: not stepped (sleep.py)
                 body._step(*args)
         c = self._contact
-        if cs is None and (c is None or not c.needed):
-            self._flagged = True               # no world pass (``_world_passes``)
-        else:
-            self._flagged = not self._world_passes(h, thresh)
+        # the bodies' own passes ended the step unless a world pass runs (state_flagged)
+        self._flagged = cs is None and (c is None or not c.needed)
+        if not self._flagged:
+            self._world_passes(h, thresh)
         if cs is not None:
             cs.imp_time += h
         self.time += h
@@ -368,23 +368,19 @@ class World(WorldColliders):
                                    len(records))
         return split
 
-    def _world_passes(self, h, thresh) -> bool:
-        """Passes over the world's flat state after the bodies' step (flat.py); return
-        whether one ran (and may have written particle state).
+    def _world_passes(self, h, thresh):
+        """Passes over the world's flat state after the bodies' step (flat.py), called by
+        ``step`` only when one is needed: body-body contact to run (not off, and two
+        colliding bodies or self-collision) or pass colliders.
 
         Gather every body's state into ``FlatState`` X/V, run body-body contact and the
         collider pass (colliders last: no particle ends a step inside one), copy the
-        touched bodies back.  Nothing runs (no copy) when no pass is needed: contact off,
-        or one colliding body without self-collision, and no pass colliders.  With pass
-        colliders but no contact to run, the collider pass works on each body's own
-        buffers (seen as (3, N)) and copies nothing.
+        touched bodies back.  With pass colliders but no contact to run, the collider
+        pass works on each body's own buffers (seen as (3, N)) and copies nothing.
         """
-        self._ensure_flat()
         c = self._contact
         cs = self._cset
         need_contact = c is not None and c.needed
-        if not need_contact and cs is None:
-            return False
         f = self._flat
         st = self._coll_stats
         if st is None or len(st) != len(f.bodies):
@@ -405,7 +401,7 @@ class World(WorldColliders):
             if sl is not None and cs is None and self._contact_params.sleep and self._gnorm:
                 sl.update(c, h, self._contact_params, self._gravity)
             f.scatter()
-            return True
+            return
         f.refresh_masses()
         for k, body in enumerate(f.bodies):
             o0, o1 = f.off[k], f.off[k + 1]
@@ -415,7 +411,6 @@ class World(WorldColliders):
                        h, thresh, sk, self._one_touch)
             if sk[0, 0] > 0.0:
                 body._dirty = True            # moved particles: re-accumulate the next step
-        return True
 
     def _contact_coupling(self, h):
         """Mark the bodies that carry their contacts as a whole (``Contact.coupling``):
