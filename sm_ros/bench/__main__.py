@@ -10,7 +10,13 @@ Subcommands (each writes markdown + CSV tables and PNG plots into ``--out``):
 - ``node``      the ROS node publishing clouds at 30/60 Hz (needs rclpy);
 - ``soak``      hands over to ``sm_ros.bench.soak:main`` (the soak test);
 - ``contact``   body-body contact against scipy's cKDTree (``sm_ros.bench.contact``);
+- ``tick``      the node's tick on a bundled scene without ROS (``sm_ros.bench.tick``);
+- ``transport`` clouds across a process boundary, DDS profiles (``sm_ros.bench.transport``);
+- ``profile``   cProfile of a scene's ticks, the top entries (``sm_ros.bench.profile``);
 - ``all``       scaling + accuracy + node (the default).
+
+``--write-doc [PATH]`` runs a short fixed set of these and writes doc/benchmarks.md
+(``sm_ros.bench.doc``).
 
 ``targets.md`` lists the issue's targets with the figures this run measured.
 """
@@ -49,7 +55,17 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser('soak', help='long-running soak test (sm_ros.bench.soak)', add_help=False)
     sub.add_parser('contact', help='body-body contact against cKDTree (sm_ros.bench.contact)',
                    add_help=False)
+    for name, helptext in HANDED_OVER.items():
+        sub.add_parser(name, help=helptext, add_help=False)
     return p
+
+
+#: Subcommands that parse their own arguments: ``python -m sm_ros.bench NAME --help``.
+HANDED_OVER = {
+    'tick': "the node's tick on a bundled scene, without ROS (sm_ros.bench.tick)",
+    'transport': 'clouds across a process boundary (sm_ros.bench.transport)',
+    'profile': "cProfile of a scene's ticks (sm_ros.bench.profile)",
+}
 
 
 def _run_soak(argv: List[str]) -> int:
@@ -65,6 +81,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     if argv[:1] == ['contact']:
         from . import contact
         return contact.main(argv[1:])
+    if argv[:1] and argv[0] in HANDED_OVER:
+        import importlib
+        return int(importlib.import_module(f'sm_ros.bench.{argv[0]}').main(argv[1:]) or 0)
+    if '--write-doc' in argv:
+        from . import doc
+        return doc.main(argv)
     if not argv or argv[0] not in ('scaling', 'accuracy', 'node', 'material', 'all', '-h',
                                    '--help'):
         argv = ['all'] + argv

@@ -27,6 +27,10 @@ from . import common as bc, harness
 def add_arguments(p: argparse.ArgumentParser):
     """Add the flags of the ``node`` subcommand."""
     p.add_argument('--node-sizes', default='1e4,1e5', help='points ("" to skip the node)')
+    p.add_argument('--node-scene', default='',
+                   help='a bundled scene name or scene file instead of the box of '
+                        '--node-sizes points, e.g. paper_384 (--node-mode and --node-clusters '
+                        'still apply to its bodies that set no mode or clusters of their own)')
     p.add_argument('--node-rates', default='30,60', help='tick rates in Hz')
     p.add_argument('--node-seconds', type=float, default=4.0, help='measured seconds')
     p.add_argument('--node-substeps', type=int, default=2)
@@ -81,8 +85,11 @@ def measure_many(points: int, rate: float, args, tmp: Path) -> List[Dict[str, An
     """Start ``--node-count`` nodes (and their subscribers) at once; one row per node."""
     import json
     count = max(1, int(getattr(args, 'node_count', 1)))
-    scene = tmp / f'bench_{points}.yaml'
-    harness.box_scene(bc.lattice_side(points) ** 3, scene, getattr(args, 'node_damping', 0.0))
+    scene = getattr(args, 'node_scene', '')
+    if not scene:
+        scene = tmp / f'bench_{points}.yaml'
+        harness.box_scene(bc.lattice_side(points) ** 3, scene,
+                          getattr(args, 'node_damping', 0.0))
     env = harness.ros_env(profile=harness.dds_profile(args.node_dds_profile))
     node_env = dict(env)
     if getattr(args, 'node_threads', 0):
@@ -167,6 +174,8 @@ def _row(node_res, received, rate, args) -> Dict[str, Any]:
 def run(args, out: Path) -> Dict[str, Any]:
     """Every (size, rate); write the table; return findings."""
     sizes = [int(x) for x in bc.as_list(args.node_sizes)]
+    if getattr(args, 'node_scene', ''):
+        sizes = [0]                     # the scene says how many points
     if not sizes:
         return {'status': 'skipped (no --node-sizes)'}
     reason = node_ready()
@@ -179,7 +188,8 @@ def run(args, out: Path) -> Dict[str, Any]:
                           'publish_ms_median', 'other_ms_median', 'estimate_ms_mean',
                           'period_ms', 'rx_rate_hz',
                           'latency_ms_median', 'latency_ms_p95'],
-                 f'sim_node end to end ({args.node_mode}, clusters {args.node_clusters}, '
+                 f'sim_node end to end ({getattr(args, "node_scene", "") or "one box"}, '
+                 f'{args.node_mode}, clusters {args.node_clusters}, '
                  f'damping {getattr(args, "node_damping", 0.0):g}, '
                  f'{args.node_substeps} step(s) per tick, '
                  f'{max(1, int(getattr(args, "node_count", 1)))} node(s) side by side, '
