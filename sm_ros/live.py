@@ -24,7 +24,7 @@ channel            schema                 content
 
 Cost: each ``log_*`` method first asks the channel whether a client is subscribed
 (``Channel.has_sinks``) and returns at once when none is, so a node without a connected
-Foxglove pays a few hundred nanoseconds per channel and tick. The point cloud is not
+Foxglove pays one such question per channel and tick. The point cloud is not
 re-encoded: the protobuf message is a small header (stamp, frame, fields) followed by the
 cloud's bytes, joined into one ``bytes`` object (the one copy of the cloud the stream
 makes; the server queues that object).

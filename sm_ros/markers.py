@@ -2,12 +2,12 @@
 The deformed surface meshes as one pre-serialised MarkerArray.
 
 ``Marker.points`` is a list of ``geometry_msgs/Point`` objects, so the ordinary way costs a
-Python object per triangle corner and a Python-level serialisation each tick (about 12 ms
-for 2,300 corners). Instead, a template MarkerArray with the right number of points is
-serialised once; the byte offsets of each marker's points and stamp in that CDR buffer are
-found, and each tick the corners are written into the buffer with NumPy and the bytes are
-published as they are (``Publisher.publish`` takes serialised bytes). The template is
-rebuilt only when the set of bodies, their face counts or the frame change.
+Python object per triangle corner and a Python-level serialisation each tick, which grows
+with the mesh and would dominate the tick. Instead, a template MarkerArray with the right
+number of points is serialised once; the byte offsets of each marker's points and stamp in
+that CDR buffer are found, and each tick the corners are written into the buffer with NumPy
+and the bytes are published as they are (``Publisher.publish`` takes serialised bytes). The
+template is rebuilt only when the set of bodies, their face counts or the frame change.
 """
 
 import struct

@@ -3,8 +3,8 @@ Which bodies went non-finite: one compiled pass over every body's state per tick
 
 ``Simulation.tick`` resets a body whose positions or velocities are no longer finite. Asking
 every body (``Body.is_finite``: ``np.isfinite`` on x and on v, four NumPy calls and two
-temporary arrays) cost 0.2 ms per tick at 100k particles and a few microseconds per body
-(1.5 ms for 384 bodies). :class:`NonFiniteCheck` keeps flat views of every body's x and v
+temporary arrays) costs a pass over every particle plus a fixed cost per body, which adds
+up in scenes of many bodies. :class:`NonFiniteCheck` keeps flat views of every body's x and v
 in one typed list, rebuilt only when the bodies change, and
 :func:`first_nonfinite` scans them in one call; only a body it flags is looked at again.
 
@@ -12,9 +12,9 @@ Right after a step that ended with the bodies' own integration passes
 (``World.state_flagged``: no body-body contact or pass collider moved particles after
 them), the pass has already flagged a non-finite state: a body's shape-error sums
 (``Body._err``, one number per chunk) are then not finite (``kernels.integrate.advance``).
-``bad_bodies(bodies, flagged=True)`` scans those few numbers instead of x and v (0.1 ms
-at 100k particles, the tick's largest cost beside the steps), and reads x and v only of a
-body they flag (an overflow of finite values is not a non-finite state).
+``bad_bodies(bodies, flagged=True)`` scans those few numbers instead of x and v (reading
+every particle would be the tick's largest cost beside the steps), and reads x and v only
+of a body they flag (an overflow of finite values is not a non-finite state).
 """
 
 import math
@@ -73,8 +73,8 @@ class NonFiniteCheck:
         self.full_scans = 0             # calls that read x and v (tests, benchmarks)
 
     def _state(self, bodies: Sequence) -> None:
-        # the bodies' identities (20 us for 384 bodies; their buffers' too would cost 100):
-        # a body's x and v buffers live as long as the body (``Body`` makes them once, and
+        # the bodies' identities are enough (comparing their buffers too would cost several times
+        # more): a body's x and v buffers live as long as the body (``Body`` makes them once, and
         # rebuilds, resets and set_state write into them; test_nonfinite_check checks it)
         key = tuple(map(id, bodies))
         if key == self._key:

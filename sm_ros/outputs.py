@@ -115,7 +115,7 @@ class Outputs:
         stamps = []
 
         def stamp():
-            # a Time message costs 0.1 ms to make: only when something is sent
+            # making a Time message is not free: only when something is sent
             if not stamps:
                 stamps.append(stamp_from_ns(ns))
             return stamps[0]

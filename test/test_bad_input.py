@@ -1,5 +1,5 @@
 """
-Property-based bad input for sim_node (issue 6; interface.md, 'Bad input').
+Property-based bad input for sim_node (interface.md, 'Bad input').
 
 Hypothesis draws clouds with random layouts and random bytes, wrenches and poses with NaN,
 Inf, huge and subnormal values, gripper and body names, and parameter values of every type

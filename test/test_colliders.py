@@ -1,4 +1,4 @@
-"""Named, oriented, capsule and kinematic colliders (issue 13 parts 3-4), core level.
+"""Named, oriented, capsule and kinematic colliders, core level.
 
 The collider pass kernel against its NumPy twin, the geometry of each shape, kinematic
 motion (positions and slerp reached at the end of a move, implied velocities), refused

@@ -1,5 +1,5 @@
 """
-collider_pose and collider_wrench through sim_node (issue 13 parts 3-4).
+collider_pose and collider_wrench through sim_node.
 
 Refused poses (unknown or static collider, NaN, zero or non-unit quaternion, out of range)
 change nothing; a good pose is reached at the end of the next tick; the grasp scene's

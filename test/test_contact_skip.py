@@ -1,4 +1,4 @@
-"""Shortcuts of the contact pass (issue 13, contact cost): what it skips must never drop
+"""Shortcuts of the contact pass (what saves it time): what it skips must never drop
 a contact, and what it gathers must be what the general path reads.
 
 ``solve_bodies`` puts a carried body's particles back through the boxes and spheres at
@@ -171,8 +171,8 @@ def test_compact_rows_match_numpy():
 
 def test_a_first_sweep_that_changes_nothing_writes_no_compact_rows():
     # a resting bin's pass: every listed pair active, none touching; the pass ends after
-    # its first sweep and leaves the rows' buffers as they were (writing them cost the
-    # resting bench bin 0.4-0.7 ms a step)
+    # its first sweep and leaves the rows' buffers as they were (writing them would cost
+    # a resting heap time every step for nothing)
     X = np.zeros((3, 3))
     X[0] = [0.0, 0.0205, 0.041]
     cf = np.full((12, 2), np.nan)

@@ -234,9 +234,9 @@ def test_a_force_command_reaches_the_packed_row_without_repacking():
 def test_two_worlds_stepped_in_turn_keep_their_packs():
     """Two worlds stepping in turn (the live error estimate's coarse and fine copies, a
     user's second world) keep their packs and splits: a pack is rebuilt only when one of
-    its own bodies was packed elsewhere (a global count of pack builds used to re-pack
-    both worlds at every turn, 30x the step of 64 bodies), and each world's states are
-    bit for bit those of stepping it alone."""
+    its own bodies was packed elsewhere (re-packing both worlds at every turn would cost
+    many times the step), and each world's states are bit for bit those of stepping it
+    alone."""
     a = _run(_world(True), 1, events=False)
     b = copy_world(a)
     a_alone, b_alone = copy_world(a), copy_world(a)

@@ -1,4 +1,4 @@
-"""The bodies' per-component state layout (issue 11 item 1) and the API kept on top of it.
+"""The bodies' per-component state layout and the API kept on top of it.
 
 A body stores x, v and its rest positions as (3, N) C-contiguous blocks; ``body.x`` and
 ``body.v`` stay (N, 3) read-only views of the live state (F-contiguous).  These tests fail

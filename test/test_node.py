@@ -126,8 +126,8 @@ def test_diagnostics_report_every_key(ros, two_body_scene):
     assert ros.spin_until(lambda: ours())
     status = ours()[-1]
     assert status.hardware_id == 'sm_ros'
-    # OK, or WARN only because a tick overran its period on a loaded machine (the full
-    # suite on 2 shared cores: the first tick after start took longer than 16.7 ms)
+    # OK, or WARN only because a tick overran its period on a loaded machine (on shared
+    # cores the first tick after the start can take longer than the period)
     assert status.level == DiagnosticStatus.OK or (
         status.level == DiagnosticStatus.WARN and 'overran' in status.message), status
     values = diag_values(status)

@@ -1,4 +1,4 @@
-"""Physics the user can trust (issue 12): no energy pump, a material independent of the step.
+"""Physics the user can trust: no energy pump, a material independent of the step.
 
 - The linear mode's goal transform B is the minimiser of the cluster's matching energy
   sum w ||p - B q||^2 over det B = 1 (``reference.unit_det_match``, ``kernels``): A_pq B^T

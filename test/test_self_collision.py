@@ -1,4 +1,4 @@
-"""Self-collision of one body: the bundled ``sheet_rod`` scene (issue 13's self-collision test).
+"""Self-collision of one body: the bundled ``sheet_rod`` scene.
 
 A 31 x 11 particle sheet (spacing 2 cm) drops flat onto a horizontal rod (a capsule along
 y) and folds over it: its halves swing down on both sides, meet below the rod and would

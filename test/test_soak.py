@@ -1,5 +1,5 @@
 """
-A 5-second soak of sim_node (issue 6, endurance; ``sm_ros.bench.soak``).
+A 5-second soak of sim_node (endurance; ``sm_ros.bench.soak``).
 
 The same processes as ``python -m sm_ros.bench.soak --seconds 60`` (node, driver with 1,000 force
 messages/s, parameter changes at 50 Hz and grab/release, two cloud subscribers), for 5

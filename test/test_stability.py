@@ -1,5 +1,5 @@
 """
-Stability matrix of the solver core (issue 6): stiff, extreme and degenerate cases.
+Stability matrix of the solver core: stiff, extreme and degenerate cases.
 
 Every value of every axis below meets every value of every other axis at least once
 (a pairwise covering design built greedily from a fixed seed, so the case list is the same
@@ -219,7 +219,7 @@ def build(case: dict, seed: int):
     m = make_masses(case['mass'], x0, rng)
     # the matrix covers the per-step coefficients at each dt: the material is given at the
     # case's step (BodyParams.at_step converts into the same ranges at any other step); the
-    # speed and turn limits (a safeguard on top, issue 12) are off: the scheme itself is
+    # speed and turn limits (a safeguard on top) are off: the scheme itself is
     # under test
     params = BodyParams(mode=case['mode'], alpha=case['alpha'], beta=case['beta'],
                         clusters=case['clusters'], damping=case['damping'],
@@ -450,9 +450,9 @@ def test_damping_of_a_body_flying_far_out_at_huge_speed():
     """
     1e6 N on 64 x 1e-6 kg for 20 steps of 0.1 s: 3e10 m/s, 1e11 m out.
 
-    The damping took angular momentum about a centre of mass known only to rounding
-    (1e-5 m at 1e11 m) times 1e10 m/s: spurious spin that tore the body apart (shape
-    error 0.03 -> 250 m). It must decay instead.
+    Damping that took angular momentum about a centre of mass known only to rounding
+    (1e-5 m at 1e11 m) times 1e10 m/s would add spurious spin that tears the body apart.
+    The shape error must decay instead.
     """
     x0 = lattice(4, SIZE)
     world = World(gravity=(0.0, 0.0, 0.0))
@@ -553,7 +553,7 @@ def test_inverted_or_flattened_body_recovers_with_damping(mode, beta, alpha, how
         assert abs(extent(body.x, body.m) / e0 - 1.0) < 0.15
     elif mode == 'linear':
         # beta = 1: every unit-determinant linear shape is a rest shape (the goals are the
-        # energy minimiser over det B = 1, issue 12), so only the volume must come back
+        # energy minimiser over det B = 1), so only the volume must come back
         x, x0 = body.x - body.com(), body.x_init - body.x_init.mean(axis=0)
         vol = np.sqrt(np.linalg.det(x.T @ x) / np.linalg.det(x0.T @ x0))
         assert abs(vol - 1.0) < 1e-6
