@@ -15,6 +15,7 @@ import csv
 import os
 from pathlib import Path
 import shlex
+import subprocess
 import sys
 import tempfile
 from typing import Any, Callable, Dict, List, Optional, Sequence
@@ -179,9 +180,14 @@ def _accuracy(run: Run) -> List[str]:
                                  if r['scene'] == scene):
             got = {_num(r['rate_hz']): r for r in rows
                    if r['scene'] == scene and (r['mode'], r['clusters']) == cfg}
+            ref = next(iter(got.values()))['ref_err']
             body.append([scene, f'{cfg[0]}, {cfg[1]}'] +
-                        [_cell(got[h]['err_rms'], 2) if h in got else '-' for h in rates])
-    lines += _table(['scene', 'mode, clusters'] + [f'{h:g} Hz' for h in rates], body)
+                        [_cell(got[h]['err_rms'], 2) if h in got else '-' for h in rates] +
+                        ['exact' if _num(ref) == 0 else _cell(ref, 2)])
+    lines += _table(['scene', 'mode, clusters'] + [f'{h:g} Hz' for h in rates] +
+                    ['reference error'], body)
+    lines += ["An error within a few times the reference's own error (estimated by running "
+              'the reference again at twice its step) is not resolved.', '']
     orders = _rows(out / 'accuracy_order.csv')
     if orders:
         lines += ['Convergence order (slope of log error against log step):', '']
@@ -189,12 +195,18 @@ def _accuracy(run: Run) -> List[str]:
                         [[r['scene'], r['configuration'], _cell(r['order'], 2)]
                          for r in orders])
     budget = _rows(out / 'accuracy_budget.csv')
-    if budget:
+    met = [r for r in budget if _num(r.get('err_rms')) is not None]
+    if met:
         lines += ['The cheapest configuration of the sweep that stays below an error budget '
                   '(solver ms per simulated second, one thread):', '']
         lines += _table(['scene', 'budget (m)', 'cheapest', 'error (m)', 'ms per sim. s'],
                         [[r['scene'], r['budget_m'], r['cheapest'], _cell(r['err_rms'], 2),
-                          _cell(r['ms_per_sim_s'])] for r in budget])
+                          _cell(r['ms_per_sim_s'])] for r in met])
+    missed = [f"{r['scene']} ({_cell(r['budget_m'])} m)" for r in budget if r not in met]
+    if missed:
+        lines += ['No configuration of this sweep stays below: ' + ', '.join(missed) +
+                  '; they need finer steps or substeps (`--substeps 1,4` and higher '
+                  '`--dts` extend the sweep).', '']
     return lines + run.source('accuracy')
 
 
@@ -275,6 +287,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         t = tp.parse_args(args[1:])
         return tick.measure(t.scene, t.ticks, t.settle, t.sleep == 'on')
 
+    if not a.quick:                 # compile every kernel first: no figure pays for it
+        subprocess.run([sys.executable, '-m', 'sm_ros.warmup'], check=False)
     command = 'python -m sm_ros.bench --write-doc' + (' --quick' if a.quick else '')
     with tempfile.TemporaryDirectory() as tmp:
         run = Run(Path(a.work or tmp), QUICK if a.quick else FULL)
