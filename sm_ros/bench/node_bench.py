@@ -203,7 +203,7 @@ def run(args, out: Path) -> Dict[str, Any]:
         from sm_ros.progress import bar
         configs = [(n, rate) for n in sizes for rate in rates]
         for n, rate in bar(iterable=configs, total=len(configs), desc='node', unit='run'):
-            bc.log(f'[node] {n} points at {rate:g} Hz')
+            bc.log(f'[node] {getattr(args, "node_scene", "") or f"{n} points"} at {rate:g} Hz')
             r = measure(n, rate, args, Path(d))
             if r is None:
                 continue
@@ -211,7 +211,7 @@ def run(args, out: Path) -> Dict[str, Any]:
             findings['rows'].append(r)
             for row in r.get('per_node', []):
                 each.add(**{k: row[k] for k in each.columns})
-            if bc.lattice_side(n) == 46 and rate == 60:
+            if n and bc.lattice_side(n) == 46 and rate == 60:
                 findings['target'] = r
     t.write(out)
     if each.rows:
