@@ -364,7 +364,7 @@ def test_stack_of_five_boxes_falls_through_per_particle():
 def test_stack_of_five_boxes_stands(stagger):
     # at the node's step (dt 1/120 s, World.step as Simulation.tick calls it) with the
     # default contact (stacking): stiff one-cluster bodies carry their contacts as a whole
-    # (README "Contact between bodies"); per particle (stacking=False) the touching layer
+    # (doc/contact.md); per particle (stacking=False) the touching layer
     # alone gives way and these boxes fall through one another (the next test).  Stacked
     # exactly (lattices particle on particle) and with every other box put a little off
     w, boxes = _five_boxes(stagger)
@@ -441,8 +441,8 @@ def test_pile_of_27_balls_heaps_up_and_settles(stacking):
     assert (d.min(axis=1) < 0.5 * S).mean() < 0.02             # no overlapping layer
     assert x[:, 2].max() > 0.12                                  # heaped: 27 > one layer of 16
     # settles: per particle (stacking=False) a residual jitter of the resting contacts is left
-    # (README, "Contact"): 1-4 % of the peak kinetic energy, 0.1-0.2 m/s RMS; with
-    # stacking below 0.5 % (measured 0.01 %, 0.01 m/s)
+    # (doc/contact.md), a few per cent of the peak kinetic energy; with stacking the heap
+    # comes to rest, below 0.5 %
     m = float(sum(b.m.sum() for b in bodies))
     assert np.mean(ke[-60:]) < (0.005 if stacking else 0.05) * max(ke)
     if stacking:
