@@ -55,8 +55,8 @@ def _load() -> str:
 def _rows(path: Path) -> List[Dict[str, str]]:
     if not path.is_file():
         return []
-    with open(path, newline='') as f:
-        return list(csv.DictReader(f))
+    with open(path, newline='') as handle:
+        return list(csv.DictReader(handle))
 
 
 def _num(value: Any) -> Optional[float]:
@@ -73,7 +73,7 @@ def _cell(value: Any, digits: int = 3) -> str:
 
 def _table(header: Sequence[str], rows: List[Sequence[Any]]) -> List[str]:
     lines = ['| ' + ' | '.join(header) + ' |', '|' + '|'.join(' --- ' for _ in header) + '|']
-    lines += ['| ' + ' | '.join(str(c) for c in r) + ' |' for r in rows]
+    lines += ['| ' + ' | '.join(str(cell) for cell in row) + ' |' for row in rows]
     return lines + ['']
 
 
@@ -99,33 +99,49 @@ class Run:
 
     def source(self, name: str) -> List[str]:
         """The line under a figure: its command and the machine's load."""
-        d = self.done[name]
-        return [f'Command: `{d["command"]}`; load average {d["load"]}.', '']
+        done = self.done[name]
+        return [f'Command: `{done["command"]}`; load average {done["load"]}.', '']
 
 
 def _speed(run: Run) -> List[str]:
     out = run.done['scaling']['out']
-    rows = [r for r in _rows(out / 'scaling.csv') if r.get('variant') == 'damped']
+    rows = [row for row in _rows(out / 'scaling.csv') if row.get('variant') == 'damped']
     lines = ['## How fast is a step for my scene size?', '',
              'One body, an n x n x n lattice, damping 0.05 (as the bundled scenes use), one '
              'step of 5 ms, gravity, no colliders; ms per step (median), per mode and number '
              'of clusters. Time per step grows about linearly with the particles.', '']
-    modes = sorted({r['mode'] for r in rows}, key=['rigid', 'linear', 'quadratic'].index)
-    keys = sorted({(int(r['N']), int(r['clusters'])) for r in rows})
+    modes = sorted({row['mode'] for row in rows}, key=['rigid', 'linear', 'quadratic'].index)
+    keys = sorted({(int(row['N']), int(row['clusters'])) for row in rows})
     body = []
-    for n, k in keys:
-        got = {r['mode']: r for r in rows if int(r['N']) == n and int(r['clusters']) == k}
-        body.append([f'{n:,}', k] + [_cell(got.get(m, {}).get('ms_median')) for m in modes])
-    lines += _table(['particles', 'clusters'] + [f'{m} (ms)' for m in modes], body)
+    for particles, clusters in keys:
+        got = {row['mode']: row for row in rows
+               if (int(row['N']), int(row['clusters'])) == (particles, clusters)}
+        body.append([f'{particles:,}', clusters]
+                    + [_cell(got.get(mode, {}).get('ms_median')) for mode in modes])
+    lines += _table(['particles', 'clusters'] + [f'{mode} (ms)' for mode in modes], body)
+    lines += _damping_cost(_rows(out / 'scaling.csv'))
     many = _rows(out / 'many.csv')
     if many:
         lines += ['Many small bodies in one world (144 particles each, linear, damping 0.05, '
                   'contact off), one step:', '']
         lines += _table(['bodies', 'particles', 'ms per step', 'us per body'],
-                        [[r['bodies'], f"{int(r['particles']):,}", _cell(r['ms_median']),
-                          _cell(r['us_per_body'])] for r in many])
+                        [[row['bodies'], f"{int(row['particles']):,}", _cell(row['ms_median']),
+                          _cell(row['us_per_body'])] for row in many])
     lines += run.source('scaling')
     return lines
+
+
+def _damping_cost(rows: List[Dict[str, str]]) -> List[str]:
+    """One line: the damped step against the undamped one (linear, 8 clusters)."""
+    median = {(row['N'], row['variant']): _num(row['ms_median']) for row in rows
+              if row['mode'] == 'linear' and row['clusters'] == '8'}
+    ratios = [f'{int(size):,} particles {median[size, "damped"] / median[size, "plain"]:.2f}x'
+              for size, variant in sorted(median, key=lambda key: int(key[0]))
+              if variant == 'plain' and median.get((size, 'damped')) and median[size, 'plain']]
+    if not ratios:
+        return []
+    return ['What damping 0.05 costs against none (linear, 8 clusters, timed round-robin in '
+            'the same run): ' + ', '.join(ratios) + '.', '']
 
 
 def _tick(run: Run) -> List[str]:
@@ -155,16 +171,17 @@ def _node(run: Run) -> List[str]:
         return lines + [f'Not measured in this run ({status.get("status", "skipped")}).', '']
     lines += _table(['particles', 'target (Hz)', 'achieved (Hz)', 'tick', 'tick p95', 'step',
                      'publish', 'latency'],
-                    [[f"{int(r['points']):,}", _cell(r['rate_hz_target']), _cell(r['rate_hz']),
-                      _cell(r['tick_ms_median']), _cell(r['tick_ms_p95']),
-                      _cell(r['step_ms_median']), _cell(r['publish_ms_median']),
-                      _cell(r['latency_ms_median'])] for r in rows])
+                    [[f"{int(row['points']):,}", _cell(row['rate_hz_target']),
+                      _cell(row['rate_hz']),
+                      _cell(row['tick_ms_median']), _cell(row['tick_ms_p95']),
+                      _cell(row['step_ms_median']), _cell(row['publish_ms_median']),
+                      _cell(row['latency_ms_median'])] for row in rows])
     return lines + run.source('node')
 
 
 def _accuracy(run: Run) -> List[str]:
     out = run.done['accuracy']['out']
-    rows = [r for r in _rows(out / 'accuracy.csv') if r.get('substeps') == '1']
+    rows = [row for row in _rows(out / 'accuracy.csv') if row.get('substeps') == '1']
     lines = ['## How accurate is my step?', '',
              'Largest RMS position error (m) over 2 s of simulated time against the exact '
              'motion (rigid scenes) or the same configuration at a much finer step, per '
@@ -172,19 +189,20 @@ def _accuracy(run: Run) -> List[str]:
              '`ballistic`: thrown under gravity; `soft_drop`: a soft cube dropped on the '
              'ground; `cantilever`: a beam pinned at one end; `plastic_press`: a plastic '
              'cube squeezed by two jaws.', '']
-    scenes = list(dict.fromkeys(r['scene'] for r in rows))
-    rates = sorted({_num(r['rate_hz']) for r in rows})
+    scenes = list(dict.fromkeys(row['scene'] for row in rows))
+    rates = sorted({_num(row['rate_hz']) for row in rows})
     body = []
     for scene in scenes:
-        for cfg in dict.fromkeys((r['mode'], r['clusters']) for r in rows
-                                 if r['scene'] == scene):
-            got = {_num(r['rate_hz']): r for r in rows
-                   if r['scene'] == scene and (r['mode'], r['clusters']) == cfg}
+        for cfg in dict.fromkeys((row['mode'], row['clusters']) for row in rows
+                                 if row['scene'] == scene):
+            got = {_num(row['rate_hz']): row for row in rows
+                   if row['scene'] == scene and (row['mode'], row['clusters']) == cfg}
             ref = next(iter(got.values()))['ref_err']
             body.append([scene, f'{cfg[0]}, {cfg[1]}'] +
-                        [_cell(got[h]['err_rms'], 2) if h in got else '-' for h in rates] +
+                        [_cell(got[rate]['err_rms'], 2) if rate in got else '-'
+                         for rate in rates] +
                         ['exact' if _num(ref) == 0 else _cell(ref, 2)])
-    lines += _table(['scene', 'mode, clusters'] + [f'{h:g} Hz' for h in rates] +
+    lines += _table(['scene', 'mode, clusters'] + [f'{rate:g} Hz' for rate in rates] +
                     ['reference error'], body)
     lines += ["An error within a few times the reference's own error (estimated by running "
               'the reference again at twice its step) is not resolved.', '']
@@ -192,17 +210,17 @@ def _accuracy(run: Run) -> List[str]:
     if orders:
         lines += ['Convergence order (slope of log error against log step):', '']
         lines += _table(['scene', 'configuration', 'order'],
-                        [[r['scene'], r['configuration'], _cell(r['order'], 2)]
-                         for r in orders])
+                        [[row['scene'], row['configuration'], _cell(row['order'], 2)]
+                         for row in orders])
     budget = _rows(out / 'accuracy_budget.csv')
-    met = [r for r in budget if _num(r.get('err_rms')) is not None]
+    met = [row for row in budget if _num(row.get('err_rms')) is not None]
     if met:
         lines += ['The cheapest configuration of the sweep that stays below an error budget '
                   '(solver ms per simulated second, one thread):', '']
         lines += _table(['scene', 'budget (m)', 'cheapest', 'error (m)', 'ms per sim. s'],
-                        [[r['scene'], r['budget_m'], r['cheapest'], _cell(r['err_rms'], 2),
-                          _cell(r['ms_per_sim_s'])] for r in met])
-    missed = [f"{r['scene']} ({_cell(r['budget_m'])} m)" for r in budget if r not in met]
+                        [[row['scene'], row['budget_m'], row['cheapest'], _cell(row['err_rms'], 2),
+                          _cell(row['ms_per_sim_s'])] for row in met])
+    missed = [f"{row['scene']} ({_cell(row['budget_m'])} m)" for row in budget if row not in met]
     if missed:
         lines += ['No configuration of this sweep stays below: ' + ', '.join(missed) +
                   '; they need finer steps or substeps (`--substeps 1,4` and higher '
@@ -221,10 +239,10 @@ def _peers(run: Run) -> List[str]:
     if rows:
         lines += _table(['particles', 'clusters', 'pypbd (ms)', 'sm_ros rigid (ms)',
                          'sm_ros rigid, damped (ms)', 'speed-up rigid', 'speed-up damped'],
-                        [[f"{int(r['N']):,}", r['clusters'], _cell(r['pypbd_best_ms']),
-                          _cell(r['ours_rigid_ms']), _cell(r.get('ours_rigid_damped_ms')),
-                          _cell(r['speedup_rigid'], 2) + 'x',
-                          _cell(r.get('speedup_rigid_damped'), 2) + 'x'] for r in rows])
+                        [[f"{int(row['N']):,}", row['clusters'], _cell(row['pypbd_best_ms']),
+                          _cell(row['ours_rigid_ms']), _cell(row.get('ours_rigid_damped_ms')),
+                          _cell(row['speedup_rigid'], 2) + 'x',
+                          _cell(row.get('speedup_rigid_damped'), 2) + 'x'] for row in rows])
         lines += run.source('scaling')
     else:
         lines += ['pypbd was not installed for this run (`pip install pypbd`, or the '
@@ -270,33 +288,34 @@ def page(run: Run, command: str) -> str:
 
 def main(argv: Optional[List[str]] = None) -> int:
     """Entry point of ``python -m sm_ros.bench --write-doc [PATH]``."""
-    p = argparse.ArgumentParser(prog='python -m sm_ros.bench --write-doc', description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument('--write-doc', nargs='?', const=str(ROOT / 'doc' / 'benchmarks.md'),
+    parser = argparse.ArgumentParser(prog='python -m sm_ros.bench --write-doc',
+                                     description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--write-doc', nargs='?', const=str(ROOT / 'doc' / 'benchmarks.md'),
                    required=True, metavar='PATH', help='the page (doc/benchmarks.md)')
-    p.add_argument('--quick', action='store_true', help='tiny sizes (the smoke test)')
-    p.add_argument('--work', default='', help="keep the parts' tables here (default: a "
+    parser.add_argument('--quick', action='store_true', help='tiny sizes (the smoke test)')
+    parser.add_argument('--work', default='', help="keep the parts' tables here (default: a "
                    'temporary folder)')
-    a = p.parse_args(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     from . import tick
     from .__main__ import main as bench_main
 
-    def run_tick(args):
-        tp = argparse.ArgumentParser()
-        tick.add_arguments(tp)
-        t = tp.parse_args(args[1:])
-        return tick.measure(t.scene, t.ticks, t.settle, t.sleep == 'on')
+    def run_tick(tick_argv):
+        tick_parser = argparse.ArgumentParser()
+        tick.add_arguments(tick_parser)
+        parsed = tick_parser.parse_args(tick_argv[1:])
+        return tick.measure(parsed.scene, parsed.ticks, parsed.settle, parsed.sleep == 'on')
 
-    if not a.quick:                 # compile every kernel first: no figure pays for it
+    if not args.quick:                 # compile every kernel first: no figure pays for it
         subprocess.run([sys.executable, '-m', 'sm_ros.warmup'], check=False)
-    command = 'python -m sm_ros.bench --write-doc' + (' --quick' if a.quick else '')
+    command = 'python -m sm_ros.bench --write-doc' + (' --quick' if args.quick else '')
     with tempfile.TemporaryDirectory() as tmp:
-        run = Run(Path(a.work or tmp), QUICK if a.quick else FULL)
+        run = Run(Path(args.work or tmp), QUICK if args.quick else FULL)
         run.part('scaling', bench_main)
         run.part('accuracy', bench_main)
         run.part('tick', run_tick)
         run.part('node', bench_main)
         text = page(run, command)
-    Path(a.write_doc).write_text(text, encoding='utf-8')
-    print(f'wrote {a.write_doc} ({text.count(chr(10))} lines)')
+    Path(args.write_doc).write_text(text, encoding='utf-8')
+    print(f'wrote {args.write_doc} ({text.count(chr(10))} lines)')
     return 0

@@ -20,14 +20,14 @@ import sys
 from typing import List, Optional
 
 
-def add_arguments(p: argparse.ArgumentParser):
+def add_arguments(parser: argparse.ArgumentParser):
     """Add the flags of the ``profile`` subcommand."""
-    p.add_argument('--scene', default='default', help='bundled scene name or scene file')
-    p.add_argument('--ticks', type=int, default=120, help='ticks profiled')
-    p.add_argument('--warmup', type=int, default=5, help='ticks run before profiling')
-    p.add_argument('--top', type=int, default=20, help='entries printed')
-    p.add_argument('--sort', choices=('tottime', 'cumulative', 'ncalls'), default='tottime')
-    p.add_argument('--out', default='', help='also save the raw profile to this file')
+    parser.add_argument('--scene', default='default', help='bundled scene name or scene file')
+    parser.add_argument('--ticks', type=int, default=120, help='ticks profiled')
+    parser.add_argument('--warmup', type=int, default=5, help='ticks run before profiling')
+    parser.add_argument('--top', type=int, default=20, help='entries printed')
+    parser.add_argument('--sort', choices=('tottime', 'cumulative', 'ncalls'), default='tottime')
+    parser.add_argument('--out', default='', help='also save the raw profile to this file')
 
 
 def profile_ticks(scene: str, ticks: int, warmup: int = 5) -> pstats.Stats:
@@ -54,17 +54,17 @@ def report(stats: pstats.Stats, top: int, sort: str) -> str:
 
 def main(argv: Optional[List[str]] = None) -> int:
     """Entry point of ``python -m sm_ros.bench profile``."""
-    p = argparse.ArgumentParser(prog='python -m sm_ros.bench profile', description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(p)
-    a = p.parse_args(argv)
-    if a.ticks < 1:
-        p.error('--ticks must be at least 1')
-    stats = profile_ticks(a.scene, a.ticks, a.warmup)
-    if a.out:
-        stats.dump_stats(a.out)
-    print(f'{a.scene}: {a.ticks} ticks after {a.warmup} warm-up ticks')
-    print(report(stats, a.top, a.sort))
+    parser = argparse.ArgumentParser(prog='python -m sm_ros.bench profile', description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    if args.ticks < 1:
+        parser.error('--ticks must be at least 1')
+    stats = profile_ticks(args.scene, args.ticks, args.warmup)
+    if args.out:
+        stats.dump_stats(args.out)
+    print(f'{args.scene}: {args.ticks} ticks after {args.warmup} warm-up ticks')
+    print(report(stats, args.top, args.sort))
     return 0
 
 

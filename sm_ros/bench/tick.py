@@ -22,16 +22,16 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 
 
-def add_arguments(p: argparse.ArgumentParser):
+def add_arguments(parser: argparse.ArgumentParser):
     """Add the flags of the ``tick`` subcommand."""
-    p.add_argument('--scene', default='paper_384', help='bundled scene name or scene file')
-    p.add_argument('--ticks', type=int, default=600, help='ticks timed (600: 10 s at 60 Hz)')
-    p.add_argument('--settle', type=int, default=0,
-                   help='world steps taken before timing (0: time from the start)')
-    p.add_argument('--sleep', choices=('on', 'off'), default='on',
-                   help='sleeping bodies (contact.sleep)')
-    p.add_argument('--timeline', action='store_true', help="print every second's median")
-    p.add_argument('--json', action='store_true', help='print the figures as one JSON line')
+    parser.add_argument('--scene', default='paper_384', help='bundled scene name or scene file')
+    parser.add_argument('--ticks', type=int, default=600, help='ticks timed (600: 10 s at 60 Hz)')
+    parser.add_argument('--settle', type=int, default=0,
+                        help='world steps taken before timing (0: time from the start)')
+    parser.add_argument('--sleep', choices=('on', 'off'), default='on',
+                        help='sleeping bodies (contact.sleep)')
+    parser.add_argument('--timeline', action='store_true', help="print every second's median")
+    parser.add_argument('--json', action='store_true', help='print the figures as one JSON line')
 
 
 def measure(scene: str, ticks: int, settle: int = 0, sleep: bool = True,
@@ -54,11 +54,12 @@ def measure(scene: str, ticks: int, settle: int = 0, sleep: bool = True,
             if timeline:
                 print(f'second {len(seconds):3d}: median tick {seconds[-1]:7.2f} ms, '
                       f'{sim.world.asleep_count} bodies asleep', flush=True)
-    ms = np.asarray(wall)
+    times_ms = np.asarray(wall)
     return {'scene': scene, 'ticks': ticks, 'settle_steps': settle, 'sleep': sleep,
             'points': sim.num_points, 'bodies': len(sim.world.bodies),
-            'tick_ms_median': float(np.median(ms)), 'tick_ms_p90': float(np.percentile(ms, 90)),
-            'tick_ms_max': float(ms.max()),
+            'tick_ms_median': float(np.median(times_ms)),
+            'tick_ms_p90': float(np.percentile(times_ms, 90)),
+            'tick_ms_max': float(times_ms.max()),
             'second_ms_median': float(np.median(seconds)) if seconds else None,
             'second_ms_worst': max(seconds) if seconds else None,
             'asleep_at_end': sim.world.asleep_count, 'loadavg_1min': _load()}
@@ -73,12 +74,12 @@ def _load() -> Optional[float]:
 
 def main(argv: Optional[List[str]] = None) -> int:
     """Entry point of ``python -m sm_ros.bench tick``."""
-    p = argparse.ArgumentParser(prog='python -m sm_ros.bench tick', description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(p)
-    a = p.parse_args(argv)
-    res = measure(a.scene, a.ticks, a.settle, a.sleep == 'on', a.timeline)
-    if a.json:
+    parser = argparse.ArgumentParser(prog='python -m sm_ros.bench tick', description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    res = measure(args.scene, args.ticks, args.settle, args.sleep == 'on', args.timeline)
+    if args.json:
         print(json.dumps(res))
         return 0
     worst = res['second_ms_worst']

@@ -29,16 +29,16 @@ HEADER = ('| points | rate (Hz) | profile | subscriber | received/sent | latency
           '| p95 (ms) | publish (ms) |\n| --- | --- | --- | --- | --- | --- | --- | --- |')
 
 
-def add_arguments(p: argparse.ArgumentParser):
+def add_arguments(parser: argparse.ArgumentParser):
     """Add the flags of the ``transport`` subcommand."""
-    p.add_argument('--points', type=int, default=100_000)
-    p.add_argument('--rate', type=float, default=60.0)
-    p.add_argument('--seconds', type=float, default=5.0)
-    p.add_argument('--profile', default='',
-                   help="Fast DDS profile file ('': the DDS defaults, as in the examples)")
-    p.add_argument('--reliability', choices=('reliable', 'best_effort', 'both'),
-                   default='both', help='subscriber QoS (both: one after the other)')
-    p.add_argument('--role', choices=('sub',), help=argparse.SUPPRESS)
+    parser.add_argument('--points', type=int, default=100_000)
+    parser.add_argument('--rate', type=float, default=60.0)
+    parser.add_argument('--seconds', type=float, default=5.0)
+    parser.add_argument('--profile', default='',
+                        help="Fast DDS profile file ('': the DDS defaults, as in the examples)")
+    parser.add_argument('--reliability', choices=('reliable', 'best_effort', 'both'),
+                        default='both', help='subscriber QoS (both: one after the other)')
+    parser.add_argument('--role', choices=('sub',), help=argparse.SUPPRESS)
 
 
 def _init(name: str):
@@ -70,9 +70,9 @@ def subscriber(seconds: float, reliability: str) -> Dict[str, Any]:
         rclpy.spin_once(node, timeout_sec=0.05)
     node.destroy_node()
     rclpy.try_shutdown()
-    ms = 1e3 * np.array(lat) if lat else np.full(1, np.nan)
-    return {'received': len(lat), 'median_ms': float(np.median(ms)),
-            'p95_ms': float(np.percentile(ms, 95))}
+    lat_ms = 1e3 * np.array(lat) if lat else np.full(1, np.nan)
+    return {'received': len(lat), 'median_ms': float(np.median(lat_ms)),
+            'p95_ms': float(np.percentile(lat_ms, 95))}
 
 
 def publisher(points: int, rate: float, seconds: float) -> Dict[str, Any]:
@@ -138,17 +138,18 @@ def row(res: Dict[str, Any]) -> str:
 
 def main(argv: Optional[List[str]] = None) -> int:
     """Entry point of ``python -m sm_ros.bench transport``."""
-    p = argparse.ArgumentParser(prog='python -m sm_ros.bench transport', description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(p)
-    a = p.parse_args(argv)
-    if a.role == 'sub':
-        print(json.dumps(subscriber(a.seconds, a.reliability)), flush=True)
+    parser = argparse.ArgumentParser(prog='python -m sm_ros.bench transport', description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    if args.role == 'sub':
+        print(json.dumps(subscriber(args.seconds, args.reliability)), flush=True)
         return 0
-    kinds = ('reliable', 'best_effort') if a.reliability == 'both' else (a.reliability,)
+    kinds = ('reliable', 'best_effort') if args.reliability == 'both' else (args.reliability,)
     print(HEADER, flush=True)
-    for rel in kinds:
-        print(row(measure(a.points, a.rate, a.seconds, a.profile, rel)), flush=True)
+    for reliability in kinds:
+        print(row(measure(args.points, args.rate, args.seconds, args.profile, reliability)),
+              flush=True)
     return 0
 
 
