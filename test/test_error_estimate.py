@@ -1,0 +1,165 @@
+"""The live error estimate (``sm_ros.error_estimate``): step doubling on the running world,
+which it leaves bit for bit; its value against the true error of the accuracy scenes; its
+schedule in the simulation (age, pieces, a world asleep) and its parameter."""
+
+import math
+
+import numpy as np
+import pytest
+
+from sm_ros import error_estimate as EE
+from sm_ros.core.snapshot import Snapshot
+
+
+def _ratios(name, h, points=125, duration=2.0, every_s=0.25):
+    """Estimate / true error at every ``every_s`` s along a run of an accuracy scene; the
+    true error is the scene's (``sm_ros.bench.accuracy``: the largest RMS position error
+    over ``duration`` s against the exact motion or a run at h / 16)."""
+    from sm_ros.bench import accuracy as acc
+    scene = acc.make_scenes(points)[name]
+    world, body, driver = scene.build(dict(scene.nominal))
+    n = int(round(duration / h))
+    every = int(round((1.0 / acc.SAMPLE_RATE) / h))
+    at = int(round(every_s / h))
+    snap = Snapshot()
+    xs, est = [], []
+    for i in range(n):
+        if driver is not None:
+            driver(world, body, (i + 1) * h)
+        if i % at == 0:
+            est.append(EE.estimate(world, h, snap)['error_m'])
+        world.step(h)
+        if (i + 1) % every == 0:
+            xs.append(np.array(body.x))
+    xs = np.array(xs)
+    t = (np.arange(len(xs)) + 1) * every * h
+    truth = (acc.exact_samples(scene, t) if scene.exact is not None
+             else acc.simulate(scene, scene.nominal, h / 16.0, duration)['x'])
+    return np.array(est) / acc.max_rms(xs, truth)
+
+
+#: Where the local error rate does not accumulate into the 2 s error: the rigid spin's
+#: local difference is the rotation match's in-step distortion, which does not add up
+#: (order 2: 11-44x), and the press's true error does not shrink with dt (order 0).
+_KNOWN_OFF = {'rigid_spin', 'plastic_press'}
+
+
+@pytest.mark.parametrize('h', [1.0 / 120.0, 1.0 / 240.0])
+@pytest.mark.parametrize('scene', ['rigid_spin', 'ballistic', 'soft_drop', 'cantilever',
+                                   'plastic_press'])
+def test_estimates_track_the_true_error_of_the_accuracy_scenes(scene, h, request):
+    """Eight estimates along 2 s: their mean within 3x of the true error, each within 10x."""
+    if scene in _KNOWN_OFF:
+        request.node.add_marker(pytest.mark.xfail(strict=True, reason='doc/error_estimate.md'))
+    ratios = _ratios(scene, h)
+    assert 1.0 / 3.0 <= ratios.mean() <= 3.0, ratios
+    assert np.all((ratios >= 0.1) & (ratios <= 10.0)), ratios
+
+
+def test_ballistic_estimate_is_the_exact_error():
+    """A body under gravity alone: the local error of a step is g h^2 / 4 for each
+    particle, whatever its spin, so the estimate is g h T / 2, the exact error."""
+    from sm_ros.core import BodyParams, World
+    world = World(gravity=(0.0, 0.0, -9.81))
+    world.add_body(np.random.default_rng(1).random((30, 3)), 0.1,
+                   BodyParams(mode='rigid', alpha=1.0, beta=0.0), velocities=np.ones((30, 3)))
+    res = EE.estimate(world, 0.01)
+    assert res['error_m'] == pytest.approx(9.81 * 0.01 * EE.HORIZON_S / 2.0, rel=1e-6)
+    assert res['local_m'] == pytest.approx(9.81 * 0.01 ** 2 / 2.0, rel=1e-6)
+
+
+def test_error_from_positions():
+    coarse = np.zeros((4, 3))
+    fine = np.array([[3e-4, 4e-4, 0.0]] * 4)           # 0.5 mm apart
+    res = EE.error_from(coarse, fine, 0.01, order=1.0, horizon=2.0)
+    assert res['local_m'] == pytest.approx(1e-3)
+    assert res['rate_m_s'] == pytest.approx(0.1) and res['error_m'] == pytest.approx(0.2)
+    assert EE.error_from(coarse, fine, 0.01, order=2.0)['local_m'] == pytest.approx(2e-3 / 3)
+    fine[0, 0] = np.nan
+    assert EE.error_from(coarse, fine, 0.01)['error_m'] == math.inf
+
+
+def _sims(scene, **values):
+    from sm_ros.sim import Simulation
+    now = [0.0]
+    on = Simulation({'scene': scene, **values}, clock=lambda: now[0])
+    off = Simulation({'scene': scene, 'error_estimate.rate': 0.0}, clock=lambda: now[0])
+    return on, off, now
+
+
+@pytest.mark.parametrize('scene', ['default', 'many'])
+def test_pieces_between_ticks_leave_the_world_as_without_estimates(scene):
+    """The estimate's pieces, one a tick (no room for more) or all at once, with the world
+    stepped in between: the world steps bit for bit as one without estimates, and the
+    pieces give the estimate the state it started from gives in one go."""
+    on, off, now = _sims(scene, **{'error_estimate.rate': 10.0})
+    for _ in range(100):                                 # into contact for 'many'
+        on.tick()
+        off.tick()
+        now[0] += 1.0 / 60.0
+    est = on._estimates
+    whole = EE.estimate(on.world, on.params['dt'])     # of the state before the next tick
+    est.drop()
+    est.piece_s = 1e9                                    # no piece fits in a tick's room
+    results = []
+    for k in range(12):
+        on.tick()
+        off.tick()
+        results.append(est.result)
+        now[0] += 0.5 / 60.0                             # the next due after 12 ticks
+        if k < 10:                                       # waiting for room
+            assert est.running is not None and est.running.done_pieces == 0
+    assert est.result is not results[0] and est.result['error_m'] == whole['error_m']
+    assert est.age(now[0]) == pytest.approx(12 * 0.5 / 60.0)
+    est.piece_s = 1e-9                                   # room for every piece: one tick
+    now[0] += 1.0
+    on.tick()
+    off.tick()
+    for a, b in zip(on.world.bodies, off.world.bodies):
+        assert a.x.tobytes() == b.x.tobytes() and a.v.tobytes() == b.v.tobytes()
+
+
+def test_estimate_is_never_older_than_two_periods_and_is_counted():
+    """Heavy ticks that leave no room: the pieces wait, and run all at once in the tick
+    before the next estimate is due, so the age stays within 2 / rate."""
+    on, off, now = _sims('default', **{'error_estimate.rate': 2.0})
+    ages = []
+    for k in range(400):
+        on._estimates.piece_s = 1e9
+        on.tick()
+        now[0] += 1.0 / 60.0
+        age = on.status_values()['error_estimate_age_s']
+        if k > 60:
+            ages.append(age)
+    assert max(ages) <= 2.0 / 2.0 + 1e-9 and min(ages) >= 0.0
+    assert on.stats.estimate_s_sum > 0.0 and on.status_values()['error_estimate_m'] > 0.0
+    off.tick()
+    assert off.error_estimate is None and off.status_values()['error_estimate_age_s'] is None
+
+
+def test_a_heap_asleep_estimates_zero_without_copying(monkeypatch):
+    from test_snapshot import _stack
+    world = _stack()
+    for _ in range(400):
+        world.step(1.0 / 120.0)
+        if world.all_asleep:
+            break
+    assert world.all_asleep
+    saves = []
+    monkeypatch.setattr(Snapshot, 'save', lambda self, w: saves.append(w))
+    live = EE.LiveEstimate()
+    live.before_tick(world, 1.0 / 120.0, 1.0, 5.0, room_s=1.0, period=1 / 60, step_s=1e-3)
+    assert live.result['error_m'] == 0.0 and live.running is None and saves == []
+    assert live.age(5.5) == 0.5
+
+
+def test_rate_is_checked_and_a_refused_value_changes_nothing():
+    from sm_ros.sim import ParameterError, Simulation
+    sim = Simulation({'scene': 'default'})
+    for bad in (-1.0, 10.5, float('nan'), float('inf')):
+        with pytest.raises(ParameterError):
+            sim.set_params({'error_estimate.rate': bad})
+    assert sim.pending == {} and sim.params['error_estimate.rate'] == 1.0
+    sim.set_params({'error_estimate.rate': 0.0})
+    sim.tick()
+    assert sim.error_estimate is None
