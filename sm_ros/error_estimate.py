@@ -1,18 +1,10 @@
 """The live error estimate: step doubling on the running world itself (no ROS).
 
-From the world's state S the estimate takes one step of h (the coarse answer) and, from S
-again, two of h/2 (the fine one) with the world's own kernels, then puts the world back to
-S bit for bit (``sm_ros.core.snapshot``).  d = RMS over the particles of the difference;
-d / (1 - 2^-p) with the method's order p = ``ORDER`` is the local error of a step
-(Richardson), over h the local error per second of simulated time, and ``error_m`` that
-rate times ``HORIZON_S``: the RMS position error the running dt accumulates over 2 s where
-local errors add up (doc/error_estimate.md says where they do and where they do not).
-
-In the node (:class:`LiveEstimate`) an estimate starts every 1 / ``error_estimate.rate``
-s; its three steps are pieces run before a tick's own steps, as many as fit in what the
-last tick left of its period.  The pieces still left when the next estimate is due by the
-next tick run at once, so the last result is never older than 2 / rate.  While every body
-sleeps the estimate is 0 and nothing is saved or stepped.
+From the state S the world takes one step of h and, from S again, two of h/2 with its own
+kernels, and is put back to S bit for bit (``sm_ros.core.snapshot``).  The RMS difference d
+of the two answers, Richardson-scaled with the order p = ``ORDER``, is the local error of a
+step; ``error_m`` is it per second of simulated time times ``HORIZON_S``: the error the
+running dt accumulates over 2 s where local errors add up (doc/error_estimate.md).
 """
 
 import math
@@ -23,8 +15,8 @@ import numpy as np
 
 from sm_ros.core.snapshot import Snapshot
 
-#: Order p of the method in the Richardson factor 1 / (1 - 2^-p) (the accuracy benchmark
-#: measures 1 for bodies under gravity, in flight and on the ground).
+#: Order p of the method in the Richardson factor 1 / (1 - 2^-p) (measured by the
+#: accuracy benchmark for bodies under gravity, in flight and on the ground).
 ORDER = 1.0
 #: Simulated time over which the local error rate is stated (s).
 HORIZON_S = 2.0
@@ -56,14 +48,10 @@ def estimate(world, dt: float, snapshot: Optional[Snapshot] = None) -> Dict[str,
 
 
 class Estimate:
-    """One estimate of ``world`` at the step ``dt`` in ``PIECES`` pieces (``run``).
-
-    S is saved into ``start`` when made.  While no tick stepped the world since
-    (``touched`` False) the world holds S: one step of h, S back, two of h/2, S back.
-    After a tick, a run puts the live state aside into ``live`` first and back last; the
-    fine trajectory's half way waits in ``start`` between runs.  ``result`` is set once
-    done (:func:`error_from`'s keys, ``cost_s``: all its saves, steps and loads).
-    """
+    """One estimate of ``world`` at ``dt`` in ``PIECES`` pieces (``run``): S saved in
+    ``start``; while no tick stepped the world (``touched``) it holds S, else a run puts
+    the live state aside in ``live``; the fine half way waits in ``start`` between runs.
+    ``result``: :func:`error_from`'s keys, ``cost_s`` (saves, steps, loads), ``steps``."""
 
     def __init__(self, world, dt: float, start: Snapshot, live: Snapshot):
         t0 = time.perf_counter()
@@ -105,11 +93,8 @@ class Estimate:
 
 
 class LiveEstimate:
-    """The estimate of a running simulation (``before_tick``, ``after_tick``).
-
-    ``result``: the last finished estimate or None; ``age(now)``: how old the state it
-    describes is; ``piece_s``: what a piece last cost, against the room a tick leaves.
-    """
+    """The estimate of a running simulation, one every 1 / rate s: ``result`` the last
+    (or None), ``age(now)`` how old its state is, ``piece_s`` what a piece last cost."""
 
     def __init__(self):
         self.result: Optional[Dict[str, Any]] = None
@@ -139,10 +124,10 @@ class LiveEstimate:
 
     def before_tick(self, world, dt: float, rate: float, now: float, room_s: float,
                     period: float, step_s: float) -> float:
-        """Start an estimate when due; do the pieces that fit in ``room_s`` seconds (each
-        ``piece_s``, or ``step_s`` before one was timed; none while that is 0), all those
-        left when the next is due before the next tick, ``period`` s away.  Returns the
-        seconds spent."""
+        """Start an estimate when due; run the pieces that fit in ``room_s`` s (each
+        ``piece_s``, or ``step_s`` before one was timed), all that are left when the next
+        is due before the next tick (``period`` s away), so the result is never older than
+        2 / rate.  Returns the seconds spent."""
         if rate <= 0.0 or not world.bodies:
             self.running = self.result = self.result_at = None
             return 0.0

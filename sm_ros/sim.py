@@ -222,6 +222,7 @@ class Simulation:
         self.momentum = MomentumDrift(lambda: self.world)
         self._estimates = LiveEstimate()
         self._own_s = 0.0           # the last tick's time without the estimate's pieces
+        self._tick_at = clock()     # when the last tick started (the estimate's clock)
         self.stats = TickStats(clock())
         self._nonfinite_logged = -math.inf
         self._nonfinite = None      # sm_ros.nonfinite.NonFiniteCheck (Numba), made when used
@@ -433,12 +434,15 @@ class Simulation:
         substeps = int(self.params['substeps'])
         self.expire_forces()
         # the live error estimate (error_estimate.LiveEstimate): one every 1 / rate s, its
-        # pieces in what the last tick left of the period; the world is left bit for bit
+        # pieces in what the last tick left of the period (all that are left when the next
+        # is due by the next tick, as far away as the last); the world is left bit for bit
         period = 1.0 / float(self.params['rate'])
+        now = self.clock()
         estimate_s = self._estimates.before_tick(
-            world, dt, float(self.params['error_estimate.rate']), self.clock(),
-            room_s=period - self._own_s, period=period,
+            world, dt, float(self.params['error_estimate.rate']), now,
+            room_s=period - self._own_s, period=max(period, now - self._tick_at),
             step_s=stats.step_s_max or 0.0)
+        self._tick_at = now
         measure = MomentumDrift.conservative(world, bool(self.forces or self.grippers))
         # the momentum is summed once when a conservative run starts, then only when the
         # drift is read (diagnostics), not twice every tick

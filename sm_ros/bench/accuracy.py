@@ -189,10 +189,10 @@ def make_scenes(points: int) -> Dict[str, Scene]:
                 state['held'] = False
         return world, body, driver
 
-    box_build, ball_build = _contact_builds(points)
+    box_build, incline_build = _contact_builds(points)
     return {
         'box_on_box': Scene('box_on_box', box_build, rigid, ['rigid']),
-        'ball_incline': Scene('ball_incline', ball_build,
+        'ball_incline': Scene('ball_incline', incline_build,
                               {'mode': 'linear', 'alpha': 0.5, 'beta': 0.5, 'clusters': 2}),
         'rigid_spin': Scene('rigid_spin', spin_build, rigid, ['rigid'], spin_exact),
         'ballistic': Scene('ballistic', ball_build, rigid, ['rigid'], ball_exact),
@@ -231,12 +231,12 @@ def _contact_builds(points: int):
     incline = Box(lo=(-1.0, -0.5, -0.05), hi=(1.0, 0.5, 0.0), friction=0.8,
                   orientation=(0.0, math.sin(tilt / 2), 0.0, math.cos(tilt / 2)))
 
-    def ball_build(p):
+    def incline_build(p):
         world = World(gravity=(0.0, 0.0, -9.81))
         world.set_colliders(ground=Ground(height=-0.4, friction=0.8), boxes=[incline])
         body = world.add_body(ball + start, 1.0 / len(ball), BodyParams(**p), name='ball')
         return world, body, None
-    return box_build, ball_build
+    return box_build, incline_build
 
 
 # ---------------------------------------------------------------------------------------

@@ -86,7 +86,7 @@ def cost_run(scene: str, seconds: float) -> Dict[str, Any]:
         next_tick += period
         time.sleep(max(0.0, next_tick - time.monotonic()))
     st = sim.stats
-    late = [a for a in ages[int(len(ages) * 0.1):]]
+    late = ages[int(len(ages) * 0.1):]
     return {'scene': scene, 'ticks': st.ticks, 'step_s': st.step_s_sum,
             'estimate_s': st.estimate_s_sum,
             'fraction': st.estimate_s_sum / st.step_s_sum if st.step_s_sum else 0.0,
@@ -99,7 +99,7 @@ def estimate_cost(seconds: float, out) -> List[dict]:
     t = bc.Table('estimate_cost', ['scene', 'rate_hz', 'ticks', 'step_s', 'estimate_s',
                                    'fraction', 'age_max_s', 'age_limit_s', 'overruns'],
                  f'Live error estimate at its default rate, {seconds:g} s of real-time '
-                 'ticks: its seconds as a fraction of the steps\' seconds, the oldest '
+                 "ticks: its seconds as a fraction of the steps' seconds, the oldest "
                  'estimate seen (after the first 10 % of the ticks) and the limit 2 / rate')
     for scene in COST_SCENES:
         res = cost_run(scene, seconds)

@@ -1,16 +1,14 @@
 """Save a world's state and put it back bit for bit (the live error estimate's steps).
 
-A :class:`Snapshot` holds what a step of the world reads or writes: the attribute bindings
-of the world and of every ``sm_ros.core`` object reachable from it (bodies, packs, contact,
-flat state, sleep, colliders), the items of the lists and dicts among them, and the bytes
-of every writeable array they hold (a view is saved as the block it views), in buffers
-allocated once.  Nothing is named: it reads ``__dict__``, so it follows the solver's
-storage as that changes.  ``load`` rebinds every attribute to what it held at ``save`` (a
-step at another size re-packs bodies and rebuilds records) and writes the bytes back: the
-world then steps as if never touched (``test/test_snapshot.py``).  The walk is kept while
-the same objects stay bound (checked by identity at each ``save``).
-"""
+A :class:`Snapshot` keeps the attribute bindings of the world and of every ``sm_ros.core``
+object reachable from it, the items of their lists and dicts, and the bytes of every
+writeable array they hold (in buffers allocated once).  Nothing is named, so it follows the
+solver's storage as that changes; ``load`` rebinds what a step at another size re-packed
+and writes the bytes back (``test/test_snapshot.py``).  The walk is reused while the same
+objects stay bound."""
 
+from collections import deque
+from ctypes import memmove
 import operator
 
 import numpy as np
@@ -19,16 +17,19 @@ import numpy as np
 _PLAIN = (type(None), bool, int, float, complex, str, bytes, np.generic, frozenset, type)
 
 
-def _nothing(state) -> tuple:
-    return ()
+def _values(cont) -> list:
+    return list(cont.values()) if isinstance(cont, dict) else list(cont)
 
 
 def _block(a: np.ndarray) -> np.ndarray:
     """The writeable array owning ``a``'s memory (``a`` where that one is read-only)."""
-    base = a
-    while isinstance(base.base, np.ndarray):
-        base = base.base
+    base = a.base if isinstance(a.base, np.ndarray) else a      # NumPy: the owner
     return base if base.flags.writeable else a
+
+
+def _copy(dst, src, sizes) -> None:
+    """memmove every block (addresses and byte counts in lists) at C speed."""
+    deque(map(memmove, dst, src, sizes), maxlen=0)
 
 
 class Snapshot:
@@ -36,7 +37,8 @@ class Snapshot:
 
     def __init__(self):
         self.world = None
-        self._holders, self._keys, self._conts, self._blocks, self._bufs = [], [], [], [], []
+        self._holders, self._keys, self._conts, self._blocks = [], [], [], []
+        self._buf, self._addr, self._strided = np.zeros(0, np.uint8), ([], [], []), []
         self._dicts, self._items = [], []
 
     def _walk(self, world) -> None:
@@ -48,9 +50,7 @@ class Snapshot:
                 continue
             seen.add(id(obj))
             if isinstance(obj, np.ndarray):
-                if obj.flags.writeable:
-                    base = _block(obj)
-                    blocks[id(base)] = base
+                blocks.update({id(_block(obj)): _block(obj)} if obj.flags.writeable else {})
             elif isinstance(obj, (list, tuple, dict)):
                 conts += [obj] if isinstance(obj, (list, dict)) else []
                 stack.extend(obj.values() if isinstance(obj, dict) else obj)
@@ -58,22 +58,24 @@ class Snapshot:
                     and hasattr(obj, '__dict__'):
                 holders.append(obj)
                 stack.extend(vars(obj).values())
-        old = {id(b): buf for b, buf in zip(self._blocks, self._bufs)}
         self.world, self._holders, self._conts = world, holders, conts
         self._keys = []                 # per holder: its size, a getter of its objects
         for obj in holders:
             keys = [k for k, v in vars(obj).items() if not isinstance(v, _PLAIN)]
             # a tuple for one key too, and for none
-            get = operator.itemgetter(*keys, *keys[:1]) if keys else _nothing
+            get = operator.itemgetter(*keys, *keys[:1]) if keys else (lambda state: ())
             self._keys.append((len(vars(obj)), get, get(vars(obj))))
-        self._blocks = list(blocks.values())
-        self._bufs = [old[id(b)] if id(b) in old and old[id(b)].shape == b.shape
-                      and old[id(b)].dtype == b.dtype else np.empty_like(b)
-                      for b in self._blocks]
-
-    @staticmethod
-    def _values(cont):
-        return list(cont.values()) if isinstance(cont, dict) else list(cont)
+        # contiguous blocks, in one buffer (copied by address); others by NumPy
+        flat = [b for b in blocks.values() if b.flags.c_contiguous or b.flags.f_contiguous]
+        sizes = [b.nbytes for b in flat]
+        if self._buf.nbytes != sum(sizes):
+            self._buf = np.empty(sum(sizes), dtype=np.uint8)
+        start = self._buf.ctypes.data
+        offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int).tolist()
+        self._blocks = flat                     # held: their addresses are used
+        self._addr = ([b.ctypes.data for b in flat], [start + o for o in offsets], sizes)
+        self._strided = [(b, np.empty_like(b)) for b in blocks.values()
+                         if not (b.flags.c_contiguous or b.flags.f_contiguous)]
 
     def _same_make(self, world) -> bool:
         """Whether the walk still covers ``world``: the same objects bound and held."""
@@ -83,8 +85,8 @@ class Snapshot:
             state = vars(obj)
             if len(state) != count or not all(map(operator.is_, get(state), refs)):
                 return False
-        return all(len(c) == len(saved) and all(map(operator.is_, self._values(c),
-                                                     self._values(saved)))
+        return all(len(c) == len(saved) and all(map(operator.is_, _values(c),
+                                                     _values(saved)))
                    for c, saved in zip(self._conts, self._items))
 
     def save(self, world) -> None:
@@ -93,7 +95,8 @@ class Snapshot:
             self._walk(world)
         self._dicts = [dict(vars(o)) for o in self._holders]
         self._items = [c.copy() for c in self._conts]
-        for buf, block in zip(self._bufs, self._blocks):
+        _copy(self._addr[1], self._addr[0], self._addr[2])
+        for block, buf in self._strided:
             np.copyto(buf, block)
 
     def load(self, world) -> None:
@@ -109,5 +112,6 @@ class Snapshot:
                 c.update(saved)
             else:
                 c[:] = saved
-        for buf, block in zip(self._bufs, self._blocks):
+        _copy(self._addr[0], self._addr[1], self._addr[2])
+        for block, buf in self._strided:
             np.copyto(block, buf)
