@@ -93,15 +93,15 @@ class Estimate:
 
 
 class LiveEstimate:
-    """The estimate of a running simulation, one every 1 / rate s: ``result`` the last
-    (or None), ``age(now)`` how old its state is, ``piece_s`` what a piece last cost."""
+    """The estimate of a running simulation (``before_tick``): ``result`` the last (or
+    None), ``age(now)`` how old its state is, ``piece_s`` what a piece last cost."""
 
     def __init__(self):
         self.result: Optional[Dict[str, Any]] = None
         self.result_at: Optional[float] = None
         self.running: Optional[Estimate] = None
         self.piece_s: Optional[float] = None
-        self._started, self._next = 0.0, -math.inf
+        self._started, self._due, self._deadline = 0.0, -math.inf, math.inf
         self._snaps = (Snapshot(), Snapshot())
 
     def age(self, now: float) -> Optional[float]:
@@ -110,48 +110,50 @@ class LiveEstimate:
 
     def drop(self) -> None:
         """Abandon the estimate in progress (the configuration changed); start anew."""
-        self.running, self._next = None, -math.inf
+        self.running, self._due = None, -math.inf
 
     def after_tick(self) -> None:
         """The tick stepped the world: it no longer holds the running estimate's S."""
         if self.running is not None:
             self.running.touched = True
 
-    def _finish(self) -> None:
-        if self.running is not None and self.running.result is not None:
-            self.result, self.result_at = self.running.result, self._started
-            self.running = None
+    def _done(self, result, at: float, rate: float) -> None:
+        self.result, self.result_at, self.running = result, at, None
+        self._due, self._deadline = at + 1.0 / rate, at + 2.0 / rate
 
     def before_tick(self, world, dt: float, rate: float, now: float, room_s: float,
                     period: float, step_s: float) -> float:
-        """Start an estimate when due; run the pieces that fit in ``room_s`` s (each
-        ``piece_s``, or ``step_s`` before one was timed), all that are left when the next
-        is due before the next tick (``period`` s away), so the result is never older than
-        2 / rate.  Returns the seconds spent."""
+        """Due 1 / rate s after the state of the last, an estimate runs whole in the first
+        tick with room (``room_s``) for its pieces (each ``piece_s``, or ``step_s`` before
+        one was timed), in parts where only some fit, and whatever is left at once in the
+        last tick (``period`` s apart) before the last would be 2 / rate old.  Returns the
+        seconds spent."""
         if rate <= 0.0 or not world.bodies:
             self.running = self.result = self.result_at = None
+            self._due, self._deadline = -math.inf, math.inf
             return 0.0
         t0 = time.perf_counter()
         est = self.running
         if est is not None and (est.world is not world or est.dt != float(dt)):
             est = self.running = None            # another world or step: start anew
-        if est is not None and now + period >= self._next:
-            est.run(PIECES)                       # the next is due: finish this one
-            self._finish()
-        if now >= self._next:
-            nxt = self._next + 1.0 / rate       # on the grid, unless a period late
-            self._next, self._started = (nxt if nxt > now else now + 1.0 / rate), now
+        if est is None and now < self._due:
+            return 0.0
+        self._deadline = min(self._deadline, now + 1.0 / rate)
+        forced = now + period >= self._deadline
+        cost = self.piece_s or step_s
+        fit = PIECES if forced else (int(max(room_s, 0.0) // cost) if cost > 0.0 else 0)
+        if est is None:
             if world.all_asleep:                 # no step moves it: 0, nothing saved
-                self.result, self.result_at = dict(error_from(np.zeros((0, 3)), np.zeros(
-                    (0, 3)), float(dt)), cost_s=0.0, steps=0), now
-            else:
-                self.running = Estimate(world, float(dt), *self._snaps)
-        est = self.running
-        cost = self.piece_s if self.piece_s is not None else step_s
-        room = room_s - (time.perf_counter() - t0)
-        fit = int(max(room, 0.0) // cost) if cost > 0.0 else 0
-        if est is not None and fit > 0:
-            first = est.done_pieces
+                self._done(dict(error_from(np.zeros((0, 3)), np.zeros((0, 3)), float(dt)),
+                                cost_s=0.0, steps=0), now, rate)
+                return 0.0
+            if fit == 0:
+                return 0.0
+            est = self.running = Estimate(world, float(dt), *self._snaps)
+            self._started = now
+        first = est.done_pieces
+        if fit > 0:
             self.piece_s = est.run(fit) / max(est.done_pieces - first, 1)
-            self._finish()
+        if est.result is not None:
+            self._done(est.result, self._started, rate)
         return time.perf_counter() - t0

@@ -87,36 +87,57 @@ def _sims(scene, **values):
     return on, off, now
 
 
-@pytest.mark.parametrize('scene', ['default', 'many'])
-def test_pieces_between_ticks_leave_the_world_as_without_estimates(scene):
-    """The estimate's pieces, one a tick (no room for more) or all at once, with the world
-    stepped in between: the world steps bit for bit as one without estimates, and the
-    pieces give the estimate the state it started from gives in one go."""
-    on, off, now = _sims(scene, **{'error_estimate.rate': 10.0})
-    for _ in range(100):                                 # into contact for 'many'
+def _worlds(scene, lead):
+    from sm_ros.sim import Simulation
+    sims = [Simulation({'scene': scene, 'error_estimate.rate': 0.0}) for _ in range(2)]
+    h = float(sims[0].params['dt'])
+    for sim in sims:
+        for _ in range(lead):                            # into contact for 'many'
+            sim.world.step(h)
+    return sims[0].world, sims[1].world, h
+
+
+@pytest.mark.parametrize('scene,lead', [('default', 20), ('many', 120)])
+def test_pieces_between_ticks_leave_the_world_as_without_estimates(scene, lead):
+    """Room for one piece a tick: the estimate's three pieces over three ticks, the world
+    stepped in between, give what the state it started from gives in one go, and the
+    world steps bit for bit as one without estimates; with room for three, one tick."""
+    world, twin, h = _worlds(scene, lead)
+    whole = EE.estimate(world, h)                        # leaves the world as it was
+    live = EE.LiveEstimate()
+    live.piece_s = 1.0
+    for k in range(3):
+        live.before_tick(world, h, 1.0, 0.01 * k, room_s=1.5, period=0.01, step_s=1.0)
+        assert (live.result is None) == (k < 2)
+        live.piece_s = 1.0
+        for w in (world, twin):
+            w.step(h)
+        live.after_tick()
+    assert live.result['error_m'] == whole['error_m'] > 0.0
+    assert live.age(0.05) == pytest.approx(0.05)
+    live.before_tick(world, h, 1.0, 0.5, room_s=3.5, period=0.01, step_s=1.0)
+    assert live.result_at == 0.0                         # not due before 1 s
+    live.before_tick(world, h, 1.0, 1.0, room_s=3.5, period=0.01, step_s=1.0)
+    assert live.result_at == 1.0 and live.running is None
+    for w in (world, twin):
+        w.step(h)
+    for a, b in zip(world.bodies, twin.bodies):
+        assert a.x.tobytes() == b.x.tobytes() and a.v.tobytes() == b.v.tobytes()
+
+
+def test_a_simulation_with_estimates_ticks_as_one_without():
+    on, off, now = _sims('default', **{'error_estimate.rate': 10.0})
+    for _ in range(60):
         on.tick()
         off.tick()
         now[0] += 1.0 / 60.0
-    est = on._estimates
-    whole = EE.estimate(on.world, on.params['dt'])     # of the state before the next tick
-    est.drop()
-    est.piece_s = 1e9                                    # no piece fits in a tick's room
-    results = []
-    for k in range(12):
-        on.tick()
-        off.tick()
-        results.append(est.result)
-        now[0] += 0.5 / 60.0                             # the next due after 12 ticks
-        if k < 10:                                       # waiting for room
-            assert est.running is not None and est.running.done_pieces == 0
-    assert est.result is not results[0] and est.result['error_m'] == whole['error_m']
-    assert est.age(now[0]) == pytest.approx(12 * 0.5 / 60.0)
-    est.piece_s = 1e-9                                   # room for every piece: one tick
-    now[0] += 1.0
-    on.tick()
-    off.tick()
+    assert on.error_estimate['error_m'] > 0.0 and on._estimates.age(now[0]) <= 0.2
     for a, b in zip(on.world.bodies, off.world.bodies):
         assert a.x.tobytes() == b.x.tobytes() and a.v.tobytes() == b.v.tobytes()
+    running = on._estimates
+    on.set_params({'alpha': 0.6})                        # a physics change: anew, at once
+    on.tick()
+    assert running.result_at == now[0] and running.running is None
 
 
 def test_estimate_is_never_older_than_two_periods_and_is_counted():
