@@ -1,11 +1,9 @@
 """The live error estimate: step doubling on the running world itself (no ROS).
 
-From the state S the world takes one step of h and, from S again, two of h/2 with its own
-kernels, and is put back to S bit for bit (``sm_ros.core.snapshot``).  The RMS difference d
-of the two answers, Richardson-scaled with the order p = ``ORDER``, is the local error of a
-step; ``error_m`` is it per second of simulated time times ``HORIZON_S``: the error the
-running dt accumulates over 2 s where local errors add up (doc/error_estimate.md).
-"""
+From the state S the world takes one step of h and, from S again, two of h/2, and is put
+back to S bit for bit (``sm_ros.core.snapshot``).  The RMS difference of the answers,
+Richardson-scaled with order ``ORDER``, is a step's local error; ``error_m`` is it per second
+times ``HORIZON_S``, where local errors add up (doc/error_estimate.md)."""
 
 import math
 import time
@@ -15,9 +13,8 @@ import numpy as np
 
 from sm_ros.core.snapshot import Snapshot
 
-#: Order p of the method in the Richardson factor 1 / (1 - 2^-p) (measured by the
-#: accuracy benchmark for bodies under gravity, in flight and on the ground).
-ORDER = 1.0
+#: Order p in the Richardson factor 1 / (1 - 2^-p): the accuracy benchmark's for bodies
+ORDER = 1.0         # under gravity, in flight and on the ground
 #: Simulated time over which the local error rate is stated (s).
 HORIZON_S = 2.0
 #: The pieces of an estimate: one step of h, then two of h/2.
@@ -42,8 +39,7 @@ def error_from(coarse, fine, dt: float, order: float = ORDER,
 
 def estimate(world, dt: float, snapshot: Optional[Snapshot] = None) -> Dict[str, Any]:
     """Step-double ``world`` from its state now, in one go, and leave it as it was."""
-    est = Estimate(world, dt, snapshot or Snapshot(), Snapshot())
-    est.run(PIECES)
+    (est := Estimate(world, dt, snapshot or Snapshot(), Snapshot())).run(PIECES)
     return est.result
 
 
@@ -57,9 +53,7 @@ class Estimate:
         t0 = time.perf_counter()
         self.world, self.dt, self.start, self.live = world, float(dt), start, live
         start.save(world)
-        self.done_pieces, self.touched = 0, False
-        self.coarse: Optional[np.ndarray] = None
-        self.result: Optional[Dict[str, Any]] = None
+        self.done_pieces, self.touched, self.coarse, self.result = 0, False, None, None
         self.cost_s = time.perf_counter() - t0
 
     def run(self, pieces: int) -> float:
@@ -78,10 +72,8 @@ class Estimate:
                 self.start.load(world)
             world.step(self.dt if k == 0 else 0.5 * self.dt)
             at = ('coarse', 'half', 'fine')[k]
-            if k == 0:
-                self.coarse = positions(world)
-            elif k == 2:
-                self.result = error_from(self.coarse, positions(world), self.dt)
+            self.coarse = positions(world) if k == 0 else self.coarse
+            self.result = error_from(self.coarse, positions(world), self.dt) if k == 2 else None
         if end == 2:
             self.start.save(world)
         (self.live if aside else self.start).load(world)
@@ -97,10 +89,7 @@ class LiveEstimate:
     None), ``age(now)`` how old its state is, ``piece_s`` what a piece last cost."""
 
     def __init__(self):
-        self.result: Optional[Dict[str, Any]] = None
-        self.result_at: Optional[float] = None
-        self.running: Optional[Estimate] = None
-        self.piece_s: Optional[float] = None
+        self.result = self.result_at = self.running = self.piece_s = None
         self._started, self._due, self._deadline = 0.0, -math.inf, math.inf
         self._snaps = (Snapshot(), Snapshot())
 
@@ -129,8 +118,7 @@ class LiveEstimate:
         last tick (``period`` s apart) before the last would be 2 / rate old.  Returns the
         seconds spent."""
         if rate <= 0.0 or not world.bodies:
-            self.running = self.result = self.result_at = None
-            self._due, self._deadline = -math.inf, math.inf
+            self.__init__()                      # off: forgotten, the snapshots too
             return 0.0
         t0 = time.perf_counter()
         est = self.running
@@ -142,18 +130,16 @@ class LiveEstimate:
         forced = now + period >= self._deadline
         cost = self.piece_s or step_s
         fit = PIECES if forced else (int(max(room_s, 0.0) // cost) if cost > 0.0 else 0)
+        if est is None and world.all_asleep:     # no step moves it: 0, nothing saved
+            self._done({'local_m': 0.0, 'rate_m_s': 0.0, 'error_m': 0.0, 'cost_s': 0.0,
+                        'steps': 0}, now, rate)
+        if est is None and (world.all_asleep or fit == 0):
+            return 0.0
         if est is None:
-            if world.all_asleep:                 # no step moves it: 0, nothing saved
-                self._done(dict(error_from(np.zeros((0, 3)), np.zeros((0, 3)), float(dt)),
-                                cost_s=0.0, steps=0), now, rate)
-                return 0.0
-            if fit == 0:
-                return 0.0
-            est = self.running = Estimate(world, float(dt), *self._snaps)
-            self._started = now
+            est, self._started = Estimate(world, float(dt), *self._snaps), now
+            self.running = est
         first = est.done_pieces
-        if fit > 0:
-            self.piece_s = est.run(fit) / max(est.done_pieces - first, 1)
+        self.piece_s = est.run(fit) / max(est.done_pieces - first, 1) if fit else self.piece_s
         if est.result is not None:
             self._done(est.result, self._started, rate)
         return time.perf_counter() - t0

@@ -27,19 +27,13 @@ def _block(a: np.ndarray) -> np.ndarray:
     return base if base.flags.writeable else a
 
 
-def _copy(dst, src, sizes) -> None:
-    """memmove every block (addresses and byte counts in lists) at C speed."""
-    deque(map(memmove, dst, src, sizes), maxlen=0)
-
-
 class Snapshot:
     """A world's state: ``save(world)`` copies it in, ``load(world)`` puts it back."""
 
     def __init__(self):
-        self.world = None
-        self._holders, self._keys, self._conts, self._blocks = [], [], [], []
-        self._buf, self._addr, self._strided = np.zeros(0, np.uint8), ([], [], []), []
-        self._dicts, self._items = [], []
+        self.world, self._buf, self._addr = None, np.zeros(0, np.uint8), ([], [], [])
+        self._holders, self._keys, self._conts, self._blocks, self._dicts, self._items = (
+            [], [], [], [], [], [])
 
     def _walk(self, world) -> None:
         """Find the solver objects, lists, dicts and memory blocks of ``world``."""
@@ -65,8 +59,9 @@ class Snapshot:
             # a tuple for one key too, and for none
             get = operator.itemgetter(*keys, *keys[:1]) if keys else (lambda state: ())
             self._keys.append((len(vars(obj)), get, get(vars(obj))))
-        # contiguous blocks, in one buffer (copied by address); others by NumPy
-        flat = [b for b in blocks.values() if b.flags.c_contiguous or b.flags.f_contiguous]
+        flat = list(blocks.values())            # saved in one buffer, copied by address
+        if not all(b.flags.c_contiguous or b.flags.f_contiguous for b in flat):
+            raise TypeError('a solver array owns memory it does not hold contiguously')
         sizes = [b.nbytes for b in flat]
         if self._buf.nbytes != sum(sizes):
             self._buf = np.empty(sum(sizes), dtype=np.uint8)
@@ -74,8 +69,6 @@ class Snapshot:
         offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int).tolist()
         self._blocks = flat                     # held: their addresses are used
         self._addr = ([b.ctypes.data for b in flat], [start + o for o in offsets], sizes)
-        self._strided = [(b, np.empty_like(b)) for b in blocks.values()
-                         if not (b.flags.c_contiguous or b.flags.f_contiguous)]
 
     def _same_make(self, world) -> bool:
         """Whether the walk still covers ``world``: the same objects bound and held."""
@@ -95,9 +88,8 @@ class Snapshot:
             self._walk(world)
         self._dicts = [dict(vars(o)) for o in self._holders]
         self._items = [c.copy() for c in self._conts]
-        _copy(self._addr[1], self._addr[0], self._addr[2])
-        for block, buf in self._strided:
-            np.copyto(buf, block)
+        blocks, bufs, sizes = self._addr                # one memmove a block, C speed
+        deque(map(memmove, bufs, blocks, sizes), maxlen=0)
 
     def load(self, world) -> None:
         """Put the saved state back into ``world`` (the world it was saved from)."""
@@ -107,11 +99,7 @@ class Snapshot:
             vars(obj).clear()
             vars(obj).update(saved)
         for c, saved in zip(self._conts, self._items):
-            if isinstance(c, dict):
-                c.clear()
-                c.update(saved)
-            else:
-                c[:] = saved
-        _copy(self._addr[0], self._addr[1], self._addr[2])
-        for block, buf in self._strided:
-            np.copyto(block, buf)
+            c.clear()
+            c.update(saved) if isinstance(c, dict) else c.extend(saved)
+        blocks, bufs, sizes = self._addr
+        deque(map(memmove, blocks, bufs, sizes), maxlen=0)
