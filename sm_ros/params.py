@@ -236,7 +236,7 @@ TABLE: Tuple[Param, ...] = (
     Param('max_turn', 0.5, 'Largest rotation of a cluster in one step (rad): spin beyond '
           'max_turn / dt is taken away and counted in /diagnostics (turn_limited); 0: no limit',
           'rad', 0.0, 3.0, scene_override=True, core_field='max_turn'),
-    Param('error_estimate.rate', 1.0, 'Rate of the live error estimate in /diagnostics '
+    Param('error_estimate.rate', 0.2, 'Rate of the live error estimate in /diagnostics '
           '(error_estimate_m: from the state of the moment, one step of dt against two of '
           'dt/2 on the running world, which is then put back bit for bit; the local error '
           'per second times 2 s, doc/error_estimate.md). Its three steps run in what the '

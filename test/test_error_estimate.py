@@ -180,7 +180,7 @@ def test_rate_is_checked_and_a_refused_value_changes_nothing():
     for bad in (-1.0, 10.5, float('nan'), float('inf')):
         with pytest.raises(ParameterError):
             sim.set_params({'error_estimate.rate': bad})
-    assert sim.pending == {} and sim.params['error_estimate.rate'] == 1.0
+    assert sim.pending == {} and sim.params['error_estimate.rate'] == 0.2
     sim.set_params({'error_estimate.rate': 0.0})
     sim.tick()
     assert sim.error_estimate is None
