@@ -38,9 +38,10 @@ def _ratios(name, h, points=125, duration=2.0, every_s=0.25):
     return np.array(est) / acc.max_rms(xs, truth)
 
 
-#: Where the local error rate does not accumulate into the 2 s error: the rigid spin's
-#: local difference is the rotation match's in-step distortion, which does not add up
-#: (order 2: 11-44x), and the press's true error does not shrink with dt (order 0).
+#: Where the local error rate does not add up to the 2 s error (doc/error_estimate.md):
+#: the rigid spin's local difference is mostly the rotation match's in-step distortion
+#: (its true error converges at order 2; mean 7-11x), and the press's jaws reach their
+#: targets in the fine answer's first half step (mean 6-10x, single up to 16x).
 _KNOWN_OFF = {'rigid_spin', 'plastic_press'}
 
 

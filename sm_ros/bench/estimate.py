@@ -11,6 +11,7 @@ accuracy --estimate-only`` (or ``--estimate`` after the sweep).
   2 / rate, and the ticks that overran their period.
 """
 
+import math
 import time
 from typing import Any, Dict, List
 
@@ -90,7 +91,8 @@ def cost_run(scene: str, seconds: float) -> Dict[str, Any]:
     return {'scene': scene, 'ticks': st.ticks, 'step_s': st.step_s_sum,
             'estimate_s': st.estimate_s_sum,
             'fraction': st.estimate_s_sum / st.step_s_sum if st.step_s_sum else 0.0,
-            'age_max_s': max(late) if late else -1.0, 'age_limit_s': 2.0 / rate,
+            'age_max_s': max(late) if late else -1.0,
+            'age_limit_s': 2.0 / rate if rate > 0.0 else math.inf,
             'overruns': st.overruns_total, 'rate_hz': rate}
 
 
