@@ -85,8 +85,7 @@ class Estimate:
 
 
 class LiveEstimate:
-    """The estimate of a running simulation (``before_tick``): ``result`` the last (or
-    None), ``age(now)`` how old its state is, ``piece_s`` what a piece last cost."""
+    """A running simulation's estimate: ``result`` (last), ``age(now)``, ``piece_s``."""
 
     def __init__(self):
         self.result = self.result_at = self.running = self.piece_s = None
@@ -106,9 +105,8 @@ class LiveEstimate:
         if self.running is not None:
             self.running.touched = True
 
-    def _done(self, result, at: float, rate: float) -> None:
-        self.result, self.result_at, self.running = result, at, None
-        self._due, self._deadline = at + 1.0 / rate, at + 2.0 / rate
+    def _done(self, result, at: float) -> None:
+        self.result, self.result_at, self.running, self._due = result, at, None, at
 
     def before_tick(self, world, dt: float, rate: float, now: float, room_s: float,
                     period: float, step_s: float) -> float:
@@ -120,6 +118,8 @@ class LiveEstimate:
         if rate <= 0.0 or not world.bodies:
             self.__init__()                      # off: forgotten, the snapshots too
             return 0.0
+        if self.result_at is not None and self._due > -math.inf:     # follows the rate
+            self._due, self._deadline = (self.result_at + k / rate for k in (1.0, 2.0))
         t0 = time.perf_counter()
         est = self.running
         if est is not None and (est.world is not world or est.dt != float(dt)):
@@ -132,7 +132,7 @@ class LiveEstimate:
         fit = PIECES if forced else (int(max(room_s, 0.0) // cost) if cost > 0.0 else 0)
         if est is None and world.all_asleep:     # no step moves it: 0, nothing saved
             self._done({'local_m': 0.0, 'rate_m_s': 0.0, 'error_m': 0.0, 'cost_s': 0.0,
-                        'steps': 0}, now, rate)
+                        'steps': 0}, now)
         if est is None and (world.all_asleep or fit == 0):
             return 0.0
         if est is None:
@@ -141,5 +141,5 @@ class LiveEstimate:
         first = est.done_pieces
         self.piece_s = est.run(fit) / max(est.done_pieces - first, 1) if fit else self.piece_s
         if est.result is not None:
-            self._done(est.result, self._started, rate)
+            self._done(est.result, self._started)
         return time.perf_counter() - t0

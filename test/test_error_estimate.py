@@ -203,3 +203,16 @@ def test_every_bundled_scene_has_a_fresh_estimate_and_ticks_as_without(scene):
     assert on.error_estimate['steps'] in (0, EE.PIECES)
     for a, b in zip(on.world.bodies, off.world.bodies):
         assert a.x.tobytes() == b.x.tobytes() and a.v.tobytes() == b.v.tobytes(), a.name
+
+
+def test_a_new_rate_applies_to_the_next_estimate():
+    on, _, now = _sims('default', **{'error_estimate.rate': 0.2})
+    for _ in range(3):
+        on.tick()
+        now[0] += 1.0 / 60.0
+    first = on._estimates.result_at
+    on.set_params({'error_estimate.rate': 10.0})
+    for _ in range(8):                                   # 0.13 s: due after 0.1 s at 10 Hz
+        on.tick()
+        now[0] += 1.0 / 60.0
+    assert on._estimates.result_at > first
