@@ -19,7 +19,7 @@ import numpy as np
 
 from . import common as bc
 
-#: Scenes whose estimate cost is measured, and the seconds of wall time each runs.
+#: Scenes whose estimate cost and age are measured (``--estimate-seconds`` of ticks each).
 COST_SCENES = ('default', 'paper_384')
 
 
