@@ -11,31 +11,13 @@ from sm_ros import error_estimate as EE
 from sm_ros.core.snapshot import Snapshot
 
 
-def _ratios(name, h, points=125, duration=2.0, every_s=0.25):
-    """Estimate / true error at every ``every_s`` s along a run of an accuracy scene; the
-    true error is the scene's (``sm_ros.bench.accuracy``: the largest RMS position error
-    over ``duration`` s against the exact motion or a run at h / 16)."""
+def _ratios(name, h, points=125, duration=2.0):
+    """Estimate / true error every 0.25 s along 2 s of an accuracy scene; the true error
+    is the scene's (the largest RMS position error over 2 s against the exact motion or a
+    run at h / 16; ``sm_ros.bench.estimate.ratios``)."""
     from sm_ros.bench import accuracy as acc
-    scene = acc.make_scenes(points)[name]
-    world, body, driver = scene.build(dict(scene.nominal))
-    n = int(round(duration / h))
-    every = int(round((1.0 / acc.SAMPLE_RATE) / h))
-    at = int(round(every_s / h))
-    snap = Snapshot()
-    xs, est = [], []
-    for i in range(n):
-        if driver is not None:
-            driver(world, body, (i + 1) * h)
-        if i % at == 0:
-            est.append(EE.estimate(world, h, snap)['error_m'])
-        world.step(h)
-        if (i + 1) % every == 0:
-            xs.append(np.array(body.x))
-    xs = np.array(xs)
-    t = (np.arange(len(xs)) + 1) * every * h
-    truth = (acc.exact_samples(scene, t) if scene.exact is not None
-             else acc.simulate(scene, scene.nominal, h / 16.0, duration)['x'])
-    return np.array(est) / acc.max_rms(xs, truth)
+    from sm_ros.bench.estimate import ratios
+    return ratios(acc.make_scenes(points)[name], h, duration)['ratios']
 
 
 #: Where the local error rate does not add up to the 2 s error (doc/error_estimate.md):

@@ -49,7 +49,8 @@ def ratios(scene, h: float, duration: float, every_s: float = 0.25) -> Dict[str,
     true = acc.max_rms(xs, truth)
     r = np.array(est) / true
     return {'true_m': true, 'mean_m': float(np.mean(est)), 'mean_ratio': float(r.mean()),
-            'worst_ratio': float(r[np.argmax(np.maximum(r, 1.0 / r))]), 'n': len(est)}
+            'worst_ratio': float(r[np.argmax(np.maximum(r, 1.0 / r))]), 'n': len(est),
+            'ratios': r}
 
 
 def estimate_accuracy(names: List[str], points: int, duration: float, out) -> List[dict]:
