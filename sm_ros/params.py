@@ -236,21 +236,12 @@ TABLE: Tuple[Param, ...] = (
     Param('max_turn', 0.5, 'Largest rotation of a cluster in one step (rad): spin beyond '
           'max_turn / dt is taken away and counted in /diagnostics (turn_limited); 0: no limit',
           'rad', 0.0, 3.0, scene_override=True, core_field='max_turn'),
-    Param('error_estimate.rate', 1.0, 'Rate of the live error estimate in /diagnostics '
-          '(error_estimate_m: trajectories of two copies of the world at dt and dt/2 '
-          'compared over 0.5 s, the RMS position error after 2 s of the running dt and '
-          'substeps; the copies run over the ticks within error_estimate.budget, their '
-          'cost counts in them; the most often: a small budget makes it rarer) (Hz; 0 '
-          'disables)', 'Hz', 0.0, 100.0),
-    Param('error_estimate.budget', 0.25, "World steps the live error estimate's copies may "
-          "add to a tick, as a share of the tick's own steps (substeps): 0.25 adds one step "
-          'every other tick at 2 substeps. An estimate takes 3 x 0.5 s / dt steps and two '
-          'copies of about 3 steps each, so (1.5 / dt + 6) / (substeps x budget) ticks (372, '
-          '6.2 s at 60 Hz, with the defaults). Each piece of the estimate (a copy, or its share '
-          'of steps) runs only in a tick whose steps leave it room, 75 % of the tick period '
-          '(1 / rate) less the steps, against what that piece last cost: a heavy scene keeps '
-          'its rate (a start that waited 10 s goes ahead)', '',
-          0.0, 100.0, positive=True),
+    Param('error_estimate.rate', 0.2, 'Rate of the live error estimate in /diagnostics '
+          '(error_estimate_m: from the state of the moment, one step of dt against two of '
+          'dt/2 on the running world, which is then put back bit for bit; the local error '
+          'per second times 2 s, doc/error_estimate.md). Its three steps run in what the '
+          'ticks leave of their period, all at once when the next estimate is due, so the '
+          'last one is never older than 2 / rate (Hz; 0 disables)', 'Hz', 0.0, 10.0),
 )
 
 #: Every row by name.

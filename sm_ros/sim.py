@@ -35,13 +35,13 @@ import numpy as np
 from sm_ros import params as table
 from sm_ros.inputs import checked_points, checked_wrench, Forces, Grippers, InputError
 from sm_ros.params import MAX_COORDINATE
-from sm_ros.stats import (ErrorEstimateSchedule, MomentumDrift, TickStats, estimate_room,
-                          solver_figures)
+from sm_ros.error_estimate import LiveEstimate
+from sm_ros.stats import MomentumDrift, TickStats, solver_figures
 
 #: Seconds between two log lines about bodies that went non-finite.
 NONFINITE_LOG_PERIOD = 1.0
 #: Parameters whose change abandons the live error estimate in progress (it estimates the
-#: error of the configuration its copies were made with; a new world or dt drops it too).
+#: error of the configuration it started from; a new world or dt drops it too).
 ESTIMATE_KEYS = frozenset(table.SCENE_DEFAULT_KEYS + ('substeps', 'scene'))
 
 
@@ -220,7 +220,9 @@ class Simulation:
         self.sim_ns = 0
         self.cloud_count = 0
         self.momentum = MomentumDrift(lambda: self.world)
-        self._estimates = ErrorEstimateSchedule()
+        self._estimates = LiveEstimate()
+        self._own_s = 0.0           # the last tick's time without the estimate's pieces
+        self._tick_at = clock()     # when the last tick started (the estimate's clock)
         self.stats = TickStats(clock())
         self._nonfinite_logged = -math.inf
         self._nonfinite = None      # sm_ros.nonfinite.NonFiniteCheck (Numba), made when used
@@ -431,17 +433,25 @@ class Simulation:
         dt = float(self.params['dt'])
         substeps = int(self.params['substeps'])
         self.expire_forces()
+        # the live error estimate (error_estimate.LiveEstimate): one every 1 / rate s, its
+        # pieces in what the last tick left of the period (all that are left when the next
+        # is due by the next tick, as far away as the last); the world is left bit for bit
+        period = 1.0 / float(self.params['rate'])
+        now = self.clock()
+        estimate_s = self._estimates.before_tick(
+            world, dt, float(self.params['error_estimate.rate']), now,
+            room_s=period - self._own_s, period=max(period, now - self._tick_at),
+            step_s=stats.step_s_max or 0.0)
+        self._tick_at = now
         measure = MomentumDrift.conservative(world, bool(self.forces or self.grippers))
         # the momentum is summed once when a conservative run starts, then only when the
         # drift is read (diagnostics), not twice every tick
         before = self.momentum.measure(world) \
             if measure and self.momentum.needs_reference() else None
-        c0 = self.clock()
         for _ in range(substeps):
             s = time.perf_counter()
             world.step(dt)
             stats.add_step(time.perf_counter() - s)
-        steps_s = self.clock() - c0
         self.sim_ns += substeps * int(round(dt * 1e9))
         self.collider_wrenches = world.take_collider_wrenches()
         contact = world.contact
@@ -453,21 +463,14 @@ class Simulation:
             self.momentum.track(world, before)
         else:
             self.momentum.forget()
-        # the live error estimate (stats.ErrorEstimateSchedule): at most one every
-        # 1 / error_estimate.rate s, its copies stepped within error_estimate.budget, each
-        # piece of it only in a tick whose steps leave it room (stats.estimate_room); its
-        # time counted in the tick but not as an overrun
-        estimate_s = self._estimates.advance(
-            world, dt, substeps, float(self.params['error_estimate.rate']), self.clock,
-            float(self.params['error_estimate.budget']),
-            room_s=estimate_room(steps_s, float(self.params['rate'])),
-            step_s=steps_s / max(substeps, 1))
+        self._estimates.after_tick()
         tp = time.perf_counter()
         for fn in self._tick_listeners:
             fn(self)
         stats.add_publish(time.perf_counter() - tp)
-        stats.add_tick(time.perf_counter() - t0, substeps * dt, 1.0 / self.params['rate'],
-                       exempt=estimate_s)
+        tick_s = time.perf_counter() - t0
+        self._own_s = tick_s - estimate_s
+        stats.add_tick(tick_s, substeps * dt, period, estimate_s=estimate_s)
 
     def reset_nonfinite(self) -> List[str]:
         """Reset every body whose state is no longer finite; return their names."""

@@ -8,7 +8,20 @@ import sm_ros.core.body as body_mod
 import sm_ros.core.packed as packed
 import sm_ros.core.world as world_mod
 from sm_ros.core import BodyParams, Box, Ground, World
-from sm_ros.error_estimate import copy_world
+
+
+def copy_world(world):
+    """A deep copy of ``world`` whose read-only arrays stay read-only (Numba types them
+    apart: a plain deep copy's first step would load other kernel specialisations)."""
+    import copy
+    memo = {}
+    twin = copy.deepcopy(world, memo)
+    for original in memo.get(id(memo), ()):
+        if isinstance(original, np.ndarray) and not original.flags.writeable:
+            dup = memo.get(id(original))
+            if isinstance(dup, np.ndarray) and dup is not original:
+                dup.flags.writeable = False
+    return twin
 
 
 def lattice(n, spacing=0.02):

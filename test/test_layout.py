@@ -14,7 +14,20 @@ import pytest
 from sm_ros.core import BodyParams, Ground, World
 from sm_ros.core import body as body_mod
 from sm_ros.core.reference import ReferenceBody
-from sm_ros.error_estimate import copy_world
+
+
+def copy_world(world):
+    """A deep copy of ``world`` whose read-only arrays stay read-only (Numba types them
+    apart: a plain deep copy's first step would load other kernel specialisations)."""
+    import copy
+    memo = {}
+    twin = copy.deepcopy(world, memo)
+    for original in memo.get(id(memo), ()):
+        if isinstance(original, np.ndarray) and not original.flags.writeable:
+            dup = memo.get(id(original))
+            if isinstance(dup, np.ndarray) and dup is not original:
+                dup.flags.writeable = False
+    return twin
 
 H = 1.0 / 120.0
 

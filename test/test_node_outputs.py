@@ -86,7 +86,7 @@ def test_diagnostics_split_the_tick(ros, cube_scene):
               if kv.key in ('tick_ms_mean', 'step_ms_mean', 'publish_ms_mean',
                             'other_ms_mean', 'error_estimate_ms_mean')}
     assert values['tick_ms_mean'] >= 3 * values['step_ms_mean']
-    # the first tick made the estimate's first copy: its share is reported apart
+    # the first tick saved the estimate's start state: its share is reported apart
     assert values['error_estimate_ms_mean'] > 0.0
     # each mean is reported rounded to 1e-6 ms: the identity holds within 8 half-units
     assert values['other_ms_mean'] == pytest.approx(

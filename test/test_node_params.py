@@ -29,7 +29,7 @@ INTERFACE_PARAMS = ('mode', 'alpha', 'beta', 'plasticity.yield', 'plasticity.cre
                     'contact.enabled', 'contact.friction', 'contact.restitution',
                     'contact.radius_scale', 'max_speed', 'max_turn', 'error_estimate.rate')
 #: Parameters sm_ros adds to the interface (live view, recording, error estimate budget).
-EXTRA_PARAMS = ('foxglove.port', 'foxglove.host', 'record.path', 'error_estimate.budget',
+EXTRA_PARAMS = ('foxglove.port', 'foxglove.host', 'record.path',
                 'contact.stacking', 'contact.sleep', 'contact.sleep_speed', 'contact.sleep_time')
 
 

@@ -439,31 +439,16 @@ def test_pair_pass_skipped_while_no_body_is_settled_or_asleep():
 
 
 def test_error_estimate_of_a_world_asleep_copies_nothing():
-    # every body asleep: the live error estimate is the one of two copies standing still
-    # (error 0), given without copying or stepping anything; a real estimate of the same
-    # world agrees; one in progress gives way to it once every body sleeps
+    # every body asleep: a step moves nothing, so the live error estimate is 0, given
+    # without saving or stepping anything; a real estimate of the same world agrees
     from sm_ros import error_estimate as EE
-    from sm_ros.stats import ErrorEstimateSchedule
     w, a, b = _two_boxes()
-    sched, now = ErrorEstimateSchedule(), [0.0]
-    sched.advance(w, H, 2, 1.0, lambda: now[0], 0.25)         # awake: copies made
-    running = sched.running
-    assert running is not None and running.units > 0 and sched.result is None
     assert _until_asleep(w, ['a', 'b'])
-    sched.advance(w, H, 2, 1.0, lambda: now[0], 0.25)
-    assert sched.running is None and sched.result is not None
-    res = sched.result
-    assert res['error_m'] == 0.0 == res['window_m'] and res['units'] == 0 == sched.units
-    assert res['steps'] == EE.window_steps(H, 2)
-    full = EE.estimate(w, H, 2)                                # copies stepped for real
-    assert full['error_m'] == 0.0 and full['steps'] == res['steps']
-    assert full['units'] > 0
-    now[0] += 1.0                                              # due again: again free
-    sched.advance(w, H, 2, 1.0, lambda: now[0], 0.25)
-    assert sched.result is not res and sched.result['error_m'] == 0.0 and sched.units == 0
-    a.wake()                         # awake: copies again, once the first's are paid for
-    for _ in range(20):
-        sched.advance(w, H, 2, 1.0, lambda: now[0] + 1.0, 0.25)
-        if sched.running is not None:
-            break
-    assert sched.running is not None and sched.running.units > 0
+    live = EE.LiveEstimate()
+    live.before_tick(w, H, 1.0, 0.0, room_s=1.0, period=1 / 60, step_s=1e-3)
+    assert live.running is None and live.result['error_m'] == 0.0
+    assert live.result['cost_s'] == 0.0
+    assert EE.estimate(w, H)['error_m'] == 0.0
+    a.wake()                                       # awake: the next one steps for real
+    live.before_tick(w, H, 1.0, 1.0, room_s=1.0, period=1 / 60, step_s=1e-3)
+    assert live.result['steps'] == EE.PIECES and live.result['cost_s'] > 0.0

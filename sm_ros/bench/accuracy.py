@@ -13,6 +13,11 @@ Five scenes, each simulated for T seconds (2 s by default) with a sweep of frame
 - ``cantilever``: a 0.6 m beam pinned at one end, sagging and swinging under gravity.
 - ``plastic_press``: a plastic cube on the ground squeezed by two kinematic jaws for 1 s,
   then released.
+- ``box_on_box``: contact between bodies: a rigid box dropped (10 cm, tilted) onto another
+  resting on the ground; the error is the dropped box's (rigid: both carry their contacts
+  as a whole at every step, the reference's too).
+- ``ball_incline``: a soft ball rolling down a 20-degree incline (an oriented box of the
+  collider pass) onto the ground.
 
 What is measured, and how it can be trusted:
 
@@ -50,7 +55,10 @@ import numpy as np
 
 from . import common as bc
 
-SCENES = ('rigid_spin', 'ballistic', 'soft_drop', 'cantilever', 'plastic_press')
+SCENES = ('rigid_spin', 'ballistic', 'soft_drop', 'cantilever', 'plastic_press',
+          'box_on_box', 'ball_incline')
+#: The scenes of the live error estimate's accuracy (``test/test_error_estimate.py``).
+ESTIMATE_SCENES = SCENES[:5]
 #: Error budgets of the "cheapest configuration" table (m).
 BUDGETS = (0.01, 0.001)
 #: Samples of the error over time (Hz); every frame rate of the sweep is a multiple.
@@ -71,6 +79,12 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument('--ref-factor', type=int, default=8,
                    help='reference step = finest step / this factor')
     p.add_argument('--duration', type=float, default=2.0, help='simulated seconds T')
+    p.add_argument('--estimate', action='store_true', help='after the sweep, the live '
+                   "error estimate's accuracy and cost (sm_ros.bench.estimate)")
+    p.add_argument('--estimate-only', action='store_true',
+                   help='only the live error estimate (no sweep)')
+    p.add_argument('--estimate-seconds', type=float, default=15.0,
+                   help='seconds of real-time ticks per scene for the estimate cost')
 
 
 # ---------------------------------------------------------------------------------------
@@ -175,7 +189,11 @@ def make_scenes(points: int) -> Dict[str, Scene]:
                 state['held'] = False
         return world, body, driver
 
+    box_build, incline_build = _contact_builds(points)
     return {
+        'box_on_box': Scene('box_on_box', box_build, rigid, ['rigid']),
+        'ball_incline': Scene('ball_incline', incline_build,
+                              {'mode': 'linear', 'alpha': 0.5, 'beta': 0.5, 'clusters': 2}),
         'rigid_spin': Scene('rigid_spin', spin_build, rigid, ['rigid'], spin_exact),
         'ballistic': Scene('ballistic', ball_build, rigid, ['rigid'], ball_exact),
         'soft_drop': Scene('soft_drop', drop_build,
@@ -187,6 +205,38 @@ def make_scenes(points: int) -> Dict[str, Scene]:
                                 'plastic_yield': 0.05, 'plastic_creep': 2.0,
                                 'plastic_max': 0.3}),
     }
+
+
+def _contact_builds(points: int):
+    """The builds of the two contact scenes (box on box, ball on an incline)."""
+    from sm_ros.core import BodyParams, Box, Ground, World
+
+    side = 0.2
+    lower = _cube(points, side, (-side / 2, -side / 2, 0.0))
+    upper = (_cube(points, side, (-side / 2, -side / 2, -side / 2)) @ _rot([0.2, 0.1, 0.0]).T
+             + [0.03, 0.0, side + side / 2 + 0.1])
+
+    def box_build(p):
+        world = World(gravity=(0.0, 0.0, -9.81))
+        world.set_colliders(ground=Ground(height=0.0, friction=0.5))
+        world.add_body(lower, 1.0 / len(lower), BodyParams(**p), name='lower')
+        body = world.add_body(upper, 1.0 / len(upper), BodyParams(**p), name='upper')
+        return world, body, None
+
+    tilt = math.radians(20.0)
+    ball = bc.cube_lattice(bc.lattice_side(2 * points), 0.16, (-0.08,) * 3)
+    ball = ball[np.linalg.norm(ball, axis=1) <= 0.08 + 1e-9]
+    normal = np.array([math.sin(tilt), 0.0, math.cos(tilt)])
+    start = np.array([-0.6, 0.0, 0.6 * math.tan(tilt)]) + 0.081 * normal
+    incline = Box(lo=(-1.0, -0.5, -0.05), hi=(1.0, 0.5, 0.0), friction=0.8,
+                  orientation=(0.0, math.sin(tilt / 2), 0.0, math.cos(tilt / 2)))
+
+    def incline_build(p):
+        world = World(gravity=(0.0, 0.0, -9.81))
+        world.set_colliders(ground=Ground(height=-0.4, friction=0.8), boxes=[incline])
+        body = world.add_body(ball + start, 1.0 / len(ball), BodyParams(**p), name='ball')
+        return world, body, None
+    return box_build, incline_build
 
 
 # ---------------------------------------------------------------------------------------
@@ -255,12 +305,20 @@ def order_of(rows: List[Dict[str, Any]]) -> Optional[float]:
 
 
 def run(args, out: Path) -> Dict[str, Any]:
-    """Sweep every scene; write tables and one plot per scene; return findings."""
+    """Sweep every scene; write tables and one plot per scene; return findings (and the
+    live error estimate's tables with ``--estimate`` / ``--estimate-only``)."""
     import numba
+    from . import estimate
     threads = numba.get_num_threads()
     numba.set_num_threads(1)                  # solver time on one thread
     try:
-        return _run(args, out)
+        only = getattr(args, 'estimate_only', False)
+        findings = {} if only else _run(args, out)
+        if only or getattr(args, 'estimate', False):
+            findings['estimate_accuracy'] = estimate.estimate_accuracy(
+                list(ESTIMATE_SCENES), args.accuracy_points, args.duration, out)
+            findings['estimate_cost'] = estimate.estimate_cost(args.estimate_seconds, out)
+        return findings
     finally:
         numba.set_num_threads(threads)
 

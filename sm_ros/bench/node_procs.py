@@ -38,8 +38,7 @@ def _node(a) -> dict:
     harness.time_ticks(node, tick_done)
 
     # the steps as the simulation times them (stats.add_step); wrapping world.step itself
-    # would be copied into the error estimate's deep copies of the world, whose steps
-    # would then step the live world
+    # would time the error estimate's steps of the world too
     stats = node.sim.stats
     add_step0 = stats.add_step
 
@@ -51,14 +50,14 @@ def _node(a) -> dict:
     stats.add_step = add_step
 
     estimates = node.sim._estimates
-    advance0 = estimates.advance
+    before_tick0 = estimates.before_tick
 
-    def advance(*args, **kwargs):
+    def before_tick(*args, **kwargs):
         t = time.perf_counter()
-        out = advance0(*args, **kwargs)
+        out = before_tick0(*args, **kwargs)
         cur['estimate'] += time.perf_counter() - t
         return out
-    estimates.advance = advance
+    estimates.before_tick = before_tick
 
     fill0 = node.cloud.fill
 
