@@ -48,9 +48,13 @@ def check_params_files(argv: Sequence[str]) -> Optional[str]:
         try:
             with open(path, encoding='utf-8') as f:
                 data = yaml.safe_load(f)
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            return f'params file {path}: invalid YAML: {first}'
+        except OSError as exc:
+            return f'params file {path}: cannot read: {exc.strerror or type(exc).__name__}'
+        except UnicodeDecodeError as exc:
+            return f'params file {path}: not UTF-8 text (byte {exc.start})'
+        except yaml.YAMLError as exc:       # where, never the file's text
+            from sm_ros.scene_spec import yaml_problem
+            return f'params file {path}: invalid YAML at {yaml_problem(exc)}'
         if not isinstance(data, dict):
             return f'params file {path}: expected a mapping of node names to ros__parameters'
     return None
