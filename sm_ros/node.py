@@ -16,6 +16,7 @@ state.
 import functools
 import os
 import sys
+import threading
 import time
 from typing import Any, Dict, List, Optional
 
@@ -34,7 +35,7 @@ from sm_ros.inputs import checked_points, InputError
 from sm_ros.outputs import Outputs
 from sm_ros.params import BY_NAME, NODE_PARAMS, Param
 from sm_ros.sim import ConfigError, Simulation  # noqa: F401 - ConfigError: for start-up
-from sm_ros.warmup import cold_start_note, warm_up
+from sm_ros import warmup
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
@@ -109,11 +110,17 @@ class SimNode(Node):
         for p in NODE_PARAMS:
             self.declare_parameter(p.name, p.default, descriptor(p))
         values = {p.name: _plain(self.get_parameter(p.name).value) for p in NODE_PARAMS}
-        note = cold_start_note()         # before the scene is built: that compiles too
+        # Numba compiles a kernel on its first call: building the scene steps a throwaway
+        # copy of it, which compiles (or loads) what this scene needs and nothing more
+        note = warmup.scene_start_note(values['scene'])
         if note:
             self.get_logger().info(note)
+        start = time.perf_counter()
         self.sim = Simulation(values, log=self.get_logger())
-        self.warm_up_s = warm_up()
+        self.warm_up_s = time.perf_counter() - start
+        self.background_warmup = None
+        if note:
+            self._start_background_warmup()
         self.outputs = Outputs(self, self.sim)      # publishers, live view, recorder
 
         self.create_subscription(WrenchStamped, 'force', self.force_callback, 10)
@@ -143,7 +150,28 @@ class SimNode(Node):
         self.get_logger().info(
             f"scene '{values['scene'] or 'default'}': {len(self.world.bodies)} bodies, "
             f'{self.num_points} points; {values["rate"]:g} Hz x {values["substeps"]} '
-            f'steps of {values["dt"]:g} s; warm-up {self.warm_up_s:.2f} s')
+            f'steps of {values["dt"]:g} s; built in {self.warm_up_s:.2f} s')
+
+    def _start_background_warmup(self) -> None:
+        """Compile the kernels this scene did not need in a niced process on one core
+        (``warmup.start_background``); log when it is done."""
+        extra = warmup.start_background()
+        if extra is None:
+            return
+        self.background_warmup = extra
+        start = time.monotonic()
+
+        def wait():
+            code = warmup.finish_background(extra)
+            if code == 0:
+                self.get_logger().info(
+                    f'background warm-up done in {time.monotonic() - start:.0f} s: every '
+                    'solver kernel is in the Numba cache')
+            elif code is not None:
+                self.get_logger().warn(
+                    f'background warm-up failed (exit status {code}): kernels compile when '
+                    'first used')
+        threading.Thread(target=wait, name='sm_ros warm-up', daemon=True).start()
 
     # ------------------------------------------------------------------ the simulation's state
 
@@ -179,7 +207,15 @@ class SimNode(Node):
         if path and os.path.exists(path):
             return SetParametersResult(successful=False, reason=(
                 f"record.path: '{path}' exists already (recordings are never overwritten)"))
+        scene = changes.get('scene')
+        if scene is not None and warmup.cold_kernels():
+            self.get_logger().info(f"scene '{scene or 'default'}': compiling the kernels it "
+                                   'needs (Numba cache not warm yet): this takes seconds')
+        start = time.perf_counter()
         reason = self.sim.check(changes)
+        if scene is not None and not reason:
+            self.get_logger().info(f"scene '{scene or 'default'}' built in "
+                                   f'{time.perf_counter() - start:.1f} s')
         if reason:
             return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
@@ -244,8 +280,11 @@ class SimNode(Node):
         return self.outputs.stop_recording()
 
     def destroy_node(self):
-        """Close the recording (a readable file) and the live view, then the node."""
+        """Close the recording (a readable file) and the live view, stop a background
+        warm-up (the cache keeps what it compiled), then the node."""
         self.outputs.close()
+        if self.background_warmup is not None:
+            warmup.stop_background(self.background_warmup)
         return super().destroy_node()
 
     # ------------------------------------------------------------------ inputs

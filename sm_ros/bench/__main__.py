@@ -10,6 +10,8 @@ Subcommands (each writes markdown + CSV tables and PNG plots into ``--out``):
 - ``node``      the ROS node publishing clouds at 30/60 Hz (needs rclpy);
 - ``soak``      hands over to ``sm_ros.bench.soak:main`` (the soak test);
 - ``contact``   body-body contact against scipy's cKDTree (``sm_ros.bench.contact``);
+- ``startup``   seconds to sim_node's first cloud, cold and warm, and the full warm-up
+  (``sm_ros.bench.startup``);
 - ``all``       scaling + accuracy + node (the default).
 
 ``targets.md`` lists the issue's targets with the figures this run measured.
@@ -49,6 +51,8 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser('soak', help='long-running soak test (sm_ros.bench.soak)', add_help=False)
     sub.add_parser('contact', help='body-body contact against cKDTree (sm_ros.bench.contact)',
                    add_help=False)
+    sub.add_parser('startup', help='first cloud cold and warm, full warm-up '
+                                   '(sm_ros.bench.startup)', add_help=False)
     return p
 
 
@@ -65,6 +69,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     if argv[:1] == ['contact']:
         from . import contact
         return contact.main(argv[1:])
+    if argv[:1] == ['startup']:
+        from . import startup
+        return startup.main(argv[1:])
     if not argv or argv[0] not in ('scaling', 'accuracy', 'node', 'material', 'all', '-h',
                                    '--help'):
         argv = ['all'] + argv
