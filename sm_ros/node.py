@@ -88,6 +88,15 @@ def guarded(topic: str):
     return wrap
 
 
+def _dds_note() -> str:
+    """The start-up line's note on the packaged DDS profile, when ``startup.run`` set it."""
+    from sm_ros import startup
+    if startup.DDS_PROFILE is None:
+        return ''
+    return (f'; DDS: the packaged Fast DDS profile {startup.DDS_PROFILE} (large clouds over '
+            'shared memory; FASTRTPS_DEFAULT_PROFILES_FILE was unset)')
+
+
 class SimNode(Node):
     """
     The simulation node (doc/interface.md).
@@ -150,7 +159,7 @@ class SimNode(Node):
         self.get_logger().info(
             f"scene '{values['scene'] or 'default'}': {len(self.world.bodies)} bodies, "
             f'{self.num_points} points; {values["rate"]:g} Hz x {values["substeps"]} '
-            f'steps of {values["dt"]:g} s; built in {self.warm_up_s:.2f} s')
+            f'steps of {values["dt"]:g} s; built in {self.warm_up_s:.2f} s' + _dds_note())
 
     def _start_background_warmup(self) -> None:
         """Compile the kernels this scene did not need in a niced process on one core

@@ -180,3 +180,100 @@ def test_the_start_up_watchdog_stops_a_running_second_warm_up(monkeypatch):
     monkeypatch.setattr(warmup, '_warm_up', body)
     assert warmup.warm_up() >= 0.0
     assert len(procs) == 1 and warmup._HELPERS == []
+
+
+BIG_SCENE = """
+bodies:
+  - name: slab
+    shape: box
+    size: [0.975, 0.975, 0.85]     # 40 x 40 x 35 = 56,000 particles: a 896 KB cloud
+    spacing: 0.025
+    mass: 2.0
+    position: [0.0, 0.0, 0.5]
+"""
+
+
+def _shm_segments(pid):
+    """Sizes of the Fast DDS shared-memory segments mapped by process ``pid``."""
+    sizes = {}
+    with open(f'/proc/{pid}/maps') as f:
+        for line in f:
+            path = line.split()[-1]
+            if path.startswith('/dev/shm/fastrtps_') and not path.endswith('_el'):
+                sizes[path] = os.stat(path).st_size
+    return sorted(sizes.values())
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not os.path.isdir('/dev/shm'), reason='Fast DDS shared memory needs '
+                    '/dev/shm (Linux)')
+def test_a_large_cloud_goes_out_over_the_packaged_profile_to_a_plain_subscriber(warm,
+                                                                                tmp_path):
+    """With no DDS profile chosen, sim_node's participant takes config/fastdds_shm.xml (its
+    256 MiB shared-memory segment, mapped by the node) and says so; a subscriber in this
+    process, which sets nothing, receives the 56,000-point (896 KB) cloud whole."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from sensor_msgs.msg import PointCloud2
+    scene = _write(tmp_path / 'big.yaml', BIG_SCENE)
+    domain = random.randint(201, 230)
+    env = {k: v for k, v in os.environ.items()
+           if k not in ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE',
+                        'FASTDDS_BUILTIN_TRANSPORTS')}
+    env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    node = Node('probe', context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    got = []
+    node.create_subscription(PointCloud2, '/points', got.append, 10)
+    proc = subprocess.Popen(sim_node_cmd('--ros-args', '-p', f'scene:={scene}', '-p',
+                                         'rate:=10.0'), env=env, cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 180
+        while len(got) < 3 and time.monotonic() < deadline and proc.poll() is None:
+            ex.spin_once(timeout_sec=0.05)
+        segments = _shm_segments(proc.pid) if proc.poll() is None else []
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    assert got, f'no cloud from sim_node: {err[-2000:]}'
+    assert got[-1].width * got[-1].height == 56_000
+    assert len(got[-1].data) == 56_000 * got[-1].point_step > 512 * 1024
+    assert segments and segments[-1] >= 256 * 1024 * 1024, segments
+    assert 'DDS: the packaged Fast DDS profile' in out + err
+    assert 'fastdds_shm.xml' in out + err
+
+
+def test_the_packaged_profile_never_overrides_a_users_choice(tmp_path, monkeypatch):
+    """A profile variable, a transport choice, a default profile file in the working
+    directory or another RMW: the environment is left as it is."""
+    from sm_ros.startup import packaged_dds_profile, use_packaged_dds_profile
+    monkeypatch.chdir(tmp_path)
+    path = packaged_dds_profile()
+    assert path is not None and path.endswith('fastdds_shm.xml') and os.path.isfile(path)
+    env = {}
+    assert use_packaged_dds_profile(env) == path
+    assert env == {'FASTRTPS_DEFAULT_PROFILES_FILE': path}
+    env = {'RMW_IMPLEMENTATION': 'rmw_fastrtps_cpp'}
+    assert use_packaged_dds_profile(env) == path
+    for chosen in ({'FASTRTPS_DEFAULT_PROFILES_FILE': '/mine.xml'},
+                   {'FASTDDS_DEFAULT_PROFILES_FILE': '/mine.xml'},
+                   {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'},
+                   {'RMW_IMPLEMENTATION': 'rmw_cyclonedds_cpp'}):
+        env = dict(chosen)
+        assert use_packaged_dds_profile(env) is None
+        assert env == chosen
+    (tmp_path / 'DEFAULT_FASTRTPS_PROFILES.xml').write_text('<profiles/>')
+    env = {}
+    assert use_packaged_dds_profile(env) is None and env == {}
