@@ -12,6 +12,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 pytest.importorskip('rclpy', reason='ROS 2 wheels not installed (pip install -e .[ros])')
@@ -277,3 +278,48 @@ def test_the_packaged_profile_never_overrides_a_users_choice(tmp_path, monkeypat
     (tmp_path / 'DEFAULT_FASTRTPS_PROFILES.xml').write_text('<profiles/>')
     env = {}
     assert use_packaged_dds_profile(env) is None and env == {}
+
+
+@pytest.mark.slow
+def test_node_killed_mid_recording_leaves_files_every_reader_opens_unrepaired(warm, tmp_path):
+    """SIGKILL sim_node while it records (record.split_s 1 s): rosbags reads the files
+    metadata.yaml lists as they are, every tick's cloud once and in order, and the mcap
+    reader finds each file's summary; only the file open at the kill is left out."""
+    pytest.importorskip('mcap', reason="recording needs the 'record' extra")
+    pytest.importorskip('rosbags', reason='the recording is read with rosbags')
+    import yaml
+    from mcap.reader import make_reader
+    from test_node_outputs import NODE_SCENE, rosbags_messages
+    scene = _write(tmp_path / 'box.yaml', NODE_SCENE)
+    bag = tmp_path / 'killed'
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(201, 230)))
+    proc = subprocess.Popen(sim_node_cmd('--ros-args', '-p', f'scene:={scene}', '-p',
+                                         f'record.path:={bag}', '-p', 'record.split_s:=1.0'),
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 90.0
+        listed = []
+        while time.monotonic() < deadline and len(listed) < 3:
+            time.sleep(0.1)
+            assert proc.poll() is None, proc.stderr.read().decode()
+            try:
+                info = yaml.safe_load((bag / 'metadata.yaml').read_text())
+                listed = info['rosbag2_bagfile_information']['relative_file_paths']
+            except (OSError, TypeError, KeyError):
+                pass
+        assert len(listed) >= 3, 'the node finished no recording file'
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert len(list(bag.glob('*.mcap'))) == len(info['relative_file_paths']) + 1
+    msgs = rosbags_messages(bag)
+    assert len(msgs) == info['message_count']
+    clouds = [m for t, _, m in msgs if t == '/points']
+    assert len(clouds) >= 60 and all(c.width == 216 for c in clouds)
+    stamps = [c.header.stamp.sec * 10 ** 9 + c.header.stamp.nanosec for c in clouds]
+    assert stamps == sorted(stamps) and len(set(np.diff(stamps))) == 1   # every tick, once
+    for entry in info['files']:
+        with open(bag / entry['path'], 'rb') as f:
+            summary = make_reader(f).get_summary()
+        assert summary.statistics.message_count == entry['message_count'] > 0

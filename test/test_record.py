@@ -209,16 +209,17 @@ def test_killed_recorder_leaves_every_finished_file_readable_without_repair(tmp_
     proc = subprocess.Popen([sys.executable, '-c', CHILD, str(bag)], env=env)
     try:
         deadline = time.monotonic() + 60.0
-        listed = []
-        while time.monotonic() < deadline and len(listed) < 2:
+        listed, flushed = [], 0
+        while time.monotonic() < deadline and (len(listed) < 2 or flushed < 10):
             time.sleep(0.05)
             try:
                 meta = yaml.safe_load((bag / 'metadata.yaml').read_text())
                 listed = meta['rosbag2_bagfile_information']['relative_file_paths']
-            except (OSError, TypeError, KeyError):
+                custom = meta['rosbag2_bagfile_information']['custom_data']
+                flushed = int(custom['open_file_messages']) if len(listed) >= 2 else 0
+            except (OSError, TypeError, KeyError, ValueError):
                 pass
-        assert len(listed) >= 2, 'the recorder never finished a file'
-        time.sleep(0.3)                    # into the next file
+        assert len(listed) >= 2 and flushed >= 10, 'the recorder never finished a file'
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait(10)
