@@ -323,3 +323,25 @@ def test_node_killed_mid_recording_leaves_files_every_reader_opens_unrepaired(wa
         with open(bag / entry['path'], 'rb') as f:
             summary = make_reader(f).get_summary()
         assert summary.statistics.message_count == entry['message_count'] > 0
+
+
+def test_a_scene_switch_on_a_cold_cache_says_it_compiles_and_how_long_it_took(
+        ros, monkeypatch, tmp_path):
+    """While the cache is not warm yet, switching scenes logs that the new scene's kernels
+    compile, then how long the scene took to build; on a warm cache only the second."""
+    from rcl_interfaces.msg import Log
+    from rclpy.parameter import Parameter
+    from sm_ros import warmup
+    node = ros.start(_write(tmp_path / 'a.yaml', BIG_SCENE.replace('0.975, 0.975, 0.85',
+                                                                   '0.1, 0.1, 0.1')))
+    logs = ros.subscribe(Log, '/rosout')
+    for cold, name in ((5, 'b'), (0, 'c')):
+        monkeypatch.setattr(warmup, 'cold_kernels', lambda answer=cold: answer)
+        path = _write(tmp_path / f'{name}.yaml', BIG_SCENE.replace('0.975, 0.975, 0.85',
+                                                                   '0.2, 0.1, 0.1'))
+        assert node.set_parameters([Parameter('scene', value=path)])[0].successful
+        assert ros.spin_until(lambda p=path: any(f"scene '{p}' built in" in m.msg
+                                                 for m in logs))
+        compiling = [m.msg for m in logs if f"scene '{path}': compiling the kernels it needs"
+                     in m.msg]
+        assert len(compiling) == (1 if cold else 0)
