@@ -88,11 +88,19 @@ def first_cloud_seconds(cmd: List[str], env: Dict[str, str], timeout: float
 
 
 def warmup_seconds(env: Dict[str, str], timeout: float) -> Tuple[float, int]:
-    """Run ``python -m sm_ros.warmup``; return (wall seconds, exit code)."""
+    """Run ``python -m sm_ros.warmup``; return (wall seconds, exit code), (nan, -9) when it
+    ran past ``timeout`` (then it and its second process are killed)."""
     t0 = time.monotonic()
-    proc = subprocess.run([sys.executable, '-m', 'sm_ros.warmup'], env=env,
-                          stdin=subprocess.DEVNULL, capture_output=True, timeout=timeout)
-    return time.monotonic() - t0, proc.returncode
+    proc = subprocess.Popen([sys.executable, '-m', 'sm_ros.warmup'], env=env,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        code = proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+        return float('nan'), -9
+    return time.monotonic() - t0, code
 
 
 def _node(env: Dict[str, str], args, label: str, results: Dict) -> None:
