@@ -65,7 +65,7 @@ def first_cloud_seconds(cmd: List[str], env: Dict[str, str], timeout: float
     err = tempfile.TemporaryFile()
     t0 = time.monotonic()
     proc = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL,
-                            stdout=subprocess.DEVNULL, stderr=err)
+                            stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
     try:
         while not got and time.monotonic() - t0 < timeout and proc.poll() is None:
             executor.spin_once(timeout_sec=0.01)
@@ -76,7 +76,7 @@ def first_cloud_seconds(cmd: List[str], env: Dict[str, str], timeout: float
         try:
             proc.wait(timeout=30)
         except subprocess.TimeoutExpired:
-            proc.kill()
+            os.killpg(proc.pid, signal.SIGKILL)       # with its background warm-up
             proc.wait()
         executor.shutdown()
         node.destroy_node()
