@@ -44,10 +44,23 @@ def _env(cache: Optional[str]) -> Dict[str, str]:
     return env
 
 
+def _cpu_seconds(pid: int) -> float:
+    """CPU seconds (user + system) process ``pid`` has used so far (Linux; nan elsewhere).
+    On a loaded machine the wall time of a compile grows with the load, its CPU time not:
+    on an idle one the two are about equal (compiling takes one core)."""
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            fields = f.read().rsplit(')', 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+    except (OSError, ValueError, IndexError):
+        return float('nan')
+
+
 def first_cloud_seconds(cmd: List[str], env: Dict[str, str], timeout: float
-                        ) -> Tuple[float, int, str]:
+                        ) -> Tuple[float, float, int, str]:
     """Start ``cmd``; return (seconds to the first PointCloud2 on /points (nan if none),
-    the exit code after SIGINT, the end of its stderr)."""
+    the CPU seconds the node had used then, the exit code after SIGINT, the end of its
+    stderr)."""
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -70,6 +83,7 @@ def first_cloud_seconds(cmd: List[str], env: Dict[str, str], timeout: float
         while not got and time.monotonic() - t0 < timeout and proc.poll() is None:
             executor.spin_once(timeout_sec=0.01)
         elapsed = got[0] - t0 if got else float('nan')
+        cpu = _cpu_seconds(proc.pid) if got else float('nan')
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
@@ -84,30 +98,38 @@ def first_cloud_seconds(cmd: List[str], env: Dict[str, str], timeout: float
         err.seek(0)
         tail = err.read().decode(errors='replace')[-2000:]
         err.close()
-    return elapsed, proc.returncode, tail
+    return elapsed, cpu, proc.returncode, tail
 
 
-def warmup_seconds(env: Dict[str, str], timeout: float) -> Tuple[float, int]:
-    """Run ``python -m sm_ros.warmup``; return (wall seconds, exit code), (nan, -9) when it
-    ran past ``timeout`` (then it and its second process are killed)."""
+def warmup_seconds(env: Dict[str, str], timeout: float) -> Tuple[float, float, int]:
+    """Run ``python -m sm_ros.warmup``; return (wall seconds, CPU seconds of it and its
+    second process, exit code); (nan, nan, -9) when it ran past ``timeout`` (then both
+    are killed)."""
     t0 = time.monotonic()
     proc = subprocess.Popen([sys.executable, '-m', 'sm_ros.warmup'], env=env,
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        code = proc.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
-        return float('nan'), -9
-    return time.monotonic() - t0, code
+    while proc.returncode is None:
+        done, status, usage = os.wait4(proc.pid, os.WNOHANG)
+        if done:
+            proc.returncode = os.waitstatus_to_exitcode(status)
+            return (time.monotonic() - t0, usage.ru_utime + usage.ru_stime,
+                    proc.returncode)
+        if time.monotonic() - t0 > timeout:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+            return float('nan'), float('nan'), -9
+        time.sleep(0.1)
+    return time.monotonic() - t0, float('nan'), proc.returncode
 
 
 def _node(env: Dict[str, str], args, label: str, results: Dict) -> None:
     cmd = [sys.executable, '-m', 'sm_ros.node', *args.node_args]
-    seconds, code, tail = first_cloud_seconds(cmd, env, args.timeout)
+    seconds, cpu, code, tail = first_cloud_seconds(cmd, env, args.timeout)
     results.setdefault(label, []).append(seconds)
-    print(f'{label}: first cloud after {seconds:.2f} s (exit code {code})', flush=True)
+    results.setdefault(f'{label} cpu', []).append(cpu)
+    print(f'{label}: first cloud after {seconds:.2f} s (exit code {code}; the node had used '
+          f'{cpu:.1f} CPU s)', flush=True)
     if seconds != seconds:
         sys.stderr.write(tail)
 
@@ -123,9 +145,11 @@ def run(args) -> Dict:
     full = tempfile.mkdtemp(prefix='sm_ros_numba_full_')
     try:
         _node(_env(cold), args, 'cold', results)
-        seconds, code = warmup_seconds(_env(full), args.timeout)
+        seconds, cpu, code = warmup_seconds(_env(full), args.timeout)
         results['full warm-up'] = [seconds]
-        print(f'full warm-up: {seconds:.1f} s (exit code {code})', flush=True)
+        results['full warm-up cpu'] = [cpu]
+        print(f'full warm-up: {seconds:.1f} s (exit code {code}; {cpu:.1f} CPU s in its two '
+              'processes)', flush=True)
         for _ in range(args.runs):
             _node(_env(full), args, 'warm', results)
     finally:
@@ -162,4 +186,4 @@ def main(argv: Optional[List[str]] = None) -> int:
         (out / 'startup.json').write_text(json.dumps(
             {'command': 'python -m sm_ros.bench startup ' + ' '.join(argv or sys.argv[1:]),
              'machine': m, 'seconds': results}, indent=1, default=str))
-    return 0 if all(s == s for v in results.values() for s in v) else 1
+    return 0 if all(s == s for k, v in results.items() if 'cpu' not in k for s in v) else 1
