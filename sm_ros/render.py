@@ -167,25 +167,16 @@ def _cloud_columns(msg) -> np.ndarray:
     return np.frombuffer(bytes(msg.data), dtype=dtype, count=n)
 
 
-def load_recording(bag: str, seconds: Optional[float] = None, fps: float = 10.0,
-                   max_draw: int = 4000, topic: Optional[str] = None,
-                   seed: int = 0) -> Recording:
-    """
-    Read the point clouds of a recording into a Recording (no simulation, no ROS).
-
-    Decoding uses the message definitions stored in the file (``mcap_ros2``); a recording
-    cut short by a crash is read up to its last complete chunk.
-    """
+def _cloud_records(bag: str, seconds: Optional[float], fps: float, topic: Optional[str]):
+    """Return ([(publish time, schema, CDR bytes)] of the clouds on ``topic`` (default: the
+    first cloud topic) at ``fps`` for ``seconds``, the topic), file after file."""
     from mcap.records import Channel, Message, Schema
     from mcap.stream_reader import StreamReader
-    from mcap_ros2.decoder import DecoderFactory
     from sm_ros.record import mcap_paths
-    factory = DecoderFactory()
     frames_raw = []
     t0 = None
     period = 1e9 / fps
     next_t = None
-    done = False
     for path in mcap_paths(bag):            # a recording split into files, in order
         schemas, channels = {}, {}          # ids are per file
         with open(path, 'rb') as f:
@@ -209,15 +200,27 @@ def load_recording(bag: str, seconds: Optional[float] = None, fps: float = 10.0,
                         if t0 is None:
                             t0 = next_t = t
                         if seconds is not None and t - t0 > seconds * 1e9 + 1:
-                            done = True
-                            break
+                            return frames_raw, topic
                         if t + 1 >= next_t:
                             frames_raw.append((t, sc, rec.data))
                             next_t += period * max(1, int((t - next_t) // period) + 1)
             except Exception:  # noqa: BLE001 - a file cut short: keep what was read
                 pass
-        if done:
-            break
+    return frames_raw, topic
+
+
+def load_recording(bag: str, seconds: Optional[float] = None, fps: float = 10.0,
+                   max_draw: int = 4000, topic: Optional[str] = None,
+                   seed: int = 0) -> Recording:
+    """
+    Read the point clouds of a recording into a Recording (no simulation, no ROS).
+
+    Decoding uses the message definitions stored in the file (``mcap_ros2``); a recording
+    cut short by a crash is read up to its last complete chunk.
+    """
+    from mcap_ros2.decoder import DecoderFactory
+    factory = DecoderFactory()
+    frames_raw, topic = _cloud_records(bag, seconds, fps, topic)
     if not frames_raw:
         raise ValueError(f'{bag}: no PointCloud2 messages'
                          + (f" on '{topic}'" if topic else ''))

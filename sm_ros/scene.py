@@ -25,15 +25,14 @@ from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
 
 import numpy as np
-import yaml
 
 from sm_ros import params, point_files, shapes
 from sm_ros.scene_build import (add_spec_body, body_contact_from, build_world,  # noqa: F401
                                 cloud_body_spec, contact_from, core_colliders, DEFAULT_MASS,
                                 ground_from, params_from)
 from sm_ros.scene_spec import (BodyMeta, BodySpec, CONTACT_SCENE_KEYS, fmt as _fmt,  # noqa: F401
-                               kind as _kind, SceneError, SceneSpec, Where as _Where,
-                               yaml_lines, yaml_problem)
+                               kind as _kind, read_yaml, SceneError, SceneSpec,
+                               Where as _Where)
 from sm_ros.shapes import GeometryError, Surface
 
 SHAPES = ('box', 'sphere', 'cylinder', 'capsule', 'sheet', 'rope', 'mesh', 'cloud')
@@ -129,29 +128,7 @@ def load_scene(name_or_path: Union[str, Path] = '') -> SceneSpec:
     path = resolve_scene(name_or_path)
     given = str(name_or_path).strip()
     label = str(path) if (not given or not Path(given).expanduser().is_file()) else given
-    try:
-        if path.stat().st_size > MAX_SCENE_BYTES:
-            raise SceneError(f'{label}: is larger than {MAX_SCENE_BYTES >> 20} MiB: not a '
-                             'scene file')
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise SceneError(f'{label}: cannot read: {exc.strerror or type(exc).__name__}') \
-            from None
-    try:
-        text = raw.decode('utf-8')
-    except UnicodeDecodeError as exc:
-        raise SceneError(f'{label}: is not UTF-8 text (byte {exc.start}): not a scene '
-                         'file') from None
-    try:
-        loader = yaml.SafeLoader(text)
-        try:
-            node = loader.get_single_node()
-            data = None if node is None else loader.construct_document(node)
-        finally:
-            loader.dispose()
-    except yaml.YAMLError as exc:
-        raise SceneError(f'{label}: invalid YAML at {yaml_problem(exc)}') from None
-    lines = {} if node is None else yaml_lines(node)
+    data, lines = read_yaml(path, label, MAX_SCENE_BYTES)
     return parse_scene(data, label, path.resolve().parent, lines=lines)
 
 
@@ -535,12 +512,12 @@ def _pinned(w: _Where, raw: Any, points: np.ndarray, offset: np.ndarray) -> np.n
 def _parse_body(top: _Where, base: Path, index: int, raw: Any) -> List[BodySpec]:
     """Validate and build one body entry (several with ``copies``)."""
     at = f'bodies[{index}]'
-    pre = _Where(top.source, f'#{index}', top.lines, at)
     if not isinstance(raw, dict):
         raise top.error(at, f'must be a mapping, got {_kind(raw)}')
     name = raw.get('name', f'body{index}')
     if not isinstance(name, str) or not name.strip() or any(c.isspace() for c in name):
-        raise pre.error('name', f'must be a non-empty string without spaces, got {_fmt(name)}')
+        raise _Where(top.source, f'#{index}', top.lines, at).error(
+            'name', f'must be a non-empty string without spaces, got {_fmt(name)}')
     w = _Where(top.source, name, top.lines, at)
     shape = raw.get('shape')
     if shape is None:

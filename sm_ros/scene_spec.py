@@ -182,6 +182,39 @@ def yaml_problem(exc: Exception) -> str:
     return f'line {mark.line + 1}, column {mark.column + 1}: {problem}'
 
 
+def read_yaml(path, label: str, max_bytes: int):
+    """
+    Return (data, lines) of a YAML file: the parsed document and :func:`yaml_lines` of it.
+
+    Raises SceneError naming ``label`` for a file larger than ``max_bytes``, unreadable,
+    not UTF-8 or not YAML, with the place of the fault and never the file's text.
+    """
+    import yaml
+    try:
+        if path.stat().st_size > max_bytes:
+            raise SceneError(f'{label}: is larger than {max_bytes >> 20} MiB: not a scene '
+                             'file')
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise SceneError(f'{label}: cannot read: {exc.strerror or type(exc).__name__}') \
+            from None
+    try:
+        text = raw.decode('utf-8')
+    except UnicodeDecodeError as exc:
+        raise SceneError(f'{label}: is not UTF-8 text (byte {exc.start}): not a scene '
+                         'file') from None
+    try:
+        loader = yaml.SafeLoader(text)
+        try:
+            node = loader.get_single_node()
+            data = None if node is None else loader.construct_document(node)
+        finally:
+            loader.dispose()
+    except yaml.YAMLError as exc:
+        raise SceneError(f'{label}: invalid YAML at {yaml_problem(exc)}') from None
+    return data, ({} if node is None else yaml_lines(node))
+
+
 class Where:
     """Builds error messages: '<file>: line <n>: body '<name>': <key> <reason>'.
 
