@@ -157,11 +157,13 @@ def stop_background(extra) -> None:
 
 
 def _background() -> int:
-    """The background warm-up: lowest priority, one core, every kernel, then the stamp."""
+    """The background warm-up: lowest priority (nice 19 and, on Linux, the idle scheduling
+    class: it runs only on a core nothing else wants), one core, every kernel, the stamp."""
     try:
         os.nice(19)
         cpus = sorted(os.sched_getaffinity(0))
         os.sched_setaffinity(0, {cpus[-1]})
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
     except (AttributeError, OSError):
         pass                       # the priority is a courtesy: warm up all the same
     warm_up(split=False)

@@ -118,20 +118,21 @@ done = []
 warmup.warm_up = lambda **kw: done.append(kw)
 warmup.warm_scene = lambda name: done.append(name)
 assert warmup.main(['--background']) == 0
-print(os.getpriority(os.PRIO_PROCESS, 0), len(os.sched_getaffinity(0)), done)
+print(os.getpriority(os.PRIO_PROCESS, 0), len(os.sched_getaffinity(0)),
+      os.sched_getscheduler(0) == os.SCHED_IDLE, done)
 '''
 
 
 @pytest.mark.skipif(not hasattr(os, 'sched_getaffinity'), reason='needs Linux affinity')
 def test_background_warm_up_runs_niced_on_one_core_and_warms_everything(tmp_path):
     """``python -m sm_ros.warmup --background`` (what a node on a cold cache starts) lowers
-    its own priority to 19 and keeps to one core, then runs the whole warm-up in this one
-    process (no split) and the default scene."""
+    its own priority to 19 in the idle scheduling class and keeps to one core, then runs
+    the whole warm-up in this one process (no split) and the default scene."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     out = subprocess.run([sys.executable, '-c', BACKGROUND_PROBE], cwd=tmp_path, env=env,
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "19 1 [{'split': False}, 'default']"
+    assert out.stdout.strip() == "19 1 True [{'split': False}, 'default']"
 
 
 def test_start_background_runs_with_the_nodes_thread_count_and_can_be_stopped(monkeypatch):
