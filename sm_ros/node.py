@@ -107,7 +107,8 @@ class SimNode(Node):
     """
 
     def __init__(self, node_name: str = NODE_NAME, *, paused: bool = False, **kwargs):
-        """Declare the parameters, build the simulation, create the interfaces, warm up."""
+        """Declare the parameters, build the simulation (compiling what its scene needs),
+        start the background warm-up on a cold cache, create the interfaces."""
         super().__init__(node_name, **kwargs)
         self.paused = paused
         self.timer_calls = 0
