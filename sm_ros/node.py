@@ -97,6 +97,61 @@ def _dds_note() -> str:
             'shared memory; FASTRTPS_DEFAULT_PROFILES_FILE was unset)')
 
 
+class InitialCloud:
+    """
+    The scene's particles at rest, published on ``points`` a few times a second while the
+    solver compiles what the scene needs (a cold Numba cache: tens of seconds), so that a
+    new user sees the scene at once; the simulation's own publisher takes over when it is
+    built. Its stamp is simulation time 0; the first simulated cloud comes after it.
+    """
+
+    PERIOD_S = 0.25
+
+    def __init__(self, node: Node, cloud: PointCloud2):
+        """Publish ``cloud`` from a thread until :meth:`stop`."""
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        self.node = node
+        self.cloud = cloud
+        self.publisher = node.create_publisher(
+            PointCloud2, 'points', QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
+        self.sent = 0
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._run, name='sm_ros initial cloud',
+                                        daemon=True)
+        self._thread.start()
+
+    @classmethod
+    def start(cls, node: Node, values: Dict[str, Any]) -> Optional['InitialCloud']:
+        """Load the scene and start publishing it; None when it cannot be loaded (the
+        simulation then reports why)."""
+        try:
+            from sm_ros.cloud import CloudBuffer
+            from sm_ros.scene import load_scene
+            spec = load_scene(values['scene'])
+            cloud = CloudBuffer(values['frame_id']).fill([b.points for b in spec.bodies])
+        except Exception:  # noqa: B902 - the simulation's build reports a bad scene
+            return None
+        node.get_logger().info(f"publishing scene '{values['scene'] or 'default'}' at rest "
+                               'on points until the solver is compiled')
+        return cls(node, cloud)
+
+    def _run(self) -> None:
+        while True:
+            try:
+                self.publisher.publish(self.cloud)
+                self.sent += 1
+            except Exception:  # noqa: B902 - a context shut down by Ctrl-C: stop quietly
+                return
+            if self._done.wait(self.PERIOD_S):
+                return
+
+    def stop(self) -> None:
+        """Stop publishing and remove the publisher."""
+        self._done.set()
+        self._thread.join()
+        self.node.destroy_publisher(self.publisher)
+
+
 class SimNode(Node):
     """
     The simulation node (doc/interface.md).
@@ -123,10 +178,16 @@ class SimNode(Node):
         # Numba compiles a kernel on its first call: building the scene steps a throwaway
         # copy of it, which compiles (or loads) what this scene needs and nothing more
         note = warmup.scene_start_note(values['scene'])
+        initial = None
         if note:
             self.get_logger().info(note)
+            initial = InitialCloud.start(self, values)
         start = time.perf_counter()
-        self.sim = Simulation(values, log=self.get_logger())
+        try:
+            self.sim = Simulation(values, log=self.get_logger())
+        finally:
+            if initial is not None:
+                initial.stop()
         self.warm_up_s = time.perf_counter() - start
         self.background_warmup = None
         if note:

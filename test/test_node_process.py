@@ -345,3 +345,31 @@ def test_a_scene_switch_on_a_cold_cache_says_it_compiles_and_how_long_it_took(
         compiling = [m.msg for m in logs if f"scene '{path}': compiling the kernels it needs"
                      in m.msg]
         assert len(compiling) == (1 if cold else 0)
+
+
+def test_the_scene_at_rest_is_published_while_the_solver_compiles(ros, monkeypatch, tmp_path):
+    """On a cold cache the node publishes its scene's particles at rest (stamp 0) on
+    ``points`` while the simulation is built (here a build held 1.5 s, as a compile), then
+    removes that publisher: the simulation's own one is the only one left."""
+    from sensor_msgs.msg import PointCloud2
+    from sm_ros import node as node_module, warmup
+    from sm_ros.cloud import read_xyz
+    from sm_ros.scene import load_scene
+    monkeypatch.setattr(warmup, 'cold_kernels', lambda: 5)
+    monkeypatch.setattr(warmup, 'start_background', lambda: None)
+    real = node_module.Simulation
+
+    def compiling(*args, **kwargs):
+        time.sleep(1.5)
+        return real(*args, **kwargs)
+    monkeypatch.setattr(node_module, 'Simulation', compiling)
+    scene = _write(tmp_path / 'a.yaml', BIG_SCENE.replace('0.975, 0.975, 0.85',
+                                                          '0.1, 0.1, 0.1'))
+    got = ros.subscribe(PointCloud2, 'points')
+    node = ros.start(scene)
+    assert ros.spin_until(lambda: len(got) >= 2)
+    want = np.concatenate([b.points for b in load_scene(scene).bodies]).astype(np.float32)
+    for msg in got:
+        assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (0, 0)
+        assert np.array_equal(read_xyz(msg).astype(np.float32), want)
+    assert node.count_publishers(f'{ros.namespace}/points') == 1

@@ -5,8 +5,10 @@ Three figures, each from a separate process:
 
 - **cold**: ``sim_node`` on an empty Numba cache (``NUMBA_CACHE_DIR`` pointed at a new
   temporary folder, which Numba honours): seconds from the process start to the first
-  PointCloud2 on ``/points`` seen by a subscriber in this process (the node compiles what
-  its scene needs, then starts the background warm-up of the rest);
+  PointCloud2 on ``/points`` seen by a subscriber in this process (the scene at rest,
+  published while the solver compiles) and to the first simulated one (stamped after
+  time 0: the node compiled what its scene needs; then it starts the background warm-up
+  of the rest);
 - **full warm-up**: ``python -m sm_ros.warmup`` on another empty cache: every kernel
   (what ``make test`` and ``ros2 run sm_ros warmup`` do);
 - **warm**: ``sim_node`` again on the cache the full warm-up filled (``--runs`` times).
@@ -57,10 +59,11 @@ def _cpu_seconds(pid: int) -> float:
 
 
 def first_cloud_seconds(cmd: List[str], env: Dict[str, str], timeout: float
-                        ) -> Tuple[float, float, int, str]:
-    """Start ``cmd``; return (seconds to the first PointCloud2 on /points (nan if none),
-    the CPU seconds the node had used then, the exit code after SIGINT, the end of its
-    stderr)."""
+                        ) -> Tuple[float, float, float, int, str]:
+    """Start ``cmd``; return (seconds to the first PointCloud2 on /points, to the first
+    one stamped after simulation time 0 (a simulated one; on a cold cache the scene at
+    rest comes first), nan if none; the CPU seconds the node had used at the simulated
+    one, the exit code after SIGINT, the end of its stderr)."""
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -72,18 +75,23 @@ def first_cloud_seconds(cmd: List[str], env: Dict[str, str], timeout: float
     node = Node('startup_probe', context=ctx)
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(node)
-    got = []
-    node.create_subscription(PointCloud2, '/points', lambda m: got.append(time.monotonic()),
-                             QoSProfile(depth=1))
+    got, moved = [], []
+
+    def on_cloud(msg):
+        got.append(time.monotonic())
+        if msg.header.stamp.sec or msg.header.stamp.nanosec:
+            moved.append(got[-1])
+    node.create_subscription(PointCloud2, '/points', on_cloud, QoSProfile(depth=1))
     err = tempfile.TemporaryFile()
     t0 = time.monotonic()
     proc = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL,
                             stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
     try:
-        while not got and time.monotonic() - t0 < timeout and proc.poll() is None:
+        while not moved and time.monotonic() - t0 < timeout and proc.poll() is None:
             executor.spin_once(timeout_sec=0.01)
-        elapsed = got[0] - t0 if got else float('nan')
-        cpu = _cpu_seconds(proc.pid) if got else float('nan')
+        first = got[0] - t0 if got else float('nan')
+        elapsed = moved[0] - t0 if moved else float('nan')
+        cpu = _cpu_seconds(proc.pid) if moved else float('nan')
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
@@ -98,7 +106,7 @@ def first_cloud_seconds(cmd: List[str], env: Dict[str, str], timeout: float
         err.seek(0)
         tail = err.read().decode(errors='replace')[-2000:]
         err.close()
-    return elapsed, cpu, proc.returncode, tail
+    return first, elapsed, cpu, proc.returncode, tail
 
 
 def warmup_seconds(env: Dict[str, str], timeout: float) -> Tuple[float, float, int]:
@@ -125,11 +133,12 @@ def warmup_seconds(env: Dict[str, str], timeout: float) -> Tuple[float, float, i
 
 def _node(env: Dict[str, str], args, label: str, results: Dict) -> None:
     cmd = [sys.executable, '-m', 'sm_ros.node', *args.node_args]
-    seconds, cpu, code, tail = first_cloud_seconds(cmd, env, args.timeout)
+    first, seconds, cpu, code, tail = first_cloud_seconds(cmd, env, args.timeout)
+    results.setdefault(f'{label} first cloud', []).append(first)
     results.setdefault(label, []).append(seconds)
     results.setdefault(f'{label} cpu', []).append(cpu)
-    print(f'{label}: first cloud after {seconds:.2f} s (exit code {code}; the node had used '
-          f'{cpu:.1f} CPU s)', flush=True)
+    print(f'{label}: first cloud after {first:.2f} s, first simulated cloud after '
+          f'{seconds:.2f} s (exit code {code}; the node had used {cpu:.1f} CPU s)', flush=True)
     if seconds != seconds:
         sys.stderr.write(tail)
 
