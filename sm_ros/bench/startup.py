@@ -15,7 +15,7 @@ Three figures, each from a separate process:
 
 Each node runs in a DDS domain of its own and is stopped with SIGINT after its first cloud.
 ``--warm-only`` measures only the warm start on the environment's own cache (the smoke test
-does that). Arguments after ``--`` go to ``sim_node``, e.g.
+does that), ``--cold-only`` only the cold one. Arguments after ``--`` go to ``sim_node``, e.g.
 ``python -m sm_ros.bench startup -- --ros-args -p scene:=many``.
 """
 
@@ -154,6 +154,8 @@ def run(args) -> Dict:
     full = tempfile.mkdtemp(prefix='sm_ros_numba_full_')
     try:
         _node(_env(cold), args, 'cold', results)
+        if args.cold_only:
+            return results
         seconds, cpu, code = warmup_seconds(_env(full), args.timeout)
         results['full warm-up'] = [seconds]
         results['full warm-up cpu'] = [cpu]
@@ -173,6 +175,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--timeout', type=float, default=600.0, help='seconds per run')
     p.add_argument('--warm-only', action='store_true',
                    help="only warm starts, on this environment's Numba cache")
+    p.add_argument('--cold-only', action='store_true',
+                   help='only the cold start (no full warm-up, no warm starts)')
     p.add_argument('--out', default=None, help='also write startup.json into this folder')
     p.add_argument('node_args', nargs='*', help='arguments for sim_node (after --)')
 
