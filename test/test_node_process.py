@@ -312,7 +312,8 @@ def test_node_killed_mid_recording_leaves_files_every_reader_opens_unrepaired(wa
         proc.send_signal(signal.SIGKILL)
         proc.wait(10)
     info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
-    assert len(list(bag.glob('*.mcap'))) == len(info['relative_file_paths']) + 1
+    # the file open at the kill is not listed (nor made, if the kill fell between two files)
+    assert len(list(bag.glob('*.mcap'))) - len(info['relative_file_paths']) in (0, 1)
     msgs = rosbags_messages(bag)
     assert len(msgs) == info['message_count']
     clouds = [m for t, _, m in msgs if t == '/points']
