@@ -178,7 +178,7 @@ class BagRecorder:
         finally:
             self._file.close()
         self.files.append(self._info)
-        write_metadata(self.path, self._metadata())
+        write_metadata(self.path, metadata_dict(self.files))
 
     def _channel(self, topic: str, msgtype: str) -> int:
         cid = self._channels.get(topic)
