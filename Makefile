@@ -3,10 +3,11 @@
 #               FOXGLOVE_PORT (8765; 0: off) (ARGS='--ros-args -p alpha:=0.9' passes on)
 #   make test   run the whole test suite
 # Each creates .venv (ROS 2 Jazzy client libraries as Python wheels, numpy, numba, ...) if it
-# is missing, compiles the solver kernels once (python -m sm_ros.warmup: Numba's on-disk
-# cache, so the node starts in seconds), and reinstalls only when setup.py or package.xml
-# changes. `make lint` checks every Python file with ruff (configured in pyproject.toml)
-# and that the files generated from the parameter table are up to date.
+# is missing and reinstalls only when setup.py or package.xml changes. The node compiles
+# the solver kernels its scene needs when it starts (seconds, once: Numba's on-disk cache)
+# and the rest in a background process; `make test` compiles them all first
+# (python -m sm_ros.warmup). `make lint` checks every Python file with ruff (configured in
+# pyproject.toml) and that the files generated from the parameter table are up to date.
 
 PYTHON ?= python3
 VENV := .venv
@@ -22,7 +23,6 @@ venv: $(STAMP)
 $(STAMP): setup.py setup.cfg package.xml
 	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/python -m pip install --quiet -e '.[ros,viz,record,progress,test]'
-	$(VENV)/bin/python -m sm_ros.warmup
 	touch $(STAMP)
 
 run: $(STAMP)
@@ -32,6 +32,7 @@ run: $(STAMP)
 	$(VENV)/bin/sim_node --ros-args -p foxglove.port:=$(FOXGLOVE_PORT) $(ARGS)
 
 test: $(STAMP)
+	$(VENV)/bin/python -m sm_ros.warmup
 	$(VENV)/bin/python -m pytest -q test $(PYTEST_ARGS)
 
 lint: $(STAMP)

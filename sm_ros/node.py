@@ -16,6 +16,7 @@ state.
 import functools
 import os
 import sys
+import threading
 import time
 from typing import Any, Dict, List, Optional
 
@@ -34,7 +35,7 @@ from sm_ros.inputs import checked_points, InputError
 from sm_ros.outputs import Outputs
 from sm_ros.params import BY_NAME, NODE_PARAMS, Param
 from sm_ros.sim import ConfigError, Simulation  # noqa: F401 - ConfigError: for start-up
-from sm_ros.warmup import cold_start_note, warm_up
+from sm_ros import warmup
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
@@ -87,6 +88,70 @@ def guarded(topic: str):
     return wrap
 
 
+def _dds_note() -> str:
+    """The start-up line's note on the packaged DDS profile, when ``startup.run`` set it."""
+    from sm_ros import startup
+    if startup.DDS_PROFILE is None:
+        return ''
+    return (f'; DDS: the packaged Fast DDS profile {startup.DDS_PROFILE} (large clouds over '
+            'shared memory; FASTRTPS_DEFAULT_PROFILES_FILE was unset)')
+
+
+class InitialCloud:
+    """
+    The scene's particles at rest, published on ``points`` a few times a second while the
+    solver compiles what the scene needs (a cold Numba cache: tens of seconds), so that a
+    new user sees the scene at once; the simulation's own publisher takes over when it is
+    built. Its stamp is simulation time 0; the first simulated cloud comes after it.
+    """
+
+    PERIOD_S = 0.25
+
+    def __init__(self, node: Node, cloud: PointCloud2):
+        """Publish ``cloud`` from a thread until :meth:`stop`."""
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        self.node = node
+        self.cloud = cloud
+        self.publisher = node.create_publisher(
+            PointCloud2, 'points', QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
+        self.sent = 0
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._run, name='sm_ros initial cloud',
+                                        daemon=True)
+        self._thread.start()
+
+    @classmethod
+    def start(cls, node: Node, values: Dict[str, Any]) -> Optional['InitialCloud']:
+        """Load the scene and start publishing it; None when it cannot be loaded (the
+        simulation then reports why)."""
+        try:
+            from sm_ros.cloud import CloudBuffer
+            from sm_ros.scene import load_scene
+            spec = load_scene(values['scene'])
+            cloud = CloudBuffer(values['frame_id']).fill([b.points for b in spec.bodies])
+        except Exception:  # noqa: B902 - the simulation's build reports a bad scene
+            return None
+        node.get_logger().info(f"publishing scene '{values['scene'] or 'default'}' at rest "
+                               'on points until the solver is compiled')
+        return cls(node, cloud)
+
+    def _run(self) -> None:
+        while True:
+            try:
+                self.publisher.publish(self.cloud)
+                self.sent += 1
+            except Exception:  # noqa: B902 - a context shut down by Ctrl-C: stop quietly
+                return
+            if self._done.wait(self.PERIOD_S):
+                return
+
+    def stop(self) -> None:
+        """Stop publishing and remove the publisher."""
+        self._done.set()
+        self._thread.join()
+        self.node.destroy_publisher(self.publisher)
+
+
 class SimNode(Node):
     """
     The simulation node (doc/interface.md).
@@ -97,7 +162,8 @@ class SimNode(Node):
     """
 
     def __init__(self, node_name: str = NODE_NAME, *, paused: bool = False, **kwargs):
-        """Declare the parameters, build the simulation, create the interfaces, warm up."""
+        """Declare the parameters, build the simulation (compiling what its scene needs),
+        start the background warm-up on a cold cache, create the interfaces."""
         super().__init__(node_name, **kwargs)
         self.paused = paused
         self.timer_calls = 0
@@ -109,11 +175,23 @@ class SimNode(Node):
         for p in NODE_PARAMS:
             self.declare_parameter(p.name, p.default, descriptor(p))
         values = {p.name: _plain(self.get_parameter(p.name).value) for p in NODE_PARAMS}
-        note = cold_start_note()         # before the scene is built: that compiles too
+        # Numba compiles a kernel on its first call: building the scene steps a throwaway
+        # copy of it, which compiles (or loads) what this scene needs and nothing more
+        note = warmup.scene_start_note(values['scene'])
+        initial = None
         if note:
             self.get_logger().info(note)
-        self.sim = Simulation(values, log=self.get_logger())
-        self.warm_up_s = warm_up()
+            initial = InitialCloud.start(self, values)
+        start = time.perf_counter()
+        try:
+            self.sim = Simulation(values, log=self.get_logger())
+        finally:
+            if initial is not None:
+                initial.stop()
+        self.warm_up_s = time.perf_counter() - start
+        self.background_warmup = None
+        if note:
+            self._start_background_warmup()
         self.outputs = Outputs(self, self.sim)      # publishers, live view, recorder
 
         self.create_subscription(WrenchStamped, 'force', self.force_callback, 10)
@@ -143,7 +221,28 @@ class SimNode(Node):
         self.get_logger().info(
             f"scene '{values['scene'] or 'default'}': {len(self.world.bodies)} bodies, "
             f'{self.num_points} points; {values["rate"]:g} Hz x {values["substeps"]} '
-            f'steps of {values["dt"]:g} s; warm-up {self.warm_up_s:.2f} s')
+            f'steps of {values["dt"]:g} s; built in {self.warm_up_s:.2f} s' + _dds_note())
+
+    def _start_background_warmup(self) -> None:
+        """Compile the kernels this scene did not need in a niced process on one core
+        (``warmup.start_background``); log when it is done."""
+        extra = warmup.start_background()
+        if extra is None:
+            return
+        self.background_warmup = extra
+        start = time.monotonic()
+
+        def wait():
+            code = warmup.finish_background(extra)
+            if code == 0:
+                self.get_logger().info(
+                    f'background warm-up done in {time.monotonic() - start:.0f} s: every '
+                    'solver kernel is in the Numba cache')
+            elif code is not None:
+                self.get_logger().warn(
+                    f'background warm-up failed (exit status {code}): kernels compile when '
+                    'first used')
+        threading.Thread(target=wait, name='sm_ros warm-up', daemon=True).start()
 
     # ------------------------------------------------------------------ the simulation's state
 
@@ -179,7 +278,15 @@ class SimNode(Node):
         if path and os.path.exists(path):
             return SetParametersResult(successful=False, reason=(
                 f"record.path: '{path}' exists already (recordings are never overwritten)"))
+        scene = changes.get('scene')
+        if scene is not None and warmup.cold_kernels():
+            self.get_logger().info(f"scene '{scene or 'default'}': compiling the kernels it "
+                                   'needs (Numba cache not warm yet): this takes seconds')
+        start = time.perf_counter()
         reason = self.sim.check(changes)
+        if scene is not None and not reason:
+            self.get_logger().info(f"scene '{scene or 'default'}' built in "
+                                   f'{time.perf_counter() - start:.1f} s')
         if reason:
             return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
@@ -244,8 +351,11 @@ class SimNode(Node):
         return self.outputs.stop_recording()
 
     def destroy_node(self):
-        """Close the recording (a readable file) and the live view, then the node."""
+        """Close the recording (a readable file) and the live view, stop a background
+        warm-up (the cache keeps what it compiled), then the node."""
         self.outputs.close()
+        if self.background_warmup is not None:
+            warmup.stop_background(self.background_warmup)
         return super().destroy_node()
 
     # ------------------------------------------------------------------ inputs

@@ -296,7 +296,7 @@ class Outputs:
     def start_recording(self, path: str) -> str:
         """Start recording into ``path``; raise (FileExistsError, ...) with a reason."""
         from sm_ros.record import BagRecorder
-        self.recorder = BagRecorder(path)
+        self.recorder = BagRecorder(path, split_s=self.sim.params['record.split_s'])
         self._recorder_dropped_reported = 0
         self.node.get_logger().info(f'recording into {path} (rosbag2, MCAP)')
         return path

@@ -223,6 +223,12 @@ TABLE: Tuple[Param, ...] = (
     Param('record.path', '', "Record the published topics into this rosbag2 folder (MCAP; "
           "needs the 'record' extra; it must not exist yet); '': not recording. The "
           '~/record service starts and stops recordings too'),
+    Param('record.split_s', 10.0, 'Log time each file of a recording spans: every split_s the '
+          'open .mcap file is finished (footer, summary) and listed in metadata.yaml, so a '
+          'killed node leaves every earlier file readable without repair (as ros2 bag '
+          'record --max-bag-duration); 0: one file. Applies to the next recording', 's',
+          0.0, 86400.0, min_nonzero=1.0,
+          min_nonzero_why='{name} must be 0 (one file) or >= {min:g} s, got {value}'),
     Param('damping', 0.0, "Fraction of each particle's velocity relative to its clusters' "
           'rigid motion removed per step (momentum-preserving; not in the paper)', '',
           0.0, 1.0, node=False, scene_override=True, core_field='damping'),

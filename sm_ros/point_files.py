@@ -3,7 +3,8 @@ Point-cloud files for scene bodies: PLY, PCD (with LZF) and .npy, read with NumP
 
 The readers are written here (no extra dependency) and return (N, 3) float64 arrays; they
 raise :class:`sm_ros.shapes.GeometryError` with a short reason (the scene loader adds the
-file, body and key).  ``read_cloud_file`` picks the reader by the file's extension.
+file, body and key) that names a line or a row, never the file's text.
+``read_cloud_file`` picks the reader by the file's extension.
 """
 
 from __future__ import annotations
@@ -36,13 +37,16 @@ def read_ply_points(path: Path) -> np.ndarray:
     body = data[nl + 1:] if nl >= 0 else b''
     fmt = None
     elements = []  # [name, count, [(prop, type or None for list)]]
-    for line in data[:end].decode('ascii', errors='replace').splitlines():
+    for number, line in enumerate(data[:end].decode('ascii', errors='replace').splitlines()):
         tok = line.split()
         if not tok:
             continue
         if tok[0] == 'format':
             fmt = tok[1] if len(tok) > 1 else None
         elif tok[0] == 'element' and len(tok) == 3:
+            if not tok[2].isdigit():
+                raise GeometryError(f'PLY header line {number + 1}: element count is not '
+                                    'a number')
             elements.append([tok[1], int(tok[2]), []])
         elif tok[0] == 'property' and elements:
             if tok[1] == 'list':
@@ -50,9 +54,10 @@ def read_ply_points(path: Path) -> np.ndarray:
             elif len(tok) == 3 and tok[1] in _PLY_TYPES:
                 elements[-1][2].append((tok[2], _PLY_TYPES[tok[1]]))
             else:
-                raise GeometryError(f'unsupported PLY property line: {line.strip()!r}')
+                raise GeometryError(f'PLY header line {number + 1}: unsupported property')
     if fmt not in ('ascii', 'binary_little_endian', 'binary_big_endian'):
-        raise GeometryError(f'unsupported PLY format {fmt!r}')
+        raise GeometryError('unsupported PLY format (not ascii, binary_little_endian or '
+                            'binary_big_endian)')
     names = [e[0] for e in elements]
     if 'vertex' not in names:
         raise GeometryError('PLY file has no vertex element')
@@ -70,22 +75,29 @@ def read_ply_points(path: Path) -> np.ndarray:
         rows = [ln.split() for ln in lines[skip:skip + count]]
         if len(rows) < count or any(len(r) < len(pnames) for r in rows):
             raise GeometryError('PLY ascii data is shorter than its header says')
-        try:
-            arr = np.array([[float(r[pnames.index(c)]) for c in 'xyz'] for r in rows])
-        except ValueError as exc:
-            raise GeometryError(f'PLY ascii data is not numeric: {exc}') from None
-        return arr.reshape(-1, 3)
+        return _ascii_xyz(rows, [pnames.index(c) for c in 'xyz'], 'PLY vertex')
     endian = '<' if fmt == 'binary_little_endian' else '>'
     offset = 0
     for e in elements[:vi]:
         if any(t is None for _, t in e[2]):
-            raise GeometryError(f'PLY element {e[0]!r} before vertex has list properties')
+            raise GeometryError('a PLY element before vertex has list properties')
         offset += e[1] * sum(np.dtype(t).itemsize for _, t in e[2])
     dt = np.dtype([(p, endian + t) for p, t in vprops])
     if len(body) < offset + count * dt.itemsize:
         raise GeometryError('PLY binary data is shorter than its header says')
     rec = np.frombuffer(body, dtype=dt, count=count, offset=offset)
     return np.stack([rec[c].astype(np.float64) for c in 'xyz'], axis=1)
+
+
+def _ascii_xyz(rows, columns, what: str) -> np.ndarray:
+    """The (N, 3) floats in ``columns`` of split ascii ``rows``; an error names the row."""
+    out = np.empty((len(rows), 3))
+    for i, row in enumerate(rows):
+        try:
+            out[i] = [float(row[c]) for c in columns]
+        except ValueError:
+            raise GeometryError(f'{what} {i + 1} is not numeric') from None
+    return out
 
 
 def lzf_decompress(data: bytes, out_len: int) -> bytes:
@@ -158,8 +170,11 @@ def read_pcd_points(path: Path) -> np.ndarray:
         npts = int(header['POINTS'][0]) if 'POINTS' in header else (
             int(header['WIDTH'][0]) * int(header.get('HEIGHT', ['1'])[0]))
         mode = header['DATA'][0].lower()
-    except (KeyError, IndexError, ValueError) as exc:
-        raise GeometryError(f'PCD header is incomplete or malformed ({exc})') from None
+    except KeyError as exc:
+        raise GeometryError(f'PCD header has no {exc.args[0]} line') from None
+    except (IndexError, ValueError):
+        raise GeometryError('PCD header is malformed (a count that is no number, or an '
+                            'empty line)') from None
     if not (len(fields) == len(sizes) == len(types) == len(counts)):
         raise GeometryError('PCD FIELDS, SIZE, TYPE and COUNT differ in length')
     if not all(c in fields for c in 'xyz'):
@@ -168,7 +183,8 @@ def read_pcd_points(path: Path) -> np.ndarray:
     try:
         dts = [np.dtype(f'<{kinds[t.upper()]}{s}') for t, s in zip(types, sizes)]
     except (KeyError, TypeError):
-        raise GeometryError(f'PCD has an unsupported TYPE/SIZE: {types} {sizes}') from None
+        raise GeometryError('PCD has an unsupported TYPE/SIZE (F 4/8, I or U 1/2/4/8)') \
+            from None
     body = data[pos:]
     if mode == 'ascii':
         cols = []
@@ -178,11 +194,7 @@ def read_pcd_points(path: Path) -> np.ndarray:
         rows = [r.split() for r in rows if r.strip()][:npts]
         if len(rows) < npts or any(len(r) < len(cols) for r in rows):
             raise GeometryError('PCD ascii data is shorter than its header says')
-        try:
-            arr = np.array([[float(r[cols.index(c)]) for c in 'xyz'] for r in rows])
-        except ValueError as exc:
-            raise GeometryError(f'PCD ascii data is not numeric: {exc}') from None
-        return arr.reshape(-1, 3)
+        return _ascii_xyz(rows, [cols.index(c) for c in 'xyz'], 'PCD point')
     if mode == 'binary':
         dt = np.dtype([(f, d, (c,)) if c > 1 else (f, d)
                        for f, d, c in zip(fields, dts, counts)])
@@ -205,7 +217,7 @@ def read_pcd_points(path: Path) -> np.ndarray:
             cols[f] = np.frombuffer(raw, dtype=d, count=npts * c, offset=off)
             off += nbytes
         return np.stack([cols[c].astype(np.float64)[:npts] for c in 'xyz'], axis=1)
-    raise GeometryError(f'unsupported PCD DATA mode {mode!r}')
+    raise GeometryError('unsupported PCD DATA mode (not ascii, binary or binary_compressed)')
 
 
 def read_npy_points(path: Path) -> np.ndarray:
@@ -214,7 +226,8 @@ def read_npy_points(path: Path) -> np.ndarray:
     try:
         arr = np.load(path, allow_pickle=False)
     except (ValueError, OSError) as exc:
-        raise GeometryError(f'cannot read .npy: {exc}') from None
+        # NumPy's message quotes the file's header: only its kind is reported
+        raise GeometryError(f'cannot read .npy ({type(exc).__name__})') from None
     if arr.dtype.names:
         if not all(c in arr.dtype.names for c in 'xyz'):
             raise GeometryError('structured .npy lacks an x, y or z field')

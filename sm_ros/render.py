@@ -167,6 +167,48 @@ def _cloud_columns(msg) -> np.ndarray:
     return np.frombuffer(bytes(msg.data), dtype=dtype, count=n)
 
 
+def _cloud_records(bag: str, seconds: Optional[float], fps: float, topic: Optional[str]):
+    """Return ([(publish time, schema, CDR bytes)] of the clouds on ``topic`` (default: the
+    first cloud topic) at ``fps`` for ``seconds``, the topic), file after file."""
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+    from sm_ros.record import mcap_paths
+    frames_raw = []
+    t0 = None
+    period = 1e9 / fps
+    next_t = None
+    for path in mcap_paths(bag):            # a recording split into files, in order
+        schemas, channels = {}, {}          # ids are per file
+        with open(path, 'rb') as f:
+            try:
+                for rec in StreamReader(f, record_size_limit=None).records:
+                    if isinstance(rec, Schema):
+                        schemas[rec.id] = rec
+                    elif isinstance(rec, Channel):
+                        channels[rec.id] = rec
+                    elif isinstance(rec, Message):
+                        ch = channels[rec.channel_id]
+                        sc = schemas.get(ch.schema_id)
+                        if sc is None or sc.name not in ('sensor_msgs/msg/PointCloud2',
+                                                         'sensor_msgs/PointCloud2'):
+                            continue
+                        if topic is None:
+                            topic = ch.topic
+                        if ch.topic != topic:
+                            continue
+                        t = rec.publish_time     # the simulation time the node stamped
+                        if t0 is None:
+                            t0 = next_t = t
+                        if seconds is not None and t - t0 > seconds * 1e9 + 1:
+                            return frames_raw, topic
+                        if t + 1 >= next_t:
+                            frames_raw.append((t, sc, rec.data))
+                            next_t += period * max(1, int((t - next_t) // period) + 1)
+            except Exception:  # noqa: BLE001 - a file cut short: keep what was read
+                pass
+    return frames_raw, topic
+
+
 def load_recording(bag: str, seconds: Optional[float] = None, fps: float = 10.0,
                    max_draw: int = 4000, topic: Optional[str] = None,
                    seed: int = 0) -> Recording:
@@ -176,43 +218,9 @@ def load_recording(bag: str, seconds: Optional[float] = None, fps: float = 10.0,
     Decoding uses the message definitions stored in the file (``mcap_ros2``); a recording
     cut short by a crash is read up to its last complete chunk.
     """
-    from mcap.records import Channel, Message, Schema
-    from mcap.stream_reader import StreamReader
     from mcap_ros2.decoder import DecoderFactory
-    from sm_ros.record import mcap_path
     factory = DecoderFactory()
-    schemas, channels = {}, {}
-    frames_raw = []
-    t0 = None
-    period = 1e9 / fps
-    next_t = None
-    with open(mcap_path(bag), 'rb') as f:
-        try:
-            for rec in StreamReader(f, record_size_limit=None).records:
-                if isinstance(rec, Schema):
-                    schemas[rec.id] = rec
-                elif isinstance(rec, Channel):
-                    channels[rec.id] = rec
-                elif isinstance(rec, Message):
-                    ch = channels[rec.channel_id]
-                    sc = schemas.get(ch.schema_id)
-                    if sc is None or sc.name not in ('sensor_msgs/msg/PointCloud2',
-                                                     'sensor_msgs/PointCloud2'):
-                        continue
-                    if topic is None:
-                        topic = ch.topic
-                    if ch.topic != topic:
-                        continue
-                    t = rec.publish_time     # the simulation time the node stamped
-                    if t0 is None:
-                        t0 = next_t = t
-                    if seconds is not None and t - t0 > seconds * 1e9 + 1:
-                        break
-                    if t + 1 >= next_t:
-                        frames_raw.append((t, sc, rec.data))
-                        next_t += period * max(1, int((t - next_t) // period) + 1)
-        except Exception:  # noqa: BLE001 - a file cut short: keep what was read
-            pass
+    frames_raw, topic = _cloud_records(bag, seconds, fps, topic)
     if not frames_raw:
         raise ValueError(f'{bag}: no PointCloud2 messages'
                          + (f" on '{topic}'" if topic else ''))

@@ -25,14 +25,14 @@ from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
 
 import numpy as np
-import yaml
 
 from sm_ros import params, point_files, shapes
 from sm_ros.scene_build import (add_spec_body, body_contact_from, build_world,  # noqa: F401
                                 cloud_body_spec, contact_from, core_colliders, DEFAULT_MASS,
                                 ground_from, params_from)
 from sm_ros.scene_spec import (BodyMeta, BodySpec, CONTACT_SCENE_KEYS, fmt as _fmt,  # noqa: F401
-                               SceneError, SceneSpec, Where as _Where)
+                               kind as _kind, read_yaml, SceneError, SceneSpec,
+                               Where as _Where)
 from sm_ros.shapes import GeometryError, Surface
 
 SHAPES = ('box', 'sphere', 'cylinder', 'capsule', 'sheet', 'rope', 'mesh', 'cloud')
@@ -41,6 +41,9 @@ SHAPES = ('box', 'sphere', 'cylinder', 'capsule', 'sheet', 'rope', 'mesh', 'clou
 MAX_SCENE_POINTS = 2_000_000
 
 DEFAULT_SPACING = 0.05      # m
+
+#: Largest scene file read (bytes): anything larger is no scene.
+MAX_SCENE_BYTES = 16 << 20
 
 _COMMON_KEYS = ('name', 'shape', 'position', 'orientation', 'mass', 'density', 'velocity',
                 'angular_velocity', 'pinned', 'copies', 'collide', 'contact_radius',
@@ -125,50 +128,45 @@ def load_scene(name_or_path: Union[str, Path] = '') -> SceneSpec:
     path = resolve_scene(name_or_path)
     given = str(name_or_path).strip()
     label = str(path) if (not given or not Path(given).expanduser().is_file()) else given
-    try:
-        text = path.read_text(encoding='utf-8')
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SceneError(f'{label}: cannot read: {exc}') from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise SceneError(f'{label}: invalid YAML: {exc}') from None
-    return parse_scene(data, label, path.resolve().parent)
+    data, lines = read_yaml(path, label, MAX_SCENE_BYTES)
+    return parse_scene(data, label, path.resolve().parent, lines=lines)
 
 
 def parse_scene(data: Any, source: str = '<scene>',
-                base_dir: Union[str, Path, None] = None) -> SceneSpec:
+                base_dir: Union[str, Path, None] = None,
+                lines: Optional[Mapping[str, int]] = None) -> SceneSpec:
     """
     Validate a scene given as already-parsed YAML data (a dict) and build its bodies.
 
     `source` labels error messages; relative ``file`` paths resolve against `base_dir`
-    (default: the current directory).
+    (default: the current directory); ``lines`` (``scene_spec.yaml_lines``) adds the
+    line of the key to each error.  An error names the kind of a bad value, never its text.
     """
-    where = _Where(source)
+    where = _Where(source, lines=lines)
     base = Path(base_dir) if base_dir is not None else Path.cwd()
     if data is None:
         raise where.error(None, 'is empty (expected a mapping with a bodies list)')
     top = where.mapping(None, data, _TOP_KEYS)
     description = top.get('description', '')
     if not isinstance(description, str):
-        raise where.error('description', f'must be a string, got {_fmt(description)}')
+        raise where.error('description', f'must be a string, got {_kind(description)}')
     colliders = _parse_colliders(where, top.get('colliders'))
     contact = _parse_contact(where, top.get('contact'))
     raw_bodies = top.get('bodies')
     if not isinstance(raw_bodies, list) or not raw_bodies:
-        raise where.error('bodies', f'must be a non-empty list, got {_fmt(raw_bodies)}')
+        raise where.error('bodies', f'must be a non-empty list, got {_kind(raw_bodies)}')
     bodies: List[BodySpec] = []
     seen: Dict[str, int] = {}
     total = 0
     for i, raw in enumerate(raw_bodies):
-        for b in _parse_body(source, base, i, raw):
+        for b in _parse_body(where, base, i, raw):
             if b.name in seen:
-                raise _Where(source, b.name).error(
+                raise _Where(source, b.name, lines, f'bodies[{i}]').error(
                     'name', f'is used twice (bodies #{seen[b.name]} and #{i})')
             seen[b.name] = i
             total += b.n
             if total > MAX_SCENE_POINTS:
-                raise _Where(source, b.name).error(
+                raise _Where(source, b.name, lines, f'bodies[{i}]').error(
                     None, f'the scene exceeds {MAX_SCENE_POINTS} particles')
             bodies.append(b)
     return SceneSpec(bodies=bodies, colliders=colliders, source=source,
@@ -287,7 +285,7 @@ def _collider_quat(where: _Where, key: str, raw: Any) -> np.ndarray:
         q = where.vector(key, raw, 4)
         n = float(np.linalg.norm(q))
         if not n > 1e-12:
-            raise where.error(key, f'quaternion must be non-zero, got {_fmt(raw)}')
+            raise where.error(key, 'quaternion must be non-zero')
         return q / n
     if isinstance(raw, (list, tuple)) and len(raw) == 3:
         r, p, y = where.vector(key, raw, 3)
@@ -384,7 +382,7 @@ def _orientation(w: _Where, raw: Any) -> np.ndarray:
     if isinstance(raw, (list, tuple)) and len(raw) == 4:
         q = w.vector('orientation', raw, 4)
         if not np.linalg.norm(q) > 1e-12:
-            raise w.error('orientation', f'quaternion must be non-zero, got {_fmt(raw)}')
+            raise w.error('orientation', 'quaternion must be non-zero')
         return shapes.quat_to_matrix(q)
     if isinstance(raw, (list, tuple)) and len(raw) == 3:
         return shapes.rpy_to_matrix(w.vector('orientation', raw, 3))
@@ -412,7 +410,9 @@ def _load_mesh(w: _Where, path: Path) -> Tuple[np.ndarray, np.ndarray]:
     try:
         mesh = trimesh.load(str(path), force='mesh', process=True)
     except Exception as exc:  # noqa: B902 - trimesh raises many kinds
-        raise w.error('file', f"'{path.name}' cannot be read as a mesh: {exc}") from None
+        # the reader's message may quote the file: only its kind is reported
+        raise w.error('file', f"'{path.name}' cannot be read as a mesh "
+                              f'({type(exc).__name__})') from None
     faces = np.asarray(getattr(mesh, 'faces', np.zeros((0, 3))), dtype=np.int64)
     if faces.ndim != 2 or len(faces) == 0:
         raise w.error('file', f"'{path.name}' has no triangles "
@@ -509,15 +509,16 @@ def _pinned(w: _Where, raw: Any, points: np.ndarray, offset: np.ndarray) -> np.n
     return np.flatnonzero(mask).astype(np.int64)
 
 
-def _parse_body(source: str, base: Path, index: int, raw: Any) -> List[BodySpec]:
+def _parse_body(top: _Where, base: Path, index: int, raw: Any) -> List[BodySpec]:
     """Validate and build one body entry (several with ``copies``)."""
-    pre = _Where(source, f'#{index}')
+    at = f'bodies[{index}]'
     if not isinstance(raw, dict):
-        raise _Where(source).error(f'bodies[{index}]', f'must be a mapping, got {_fmt(raw)}')
+        raise top.error(at, f'must be a mapping, got {_kind(raw)}')
     name = raw.get('name', f'body{index}')
     if not isinstance(name, str) or not name.strip() or any(c.isspace() for c in name):
-        raise pre.error('name', f'must be a non-empty string without spaces, got {_fmt(name)}')
-    w = _Where(source, name)
+        raise _Where(top.source, f'#{index}', top.lines, at).error(
+            'name', f'must be a non-empty string without spaces, got {_fmt(name)}')
+    w = _Where(top.source, name, top.lines, at)
     shape = raw.get('shape')
     if shape is None:
         raise w.error('shape', f"is required (one of {', '.join(SHAPES)})")

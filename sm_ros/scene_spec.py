@@ -111,25 +111,140 @@ class BodyMeta:
 # Validation helpers
 # ----------------------------------------------------------------------------------------
 
-def fmt(value: Any) -> str:
-    """Return a value as an error message quotes it (1.0 as 1, strings quoted)."""
+def kind(value: Any) -> str:
+    """Return what kind of value an error message found, never its text: a file that is
+    not a scene (``scene:=/etc/passwd``) must not reach a log or a parameter reply."""
+    if value is None:
+        return 'nothing'
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, (int, float)):
+        return 'a number'
     if isinstance(value, str):
-        return repr(value)
-    if isinstance(value, float) and value.is_integer() and abs(value) < 1e15:
-        return str(int(value)) if not math.isinf(value) else str(value)
-    return str(value)
+        return 'a string' if value.strip() else 'an empty string'
+    if isinstance(value, (list, tuple)):
+        return f'a list of {len(value)} item' + ('' if len(value) == 1 else 's')
+    if isinstance(value, dict):
+        return 'a mapping'
+    return f'a value of type {type(value).__name__}'
+
+
+def fmt(value: Any) -> str:
+    """Return a value as an error message quotes it: a number as itself (1.0 as 1), any
+    other value as its kind (:func:`kind`), never a string's text."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if isinstance(value, float) and value.is_integer() and abs(value) < 1e15:
+            return str(int(value))
+        return str(value)
+    return kind(value)
+
+
+def _parent(path: str) -> str:
+    """'a.b[2].c' -> 'a.b[2]' -> 'a.b' -> 'a' -> ''."""
+    cut = max(path.rfind('.'), path.rfind('['))
+    return path[:max(cut, 0)]
+
+
+def yaml_lines(node: Any, limit: int = 100_000) -> Dict[str, int]:
+    """
+    Return the 1-based line of every key and list item of a composed YAML document, by
+    the dotted path the loader names it with ('bodies[0].position'; '' the document).
+
+    Visits at most ``limit`` nodes (aliases can make a small file a huge tree).
+    """
+    import yaml
+    lines: Dict[str, int] = {}
+    stack = [('', node)]
+    while stack and len(lines) < limit:
+        path, nd = stack.pop()
+        lines.setdefault(path, nd.start_mark.line + 1)
+        if isinstance(nd, yaml.MappingNode):
+            for key, value in nd.value:
+                if isinstance(key, yaml.ScalarNode):
+                    sub = f'{path}.{key.value}' if path else str(key.value)
+                    lines.setdefault(sub, key.start_mark.line + 1)
+                    stack.append((sub, value))
+        elif isinstance(nd, yaml.SequenceNode):
+            stack.extend((f'{path}[{i}]', item) for i, item in enumerate(nd.value))
+    return lines
+
+
+def yaml_problem(exc: Exception) -> str:
+    """Return where and what a YAML error is, without the excerpt of the file that
+    PyYAML's message quotes (nor any quoted token): 'line 3, column 7: could not find
+    expected ':''."""
+    import re
+    mark = getattr(exc, 'problem_mark', None)
+    problem = getattr(exc, 'problem', None) or type(exc).__name__
+    problem = re.sub(r"'[^']*'|\"[^\"]*\"", '(...)', str(problem))
+    if mark is None:
+        return problem
+    return f'line {mark.line + 1}, column {mark.column + 1}: {problem}'
+
+
+def read_yaml(path, label: str, max_bytes: int):
+    """
+    Return (data, lines) of a YAML file: the parsed document and :func:`yaml_lines` of it.
+
+    Raises SceneError naming ``label`` for a file larger than ``max_bytes``, unreadable,
+    not UTF-8 or not YAML, with the place of the fault and never the file's text.
+    """
+    import yaml
+    try:
+        if path.stat().st_size > max_bytes:
+            raise SceneError(f'{label}: is larger than {max_bytes >> 20} MiB: not a scene '
+                             'file')
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise SceneError(f'{label}: cannot read: {exc.strerror or type(exc).__name__}') \
+            from None
+    try:
+        text = raw.decode('utf-8')
+    except UnicodeDecodeError as exc:
+        raise SceneError(f'{label}: is not UTF-8 text (byte {exc.start}): not a scene '
+                         'file') from None
+    try:
+        loader = yaml.SafeLoader(text)
+        try:
+            node = loader.get_single_node()
+            data = None if node is None else loader.construct_document(node)
+        finally:
+            loader.dispose()
+    except yaml.YAMLError as exc:
+        raise SceneError(f'{label}: invalid YAML at {yaml_problem(exc)}') from None
+    return data, ({} if node is None else yaml_lines(node))
 
 
 class Where:
-    """Builds error messages: '<file>: body '<name>': <key> <reason>'."""
+    """Builds error messages: '<file>: line <n>: body '<name>': <key> <reason>'.
 
-    def __init__(self, source: str, body: Optional[str] = None):
+    ``lines`` (:func:`yaml_lines`) gives the line of each key; ``path`` is where this
+    Where's keys are ('bodies[2]' for a body's keys)."""
+
+    def __init__(self, source: str, body: Optional[str] = None,
+                 lines: Optional[Mapping[str, int]] = None, path: str = ''):
         self.source = source
         self.body = body
+        self.lines = lines or {}
+        self.path = path
 
-    def error(self, key: Optional[str], reason: str) -> SceneError:
-        """Return the SceneError for ``key`` (None: the body or file itself)."""
+    def line(self, key: Optional[str]) -> Optional[int]:
+        """The line of ``key`` (or of the nearest enclosing key that the file has)."""
+        path = '.'.join(p for p in (self.path, key or '') if p)
+        while path:
+            if path in self.lines:
+                return self.lines[path]
+            path = _parent(path)
+        return self.lines.get('') if not (self.path or key) else None
+
+    def error(self, key: Optional[str], reason: str, at: Optional[str] = None
+              ) -> SceneError:
+        """Return the SceneError for ``key`` (None: the body or file itself); ``at`` is
+        the key whose line to give when it is not ``key``."""
         parts = [self.source]
+        line = self.line(at or key)
+        if line is not None:
+            parts.append(f'line {line}')
         if self.body is not None:
             parts.append(f"body '{self.body}'")
         parts.append(f'{key} {reason}' if key else reason)
@@ -203,12 +318,19 @@ class Where:
                 ) -> Mapping[str, Any]:
         """Return ``value`` if it is a mapping with only ``allowed`` keys (suggests one)."""
         if not isinstance(value, dict):
-            raise self.error(key, f'must be a mapping, got {fmt(value)}')
+            raise self.error(key, f'must be a mapping, got {kind(value)}')
         for k in value:
             if k not in allowed:
                 name = f'{key}.{k}' if key else str(k)
                 close = difflib.get_close_matches(str(k), allowed, n=1)
                 hint = f" (did you mean '{close[0]}'?)" if close else ''
-                raise self.error(None, f"unknown key '{name}'{hint}; "
-                                       f"allowed: {', '.join(allowed)}")
+                # a file's own top-level keys are named only when they are a typo of a
+                # scene key: any other file must not have its text quoted
+                if not (key or self.body or close):
+                    name = 'at the top level'
+                else:
+                    name = f"'{name}'"
+                raise self.error(None, f'unknown key {name}{hint}; '
+                                       f"allowed: {', '.join(allowed)}",
+                                 at=f'{key}.{k}' if key else str(k))
         return value

@@ -5,6 +5,10 @@ A cold start compiles the solver's kernels (or loads them from Numba's cache), w
 take a while; a Ctrl-C then must end the process cleanly, whenever it comes. ``run`` takes
 care of that and of the exit code: 0 after Ctrl-C or an external shutdown, 2 (with one
 ``sim_node: error: ...`` line) for a bad scene, parameter or parameter file.
+
+When the user has chosen no DDS profile, the node's own participant takes the packaged
+Fast DDS profile ``config/fastdds_shm.xml`` (:func:`use_packaged_dds_profile`): with Fast
+DDS's defaults a cloud larger than the 512 KiB shared-memory segment is sent in fragments.
 """
 
 import os
@@ -21,6 +25,56 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.signals import install_signal_handlers, SignalHandlerOptions
 from sm_ros import warmup
 from sm_ros.sim import ConfigError
+
+
+#: The packaged DDS profile this process's participant uses (set by ``run`` when the user
+#: chose none; the node's start-up line names it), or None.
+DDS_PROFILE: Optional[str] = None
+
+#: Environment variables and files by which a user chooses Fast DDS's configuration.
+_DDS_CHOICES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE',
+                'FASTDDS_BUILTIN_TRANSPORTS')
+_DDS_LOCAL_FILES = ('DEFAULT_FASTRTPS_PROFILES.xml', 'DEFAULT_FASTDDS_PROFILES.xml')
+
+
+def packaged_dds_profile() -> Optional[str]:
+    """The installed ``share/sm_ros/config/fastdds_shm.xml`` (colcon or pip), or the source
+    tree's ``config/fastdds_shm.xml``; None when none is found."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    folders = [os.path.join(root, 'config')]
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        folders.append(os.path.join(get_package_share_directory('sm_ros'), 'config'))
+    except Exception:  # noqa: B902 - not installed with colcon: the other places
+        pass
+    folders.append(os.path.join(sys.prefix, 'share', 'sm_ros', 'config'))
+    for folder in folders:
+        path = os.path.join(folder, 'fastdds_shm.xml')
+        if os.path.isfile(path):
+            return os.path.abspath(path)
+    return None
+
+
+def use_packaged_dds_profile(environ=None) -> Optional[str]:
+    """
+    Point ``FASTRTPS_DEFAULT_PROFILES_FILE`` at the packaged profile for this process (its
+    participant, created by ``rclpy.init``) when the user chose no Fast DDS configuration
+    (no profile variable, no ``FASTDDS_BUILTIN_TRANSPORTS``, no default profile file in
+    the working directory) and the RMW is Fast DDS (the default); return the path, or None
+    when nothing was set.  Subscribers need nothing: shared memory is the sender's segment.
+    """
+    environ = os.environ if environ is None else environ
+    if any(environ.get(name) for name in _DDS_CHOICES):
+        return None
+    if any(os.path.isfile(name) for name in _DDS_LOCAL_FILES):
+        return None
+    rmw = environ.get('RMW_IMPLEMENTATION', '')
+    if rmw and not rmw.startswith('rmw_fastrtps'):
+        return None
+    path = packaged_dds_profile()
+    if path is not None:
+        environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = path
+    return path
 
 
 #: Seconds a Ctrl-C during the start-up waits for it to reach its safe point (the node
@@ -48,9 +102,13 @@ def check_params_files(argv: Sequence[str]) -> Optional[str]:
         try:
             with open(path, encoding='utf-8') as f:
                 data = yaml.safe_load(f)
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            return f'params file {path}: invalid YAML: {first}'
+        except OSError as exc:
+            return f'params file {path}: cannot read: {exc.strerror or type(exc).__name__}'
+        except UnicodeDecodeError as exc:
+            return f'params file {path}: not UTF-8 text (byte {exc.start})'
+        except yaml.YAMLError as exc:       # where, never the file's text
+            from sm_ros.scene_spec import yaml_problem
+            return f'params file {path}: invalid YAML at {yaml_problem(exc)}'
         if not isinstance(data, dict):
             return f'params file {path}: expected a mapping of node names to ros__parameters'
     return None
@@ -86,6 +144,8 @@ def run(node_class, args=None) -> int:
     reason = check_params_files(argv)
     if reason:
         return _fail(reason)
+    global DDS_PROFILE
+    DDS_PROFILE = use_packaged_dds_profile()      # before rclpy.init creates the participant
     try:
         # No rclpy signal handlers while starting: a Ctrl-C during the (possibly long,
         # cold Numba cache) warm-up is ``on_sigint``'s below; rclpy's handlers take over

@@ -1,9 +1,11 @@
 """Compile (or load from Numba's on-disk cache) every solver kernel the node can need.
 
-``python -m sm_ros.warmup`` (or ``ros2 run sm_ros warmup`` after ``colcon build``) does
-ahead of time what the node's first start would otherwise do: on 2 cores compiling the
-kernels takes about a minute once; afterwards the node starts in a few seconds.  The
-README's ``make run`` / ``make test`` run it when they create the environment.
+Numba compiles a kernel on its first call.  ``sim_node`` on a cold cache compiles only what
+its scene needs (building the scene steps a throwaway copy of it) and then starts
+:func:`start_background`: ``python -m sm_ros.warmup --background``, niced on one core,
+compiles the rest into the cache while the node runs, so that a later scene, contact or
+mode loads its kernels instead of compiling them.  ``python -m sm_ros.warmup`` (``ros2 run
+sm_ros warmup``) does all of it ahead of time; ``make test`` runs it.
 """
 
 import argparse
@@ -19,10 +21,10 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-#: Seconds a cold compile of every kernel takes on 2 cores: measured 44 s (63 kernels) and
-#: 93 s (after the core's split, while other jobs shared the cores); the node and
-#: ``warmup`` quote it in their cold-start line.
-COLD_COMPILE_S = 90.0
+#: Seconds a cold compile of every kernel takes on 2 idle cores: half the CPU seconds of
+#: the full warm-up that ``python -m sm_ros.bench startup`` reports (its two processes
+#: share the work); ``warmup`` quotes it in its cold-start line and progress bar.
+COLD_COMPILE_S = 120.0
 
 
 def _core_kernels():
@@ -102,13 +104,72 @@ def mark_warm() -> None:
 
 
 def cold_start_note() -> Optional[str]:
-    """Return the one line to log before a cold compile, or None when the cache is warm."""
+    """Return the line ``warmup`` prints before a cold compile, or None when it is warm."""
     n = cold_kernels()
     if not n:
         return None
     return (f'compiling {n} solver kernels (cold Numba cache): about {COLD_COMPILE_S:.0f} s '
             'on 2 cores, once per install; `ros2 run sm_ros warmup` (or '
             '`python -m sm_ros.warmup`) does it ahead of time')
+
+
+def scene_start_note(scene: str) -> Optional[str]:
+    """Return the line the node logs before it builds its first scene on a cold cache
+    (None when the cache is warm)."""
+    n = cold_kernels()
+    if not n:
+        return None
+    return (f"cold Numba cache: compiling the kernels scene '{scene or 'default'}' needs "
+            "first (seconds); the rest of the solver's kernels then compile in a background "
+            'process (niced, one core) while the node runs')
+
+
+def start_background():
+    """Start ``python -m sm_ros.warmup --background`` (every kernel into the cache, niced,
+    on one core, with this process's Numba thread count, so that it compiles the same
+    variants); return ``(process, stderr file)``, or None when it cannot start.
+    :func:`stop_helpers` kills it."""
+    import numba
+    env = {'NUMBA_NUM_THREADS': str(numba.config.NUMBA_NUM_THREADS)}
+    extra = _spawn(['--background'], env)
+    if extra is not None:
+        _HELPERS.append(extra)
+    return extra
+
+
+def finish_background(extra) -> Optional[int]:
+    """Wait for the background warm-up; return its exit status (None if it was stopped
+    by :func:`stop_helpers`) and release its files."""
+    proc, err = extra
+    code = proc.wait()
+    if extra in _HELPERS:
+        _HELPERS.remove(extra)
+    err.close()
+    return None if code < 0 else code
+
+
+def stop_background(extra) -> None:
+    """Kill a background warm-up (:func:`start_background`) if it still runs; the cache
+    keeps every kernel it finished."""
+    proc = extra[0]
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
+
+
+def _background() -> int:
+    """The background warm-up: lowest priority (nice 19 and, on Linux, the idle scheduling
+    class: it runs only on a core nothing else wants), one core, every kernel, the stamp."""
+    try:
+        os.nice(19)
+        cpus = sorted(os.sched_getaffinity(0))
+        os.sched_setaffinity(0, {cpus[-1]})
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except (AttributeError, OSError):
+        pass                       # the priority is a courtesy: warm up all the same
+    warm_up(split=False)
+    warm_scene('default')
+    return 0
 
 
 def warm_up(on_stage: Optional[Callable[[str], None]] = None, split: bool = True) -> float:
@@ -295,12 +356,17 @@ def _cpus() -> int:
 
 def _start_extra():
     """Start :func:`warm_extra` in a second Python process; None when it cannot start."""
+    return _spawn(['--extra'])
+
+
+def _spawn(args, env_extra=None):
+    """Start ``python -m sm_ros.warmup ARGS`` on this package; (process, stderr file)."""
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    env = dict(os.environ)
+    env = dict(os.environ, **(env_extra or {}))
     env['PYTHONPATH'] = os.pathsep.join(p for p in (root, env.get('PYTHONPATH')) if p)
     err = tempfile.TemporaryFile()
     try:
-        proc = subprocess.Popen([sys.executable, '-m', 'sm_ros.warmup', '--extra'], env=env,
+        proc = subprocess.Popen([sys.executable, '-m', 'sm_ros.warmup', *args], env=env,
                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                 stderr=err)
     except OSError:
@@ -342,10 +408,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument('scenes', nargs='*', default=['default'],
                     help="bundled scene names or YAML paths (default: 'default')")
     ap.add_argument('--extra', action='store_true', help=argparse.SUPPRESS)
+    ap.add_argument('--background', action='store_true', help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.extra:                      # the second process of a cold warm_up
         warm_extra()
         return 0
+    if args.background:                 # started by a node on a cold cache
+        return _background()
     from sm_ros.progress import bar
     note = cold_start_note()
     print('sm_ros: ' + (note or 'loading the solver kernels from the cache'), flush=True)

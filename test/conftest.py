@@ -153,7 +153,7 @@ def warm():
     """Compile (or load from Numba's cache) the solver kernels once per session."""
     if not _ros_available():
         pytest.skip('rclpy is not installed (pip install -e .[ros])')
-    from sm_ros.node import warm_up
+    from sm_ros.warmup import warm_up
     return warm_up()
 
 

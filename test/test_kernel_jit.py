@@ -2,7 +2,6 @@
 (``wide_vectors``) and the scratch views that take no reference count (``scratch_view``),
 and the packed step's compiled entry (``packed.Pack._resolve``) that they serve."""
 
-import llvmlite.binding as llvm
 import numpy as np
 import pytest
 from numba import njit
@@ -30,18 +29,13 @@ def _loop(wide):
 
 
 def test_wide_vectors_widens_only_the_function_that_calls_it():
-    """On an AVX-512 host (this machine kind) the loop of a function that calls
-    ``wide_vectors`` runs on 512-bit registers and the same loop without it on 256-bit
-    ones (LLVM's choice for the host); elsewhere neither uses 512-bit registers.  Both
-    give the same sum to round-off."""
+    """The function that calls ``wide_vectors`` carries LLVM's 512-bit vector-width
+    attribute and the same loop without the call does not; both give the same sum to
+    round-off.  Which registers LLVM then picks is the host's business (an AMD Zen 4 picks
+    512-bit ones without the attribute), so the test reads the IR, not the machine code."""
     x, y = np.linspace(0.0, 1.0, 1000), np.linspace(1.0, 2.0, 1000)
     wide, narrow = _loop(True), _loop(False)
     assert wide(x, y) == pytest.approx(narrow(x, y), rel=1e-12)
-    asm_wide = wide.inspect_asm(wide.signatures[0])
-    asm_narrow = narrow.inspect_asm(narrow.signatures[0])
-    assert 'zmm' not in asm_narrow and 'ymm' in asm_narrow
-    avx512 = '+avx512f' in llvm.get_host_cpu_features().flatten().split(',')
-    assert ('zmm' in asm_wide) == avx512
     llvm_ir = wide.inspect_llvm(wide.signatures[0])
     assert '"prefer-vector-width"="512"' in llvm_ir
     assert '"prefer-vector-width"' not in narrow.inspect_llvm(narrow.signatures[0])

@@ -246,3 +246,35 @@ def test_unforeseen_error_in_a_callback_is_refused_not_fatal(ros, node, monkeypa
     assert 'RuntimeError' in reason and 'boom' in reason
     node.tick()                                      # still running
     assert ros.call(Trigger, 'sim_node/reset').success
+
+
+# ----------------------------------------------------------------------------------------
+# a scene parameter naming a file that is no scene
+# ----------------------------------------------------------------------------------------
+
+def test_scene_parameter_naming_a_file_of_secrets_answers_without_its_text(ros, node,
+                                                                            tmp_path):
+    """``ros2 param set /sim_node scene /etc/passwd`` from another node: refused with the
+    path, the line and the kind of value; the file's text is in no reply and no log line,
+    and the scene is left as it was."""
+    from rcl_interfaces.msg import Parameter as ParameterMsg, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    secret = 'hunter2-s3cr3t'
+    logs = ros.subscribe(Log, '/rosout')
+    before = snapshot(node)
+    for text in (f'root:x:0:0:root:/root:/bin/bash\nadmin:{secret}:1000\n',
+                 f'password: {secret}\n', f'token: "{secret}\n'):
+        path = tmp_path / 'passwd'
+        path.write_text(text)
+        value = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=str(path))
+        request = SetParameters.Request(parameters=[ParameterMsg(name='scene', value=value)])
+        result = ros.call(SetParameters, f'{node.get_fully_qualified_name()}/set_parameters',
+                          request).results[0]
+        assert not result.successful
+        assert result.reason.startswith(f'scene: {path}: ')
+        assert 'line 1' in result.reason or 'line 2' in result.reason
+        assert secret not in result.reason and 'bash' not in result.reason
+    ros.spin_for(0.2)
+    node.apply_pending()
+    assert_unchanged(node, before)
+    assert all(secret not in m.msg for m in logs)

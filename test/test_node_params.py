@@ -29,7 +29,7 @@ INTERFACE_PARAMS = ('mode', 'alpha', 'beta', 'plasticity.yield', 'plasticity.cre
                     'contact.enabled', 'contact.friction', 'contact.restitution',
                     'contact.radius_scale', 'max_speed', 'max_turn', 'error_estimate.rate')
 #: Parameters sm_ros adds to the interface (live view, recording, error estimate budget).
-EXTRA_PARAMS = ('foxglove.port', 'foxglove.host', 'record.path',
+EXTRA_PARAMS = ('foxglove.port', 'foxglove.host', 'record.path', 'record.split_s',
                 'contact.stacking', 'contact.sleep', 'contact.sleep_speed', 'contact.sleep_time')
 
 
@@ -424,3 +424,13 @@ def test_unknown_body_parameter_combination_is_refused_atomically(ros, cube_scen
     assert not result.successful
     node.tick()
     assert node.world.bodies[0].params.alpha == 0.5
+
+
+def test_record_split_s_is_zero_or_a_second_and_more(ros, cube_scene):
+    """record.split_s: 0 (one file) or 1 s to a day; a file per message and below is refused."""
+    node = ros.start(cube_scene)
+    refused(node, 'record.split_s', -1.0)
+    refused(node, 'record.split_s', 0.5, 'record.split_s must be 0 (one file) or >= 1 s')
+    refused(node, 'record.split_s', 86401.0)
+    for good in (0.0, 1.0, 30.0):
+        assert set_param(node, 'record.split_s', good).successful

@@ -12,6 +12,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 pytest.importorskip('rclpy', reason='ROS 2 wheels not installed (pip install -e .[ros])')
@@ -180,3 +181,196 @@ def test_the_start_up_watchdog_stops_a_running_second_warm_up(monkeypatch):
     monkeypatch.setattr(warmup, '_warm_up', body)
     assert warmup.warm_up() >= 0.0
     assert len(procs) == 1 and warmup._HELPERS == []
+
+
+BIG_SCENE = """
+bodies:
+  - name: slab
+    shape: box
+    size: [0.975, 0.975, 0.85]     # 40 x 40 x 35 = 56,000 particles: a 896 KB cloud
+    spacing: 0.025
+    mass: 2.0
+    position: [0.0, 0.0, 0.5]
+"""
+
+
+def _shm_segments(pid):
+    """Sizes of the Fast DDS shared-memory segments mapped by process ``pid``."""
+    sizes = {}
+    with open(f'/proc/{pid}/maps') as f:
+        for line in f:
+            path = line.split()[-1]
+            if path.startswith('/dev/shm/fastrtps_') and not path.endswith('_el'):
+                sizes[path] = os.stat(path).st_size
+    return sorted(sizes.values())
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not os.path.isdir('/dev/shm'), reason='Fast DDS shared memory needs '
+                    '/dev/shm (Linux)')
+def test_a_large_cloud_goes_out_over_the_packaged_profile_to_a_plain_subscriber(warm,
+                                                                                tmp_path):
+    """With no DDS profile chosen, sim_node's participant takes config/fastdds_shm.xml (its
+    256 MiB shared-memory segment, mapped by the node) and says so; a subscriber in this
+    process, which sets nothing, receives the 56,000-point (896 KB) cloud whole."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from sensor_msgs.msg import PointCloud2
+    scene = _write(tmp_path / 'big.yaml', BIG_SCENE)
+    domain = random.randint(201, 230)
+    env = {k: v for k, v in os.environ.items()
+           if k not in ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE',
+                        'FASTDDS_BUILTIN_TRANSPORTS')}
+    env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    node = Node('probe', context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    got = []
+    node.create_subscription(PointCloud2, '/points', got.append, 10)
+    proc = subprocess.Popen(sim_node_cmd('--ros-args', '-p', f'scene:={scene}', '-p',
+                                         'rate:=10.0'), env=env, cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 180
+        while len(got) < 3 and time.monotonic() < deadline and proc.poll() is None:
+            ex.spin_once(timeout_sec=0.05)
+        segments = _shm_segments(proc.pid) if proc.poll() is None else []
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    assert got, f'no cloud from sim_node: {err[-2000:]}'
+    assert got[-1].width * got[-1].height == 56_000
+    assert len(got[-1].data) == 56_000 * got[-1].point_step > 512 * 1024
+    assert segments and segments[-1] >= 256 * 1024 * 1024, segments
+    assert 'DDS: the packaged Fast DDS profile' in out + err
+    assert 'fastdds_shm.xml' in out + err
+
+
+def test_the_packaged_profile_never_overrides_a_users_choice(tmp_path, monkeypatch):
+    """A profile variable, a transport choice, a default profile file in the working
+    directory or another RMW: the environment is left as it is."""
+    from sm_ros.startup import packaged_dds_profile, use_packaged_dds_profile
+    monkeypatch.chdir(tmp_path)
+    path = packaged_dds_profile()
+    assert path is not None and path.endswith('fastdds_shm.xml') and os.path.isfile(path)
+    env = {}
+    assert use_packaged_dds_profile(env) == path
+    assert env == {'FASTRTPS_DEFAULT_PROFILES_FILE': path}
+    env = {'RMW_IMPLEMENTATION': 'rmw_fastrtps_cpp'}
+    assert use_packaged_dds_profile(env) == path
+    for chosen in ({'FASTRTPS_DEFAULT_PROFILES_FILE': '/mine.xml'},
+                   {'FASTDDS_DEFAULT_PROFILES_FILE': '/mine.xml'},
+                   {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'},
+                   {'RMW_IMPLEMENTATION': 'rmw_cyclonedds_cpp'}):
+        env = dict(chosen)
+        assert use_packaged_dds_profile(env) is None
+        assert env == chosen
+    (tmp_path / 'DEFAULT_FASTRTPS_PROFILES.xml').write_text('<profiles/>')
+    env = {}
+    assert use_packaged_dds_profile(env) is None and env == {}
+
+
+@pytest.mark.slow
+def test_node_killed_mid_recording_leaves_files_every_reader_opens_unrepaired(warm, tmp_path):
+    """SIGKILL sim_node while it records (record.split_s 1 s): rosbags reads the files
+    metadata.yaml lists as they are, every tick's cloud once and in order, and the mcap
+    reader finds each file's summary; only the file open at the kill is left out."""
+    pytest.importorskip('mcap', reason="recording needs the 'record' extra")
+    pytest.importorskip('rosbags', reason='the recording is read with rosbags')
+    import yaml
+    from mcap.reader import make_reader
+    from test_node_outputs import NODE_SCENE, rosbags_messages
+    scene = _write(tmp_path / 'box.yaml', NODE_SCENE)
+    bag = tmp_path / 'killed'
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(201, 230)))
+    proc = subprocess.Popen(sim_node_cmd('--ros-args', '-p', f'scene:={scene}', '-p',
+                                         f'record.path:={bag}', '-p', 'record.split_s:=1.0'),
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 90.0
+        listed = []
+        while time.monotonic() < deadline and len(listed) < 3:
+            time.sleep(0.1)
+            assert proc.poll() is None, proc.stderr.read().decode()
+            try:
+                info = yaml.safe_load((bag / 'metadata.yaml').read_text())
+                listed = info['rosbag2_bagfile_information']['relative_file_paths']
+            except (OSError, TypeError, KeyError):
+                pass
+        assert len(listed) >= 3, 'the node finished no recording file'
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    # the file open at the kill is not listed (nor made, if the kill fell between two files)
+    assert len(list(bag.glob('*.mcap'))) - len(info['relative_file_paths']) in (0, 1)
+    msgs = rosbags_messages(bag)
+    assert len(msgs) == info['message_count']
+    clouds = [m for t, _, m in msgs if t == '/points']
+    assert len(clouds) >= 60 and all(c.width == 216 for c in clouds)
+    stamps = [c.header.stamp.sec * 10 ** 9 + c.header.stamp.nanosec for c in clouds]
+    assert stamps == sorted(stamps) and len(set(np.diff(stamps))) == 1   # every tick, once
+    for entry in info['files']:
+        with open(bag / entry['path'], 'rb') as f:
+            summary = make_reader(f).get_summary()
+        assert summary.statistics.message_count == entry['message_count'] > 0
+
+
+def test_a_scene_switch_on_a_cold_cache_says_it_compiles_and_how_long_it_took(
+        ros, monkeypatch, tmp_path):
+    """While the cache is not warm yet, switching scenes logs that the new scene's kernels
+    compile, then how long the scene took to build; on a warm cache only the second."""
+    from rcl_interfaces.msg import Log
+    from rclpy.parameter import Parameter
+    from sm_ros import warmup
+    node = ros.start(_write(tmp_path / 'a.yaml', BIG_SCENE.replace('0.975, 0.975, 0.85',
+                                                                   '0.1, 0.1, 0.1')))
+    logs = ros.subscribe(Log, '/rosout')
+    for cold, name in ((5, 'b'), (0, 'c')):
+        monkeypatch.setattr(warmup, 'cold_kernels', lambda answer=cold: answer)
+        path = _write(tmp_path / f'{name}.yaml', BIG_SCENE.replace('0.975, 0.975, 0.85',
+                                                                   '0.2, 0.1, 0.1'))
+        assert node.set_parameters([Parameter('scene', value=path)])[0].successful
+        assert ros.spin_until(lambda p=path: any(f"scene '{p}' built in" in m.msg
+                                                 for m in logs))
+        compiling = [m.msg for m in logs if f"scene '{path}': compiling the kernels it needs"
+                     in m.msg]
+        assert len(compiling) == (1 if cold else 0)
+
+
+def test_the_scene_at_rest_is_published_while_the_solver_compiles(ros, monkeypatch, tmp_path):
+    """On a cold cache the node publishes its scene's particles at rest (stamp 0) on
+    ``points`` while the simulation is built (here a build held 1.5 s, as a compile), then
+    removes that publisher: the simulation's own one is the only one left."""
+    from sensor_msgs.msg import PointCloud2
+    from sm_ros import node as node_module, warmup
+    from sm_ros.cloud import read_xyz
+    from sm_ros.scene import load_scene
+    monkeypatch.setattr(warmup, 'cold_kernels', lambda: 5)
+    monkeypatch.setattr(warmup, 'start_background', lambda: None)
+    real = node_module.Simulation
+
+    def compiling(*args, **kwargs):
+        time.sleep(1.5)
+        return real(*args, **kwargs)
+    monkeypatch.setattr(node_module, 'Simulation', compiling)
+    scene = _write(tmp_path / 'a.yaml', BIG_SCENE.replace('0.975, 0.975, 0.85',
+                                                          '0.1, 0.1, 0.1'))
+    got = ros.subscribe(PointCloud2, 'points')
+    node = ros.start(scene)
+    assert ros.spin_until(lambda: len(got) >= 2)
+    want = np.concatenate([b.points for b in load_scene(scene).bodies]).astype(np.float32)
+    for msg in got:
+        assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (0, 0)
+        assert np.array_equal(read_xyz(msg).astype(np.float32), want)
+    assert node.count_publishers(f'{ros.namespace}/points') == 1

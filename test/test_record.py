@@ -181,46 +181,98 @@ CHILD = textwrap.dedent('''
     from rclpy.serialization import serialize_message
     from std_msgs.msg import String
     from sm_ros.record import BagRecorder
-    rec = BagRecorder(sys.argv[1], flush_s=0.05, chunk_bytes=256)
+    rec = BagRecorder(sys.argv[1], flush_s=0.05, chunk_bytes=256, split_s=1.0)
     i = 0
     while True:
         rec.write('/chatter', 'std_msgs/msg/String', serialize_message(String(data=f'm{i}')),
-                  1_000 + i)
+                  10**9 + i * 10**7)
         i += 1
         time.sleep(0.002)
 ''')
 
 
-def test_killed_recorder_leaves_a_readable_bag(tmp_path):
-    """SIGKILL mid-recording: the flushed messages read back, in order; repair indexes."""
+def read_with_mcap(path):
+    """The message count in the summary of a finished MCAP file (the indexed reader)."""
+    from mcap.reader import make_reader
+    with open(path, 'rb') as f:
+        stats = make_reader(f).get_summary().statistics
+    return stats.message_count
+
+
+def test_killed_recorder_leaves_every_finished_file_readable_without_repair(tmp_path):
+    """SIGKILL mid-recording (log time 10 ms a message, a file a second): rosbags and the
+    mcap indexed reader open every file metadata.yaml lists as it is, and those hold the
+    first messages in order; the streaming reader reads on into the cut file, and repair
+    finishes that one too."""
     bag = tmp_path / 'killed'
     env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
     proc = subprocess.Popen([sys.executable, '-c', CHILD, str(bag)], env=env)
     try:
-        deadline = time.monotonic() + 30.0
-        flushed = 0
-        while time.monotonic() < deadline and flushed < 50:
+        deadline = time.monotonic() + 60.0
+        listed, flushed = [], 0
+        while time.monotonic() < deadline and (len(listed) < 2 or flushed < 10):
             time.sleep(0.05)
             try:
                 meta = yaml.safe_load((bag / 'metadata.yaml').read_text())
-                flushed = meta['rosbag2_bagfile_information']['message_count']
-            except (OSError, TypeError, KeyError):
+                listed = meta['rosbag2_bagfile_information']['relative_file_paths']
+                custom = meta['rosbag2_bagfile_information']['custom_data']
+                flushed = int(custom['open_file_messages']) if len(listed) >= 2 else 0
+            except (OSError, TypeError, KeyError, ValueError):
                 pass
-        assert flushed >= 50, 'the recorder never flushed'
+        assert len(listed) >= 2 and flushed >= 10, 'the recorder never finished a file'
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait(10)
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    listed = info['relative_file_paths']
+    assert listed == [f'killed_{i}.mcap' for i in range(len(listed))]
+    assert [f['message_count'] for f in info['files']] == [100] * len(listed)
+    assert info['message_count'] == 100 * len(listed)
+    cut = bag / f'killed_{len(listed)}.mcap'         # the open file, if the kill let it be
+    assert set(bag.glob('*.mcap')) - {bag / name for name in listed} <= {cut}
+    msgs = read_with_rosbags(bag)                                # no repair
+    assert [m[3].data for m in msgs] == [f'm{i}' for i in range(100 * len(listed))]
+    assert [m[2] for m in msgs] == [10**9 + i * 10**7 for i in range(len(msgs))]
+    assert [read_with_mcap(bag / name) for name in listed] == [100] * len(listed)
     raw = list(record.iter_raw(bag))
-    assert len(raw) >= flushed
+    assert len(raw) >= len(msgs)
     from std_msgs.msg import String
     from rclpy.serialization import deserialize_message
     assert [deserialize_message(d, String).data for _, _, _, d in raw] == \
         [f'm{i}' for i in range(len(raw))]
-    assert [s for _, _, s, _ in raw] == [1_000 + i for i in range(len(raw))]
     meta = record.repair(bag)['rosbag2_bagfile_information']
     assert meta['message_count'] == len(raw)
-    msgs = read_with_rosbags(bag)
-    assert [m[3].data for m in msgs] == [f'm{i}' for i in range(len(raw))]
+    assert len(meta['relative_file_paths']) == len(listed) + cut.exists()
+    assert [m[3].data for m in read_with_rosbags(bag)] == [f'm{i}' for i in range(len(raw))]
+
+
+def test_files_split_by_log_time(tmp_path):
+    """split_s of log time per file, each file's messages and span in metadata.yaml;
+    split_s=0: one file; a negative split_s is refused before anything is created."""
+    from std_msgs.msg import String
+    data = serialize_message(String(data='x'))
+    bag = tmp_path / 's'
+    with record.BagRecorder(bag, split_s=2.0) as rec:
+        for i in range(7):                 # log times 0, 1, ..., 6 s
+            rec.write('/a', 'std_msgs/msg/String', data, i * 10**9)
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['relative_file_paths'] == ['s_0.mcap', 's_1.mcap', 's_2.mcap', 's_3.mcap']
+    assert [f['message_count'] for f in info['files']] == [2, 2, 2, 1]
+    assert [f['starting_time']['nanoseconds_since_epoch'] for f in info['files']] == \
+        [0, 2 * 10**9, 4 * 10**9, 6 * 10**9]
+    assert [f['duration']['nanoseconds'] for f in info['files']] == [10**9] * 3 + [0]
+    assert info['message_count'] == 7 and info['duration']['nanoseconds'] == 6 * 10**9
+    assert sorted(p.name for p in bag.glob('*.mcap')) == info['relative_file_paths']
+    assert len(read_with_rosbags(bag)) == 7
+    one = tmp_path / 'one'
+    with record.BagRecorder(one, split_s=0.0) as rec:
+        for i in range(7):
+            rec.write('/a', 'std_msgs/msg/String', data, i * 10**9)
+    info = yaml.safe_load((one / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['relative_file_paths'] == ['one_0.mcap'] and info['message_count'] == 7
+    with pytest.raises(ValueError, match='split_s'):
+        record.BagRecorder(tmp_path / 'neg', split_s=-1.0)
+    assert not (tmp_path / 'neg').exists()
 
 
 def test_cli_info_and_repair(tmp_path, capsys):

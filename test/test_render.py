@@ -66,7 +66,7 @@ def test_gif_from_a_recording(tmp_path):
     from sm_ros.record import BagRecorder
     buf = CloudBuffer('world')
     bag = tmp_path / 'run'
-    with BagRecorder(bag) as rec:
+    with BagRecorder(bag, split_s=0.2) as rec:      # three files, read in order
         for i in range(31):        # 60 Hz for 0.5 s: a box falling, a sphere at rest
             t = i / 60.0
             box = np.stack(np.meshgrid(*[np.linspace(0, 0.1, 5)] * 3), -1).reshape(-1, 3)
@@ -74,6 +74,7 @@ def test_gif_from_a_recording(tmp_path):
             rec.write('/points', 'sensor_msgs/msg/PointCloud2',
                       serialize_message(buf.fill([box, np.zeros((10, 3))])),
                       1_000_000_000 + round(t * 1e9))
+    assert len(list(bag.glob('*.mcap'))) == 3
     out = tmp_path / 'rec.gif'
     assert render.main([str(bag), '--out', str(out), '--fps', '10']) == 0
     from PIL import Image

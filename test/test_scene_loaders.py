@@ -10,6 +10,7 @@ import pytest
 import yaml
 
 from sm_ros import point_files, shapes
+import sm_ros.scene as scene_module
 from sm_ros.scene import (cloud_body_spec, list_scenes, load_scene, parse_scene,
                           resolve_scene, SceneError)
 
@@ -204,9 +205,9 @@ BAD = [
     (dict(position='up'), "body 'sponge': position must be a list of 3 numbers"),
     (dict(alpha=1.5), "body 'sponge': alpha must be <= 1, got 1.5"),
     (dict(beta=-0.1), "body 'sponge': beta must be >= 0, got -0.1"),
-    (dict(damping='x'), "body 'sponge': damping must be a number, got 'x'"),
+    (dict(damping='x'), "body 'sponge': damping must be a number, got a string"),
     (dict(mode='soft'), "body 'sponge': mode must be one of rigid, linear, quadratic, "
-                        "got 'soft'"),
+                        'got a string'),
     (dict(clusters=0), "body 'sponge': clusters must be >= 1, got 0"),
     (dict(clusters=1.5), "body 'sponge': clusters must be an integer, got 1.5"),
     (dict(clusters=65), "body 'sponge': clusters must be <= 64, got 65"),
@@ -241,10 +242,112 @@ def test_validation_error_names_file_body_key(tmp_path, extra, message):
 
 
 def test_exact_message_example(tmp_path):
-    path = write_scene(tmp_path, sponge(spacing=-1))
+    path = write_scene(tmp_path, 'bodies:\n  - name: sponge\n    shape: box\n'
+                                 '    size: [0.2, 0.2, 0.2]\n    spacing: -1\n')
     with pytest.raises(SceneError) as info:
         load_scene(path)
-    assert str(info.value) == f"{path}: body 'sponge': spacing must be > 0, got -1"
+    assert str(info.value) == f"{path}: line 5: body 'sponge': spacing must be > 0, got -1"
+
+
+SECRET = 'hunter2-s3cr3t'
+
+#: Files that are no scene (or a scene with a bad value) around a secret, and the error
+#: each gives: where it is and what kind of value, never the text.
+SECRET_FILES = [
+    (f'root:x:0:0:root:/root:/bin/bash\nadmin:{SECRET}:1000\n',
+     'line 1: must be a mapping, got a string'),
+    (f'{SECRET}\n', 'line 1: must be a mapping, got a string'),
+    (f'- {SECRET}\n- 2\n', 'line 1: must be a mapping, got a list of 2 items'),
+    (f'password: {SECRET}\n', 'line 1: unknown key at the top level; allowed:'),
+    (f'bodies: {SECRET}\n', 'line 1: bodies must be a non-empty list, got a string'),
+    (f'bodies: [{SECRET}]\n', 'line 1: bodies[0] must be a mapping, got a string'),
+    (f'description: [{SECRET}]\nbodies: [{{shape: box}}]\n',
+     'line 1: description must be a string, got a list of 1 item'),
+    (f'bodies:\n- shape: box\n  mode: {SECRET}\n',
+     "line 3: body 'body0': mode must be one of rigid, linear, quadratic, got a string"),
+    (f'bodies:\n- shape: {SECRET}\n', "line 2: body 'body0': shape must be one of box"),
+    (f'key: "{SECRET}\n', 'invalid YAML at line 2, column 1: found unexpected end'),
+    (f'a: b\n{SECRET}: [\n', 'invalid YAML at line 3, column 1:'),
+    (f'{SECRET}: *{SECRET}\n', 'invalid YAML at line 1'),
+    (f'%YAML 9.9 {SECRET}\n', 'invalid YAML at line 1'),
+    (f'{SECRET}\t: 1\n\t{SECRET}', 'invalid YAML at line'),
+]
+
+
+@pytest.mark.parametrize('text, message', SECRET_FILES, ids=[m[:40] for _, m in SECRET_FILES])
+def test_error_for_a_file_of_secrets_names_line_and_kind_not_text(tmp_path, text, message):
+    """A file that is no scene (``scene:=/etc/passwd``) is refused with its path, the line
+    and the kind of value found; its text (the secret) appears nowhere in the message."""
+    path = write_scene(tmp_path, text)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert str(info.value).startswith(f'{path}: ')
+    assert message in str(info.value)
+    assert SECRET not in str(info.value)
+    assert 'bash' not in str(info.value)
+
+
+def test_binary_and_huge_files_are_refused_without_their_bytes(tmp_path):
+    """A file that is not UTF-8 names the offending byte's offset; a file larger than any
+    scene is refused before it is read."""
+    path = tmp_path / 'blob.yaml'
+    path.write_bytes(b'bodies: []\n' + SECRET.encode() + b'\xff\xfe')
+    with pytest.raises(SceneError, match=r'is not UTF-8 text \(byte 25\)') as info:
+        load_scene(str(path))
+    assert SECRET not in str(info.value)
+    big = tmp_path / 'big.yaml'
+    with open(big, 'wb') as f:
+        f.truncate(scene_module.MAX_SCENE_BYTES + 1)
+    with pytest.raises(SceneError, match='larger than'):
+        load_scene(str(big))
+
+
+CLOUD_SECRETS = [
+    ('c.ply', f'ply\nformat ascii 1.0\nelement vertex 1\nproperty {SECRET} x\nend_header\n',
+     'PLY header line 4: unsupported property'),
+    ('c.ply', f'ply\nformat {SECRET} 1.0\nelement vertex 1\nproperty float x\nend_header\n',
+     'unsupported PLY format'),
+    ('c.ply', f'ply\nformat ascii 1.0\nelement vertex {SECRET}\nend_header\n',
+     'PLY header line 3: element count is not a number'),
+    ('c.ply', 'ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n'
+              f'property float z\nend_header\n0 0 0\n1 {SECRET} 2\n',
+     'PLY vertex 2 is not numeric'),
+    ('c.pcd', f'FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nPOINTS {SECRET}\nDATA ascii\n',
+     'PCD header is malformed'),
+    ('c.pcd', f'FIELDS x y z\nSIZE 4 4 4\nTYPE F F {SECRET}\nPOINTS 1\nDATA ascii\n',
+     'PCD has an unsupported TYPE/SIZE'),
+    ('c.pcd', f'FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nPOINTS 1\nDATA {SECRET}\n',
+     'unsupported PCD DATA mode'),
+    ('c.pcd', f'FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nPOINTS 1\nDATA ascii\n0 {SECRET} 1\n',
+     'PCD point 1 is not numeric'),
+    ('c.npy', f"\x93NUMPY\x01\x00v\x00{{'descr': '{SECRET}', 'fortran_order': False}}\n",
+     'cannot read .npy (ValueError)'),
+]
+
+
+@pytest.mark.parametrize('name, text, message', CLOUD_SECRETS,
+                         ids=[m[:36] for _, _, m in CLOUD_SECRETS])
+def test_cloud_file_errors_name_the_line_not_the_text(tmp_path, name, text, message):
+    """A point-cloud file a cloud body names is refused with the header line or the row,
+    never its text."""
+    (tmp_path / 'scenes').mkdir()
+    (tmp_path / 'scenes' / name).write_bytes(text.encode('latin-1'))
+    path = write_scene(tmp_path, {'bodies': [body('cloud', file=name)]})
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert message in str(info.value)
+    assert SECRET not in str(info.value)
+
+
+def test_mesh_reader_error_names_only_its_kind(tmp_path, trimesh):
+    """A mesh file trimesh cannot read is refused with the reader's error type."""
+    (tmp_path / 'scenes').mkdir()
+    (tmp_path / 'scenes' / 'm.obj').write_text(f'v 0 0 0\nv 1 0 0\nf 1 2 {SECRET}\n')
+    path = write_scene(tmp_path, {'bodies': [body('mesh', file='m.obj')]})
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert "body 'b': file 'm.obj'" in str(info.value)
+    assert SECRET not in str(info.value)
 
 
 def test_scene_error_is_value_error():
@@ -260,14 +363,14 @@ def body(shape, **kw):
 
 BAD_SHAPES = [
     (body('sphere', radius=0), "body 'b': radius must be > 0, got 0"),
-    (body('sphere'), "body 'b': radius must be a number, got None"),
+    (body('sphere'), "body 'b': radius must be a number, got nothing"),
     (body('capsule', radius=0.1, length=-1), "body 'b': length must be >= 0, got -1"),
     (body('cylinder', radius=0.1, length=0), "body 'b': length must be > 0, got 0"),
     (body('sheet', size=[1, 1, 1]), "body 'b': size must be a list of 2 numbers"),
     (body('rope', length=1, density=3), "body 'b': density needs a volume lattice"),
     (body('mesh', file='nope.stl'), "body 'b': file 'nope.stl' not found"),
     (body('mesh', file='m.stl', fill='surface'), "body 'b': fill must be one of lattice, "
-                                                 "vertices, got 'surface'"),
+                                                 'vertices, got a string'),
     (body('cloud', file='c.xyz'), "body 'b': file 'c.xyz': unsupported cloud file type"),
     (body('cloud', file='c.npy', max_points=0), "body 'b': max_points must be >= 1, got 0"),
     (body('cloud', file='c.npy', scale=-2), "body 'b': scale must be > 0, got -2"),
@@ -299,7 +402,7 @@ TOP_BAD = [
     ('', 'is empty'),
     ('- 1\n', 'must be a mapping'),
     ('bodys: []\n', "unknown key 'bodys' (did you mean 'bodies'?)"),
-    ('bodies: [1]\n', 'bodies[0] must be a mapping, got 1'),
+    ('bodies: [1]\n', 'line 1: bodies[0] must be a mapping, got a number'),
     ('bodies: [{name: a}]\n', "body 'a': shape is required"),
     ('bodies: [{shape: box, size: [1, 1, 1]}, {shape: box, size: [1, 1, 1], name: body0}]\n',
      "body 'body0': name is used twice"),

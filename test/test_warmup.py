@@ -95,3 +95,63 @@ def test_second_warm_up_process_runs_its_part(warm):
                          env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert out.stdout == ''
+
+
+def test_scene_start_note_only_on_a_cold_cache(monkeypatch):
+    """The node's cold-start line names the scene and the background warm-up; a warm cache
+    (or one that cannot be told) logs nothing."""
+    from sm_ros import warmup
+    monkeypatch.setattr(warmup, 'cold_kernels', lambda: 150)
+    note = warmup.scene_start_note('many')
+    assert "compiling the kernels scene 'many' needs first" in note
+    assert 'background process (niced, one core)' in note
+    assert "scene 'default'" in warmup.scene_start_note('')
+    for warm in (0, None):
+        monkeypatch.setattr(warmup, 'cold_kernels', lambda answer=warm: answer)
+        assert warmup.scene_start_note('many') is None
+
+
+BACKGROUND_PROBE = '''
+import os, sys
+from sm_ros import warmup
+done = []
+warmup.warm_up = lambda **kw: done.append(kw)
+warmup.warm_scene = lambda name: done.append(name)
+assert warmup.main(['--background']) == 0
+print(os.getpriority(os.PRIO_PROCESS, 0), len(os.sched_getaffinity(0)),
+      os.sched_getscheduler(0) == os.SCHED_IDLE, done)
+'''
+
+
+@pytest.mark.skipif(not hasattr(os, 'sched_getaffinity'), reason='needs Linux affinity')
+def test_background_warm_up_runs_niced_on_one_core_and_warms_everything(tmp_path):
+    """``python -m sm_ros.warmup --background`` (what a node on a cold cache starts) lowers
+    its own priority to 19 in the idle scheduling class and keeps to one core, then runs
+    the whole warm-up in this one process (no split) and the default scene."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    out = subprocess.run([sys.executable, '-c', BACKGROUND_PROBE], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "19 1 True [{'split': False}, 'default']"
+
+
+def test_start_background_runs_with_the_nodes_thread_count_and_can_be_stopped(monkeypatch):
+    """The background process gets this process's Numba thread count (the kernels it picks
+    depend on it) and ``stop_background`` kills it; its waiter then sees no exit status."""
+    import numba
+    from sm_ros import warmup
+    seen = []
+
+    def spawn(args, env_extra=None):
+        seen.append((args, env_extra))
+        import tempfile
+        return (subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)']),
+                tempfile.TemporaryFile())
+    monkeypatch.setattr(warmup, '_spawn', spawn)
+    extra = warmup.start_background()
+    assert seen == [(['--background'],
+                     {'NUMBA_NUM_THREADS': str(numba.config.NUMBA_NUM_THREADS)})]
+    assert extra in warmup._HELPERS and extra[0].poll() is None
+    warmup.stop_background(extra)
+    assert warmup.finish_background(extra) is None
+    assert extra not in warmup._HELPERS and extra[1].closed

@@ -13,6 +13,8 @@ Subcommands (each writes markdown + CSV tables and PNG plots into ``--out``):
 - ``tick``      the node's tick on a bundled scene without ROS (``sm_ros.bench.tick``);
 - ``transport`` clouds across a process boundary, DDS profiles (``sm_ros.bench.transport``);
 - ``profile``   cProfile of a scene's ticks, the top entries (``sm_ros.bench.profile``);
+- ``startup``   seconds to sim_node's first cloud, cold and warm, and the full warm-up
+  (``sm_ros.bench.startup``);
 - ``all``       scaling + accuracy + node (the default).
 
 ``--write-doc [PATH]`` runs a short fixed set of these and writes doc/benchmarks.md
@@ -65,6 +67,7 @@ HANDED_OVER = {
     'tick': "the node's tick on a bundled scene, without ROS (sm_ros.bench.tick)",
     'transport': 'clouds across a process boundary (sm_ros.bench.transport)',
     'profile': "cProfile of a scene's ticks (sm_ros.bench.profile)",
+    'startup': 'first cloud cold and warm, full warm-up (sm_ros.bench.startup)',
 }
 
 
