@@ -252,12 +252,11 @@ def measure_hit(case: Case, tr: Track) -> Dict[str, float]:
     """Two boxes in zero gravity: momentum and angular momentum changes (relative), spins,
     largest kinetic energy over the start's, separation over approach speed (along x)."""
     mom, ang, ke = tr.mom.sum(axis=1), tr.angmom.sum(axis=1), tr.ke.sum(axis=1)
-    a, b, vel = tr.names.index('a'), tr.names.index('b'), tr.vel
+    a, b, vel, spin = tr.names.index('a'), tr.names.index('b'), tr.vel, tr.spin[-1]
     approach = vel[0, a, 0] - vel[0, b, 0]
     return {'momentum_err': float(np.abs(mom - mom[0]).max() / np.linalg.norm(mom[0])),
             'angmom_err': float(np.abs(ang - ang[0]).max() / np.linalg.norm(ang[0])),
-            'spin_a': float(np.linalg.norm(tr.spin[-1, a])),
-            'spin_b': float(np.linalg.norm(tr.spin[-1, b])),
+            'spin_a': float(np.linalg.norm(spin[a])), 'spin_b': float(np.linalg.norm(spin[b])),
             'energy_ratio': float(ke.max() / ke[0]),
             'separation': float((vel[-1, b, 0] - vel[-1, a, 0]) / approach)}
 
