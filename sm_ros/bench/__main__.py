@@ -10,6 +10,7 @@ Subcommands (each writes markdown + CSV tables and PNG plots into ``--out``):
 - ``node``      the ROS node publishing clouds at 30/60 Hz (needs rclpy);
 - ``soak``      hands over to ``sm_ros.bench.soak:main`` (the soak test);
 - ``contact``   body-body contact against scipy's cKDTree (``sm_ros.bench.contact``);
+- ``peers``     issue 26's contact cases in PyBullet, MuJoCo and sm_ros (``sm_ros.bench.peers``);
 - ``all``       scaling + accuracy + node (the default).
 
 ``targets.md`` lists the issue's targets with the figures this run measured.
@@ -49,6 +50,8 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser('soak', help='long-running soak test (sm_ros.bench.soak)', add_help=False)
     sub.add_parser('contact', help='body-body contact against cKDTree (sm_ros.bench.contact)',
                    add_help=False)
+    sub.add_parser('peers', help='contact cases in PyBullet, MuJoCo, sm_ros (sm_ros.bench.peers)',
+                   add_help=False)
     return p
 
 
@@ -65,6 +68,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     if argv[:1] == ['contact']:
         from . import contact
         return contact.main(argv[1:])
+    if argv[:1] == ['peers']:
+        from . import peers
+        return peers.main(argv[1:])
     if not argv or argv[0] not in ('scaling', 'accuracy', 'node', 'material', 'all', '-h',
                                    '--help'):
         argv = ['all'] + argv
