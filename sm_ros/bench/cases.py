@@ -135,7 +135,8 @@ def rotation_deg(rot_a: np.ndarray, rot_b: np.ndarray) -> np.ndarray:
     """Angle (deg) of the rotation from ``rot_a`` to ``rot_b`` (..., 3, 3)."""
     rel = np.einsum('...ji,...jk->...ik', rot_a, rot_b)
     cos = (np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    sin = np.linalg.norm(rel - np.swapaxes(rel, -1, -2), axis=(-2, -1)) / (2.0 * math.sqrt(2.0))
+    return np.degrees(np.arctan2(sin, cos))             # arccos alone is inexact near 0
 
 
 def turned_deg(track: Track, body: int) -> np.ndarray:
@@ -224,7 +225,6 @@ def measure_drop(case: Case, tr: Track) -> Dict[str, float]:
     drop = z[0] - z[low]
     energy = tr.ke[:, k] + m * G * (z - z[low])
     return {'bounce_ratio': float((z[low:].max() - z[low]) / drop),
-            'target_ratio': case.restitution ** 2,
             'energy_ratio': float(energy[low:].max() / (m * G * drop))}
 
 
