@@ -43,6 +43,8 @@ class Bullet:
 
     label = 'PyBullet'
     DT = 1.0 / 240.0
+    #: Linear and angular damping of every solid; None keeps PyBullet's default (0.04).
+    damping = None
 
     def __init__(self, case: Case):
         import pybullet as pb
@@ -71,6 +73,9 @@ class Bullet:
             body = pb.createMultiBody(s.mass, self._shape(s.shape, s.size), -1, s.position,
                                       s.quat, **kw)
             pb.changeDynamics(body, -1, **mat, **kw)
+            if self.damping is not None:
+                pb.changeDynamics(body, -1, linearDamping=self.damping,
+                                  angularDamping=self.damping, **kw)
             pb.resetBaseVelocity(body, s.velocity, s.spin, **kw)
             self.ids.append(body)
 

@@ -51,11 +51,15 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument('--soft-seconds', type=float, default=0.5,
                    help='simulated seconds of the soft cube (0 skips it)')
     p.add_argument('--threads', type=int, default=1, help='Numba threads of sm_ros')
+    p.add_argument('--pybullet-damping', type=float, default=None,
+                   help="linear and angular damping of PyBullet's solids (default: its own, "
+                        '0.04)')
     p.add_argument('--write-doc', action='store_true', help='write doc/peers.md')
 
 
-def engine_classes(names: List[str]) -> Dict[str, Any]:
-    """{engine: class or None}; a missing library is reported once and gets None."""
+def engine_classes(names: List[str], bullet_damping=None) -> Dict[str, Any]:
+    """{engine: class or None}; a missing library is reported once and gets None.
+    ``bullet_damping``: PyBullet's solids take this damping instead of its default."""
     from . import peer_engines as pe
     out = {}
     for name in names:
@@ -65,6 +69,8 @@ def engine_classes(names: List[str]) -> Dict[str, Any]:
         try:
             __import__('pybullet' if name == 'pybullet' else 'mujoco')
             out[name] = pe.Bullet if name == 'pybullet' else pe.MuJoCo
+            if name == 'pybullet' and bullet_damping is not None:
+                out[name] = type('Bullet', (pe.Bullet,), {'damping': bullet_damping})
         except ImportError:
             print(f'peers: {LABELS[name]} is not installed (pip install -e .[bench]); its '
                   'column stays empty', file=sys.stderr)
@@ -209,6 +215,24 @@ def soft_sm_ros(seconds: float) -> Dict[str, Any]:
 
 # --- tables ---
 
+NOTES = """\
+- The engines' solids are the cases' outlines.  sm_ros fills them with particles 2 cm
+  apart, of contact radius 1 cm, that touch one another as spheres; its colliders (ground,
+  table, slope, finger) still see the particles as points, so a solid put on one falls
+  1 cm before it rests and a thin finger reaches 1 cm further into a body.
+- PyBullet's default damping (0.04, linear and angular) slows fast bodies: the rolling
+  ball and the sliding box lose speed and the zero-g hit momentum.  Without it
+  (`--engines pybullet --cases incline_ball,incline_mu0.2 --pybullet-damping 0`) the ball
+  rolls at 1.00 of (5/7) g sin and the box slides at 1.00 of g(sin - mu cos).
+- MuJoCo's contacts are soft: momentum is kept to about 1e-6, and a restitution e > 0 is
+  a spring-damper of that damping ratio (it has no restitution coefficient).
+- `paper_384`: sm_ros runs the scene (stiff shape-matched bodies, sleeping on); the
+  engines its bodies as rigid primitives.  PyBullet deactivates bodies at rest; MuJoCo
+  does not sleep by default.
+- Outcomes in one table are measured the same way for every engine from a track sampled
+  once per node tick (1/60 s; `sm_ros/bench/cases.py`); the targets are issue 26's."""
+
+
 def differences() -> str:
     """What differs between the engines as this benchmark runs them (markdown)."""
     rows = [
@@ -308,7 +332,7 @@ def report(res: Dict[str, Any]) -> str:
     for key in ('pile', 'soft'):
         if key in res['tables']:
             parts += ['', res['tables'][key]]
-    return '\n'.join(parts) + '\n'
+    return '\n'.join(parts + ['', '## Notes', '', NOTES]) + '\n'
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -327,7 +351,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         p.error(f'unknown engine or case: {", ".join(bad)} (cases: {", ".join(known)})')
     import numba
     numba.set_num_threads(max(1, min(args.threads, numba.config.NUMBA_NUM_THREADS)))
-    engines = engine_classes(names)
+    engines = engine_classes(names, args.pybullet_damping)
     res: Dict[str, Any] = {'command': 'python -m sm_ros.bench peers ' + shlex.join(argv),
                            'machine': bc.machine_info(), 'versions': _versions(engines),
                            'threads': numba.get_num_threads(), 'tables': {}}
