@@ -60,7 +60,8 @@ setup(
             'colcon-core', 'colcon-python-setup-py', 'colcon-ros', 'catkin_pkg',
             'ruff',
         ],
-        'bench': ['matplotlib', 'psutil', 'pypbd', 'scipy'],  # scipy: contact baseline (cKDTree)
+        # scipy: contact baseline (cKDTree); pybullet, mujoco: `python -m sm_ros.bench peers`
+        'bench': ['matplotlib', 'psutil', 'pypbd', 'scipy', 'pybullet>=3.2.7', 'mujoco>=4.0'],
     },
     zip_safe=True,
     maintainer='sm_ros maintainers',

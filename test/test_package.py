@@ -80,7 +80,8 @@ def test_setup_py_dependencies_and_entry_point():
     assert wheels | {'ros-jazzy-rclpy[fastrtps]'} == set(extras['ros'])
     assert set(extras['test']) >= {'pytest', 'hypothesis', 'psutil', 'trimesh', 'matplotlib'}
     assert extras['mesh'] == ['trimesh'] and extras['plot'] == ['matplotlib']
-    assert set(extras['bench']) == {'matplotlib', 'psutil', 'pypbd', 'scipy'}
+    assert set(extras['bench']) == {'matplotlib', 'psutil', 'pypbd', 'scipy', 'pybullet>=3.2.7',
+                                   'mujoco>=4.0'}
     assert kw['entry_points']['console_scripts'] == ['sim_node = sm_ros.node:main',
                                                      'warmup = sm_ros.warmup:main']
     assert kw['license'] == 'Apache-2.0'

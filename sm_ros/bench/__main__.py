@@ -15,6 +15,7 @@ Subcommands (each writes markdown + CSV tables and PNG plots into ``--out``):
 - ``profile``   cProfile of a scene's ticks, the top entries (``sm_ros.bench.profile``);
 - ``startup``   seconds to sim_node's first cloud, cold and warm, and the full warm-up
   (``sm_ros.bench.startup``);
+- ``peers``     the contact cases in PyBullet, MuJoCo and sm_ros (``sm_ros.bench.peers``);
 - ``all``       scaling + accuracy + node (the default).
 
 ``--write-doc [PATH]`` runs a short fixed set of these and writes doc/benchmarks.md
@@ -68,6 +69,7 @@ HANDED_OVER = {
     'transport': 'clouds across a process boundary (sm_ros.bench.transport)',
     'profile': "cProfile of a scene's ticks (sm_ros.bench.profile)",
     'startup': 'first cloud cold and warm, full warm-up (sm_ros.bench.startup)',
+    'peers': 'contact cases in PyBullet, MuJoCo and sm_ros (sm_ros.bench.peers)',
 }
 
 
