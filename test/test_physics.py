@@ -579,8 +579,8 @@ def test_copies_of_the_world_keep_the_array_types():
     pickled = pickle.loads(pickle.dumps(world))
     for b, t, p, q in zip(world.bodies, twin.bodies, plain.bodies, pickled.bodies):
         arrays = [k for k, v in vars(b).items() if isinstance(v, np.ndarray)]
-        assert {'m', 'x_init', '_x', '_v'} <= set(arrays)
-        assert not b.m.flags.writeable and not b.x_init.flags.writeable
+        assert {'_m', '_x_init', '_x', '_v'} <= set(arrays)
+        assert not b._m.flags.writeable and not b._x_init.flags.writeable
         for k in arrays:
             assert numba.typeof(getattr(t, k)) == numba.typeof(getattr(b, k)), k
             assert numba.typeof(getattr(p, k)) == numba.typeof(getattr(b, k)), k

@@ -168,7 +168,7 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     body.shape_error_rms()                 # keep the last step's figure across a rebuild
     p = body._params
     n = body.n
-    x0, m = body._x0, body.m
+    x0, m = body._x0, body._m
     mode = _MODE_ID[p.mode]
     body._mode = mode
     body._quad = mode == 2
@@ -181,7 +181,7 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
         member = np.zeros(n, dtype=np.int64)
         rows = np.arange(n)
     else:
-        pre = getattr(body, '_members', None)   # from set_order (Body order='set')
+        pre = getattr(body, '_members', None)   # from set_order (``Body.__init__``)
         if pre is not None and pre[0] == p.clusters:
             body._ptr, body._cl, nk, groups = pre[1:]
         else:
@@ -309,7 +309,7 @@ def refresh_rest(body, which):
                    - sq[:, :, None] * sq[:, None, :] / body._wsum[idx, None, None])
             body._mom3[idx] = 0.5 * (mom + mom.transpose(0, 2, 1))
     else:
-        K.moments(x0=body._x0, mass=body.m, ptr=body._ptr, cl=body._cl,
+        K.moments(x0=body._x0, mass=body._m, ptr=body._ptr, cl=body._cl,
                   rest_lin=body._rest_lin, rest_off=body._rest_off, wsum=body._wsum,
                   which=which, need3=body._need3, need9=body._need9, sum_q=body._sum_q,
                   mom3=body._mom3, mom9=body._mom9, f9=body._f9)
@@ -329,7 +329,7 @@ def merge_kinematic(body):
     keep = ~np.isin(grab, pins)
     body._kin_idx = np.concatenate([grab[keep], pins]).astype(np.int64)
     body._kin_tgt = np.ascontiguousarray(
-        np.concatenate([body._grab_tgt[keep], body.x_init[pins]]), dtype=np.float64)
+        np.concatenate([body._grab_tgt[keep], body._x_init[pins]]), dtype=np.float64)
     body._kin_prev = np.zeros_like(body._kin_tgt)
     _GENERATION[0] += 1
 
@@ -418,7 +418,7 @@ def fast_record(body, h):
     # x, v, x0 (and the set layout's y0) as their (3, N) C-contiguous blocks: a typed list
     # fixes the element type from its first record, and a one-particle body's (1, 3) view
     # is typed C (both orders at once); the world step transposes them back (layout F)
-    return (body._x.T, body._v.T, body._x0.T, body.m, body._ptr, body._cl, body._rest_lin,
+    return (body._x.T, body._v.T, body._x0.T, body._m, body._ptr, body._cl, body._rest_lin,
             body._rest_off, body._part, body._wsum, body._sum_q, body._ref, body._quat,
             body._aqq3, body._aqq9, body._scale, body._trans, body._goal_lin,
             body._goal_off, body._apq, body._accbuf, s3[0], s3[1], s3[2], s3[3],

@@ -149,7 +149,7 @@ class Pack:
             body._pack_owner = self
             # x, v, x0 as their (3, N) blocks (``body.soa``), viewed (3, N) and transposed
             # back (F) in the compiled step
-            arrays = (body._x.T, body._v.T, body._x0.T, body.m)
+            arrays = (body._x.T, body._v.T, body._x0.T, body._m)
             n = body.n
             for a, shape in zip(arrays, ((3, n), (3, n), (3, n), (n,))):
                 if (a.dtype != np.float64 or a.shape != shape

@@ -98,9 +98,9 @@ class World(WorldColliders):
         return self._bodies[name]
 
     def add_body(self, points, masses=1.0, params=None, name=None, velocities=None,
-                 pinned=None, contact=None, order=None) -> Body:
-        """Build a body from a point set (N, 3); see ``Body`` (``order='set'``: the
-        particles stored set by set, ``body.order`` the permutation; default: as given).
+                 pinned=None, contact=None) -> Body:
+        """Build a body from a point set (N, 3); see ``Body`` (it picks the storage order of
+        its particles; every array it hands out is in the caller's order).
 
         ``contact``: a ``BodyContact`` (collide with other bodies, contact radius,
         self-collision); default: collides, radius half the median neighbour distance.
@@ -116,8 +116,8 @@ class World(WorldColliders):
         if not isinstance(contact, BodyContact):
             raise ValueError('contact must be a BodyContact or None')
         contact = contact.validate()
-        body = Body(points, masses, params, name, velocities, pinned, order)
-        r0 = default_radius(body.x_init) if contact.radius is None else contact.radius
+        body = Body(points, masses, params, name, velocities, pinned)
+        r0 = default_radius(body._x_init) if contact.radius is None else contact.radius
         self._bodies[name] = body
         self._contacts[name] = (contact, r0)
         self._flat = None
@@ -164,7 +164,7 @@ class World(WorldColliders):
             raise ValueError('contact must be a BodyContact')
         contact = contact.validate()
         body = self._bodies[name]
-        r0 = default_radius(body.x_init) if contact.radius is None else contact.radius
+        r0 = default_radius(body._x_init) if contact.radius is None else contact.radius
         self._contacts[name] = (contact, r0)
         self._flat = None
 
@@ -189,7 +189,7 @@ class World(WorldColliders):
         bodies = list(self._bodies.values())
         for b in bodies:                       # bodies put in by hand get the defaults
             if b.name not in self._contacts:
-                self._contacts[b.name] = (BodyContact(), default_radius(b.x_init))
+                self._contacts[b.name] = (BodyContact(), default_radius(b._x_init))
         self._flat = FlatState(bodies)
         self._flat_builds += 1
         p = self._contact_params
