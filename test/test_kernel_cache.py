@@ -1,4 +1,5 @@
-"""The kernels' Numba cache notices edits to jitted functions in other kernel files."""
+"""The kernels' Numba cache notices edits to jitted functions in other kernel files: it
+lives in a directory keyed on every kernel file (``kernels.jit.cache_dir``)."""
 
 import os
 import subprocess
@@ -6,6 +7,7 @@ import sys
 import textwrap
 
 import pytest
+from numba.core import config
 
 from sm_ros.core import kernels as K
 from sm_ros.core.kernels import jit
@@ -31,11 +33,15 @@ def value():
 '''
 
 
-def _run(tmp_path, shared):
-    """Import the two-file package in a fresh process and return caller()."""
-    init = ('import os\nfrom sm_ros.core.kernels.jit import SHARED_STAMP_DIRS\n'
-            'SHARED_STAMP_DIRS.add(os.path.dirname(os.path.abspath(__file__)))\n'
-            if shared else '')
+def _run(tmp_path, keyed):
+    """Import the two-file package in a fresh process and return caller(); ``keyed``: its
+    cache in a directory keyed on its files (as the kernels'), else in NUMBA_CACHE_DIR."""
+    init = ('import os\nfrom numba.core import config\n'
+            'from sm_ros.core.kernels.jit import cache_dir\n'
+            'config.CACHE_DIR = cache_dir(os.path.dirname(os.path.abspath(__file__)))\n'
+            if keyed else
+            'import os\nfrom numba.core import config\n'
+            'config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]\n')
     (tmp_path / 'pkg' / '__init__.py').write_text(init)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), REPO]),
                NUMBA_CACHE_DIR=str(tmp_path / 'cache'))
@@ -45,71 +51,46 @@ def _run(tmp_path, shared):
     return float(out.stdout.split()[-1])
 
 
-@pytest.mark.parametrize('shared', [False, True])
-def test_kernel_cache_sees_edits_in_other_files(tmp_path, shared):
-    """Edit a callee in another file between two runs: the shared stamp recompiles the
-    caller; Numba's own per-file stamp (``shared=False``) serves the stale result."""
+@pytest.mark.parametrize('keyed', [False, True])
+def test_kernel_cache_sees_edits_in_other_files(tmp_path, keyed):
+    """Edit a callee in another file between two runs: the keyed directory recompiles the
+    caller; Numba's own per-file check (``keyed=False``) serves the stale result."""
     pkg = tmp_path / 'pkg'
     pkg.mkdir()
     (pkg / 'caller.py').write_text(textwrap.dedent(_CALLER))
     (pkg / 'callee.py').write_text(textwrap.dedent(_CALLEE.format('1.0')))
-    assert _run(tmp_path, shared) == 1.5
+    assert _run(tmp_path, keyed) == 1.5
     (pkg / 'callee.py').write_text(textwrap.dedent(_CALLEE.format('2.0')))
-    assert _run(tmp_path, shared) == (2.5 if shared else 1.5)
+    assert _run(tmp_path, keyed) == (2.5 if keyed else 1.5)
 
 
-def test_every_kernel_carries_the_package_stamp():
-    """All cached kernels of every kernel file use the stamp of the whole package."""
+def test_every_kernel_and_its_callers_cache_in_the_keyed_directory():
+    """Every cached kernel, and the core modules that call kernels (pose, the contact
+    kernels, the collider pass), keep their cache in the directory of the kernel files'
+    stamp."""
+    from sm_ros.core import contact_kernels, kinematic, pose
     stamp = jit.source_stamp(os.path.dirname(os.path.abspath(jit.__file__)))
+    assert config.CACHE_DIR == jit.cache_dir()
+    assert os.path.basename(config.CACHE_DIR) == 'numba-' + stamp[:16]
     dispatchers = [getattr(K, name) for name in K.__all__ if hasattr(getattr(K, name), 'py_func')]
+    for mod in (pose, contact_kernels, kinematic):
+        dispatchers += [f for f in vars(mod).values()
+                        if hasattr(f, 'py_func') and f.py_func.__module__ == mod.__name__]
     files = {os.path.basename(d.py_func.__code__.co_filename) for d in dispatchers}
     assert {'colliders.py', 'damping.py', 'goals.py', 'integrate.py', 'linalg.py',
-            'plasticity.py', 'rotation.py', 'sets.py'} <= files
+            'plasticity.py', 'rotation.py', 'sets.py', 'pose.py', 'kinematic.py'} <= files
     for d in dispatchers:
-        locator = d._cache._impl.locator
-        assert isinstance(locator, jit.KernelCacheLocator), d
-        assert locator.get_source_stamp() == stamp
-
-
-def test_core_modules_calling_kernels_carry_the_package_stamp():
-    """A jitted function of sm_ros/core outside the kernel package (pose.py calls
-    ``extract_rotation``) is stamped with its own source and the package's stamp."""
-    from sm_ros.core import pose
-    stamp = jit.source_stamp(os.path.dirname(os.path.abspath(jit.__file__)))
-    jitted = [f for f in vars(pose).values()
-              if hasattr(f, 'py_func') and f.py_func.__module__ == pose.__name__]
-    assert jitted
-    for d in jitted:
-        locator = d._cache._impl.locator
-        assert isinstance(locator, jit.KernelCacheLocator), d
-        assert locator.get_source_stamp()[1] == stamp
+        assert d._cache._cache_path.startswith(config.CACHE_DIR + os.sep), d
 
 
 def test_source_stamp_changes_with_any_file(tmp_path):
-    """The stamp hashes the content of every .py file of the directory."""
+    """The stamp (and so the cache directory) hashes the content of every .py file of the
+    directory and nothing else."""
     (tmp_path / 'a.py').write_text('x = 1\n')
     (tmp_path / 'b.py').write_text('y = 1\n')
-    first = jit.source_stamp(str(tmp_path))
+    first = jit.cache_dir(str(tmp_path), 'parent')
     (tmp_path / 'b.py').write_text('y = 2\n')
-    second = jit.source_stamp(str(tmp_path))
+    second = jit.cache_dir(str(tmp_path), 'parent')
     (tmp_path / 'notes.txt').write_text('not source')
-    assert first != second == jit.source_stamp(str(tmp_path))
-
-
-@pytest.mark.parametrize('module', ['contact_kernels', 'kinematic'])
-def test_contact_law_callers_carry_the_package_stamp(module):
-    """The contact kernels (they call ``kernels.colliders.collide_point``) and kinematic.py
-    (it calls ``kernels.colliders.contact_velocity``) are stamped with the kernel package,
-    so an edit of the shared contact law recompiles them."""
-    import importlib
-    from sm_ros.core import contact, kinematic
-    assert contact.contact_velocity is kinematic.contact_velocity is K.contact_velocity
-    mod = importlib.import_module(f'sm_ros.core.{module}')
-    stamp = jit.source_stamp(os.path.dirname(os.path.abspath(jit.__file__)))
-    jitted = [f for f in vars(mod).values()
-              if hasattr(f, 'py_func') and f.py_func.__module__ == mod.__name__]
-    assert jitted
-    for d in jitted:
-        locator = d._cache._impl.locator
-        assert isinstance(locator, jit.KernelCacheLocator), d
-        assert locator.get_source_stamp()[1] == stamp
+    assert first != second == jit.cache_dir(str(tmp_path), 'parent')
+    assert os.path.dirname(second) == 'parent'

@@ -11,23 +11,20 @@ import numpy as np
 
 from . import body_build, body_step
 from . import kernels as K
+from .kernels.flags import DIRTY, ERR_STALE, SLEEP
 from .body_build import _EMPTY_I64, _GENERATION, soa  # noqa: F401 (body.soa)
 from .packed import Pack
 from .params import BodyParams
 
 #: Bodies with at least this much work per step (particles, or cluster memberships on the
-#: membership path) run the multi-threaded kernels.  Below it a step takes well under a
-#: millisecond on one thread, and on a loaded machine (other nodes on the same cores) the
-#: threads' fork/join waits cost far more than they save: on 2 shared cores, 100k particles
-#: took 1.5 ms/step (median) on one thread and 13 ms on two (benchmarks.md).
+#: membership path) run the multi-threaded kernels: below it a step takes well under a
+#: millisecond on one thread, and the threads' fork/join waits on shared cores cost more.
 PARALLEL_MIN_WORK = 262144
 #: One-cluster bodies with at least this many particles damp inside the particle pass
-#: (``kernels.damping``); smaller ones keep the separate pass, which costs less there (384
-#: bodies of 144 particles, one cluster: 4.22 ms per step with it, 4.56 ms fused).
+#: (``kernels.damping``); smaller ones keep the separate pass, which costs less there.
 FUSED_DAMPING_MIN = 1024
-#: The same for set-layout bodies.  Their separate pass walks every cluster membership
-#: twice, the fused one takes per-set sums in the particle pass: cheaper at any size
-#: (``paper_384``'s 8-cluster bodies of 144-179 particles: 20-30 % less per body step).
+#: The same for set-layout bodies: their separate pass walks every cluster membership
+#: twice, the fused one takes per-set sums in the particle pass, cheaper at any size.
 FUSED_DAMPING_MIN_SETS = 0
 #: A multi-cluster body uses the set layout (``kernels.sets_*``) when its cluster
 #: memberships outnumber its set-cluster pairs by at least this factor (each pair costs
@@ -131,9 +128,7 @@ class Body:
         self._params = params
         self._at_step = (None, None, None)
         self._limit_counts = np.zeros(2, dtype=np.int64)
-        # [dirty, shape error stale, fused damping sums valid, sleep] (world_step, packed);
-        # sleep (``World`` sleeping, ``sm_ros.core.sleep``): 1 asleep (the steps skip the
-        # body), 0 awake, -1 held awake (a force, torque or grab acts on it)
+        # read and written by the compiled steps too (indices: ``kernels.flags``)
         self._flags = np.zeros(4)
         self._build()
         self._merge_kinematic()
@@ -170,24 +165,24 @@ class Body:
     @property
     def _dirty(self) -> bool:
         """Whether the per-cluster sums must be accumulated again before the next step."""
-        return bool(self._flags[0])
+        return bool(self._flags[DIRTY])
 
     @_dirty.setter
     def _dirty(self, value):
-        self._flags[0] = 1.0 if value else 0.0
+        self._flags[DIRTY] = 1.0 if value else 0.0
 
     @property
     def asleep(self) -> bool:
         """Whether the body is asleep (``World`` sleeping: at rest in a contact world, not
         stepped until something wakes it; README "Sleeping bodies")."""
-        return bool(self._flags[3] > 0.0)
+        return bool(self._flags[SLEEP] > 0.0)
 
     def wake(self):
         """Wake the body (it is stepped again from the next step); every input that
         changes it (state, parameters, wrench, grabs, reset) wakes it too.  A force,
         torque or grab keeps it awake while it acts."""
         held = bool(self._force.any() or self._torque.any() or len(self._grab_idx))
-        self._flags[3] = -1.0 if held else 0.0
+        self._flags[SLEEP] = -1.0 if held else 0.0
 
     def _fast_ok(self) -> bool:
         """Whether ``kernels.world_step`` may step this body (see its docstring)."""
@@ -228,7 +223,7 @@ class Body:
     def __setstate__(self, state):
         # a copy (copy.deepcopy, pickle) makes every array writeable; Numba types a
         # read-only array differently, so the copy's first step would compile a second
-        # specialisation of every kernel that reads the masses (step_packed: ~25 s cold)
+        # specialisation of every kernel that reads the masses
         self.__dict__.update(state)
         for name in ('_m', '_x_init', '_perm', '_inv'):
             if self.__dict__[name] is not None:
@@ -349,8 +344,8 @@ class Body:
         self._torque[:] = t
         torque = bool(t.any())
         # the compiled steps read the force from ``_facc`` in place; only a torque coming
-        # or going changes which step a body takes (World re-splits on a new generation:
-        # 30-60 ms for 384 bodies, so a force command must not cause one)
+        # or going changes which step a body takes (World re-splits on a new generation,
+        # which a scene of many bodies notices, so a force command must not cause one)
         if torque != self._has_torque:
             _GENERATION[0] += 1
         self._has_torque = torque
@@ -437,9 +432,9 @@ class Body:
 
     def shape_error_rms(self) -> float:
         """RMS distance of the particles to their goals in the last step (m)."""
-        if self._shape_err is None or self._flags[1]:
+        if self._shape_err is None or self._flags[ERR_STALE]:
             self._shape_err = float(np.sqrt(self._err.sum() / self.n))
-            self._flags[1] = 0.0
+            self._flags[ERR_STALE] = 0.0
         return self._shape_err
 
     def momentum(self) -> np.ndarray:

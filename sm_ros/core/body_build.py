@@ -14,12 +14,11 @@ from numba.typed import List as TypedList
 
 from . import kernels as K
 from .clusters import build_memberships
+from .kernels.flags import DAMP_SUMS
 
 
-#: Bytes a state block's first element is aligned to: the particle loops' 256-bit loads
-#: and stores of a column that starts off a 32-byte boundary cost more (the one-cluster
-#: pass's loop at 10k particles: 1.29-1.36 against 1.16-1.23 ns a particle, Eq. 13-14
-#: alone 0.97-1.01 against 0.85-0.87; ``tools/loop_floor.py --offset 16`` / ``0``).
+#: Bytes a state block's first element is aligned to: the particle loops' vector loads and
+#: stores of a column that starts off a 32-byte boundary cost more.
 STATE_ALIGN = 64
 
 
@@ -29,8 +28,8 @@ def soa(a):
     The result is an F-contiguous (N, 3) array: ``a[:, j]`` is unit-stride, so the compiled
     particle loops (which index ``x[i, j]``, typed with layout F) run over i with unit
     stride and vectorise across particles; ``a.T`` is the (3, N) block itself.  Every
-    body's per-particle state (x, v, rest positions, set offsets) is kept this way (issue
-    11 item 1).  The block starts on a ``STATE_ALIGN`` boundary (numpy's own allocations
+    body's per-particle state (x, v, rest positions, set offsets) is kept this way.  The
+    block starts on a ``STATE_ALIGN`` boundary (numpy's own allocations
     start 16 bytes past one), so its first column is aligned, and all three when N is a
     multiple of 4.  A copy (pickle, ``copy.deepcopy``) has numpy's allocation: the same
     values and layout, its loops a little slower.
@@ -283,7 +282,7 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     body._dref = np.zeros((nk, 3))
     body._dacc = np.zeros(K.NDAMP)
     body._dirty = True
-    body._flags[2] = 0.0                   # no fused damping sums yet
+    body._flags[DAMP_SUMS] = 0.0           # no fused damping sums yet
     body._arena = None                     # fast_record packs the new buffers (compact)
     _GENERATION[0] += 1
 

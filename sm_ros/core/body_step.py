@@ -10,6 +10,7 @@ current state with scratch copies (nothing of the body changes).
 import numpy as np
 
 from . import kernels as K
+from .kernels.flags import DAMP_SUMS
 
 
 def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
@@ -23,8 +24,7 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     can round differently under fast math).
     """
     if body._packed_ok():
-        body._one_pack(h).step(h, gravity, has_col, ground, boxes, spheres, thresh,
-                               body._parallel)
+        body._one_pack(h).step(h, gravity, has_col, ground, boxes, spheres, thresh)
         return
     if body._fast_ok():
         K.step_single_bodies(body._one_record(h), h, gravity, has_col, ground, boxes, spheres,
@@ -162,7 +162,7 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
         K.damp_kinematic(x=x, v=v, mass=body._m, sid=dsid, dpart=body._dpart,
                          idx=body._kin_idx, sign=1.0)
     body._shape_err = None                 # computed from body._err when asked
-    body._flags[2] = 1.0 if fused else 0.0
+    body._flags[DAMP_SUMS] = 1.0 if fused else 0.0
     # capped positions: the membership layout's sums are stale (the set layout caps
     # before it sums)
     body._dirty = capped > 0 and sets is None

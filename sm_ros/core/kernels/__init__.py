@@ -14,8 +14,9 @@ file               what it computes                                            e
 ``colliders.py``   static ground, boxes, spheres (projection, friction)         (collisions)
 ``damping.py``     damping towards each cluster's rigid motion                  (damping)
 ``limits.py``      speed and turn-per-step limits (what one step represents)   (limits)
-``world_step.py``  one compiled call steps every one-cluster body of a world   7-14
-``jit.py``         compile options; a Numba cache stamp shared by all files     -
+``world_step.py``  one compiled call steps the set-layout bodies of a world     7-14
+``flags.py``       the indices of a body's flag array                          -
+``jit.py``         compile options; the cache directory keyed on all files      -
 =================  ==========================================================  ============
 
 Public kernels never raise and assume clean, contiguous input; ``sm_ros.core.body``

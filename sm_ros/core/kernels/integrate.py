@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit, prange, types
 from numba.extending import overload
 
-from .jit import JIT, U, wide_vectors
+from .jit import JIT, U
 from .colliders import _collide_range
 from .damping import damp_acc_range, damp_towards
 from .goals import _goal_quad, _qhat
@@ -290,13 +290,6 @@ def _int_single_fused(start, end, x, v, x0, mass, wuni, goal_lin, goal_off, alph
     the caller projects them and adds what that changed in the sums
     (``colliders.ground_range_sums``).
     """
-    # 512 bits wide on AVX-512 hosts (``jit.wide_vectors``): 8 particles a vector instead
-    # of 4, the 12 sums, the error and the counts in 8-wide accumulators.  The loop's time
-    # over the 256-bit loop's, this machine kind, undamped / damped (``tools/loop_floor.py
-    # --sides 4,5,6,10,16,22``): 64 particles 0.96 / 1.03, 125 0.98 / 1.03, 216 0.90 /
-    # 0.94, 1,000 0.82 / 0.97, 4,096 0.79 / 0.96, 10,648 0.81 / 0.97; ``many`` (144-particle
-    # damped bodies) no slower, so one compilation serves every size.
-    wide_vectors()
     gmap = (goal_lin[0, 0, 0], goal_lin[0, 0, 1], goal_lin[0, 0, 2], goal_lin[0, 1, 0],
             goal_lin[0, 1, 1], goal_lin[0, 1, 2], goal_lin[0, 2, 0], goal_lin[0, 2, 1],
             goal_lin[0, 2, 2], goal_off[0, 0], goal_off[0, 1], goal_off[0, 2])

@@ -16,7 +16,7 @@ loops do (unit-stride columns, unsigned index, no array but x, v, y0, mass read 
 loop); runs shorter than a vector (lattice rows cut by the cluster faces) take the scalar
 remainder loop.  The quadratic loops fetch the map per particle: scalar.
 
-A rigid/linear body stored set by set (``World.add_body(order='set')``: one run a set)
+A rigid/linear body stored set by set (as ``Body`` stores it: one run a set)
 without torque takes one loop a run (``_sets_fused_lin``, the loop of the
 one-cluster pass ``integrate._fused_range``): each particle read and written once, its
 set's sums and damping sums taken in the same loop, all about one point per set; the
@@ -29,7 +29,7 @@ caps the speeds block by block before it sums the block, so the sums stay valid.
 import numpy as np
 from numba import njit, prange
 
-from .jit import JIT, U, wide_vectors
+from .jit import JIT, U
 from .colliders import _collide_range, ground_range_sums
 from .damping import damp_acc_range, damp_sums_range, damp_towards
 from .integrate import BLOCK, _fused_range, _rest_sums, advance, damp_constants
@@ -691,11 +691,6 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     set's reference for the next step's ``sets_reduce``.  The runs' ends come from
     ``runs`` (looking for them particle by particle cost 0.3-0.5 ns a particle).
     """
-    # 512 bits wide on AVX-512 hosts (``jit.wide_vectors``), as the one-cluster pass: the
-    # loop alone 1.32-1.50 -> 1.02 ns a particle in L2, damped 2.33-2.44 -> 2.11
-    # (``tools/loop_floor.py``); whole 8-cluster steps the same within noise at 10k and
-    # 97k (the runs' shape matches and L3 weigh more; doc/benchmarks.md, vec24)
-    wide_vectors()
     lim2 = v_max * v_max if v_max > 0.0 else np.inf
     ground_only = boxes.shape[0] == 0 and spheres.shape[0] == 0
     err2 = 0.0
