@@ -34,7 +34,8 @@ from .goals import solve_clusters_warm
 from .integrate import accumulate_serial, integrate_serial
 from .jit import JIT
 from .limits import limit_speed, limit_turn
-from .sets import sets_accumulate_serial, sets_integrate_serial, sets_maps, sets_reduce
+from .sets import sets_integrate_serial
+from .sets_sums import sets_accumulate_serial, sets_maps, sets_reduce
 
 
 @intrinsic
