@@ -1,5 +1,6 @@
-"""The kernels' Numba cache notices edits to jitted functions in other kernel files: it
-lives in a directory keyed on every kernel file (``kernels.jit.cache_dir``)."""
+"""The kernels' Numba cache notices edits to jitted functions in other kernel files: an
+edit to any kernel file drops the core's cache indexes at import
+(``kernels.jit.clear_stale_cache``)."""
 
 import os
 import subprocess
@@ -7,7 +8,6 @@ import sys
 import textwrap
 
 import pytest
-from numba.core import config
 
 from sm_ros.core import kernels as K
 from sm_ros.core.kernels import jit
@@ -33,64 +33,63 @@ def value():
 '''
 
 
-def _run(tmp_path, keyed):
-    """Import the two-file package in a fresh process and return caller(); ``keyed``: its
-    cache in a directory keyed on its files (as the kernels'), else in NUMBA_CACHE_DIR."""
-    init = ('import os\nfrom numba.core import config\n'
-            'from sm_ros.core.kernels.jit import cache_dir\n'
-            'config.CACHE_DIR = cache_dir(os.path.dirname(os.path.abspath(__file__)))\n'
-            if keyed else
-            'import os\nfrom numba.core import config\n'
-            'config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]\n')
+def _run(tmp_path, checked):
+    """Import the two-file package in a fresh process and return caller(); ``checked``:
+    the package clears its stale cache at import (as the kernels do), else Numba's own
+    per-file check alone."""
+    init = ('import os\nfrom sm_ros.core.kernels.jit import clear_stale_cache\n'
+            'clear_stale_cache(os.path.dirname(os.path.abspath(__file__)))\n'
+            if checked else '')
     (tmp_path / 'pkg' / '__init__.py').write_text(init)
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), REPO]),
-               NUMBA_CACHE_DIR=str(tmp_path / 'cache'))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), REPO]))
+    env.pop('NUMBA_CACHE_DIR', None)
     out = subprocess.run([sys.executable, '-c', 'from pkg.caller import caller; '
                           'print(caller())'], env=env, capture_output=True, text=True,
                          timeout=120, check=True)
     return float(out.stdout.split()[-1])
 
 
-@pytest.mark.parametrize('keyed', [False, True])
-def test_kernel_cache_sees_edits_in_other_files(tmp_path, keyed):
-    """Edit a callee in another file between two runs: the keyed directory recompiles the
-    caller; Numba's own per-file check (``keyed=False``) serves the stale result."""
+@pytest.mark.parametrize('checked', [False, True])
+def test_kernel_cache_sees_edits_in_other_files(tmp_path, checked):
+    """Edit a callee in another file between two runs: the cleared cache recompiles the
+    caller; Numba's own per-file check (``checked=False``) serves the stale result, and a
+    run without an edit loads the cache."""
     pkg = tmp_path / 'pkg'
     pkg.mkdir()
     (pkg / 'caller.py').write_text(textwrap.dedent(_CALLER))
     (pkg / 'callee.py').write_text(textwrap.dedent(_CALLEE.format('1.0')))
-    assert _run(tmp_path, keyed) == 1.5
+    assert _run(tmp_path, checked) == 1.5
+    index = sorted((pkg / '__pycache__').glob('caller.caller-*.nbi'))
+    assert index
+    stamp = index[0].stat().st_mtime_ns
+    assert _run(tmp_path, checked) == 1.5
+    assert index[0].stat().st_mtime_ns == stamp              # loaded, not rewritten
     (pkg / 'callee.py').write_text(textwrap.dedent(_CALLEE.format('2.0')))
-    assert _run(tmp_path, keyed) == (2.5 if keyed else 1.5)
+    assert _run(tmp_path, checked) == (2.5 if checked else 1.5)
 
 
-def test_every_kernel_and_its_callers_cache_in_the_keyed_directory():
-    """Every cached kernel, and the core modules that call kernels (pose, the contact
-    kernels, the collider pass), keep their cache in the directory of the kernel files'
-    stamp."""
-    from sm_ros.core import contact_kernels, kinematic, pose
-    stamp = jit.source_stamp(os.path.dirname(os.path.abspath(jit.__file__)))
-    assert config.CACHE_DIR == jit.cache_dir()
-    assert os.path.basename(config.CACHE_DIR) == 'numba-' + stamp[:16]
-    dispatchers = [getattr(K, name) for name in K.__all__ if hasattr(getattr(K, name), 'py_func')]
-    for mod in (pose, contact_kernels, kinematic):
-        dispatchers += [f for f in vars(mod).values()
-                        if hasattr(f, 'py_func') and f.py_func.__module__ == mod.__name__]
-    files = {os.path.basename(d.py_func.__code__.co_filename) for d in dispatchers}
-    assert {'colliders.py', 'damping.py', 'goals.py', 'integrate.py', 'linalg.py',
-            'plasticity.py', 'rotation.py', 'sets.py', 'pose.py', 'kinematic.py'} <= files
-    for d in dispatchers:
-        assert d._cache._cache_path.startswith(config.CACHE_DIR + os.sep), d
+def test_the_stamp_of_the_kernel_files_is_kept_with_the_cache():
+    """The import left the kernel files' stamp beside their cache (so the next import
+    keeps the cache), and an import with that stamp removes nothing."""
+    directory = os.path.dirname(os.path.abspath(jit.__file__))
+    mark = os.path.join(directory, '__pycache__', 'kernel_sources.sha256')
+    with open(mark, encoding='ascii') as f:
+        assert f.read() == jit.source_stamp(directory)
+    before = sorted(p for p, _, names in os.walk(os.path.dirname(directory))
+                    for n in names if n.endswith('.nbi'))
+    jit.clear_stale_cache()
+    after = sorted(p for p, _, names in os.walk(os.path.dirname(directory))
+                   for n in names if n.endswith('.nbi'))
+    assert before == after
+    assert callable(K.extract_rotation)
 
 
 def test_source_stamp_changes_with_any_file(tmp_path):
-    """The stamp (and so the cache directory) hashes the content of every .py file of the
-    directory and nothing else."""
+    """The stamp hashes the content of every .py file of the directory and nothing else."""
     (tmp_path / 'a.py').write_text('x = 1\n')
     (tmp_path / 'b.py').write_text('y = 1\n')
-    first = jit.cache_dir(str(tmp_path), 'parent')
+    first = jit.source_stamp(str(tmp_path))
     (tmp_path / 'b.py').write_text('y = 2\n')
-    second = jit.cache_dir(str(tmp_path), 'parent')
+    second = jit.source_stamp(str(tmp_path))
     (tmp_path / 'notes.txt').write_text('not source')
-    assert first != second == jit.cache_dir(str(tmp_path), 'parent')
-    assert os.path.dirname(second) == 'parent'
+    assert first != second == jit.source_stamp(str(tmp_path))

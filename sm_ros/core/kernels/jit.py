@@ -1,12 +1,11 @@
-"""Compilation options shared by every kernel, and the place of their Numba cache.
+"""Compilation options shared by every kernel, and a Numba cache that sees across files.
 
-Numba's on-disk cache (``cache=True``) checks a compiled function against its own file
-only, not against the jitted functions it calls in other files, so a cached kernel would
-keep an old copy of an edited callee.  The cache therefore lives in a directory named
-after the SHA-256 of every kernel file (``cache_dir``): an edit to any kernel file starts
-an empty directory and every function jitted after this import (the kernels and the core
-modules that call them) compiles afresh.  ``NUMBA_CACHE_DIR``, where set, holds that
-directory; else it is ``sm_ros/core/__pycache__``.
+Numba's on-disk cache (``cache=True``, in each folder's ``__pycache__``) checks a compiled
+function against its own file only, not against the jitted functions it calls in other
+files, so a cached kernel would keep an old copy of an edited callee.  Therefore, when
+any kernel file changed since the cache was written, ``clear_stale_cache`` drops the
+cache indexes of all of ``sm_ros/core`` at import, and every kernel and every core module
+that calls one compiles afresh (``test/test_kernel_cache.py``).
 """
 
 import functools
@@ -50,16 +49,43 @@ def source_stamp(directory):
     return _hash_files(tuple(stats))
 
 
-def cache_dir(directory=_KERNEL_DIR, parent=None):
-    """The Numba cache directory for the sources of ``directory``: ``parent`` (default
-    ``NUMBA_CACHE_DIR``, else the ``__pycache__`` beside ``directory``) / numba-<stamp>."""
-    if parent is None:
-        parent = (os.environ.get('NUMBA_CACHE_DIR')
-                  or os.path.join(os.path.dirname(directory), '__pycache__'))
-    return os.path.join(parent, 'numba-' + source_stamp(directory)[:16])
+def clear_stale_cache(directory=_KERNEL_DIR, root=None):
+    """Drop the Numba cache indexes (``*.nbi``) below ``root`` (default: the folder above
+    ``directory``) and in the ``NUMBA_CACHE_DIR`` folders of the same names when the files
+    of ``directory`` changed since the last call (their stamp is kept in
+    ``directory/__pycache__``)."""
+    stamp = source_stamp(directory)
+    mark = os.path.join(directory, '__pycache__', 'kernel_sources.sha256')
+    try:
+        with open(mark, encoding='ascii') as f:
+            if f.read() == stamp:
+                return
+    except OSError:
+        pass
+    root = root or os.path.dirname(directory)
+    tops = [root]
+    if config.CACHE_DIR and os.path.isdir(config.CACHE_DIR):
+        # Numba names a folder's cache there <folder name>_<hash of its path>
+        names = {os.path.basename(f) for f, _, _ in os.walk(root)}
+        tops += [os.path.join(config.CACHE_DIR, d) for d in os.listdir(config.CACHE_DIR)
+                 if d.rsplit('_', 1)[0] in names]
+    for top in tops:
+        for folder, _, names in os.walk(top):
+            for name in names:
+                if name.endswith('.nbi'):
+                    try:
+                        os.remove(os.path.join(folder, name))
+                    except OSError:             # gone already (another process)
+                        pass
+    try:
+        os.makedirs(os.path.dirname(mark), exist_ok=True)
+        with open(mark, 'w', encoding='ascii') as f:
+            f.write(stamp)
+    except OSError:                             # a read-only install: nothing is cached
+        pass
 
 
-config.CACHE_DIR = cache_dir()
+clear_stale_cache()
 
 #: Index type of the particle loops that run over a range ``start..end``:
 #: ``for i in range(U(start), U(end))``.  Numba wraps a negative signed index around
