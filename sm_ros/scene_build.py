@@ -93,30 +93,23 @@ def body_contact_from(body: BodySpec):
 
 
 def add_spec_body(world, body: BodySpec, defaults: Optional[Mapping[str, Any]] = None,
-                  source: str = '<scene>', order: Optional[str] = 'set') -> BodyMeta:
+                  source: str = '<scene>') -> BodyMeta:
     """
     Add one BodySpec to a World; returns its BodyMeta. The world is unchanged on error.
 
-    With ``order='set'`` (the default) the body stores its particles set by set
-    (``World.add_body(..., order='set')``, ``sm_ros.core.set_order``: the set-layout
-    kernels then run over one run of particles per cluster set); None keeps the spec's
-    order. Its pins are remapped by the core, its surface
-    here (``Surface.reordered``), so both name the same physical particles; ``body.x``
-    rows are then ``body.points[body.order]``. Raises SceneError (naming the body) when
-    the core refuses the body or its parameters.
+    ``body.x`` rows are the spec's points in their order (the core picks its own storage
+    order inside). Raises SceneError (naming the body) when the core refuses the body or
+    its parameters.
     """
     try:
         params = params_from(defaults, body.overrides)
-        core = world.add_body(body.points, masses=body.masses, params=params,
-                              name=body.name, velocities=body.velocities,
-                              pinned=body.pinned if len(body.pinned) else None,
-                              contact=body_contact_from(body), order=order)
+        world.add_body(body.points, masses=body.masses, params=params, name=body.name,
+                       velocities=body.velocities,
+                       pinned=body.pinned if len(body.pinned) else None,
+                       contact=body_contact_from(body))
     except ValueError as exc:
         raise Where(source, body.name).error(None, str(exc)) from None
-    surface = body.surface
-    if surface is not None and core.order is not None:
-        surface = surface.reordered(core.order)
-    return BodyMeta(name=body.name, overrides=dict(body.overrides), surface=surface,
+    return BodyMeta(name=body.name, overrides=dict(body.overrides), surface=body.surface,
                     shape=body.shape)
 
 
@@ -143,13 +136,12 @@ def core_colliders(colliders: Mapping[str, Any]):
     return boxes, spheres, capsules
 
 
-def build_world(spec: SceneSpec, defaults: Optional[Mapping[str, Any]] = None,
-                order: Optional[str] = 'set'):
+def build_world(spec: SceneSpec, defaults: Optional[Mapping[str, Any]] = None):
     """
     A new sm_ros.core.World holding the scene: gravity from `defaults`, colliders (the
-    ground per :func:`ground_from`), and every body (its particles stored as ``order``
-    says, see :func:`add_spec_body`). Returns (world, metas) with metas in the order of
-    ``world.bodies``. Raises SceneError; no partial world is returned.
+    ground per :func:`ground_from`), and every body (:func:`add_spec_body`).
+    Returns (world, metas) with metas in the order of ``world.bodies``. Raises SceneError;
+    no partial world is returned.
     """
     from sm_ros.core import World
     d = _merged(defaults)
@@ -158,7 +150,7 @@ def build_world(spec: SceneSpec, defaults: Optional[Mapping[str, Any]] = None,
     world.set_colliders(ground=ground_from(spec.colliders.get('ground'), d), boxes=boxes,
                         spheres=spheres, capsules=capsules)
     world.contact_params = contact_from(spec.contact, d)
-    metas = [add_spec_body(world, b, d, spec.source, order) for b in spec.bodies]
+    metas = [add_spec_body(world, b, d, spec.source) for b in spec.bodies]
     return world, metas
 
 

@@ -161,22 +161,14 @@ def apply_body_params(world, metas, changes: Mapping[str, Any], log) -> None:
 
 def carry_state(old_world, new_world) -> None:
     """Give every body of ``new_world`` the state (x, v) of the body of ``old_world`` with
-    its name, where that one has the same rest shape and masses (the same points in the
-    scene's order: scene bodies store them set by set, ``Body.order``, and another
-    ``clusters`` sorts them differently)."""
+    its name, where that one has the same rest shape and masses."""
     old = {b.name: b for b in old_world.bodies}
     for b in new_world.bodies:
         o = old.get(b.name)
         if o is None or o.n != b.n:
             continue
-        rows = np.arange(b.n)
-        if o.order is not None or b.order is not None:
-            # row j of b is scene point bo[j], which is row inv_o[bo[j]] of o
-            inv_o = np.empty(o.n, dtype=np.int64)
-            inv_o[o.order if o.order is not None else rows] = rows
-            rows = inv_o[b.order if b.order is not None else rows]
-        if np.array_equal(o.x_init[rows], b.x_init) and np.array_equal(o.m[rows], b.m):
-            b.set_state(x=o.x[rows], v=o.v[rows])
+        if np.array_equal(o.x_init, b.x_init) and np.array_equal(o.m, b.m):
+            b.set_state(x=o.x, v=o.v)
 
 
 class Simulation:

@@ -107,7 +107,7 @@ def test_plastic_refresh_at_cluster_cost_matches_the_particle_pass(mode, cluster
         world.step(0.005)
     assert np.abs(body.plastic_state - np.eye(3)).max() > 0.01      # it flowed
     sum_q, mom3 = np.zeros_like(body._sum_q), np.zeros_like(body._mom3)
-    K.moments(body._x0, body.m, body._ptr, body._cl, body._rest_lin, body._rest_off,
+    K.moments(body._x0, body._m, body._ptr, body._cl, body._rest_lin, body._rest_off,
               body._wsum, np.ones(body.num_clusters, dtype=np.bool_), True, False, sum_q, mom3,
               np.zeros((1, 9, 9)), np.zeros(9))
     scale = np.abs(mom3).max()
@@ -145,10 +145,8 @@ def test_compiled_world_step_equals_stepping_bodies_one_by_one(monkeypatch, para
     monkeypatch.setattr(body_mod, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
     states = []
     for compiled in (True, False):
-        # the world's bodies over the threads (each body on one thread)
-        monkeypatch.setattr(world_mod, 'WORLD_PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
-        # the records on the helper threads whatever the machine's load
-        monkeypatch.setattr(world_mod.step_threads, 'LOAD_MARGIN', float('inf'))
+        # the records on the helper threads
+        monkeypatch.setattr(world_mod, 'RECORDS_PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
         world = _many_world(compiled)
         for step in range(40):
             world.step(1.0 / 240.0 if step < 20 else 1.0 / 120.0)
@@ -161,8 +159,8 @@ def test_compiled_world_step_equals_stepping_bodies_one_by_one(monkeypatch, para
                 world.bodies[0].clear_wrench()
                 world.add_body(lattice(3) + (0.0, 0.5, 0.1), masses=0.01, name='late')
         if compiled:
-            pack, records, slow, threads = world._split_bodies(1.0 / 120.0)
-            assert threads == (parallel and numba.get_num_threads() > 1)
+            pack, records, slow, helpers = world._split_bodies(1.0 / 120.0)
+            assert helpers == (parallel and numba.get_num_threads() > 1)
             assert len(pack) == 5 and len(records) == 3 and [b.name for b in slow] == ['b4']
             assert world.body('b6')._sets is not None and world.body('b6')._damp_fused
             assert world.body('b7')._sets is not None and world.body('b4')._sets is not None

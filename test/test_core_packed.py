@@ -85,8 +85,9 @@ def test_packed_step_equals_stepping_bodies_one_at_a_time(monkeypatch, parallel)
     """World.step over the packed rows (one compiled call, 2 substeps a tick, threads or
     not) gives bit for bit the states of ``Body._step`` called body by body, through a
     state set by hand, damping switched off and on, a torque (the body leaves the pack and
-    comes back) and a new body; the limits and colliders are hit."""
-    monkeypatch.setattr(world_mod, 'WORLD_PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
+    comes back) and a new body; the limits and colliders are hit.  ``parallel``: the
+    records on the helper threads (the pack is stepped meanwhile)."""
+    monkeypatch.setattr(world_mod, 'RECORDS_PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
     got = _run(_world(True), 12)
     want = _run(_world(False), 12)
     pack, records, slow, _ = got._split_bodies(1.0 / 240.0)

@@ -2,7 +2,7 @@
 twin and against the two-loop pass it replaces on long runs, and the one-cluster one
 (``packed._pass``) on a ground against the NumPy reference.
 
-A rigid/linear body stored set by set (``order='set'``) without torque is stepped run by
+A rigid/linear body stored set by set (as the core stores it) without torque is stepped run by
 run in one loop: damping towards the set's field, Eq. 13-14, the speed count, the set's
 sums of the new state and, damped, the damping sums, all about one point per set (where
 the set goes); a run the ground (or a speed over the cap) may have moved is projected,
@@ -10,10 +10,13 @@ capped and summed again.  These tests fail if a sum, the damping point, the unwe
 of a one-mass body, the speed cap, the colliders or the choice of pass changes.
 """
 
+from unittest import mock
+
 import numpy as np
 import pytest
 
 from sm_ros.core import BodyParams, Ground, World
+from sm_ros.core import body_build
 from sm_ros.core import kernels as K
 from sm_ros.core.kernels import sets as KS
 from sm_ros.core.packed import FUSED_BLOCK
@@ -32,18 +35,22 @@ def _fused(body):
 
 
 def _world(n, order, masses, damping, max_speed=100.0, seed=4, ground=False):
+    """A world with one jittered lattice body; ``order`` None keeps the lattice order in
+    storage (the core's set order turned off), so its runs are a few particles long."""
     rng = np.random.default_rng(seed)
     x0 = _lattice(n) + rng.uniform(-0.006, 0.006, (n ** 3, 3)) + (0.2, -0.1, 0.6)
     m = 1.5 if masses == 'one' else rng.uniform(0.5, 2.0, len(x0))
     world = World(gravity=(0.0, 0.0, -9.81))
     if ground:                             # reached within the first steps
         world.set_colliders(ground=Ground(height=0.5, friction=0.4, restitution=0.3))
-    body = world.add_body(x0, m, BodyParams(mode='linear', alpha=0.6, beta=0.5, clusters=2,
-                                            damping=damping, max_speed=max_speed),
-                          order=order)
+    params = BodyParams(mode='linear', alpha=0.6, beta=0.5, clusters=2, damping=damping,
+                        max_speed=max_speed)
+    if order == 'set':
+        body = world.add_body(x0, m, params)
+    else:
+        with mock.patch.object(body_build, 'set_order', lambda *args: (None, None)):
+            body = world.add_body(x0, m, params)
     v = rng.normal(scale=0.6, size=x0.shape) + np.cross((0.0, 0.0, 3.0), x0 - x0.mean(0))
-    if body.order is not None:
-        v = v[body.order]
     body.set_state(v=v)
     return world, body
 
@@ -124,13 +131,13 @@ def test_fused_set_pass_matches_its_numpy_twin(masses, damping, cap):
     wuni = body._wuni
     assert (wuni > 0.0) == (masses == 'one')
     err2, capped = KS._sets_fused_lin(
-        start=0, end=body.n, x=body._x, v=body._v, y0=st.y0, mass=body.m, wuni=wuni,
+        start=0, end=body.n, x=body._x, v=body._v, y0=st.y0, mass=body._m, wuni=wuni,
         sid=st.sid, runs=st.runs, gm=st.gm, sref=st.ref, alpha_h=0.6 / H, h=H,
         hx=H * acc[0], hy=H * acc[1], hz=H * acc[2], damp=damping > 0.0, k_damp=damping,
         dmp=dmp, v_max=cap, sums=sums, dsums=dsums, has_col=False, ground=np.zeros(4),
         boxes=np.zeros((0, 8)), spheres=np.zeros((0, 6)), thresh=1e-3, gz=None)
     tx, tv, tsums, tds, terr, tcapped = _twin(
-        x0, v0, np.asarray(st.y0), body.m, wuni, st.sid, st.runs, st.gm, st.ref, 0.6, H, acc,
+        x0, v0, np.asarray(st.y0), body._m, wuni, st.sid, st.runs, st.gm, st.ref, 0.6, H, acc,
         damping > 0.0, damping, dmp, cap, nsets)
     assert capped == tcapped and (capped > 0) == (cap < 100.0)
     np.testing.assert_allclose(body._x, tx, rtol=0, atol=1e-13)
@@ -157,9 +164,8 @@ def test_fused_set_pass_steps_as_the_two_loop_pass(masses, damping, ground):
     if ground:
         assert a.x[:, 2].min() == pytest.approx(0.5, abs=0.02)   # on the ground
         assert a._fast_ok()                # stepped by the world step's records
-    inv = np.argsort(a.order)
-    np.testing.assert_allclose(a.x[inv], b.x, rtol=0, atol=1e-10)
-    np.testing.assert_allclose(a.v[inv], b.v, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-8)
     assert a.limit_counts == b.limit_counts and a.limit_counts[0] > 0
 
 
@@ -175,7 +181,7 @@ def test_capped_and_collided_runs_leave_the_set_sums_valid(order):
     assert _fused(body) == (order == 'set')
     st = body._sets
     fresh = np.zeros_like(st.part)
-    K.sets_accumulate_serial(quad=False, x=body._x, y0=st.y0, mass=body.m, sid=st.sid,
+    K.sets_accumulate_serial(quad=False, x=body._x, y0=st.y0, mass=body._m, sid=st.sid,
                              runs=st.runs, sref=st.ref, part=fresh)
     np.testing.assert_allclose(st.part, fresh, rtol=1e-10,
                                atol=1e-12 * np.abs(fresh).max())
@@ -188,7 +194,7 @@ def test_damping_of_a_set_layout_body_flying_far_out_at_huge_speed():
     the second moments to rounding)."""
     x0 = _lattice(10, 0.02)
     world = World(gravity=(0.0, 0.0, 0.0))
-    body = world.add_body(x0, masses=1e-6, order='set',
+    body = world.add_body(x0, masses=1e-6,
                           params=BodyParams(mode='linear', alpha=0.01, beta=0.0, clusters=2,
                                             damping=0.1, material_dt=0.1, max_speed=0.0))
     assert _fused(body)
@@ -306,7 +312,7 @@ def test_sums_stay_those_of_the_state_on_the_ground(layout):
     world.set_colliders(ground=Ground(height=0.0, friction=0.4, restitution=0.2))
     params = BodyParams(mode='linear', alpha=0.5, beta=0.5, damping=0.05,
                         clusters=1 if layout == 'packed' else 2)
-    body = world.add_body(x0, m, params, order=None if layout == 'packed' else 'set')
+    body = world.add_body(x0, m, params)
     body.set_state(v=rng.normal(scale=0.3, size=x0.shape) + (0.0, 0.0, -0.5))
     assert body._packed_ok() == (layout == 'packed')
     assert layout == 'packed' or _fused(body)
@@ -318,7 +324,7 @@ def test_sums_stay_those_of_the_state_on_the_ground(layout):
         projected += on
         if layout == 'packed':
             shape = np.zeros((1, 12))
-            _acc_single(start=0, end=body.n, quad=False, x=body._x, x0=body._x0, mass=body.m,
+            _acc_single(start=0, end=body.n, quad=False, x=body._x, x0=body._x0, mass=body._m,
                         rest_lin=body._rest_lin, rest_off=body._rest_off, ref=body._ref,
                         sums=shape)
             stored = body._part[0]
@@ -326,7 +332,7 @@ def test_sums_stay_those_of_the_state_on_the_ground(layout):
         else:
             st = body._sets
             shape = np.zeros_like(st.part)
-            K.sets_accumulate_serial(quad=False, x=body._x, y0=st.y0, mass=body.m,
+            K.sets_accumulate_serial(quad=False, x=body._x, y0=st.y0, mass=body._m,
                                      sid=st.sid, runs=st.runs, sref=st.ref, part=shape)
             stored, sid = st.part, st.sid
         np.testing.assert_allclose(stored, shape, rtol=1e-10, atol=1e-12 * np.abs(shape).max())
@@ -337,7 +343,7 @@ def test_sums_stay_those_of_the_state_on_the_ground(layout):
             dstored = body._dpart[c]
             fresh = np.zeros_like(dstored)
             fresh[:, 15:19] = dstored[:, 15:19]           # about the same points
-            damp_acc_range(lo, hi, body._x, body._v, body.m, sid, fresh)
+            damp_acc_range(lo, hi, body._x, body._v, body._m, sid, fresh)
             np.testing.assert_allclose(dstored, fresh, rtol=1e-10,
                                        atol=1e-12 * np.abs(fresh).max())
     assert projected > 100                                # the ground moved particles

@@ -1,6 +1,6 @@
-"""The compilation helpers of ``sm_ros.core.kernels.jit``: the per-function vector width
-(``wide_vectors``) and the scratch views that take no reference count (``scratch_view``),
-and the packed step's compiled entry (``packed.Pack._resolve``) that they serve."""
+"""The compilation helpers of ``sm_ros.core.kernels.jit``: the scratch views that take no
+reference count (``scratch_view``), and the packed step's compiled entry
+(``packed.Pack._resolve``) that they serve."""
 
 import numpy as np
 import pytest
@@ -8,37 +8,7 @@ from numba import njit
 
 import sm_ros.core.packed as packed
 from sm_ros.core import Ground, World
-from sm_ros.core.kernels.jit import FASTMATH, U, scratch_view, wide_vectors
-
-
-def _loop(wide):
-    """A fresh compilation (no cache) of a loop with 12 sums, as the one-cluster pass."""
-    @njit(fastmath=FASTMATH)
-    def sums(x, y):
-        if wide:
-            wide_vectors()
-        s0 = s1 = s2 = s3 = 0.0
-        for i in range(U(0), U(x.shape[0])):
-            a = x[i] * 1.5 + y[i]
-            s0 += a
-            s1 += a * x[i]
-            s2 += a * y[i]
-            s3 += x[i] * y[i]
-        return s0 + s1 + s2 + s3
-    return sums
-
-
-def test_wide_vectors_widens_only_the_function_that_calls_it():
-    """The function that calls ``wide_vectors`` carries LLVM's 512-bit vector-width
-    attribute and the same loop without the call does not; both give the same sum to
-    round-off.  Which registers LLVM then picks is the host's business (an AMD Zen 4 picks
-    512-bit ones without the attribute), so the test reads the IR, not the machine code."""
-    x, y = np.linspace(0.0, 1.0, 1000), np.linspace(1.0, 2.0, 1000)
-    wide, narrow = _loop(True), _loop(False)
-    assert wide(x, y) == pytest.approx(narrow(x, y), rel=1e-12)
-    llvm_ir = wide.inspect_llvm(wide.signatures[0])
-    assert '"prefer-vector-width"="512"' in llvm_ir
-    assert '"prefer-vector-width"' not in narrow.inspect_llvm(narrow.signatures[0])
+from sm_ros.core.kernels.jit import scratch_view
 
 
 @njit
@@ -82,7 +52,7 @@ def _world():
 
 
 def test_pack_entry_follows_the_colliders_and_steps_as_the_dispatcher():
-    """The one-chunk pack step calls ``step_packed_one``'s compiled entry resolved for the
+    """The pack step calls ``step_packed``'s compiled entry resolved for the
     world's collider arrays and gravity; replacing the colliders resolves it again, and
     the states are bit for bit those of calls through Numba's dispatcher."""
     from sm_ros.core import Box
@@ -90,13 +60,13 @@ def test_pack_entry_follows_the_colliders_and_steps_as_the_dispatcher():
     got, want = _world(), _world()
     # the reference world's pack calls the dispatcher itself (typed at every call)
     ref_pack = want._split_bodies(h)[0]
-    ref_pack._resolve = lambda g, gr, bx, sp: (packed.step_packed_one, g, gr, bx, sp)
+    ref_pack._resolve = lambda g, gr, bx, sp: (packed.step_packed, g, gr, bx, sp)
     want.step(h)
-    assert ref_pack._entry[0] is packed.step_packed_one
+    assert ref_pack._entry[0] is packed.step_packed
     got.step(h)
     pack = got._split_bodies(h)[0]
     entry = pack._entry
-    assert entry[0] is not packed.step_packed_one and callable(entry[0])
+    assert entry[0] is not packed.step_packed and callable(entry[0])
     assert entry[2] is got._ground_row and entry[3] is got._box_rows
     for step in range(1, 40):
         if step == 20:
@@ -109,7 +79,7 @@ def test_pack_entry_follows_the_colliders_and_steps_as_the_dispatcher():
         if step == 20:
             assert pack._entry is not entry and pack._entry[3] is got._box_rows
             assert len(got._box_rows) == 1
-    assert ref_pack._entry[0] is packed.step_packed_one and want._split_bodies(h)[0] is ref_pack
+    assert ref_pack._entry[0] is packed.step_packed and want._split_bodies(h)[0] is ref_pack
     b, r = got.bodies[0], want.bodies[0]
     assert np.array_equal(b.x, r.x) and np.array_equal(b.v, r.v)
     assert b.shape_error_rms() == r.shape_error_rms()

@@ -62,9 +62,8 @@ def test_the_compiled_world_step_flags_it(monkeypatch, threaded, in_python):
     set-layout records): the poisoned ones are found from their flags, whichever thread
     stepped them, the flags read in Python or in one compiled call."""
     monkeypatch.setattr(nonfinite, 'PYTHON_FLAGS_MAX', 10 ** 6 if in_python else 0)
-    monkeypatch.setattr(world_mod, 'WORLD_PARALLEL_MIN_WORK', 0 if threaded else 1 << 40)
-    # the records on the helper threads whatever the machine's load
-    monkeypatch.setattr(world_mod.step_threads, 'LOAD_MARGIN', float('inf'))
+    # the records on the helper threads
+    monkeypatch.setattr(world_mod, 'RECORDS_PARALLEL_MIN_WORK', 0 if threaded else 1 << 40)
     monkeypatch.setattr(body_mod, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
     rng = np.random.default_rng(11)
     world = World()

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from sm_ros.core import contact
-from sm_ros.core.kernels import goals, jit, plasticity, rotation
+from sm_ros.core.kernels import jit, plasticity, rotation, unit_det
 
 BAD = (math.inf, -math.inf, math.nan)
 
@@ -38,14 +38,14 @@ def test_finite_helper_after_a_comparison():
 def test_volume_preserving_refuses_a_non_finite_matrix(bad):
     a = np.diag([bad, 1.0, 1.0]) if not math.isnan(bad) else np.diag([2.0, bad, 1.0])
     for m in (a, np.diag([1e200, 1e200, 1e200])):             # det overflows to inf
-        assert not goals.volume_preserving(m, np.zeros((3, 4)), np.zeros((3, 3)),
+        assert not unit_det.volume_preserving(m, np.zeros((3, 4)), np.zeros((3, 3)),
                                            np.zeros((3, 3)), 2.0)
 
 
 @pytest.mark.parametrize('bad', BAD)
 def test_nearest_unit_det_refuses_a_non_finite_matrix(bad):
     for f in (np.diag([abs(bad), 1.0, 1.0]), np.diag([1e200, 1e200, 1e200])):
-        assert not goals.nearest_unit_det(f, np.zeros((3, 3)), np.zeros((3, 3)),
+        assert not unit_det.nearest_unit_det(f, np.zeros((3, 3)), np.zeros((3, 3)),
                                           np.zeros((3, 3)))
 
 

@@ -1,11 +1,9 @@
-"""Packs and threads: a pack runs on the threads only with several bodies (chunks of
-bodies); one body, however big, steps on the calling thread without a parallel region
-(``packed.step_packed_one``), bit for bit as the threaded call would step it."""
+"""Packs and threads: a pack steps on the calling thread (``packed.step_packed``), bit for
+bit as ``Body._step`` steps its body, also for a body built for threads."""
 
 import numpy as np
 
-import sm_ros.core.packed as packed
-import sm_ros.core.world as world_mod
+import sm_ros.core.body as body_mod
 from sm_ros.core import BodyParams, Ground, World
 
 
@@ -30,14 +28,14 @@ def _world(damping, ground, max_speed):
     return world
 
 
-def test_world_of_one_packed_body_steps_it_on_one_thread(monkeypatch):
-    """A world of one packed body does not run its pack on the threads, however big the
-    body (a body's particle pass is not split over threads: ``packed.step_packed``), and
-    its World.step is bit for bit ``Body._step``'s."""
-    monkeypatch.setattr(world_mod, 'WORLD_PARALLEL_MIN_WORK', 1000)
+def test_world_of_one_packed_body_steps_as_the_body_does(monkeypatch):
+    """A packed body built for threads (``Body._parallel``: its sums per chunk) steps in
+    the pack, and its World.step is bit for bit ``Body._step``'s."""
+    monkeypatch.setattr(body_mod, 'PARALLEL_MIN_WORK', 1000)
     world = _world(0.05, True, 2.0)
     assert world.bodies[0].n >= 1000
-    assert world._split_bodies(0.01)[3] is False
+    pack, records, slow, helpers = world._split_bodies(0.01)
+    assert len(pack) == 1 and not len(records) and not slow and helpers is False
     ref = _world(0.05, True, 2.0)
     for _ in range(10):
         world.step(0.01)
@@ -45,31 +43,3 @@ def test_world_of_one_packed_body_steps_it_on_one_thread(monkeypatch):
                             ref._box_rows, ref._sphere_rows, max(1e-3, 2.0 * 9.81 * 0.01))
     assert (world.bodies[0].x == ref.bodies[0].x).all()
     assert (world.bodies[0].v == ref.bodies[0].v).all()
-
-
-def test_pack_of_one_body_steps_on_one_thread_when_asked_for_threads(monkeypatch):
-    """``Pack.step(parallel=True)`` of one body (a body built for threads, stepped by
-    ``Body._step``) steps it on one thread: bit for bit the states of ``parallel=False``,
-    both through ``step_packed_one`` (no parallel region), never ``step_packed``."""
-    h = 1.0 / 240.0
-    a, b = _world(0.05, True, 2.0), _world(0.05, True, 2.0)
-    pa, pb = a._split_bodies(h)[0], b._split_bodies(h)[0]
-    calls = []
-    real_one, real_par = packed.step_packed_one, packed.step_packed
-
-    def spy_one(*args):
-        calls.append('one')
-        return real_one(*args)
-
-    def spy_par(*args):
-        calls.append('threads')
-        return real_par(*args)
-
-    monkeypatch.setattr(packed, 'step_packed_one', spy_one)
-    monkeypatch.setattr(packed, 'step_packed', spy_par)
-    for _ in range(5):
-        for w, p, par in ((a, pa, True), (b, pb, False)):
-            p.step(h, w._gravity, w._has_col, w._ground_row, w._box_rows, w._sphere_rows,
-                   0.05, par)
-    assert calls == ['one'] * 10
-    assert (a.bodies[0].x == b.bodies[0].x).all() and (a.bodies[0].v == b.bodies[0].v).all()

@@ -125,11 +125,8 @@ def test_pinned_particles_stay():
     spec = load_scene('rope').bodies[0]
     run(world, 1.0)
     b = world.bodies[0]
-    # the body stores its particles set by set (doc/scenes.md): its pins are the spec's
-    # particles, remapped
-    order = b.order if b.order is not None else np.arange(b.n)
-    assert np.array_equal(np.sort(order[b.pinned]), spec.pinned)
-    assert np.allclose(b.x[b.pinned], spec.points[order[b.pinned]])
+    assert np.array_equal(b.pinned, spec.pinned)
+    assert np.allclose(b.x[b.pinned], spec.points[spec.pinned])
     assert b.x[:, 2].min() < spec.points[:, 2].min() - 0.3
 
 

@@ -45,14 +45,14 @@ def test_sets_reduce_matches_the_per_particle_sums(monkeypatch, mode):
     body = _body(monkeypatch, mode, 2)
     st, quad = body._sets, body._quad
     x = body._x
-    K.sets_accumulate_serial(quad=quad, x=x, y0=st.y0, mass=body.m, sid=st.sid, runs=st.runs,
+    K.sets_accumulate_serial(quad=quad, x=x, y0=st.y0, mass=body._m, sid=st.sid, runs=st.runs,
                              sref=st.ref, part=st.part)
     ref = body._ref + np.array([0.01, -0.02, 0.015])      # any reference point
     out = np.zeros_like(body._part)
     K.sets_reduce(part=st.part, sptr=st.ptr, scl=st.cl, scnt=st.cnt, sphi=st.phi, sref=st.ref,
                   stp=st.tp, rest_lin=body._rest_lin, ref=ref, quad=quad, out=out, wk=st.wk,
                   pm=st.pm)
-    twin = reference.cluster_sums(np.asarray(x), np.asarray(body._x0), body.m, body._ptr,
+    twin = reference.cluster_sums(np.asarray(x), np.asarray(body._x0), body._m, body._ptr,
                                   body._cl, body._rest_lin, body._rest_off, ref, quad)
     scale = np.abs(twin).max(axis=0)
     assert np.abs(out[0] - twin).max() <= 1e-12 * scale.max()

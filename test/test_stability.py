@@ -140,7 +140,7 @@ CASES = covering_array(AXES)
 # clusters stored set by set (27 runs of ~37 particles)
 SET_AXES = dict(AXES, mode=('rigid', 'linear'), clusters=(2,), shape=('lattice', 'tiny',
                                                                        'huge'))
-SET_CASES = [dict(c, side=10, order='set') for c in covering_array(SET_AXES, seed=11)]
+SET_CASES = [dict(c, side=10) for c in covering_array(SET_AXES, seed=11)]
 
 
 def case_id(c: dict) -> str:
@@ -246,8 +246,7 @@ def build(case: dict, seed: int):
             omega = min(1e3 / rim, 0.2 / case['dt'])
             v = omega * r
     world = World(gravity=(0.0, 0.0, 0.0))
-    body = world.add_body(x0, masses=m, params=params, name='b', velocities=v,
-                          order=case.get('order'))
+    body = world.add_body(x0, masses=m, params=params, name='b', velocities=v)
     body.set_state(x=x)
     load = case['load']
     if load.startswith('gravity'):

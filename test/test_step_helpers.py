@@ -86,11 +86,9 @@ def test_a_second_caller_runs_its_job_alone_while_one_is_running():
     assert done == [1] * 50 and len(inner_done) == 1
 
 
-@pytest.mark.parametrize('load,shared', [(0.0, True), (1e6, False)])
-def test_the_world_shares_its_records_only_while_cores_look_free(monkeypatch, load, shared):
-    """``World.step`` hands its records to the helpers only while the load average leaves
-    a core (``step_threads.cores_free``); else it steps them on its own thread, with the
-    same results."""
+def test_the_world_shares_its_records_with_the_helpers(monkeypatch):
+    """With several threads and records ``World.step`` hands its records to the
+    helpers."""
     import numba
     import numpy as np
 
@@ -103,7 +101,6 @@ def test_the_world_shares_its_records_only_while_cores_look_free(monkeypatch, lo
         pytest.skip('one Numba thread: no helpers')
     monkeypatch.setattr(world_mod, 'RECORDS_PARALLEL_MIN_WORK', 0)
     monkeypatch.setattr(body_mod, 'SET_LAYOUT_MIN_RATIO', 0)
-    monkeypatch.setattr(world_mod.step_threads.os, 'getloadavg', lambda: (load, load, load))
     calls = []
     real = world_mod.step_bodies_parallel
 
@@ -120,5 +117,5 @@ def test_the_world_shares_its_records_only_while_cores_look_free(monkeypatch, lo
         world.add_body(lat + (0.2 * b, 0.0, 0.5), masses=0.01,
                        params=BodyParams(mode='linear', clusters=2, damping=0.05))
     world.step(1.0 / 240.0)
-    assert len(world._split[2]) == 3 and world._split[5]
-    assert calls == ([3] if shared else [])
+    assert len(world._split[2]) == 3 and world._split[4]
+    assert calls == [3]

@@ -183,17 +183,16 @@ def bytes_per_particle(body) -> int:
 # ---------------------------------------------------------------------------------------
 
 def build_world(n_side: int, mode: str, k: int, alpha: float = 1.0, damping: float = 0.0,
-                order: Optional[str] = None, ground: bool = False):
+                ground: bool = False):
     """Build a world with one n^3 lattice body (unit masses) and gravity; no colliders, or
-    with ``ground`` a ground at the lattice's lowest layer (friction 0.5, restitution 0.1)
-    (``order``: as ``World.add_body``, None keeps the lattice order)."""
+    with ``ground`` a ground at the lattice's lowest layer (friction 0.5, restitution 0.1)."""
     from sm_ros.core import BodyParams, Ground, World
     world = World(gravity=GRAVITY)
     if ground:
         world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.1))
     body = world.add_body(bc.cube_lattice(n_side), masses=1.0, name='cube',
                           params=BodyParams(mode=mode, alpha=alpha, beta=0.5, clusters=k,
-                                            damping=damping), order=order)
+                                            damping=damping))
     return world, body
 
 
@@ -235,8 +234,7 @@ def time_size(n_side: int, modes, ks, min_time: float,
                 damping, substeps = VARIANTS[variant]
                 t0 = time.perf_counter()
                 world, body = build_world(n_side, mode, k, damping=damping,
-                                          order='set' if variant in SORTED_VARIANTS
-                                          else None, ground=variant in GROUND_VARIANTS)
+                                          ground=variant in GROUND_VARIANTS)
                 if variant == 'damped_pass':
                     body._damp_fused = False
                 build_s = time.perf_counter() - t0

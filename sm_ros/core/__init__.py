@@ -4,9 +4,8 @@ No ROS here: the node, the scene loader, the benchmarks and the tests drive this
 (documented in ``doc/core_api.md``).
 """
 
-from .body import Body, set_order
+from .body import Body
 from .params import BodyParams, Box, Capsule, Ground, MODES, Sphere
 from .world import World
 
-__all__ = ['Body', 'BodyParams', 'Box', 'Capsule', 'Ground', 'MODES', 'set_order', 'Sphere',
-           'World']
+__all__ = ['Body', 'BodyParams', 'Box', 'Capsule', 'Ground', 'MODES', 'Sphere', 'World']

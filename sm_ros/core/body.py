@@ -11,23 +11,20 @@ import numpy as np
 
 from . import body_build, body_step
 from . import kernels as K
+from .kernels.flags import DIRTY, ERR_STALE, SLEEP
 from .body_build import _EMPTY_I64, _GENERATION, soa  # noqa: F401 (body.soa)
 from .packed import Pack
 from .params import BodyParams
 
 #: Bodies with at least this much work per step (particles, or cluster memberships on the
-#: membership path) run the multi-threaded kernels.  Below it a step takes well under a
-#: millisecond on one thread, and on a loaded machine (other nodes on the same cores) the
-#: threads' fork/join waits cost far more than they save: on 2 shared cores, 100k particles
-#: took 1.5 ms/step (median) on one thread and 13 ms on two (benchmarks.md).
+#: membership path) run the multi-threaded kernels: below it a step takes well under a
+#: millisecond on one thread, and the threads' fork/join waits on shared cores cost more.
 PARALLEL_MIN_WORK = 262144
 #: One-cluster bodies with at least this many particles damp inside the particle pass
-#: (``kernels.damping``); smaller ones keep the separate pass, which costs less there (384
-#: bodies of 144 particles, one cluster: 4.22 ms per step with it, 4.56 ms fused).
+#: (``kernels.damping``); smaller ones keep the separate pass, which costs less there.
 FUSED_DAMPING_MIN = 1024
-#: The same for set-layout bodies.  Their separate pass walks every cluster membership
-#: twice, the fused one takes per-set sums in the particle pass: cheaper at any size
-#: (``paper_384``'s 8-cluster bodies of 144-179 particles: 20-30 % less per body step).
+#: The same for set-layout bodies: their separate pass walks every cluster membership
+#: twice, the fused one takes per-set sums in the particle pass, cheaper at any size.
 FUSED_DAMPING_MIN_SETS = 0
 #: A multi-cluster body uses the set layout (``kernels.sets_*``) when its cluster
 #: memberships outnumber its set-cluster pairs by at least this factor (each pair costs
@@ -51,37 +48,18 @@ def _as_points(points, name='points'):
     return a
 
 
-def set_order(points, params=None, masses=1.0) -> np.ndarray:
-    """The order that stores a body's particles set by set: a permutation of ``points``.
-
-    For a body of ``points`` (N, 3) with ``params`` (``BodyParams``, default ones) and
-    ``masses``: ``points[perm]`` lists the particles cluster set by cluster set (every set
-    of the set layout one run of consecutive particles, the given order kept within a
-    set), so that the set-layout kernels (``kernels.sets_*``) run over long runs with a
-    set's map in registers.  The identity where the body takes no set layout (one cluster,
-    memberships that do not pass ``SET_LAYOUT_MIN_RATIO``).  ``Body(..., order='set')``
-    (``World.add_body(..., order='set')``) applies it; its ``order`` is this permutation
-    (or None for the identity).  Cost: the cluster memberships, no body build.
-    """
-    x = _as_points(points)
-    m = np.broadcast_to(np.asarray(masses, dtype=np.float64), (len(x),))
-    params = (params or BodyParams()).validate()
-    perm, _ = body_build.set_order(x - (m @ x) / m.sum(), params.clusters,
-                                   SET_LAYOUT_MIN_RATIO)
-    return np.arange(len(x), dtype=np.int64) if perm is None else perm
-
-
 class Body:
     """One shape-matched body; made by ``World.add_body``.
 
-    ``order``: None or 'given' keep the particles in the given order (``x[i]`` is
-    ``points[i]``); 'set' stores them set by set (``set_order``): ``x[i]`` is then
-    ``points[order[i]]``, and ``pinned`` (given as indices of ``points``) and every later
-    index (``set_kinematic``, ``pinned``, ``kinematic_indices``) refer to the stored rows.
+    Every public array and index is in the caller's order (``x[i]`` is ``points[i]``).
+    Inside, a body with a set layout stores its particles set by set
+    (``body_build.set_order``: each set one run, which the set kernels vectorise over);
+    ``_perm`` maps a stored row to the caller's index, ``_inv`` back (both None where the
+    storage order is the caller's).
     """
 
     def __init__(self, points, masses=1.0, params=None, name='body', velocities=None,
-                 pinned=None, order=None):
+                 pinned=None):
         self.name = str(name)
         x = _as_points(points)
         n = len(x)
@@ -96,32 +74,28 @@ class Body:
                 raise ValueError(f'velocities must have shape {x.shape}, got {v.shape}')
         params = (params or BodyParams()).validate()
         pins = self._check_indices(pinned if pinned is not None else [], n, 'pinned')
-        if order not in (None, 'given', 'set'):
-            raise ValueError(f"order must be None, 'given' or 'set', got {order!r}")
-        # order='set': the particles stored set by set (``set_order``); ``order`` maps
-        # a stored row to the given one, the members are reused by the first build
-        self.order = None
-        self._members = None
-        if order == 'set':
-            perm, self._members = body_build.set_order(
-                x - (m @ x) / m.sum(), params.clusters, SET_LAYOUT_MIN_RATIO)
-            if perm is not None:
-                x, m, v = x[perm], np.ascontiguousarray(m[perm]), v[perm]
-                inv = np.empty(n, dtype=np.int64)
-                inv[perm] = np.arange(n)
-                pins = np.sort(inv[pins])
-                self.order = perm
-                self.order.flags.writeable = False
+        # the storage order; the memberships computed for it are reused by the first build
+        self._perm, self._inv = None, None
+        perm, self._members = body_build.set_order(
+            x - (m @ x) / m.sum(), params.clusters, SET_LAYOUT_MIN_RATIO)
+        if perm is not None:
+            x, m, v = x[perm], np.ascontiguousarray(m[perm]), v[perm]
+            self._perm = perm
+            self._inv = np.empty(n, dtype=np.int64)
+            self._inv[perm] = np.arange(n)
+            pins = np.sort(self._inv[pins])
+            for index in (self._perm, self._inv):
+                index.flags.writeable = False
         self._pinned = pins
         self.n = n
-        self.m = m
-        self.m.flags.writeable = False
+        self._m = m                            # masses in the storage order
+        self._m.flags.writeable = False
         self.total_mass = float(m.sum())
         #: the particles' one mass where all are equal, else 0 (the damping sums of such a
         #: body are taken unweighted: ``kernels.damping.damp_sums_range``)
         self._wuni = uniform_mass(m)
-        self.x_init = x.copy()
-        self.x_init.flags.writeable = False
+        self._x_init = x.copy()
+        self._x_init.flags.writeable = False
         self._v_init = v.copy()
         # positions and velocities per component ((3, N) blocks seen as (N, 3), ``soa``)
         self._x = soa(x)
@@ -154,9 +128,7 @@ class Body:
         self._params = params
         self._at_step = (None, None, None)
         self._limit_counts = np.zeros(2, dtype=np.int64)
-        # [dirty, shape error stale, fused damping sums valid, sleep] (world_step, packed);
-        # sleep (``World`` sleeping, ``sm_ros.core.sleep``): 1 asleep (the steps skip the
-        # body), 0 awake, -1 held awake (a force, torque or grab acts on it)
+        # read and written by the compiled steps too (indices: ``kernels.flags``)
         self._flags = np.zeros(4)
         self._build()
         self._merge_kinematic()
@@ -193,24 +165,24 @@ class Body:
     @property
     def _dirty(self) -> bool:
         """Whether the per-cluster sums must be accumulated again before the next step."""
-        return bool(self._flags[0])
+        return bool(self._flags[DIRTY])
 
     @_dirty.setter
     def _dirty(self, value):
-        self._flags[0] = 1.0 if value else 0.0
+        self._flags[DIRTY] = 1.0 if value else 0.0
 
     @property
     def asleep(self) -> bool:
         """Whether the body is asleep (``World`` sleeping: at rest in a contact world, not
         stepped until something wakes it; README "Sleeping bodies")."""
-        return bool(self._flags[3] > 0.0)
+        return bool(self._flags[SLEEP] > 0.0)
 
     def wake(self):
         """Wake the body (it is stepped again from the next step); every input that
         changes it (state, parameters, wrench, grabs, reset) wakes it too.  A force,
         torque or grab keeps it awake while it acts."""
         held = bool(self._force.any() or self._torque.any() or len(self._grab_idx))
-        self._flags[3] = -1.0 if held else 0.0
+        self._flags[SLEEP] = -1.0 if held else 0.0
 
     def _fast_ok(self) -> bool:
         """Whether ``kernels.world_step`` may step this body (see its docstring)."""
@@ -251,13 +223,11 @@ class Body:
     def __setstate__(self, state):
         # a copy (copy.deepcopy, pickle) makes every array writeable; Numba types a
         # read-only array differently, so the copy's first step would compile a second
-        # specialisation of every kernel that reads the masses (step_packed: ~25 s cold)
+        # specialisation of every kernel that reads the masses
         self.__dict__.update(state)
-        self.__dict__.setdefault('_wuni', uniform_mass(self.m))
-        self.m.flags.writeable = False
-        self.x_init.flags.writeable = False
-        if self.__dict__.get('order') is not None:
-            self.order.flags.writeable = False
+        for name in ('_m', '_x_init', '_perm', '_inv'):
+            if self.__dict__[name] is not None:
+                self.__dict__[name].flags.writeable = False
 
     def _one_record(self, h):
         """A typed list of this body's record alone (``body_build.one_record``)."""
@@ -276,23 +246,46 @@ class Body:
         """The body's parameters (immutable; change them with ``set_params``)."""
         return self._params
 
+    def _callers(self, stored):
+        """A read-only (N, ...) array of stored rows in the caller's order: a view where
+        the storage order is the caller's, else a copy (per component for (N, 3) state,
+        so it stays F-contiguous)."""
+        if self._inv is None:
+            out = stored.view()
+        elif stored.ndim == 2:
+            out = np.take(stored.T, self._inv, axis=1).T
+        else:
+            out = stored[self._inv]
+        out.flags.writeable = False
+        return out
+
     @property
     def x(self) -> np.ndarray:
-        """Positions (N, 3), read-only view (write with ``set_state``).
+        """Positions (N, 3) in the caller's order, read-only (write with ``set_state``).
 
-        The view is F-contiguous: the body stores its positions per component, as a (3, N)
-        C-contiguous block (``x.T``), so ``x[:, j]`` is a unit-stride column.  Code that needs
-        C-ordered rows copies (``np.ascontiguousarray(body.x)``)."""
-        view = self._x.view()
-        view.flags.writeable = False
-        return view
+        F-contiguous (``x[:, j]`` is a unit-stride column): the live state itself where the
+        body stores its particles in the caller's order, else a copy taken at each access.
+        Code that needs C-ordered rows copies (``np.ascontiguousarray(body.x)``)."""
+        return self._callers(self._x)
 
     @property
     def v(self) -> np.ndarray:
-        """Velocities (N, 3), read-only view (write with ``set_state``; F-contiguous as ``x``)."""
-        view = self._v.view()
-        view.flags.writeable = False
-        return view
+        """Velocities (N, 3) in the caller's order, read-only (as ``x``)."""
+        return self._callers(self._v)
+
+    @property
+    def m(self) -> np.ndarray:
+        """Particle masses (N,) in the caller's order, read-only."""
+        return self._callers(self._m)
+
+    @property
+    def x_init(self) -> np.ndarray:
+        """Initial positions (N, 3) in the caller's order, read-only."""
+        return self._callers(self._x_init)
+
+    def _stored(self, callers):
+        """Rows given in the caller's order, in the storage order."""
+        return callers if self._perm is None else callers[self._perm]
 
     @property
     def plastic_state(self) -> np.ndarray:
@@ -315,9 +308,9 @@ class Body:
             if a is not None and a.shape != self._x.shape:
                 raise ValueError(f'{what} must have shape {self._x.shape}, got {a.shape}')
         if nx is not None:
-            self._x[:] = nx
+            self._x[:] = self._stored(nx)
         if nv is not None:
-            self._v[:] = nv
+            self._v[:] = self._stored(nv)
         self._dirty = True
         self.wake()
 
@@ -351,8 +344,8 @@ class Body:
         self._torque[:] = t
         torque = bool(t.any())
         # the compiled steps read the force from ``_facc`` in place; only a torque coming
-        # or going changes which step a body takes (World re-splits on a new generation:
-        # 30-60 ms for 384 bodies, so a force command must not cause one)
+        # or going changes which step a body takes (World re-splits on a new generation,
+        # which a scene of many bodies notices, so a force command must not cause one)
         if torque != self._has_torque:
             _GENERATION[0] += 1
         self._has_torque = torque
@@ -385,7 +378,8 @@ class Body:
             raise ValueError(f'indices must be in [0, {self.n})')
         if idx.size and len(np.unique(idx)) != idx.size:
             raise ValueError('indices must be unique')
-        self._grab_idx = idx.astype(np.int64)
+        idx = idx.astype(np.int64)
+        self._grab_idx = idx if self._inv is None else self._inv[idx]
         self._grab_tgt = np.ascontiguousarray(tgt)
         self._merge_kinematic()
         self.wake()
@@ -400,16 +394,16 @@ class Body:
     @property
     def kinematic_indices(self) -> np.ndarray:
         """Indices of the particles that currently follow targets (grabbed and pinned)."""
-        return self._kin_idx.copy()
+        return self._kin_idx.copy() if self._perm is None else self._perm[self._kin_idx]
 
     @property
     def pinned(self) -> np.ndarray:
-        """Indices of the pinned particles."""
-        return self._pinned.copy()
+        """Indices of the pinned particles (sorted)."""
+        return self._pinned.copy() if self._perm is None else np.sort(self._perm[self._pinned])
 
     def com(self) -> np.ndarray:
         """Centre of mass of the current positions."""
-        return (self.m @ self._x) / self.total_mass
+        return (self._m @ self._x) / self.total_mass
 
     def rotation(self) -> np.ndarray:
         """Proper rotation of the whole body's shape match (3, 3)."""
@@ -418,14 +412,15 @@ class Body:
             K.quat_to_mat(self._quat[0], r)
             return r
         com = self.com()
-        apq = np.einsum('i,ij,ik->jk', self.m, self._x - com, self._x0)
+        apq = np.einsum('i,ij,ik->jk', self._m, self._x - com, self._x0)
         K.extract_rotation(mat=apq, quat=self._quat_body, rot=r, n4=self._n4, v4=self._v4)
         return r
 
     def goals(self) -> np.ndarray:
         """Goal positions g_i for the current state (Eq. 12/18/22, averaged over clusters;
-        ``body_step.goals``)."""
-        return body_step.goals(self)
+        ``body_step.goals``), in the caller's order."""
+        goal = body_step.goals(self)
+        return goal if self._inv is None else goal[self._inv]
 
     @property
     def limit_counts(self):
@@ -437,19 +432,19 @@ class Body:
 
     def shape_error_rms(self) -> float:
         """RMS distance of the particles to their goals in the last step (m)."""
-        if self._shape_err is None or self._flags[1]:
+        if self._shape_err is None or self._flags[ERR_STALE]:
             self._shape_err = float(np.sqrt(self._err.sum() / self.n))
-            self._flags[1] = 0.0
+            self._flags[ERR_STALE] = 0.0
         return self._shape_err
 
     def momentum(self) -> np.ndarray:
         """Linear momentum sum m v."""
-        return self.m @ self._v
+        return self._m @ self._v
 
     def angular_momentum(self, about=(0.0, 0.0, 0.0)) -> np.ndarray:
         """Angular momentum sum m (x - about) x v."""
         r = self._x - np.asarray(about, dtype=float)
-        return np.cross(r, self._v * self.m[:, None]).sum(axis=0)
+        return np.cross(r, self._v * self._m[:, None]).sum(axis=0)
 
     def is_finite(self) -> bool:
         """Whether every position and velocity is finite."""
@@ -457,7 +452,7 @@ class Body:
 
     def reset(self):
         """Initial pose and velocities, rest shape, no plastic state, wrench or grabs."""
-        self._x[:] = self.x_init
+        self._x[:] = self._x_init
         self._v[:] = self._v_init
         self.clear_wrench()
         self.clear_kinematic()

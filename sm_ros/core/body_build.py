@@ -14,12 +14,11 @@ from numba.typed import List as TypedList
 
 from . import kernels as K
 from .clusters import build_memberships
+from .kernels.flags import DAMP_SUMS
 
 
-#: Bytes a state block's first element is aligned to: the particle loops' 256-bit loads
-#: and stores of a column that starts off a 32-byte boundary cost more (the one-cluster
-#: pass's loop at 10k particles: 1.29-1.36 against 1.16-1.23 ns a particle, Eq. 13-14
-#: alone 0.97-1.01 against 0.85-0.87; ``tools/loop_floor.py --offset 16`` / ``0``).
+#: Bytes a state block's first element is aligned to: the particle loops' vector loads and
+#: stores of a column that starts off a 32-byte boundary cost more.
 STATE_ALIGN = 64
 
 
@@ -29,8 +28,8 @@ def soa(a):
     The result is an F-contiguous (N, 3) array: ``a[:, j]`` is unit-stride, so the compiled
     particle loops (which index ``x[i, j]``, typed with layout F) run over i with unit
     stride and vectorise across particles; ``a.T`` is the (3, N) block itself.  Every
-    body's per-particle state (x, v, rest positions, set offsets) is kept this way (issue
-    11 item 1).  The block starts on a ``STATE_ALIGN`` boundary (numpy's own allocations
+    body's per-particle state (x, v, rest positions, set offsets) is kept this way.  The
+    block starts on a ``STATE_ALIGN`` boundary (numpy's own allocations
     start 16 bytes past one), so its first column is aligned, and all three when N is a
     multiple of 4.  A copy (pickle, ``copy.deepcopy``) has numpy's allocation: the same
     values and layout, its loops a little slower.
@@ -168,7 +167,7 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     body.shape_error_rms()                 # keep the last step's figure across a rebuild
     p = body._params
     n = body.n
-    x0, m = body._x0, body.m
+    x0, m = body._x0, body._m
     mode = _MODE_ID[p.mode]
     body._mode = mode
     body._quad = mode == 2
@@ -181,7 +180,7 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
         member = np.zeros(n, dtype=np.int64)
         rows = np.arange(n)
     else:
-        pre = getattr(body, '_members', None)   # from set_order (Body order='set')
+        pre = getattr(body, '_members', None)   # from set_order (``Body.__init__``)
         if pre is not None and pre[0] == p.clusters:
             body._ptr, body._cl, nk, groups = pre[1:]
         else:
@@ -283,7 +282,7 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     body._dref = np.zeros((nk, 3))
     body._dacc = np.zeros(K.NDAMP)
     body._dirty = True
-    body._flags[2] = 0.0                   # no fused damping sums yet
+    body._flags[DAMP_SUMS] = 0.0           # no fused damping sums yet
     body._arena = None                     # fast_record packs the new buffers (compact)
     _GENERATION[0] += 1
 
@@ -309,7 +308,7 @@ def refresh_rest(body, which):
                    - sq[:, :, None] * sq[:, None, :] / body._wsum[idx, None, None])
             body._mom3[idx] = 0.5 * (mom + mom.transpose(0, 2, 1))
     else:
-        K.moments(x0=body._x0, mass=body.m, ptr=body._ptr, cl=body._cl,
+        K.moments(x0=body._x0, mass=body._m, ptr=body._ptr, cl=body._cl,
                   rest_lin=body._rest_lin, rest_off=body._rest_off, wsum=body._wsum,
                   which=which, need3=body._need3, need9=body._need9, sum_q=body._sum_q,
                   mom3=body._mom3, mom9=body._mom9, f9=body._f9)
@@ -329,7 +328,7 @@ def merge_kinematic(body):
     keep = ~np.isin(grab, pins)
     body._kin_idx = np.concatenate([grab[keep], pins]).astype(np.int64)
     body._kin_tgt = np.ascontiguousarray(
-        np.concatenate([body._grab_tgt[keep], body.x_init[pins]]), dtype=np.float64)
+        np.concatenate([body._grab_tgt[keep], body._x_init[pins]]), dtype=np.float64)
     body._kin_prev = np.zeros_like(body._kin_tgt)
     _GENERATION[0] += 1
 
@@ -418,7 +417,7 @@ def fast_record(body, h):
     # x, v, x0 (and the set layout's y0) as their (3, N) C-contiguous blocks: a typed list
     # fixes the element type from its first record, and a one-particle body's (1, 3) view
     # is typed C (both orders at once); the world step transposes them back (layout F)
-    return (body._x.T, body._v.T, body._x0.T, body.m, body._ptr, body._cl, body._rest_lin,
+    return (body._x.T, body._v.T, body._x0.T, body._m, body._ptr, body._cl, body._rest_lin,
             body._rest_off, body._part, body._wsum, body._sum_q, body._ref, body._quat,
             body._aqq3, body._aqq9, body._scale, body._trans, body._goal_lin,
             body._goal_off, body._apq, body._accbuf, s3[0], s3[1], s3[2], s3[3],

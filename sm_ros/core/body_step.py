@@ -10,6 +10,7 @@ current state with scratch copies (nothing of the body changes).
 import numpy as np
 
 from . import kernels as K
+from .kernels.flags import DAMP_SUMS
 
 
 def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
@@ -23,8 +24,7 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     can round differently under fast math).
     """
     if body._packed_ok():
-        body._one_pack(h).step(h, gravity, has_col, ground, boxes, spheres, thresh,
-                               body._parallel)
+        body._one_pack(h).step(h, gravity, has_col, ground, boxes, spheres, thresh)
         return
     if body._fast_ok():
         K.step_single_bodies(body._one_record(h), h, gravity, has_col, ground, boxes, spheres,
@@ -43,14 +43,14 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
         if body._dirty:
             acc = K.sets_accumulate_parallel if body._parallel else \
                 K.sets_accumulate_serial
-            acc(quad=body._quad, x=x, y0=sets.y0, mass=body.m, sid=sets.sid, runs=sets.runs,
+            acc(quad=body._quad, x=x, y0=sets.y0, mass=body._m, sid=sets.sid, runs=sets.runs,
                 sref=sets.ref, part=sets.part)
         K.sets_reduce(part=sets.part, sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sphi=sets.phi,
                       sref=sets.ref, stp=sets.tp, rest_lin=body._rest_lin, ref=body._ref,
                       quad=body._quad, out=body._part, wk=sets.wk, pm=sets.pm)
     elif body._dirty:
         acc = K.accumulate_parallel if body._parallel else K.accumulate_serial
-        acc(quad=body._quad, x=x, x0=body._x0, mass=body.m, ptr=body._ptr, cl=body._cl,
+        acc(quad=body._quad, x=x, x0=body._x0, mass=body._m, ptr=body._ptr, cl=body._cl,
             rest_lin=body._rest_lin, rest_off=body._rest_off, ref=body._ref, part=body._part)
     turn = body._params.max_turn
     if turn > 0.0:
@@ -70,7 +70,7 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
                 np.cos(0.5 * turn), out=body._flagged)
         if body._flagged.any():
             turned = K.limit_turn(
-                x=x, v=v, mass=body.m, ptr=body._ptr, cl=body._cl, flagged=body._flagged,
+                x=x, v=v, mass=body._m, ptr=body._ptr, cl=body._cl, flagged=body._flagged,
                 w_max=turn / h, lin=body._lim_lin, w3=body._lim_w, m3a=s3[0], m3b=s3[1],
                 m3c=s3[2], m3d=s3[3])
             body._limit_counts[1] += turned
@@ -91,7 +91,7 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     if body._has_torque:
         np.dot(body._wsum, body._ref, out=body._com)
         body._com /= body._wsum.sum()
-        K.inertia(x, body.m, body._com, body._i3)
+        K.inertia(x, body._m, body._com, body._i3)
         K.pinv_sym(mat=body._i3, out=body._i3inv, wa=s3[0], wv=s3[1], rcond=1e-12)
         np.dot(body._i3inv, body._torque, out=body._ang)
         if turn > 0.0:
@@ -109,7 +109,7 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
         sptr, scl, scnt = body._dsets
         dsid = sets.sid if sets is not None else body._ptr
         if body._dirty or turned:
-            K.damp_accumulate(x=x, v=v, mass=body.m, sid=dsid, dpart=body._dpart)
+            K.damp_accumulate(x=x, v=v, mass=body._m, sid=dsid, dpart=body._dpart)
         K.damping_fields(dpart=body._dpart, sptr=sptr, scl=scl, scnt=scnt, lin=body._lin,
                          w3=body._w3, dref=body._dref, acc=body._dacc, m3a=s3[0], m3b=s3[1],
                          m3c=s3[2], m3d=s3[3])
@@ -117,7 +117,7 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
                           dref=body._dref, sref=sets.ref if sets is not None else body._ref,
                           dmp=body._dmp)
     elif p.damping > 0.0:
-        K.damp_rigid(x=x, v=v, mass=body.m, ptr=body._ptr, cl=body._cl, ref=body._ref,
+        K.damp_rigid(x=x, v=v, mass=body._m, ptr=body._ptr, cl=body._cl, ref=body._ref,
                      k_damp=p.damping, lin=body._lin, w3=body._w3, m3a=s3[0], m3b=s3[1],
                      m3c=s3[2], m3d=s3[3])
     kin = len(body._kin_idx) > 0
@@ -127,7 +127,7 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     if sets is not None:
         # the speeds capped block by block before the sums are taken: the sums stay valid
         integ = K.sets_integrate_parallel if body._parallel else K.sets_integrate_serial
-        capped = integ(quad=body._quad, x=x, v=v, y0=sets.y0, mass=body.m, wuni=body._wuni,
+        capped = integ(quad=body._quad, x=x, v=v, y0=sets.y0, mass=body._m, wuni=body._wuni,
                        sid=sets.sid, runs=sets.runs, gm=sets.gm, sref=sets.ref, alpha=p.alpha,
                        h=h,
                        acc=body._acc, ang=body._ang, com=body._com, part=sets.part,
@@ -137,7 +137,7 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
         body._limit_counts[0] += capped
     else:
         integ = K.integrate_parallel if body._parallel else K.integrate_serial
-        integ(quad=body._quad, x=x, v=v, x0=body._x0, mass=body.m, ptr=body._ptr, cl=body._cl,
+        integ(quad=body._quad, x=x, v=v, x0=body._x0, mass=body._m, ptr=body._ptr, cl=body._cl,
               rest_lin=body._rest_lin, rest_off=body._rest_off, trans=body._trans,
               goal_lin=body._goal_lin, goal_off=body._goal_off, ref=body._ref, alpha=p.alpha,
               h=h, acc=body._acc, ang=body._ang, com=body._com, part=body._part, err=body._err,
@@ -147,22 +147,22 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
             capped = K.limit_speed(x=x, v=v, h=h, v_max=body._params.max_speed)
             body._limit_counts[0] += capped
     if kin and fused:                      # their damping sums follow them
-        K.damp_kinematic(x=x, v=v, mass=body.m, sid=dsid, dpart=body._dpart,
+        K.damp_kinematic(x=x, v=v, mass=body._m, sid=dsid, dpart=body._dpart,
                          idx=body._kin_idx, sign=-1.0)
     if kin and sets is not None:
-        K.sets_kinematic(quad=body._quad, x=x, v=v, y0=sets.y0, mass=body.m, sid=sets.sid,
+        K.sets_kinematic(quad=body._quad, x=x, v=v, y0=sets.y0, mass=body._m, sid=sets.sid,
                          sref=sets.ref, part=sets.part, idx=body._kin_idx, tgt=body._kin_tgt,
                          prev=body._kin_prev, h=h)
     elif kin:
-        K.apply_kinematic(quad=body._quad, x=x, v=v, x0=body._x0, mass=body.m, ptr=body._ptr,
+        K.apply_kinematic(quad=body._quad, x=x, v=v, x0=body._x0, mass=body._m, ptr=body._ptr,
                           cl=body._cl, rest_lin=body._rest_lin, rest_off=body._rest_off,
                           ref=body._ref, part=body._part, idx=body._kin_idx, tgt=body._kin_tgt,
                           prev=body._kin_prev, h=h)
     if kin and fused:
-        K.damp_kinematic(x=x, v=v, mass=body.m, sid=dsid, dpart=body._dpart,
+        K.damp_kinematic(x=x, v=v, mass=body._m, sid=dsid, dpart=body._dpart,
                          idx=body._kin_idx, sign=1.0)
     body._shape_err = None                 # computed from body._err when asked
-    body._flags[2] = 1.0 if fused else 0.0
+    body._flags[DAMP_SUMS] = 1.0 if fused else 0.0
     # capped positions: the membership layout's sums are stale (the set layout caps
     # before it sums)
     body._dirty = capped > 0 and sets is None
@@ -179,7 +179,7 @@ def goals(body) -> np.ndarray:
     ref, quat = body._ref.copy(), body._quat.copy()
     trans, goal_lin = np.zeros_like(body._trans), np.zeros_like(body._goal_lin)
     goal_off = np.zeros_like(body._goal_off)
-    K.accumulate_serial(quad=body._quad, x=body._x, x0=body._x0, mass=body.m, ptr=body._ptr,
+    K.accumulate_serial(quad=body._quad, x=body._x, x0=body._x0, mass=body._m, ptr=body._ptr,
                         cl=body._cl, rest_lin=body._rest_lin, rest_off=body._rest_off, ref=ref,
                         part=part)
     s3 = [np.zeros((3, 3)) for _ in range(3)]
@@ -191,7 +191,7 @@ def goals(body) -> np.ndarray:
                      m3c=s3[2], m39=np.zeros((3, 9)), n4=np.zeros((4, 4)), v4=np.zeros((4, 4)),
                      nmat=body._nmat, cdet=body._cdet)
     g = body._x.copy(order='K')            # the layout of x: the kernels' own specialisation
-    K.integrate_serial(quad=body._quad, x=g, v=np.zeros_like(g), x0=body._x0, mass=body.m,
+    K.integrate_serial(quad=body._quad, x=g, v=np.zeros_like(g), x0=body._x0, mass=body._m,
                        ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
                        rest_off=body._rest_off, trans=trans, goal_lin=goal_lin,
                        goal_off=goal_off, ref=ref, alpha=1.0, h=1.0, acc=np.zeros(3),

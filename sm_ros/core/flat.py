@@ -97,7 +97,7 @@ class FlatState:
             self._xs.append(b._x.T)          # the (3, n) blocks (Body stores x per component)
             self._vs.append(b._v.T)
         for k, b in enumerate(self.bodies):
-            self.X0[:, self.off[k]:self.off[k + 1]] = b.x_init.T
+            self.X0[:, self.off[k]:self.off[k + 1]] = b._x_init.T
         self._kin_seen = [None] * nb
         self._mass_gen = None
         self.w_version = 0
@@ -143,8 +143,8 @@ class FlatState:
             if kin is self._kin_seen[k]:
                 continue
             o0, o1 = self.off[k], self.off[k + 1]
-            self.Wa[o0:o1] = 1.0 / b.m
-            self.M[o0:o1] = b.m
+            self.Wa[o0:o1] = 1.0 / b._m
+            self.M[o0:o1] = b._m
             if len(kin):
                 self.Wa[o0 + kin] = 0.0
             if not b._flags[3] > 0.0:        # a sleeping body keeps W = 0 (sleep.py)

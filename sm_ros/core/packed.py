@@ -1,55 +1,48 @@
 """The packed world step: one-cluster rigid/linear bodies without per-body records.
 
 ``kernels.world_step`` steps a body from a record, a tuple of ~63 of its own arrays held
-in a typed list; fetching a record inside the compiled loop copies 63 array structures and
-moves 63 reference counts up and down (~0.85 us a body, as much as a 144-particle body's
-shape match), and a small body paid besides for its damping pass (``damp_rigid``, two
-loops) and its speed-limit pass.  Here the bodies the ``many`` scenes are made of (one
-cluster, rigid or linear, no plasticity, grabs or torque, one thread: ``Body._packed_ok``)
-keep their per-body scalars and per-cluster state in one row each of a world-level array
-``Pack.P`` (nb, NCOL): the body's own attributes (``_ref``, ``_quat``, ``_part``, ...)
-become views of its row, so every reader of the body sees the state the packed step
-writes, and the compiled loop reads a body's state from ``P[b]`` with no array fetched
-but the four particle arrays (x, v, x0, m), viewed from their addresses (``Pack.ptrs``,
-``jit.address_view``: no typed list to unbox, no reference counts).  Scratch (3x3, 4x4,
-...) is allocated once per chunk of bodies, not per body.
+in a typed list, which costs about as much per body as a small body's shape match.  Here
+the bodies the ``many`` scenes are made of (one cluster, rigid or linear, no plasticity,
+grabs or torque: ``Body._packed_ok``) keep their per-body scalars and per-cluster state
+in one row each of a world-level array ``Pack.P`` (nb, NCOL): the body's own attributes
+(``_ref``, ``_quat``, ``_part``, ...) become views of its row, so every reader of the body
+sees the state the packed step writes, and the compiled loop reads a body's state from
+``P[b]`` with no array fetched but the four particle arrays (x, v, x0, m), viewed from
+their addresses (``Pack.ptrs``, ``jit.address_view``).  Scratch (3x3, 4x4, ...) is
+allocated once per pack, not per body.
 
-One pass over a body's particles does what four did: in blocks of ``FUSED_BLOCK`` particles,
+One pass over a body's particles does it all: in blocks of ``FUSED_BLOCK`` particles,
 the damping (the rigid field of the last pass's sums), Eq. 13-14, the static colliders,
 the speed limit and the sums of the next step (shape match and damping) while the block
-is in cache.  The speed limit comes before the sums, so a capped particle no longer forces a
+is in cache.  The speed limit comes before the sums, so a capped particle forces no
 re-accumulation the next step.  The damping is the fused damping of ``kernels.damping``
 (sums per step taken in the pass, the field from them by ``damping_fields``), with its
 per-body 3x3 solve.
 
-``Body._step`` steps such a body as a pack of one (``Body._one_pack``): the same machine
-code as ``World.step``, so both agree bit for bit (test_core_fused.py).  A body belongs to
-one pack at a time: building a pack copies the body's current state into its row and
-rebinds the attributes and marks the pack the body left ``stale``, so a world whose bodies
-were packed elsewhere (a body stepped on its own) packs them again before stepping, and
-only then: two worlds (the live error estimate's copies, a user's second world) each keep
-their packs while they step in turn.
+``Body._step`` steps such a body as a pack of one (``Body._one_pack``): the same compiled
+function as ``World.step`` (``step_packed``), so both agree bit for bit
+(test_core_fused.py).  A body belongs to one pack at a time: building a pack copies the
+body's current state into its row and rebinds the attributes and marks the pack the body
+left ``stale``, so a world whose bodies were packed elsewhere (a body stepped on its own)
+packs them again before stepping, and only then: two worlds (the live error estimate's
+copies, a user's second world) each keep their packs while they step in turn.
 """
-
-import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .kernels import (JIT, NDAMP, STRETCH_LIMIT, _collide_range, det3, extract_rotation,
                       limit_turn, unit_det_match_warm)
 from .kernels.damping import damp_acc_range, damp_sums_range
 from .kernels.colliders import ground_range, ground_range_sums
 from .kernels.integrate import _acc_single, _add_rest_sums, _int_single_fused
-from .kernels.jit import address_view, finite, never_inline, scratch_view
+from .kernels.flags import DAMP_SUMS, DIRTY, ERR_STALE, SLEEP
+from .kernels.jit import address_view, finite, scratch_view
 from .kernels.limits import limit_speed_range
 from .kernels.linalg import sym3_solve
 
 #: Particles per call of the fused one-loop pass (``_int_single_fused``; sums, the damping
 #: sums too, reduced once a call; a call with a speed over the cap, or in a world with boxes
 #: or spheres, is projected, capped and summed again while it is in L2).
-#: Damped bodies and bodies with colliders took ``BLOCK`` (1,024) before: 4,096 is as fast
-#: or faster (10k damped, one cluster: 0.0315 / 0.0310 -> 0.0298 / 0.0286 ms; on a ground
-#: 45.1 -> 44.7 us; doc/benchmarks.md), as for the set layout (``sets.FUSED_SETS_BLOCK``).
 FUSED_BLOCK = 4096
 
 # Row layout: parameters (written at each pack build), then the body state the rows hold
@@ -74,27 +67,23 @@ def _columns():
 
 
 COLS, NCOL = _columns()
-#: Numbers of scratch one chunk of bodies uses (``_step_chunk``: views of one row of
-#: ``Pack.scratch``).
-SCRATCH = 203 + NDAMP
+#: The work arrays of ``_step_chunk`` (name, shape), views of ``Pack.scratch`` one after
+#: the other (``SCRATCH`` numbers); their offsets ``S_*`` follow from the shapes.
+SCRATCH_LAYOUT = (('part', (1, 12)), ('ref', (1, 3)), ('pnt', (1, 3)), ('quat', (4,)),
+                  ('rest_lin', (1, 3, 3)), ('rest_off', (1, 3)), ('goal_lin', (1, 3, 3)),
+                  ('goal_off', (1, 3)), ('m3', (4, 3, 3)), ('m39', (3, 9)), ('n4', (4, 4)),
+                  ('v4', (4, 4)), ('nmat', (3, 3)), ('udv', (3, 3)), ('dmp', (1, 6)),
+                  ('lim_lin', (1, 13)), ('lim_w', (1, 6)), ('acc', (3,)),
+                  ('dpart', (1, NDAMP)))
+_SCRATCH_OFFSETS = np.cumsum([0] + [int(np.prod(shape)) for _, shape in SCRATCH_LAYOUT])
+SCRATCH = int(_SCRATCH_OFFSETS[-1])
+(S_PART, S_REF, S_PNT, S_QUAT, S_RLIN, S_ROFF, S_GLIN, S_GOFF, S_M3, S_M39, S_N4, S_V4,
+ S_NMAT, S_UDV, S_DMP, S_LLIN, S_LW, S_ACC, S_DPART) = (int(o) for o in _SCRATCH_OFFSETS[:-1])
 #: Row entries a body built for threads holds per chunk (leading axis: chunks).
 _CHUNKED = ('_part', '_err', '_dpart')
-C_FLAGS = COLS['_flags'][0]            # [dirty, shape error stale, damping sums valid, sleep]
-C_FACC = COLS['_facc'][0]
-C_REF = COLS['_ref'][0]
-C_QUAT = COLS['_quat'][0]
-C_RLIN = COLS['_rest_lin'][0]
-C_ROFF = COLS['_rest_off'][0]
-C_SUMQ = COLS['_sum_q'][0]
-C_WSUM = COLS['_wsum'][0]
-C_SCALE = COLS['_scale'][0]
-C_CDET = COLS['_cdet'][0]
-C_AQQ3 = COLS['_aqq3'][0]
-C_NMAT = COLS['_nmat'][0]
-C_PART = COLS['_part'][0]
-C_ERR = COLS['_err'][0]
-C_DPART = COLS['_dpart'][0]
-C_UDV = COLS['_udv'][0]
+# the first column of each STATE entry (C_FLAGS: the body's flags, ``kernels.flags``)
+(C_FLAGS, C_FACC, C_REF, C_QUAT, C_RLIN, C_ROFF, C_SUMQ, C_WSUM, C_SCALE, C_CDET, C_AQQ3,
+ C_NMAT, C_PART, C_ERR, C_DPART, C_UDV) = (COLS[name][0] for name, _ in STATE)
 
 
 class Pack:
@@ -110,7 +99,7 @@ class Pack:
         #: (``jit.address_view``); ``_held`` keeps those arrays alive
         self.ptrs = np.zeros((nb, 5), dtype=np.int64)
         self._held = []
-        #: ``SCRATCH`` numbers for each chunk of bodies (``_step_chunk``), one row a thread
+        #: ``SCRATCH`` numbers for ``_step_chunk``
         self.scratch = np.zeros((1, SCRATCH))
         #: set when one of the bodies was packed since into another pack
         self.stale = False
@@ -139,8 +128,8 @@ class Pack:
                 view[:] = src.reshape(-1)
                 setattr(body, name, view.reshape(shape))
             if rebuild:
-                row[C_FLAGS] = 1.0                # dirty: the shape-match sums are taken again
-                row[C_FLAGS + 2] = 0.0            # and the damping sums
+                row[C_FLAGS + DIRTY] = 1.0        # the shape-match sums are taken again
+                row[C_FLAGS + DAMP_SUMS] = 0.0    # and the damping sums
             self.counts[b] = body._limit_counts
             body._limit_counts = self.counts[b]
             old = getattr(body, '_pack_owner', None)
@@ -149,7 +138,7 @@ class Pack:
             body._pack_owner = self
             # x, v, x0 as their (3, N) blocks (``body.soa``), viewed (3, N) and transposed
             # back (F) in the compiled step
-            arrays = (body._x.T, body._v.T, body._x0.T, body.m)
+            arrays = (body._x.T, body._v.T, body._x0.T, body._m)
             n = body.n
             for a, shape in zip(arrays, ((3, n), (3, n), (3, n), (n,))):
                 if (a.dtype != np.float64 or a.shape != shape
@@ -168,23 +157,8 @@ class Pack:
         raise TypeError("a Pack holds the addresses of its bodies' arrays and is not "
                         'copied: pack the copied bodies again')
 
-    def step(self, h, gravity, has_col, ground, boxes, spheres, thresh, parallel=False):
-        """Step every body of the pack once (on the threads with ``parallel``)."""
-        if parallel and len(self.bodies) > 1:
-            # one body: on the calling thread (a parallel region of one chunk would only
-            # add the other threads' wait)
-            threads = numba.get_num_threads()
-            if len(self.scratch) < threads:
-                self.scratch = np.zeros((threads, SCRATCH))
-            step_packed(self.P, self.counts, self.ptrs, self.scratch, threads, h, gravity,
-                        has_col, ground, boxes, spheres, thresh)
-            return
-        # one chunk, on the calling thread: ``step_packed_one``, no parallel region (its
-        # launch, even on one thread, allocates a schedule, takes locks and makes a
-        # system call: ~0.55 us more than this call through the dispatcher,
-        # ``tools/pack_call.py``) and no thread count to set.  It and the threaded
-        # ``step_packed`` run one machine code of ``_step_chunk`` (never inlined), so the
-        # two round alike (test_core_packed, test_core_fused, test_packed_threads).
+    def step(self, h, gravity, has_col, ground, boxes, spheres, thresh):
+        """Step every body of the pack once, on the calling thread (``step_packed``)."""
         call = self._entry
         if (call is None or call[1] is not gravity or call[2] is not ground
                 or call[3] is not boxes or call[4] is not spheres):
@@ -193,19 +167,18 @@ class Pack:
                 bool(has_col), ground, boxes, spheres, float(thresh))
 
     def _resolve(self, gravity, ground, boxes, spheres):
-        """(compiled entry of ``step_packed_one`` for these arrays, the arrays): the
-        entry point of its compiled specialisation, called without Numba's dispatch.
+        """(compiled entry of ``step_packed`` for these arrays, the arrays): the entry point
+        of its compiled specialisation, called without Numba's dispatch.
 
-        The dispatch types every argument at each call (~0.2 us more than the entry for
-        these 11: ``tools/pack_call.py``'s ``dispatch`` against ``entry``).  The entry
+        The dispatch types every argument at each call, a fixed cost that a small pack's
+        step notices.  The entry
         unboxes the arguments as the types it was compiled for, so it is used only while
         the collider arrays and gravity are the very objects it was resolved for (the
         world replaces them when they change), with the pack's own arrays and the scalars
-        converted to the types of the first call.  Where
-        ``step_packed_one`` is not a Numba dispatcher (a test's spy), it is called as it
-        is.
+        converted to the types of the first call.  Where ``step_packed`` is not a Numba
+        dispatcher (a test's spy), it is called as it is.
         """
-        fn = step_packed_one
+        fn = step_packed
         entry = fn
         overloads = getattr(fn, 'overloads', None)
         if overloads is not None:
@@ -218,38 +191,13 @@ class Pack:
         return entry, gravity, ground, boxes, spheres
 
 
-@njit(parallel=True, **JIT)
-def step_packed(P, counts, ptrs, scratch, threads, h, gravity, has_col, ground, boxes,
-                spheres, thresh):
-    """Every body of a pack in ``threads`` chunks of consecutive bodies over the threads
-    (``scratch``: at least ``threads`` rows of ``SCRATCH``; a body owns its row and its
-    particles, so the chunking changes no result).  A body's particle pass is not split
-    over threads: a split pass (sums per thread, added in thread order) was built and
-    tested in this project's history and never paid on its shared 2-core machine (a 1M
-    body: 5-6 ms on one thread, 48 ms over 2), and it added ~17 s to the cold compile."""
-    nb = ptrs.shape[0]
-    nch = max(1, min(threads, nb))
-    for c in prange(nch):
-        lo = (c * nb) // nch
-        hi = ((c + 1) * nb) // nch
-        _step_chunk(P, counts, ptrs, scratch[c], lo, hi, h, gravity, has_col, ground,
-                    boxes, spheres, thresh)
-
-
 @njit(**JIT)
-def step_packed_one(P, counts, ptrs, scratch, h, gravity, has_col, ground, boxes, spheres,
-                    thresh):
-    """Every body of a pack on the calling thread, without a parallel region (one chunk
-    of ``step_packed``; ``scratch``: at least one row of ``SCRATCH``).
+def step_packed(P, counts, ptrs, scratch, h, gravity, has_col, ground, boxes, spheres,
+                thresh):
+    """Every body of a pack, on the calling thread (``scratch``: a row of ``SCRATCH``).
 
-    ``_step_chunk`` is never inlined (``jit.never_inline``): this entry and the threaded
-    one call its own machine code, optimised from one IR, so they round alike.  Before,
-    one compiled function served both, because two compilations of the chunk inlined
-    into their callers had differed in the last bit in a fresh clone (Numba inlines a
-    callee compiled in the same process, but only links one loaded from the on-disk
-    cache).  A serial entry had also made ``many`` slower while the chunk's views and
-    particle arrays moved reference counts (``jit.scratch_view``, ``jit.address_view``
-    took them out; doc/benchmarks.md, "The 10k one-cluster step")."""
+    A pack is not spread over threads: its bodies are small, and a body's particle pass
+    is not split (its sums would then depend on the split)."""
     _step_chunk(P, counts, ptrs, scratch[0], 0, ptrs.shape[0], h, gravity, has_col, ground,
                 boxes, spheres, thresh)
 
@@ -258,48 +206,46 @@ def step_packed_one(P, counts, ptrs, scratch, h, gravity, has_col, ground, boxes
 def _step_chunk(P, counts, ptrs, scr, lo, hi, h, gravity, has_col, ground, boxes, spheres,
                 thresh):
     """Bodies lo..hi with one set of scratch buffers (``scr``: ``SCRATCH`` numbers, the
-    3x3 and 4x4 work arrays of the kernels called here, viewed once per chunk).
+    3x3 and 4x4 work arrays of the kernels called here, viewed once a call).
 
     A body's one-cluster shape match is written out here on scalars read from its row
     (what ``goals.solve_clusters_warm`` does for one cluster of one chunk) instead of
-    calling the general kernel: that one took 26 arrays (scratch copies of ~70 numbers of
-    state, each array argument passed as a struct with a reference count taken and given
-    back at every call) and looped over clusters and chunks; here only Horn's rotation
+    calling the general kernel, which takes 26 arrays (each passed as a struct with a
+    reference count taken and given back at every call) and loops over clusters and
+    chunks; here only Horn's rotation
     (``extract_rotation``) and the linear mode's minimiser (``unit_det_match_warm``, warm
     started from the body's last eigenvectors ``_udv``, as ``Body._step`` and the
-    record step do) are calls.  384 bodies of 144 particles: ~0.65 -> ~0.5 ms a step."""
-    never_inline()                    # one machine code for both entries (``Pack.step``)
-    # scratch: views of the chunk's row of ``Pack.scratch`` (about 30 small arrays
-    # allocated per call cost ~2.5 us, as much as 5k particles of the pass; 22 views by
-    # reshape ~30 ns each: ``jit.scratch_view``), zeroed as fresh arrays would be
+    record step do) are calls."""
+    # scratch: views of ``Pack.scratch`` (``jit.scratch_view``: no allocation, no reference
+    # count), zeroed as fresh arrays would be
     for j in range(SCRATCH):
         scr[j] = 0.0
-    part0 = scratch_view(scr, 0, (1, 12))
-    ref = scratch_view(scr, 12, (1, 3))
-    pnt = scratch_view(scr, 15, (1, 3))
-    quat1 = scratch_view(scr, 18, (4,))
-    rest_lin = scratch_view(scr, 22, (1, 3, 3))
-    rest_off = scratch_view(scr, 31, (1, 3))
-    goal_lin = scratch_view(scr, 34, (1, 3, 3))
-    goal_off = scratch_view(scr, 43, (1, 3))
-    m3 = scratch_view(scr, 46, (4, 3, 3))
+    part0 = scratch_view(scr, S_PART, (1, 12))
+    ref = scratch_view(scr, S_REF, (1, 3))
+    pnt = scratch_view(scr, S_PNT, (1, 3))
+    quat1 = scratch_view(scr, S_QUAT, (4,))
+    rest_lin = scratch_view(scr, S_RLIN, (1, 3, 3))
+    rest_off = scratch_view(scr, S_ROFF, (1, 3))
+    goal_lin = scratch_view(scr, S_GLIN, (1, 3, 3))
+    goal_off = scratch_view(scr, S_GOFF, (1, 3))
+    m3 = scratch_view(scr, S_M3, (4, 3, 3))
     ma, mb, mc, md = m3[0], m3[1], m3[2], m3[3]
-    m39 = scratch_view(scr, 82, (3, 9))
+    m39 = scratch_view(scr, S_M39, (3, 9))
     w1, w2 = m39[:, 3:6], m39[:, 6:9]
-    n4 = scratch_view(scr, 109, (4, 4))
-    v4 = scratch_view(scr, 125, (4, 4))
+    n4 = scratch_view(scr, S_N4, (4, 4))
+    v4 = scratch_view(scr, S_V4, (4, 4))
     wa, wv = n4[:3, :3], v4[:3, :3]
-    nmat0 = scratch_view(scr, 141, (3, 3))
-    udv0 = scratch_view(scr, 150, (3, 3))
-    dmp = scratch_view(scr, 175, (1, 6))
-    lim_lin = scratch_view(scr, 181, (1, 13))
-    lim_w = scratch_view(scr, 194, (1, 6))
-    acc = scratch_view(scr, 200, (3,))
-    dpart0 = scratch_view(scr, 203, (1, NDAMP))
+    nmat0 = scratch_view(scr, S_NMAT, (3, 3))
+    udv0 = scratch_view(scr, S_UDV, (3, 3))
+    dmp = scratch_view(scr, S_DMP, (1, 6))
+    lim_lin = scratch_view(scr, S_LLIN, (1, 13))
+    lim_w = scratch_view(scr, S_LW, (1, 6))
+    acc = scratch_view(scr, S_ACC, (3,))
+    dpart0 = scratch_view(scr, S_DPART, (1, NDAMP))
     dp = dpart0[0]
     for b in range(lo, hi):
         row = P[b]
-        if row[C_FLAGS + 3] > 0.0:             # asleep (``sm_ros.core.sleep``): not stepped
+        if row[C_FLAGS + SLEEP] > 0.0:         # asleep (``sm_ros.core.sleep``): not stepped
             continue
         # the body's particle arrays (``Pack.ptrs``: no typed list, no reference counts)
         n = ptrs[b, 4]
@@ -319,7 +265,7 @@ def _step_chunk(P, counts, ptrs, scr, lo, hi, h, gravity, has_col, ground, boxes
         v_max, turn = row[C_VMAX], row[C_TURN]
         mode = int(row[C_MODE])
         damp = k_damp > 0.0
-        dirty = row[C_FLAGS] > 0.0
+        dirty = row[C_FLAGS + DIRTY] > 0.0
         if dirty:
             for j in range(12):
                 part0[0, j] = 0.0
@@ -405,7 +351,7 @@ def _step_chunk(P, counts, ptrs, scr, lo, hi, h, gravity, has_col, ground, boxes
         if damp:
             # the rigid field damping moves towards, from the sums of the last pass (taken
             # again if the state changed since: set by hand, contact, turn limit, not damped)
-            if dirty or turned or not row[C_FLAGS + 2] > 0.0:
+            if dirty or turned or not row[C_FLAGS + DAMP_SUMS] > 0.0:
                 for j in range(NDAMP):
                     dpart0[0, j] = 0.0
                 damp_acc_range(0, n, x, v, mass, np.zeros(0, dtype=np.int32), dpart0)
@@ -468,9 +414,9 @@ def _step_chunk(P, counts, ptrs, scr, lo, hi, h, gravity, has_col, ground, boxes
             ref[0, j] = pnt[0, j]
         counts[b, 0] += capped
         row[C_ERR] = err2
-        row[C_FLAGS] = 0.0                     # the sums are those of the state just written
-        row[C_FLAGS + 1] = 1.0                 # shape error stale
-        row[C_FLAGS + 2] = 1.0 if damp else 0.0
+        row[C_FLAGS + DIRTY] = 0.0             # the sums are those of the state just written
+        row[C_FLAGS + ERR_STALE] = 1.0
+        row[C_FLAGS + DAMP_SUMS] = 1.0 if damp else 0.0
         # ---- store what the step changed
         for j in range(3):
             row[C_REF + j] = ref[0, j]

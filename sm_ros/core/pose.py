@@ -78,13 +78,13 @@ class BodyPose:
             return np.asarray(body.com(), dtype=np.float64), body.rotation()
         entry = self._state.get(id(body))
         if entry is None or entry[0] is not body:
-            rest = np.asarray(body.x_init, dtype=np.float64)
-            m = np.asarray(body.m, dtype=np.float64)
+            rest = np.asarray(body._x_init, dtype=np.float64)
+            m = np.asarray(body._m, dtype=np.float64)
             x0 = np.ascontiguousarray(rest - (m @ rest) / m.sum())
             entry = (body, x0, np.array([1.0, 0.0, 0.0, 0.0]))
             self._state[id(body)] = entry
         _, x0, quat = entry
-        com_apq(body.x, body.m, x0, self._com, self._apq)
+        com_apq(body._x, body._m, x0, self._com, self._apq)
         extract_rotation(self._apq, quat, self._r, self._n4, self._v4)
         return self._com.copy(), self._r.copy()
 

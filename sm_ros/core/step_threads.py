@@ -4,33 +4,11 @@
 calling thread and on these helpers: each calls ``step_bodies_claimed``, which takes
 records from an atomic counter, so the calling thread never waits for a helper that has
 not started.  Kept out of the kernel package: an edit here does not invalidate the
-kernels' on-disk cache (``kernels.jit``: one stamp for the whole package).
+kernels' on-disk cache (``kernels.jit``: one cache directory keyed on the kernel files).
 """
 
 import os
 import threading
-
-#: ``cores_free``: the helpers are used while the 1-minute load average is below the CPUs
-#: this process may run on plus this margin.  On the shared 2-core machine the records of
-#: ``paper_384`` ran 1.5-1.9x faster with a helper while a core was free, and the tick ~8 %
-#: slower at load 3.2-4.0 (doc/benchmarks.md, "The records of paper_384 on helper
-#: threads"); the node's own busy thread counts about 1 of the load.
-LOAD_MARGIN = 0.5
-try:
-    _CPUS = len(os.sched_getaffinity(0))
-except AttributeError:                          # not on Linux
-    _CPUS = os.cpu_count() or 1
-
-
-def cores_free():
-    """Whether a helper is likely to find a core: the 1-minute load average below the
-    usable CPUs plus ``LOAD_MARGIN`` (True where the load average is not available).
-    Only speed depends on it: the helpers' results are bit for bit the serial ones."""
-    try:
-        load = os.getloadavg()[0]
-    except (AttributeError, OSError):
-        return True
-    return load < _CPUS + LOAD_MARGIN
 
 
 class Helpers:

@@ -8,24 +8,19 @@ import numba
 from numba.typed import List as TypedList
 
 from . import body as body_mod
-from . import step_threads
 from .body import Body
 from .kernels.world_step import step_bodies_parallel, step_single_bodies
 from .packed import Pack
 from .contact import COUPLE_ALPHA, BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
+from .kernels.flags import SLEEP
 from .sleep import Sleep
 from .world_colliders import WorldColliders
 
-#: The compiled world step spreads its bodies over the threads from this many particles
-#: (the threshold of one body's multi-threaded kernels, ``body.PARALLEL_MIN_WORK``).
-WORLD_PARALLEL_MIN_WORK = 262144
 #: The compiled-step records (set-layout bodies, ``kernels.world_step``) are shared with
-#: helper threads (``step_bodies_parallel``) from this many particles in records: their
-#: step costs ~100-150 ns a particle on one thread (``paper_384``: ~45k particles, ~5 ms),
-#: and the calling thread never waits for a helper that gets no core, so the threshold is
-#: the cost of waking a helper (tens of microseconds), not of a fork/join on shared cores.
-#: Not while the machine's cores are all busy (``step_threads.cores_free``: load average).
+#: helper threads (``step_bodies_parallel``) from this many particles in records: the
+#: calling thread never waits for a helper that gets no core, so the threshold is the cost
+#: of waking a helper, not of a fork/join on shared cores.
 RECORDS_PARALLEL_MIN_WORK = 16384
 
 
@@ -98,9 +93,9 @@ class World(WorldColliders):
         return self._bodies[name]
 
     def add_body(self, points, masses=1.0, params=None, name=None, velocities=None,
-                 pinned=None, contact=None, order=None) -> Body:
-        """Build a body from a point set (N, 3); see ``Body`` (``order='set'``: the
-        particles stored set by set, ``body.order`` the permutation; default: as given).
+                 pinned=None, contact=None) -> Body:
+        """Build a body from a point set (N, 3); see ``Body`` (it picks the storage order of
+        its particles; every array it hands out is in the caller's order).
 
         ``contact``: a ``BodyContact`` (collide with other bodies, contact radius,
         self-collision); default: collides, radius half the median neighbour distance.
@@ -116,8 +111,8 @@ class World(WorldColliders):
         if not isinstance(contact, BodyContact):
             raise ValueError('contact must be a BodyContact or None')
         contact = contact.validate()
-        body = Body(points, masses, params, name, velocities, pinned, order)
-        r0 = default_radius(body.x_init) if contact.radius is None else contact.radius
+        body = Body(points, masses, params, name, velocities, pinned)
+        r0 = default_radius(body._x_init) if contact.radius is None else contact.radius
         self._bodies[name] = body
         self._contacts[name] = (contact, r0)
         self._flat = None
@@ -164,7 +159,7 @@ class World(WorldColliders):
             raise ValueError('contact must be a BodyContact')
         contact = contact.validate()
         body = self._bodies[name]
-        r0 = default_radius(body.x_init) if contact.radius is None else contact.radius
+        r0 = default_radius(body._x_init) if contact.radius is None else contact.radius
         self._contacts[name] = (contact, r0)
         self._flat = None
 
@@ -189,7 +184,7 @@ class World(WorldColliders):
         bodies = list(self._bodies.values())
         for b in bodies:                       # bodies put in by hand get the defaults
             if b.name not in self._contacts:
-                self._contacts[b.name] = (BodyContact(), default_radius(b.x_init))
+                self._contacts[b.name] = (BodyContact(), default_radius(b._x_init))
         self._flat = FlatState(bodies)
         self._flat_builds += 1
         p = self._contact_params
@@ -204,12 +199,12 @@ class World(WorldColliders):
         self._sleep = Sleep(self._flat) if c is not None and c.needed else None
         if self._sleep is None:
             for b in bodies:
-                b._flags[3] = min(b._flags[3], 0.0)
+                b._flags[SLEEP] = min(b._flags[SLEEP], 0.0)
 
     @property
     def asleep(self):
         """Names of the sleeping bodies (README "Sleeping bodies")."""
-        return [b.name for b in self._bodies.values() if b._flags[3] > 0.0]
+        return [b.name for b in self._bodies.values() if b.asleep]
 
     @property
     def asleep_count(self) -> int:
@@ -227,8 +222,8 @@ class World(WorldColliders):
     def wake(self):
         """Wake every body (they are stepped again from the next step)."""
         for b in self._bodies.values():
-            if b._flags[3] > 0.0:
-                b._flags[3] = 0.0
+            if b._flags[SLEEP] > 0.0:
+                b._flags[SLEEP] = 0.0
         if self._sleep is not None:
             self._sleep.wake_all()
 
@@ -269,30 +264,23 @@ class World(WorldColliders):
                 cs.imp_time += h
             self.time += h
             return
-        _, pack, records, slow, parallel, helpers, nrec = self._split_now(h)
+        _, pack, records, slow, helpers, nrec = self._split_now(h)
         args = (h, self._gravity, self._has_col, self._ground_row, self._box_rows,
                 self._sphere_rows, thresh)
-        if nrec and helpers and step_threads.cores_free():
-            # the records (kernels/world_step.py) shared with helper threads; a pack on one
-            # thread is stepped here while they wake
-            if pack is not None and parallel:
-                pack.step(*args, True)
-
-            def step_pack():
-                # the one-cluster rigid/linear bodies: one compiled call over their rows
-                pack.step(*args, False)
-            step_bodies_parallel(records, *args,
-                                 before=step_pack if pack is not None and not parallel else None)
+        # the one-cluster rigid/linear bodies: one compiled call over their rows (packed.py)
+        step_pack = None if pack is None else (lambda: pack.step(*args))
+        if nrec and helpers:
+            # the records (kernels/world_step.py) shared with helper threads; the pack is
+            # stepped here while they wake
+            step_bodies_parallel(records, *args, before=step_pack)
         else:
-            if pack is not None:
-                # the one-cluster rigid/linear bodies: one compiled call over their rows
-                # (packed.py)
-                pack.step(*args, parallel)
+            if step_pack is not None:
+                step_pack()
             if nrec:
                 # one compiled call for the bodies it covers (kernels/world_step.py)
                 step_single_bodies(records, *args)
         for body in slow:
-            if not body._flags[3] > 0.0:       # asleep: not stepped (sleep.py)
+            if not body.asleep:                # asleep: not stepped (sleep.py)
                 body._step(*args)
         c = self._contact
         # the bodies' own passes ended the step unless a world pass runs (state_flagged)
@@ -327,45 +315,37 @@ class World(WorldColliders):
     def _split_bodies(self, h):
         """(``packed.Pack`` of the one-cluster rigid/linear bodies or None, typed list of
         compiled-step records of the other covered bodies, bodies stepped one by one,
-        whether the compiled calls run on several threads): ``_split_now``'s."""
+        whether the records are shared with helper threads): ``_split_now``'s."""
         return self._split_now(h)[1:5]
 
     def _split_now(self, h):
         """The split of the bodies at the step ``h``: (key, ``packed.Pack`` of the
         one-cluster rigid/linear bodies or None, typed list of compiled-step records of the
-        other covered bodies, bodies stepped one by one, whether the compiled calls run on
-        several threads, whether the records are shared with helper threads, how many
-        records), rebuilt only when a body's buffers, parameters, grabs or wrench kind,
-        the bodies, the step or the packing (``Pack.stale``: one of its bodies was packed
-        elsewhere since) changed.  Python cost per step does not grow with the number of
-        bodies.  Threads as for one body: only from ``WORLD_PARALLEL_MIN_WORK`` particles
-        (on shared cores fork/join costs more below), and with several bodies.  The
-        records alone are also shared with helper threads from
-        ``RECORDS_PARALLEL_MIN_WORK`` particles in records (the split's sixth entry:
-        ``step_bodies_parallel`` never waits for a helper that has not started).  The
-        record count is kept: a typed list's ``len`` is a compiled call."""
+        other covered bodies, bodies stepped one by one, whether the records are shared
+        with helper threads, how many records), rebuilt only when a body's buffers,
+        parameters, grabs or wrench kind, the bodies, the step or the packing
+        (``Pack.stale``: one of its bodies was packed elsewhere since) changed.  Python
+        cost per step does not grow with the number of bodies.  The records are shared
+        with helper threads with several threads, several records and
+        ``RECORDS_PARALLEL_MIN_WORK`` particles in records (``step_bodies_parallel`` never
+        waits for a helper that has not started).  The record count is kept: a typed
+        list's ``len`` is a compiled call."""
         key = (body_mod._GENERATION[0], h, self._layout, self.compiled_step)
         split = self._split
         if split is None or split[0] != key or (split[1] is not None and split[1].stale):
-            records, packed, slow, work, rec_work = TypedList(), [], [], 0, 0
+            records, packed, slow, rec_work = TypedList(), [], [], 0
             for body in self._bodies.values():
                 if self.compiled_step and body._packed_ok():
                     packed.append(body)
-                    work += body.n
                 elif self.compiled_step and body._fast_ok():
                     records.append(body._fast_record(h))
-                    work += body.n
                     rec_work += body.n
                 else:
                     slow.append(body)
             pack = Pack(packed, h) if packed else None
-            threads = numba.get_num_threads() > 1
-            parallel = (work >= WORLD_PARALLEL_MIN_WORK and threads
-                        and len(records) + len(packed) > 1)
-            helpers = parallel or (threads and len(records) > 1
-                                   and rec_work >= RECORDS_PARALLEL_MIN_WORK)
-            split = self._split = (key, pack, records, slow, parallel, helpers,
-                                   len(records))
+            helpers = (numba.get_num_threads() > 1 and len(records) > 1
+                       and rec_work >= RECORDS_PARALLEL_MIN_WORK)
+            split = self._split = (key, pack, records, slow, helpers, len(records))
         return split
 
     def _world_passes(self, h, thresh):

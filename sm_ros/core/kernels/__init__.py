@@ -5,17 +5,22 @@ file               what it computes                                            e
 =================  ==========================================================  ============
 ``linalg.py``      hand-written 3x3 / 4x4 / 9x9 eigen-solver, pseudo-inverse    (support)
 ``rotation.py``    R of the polar decomposition of A_pq (Horn's quaternion)     11
-``goals.py``       per-cluster sums -> x_cm, A_pq, A, goal transforms; A_qq    7-12, 18-22
+``goals.py``       per-cluster sums -> x_cm, A_pq, A, goal transforms; A_qq    7-12, 19-22
+``unit_det.py``    the linear mode's unit-determinant goal matrix               18
 ``integrate.py``   per-particle passes: goals averaged over clusters,          7-9, 13-14,
                    Eq. 13-14, accumulation of the next step's sums              23
 ``sets.py``        the same passes for particles grouped by cluster sets       7-9, 13-14,
                                                                                21, 23
+``sets_sums.py``   the per-set sums, to per-cluster sums; the per-set goal maps  7-9, 23
+``fused.py``       the one loop of the fused passes (one cluster, set runs)     13-14
+``grabs.py``       grabbed and pinned particles; a body's inertia tensor        (grabs)
 ``plasticity.py``  plastic state update and its caps                            24-27
 ``colliders.py``   static ground, boxes, spheres (projection, friction)         (collisions)
 ``damping.py``     damping towards each cluster's rigid motion                  (damping)
 ``limits.py``      speed and turn-per-step limits (what one step represents)   (limits)
-``world_step.py``  one compiled call steps every one-cluster body of a world   7-14
-``jit.py``         compile options; a Numba cache stamp shared by all files     -
+``world_step.py``  one compiled call steps the set-layout bodies of a world     7-14
+``flags.py``       the indices of a body's flag array                          -
+``jit.py``         compile options; the cache directory keyed on all files      -
 =================  ==========================================================  ============
 
 Public kernels never raise and assume clean, contiguous input; ``sm_ros.core.body``
@@ -30,22 +35,22 @@ rigid/linear modes.  Everything is re-exported here: ``from sm_ros.core import k
 from .colliders import _collide_range, collide_point, contact_velocity
 from .damping import (NDAMP, damp_acc_range, damp_accumulate, damp_kinematic, damp_rigid,
                       damp_velocity, damping_fields, damping_targets)
-from .goals import (STRETCH_LIMIT, _goal_quad, _logprod, _logx, _qhat, _stretch_ok,
-                    _unit_det_sum, invert_moments, moments, nearest_unit_det,
-                    nearest_unit_det_warm, quad_features, solve_clusters, solve_clusters_warm,
-                    unit_det_frames, unit_det_match, unit_det_match_warm, volume_preserving)
-from .integrate import (BLOCK, accumulate_parallel, accumulate_serial,
-                        advance, apply_kinematic, gather_rows, inertia, integrate_parallel,
-                        integrate_serial)
+from .goals import (_goal_quad, _qhat, invert_moments, moments, quad_features, solve_clusters,
+                    solve_clusters_warm)
+from .grabs import apply_kinematic, gather_rows, inertia
+from .integrate import (BLOCK, accumulate_parallel, accumulate_serial, advance,
+                        integrate_parallel, integrate_serial)
 from .jit import FASTMATH, JIT
 from .limits import limit_speed, limit_turn
 from .linalg import det3, jacobi3, jacobi3_warm, jacobi_eigh, matmul, norm2, pinv_sym
 from .plasticity import _add_null_projector, _cap_plastic, plastic_update
 from .rotation import extract_rotation, quat_to_mat
-from .sets import (sets_accumulate_parallel, sets_accumulate_serial,
-                   sets_integrate_parallel, sets_integrate_serial, sets_kinematic, sets_maps,
-                   sets_reduce)
+from .sets import sets_integrate_parallel, sets_integrate_serial, sets_kinematic
+from .sets_sums import sets_accumulate_parallel, sets_accumulate_serial, sets_maps, sets_reduce
 from .spread import moved_box, spread_of
+from .unit_det import (STRETCH_LIMIT, _logprod, _logx, _stretch_ok, _unit_det_sum,
+                       nearest_unit_det, nearest_unit_det_warm, unit_det_frames, unit_det_match,
+                       unit_det_match_warm, volume_preserving)
 from .world_step import step_single_bodies
 
 __all__ = ['_collide_range', 'contact_velocity', 'collide_point', 'NDAMP', 'damp_acc_range',

@@ -238,7 +238,7 @@ def damp_sums_range(lo, hi, x, v, mass, wuni, k0, k1, k2):
     products, not 18.  Inlined by Numba into ``packed._pass`` (a block of a one-cluster
     body) and ``sets._sets_fused_lin`` (a run of one set), for a block or run the colliders
     or the speed cap moved after the one-loop pass (which takes the same sums in its loop,
-    ``integrate._fused_loop``), and into ``damp_acc_range``."""
+    ``fused._fused_loop``), and into ``damp_acc_range``."""
     a0 = a1 = a2 = b0 = b1 = b2 = c0 = c1 = c2 = 0.0
     e00 = e11 = e22 = e01 = e12 = e20 = 0.0
     ms = 0.0

@@ -10,12 +10,11 @@ L1.  ``accumulate_*`` recomputes those sums when the state was changed outside a
 cancel (A_pq = sum w (x - ref) q^T - (cm - ref)(sum w q)^T).  Single-cluster bodies take
 fast paths that keep every cluster constant and accumulator in registers.
 
-Vectorisation (issue 11 item 1; checked with ``inspect_asm`` and timed, AVX-512 machine,
-Numba 0.68): a body stores x, v, x0 per component (``Body`` keeps (3, N) blocks and hands
-the kernels their (N, 3) transposes, typed layout F), so ``x[i, j]`` is unit-stride in i.
-The one-cluster loops (``_int_single_lin``, ``_acc_single``) and ``damping.damp_acc_range``
-then run 8 particles a ``zmm`` instruction: 1.1 ns/particle for the integration loop at
-10k particles, 4.5-5 on the (N, 3) rows.  What it takes (each loop says so): an unsigned
+Vectorisation: a body stores x, v, x0 per component (``Body`` keeps (3, N) blocks and
+hands the kernels their (N, 3) transposes, typed layout F), so ``x[i, j]`` is unit-stride
+in i, and the one-cluster loops (``_int_single_lin``, ``_acc_single``) and
+``damping.damp_acc_range`` run several particles a vector instruction.  What it takes
+(each loop says so): an unsigned
 loop index (``jit.U``: no negative-index wraparound), ``advance`` and the accumulators
 inlined by Numba (an LLVM-level call stayed a call), every constant in a local (an array
 read in the loop may alias x/v: LLVM gave up, "too many memory checks needed"), branches
@@ -24,13 +23,13 @@ stay scalar; multi-cluster bodies mostly take the set layout (``sets.py``).
 """
 
 import numpy as np
-from numba import njit, prange, types
-from numba.extending import overload
+from numba import njit, prange
 
-from .jit import JIT, U, wide_vectors
+from .jit import JIT, U
 from .colliders import _collide_range
 from .damping import damp_acc_range, damp_towards
 from .goals import _goal_quad, _qhat
+from .fused import _fused_range, damp_constants
 
 
 @njit(inline='always', **JIT)
@@ -290,13 +289,6 @@ def _int_single_fused(start, end, x, v, x0, mass, wuni, goal_lin, goal_off, alph
     the caller projects them and adds what that changed in the sums
     (``colliders.ground_range_sums``).
     """
-    # 512 bits wide on AVX-512 hosts (``jit.wide_vectors``): 8 particles a vector instead
-    # of 4, the 12 sums, the error and the counts in 8-wide accumulators.  The loop's time
-    # over the 256-bit loop's, this machine kind, undamped / damped (``tools/loop_floor.py
-    # --sides 4,5,6,10,16,22``): 64 particles 0.96 / 1.03, 125 0.98 / 1.03, 216 0.90 /
-    # 0.94, 1,000 0.82 / 0.97, 4,096 0.79 / 0.96, 10,648 0.81 / 0.97; ``many`` (144-particle
-    # damped bodies) no slower, so one compilation serves every size.
-    wide_vectors()
     gmap = (goal_lin[0, 0, 0], goal_lin[0, 0, 1], goal_lin[0, 0, 2], goal_lin[0, 1, 0],
             goal_lin[0, 1, 1], goal_lin[0, 1, 2], goal_lin[0, 2, 0], goal_lin[0, 2, 1],
             goal_lin[0, 2, 2], goal_off[0, 0], goal_off[0, 1], goal_off[0, 2])
@@ -317,206 +309,6 @@ def _int_single_fused(start, end, x, v, x0, mass, wuni, goal_lin, goal_off, alph
     return err2, over, low
 
 
-def below_ground(y, gz):
-    """1 if the height ``y`` is below the ground's ``gz``, else 0; 0 for ``gz`` None (no
-    ground: the compiled loops then have no test at all, ``_fused_range``)."""
-    return 0 if gz is None else int(y < gz)
-
-
-@overload(below_ground, jit_options=JIT)
-def _below_ground(y, gz):
-    if isinstance(gz, types.NoneType):
-        return lambda y, gz: 0
-    return lambda y, gz: y < gz
-
-
-@njit(inline='always', **JIT)
-def damp_constants(damp, k_damp, c0, c1, c2, o0, o1, o2, r0, r1, r2):
-    """The damping v += k (c + o x (p - r) - v) of a field (c, o) about r, folded into
-    v <- km v + f + o' x p: returns (km, f0, f1, f2, o'0, o'1, o'2), the identity map
-    (1, 0, ..., 0) without ``damp`` (``_fused_range``: 3 multiply-adds a component)."""
-    kd = k_damp if damp else 0.0
-    q0, q1, q2 = kd * o0, kd * o1, kd * o2
-    return (1.0 - kd, kd * c0 - (q1 * r2 - q2 * r1), kd * c1 - (q2 * r0 - q0 * r2),
-            kd * c2 - (q0 * r1 - q1 * r0), q0, q1, q2)
-
-
-def particle_weight(mass, i):
-    """The weight of particle i in a sum: ``mass[i]``, 1 for ``mass`` None (a body of one
-    mass, whose sums are taken unweighted and scaled once: the loop is then compiled
-    without the masses, ``_fused_range``)."""
-    return 1.0 if mass is None else mass[i]
-
-
-@overload(particle_weight, jit_options=JIT)
-def _particle_weight(mass, i):
-    if isinstance(mass, types.NoneType):
-        return lambda mass, i: 1.0
-    return lambda mass, i: mass[i]
-
-
-@njit(inline='always', **JIT)
-def _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha_h, h, hx, hy, hz,
-                 k0, k1, k2, lim2, gz):
-    """One loop over particles start..end: the damping (``field``, ``damp_constants``;
-    with ``damp``), Eq. 13-14 towards the goal G x0 + b (``gmap``: G row by row, then b),
-    and the 12 sums of the new state about the point k (``_rest_sums``'s).  Returns (sum of
-    |g - p|^2 as ``advance``, speeds over sqrt(lim2), the 12 sums, new heights below gz:
-    the ground's test, so that a run the ground cannot reach skips its collider pass; with
-    gz None the loops are compiled without it: it cost 10 % of an 8-cluster step), then,
-    with ``damp``, the next step's 13 damping sums of the new state about the same point
-    (``damping.damp_sums_range``'s first 13: sum w v, sum w d x v, the six second moments
-    of d, W; zeros without ``damp``).
-
-    With ``wuni`` > 0 (every particle of that mass) the sums are taken unweighted and
-    scaled once: the loop is a second compilation, without the masses (``_fused_loop``
-    with ``mass`` None).  A test of ``wuni`` inside the loop was not hoisted by LLVM (the
-    loop is too large to unswitch): 1.57 against 1.39 ns a particle at 10k in a throwaway
-    harness (``wuni`` an argument against a constant).  ``tools/loop_floor.py`` times both
-    compilations (``pass_loop``, ``pass_loop_masses``).
-    """
-    if wuni > 0.0:
-        t = _fused_loop(start, end, x, v, x0, None, gmap, damp, field, alpha_h, h, hx, hy,
-                        hz, k0, k1, k2, lim2, gz)
-        return (t[0], t[1], wuni * t[2], wuni * t[3], wuni * t[4], wuni * t[5], wuni * t[6],
-                wuni * t[7], wuni * t[8], wuni * t[9], wuni * t[10], wuni * t[11],
-                wuni * t[12], wuni * t[13], t[14], wuni * t[15], wuni * t[16], wuni * t[17],
-                wuni * t[18], wuni * t[19], wuni * t[20], wuni * t[21], wuni * t[22],
-                wuni * t[23], wuni * t[24], wuni * t[25], wuni * t[26],
-                wuni * (end - start) if damp else 0.0)
-    return _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, hy, hz,
-                       k0, k1, k2, lim2, gz)
-
-
-@njit(inline='always', **JIT)
-def _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, hy, hz,
-                k0, k1, k2, lim2, gz):
-    """``_fused_range``'s loop, its sums weighted by ``mass`` (None: unweighted).
-
-    Vectorises across particles (unit-stride columns, unsigned index, every constant in a
-    local: one lane a particle; the 12 sums, the error and the count as vector accumulators
-    reduced once a call).  Inlined by Numba into ``_int_single_fused`` (one cluster, x0 the
-    rest positions) and ``sets._sets_fused_lin`` (a run of one set, x0 its offsets y).
-
-    Damped, the loop also takes the damping sums of the new state (13 accumulators more, 28
-    in all: they fit AVX-512VL's 32 vector registers at 256 bits).  A second loop over the
-    block (``damp_sums_range``, what the passes did before) cost 0.6 ns a particle more
-    where the first loop streams its state from L3: 97k damped, 8 clusters stored set by
-    set, 0.336 / 0.342 -> 0.292 / 0.293 ms a step, the same at 10k (doc/benchmarks.md).
-    """
-    l00, l01, l02, l10, l11, l12, l20, l21, l22, b0, b1, b2 = gmap
-    km, f0, f1, f2, o0, o1, o2 = field
-    err2 = 0.0
-    over = 0
-    low = 0
-    s0 = s1 = s2 = 0.0
-    c00 = c01 = c02 = c10 = c11 = c12 = c20 = c21 = c22 = 0.0
-    # the damping sums: momentum, angular momentum about k, second moments of d, mass
-    pm0 = pm1 = pm2 = am0 = am1 = am2 = 0.0
-    e00 = e11 = e22 = e01 = e12 = e20 = ms = 0.0
-    if damp:
-        for i in range(U(start), U(end)):
-            a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
-            p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
-            # damp_towards, its constants folded (damp_constants)
-            u0 = km * v[i, 0] + f0 + o1 * p2 - o2 * p1
-            u1 = km * v[i, 1] + f1 + o2 * p0 - o0 * p2
-            u2 = km * v[i, 2] + f2 + o0 * p1 - o1 * p0
-            # advance (Eq. 13-14), its expressions
-            e0 = l00 * a0 + l01 * a1 + l02 * a2 + b0 - p0
-            e1 = l10 * a0 + l11 * a1 + l12 * a2 + b1 - p1
-            e2 = l20 * a0 + l21 * a1 + l22 * a2 + b2 - p2
-            v0 = u0 + alpha_h * e0 + hx
-            v1 = u1 + alpha_h * e1 + hy
-            v2 = u2 + alpha_h * e2 + hz
-            y0 = p0 + h * v0
-            y1 = p1 + h * v1
-            y2 = p2 + h * v2
-            x[i, 0] = y0
-            x[i, 1] = y1
-            x[i, 2] = y2
-            v[i, 0] = v0
-            v[i, 1] = v1
-            v[i, 2] = v2
-            err2 += e0 * e0 + e1 * e1 + e2 * e2
-            over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
-            low += below_ground(y2, gz)
-            # the next step's shape-match sums of the new state
-            w = particle_weight(mass, i)
-            wd0 = w * (y0 - k0)
-            wd1 = w * (y1 - k1)
-            wd2 = w * (y2 - k2)
-            s0 += wd0
-            s1 += wd1
-            s2 += wd2
-            c00 += wd0 * a0
-            c01 += wd0 * a1
-            c02 += wd0 * a2
-            c10 += wd1 * a0
-            c11 += wd1 * a1
-            c12 += wd1 * a2
-            c20 += wd2 * a0
-            c21 += wd2 * a1
-            c22 += wd2 * a2
-            # the next step's damping sums of the new state (``damp_sums_range``'s)
-            d0, d1, d2 = y0 - k0, y1 - k1, y2 - k2
-            ms += w
-            pm0 += w * v0
-            pm1 += w * v1
-            pm2 += w * v2
-            am0 += wd1 * v2 - wd2 * v1
-            am1 += wd2 * v0 - wd0 * v2
-            am2 += wd0 * v1 - wd1 * v0
-            e00 += wd0 * d0
-            e11 += wd1 * d1
-            e22 += wd2 * d2
-            e01 += wd0 * d1
-            e12 += wd1 * d2
-            e20 += wd2 * d0
-    else:
-        for i in range(U(start), U(end)):
-            a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
-            p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
-            e0 = l00 * a0 + l01 * a1 + l02 * a2 + b0 - p0
-            e1 = l10 * a0 + l11 * a1 + l12 * a2 + b1 - p1
-            e2 = l20 * a0 + l21 * a1 + l22 * a2 + b2 - p2
-            v0 = v[i, 0] + alpha_h * e0 + hx
-            v1 = v[i, 1] + alpha_h * e1 + hy
-            v2 = v[i, 2] + alpha_h * e2 + hz
-            y0 = p0 + h * v0
-            y1 = p1 + h * v1
-            y2 = p2 + h * v2
-            x[i, 0] = y0
-            x[i, 1] = y1
-            x[i, 2] = y2
-            v[i, 0] = v0
-            v[i, 1] = v1
-            v[i, 2] = v2
-            err2 += e0 * e0 + e1 * e1 + e2 * e2
-            over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
-            low += below_ground(y2, gz)
-            w = particle_weight(mass, i)
-            wd0 = w * (y0 - k0)
-            wd1 = w * (y1 - k1)
-            wd2 = w * (y2 - k2)
-            s0 += wd0
-            s1 += wd1
-            s2 += wd2
-            c00 += wd0 * a0
-            c01 += wd0 * a1
-            c02 += wd0 * a2
-            c10 += wd1 * a0
-            c11 += wd1 * a1
-            c12 += wd1 * a2
-            c20 += wd2 * a0
-            c21 += wd2 * a1
-            c22 += wd2 * a2
-    # A non-finite speed makes its new position, hence a sum of the positions, non-finite:
-    # err2 takes it once a call, not per particle (4 operations a particle of ~46), so that
-    # ``Body._err`` still flags the state the pass wrote (``World.state_flagged``).
-    err2 += 0.0 * (s0 + s1 + s2)
-    return (err2, over, s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22, low,
-            pm0, pm1, pm2, am0, am1, am2, e00, e11, e22, e01, e12, e20, ms)
 
 
 @njit(**JIT)
@@ -697,65 +489,3 @@ def integrate_parallel(quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans,
                    spheres=spheres, thresh=thresh, damp=damp, k_damp=k_damp, dmp=dmp,
                    dpart=dpart)
 
-
-@njit(**JIT)
-def gather_rows(src, idx, out):
-    """out[p] = src[idx[p]] (used to remember kinematic particles' start positions)."""
-    for p in range(idx.shape[0]):
-        for j in range(3):
-            out[p, j] = src[idx[p], j]
-
-
-@njit(**JIT)
-def apply_kinematic(quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, ref, part, idx, tgt, prev,
-                    h):
-    """Kinematic particles land exactly on their targets with velocity (target - prev)/h.
-
-    The accumulators for the next step already hold these particles' integrated
-    positions: their contribution is swapped for the one at the target.
-    """
-    single = ptr.shape[0] == 0
-    for p in range(idx.shape[0]):
-        i = idx[p]
-        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
-        if single:
-            j0, j1, w = 0, 1, mass[i]
-        else:
-            j0, j1 = ptr[i], ptr[i + 1]
-            w = mass[i] / (j1 - j0)
-        for j in range(j0, j1):
-            k = 0 if single else cl[j]
-            q0, q1, q2 = _qhat(rest_lin=rest_lin, rest_off=rest_off, k=k, a0=a0, a1=a1, a2=a2)
-            d0 = tgt[p, 0] - x[i, 0]
-            d1 = tgt[p, 1] - x[i, 1]
-            d2 = tgt[p, 2] - x[i, 2]
-            if quad:
-                _acc_quad(row=part[0, k], w=w, d0=d0, d1=d1, d2=d2, q0=q0, q1=q1, q2=q2)
-            else:
-                _acc_lin(row=part[0, k], w=w, d0=d0, d1=d1, d2=d2, q0=q0, q1=q1, q2=q2)
-        for j in range(3):
-            v[i, j] = (tgt[p, j] - prev[p, j]) / h
-            x[i, j] = tgt[p, j]
-
-
-@njit(**JIT)
-def inertia(x, mass, com, out):
-    """Inertia tensor about ``com``: sum m (|r|^2 I - r r^T)."""
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = 0.0
-    for i in range(x.shape[0]):
-        r0 = x[i, 0] - com[0]
-        r1 = x[i, 1] - com[1]
-        r2 = x[i, 2] - com[2]
-        w = mass[i]
-        rr = r0 * r0 + r1 * r1 + r2 * r2
-        out[0, 0] += w * (rr - r0 * r0)
-        out[1, 1] += w * (rr - r1 * r1)
-        out[2, 2] += w * (rr - r2 * r2)
-        out[0, 1] -= w * r0 * r1
-        out[0, 2] -= w * r0 * r2
-        out[1, 2] -= w * r1 * r2
-    out[1, 0] = out[0, 1]
-    out[2, 0] = out[0, 2]
-    out[2, 1] = out[1, 2]

@@ -1,18 +1,11 @@
 """Compilation options shared by every kernel, and a Numba cache that sees across files.
 
-Numba's on-disk cache (``cache=True``) keys a compiled function on the source of the file
-that defines it (its "source stamp") and on its own bytecode, but not on the jitted
-functions it calls.  A kernel in ``integrate.py`` that calls ``colliders._collide_range``
-would keep running the old collider code from the cache after ``colliders.py`` was edited
-(that is why the kernels used to live in one file).  ``KernelCacheLocator`` closes the gap:
-every function defined in this package gets one shared source stamp, the SHA-256 of all
-the package's ``.py`` files, so an edit to any kernel file makes Numba discard and
-recompile every cached kernel on first use.  It is registered, before any kernel is
-decorated, in front of Numba's own locators and wraps the one Numba would have chosen
-(``NUMBA_CACHE_DIR``, ``__pycache__`` or the user-wide cache directory); only the stamp
-differs.  Jitted modules of ``sm_ros/core`` that call kernels (``pose.py``, ...) are stamped
-with their own source plus the package's stamp.  ``test/test_kernel_cache.py`` checks this
-end to end.
+Numba's on-disk cache (``cache=True``, in each folder's ``__pycache__``) checks a compiled
+function against its own file only, not against the jitted functions it calls in other
+files, so a cached kernel would keep an old copy of an edited callee.  Therefore, when
+any kernel file changed since the cache was written, ``clear_stale_cache`` drops the
+cache indexes of all of ``sm_ros/core`` at import, and every kernel and every core module
+that calls one compiles afresh (``test/test_kernel_cache.py``).
 """
 
 import functools
@@ -24,11 +17,8 @@ import numpy as np
 from numba import carray as _carray
 from numba import njit as _njit
 from numba import types as _types
-from numba.core import caching
+from numba.core import config
 from numba.extending import intrinsic as _intrinsic
-
-# Numba's registry of cache locators (renamed from ``_CacheImpl`` in Numba 0.58).
-_CACHE_IMPL = getattr(caching, 'CacheImpl', None) or caching._CacheImpl
 
 #: Fastmath flags used by every kernel (no ``nnan``/``ninf``: NaN checks must still work).
 FASTMATH = {'nsz', 'arcp', 'contract', 'afn', 'reassoc'}
@@ -36,11 +26,6 @@ FASTMATH = {'nsz', 'arcp', 'contract', 'afn', 'reassoc'}
 JIT = dict(cache=True, fastmath=FASTMATH, nogil=True)
 
 _KERNEL_DIR = os.path.dirname(os.path.abspath(__file__))
-#: Directories whose modules share one cache stamp (this package; tests add their own).
-SHARED_STAMP_DIRS = {_KERNEL_DIR}
-#: Directories whose jitted modules call kernels (``sm_ros/core``: pose, contact, ...): each
-#: module is stamped with its own source and the kernel package's stamp.
-DEPENDENT_DIRS = {os.path.dirname(_KERNEL_DIR): _KERNEL_DIR}
 
 
 @functools.lru_cache(maxsize=None)
@@ -64,55 +49,43 @@ def source_stamp(directory):
     return _hash_files(tuple(stats))
 
 
-class KernelCacheLocator(caching._CacheLocator):
-    """Numba's usual cache place for a function, stamped with its whole directory."""
-
-    def __init__(self, inner, directory, py_file=None):
-        self._inner = inner
-        self._directory = directory
-        self._py_file = py_file
-
-    def ensure_cache_path(self):
-        """Create the wrapped locator's cache directory."""
-        self._inner.ensure_cache_path()
-
-    def get_cache_path(self):
-        """The wrapped locator's cache directory."""
-        return self._inner.get_cache_path()
-
-    def get_source_stamp(self):
-        """The package's stamp (with the module's own hash for a dependent module)."""
-        if self._py_file is None:
-            return source_stamp(self._directory)
-        st = os.stat(self._py_file)
-        return (_hash_files(((self._py_file, st.st_mtime_ns, st.st_size),)),
-                source_stamp(self._directory))
-
-    def get_disambiguator(self):
-        """The wrapped locator's disambiguator (the function's line number)."""
-        return self._inner.get_disambiguator()
-
-    @classmethod
-    def from_function(cls, py_func, py_file):
-        """A locator for functions of the stamped directories, else None."""
-        own = os.path.dirname(os.path.abspath(py_file))
-        if own in SHARED_STAMP_DIRS:
-            directory, single = own, None
-        elif own in DEPENDENT_DIRS:
-            directory, single = DEPENDENT_DIRS[own], os.path.abspath(py_file)
-        else:
-            return None
-        for other in _CACHE_IMPL._locator_classes:
-            if other is cls:
-                continue
-            inner = other.from_function(py_func, py_file)
-            if inner is not None:
-                return cls(inner, directory, single)
-        return None
+def clear_stale_cache(directory=_KERNEL_DIR, root=None):
+    """Drop the Numba cache indexes (``*.nbi``) below ``root`` (default: the folder above
+    ``directory``) and in the ``NUMBA_CACHE_DIR`` folders of the same names when the files
+    of ``directory`` changed since the last call (their stamp is kept in
+    ``directory/__pycache__``)."""
+    stamp = source_stamp(directory)
+    mark = os.path.join(directory, '__pycache__', 'kernel_sources.sha256')
+    try:
+        with open(mark, encoding='ascii') as f:
+            if f.read() == stamp:
+                return
+    except OSError:
+        pass
+    root = root or os.path.dirname(directory)
+    tops = [root]
+    if config.CACHE_DIR and os.path.isdir(config.CACHE_DIR):
+        # Numba names a folder's cache there <folder name>_<hash of its path>
+        names = {os.path.basename(f) for f, _, _ in os.walk(root)}
+        tops += [os.path.join(config.CACHE_DIR, d) for d in os.listdir(config.CACHE_DIR)
+                 if d.rsplit('_', 1)[0] in names]
+    for top in tops:
+        for folder, _, names in os.walk(top):
+            for name in names:
+                if name.endswith('.nbi'):
+                    try:
+                        os.remove(os.path.join(folder, name))
+                    except OSError:             # gone already (another process)
+                        pass
+    try:
+        os.makedirs(os.path.dirname(mark), exist_ok=True)
+        with open(mark, 'w', encoding='ascii') as f:
+            f.write(stamp)
+    except OSError:                             # a read-only install: nothing is cached
+        pass
 
 
-if KernelCacheLocator not in _CACHE_IMPL._locator_classes:
-    _CACHE_IMPL._locator_classes.insert(0, KernelCacheLocator)
+clear_stale_cache()
 
 #: Index type of the particle loops that run over a range ``start..end``:
 #: ``for i in range(U(start), U(end))``.  Numba wraps a negative signed index around
@@ -139,30 +112,6 @@ def finite(x):
 
 
 @_intrinsic
-def wide_vectors(typingctx):
-    """Let LLVM vectorise the loops of the jitted function that calls this 512 bits wide.
-
-    Numba builds every kernel for the host with LLVM's choice of vector width, which on
-    AVX-512 hosts is 256 bits (the ``prefer-256-bit`` tuning; this machine kind's 32
-    vector registers hold 8 doubles each, only 4 are used).  Numba has no per-function
-    width, and 512 bits for every kernel (``NUMBA_CPU_FEATURES``) made the lattice-order
-    8-cluster steps 9-50 % slower (doc/benchmarks.md).  This sets the LLVM function
-    attribute ``"prefer-vector-width"="512"`` on the calling function only, which the X86
-    backend reads per function; on a host without AVX-512 the widest legal vectors are
-    used instead (256 bits on AVX2), so nothing changes there.  The loops vectorised in
-    that function's own compilation keep the width when LLVM later inlines it into a
-    caller.  ``test_kernel_jit.py`` checks that a caller's loop gets 512-bit registers.
-    """
-    def codegen(context, builder, sig, args):
-        # llvmlite's attribute set takes only its list of known names: a string
-        # attribute (key=value) is added to the set as LLVM IR writes it
-        set.add(builder.function.attributes, '"prefer-vector-width"="512"')
-        return context.get_dummy_value()
-    return _types.none(), codegen
-
-
-
-@_intrinsic
 def _element_pointer(typingctx, arr, i):
     """Pointer to element ``i`` of a 1-D C-contiguous array (no bounds check)."""
     if not (isinstance(arr, _types.Array) and arr.ndim == 1 and arr.layout == 'C'):
@@ -179,15 +128,10 @@ def _element_pointer(typingctx, arr, i):
 def scratch_view(buf, start, shape):
     """A C-contiguous array of ``shape`` on ``buf[start:]`` (1-D, C-contiguous) that takes
     no reference count: valid while ``buf`` is, so only for scratch a compiled function
-    views at its start and drops before it returns (``packed._step_chunk``).
-
-    ``buf[a:b].reshape(shape)`` calls Numba's run-time reshape helper and moves the
-    buffer's reference count up and down (atomic): ~30 ns a view passed to a call, 0.08
-    ns this way (``tools/pack_call.py``: ``reshape_view_ns``, ``scratch_view_ns``).  With
-    these views,
-    the pack's particle arrays by address (``address_view``) and a thinner call, the fixed
-    cost of a one-cluster ``World.step`` fell from 4.5-4.9 to 2.4-2.6 us
-    (``tools/loop_floor.py``).  IndexError past the end of ``buf``.
+    views at its start and drops before it returns (``packed._step_chunk``).  A reshaped
+    slice would call Numba's run-time reshape helper and move the buffer's reference count
+    for every view, which the one-cluster step pays at every call.  IndexError past the
+    end of ``buf``.
     """
     size = 1
     for s in shape:
@@ -212,24 +156,7 @@ def address_view(addr, shape):
     """The C-contiguous float64 array of ``shape`` at the address ``addr`` (an array's
     ``ctypes.data``), taking no reference count: valid only while that array lives and
     keeps its buffer, with no bounds known (``packed.Pack`` holds its bodies' particle
-    arrays and checks their sizes when it takes their addresses).
-
-    The pack passed its bodies' arrays in a typed list before: a no-op call unboxes a
-    list of one body's four arrays in ~0.75 us, an array in ~0.16 (``tools/pack_call.py``:
-    ``unbox_typed_list``, ``unbox_array``), and fetching a body's tuple moved four
-    reference counts up and down (atomic) per body.
+    arrays and checks their sizes when it takes their addresses).  A typed list of
+    per-body arrays would be unboxed at every call and move four reference counts a body.
     """
     return _carray(_address_pointer(addr), shape)
-
-
-@_intrinsic
-def never_inline(typingctx):
-    """Keep LLVM from inlining the jitted function that calls this into its callers (the
-    ``noinline`` attribute).  Each caller's compiled module then calls the function's own
-    machine code, optimised once from the same IR, instead of a copy optimised in the
-    caller's context: under fast math two such copies may round differently
-    (``packed._step_chunk``, called by the one-thread and the threaded pack steps)."""
-    def codegen(context, builder, sig, args):
-        builder.function.attributes.add('noinline')
-        return context.get_dummy_value()
-    return _types.none(), codegen

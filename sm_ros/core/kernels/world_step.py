@@ -16,8 +16,8 @@ A record (``Body._fast_record``) is a tuple of the body's own buffers (x, v, x0,
 [alpha, beta, damping (per step), max_speed, max_turn, 1 / total mass, mode, fused
 damping, quadratic, set layout, max_turn / h, the particles' one mass or 0
 (``Body._wuni``)], ``force`` the force over the total mass (both divided in Python, as
-``Body._step`` does: fast math would round them otherwise), ``flags`` [dirty, shape error
-stale, fused damping sums valid, sleep: 1 asleep, then the record is not stepped],
+``Body._step`` does: fast math would round them otherwise), ``flags`` the body's flags
+(``kernels.flags``: a sleeping record is not stepped),
 ``counts`` the limit counters; the set-layout buffers (``s_*``) are empty for one-cluster bodies.
 """
 
@@ -28,12 +28,14 @@ from numba import njit, types
 from numba.extending import intrinsic
 
 from ..step_threads import HELPERS
+from .flags import DIRTY, ERR_STALE, SLEEP
 from .damping import damp_accumulate, damp_rigid, damping_fields, damping_targets
 from .goals import solve_clusters_warm
 from .integrate import accumulate_serial, integrate_serial
 from .jit import JIT
 from .limits import limit_speed, limit_turn
-from .sets import sets_accumulate_serial, sets_integrate_serial, sets_maps, sets_reduce
+from .sets import sets_integrate_serial
+from .sets_sums import sets_accumulate_serial, sets_maps, sets_reduce
 
 
 @intrinsic
@@ -114,7 +116,7 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
      nmat, cdet, acc, ang, com, err, dpart, dmp, dref, dacc, lin, w3, sptr, scl, scnt,
      quat_prev, flagged, lim_lin, lim_w, force, state, flags, counts, y0t, sid, gm, sref,
      s_part, s_ptr, s_cl, s_cnt, s_phi, s_org, wk, pm, s_tp, s_ck, s_runs, udv) = record
-    if flags[3] > 0.0:                         # asleep (``sm_ros.core.sleep``): not stepped
+    if flags[SLEEP] > 0.0:                     # asleep (``sm_ros.core.sleep``): not stepped
         return
     # the (3, N) blocks seen as (N, 3) arrays of layout F, as the bodies' own x, v
     x, v, x0, y0 = xt.T, vt.T, x0t.T, y0t.T
@@ -124,7 +126,7 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
     fused = state[7] > 0.0 and k_damp > 0.0
     quad = state[8] > 0.0
     sets = state[9] > 0.0
-    dirty = flags[0] > 0.0
+    dirty = flags[DIRTY] > 0.0
     if sets:
         if dirty:
             sets_accumulate_serial(quad=quad, x=x, y0=y0, mass=mass, sid=sid, runs=s_runs,
@@ -187,7 +189,7 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
                                        spheres=spheres, thresh=thresh, damp=fused,
                                        k_damp=k_damp, dmp=dmp, dpart=dpart, v_max=v_max)
         counts[0] += capped
-        flags[0] = 0.0
+        flags[DIRTY] = 0.0
     else:
         integrate_serial(quad=quad, x=x, v=v, x0=x0, mass=mass, ptr=ptr, cl=cl,
                          rest_lin=rest_lin, rest_off=rest_off, trans=trans,
@@ -198,5 +200,5 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
         if v_max > 0.0:
             capped = limit_speed(x=x, v=v, h=h, v_max=v_max)
             counts[0] += capped
-        flags[0] = 1.0 if capped > 0 else 0.0
-    flags[1] = 1.0
+        flags[DIRTY] = 1.0 if capped > 0 else 0.0
+    flags[ERR_STALE] = 1.0
