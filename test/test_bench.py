@@ -37,21 +37,22 @@ def test_quick_run_writes_tables(tmp_path):
     assert {r['clusters'] for r in rows} == {'1', '8', '64'}
     # every configuration in every variant, once; figures consistent with each other
     keys = [(r['N'], r['mode'], r['clusters'], r['variant']) for r in rows]
-    assert len(keys) == len(set(keys)) == 2 * 3 * 3 * 5
-    assert {r['variant'] for r in rows} == {'plain', 'damped', 'substeps2', 'damped_sorted',
-                                            'damped_ground_sorted'}
+    assert len(keys) == len(set(keys)) == 2 * 3 * 3 * 4
+    assert {r['variant'] for r in rows} == {'plain', 'damped', 'substeps2', 'damped_ground'}
     for r in rows:
         assert float(r['ms_min']) <= float(r['ms_median'])
         assert float(r['ns_per_particle']) == pytest.approx(
             1e6 * float(r['ms_median']) / int(r['N']), rel=1e-3)
         assert r['layout'] == 'single' if r['clusters'] == '1' else r['layout'] != 'single'
+        assert (r['damping_pass'] == '') == (r['variant'] == 'plain')
     var = _rows(out / 'scaling_variants.csv')
     assert len(var) == 2 * 3 * 3
     for r in var:
         assert float(r['damped_over_plain']) == pytest.approx(
             float(r['damped_ms']) / float(r['plain_ms']), rel=1e-3)
-        assert float(r['damped_sorted_over_damped']) == pytest.approx(
-            float(r['damped_sorted_ms']) / float(r['damped_ms']), rel=1e-3)
+        assert float(r['substeps2_over_damped']) == pytest.approx(
+            float(r['substeps2_ms']) / float(r['damped_ms']), rel=1e-3)
+        assert r['damped_ground_over_ground'] == ''      # ground not run: no ratio
     many = _rows(out / 'many.csv')
     assert [(r['bodies'], r['particles']) for r in many] == [('2', '288'), ('6', '864')]
     acc = _rows(out / 'accuracy.csv')
@@ -85,7 +86,22 @@ def test_scaling_subcommand_as_a_process(tmp_path):
                           'fast', '--out', str(out)], cwd=ROOT, capture_output=True,
                          text=True, timeout=300)
     assert bad.returncode != 0
-    assert 'choose from plain, damped, substeps2, damped_pass' in bad.stderr
+    assert 'choose from plain, damped, substeps2, damped_pass, ground, damped_ground' \
+        in bad.stderr
+
+
+def test_damped_pass_times_the_separate_damping_pass():
+    """``damped_pass`` damps in the separate pass through every rebuild (``World.reset``
+    before each timed batch), where ``damped`` fuses it; the thresholds come back."""
+    from sm_ros.core import body as body_mod
+    from sm_ros.bench import scaling
+    saved = body_mod.FUSED_DAMPING_MIN, body_mod.FUSED_DAMPING_MIN_SETS
+    rows = scaling.time_size(11, ['linear'], [1, 2], 0.0, ('plain', 'damped', 'damped_pass'))
+    assert [(r['clusters'], r['variant'], r['damping_pass']) for r in rows] == [
+        (1, 'plain', ''), (1, 'damped', 'fused'), (1, 'damped_pass', 'separate'),
+        (8, 'plain', ''), (8, 'damped', 'fused'), (8, 'damped_pass', 'separate')]
+    assert all(r['finite'] and r['rounds'] >= 3 for r in rows)
+    assert (body_mod.FUSED_DAMPING_MIN, body_mod.FUSED_DAMPING_MIN_SETS) == saved
 
 
 def test_soak_hook_hands_over_its_arguments(monkeypatch):
@@ -151,7 +167,7 @@ def test_contact_subcommand_smoke(tmp_path):
     assert (sl['scene'], sl['ticks'], sl['bodies'], sl['asleep_end']) == ('many', 6, 64, 0)
     assert sl['all_asleep_s'] is None
     b = res['builders']                 # the builders side by side list the same pairs
-    assert b['before']['pairs_listed'] == b['serial']['pairs_listed'] == \
+    assert b['cells']['pairs_listed'] == b['serial']['pairs_listed'] == \
         b['parallel']['pairs_listed'] > 0
     text = (out / 'contact.md').read_text()
     assert 'pair-list rebuild alone' in text and 'cKDTree' in text
@@ -178,35 +194,42 @@ def test_contact_block_bin_starts_touching_on_the_ground():
         assert SPACING - 1e-12 < near < np.hypot(SPACING, 1e-3)     # touching (z: 0-1 mm)
 
 
-def _targets(tmp_path, variants):
+def _targets(tmp_path, variants, pypbd=()):
     """targets.csv rows by target for findings with the 100k 8-cluster linear ``variants``
-    ({variant: ms a step})."""
+    ({variant: ms a step}) and the ``pypbd`` rows."""
     from sm_ros.bench.__main__ import _write_targets
     rows = [dict(N=46 ** 3, mode='linear', k=2, variant=v, ms_median=ms,
                  ns_per_particle=1e6 * ms / 46 ** 3) for v, ms in variants.items()]
-    f = dict(scaling=dict(scaling=rows), command='python -m sm_ros.bench scaling', wall_s=1.0,
+    f = dict(scaling=dict(scaling=rows, pypbd=list(pypbd)),
+             command='python -m sm_ros.bench scaling', wall_s=1.0,
              machine=dict(cpu='cpu', cpus=2, numba='0', numba_threads=1, numpy='0'))
     _write_targets(f, tmp_path)
     return {r['target']: r for r in _rows(tmp_path / 'targets.csv')}
 
 
-def test_targets_judge_the_100k_rows_as_the_scenes_store_bodies(tmp_path):
-    """With the set-by-set variants in the run, the 100k damped row and the damping
-    overhead are those of bodies stored set by set (the scenes' order), the lattice order
-    beside them; without them, the lattice order's."""
-    t = _targets(tmp_path, dict(plain=0.5, damped=0.7, sorted=0.28, damped_sorted=0.33))
+def test_targets_judge_the_100k_rows_and_the_damped_pypbd_ratio(tmp_path):
+    """The 100k damped row, the damping overhead (damped / plain, one run) and the
+    damped rigid 8-cluster ratio against pypbd, each judged against its goal."""
+    pypbd = [dict(N=22 ** 3, clusters=8, speedup_rigid=6.0, speedup_rigid_damped=9.31),
+             dict(N=46 ** 3, clusters=8, speedup_rigid=2.5, speedup_rigid_damped=3.0)]
+    t = _targets(tmp_path, dict(plain=0.5, damped=0.7), pypbd)
     row = t['linear, 8 clusters, damping 0.05, 100k points']
-    assert row['measured'] == ('0.33 ms stored set by set (as the scenes store bodies); '
-                               '0.7 ms in lattice order')
-    assert row['met'] == 'True'
+    assert (row['measured'], row['met']) == ('0.7 ms', 'True')
     row = t['damping overhead (same, damped / undamped)']
-    assert row['measured'] == ('1.18x stored set by set (as the scenes store bodies); '
-                               '1.40x in lattice order')
-    assert row['met'] == 'False'
-    t = _targets(tmp_path, dict(plain=0.5, damped=0.55, sorted=0.28, damped_sorted=0.95))
+    assert (row['measured'], row['met']) == ('1.40x', 'False')
+    row = t['rigid, 8 clusters, damping 0.05, 10k points, against pypbd '
+            '(through the plain World.add_body)']
+    assert (row['measured'], row['met']) == ('9.3x', 'True')
+    row = t['faster than pypbd (10k, 100k; 1/8/64 clusters)']
+    assert row['met'] == 'True' and row['measured'].startswith('2.5x worst')
+    t = _targets(tmp_path, dict(plain=0.5, damped=0.95),
+                 [dict(pypbd[0], speedup_rigid_damped=7.9)])
     assert t['linear, 8 clusters, damping 0.05, 100k points']['met'] == 'False'
-    assert t['damping overhead (same, damped / undamped)']['met'] == 'False'
+    assert t['damping overhead (same, damped / undamped)']['measured'] == '1.90x'
+    assert t['rigid, 8 clusters, damping 0.05, 10k points, against pypbd '
+             '(through the plain World.add_body)']['met'] == 'False'
     t = _targets(tmp_path, dict(plain=0.5, damped=0.55))
     assert t['linear, 8 clusters, damping 0.05, 100k points']['measured'] == '0.55 ms'
     row = t['damping overhead (same, damped / undamped)']
     assert (row['measured'], row['met']) == ('1.10x', 'True')
+    assert t['faster than pypbd']['measured'] == 'not run'

@@ -224,7 +224,7 @@ def test_peers_runs_with_sm_ros_alone(tmp_path):
                        str(tmp_path)]) == 0
     text = (tmp_path / 'peers.md').read_text()
     assert '| hit_e1 | momentum_err |' in text and '| sm_ros |' in text
-    assert 'PyBullet |' not in text.split('side by side (issue 26)')[1]
+    assert 'PyBullet |' not in text.split('Contact cases side by side')[1]
 
 
 def test_peers_names_a_missing_engine_and_leaves_its_column_empty(tmp_path, monkeypatch,

@@ -21,7 +21,7 @@ Subcommands (each writes markdown + CSV tables and PNG plots into ``--out``):
 ``--write-doc [PATH]`` runs a short fixed set of these and writes doc/benchmarks.md
 (``sm_ros.bench.doc``).
 
-``targets.md`` lists the issue's targets with the figures this run measured.
+``targets.md`` lists the benchmark's targets with the figures this run measured.
 """
 
 import argparse
@@ -148,9 +148,9 @@ def _fmt_ms(v):
 
 
 def _write_targets(f: Dict[str, Any], out: Path):
-    """targets.md: each target of issue 5 beside the figure this run measured."""
+    """targets.md: each target beside the figure this run measured."""
     t = bc.Table('targets', ['target', 'goal', 'measured', 'met'],
-                 'Targets (issue 5) and what this run measured')
+                 'Targets and what this run measured')
     sc = f.get('scaling') or {}
     res = sc.get('scaling', [])
 
@@ -161,32 +161,17 @@ def _write_targets(f: Dict[str, Any], out: Path):
                 return r
         return None
 
-    # issue 11: what users run (damping, substeps, many bodies)
+    # what users run: damping, substeps, many bodies
     r = pick(22, 'rigid', 1)
     t.add(target='rigid, 1 cluster, 10k points', goal='<= 1.5 ns/particle',
           measured='-' if not r else f'{r["ns_per_particle"]:.2f} ns/particle',
           met=None if not r else r['ns_per_particle'] <= 1.5)
-    # the 100k rows as the scenes store a body (set by set: ``sorted`` variants) when the
-    # run has them, judged on those, with the lattice order beside; else the lattice order
     r, r0 = pick(46, 'linear', 2, 'damped'), pick(46, 'linear', 2)
-    s, s0 = pick(46, 'linear', 2, 'damped_sorted'), pick(46, 'linear', 2, 'sorted')
-
-    def ratio(a, b):
-        return None if not (a and b) else a['ms_median'] / b['ms_median']
-
-    def both(fmt, sorted_value, lattice_value):
-        if sorted_value is None:
-            return '-' if lattice_value is None else fmt(lattice_value)
-        text = f'{fmt(sorted_value)} stored set by set (as the scenes store bodies)'
-        return text if lattice_value is None else f'{text}; {fmt(lattice_value)} in lattice order'
-
-    ms = (s or r) and (s or r)['ms_median']
     t.add(target='linear, 8 clusters, damping 0.05, 100k points', goal='<= 0.9 ms/step',
-          measured=both(_fmt_ms, s and s['ms_median'], r and r['ms_median']),
-          met=None if ms is None else ms <= 0.9)
-    over = ratio(s, s0) if s and s0 else ratio(r, r0)
+          measured=_fmt_ms(r and r['ms_median']), met=None if not r else r['ms_median'] <= 0.9)
+    over = r['ms_median'] / r0['ms_median'] if r and r0 else None
     t.add(target='damping overhead (same, damped / undamped)', goal='<= 1.15x',
-          measured=both(lambda x: f'{x:.2f}x', ratio(s, s0), ratio(r, r0)),
+          measured='-' if over is None else f'{over:.2f}x',
           met=None if over is None else over <= 1.15)
     for row in sc.get('many', []):
         goal = 0.2 if row['bodies'] <= 64 else 1.0
@@ -221,13 +206,10 @@ def _write_targets(f: Dict[str, Any], out: Path):
     rows = [x for x in sc.get('pypbd', []) if x['N'] == 22 ** 3 and x['clusters'] == 8]
     if rows:
         x = rows[0]
-        # the scenes store a body's particles set by set (``World.add_body(order='set')``);
-        # the lattice order is what a body added with the given order runs
-        t.add(target='rigid, 8 clusters, damping 0.05, 10k points, against pypbd',
-              goal='>= 8x',
-              measured=f'{x["speedup_rigid_damped_sorted"]:.1f}x stored set by set (as the '
-                       f'scenes store bodies); {x["speedup_rigid_damped"]:.1f}x in lattice '
-                       'order', met=x['speedup_rigid_damped_sorted'] >= 8)
+        t.add(target='rigid, 8 clusters, damping 0.05, 10k points, against pypbd '
+                     '(through the plain World.add_body)', goal='>= 8x',
+              measured=f'{x["speedup_rigid_damped"]:.1f}x',
+              met=x['speedup_rigid_damped'] >= 8)
     rows = sc.get('pypbd', [])
     if rows:
         worst = min(rows, key=lambda x: x['speedup_rigid'])
@@ -239,7 +221,7 @@ def _write_targets(f: Dict[str, Any], out: Path):
     nd = f.get('node') or {}
     row = nd.get('target')
     what = ('node: 100k points, 8 clusters, damping 0.05, 2 substeps, 60 Hz, one '
-            'subscriber in another process (issue 11)')
+            'subscriber in another process')
     goal = '60 Hz held, tick <= 8.33 ms, other (beyond step + fill + publish) <= 0.2 ms'
     if row:
         t.add(target=what, goal=goal,

@@ -1,5 +1,5 @@
 """
-The contact cases of issue 26, described once for every engine, and their build in sm_ros.
+The contact cases, described once for every engine, and their build in sm_ros.
 
 A ``Case`` is plain data: rigid solids (boxes, balls: size, mass, pose, velocity, spin),
 static or kinematic colliders (boxes, capsules), the ground, gravity, one friction and one
@@ -10,7 +10,7 @@ only the track, so every engine is measured the same way (``python -m sm_ros.ben
 peers``).  In sm_ros (``SmRos``) a solid is a lattice of particles ``SPACING`` apart at
 the centres of the cells filling its outline (a ball: the points within radius - half a
 spacing): with particles of contact radius half a spacing its outline is the case's.
-Rigid solids take ``mode: rigid, alpha: 0.9`` (issue 26) at the node's default step
+Rigid solids take ``mode: rigid, alpha: 0.9`` at the node's default step
 (``dt``, ``substeps`` of ``sm_ros/params.py``).  Angles in degrees, drifts in mm.
 """
 
@@ -30,7 +30,7 @@ SUBSTEPS = int(BY_NAME['substeps'].default)
 SAMPLE_DT = DT * SUBSTEPS
 #: Lattice spacing of the sm_ros solids (m).
 SPACING = 0.02
-#: Material of the sm_ros solids (issue 26: rigid, alpha 0.9 at the node's step).
+#: Material of the sm_ros solids (rigid, alpha 0.9 at the node's step).
 RIGID = {'mode': 'rigid', 'alpha': 0.9}
 #: A case's outcomes are measured "after settling" from this time on (s).
 SETTLE_S = 0.5
@@ -85,7 +85,7 @@ class Fixed:
 
 @dataclass(frozen=True)
 class Case:
-    """One situation of issue 26 and how it is measured (``measure(case, track)``)."""
+    """One contact situation and how it is measured (``measure(case, track)``)."""
 
     name: str
     what: str
@@ -378,7 +378,7 @@ def _hit(e: float) -> Case:
 
 
 def all_cases() -> List[Case]:
-    """Every case of issue 26, in the order of the tables."""
+    """Every case, in the order of the tables."""
     return [_topple('body', 0.05, 2.0), _topple('body', -0.05, 10.0),
             _topple('table', 0.05, 2.0), _topple('table', -0.05, 10.0),
             _incline(0.6), _incline(0.2), _roll(), _push(False), _push(True),

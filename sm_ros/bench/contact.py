@@ -1,7 +1,7 @@
 """
 ``python -m sm_ros.bench contact``: body-body contact against scipy's cKDTree, side by side.
 
-The scene of issue 13: 384 blocks of 6 x 6 x 4 = 144 particles (55,296) touching in a bin
+The bin scene: 384 blocks of 6 x 6 x 4 = 144 particles (55,296) touching in a bin
 (one layer, side by side), spacing 2 cm, contact radius 1 cm, one thread. Printed and
 written to ``--out``:
 
@@ -12,8 +12,8 @@ written to ``--out``:
   rebuild alone and the per-step part alone; the flat-state copies (gather/scatter) that
   the World needs until it owns the flat arrays; the bodies' own step (shape matching)
   of the same scene;
-- the pair-list builders side by side (round-robin, same state): the previous one
-  (``build_pairs_cells``, "before"), the current one on one thread and on
+- the pair-list builders side by side (round-robin, same state): the cell-list builder
+  (``build_pairs_cells``, "cells"), the grid builder on one thread and on
   ``--build-threads``: the rebuild alone and a step that rebuilds (bodies moving), on the
   resting bin and on ``paper_384`` while it pours;
 - one body without self-collision: world step with contact on and off;
@@ -66,7 +66,7 @@ def add_arguments(p: argparse.ArgumentParser):
                    help='scene of the sleeping-bodies rows')
     p.add_argument('--sleep-seconds', type=float, default=20.0,
                    help='simulated time of the sleeping-bodies rows (0: skip them)')
-    p.add_argument('--threads', type=int, default=1, help='Numba threads (issue: one)')
+    p.add_argument('--threads', type=int, default=1, help='Numba threads')
     p.add_argument('--build-threads', type=int, default=2,
                    help='threads of the parallel pair-list builder, timed side by side')
     p.add_argument('--blocks', type=int, default=384, help='blocks in the bin (a smoke run: few)')
@@ -78,7 +78,7 @@ def add_arguments(p: argparse.ArgumentParser):
 
 def ball_pile(stacking: bool, clusters: int = 1, sleep: bool = True):
     """(World, bodies): 27 stiff balls (81 particles each, spacing 2 cm) above a 0.4 m x
-    0.4 m bin, to be poured by stepping (issue 13's pile; ``test/test_contact.py`` and
+    0.4 m bin, to be poured by stepping (the ball pile; ``test/test_contact.py`` and
     ``tools/stacking_figures.py`` step it).  ``clusters`` > 1: linear balls of that many
     clusters per axis (``paper_384``'s stiff many-cluster bodies) instead of rigid ones.
     ``sleep``: ``ContactParams.sleep`` (the default: on)."""
@@ -152,7 +152,7 @@ def squeezed(X: np.ndarray) -> np.ndarray:
     their side faces at or a little beyond the contact distance (no side load; sagging
     under their weight, the faces bulge: gaps of 0.5-8 mm after 200 steps), so at rest no
     pair overlaps.  Squeezed by 5 %, about 8,500 facing pairs overlap by up to 0.9 mm (1 %:
-    43 pairs), near the issue's bin (~12,700 pairs within 2 r).  The cKDTree baseline and
+    43 pairs), near the bin of 384 blocks (~12,700 pairs within 2 r).  The cKDTree baseline and
     the per-step part are timed on this state.
     """
     Xs = X.copy()
@@ -227,7 +227,7 @@ def contact_parts(world) -> Dict[str, float]:
 
     The per-step part runs on a snapshot of the resting bin squeezed towards its centre by
     5 % in x and y (``squeezed``), so that thousands of facing block pairs overlap a
-    little (about as many touching pairs as the issue's bin), restored before every call.
+    little (as in a packed bin), restored before every call.
     """
     c = world.contact
     f = world._flat
@@ -258,7 +258,7 @@ def contact_parts(world) -> Dict[str, float]:
 
 #: The pair-list builders timed side by side: (name, ``Contact.parallel_build``, threads;
 #: None: ``--build-threads``).
-BUILDERS = (('before', 'cells', 1), ('serial', False, 1), ('parallel', True, None))
+BUILDERS = (('cells', 'cells', 1), ('serial', False, 1), ('parallel', True, None))
 
 
 class _Threads:
@@ -596,11 +596,11 @@ def markdown(r: Dict[str, Any]) -> str:
 
 
 def _names(d, b) -> str:
-    """'before / serial / parallel (2 threads)' for the builders in ``d``."""
+    """'cells / serial / parallel (2 threads)' for the builders in ``d``."""
     nt = b['threads'] if b else 2
-    words = {'before': 'before (`build_pairs_cells`, 1 thread)',
-             'serial': 'now (`build_pairs_grid`, 1 thread)',
-             'parallel': f'now on {nt} threads (`build_pairs_grid_par`)'}
+    words = {'cells': 'cell lists (`build_pairs_cells`, 1 thread)',
+             'serial': 'grid (`build_pairs_grid`, 1 thread)',
+             'parallel': f'grid on {nt} threads (`build_pairs_grid_par`)'}
     return ' / '.join(words[k] for k in d if k in words)
 
 
@@ -613,8 +613,8 @@ def _builder_rows(b, where: str) -> List[str]:
     def figs(key):
         med = ' / '.join(f"{b[k][key + '_ms']:.2f}" for k in names)
         low = ' / '.join(f"{b[k][key + '_min_ms']:.2f}" for k in names)
-        ratio = b['before'][key + '_ms'] / max(b['serial'][key + '_ms'], 1e-9)
-        ratio_low = b['before'][key + '_min_ms'] / max(b['serial'][key + '_min_ms'], 1e-9)
+        ratio = b['cells'][key + '_ms'] / max(b['serial'][key + '_ms'], 1e-9)
+        ratio_low = b['cells'][key + '_min_ms'] / max(b['serial'][key + '_min_ms'], 1e-9)
         return (f'{med} ms median ({ratio:.1f}x on one thread); fastest call {low} ms '
                 f'({ratio_low:.1f}x)')
     return [f"| pair-list rebuild, {where} ({b['N']:,} particles, "

@@ -1,5 +1,5 @@
 """
-Beyond the paper: which alpha is a material of Young's modulus E? (issue 12, part 6).
+Beyond the paper: the alpha that is a material of Young's modulus E.
 
 Shape matching is only geometrically motivated: alpha is not a material constant and a
 higher mode is not more physical. This benchmark builds the bridge for one case, the

@@ -221,7 +221,7 @@ def _quat_rot(q):
 CUBE_NODES, CUBE_SPACING, CUBE_MASS, CUBE_HEIGHT = 13, 0.025, 2.0, 0.6
 CUBE_RPY = (0.2, 0.15, 0.0)
 CUBE_YOUNG, CUBE_POISSON = 1e4, 0.3
-#: MuJoCo's flex needs this step to stay stable (issue 26).
+#: MuJoCo's flex needs this step to stay stable.
 MUJOCO_SOFT_DT = 0.00025
 
 

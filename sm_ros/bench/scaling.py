@@ -4,13 +4,15 @@ Part 1 of the benchmark: ms/step against N (the paper's Fig. 6 on this machine).
 Bodies are n x n x n lattices on the unit cube (the lattice pypbd's peer script builds),
 unit masses, gravity, no colliders, alpha = 1 (pypbd's stiffness 1), beta = 0.5. The
 cluster parameter is the number of cubes per axis: 1, 2, 4 give 1, 8, 64 clusters. Every
-configuration runs in three variants, timed round-robin in one run: ``plain`` (no damping,
-one step per tick), ``damped`` (damping 0.05, what 6 of the 7 bundled scenes use) and
-``substeps2`` (damping 0.05, two steps of dt / 2 per tick, the node's default); the times
-are per tick.  ``--variants`` adds ``damped_pass`` (damping in a pass of its own) and
-``sorted`` / ``damped_sorted`` (plain / damped with the particles stored set by set, as
-scene bodies are: ``World.add_body(order='set')``).  ``many``: 64 and 384 bodies of 144
-particles in one world (the paper's Fig. 7 body count, contact off), timed round-robin too.
+configuration runs in four variants by default, timed round-robin in one run: ``plain`` (no
+damping, one step per tick), ``damped`` (damping 0.05, what 6 of the 7 bundled scenes use),
+``substeps2`` (damping 0.05, two steps of dt / 2 per tick, the node's default) and
+``damped_ground`` (damped, the lattice settling on a ground, as the bundled scenes run
+bodies); the times are per tick.  ``--variants`` adds ``ground`` (plain, on a ground) and
+``damped_pass`` (damped in the separate pass the solver takes for small bodies, beside the
+pass fused into the particle pass).  Every body is built through ``World.add_body``, which
+picks its storage order.  ``many``: 64 and 384 bodies of 144 particles in one world (the
+paper's Fig. 7 body count, contact off), timed round-robin too.
 
 In the same run: the NumPy reference (``sm_ros.core.reference``), the peer pypbd (one
 configuration per subprocess: ``sm_ros.bench.pypbd_driver``), and the memory bandwidth of a
@@ -18,6 +20,7 @@ streaming copy with the fraction of it the single-cluster linear step reaches.
 """
 
 import argparse
+import contextlib
 import os
 from pathlib import Path
 import sys
@@ -32,29 +35,21 @@ DT = 0.005                      # pypbd's default step (its TimeManager), used f
 GRAVITY = (0.0, 0.0, -9.81)
 MODES = ('rigid', 'linear', 'quadratic')
 CLUSTER_NAMES = {1: 1, 2: 8, 3: 27, 4: 64}
-#: variant -> (damping, steps per tick); ``damped_pass`` damps in a pass of its own (the
-#: solver before issue 11), for the side-by-side figure of what fusing it saved;
-#: ``sorted`` and ``damped_sorted`` are ``plain`` and ``damped`` with the lattice's
-#: particles stored set by set (``World.add_body(order='set')``, as scene bodies are):
-#: the set layout's runs are then one per set, not ~15 particles long (8 clusters)
+#: variant -> (damping, steps per tick); ``damped_pass`` is ``damped`` with the damping in
+#: the separate pass (the one bodies below ``sm_ros.core.body.FUSED_DAMPING_MIN`` take),
+#: for the side-by-side figure of what the fused pass saves
 VARIANTS = {'plain': (0.0, 1), 'damped': (0.05, 1), 'substeps2': (0.05, 2),
-            'damped_pass': (0.05, 1), 'sorted': (0.0, 1), 'damped_sorted': (0.05, 1),
-            'ground_sorted': (0.0, 1), 'damped_ground_sorted': (0.05, 1)}
-#: the variants whose body is built with ``order='set'``
-SORTED_VARIANTS = ('sorted', 'damped_sorted', 'ground_sorted', 'damped_ground_sorted')
+            'damped_pass': (0.05, 1), 'ground': (0.0, 1), 'damped_ground': (0.05, 1)}
 #: the variants with a ground under the lattice (the bundled scenes all have one): the
 #: lattice's lowest layer starts on it, and it settles onto it within each timed batch
-GROUND_VARIANTS = ('ground_sorted', 'damped_ground_sorted')
+GROUND_VARIANTS = ('ground', 'damped_ground')
 #: the columns of the variants table: each variant's ms, then these ratios (num / den)
-VARIANT_COLUMNS = ('plain', 'damped', 'substeps2', 'damped_pass', 'sorted', 'damped_sorted',
-                   'ground_sorted', 'damped_ground_sorted')
-VARIANT_RATIOS = (('damped', 'plain'), ('substeps2', 'damped'), ('damped_pass', 'plain'),
-                  ('sorted', 'plain'), ('damped_sorted', 'damped'),
-                  ('damped_sorted', 'sorted'), ('ground_sorted', 'sorted'),
-                  ('damped_ground_sorted', 'ground_sorted'))
+VARIANT_COLUMNS = tuple(VARIANTS)
+VARIANT_RATIOS = (('damped', 'plain'), ('substeps2', 'damped'), ('damped_pass', 'damped'),
+                  ('ground', 'plain'), ('damped_ground', 'ground'))
 #: what ``bench scaling`` / ``bench all`` time by default: the plain lattice, and as the
-#: bundled scenes run bodies (damped, stored set by set, on a ground)
-DEFAULT_VARIANTS = ('plain', 'damped', 'substeps2', 'damped_sorted', 'damped_ground_sorted')
+#: bundled scenes run bodies (damped, on a ground)
+DEFAULT_VARIANTS = ('plain', 'damped', 'substeps2', 'damped_ground')
 #: particles of one body of the ``many`` rows (4 x 6 x 6 lattice)
 MANY_BODY = (4, 6, 6)
 
@@ -78,10 +73,9 @@ def add_arguments(p: argparse.ArgumentParser):
                    help='array size of the streaming copy (MB)')
     p.add_argument('--variants', default=','.join(DEFAULT_VARIANTS),
                    help='plain (no damping), damped (0.05), substeps2 (0.05, 2 substeps), '
-                        'damped_pass (0.05 in a separate pass, as before), sorted and '
-                        'damped_sorted (plain and damped, particles stored set by set), '
-                        'ground_sorted and damped_ground_sorted (the same on a ground, as '
-                        'in the bundled scenes)')
+                        'damped_pass (0.05 in the separate pass of small bodies), ground '
+                        'and damped_ground (plain and damped, settling on a ground, as in '
+                        'the bundled scenes)')
     p.add_argument('--many', default='64,384',
                    help='body counts of the many-bodies rows ("" to skip)')
 
@@ -196,6 +190,27 @@ def build_world(n_side: int, mode: str, k: int, alpha: float = 1.0, damping: flo
     return world, body
 
 
+@contextlib.contextmanager
+def separate_damping(on: bool):
+    """Bodies built inside (``on``) damp in the separate pass: the fused pass's size
+    thresholds (``sm_ros.core.body``, read at each build) out of reach."""
+    from sm_ros.core import body as body_mod
+    saved = body_mod.FUSED_DAMPING_MIN, body_mod.FUSED_DAMPING_MIN_SETS
+    if on:
+        body_mod.FUSED_DAMPING_MIN = body_mod.FUSED_DAMPING_MIN_SETS = 2 ** 62
+    try:
+        yield
+    finally:
+        body_mod.FUSED_DAMPING_MIN, body_mod.FUSED_DAMPING_MIN_SETS = saved
+
+
+def damping_pass(body) -> str:
+    """'fused' (damped in the particle pass), 'separate' (a pass of its own) or ''."""
+    if body.params.damping <= 0.0:
+        return ''
+    return 'fused' if body._damp_fused else 'separate'
+
+
 def tick_function(world, substeps: int):
     """One tick of ``world``: ``substeps`` steps of DT / substeps."""
     if substeps == 1:
@@ -233,10 +248,9 @@ def time_size(n_side: int, modes, ks, min_time: float,
             for variant in variants:
                 damping, substeps = VARIANTS[variant]
                 t0 = time.perf_counter()
-                world, body = build_world(n_side, mode, k, damping=damping,
-                                          ground=variant in GROUND_VARIANTS)
-                if variant == 'damped_pass':
-                    body._damp_fused = False
+                with separate_damping(variant == 'damped_pass'):
+                    world, body = build_world(n_side, mode, k, damping=damping,
+                                              ground=variant in GROUND_VARIANTS)
                 build_s = time.perf_counter() - t0
                 tick = tick_function(world, substeps)
                 for _ in range(3):
@@ -249,7 +263,8 @@ def time_size(n_side: int, modes, ks, min_time: float,
     rounds = 0
     while rounds < 3 or (clock() < t_end and rounds < 400):
         for mode, k, variant, tick, body, build_s, samples, world in cfgs:
-            world.reset()
+            with separate_damping(variant == 'damped_pass'):
+                world.reset()             # rebuilds the body
             tick()
             for _ in range(batch):
                 t0 = clock()
@@ -269,6 +284,7 @@ def time_size(n_side: int, modes, ks, min_time: float,
                     'variant': variant, 'damping': VARIANTS[variant][0],
                     'substeps': VARIANTS[variant][1],
                     'memberships': memberships, 'layout': layout, 'set_runs': set_runs,
+                    'damping_pass': damping_pass(body),
                     'ms_median': 1e3 * float(np.median(s)), 'ms_min': 1e3 * float(s.min()),
                     'ns_per_particle': 1e9 * float(np.median(s)) / n, 'build_s': build_s,
                     'parallel': bool(getattr(body, '_parallel', False)),
@@ -384,15 +400,15 @@ def run(args, out: Path) -> Dict[str, Any]:
     findings['bandwidth'] = bw
 
     t = bc.Table('scaling', ['N', 'mode', 'clusters', 'variant', 'memberships', 'layout',
-                             'set_runs', 'ms_median', 'ms_min', 'ns_per_particle', 'parallel',
-                             'build_s'],
+                             'damping_pass', 'set_runs', 'ms_median', 'ms_min',
+                             'ns_per_particle', 'parallel', 'build_s'],
                  'ms per tick against N (World.step, dt = 5 ms per tick, gravity, no '
                  'colliders but in the ground variants; variants: plain, damped = damping '
-                 '0.05, substeps2 = damping 0.05 in two steps of 2.5 ms, sorted / '
-                 'damped_sorted = plain / damped with the particles stored set by set, '
-                 'ground_sorted / damped_ground_sorted = the same settling on a ground; '
-                 'set_runs: runs of one set in the set layout; the configurations of one N '
-                 'timed round-robin)')
+                 '0.05, substeps2 = damping 0.05 in two steps of 2.5 ms, damped_pass = '
+                 'damped in the separate pass, ground / damped_ground = plain / damped '
+                 'settling on a ground; damping_pass: fused into the particle pass or '
+                 'separate; set_runs: runs of one set in the set layout; the '
+                 'configurations of one N timed round-robin)')
     results: List[Dict[str, Any]] = []
     for n_side in sizes:
         bc.log(f'[scaling] sm_ros N={n_side ** 3}: {len(modes) * len(ks) * len(variants)} '
@@ -400,7 +416,8 @@ def run(args, out: Path) -> Dict[str, Any]:
         for r in time_size(n_side, modes, ks, args.min_time, variants):
             results.append(r)
             t.add(N=r['N'], mode=r['mode'], clusters=r['clusters'], variant=r['variant'],
-                  memberships=r['memberships'], layout=r['layout'], set_runs=r['set_runs'],
+                  memberships=r['memberships'], layout=r['layout'],
+                  damping_pass=r['damping_pass'], set_runs=r['set_runs'],
                   ms_median=r['ms_median'],
                   ms_min=r['ms_min'], ns_per_particle=r['ns_per_particle'],
                   parallel=r['parallel'], build_s=r['build_s'])
@@ -530,12 +547,10 @@ def run(args, out: Path) -> Dict[str, Any]:
     ppt = bc.Table('pypbd', ['N', 'clusters', 'memberships_pypbd', 'memberships_ours',
                              'pypbd_1thread_ms', 'pypbd_2threads_ms', 'pypbd_best_ms',
                              'ours_rigid_ms', 'ours_linear_ms', 'ours_rigid_damped_ms',
-                             'ours_rigid_damped_sorted_ms', 'speedup_rigid', 'speedup_linear',
-                             'speedup_rigid_damped', 'speedup_rigid_damped_sorted'],
+                             'speedup_rigid', 'speedup_linear', 'speedup_rigid_damped'],
                    'sm_ros against pypbd (same lattice and clusters, 1 iteration, dt 5 ms; '
-                   'medians; speedup = pypbd at its best thread count / ours; '
-                   'damped_sorted: damping 0.05, the particles stored set by set as the '
-                   'scenes store them)')
+                   'medians; speedup = pypbd at its best thread count / ours; ours built '
+                   'through World.add_body; rigid_damped: damping 0.05)')
     findings['pypbd'] = []
     if pp_sizes:
         try:
@@ -556,9 +571,8 @@ def run(args, out: Path) -> Dict[str, Any]:
                     continue
                 peer = min(per.values(), key=lambda r: r['median_ms'])
                 # ours timed again right after the peer, under the same load
-                rig, rig_d, rig_ds, lin, _, _ = time_size(
-                    n_side, ['rigid', 'linear'], [k], args.min_time,
-                    ('plain', 'damped', 'damped_sorted'))
+                rig, rig_d, lin, _ = time_size(n_side, ['rigid', 'linear'], [k],
+                                               args.min_time, ('plain', 'damped'))
                 row = {'N': n_side ** 3, 'clusters': peer['clusters'],
                        'memberships_pypbd': peer['memberships'],
                        'memberships_ours': rig['memberships'],
@@ -567,11 +581,9 @@ def run(args, out: Path) -> Dict[str, Any]:
                        'pypbd_best_ms': peer['median_ms'],
                        'ours_rigid_ms': rig['ms_median'], 'ours_linear_ms': lin['ms_median'],
                        'ours_rigid_damped_ms': rig_d['ms_median'],
-                       'ours_rigid_damped_sorted_ms': rig_ds['ms_median'],
                        'speedup_rigid': peer['median_ms'] / rig['ms_median'],
                        'speedup_linear': peer['median_ms'] / lin['ms_median'],
-                       'speedup_rigid_damped': peer['median_ms'] / rig_d['ms_median'],
-                       'speedup_rigid_damped_sorted': peer['median_ms'] / rig_ds['ms_median']}
+                       'speedup_rigid_damped': peer['median_ms'] / rig_d['ms_median']}
                 ppt.add(**row)
                 findings['pypbd'].append(row)
     ppt.write(out)

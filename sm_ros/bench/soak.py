@@ -1,5 +1,5 @@
 """
-Soak test of sim_node (issue 6, endurance): the node under abuse for a bounded time.
+Soak test of sim_node (endurance): the node under abuse for a bounded time.
 
 ``python -m sm_ros.bench.soak --seconds 60`` (or ``python -m sm_ros.bench soak --seconds
 60``) runs, each in a process of its own (``sm_ros.bench.soak_procs``, started through
