@@ -9,10 +9,10 @@ damping, one step per tick), ``damped`` (damping 0.05, what 6 of the 7 bundled s
 ``substeps2`` (damping 0.05, two steps of dt / 2 per tick, the node's default) and
 ``damped_ground`` (damped, the lattice settling on a ground, as the bundled scenes run
 bodies); the times are per tick.  ``--variants`` adds ``ground`` (plain, on a ground) and
-``damped_pass`` (damped in the separate pass the solver takes for small bodies, beside the
-pass fused into the particle pass).  Every body is built through ``World.add_body``, which
-picks its storage order.  ``many``: 64 and 384 bodies of 144 particles in one world (the
-paper's Fig. 7 body count, contact off), timed round-robin too.
+``damped_pass`` (damped in the separate pass the solver takes for small one-cluster bodies,
+beside the pass fused into the particle pass).  Every body is built through
+``World.add_body``, which picks its storage order.  ``many``: 64 and 384 bodies of 144
+particles in one world (the paper's Fig. 7 body count, contact off), timed round-robin too.
 
 In the same run: the NumPy reference (``sm_ros.core.reference``), the peer pypbd (one
 configuration per subprocess: ``sm_ros.bench.pypbd_driver``), and the memory bandwidth of a
@@ -36,7 +36,8 @@ GRAVITY = (0.0, 0.0, -9.81)
 MODES = ('rigid', 'linear', 'quadratic')
 CLUSTER_NAMES = {1: 1, 2: 8, 3: 27, 4: 64}
 #: variant -> (damping, steps per tick); ``damped_pass`` is ``damped`` with the damping in
-#: the separate pass (the one bodies below ``sm_ros.core.body.FUSED_DAMPING_MIN`` take),
+#: the separate pass (the one of one-cluster bodies below ``sm_ros.core.body``'s
+#: ``FUSED_DAMPING_MIN`` and of membership-layout bodies; set-layout bodies always fuse),
 #: for the side-by-side figure of what the fused pass saves
 VARIANTS = {'plain': (0.0, 1), 'damped': (0.05, 1), 'substeps2': (0.05, 2),
             'damped_pass': (0.05, 1), 'ground': (0.0, 1), 'damped_ground': (0.05, 1)}
