@@ -57,7 +57,7 @@ class Estimate:
         self.cost_s = time.perf_counter() - t0
 
     def run(self, pieces: int) -> float:
-        """Do up to ``pieces`` more pieces; return the seconds it took."""
+        """Do up to ``pieces`` more pieces; return the seconds spent."""
         t0 = time.perf_counter()
         world, first = self.world, self.done_pieces
         end = min(PIECES, first + max(int(pieces), 0))

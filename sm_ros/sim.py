@@ -220,7 +220,7 @@ class Simulation:
         self._nonfinite = None      # sm_ros.nonfinite.NonFiniteCheck (Numba), made when used
         self._tick_listeners: List[Callable[['Simulation'], None]] = []
         self._change_handlers: List[Tuple[frozenset, Callable[[Dict[str, Any]], None]]] = []
-        # an estimate in progress would describe the configuration before the change
+        # an estimate in progress describes the old configuration: drop it
         self.on_change(ESTIMATE_KEYS, lambda changes: self._estimates.drop())
 
     # ------------------------------------------------------------------ read-outs

@@ -138,8 +138,8 @@ class MomentumDrift:
         ``held``: a force or a gripper acts. Gravity, colliders, pins and bodies touching
         the ground count as external forces too.
         """
-        # Python floats, not a NumPy comparison: the first NumPy ufunc call after a step
-        # pays 50-80 us at 100k points (its code and tables evicted by the step's passes)
+        # Python floats, not a NumPy comparison: the first NumPy ufunc call after a step is
+        # slow (its code and tables evicted by the step's passes)
         if held or any(g != 0.0 for g in world.gravity.tolist()):
             return False
         if world.boxes or world.spheres or getattr(world, 'capsules', ()):
@@ -161,7 +161,7 @@ class MomentumDrift:
         for b in world.bodies:
             p += b.momentum()
             v = b.v
-            # sqrt of the row sums of squares: np.linalg.norm(v, axis=1) took 6 ms at 100k
+            # sqrt of the row sums of squares: faster than np.linalg.norm(v, axis=1)
             scale += float(np.dot(b.m, np.sqrt(np.einsum('ij,ij->i', v, v))))
         return p, scale
 

@@ -174,7 +174,7 @@ def _background() -> int:
 
 def warm_up(on_stage: Optional[Callable[[str], None]] = None, split: bool = True) -> float:
     """
-    Compile the solver's Numba kernels on a throwaway world; return the seconds it took.
+    Compile the solver's Numba kernels on a throwaway world; return the seconds spent.
 
     Covers every deformation mode, clusters, plasticity, colliders, wrenches and kinematic
     particles, so the node's first tick does not pay for compilation. With Numba's on-disk
@@ -313,7 +313,7 @@ def warm_extra() -> float:
     meets less often: contact without gravity (``solve_pairs``),
     one-particle bodies (their (1, 3) arrays are C- and F-ordered at once, a specialisation
     of their own) and the threaded kernels of one big body (``body.PARALLEL_MIN_WORK``
-    lowered here so that a small body takes them).  Return the seconds it took."""
+    lowered here so that a small body takes them).  Return the seconds spent."""
     import sm_ros.core.body as body_mod
     from sm_ros.core import BodyParams, Ground, World
     t0 = time.perf_counter()

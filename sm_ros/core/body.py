@@ -174,7 +174,7 @@ class Body:
     @property
     def asleep(self) -> bool:
         """Whether the body is asleep (``World`` sleeping: at rest in a contact world, not
-        stepped until something wakes it; README "Sleeping bodies")."""
+        stepped until something wakes it; doc/sleeping.md)."""
         return bool(self._flags[SLEEP] > 0.0)
 
     def wake(self):

@@ -2,7 +2,7 @@
 Body poses for publishing: centre of mass and the whole body's shape-match rotation.
 
 ``Body.rotation()`` of a body with several clusters sums ``m (x - c) x0^T`` with NumPy
-``einsum`` over every particle (about 4 ms at 100k particles); ``BodyPose.pose(body)``
+``einsum`` over every particle, slow for large bodies; ``BodyPose.pose(body)``
 gets the same rotation from one compiled pass (``com_apq``: the mass-weighted sums
 ``sum m x`` and ``sum m x x0^T`` together) and the core's own rotation extraction
 (``extract_rotation``, warm-started from the previous answer like the core does). A

@@ -203,7 +203,7 @@ class World(WorldColliders):
 
     @property
     def asleep(self):
-        """Names of the sleeping bodies (README "Sleeping bodies")."""
+        """Names of the sleeping bodies (doc/sleeping.md)."""
         return [b.name for b in self._bodies.values() if b.asleep]
 
     @property
@@ -231,7 +231,7 @@ class World(WorldColliders):
         """Wake every body when gravity or the colliders changed; return whether every
         body is asleep (then the step has nothing to do).  A world with collider-pass
         colliders (named, oriented, moving: their wrenches are published) does not sleep:
-        a sleeping body would not weigh on them (README "Sleeping bodies")."""
+        a sleeping body would not weigh on them (doc/sleeping.md)."""
         sl = self._sleep
         if sl is None:
             return False

@@ -55,8 +55,8 @@ def _damp_rigid_single(x, v, mass, ref, k_damp, lin, w3, m3a, m3b, m3c, m3d):
     update, accumulated in 16 local scalars (registers) instead of ``lin``/``w3`` rows.
 
     The general loop adds into array entries that LLVM cannot keep in registers (``lin``
-    may alias ``x``/``v``): 16 loads and stores a particle, each waiting on the last, so a
-    144-particle body paid about 2 us here, as much as the rest of its step.  Here both
+    may alias ``x``/``v``): 16 loads and stores a particle, each waiting on the last, as
+    costly as the rest of a small body's step.  Here both
     loops are pure scalar streams over x, v (the first a reduction, the second a map that
     vectorises); sums in the same order, rounding as other reductions under fast math.
     """

@@ -5,7 +5,7 @@
 DIRTY = 0
 #: The last step's shape-error sums are not yet reduced (``Body.shape_error_rms``).
 ERR_STALE = 1
-#: The damping sums the last particle pass took are valid for the next step.
+#: The damping sums of the last particle pass are valid for the next step.
 DAMP_SUMS = 2
 #: Sleeping (``sm_ros.core.sleep``): 1 asleep (the steps skip the body), 0 awake, -1 held
 #: awake (a force, torque or grab acts on it).

@@ -61,17 +61,15 @@ def _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha_h, h
     and the 12 sums of the new state about the point k (``_rest_sums``'s).  Returns (sum of
     |g - p|^2 as ``advance``, speeds over sqrt(lim2), the 12 sums, new heights below gz:
     the ground's test, so that a run the ground cannot reach skips its collider pass; with
-    gz None the loops are compiled without it: it cost 10 % of an 8-cluster step), then,
+    gz None the loops are compiled without it, since it is not free), then,
     with ``damp``, the next step's 13 damping sums of the new state about the same point
     (``damping.damp_sums_range``'s first 13: sum w v, sum w d x v, the six second moments
     of d, W; zeros without ``damp``).
 
     With ``wuni`` > 0 (every particle of that mass) the sums are taken unweighted and
     scaled once: the loop is a second compilation, without the masses (``_fused_loop``
-    with ``mass`` None).  A test of ``wuni`` inside the loop was not hoisted by LLVM (the
-    loop is too large to unswitch): 1.57 against 1.39 ns a particle at 10k in a throwaway
-    harness (``wuni`` an argument against a constant).  ``tools/loop_floor.py`` times both
-    compilations (``pass_loop``, ``pass_loop_masses``).
+    with ``mass`` None), because LLVM does not hoist a test of ``wuni`` out of a loop this
+    large.
     """
     if wuni > 0.0:
         t = _fused_loop(start, end, x, v, x0, None, gmap, damp, field, alpha_h, h, hx, hy,
@@ -97,10 +95,7 @@ def _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, h
     rest positions) and ``sets._sets_fused_lin`` (a run of one set, x0 its offsets y).
 
     Damped, the loop also takes the damping sums of the new state (13 accumulators more, 28
-    in all: they fit AVX-512VL's 32 vector registers at 256 bits).  A second loop over the
-    block (``damp_sums_range``, what the passes did before) cost 0.6 ns a particle more
-    where the first loop streams its state from L3: 97k damped, 8 clusters stored set by
-    set, 0.336 / 0.342 -> 0.292 / 0.293 ms a step, the same at 10k (doc/benchmarks.md).
+    in all), so a damped block is read once instead of twice.
     """
     l00, l01, l02, l10, l11, l12, l20, l21, l22, b0, b1, b2 = gmap
     km, f0, f1, f2, o0, o1, o2 = field

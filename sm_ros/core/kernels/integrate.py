@@ -178,8 +178,8 @@ def advance(x, v, i, p0, p1, p2, g0, g1, g2, alpha_h, h, dv0, dv1, dv2):
 
     v <- v + (alpha / h) (g - p) + dv, then x <- p + h v, where dv is h times the external
     acceleration.  Every integration loop calls this; it is inlined into them by Numba
-    (``inline='always'``): left to LLVM the call stayed a call, and a loop with a call
-    does not vectorise (the one-cluster pass ran 4.5 ns/particle instead of about 1).  The caller
+    (``inline='always'``): left to LLVM the call stays a call, and a loop with a call
+    does not vectorise.  The caller
     loads ``p`` where the loop needs it first, so that the fast-math reassociation sees
     the same expressions whatever the loop (the results stay bit-identical).
     """
@@ -365,8 +365,7 @@ def accumulate_parallel(quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, par
 
 
 #: Particles per block of the fused pass: integrated, then accumulated while in cache
-#: (1024: 72 KiB of x, v, x0, in L2; the vectorised loops cost little per particle, so a
-#: call per 256 particles cost 0.8 ns/particle more at 10k particles, one cluster).
+#: (1024: 72 KiB of x, v, x0, in L2; smaller blocks pay the call per block more often).
 BLOCK = 1024
 
 

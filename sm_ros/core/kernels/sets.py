@@ -174,17 +174,14 @@ def _sets_int_range(start, end, quad, x, v, y0, sid, runs, gm, alpha, h, acc, an
 
 
 #: Particles a run of one set must hold on average for a body's pass to take
-#: ``_sets_fused_lin``: each run costs it 73 ns undamped, 117 ns damped
-#: (``tools/set_pass_cost.py``; the vector loops' setup, their reductions and remainders, the
-#: sums written out), a loss on short runs (lattice order: runs of ~7), where the two-loop
-#: pass finds and sums the runs particle by particle.
+#: ``_sets_fused_lin``: each run has a fixed cost (the vector loops' setup, reductions and
+#: remainders, the sums written out), a loss on short runs, where the two-loop pass finds
+#: and sums the runs particle by particle.
 FUSED_MIN_RUN = 32
 #: Particles per block of ``_sets_fused_lin``: each block adds a segment to the runs (as
 #: costly as a run), and a damped run is read twice, the second time from L2 either way (1024
-#: particles' x and v alone fill L1).  ``bench scaling --modes linear --clusters 2
-#: --variants sorted,damped_sorted`` with this set to 1024 and to 4096, two runs each: 10k
-#: damped 0.053 against 0.049-0.052 ms, 97k 0.290 / 0.366 against 0.276-0.279 / 0.345-0.351
-#: (undamped / damped).
+#: particles' x and v alone fill L1); ``bench scaling --modes linear --clusters 2`` compares
+#: block sizes.
 FUSED_SETS_BLOCK = 4096
 
 
@@ -214,7 +211,7 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     moments of a body far out at huge speed do not lose it to rounding (as ``packed``).
     The damping row holds P_s (its entries 15-17); ``sets_integrate_*`` makes it the
     set's reference for the next step's ``sets_reduce``.  The runs' ends come from
-    ``runs`` (looking for them particle by particle cost 0.3-0.5 ns a particle).
+    ``runs`` rather than being found particle by particle.
     """
     lim2 = v_max * v_max if v_max > 0.0 else np.inf
     ground_only = boxes.shape[0] == 0 and spheres.shape[0] == 0

@@ -61,7 +61,7 @@ def step_bodies_claimed(bodies, claim, h, gravity, has_col, ground, boxes, spher
 
     Called on one thread with ``claim`` = [0] it steps every record in order; called on
     several threads with one shared ``claim`` (``step_bodies_parallel``) each record is
-    stepped exactly once, by whichever thread took it.  Each record owns all the buffers
+    stepped exactly once, by whichever thread claims it.  Each record owns all the buffers
     it writes, so which thread steps it changes no result: every path runs this one
     compiled function (the kernels compiled into two callers can round differently under
     fast math), bit for bit.  Returns how many records this call stepped.
