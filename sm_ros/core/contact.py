@@ -37,6 +37,11 @@ from .contact_build import (body_overlaps, build_pairs, build_pairs_cells, build
 from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_bodies, solve_pairs,
                               wall_candidates)
+from .contact_frames import body_frames, finish_rows, group_rows
+from .contact_solve import (POS_SWEEPS, ROW_WIDTH, VEL_SWEEPS, WARM, Bodies, PairList,
+                            Particles, Rows, Statics, fill_collider_rows, pair_rows,
+                            solve_rows)
+from .contact_statics import collide_rows_soft, collide_soft, collider_rows
 from .kernels.colliders import contact_velocity
 from .params import _finite
 
@@ -191,7 +196,8 @@ class Contact:
         self.flat = flat
         self.params = params
         nb = len(flat.bodies)
-        self.act = np.array([c.collide for c in body_contacts], dtype=np.bool_)
+        self.act = np.array([c.collide and params.enabled for c in body_contacts],
+                            dtype=np.bool_)
         self.selfc = np.array([c.collide and c.self_collision for c in body_contacts],
                               dtype=np.bool_)
         if nb == 0:
@@ -264,6 +270,13 @@ class Contact:
         self._noground = np.zeros(4)
         self._cand = np.zeros(n, dtype=np.int64)        # particles near boxes, spheres
         self._cptr = np.zeros(max(nb, 1) + 1, dtype=np.int64)
+        self._bodies = None             # the solve's state (contact_solve), made at a run
+        self._rows = None
+        self._stamp = 0.0
+        self._order = np.zeros(0, np.int64)
+        self._start = np.zeros(1, np.int64)
+        self.vel_sweeps = VEL_SWEEPS
+        self.pos_sweeps = POS_SWEEPS
 
     def invalidate(self):
         """Force a rebuild of the pair list at the next step."""
@@ -320,79 +333,73 @@ class Contact:
         self.valid = True
         self.builds += 1
 
+    def _solver_buffers(self):
+        """The solve's buffers, sized to the pair list's capacity (grown with it)."""
+        f = self.flat
+        nb = max(len(f.bodies), 1)
+        if self._bodies is None:
+            self._bodies = Bodies(np.zeros(nb), np.zeros((nb, 3)), np.zeros((nb, 9)),
+                                  np.zeros((nb, 3)), np.zeros((nb, 3)), np.zeros(nb),
+                                  np.zeros((nb, 12)))
+            self._pt = Particles(f.X, f.V, f.W, f.R, f.B, f.M, np.zeros((3, f.n)))
+            self._wc = np.full((f.n, 5), -np.inf)
+            self._bbox = np.zeros((nb, 6))
+        cap = len(self._pi) + f.n
+        if self._rows is None or self._rows.f.shape[0] < cap:
+            self._rows = Rows(np.zeros((cap, ROW_WIDTH)), np.zeros((cap, 5), np.int64))
+            self._wp = np.full((len(self._pi), 5), -np.inf)
+
     def run(self, h, thresh, has_col=False, ground=_NO_GROUND, boxes=_NO_ROWS8,
             spheres=_NO_ROWS6, gravity=None):
         """Detect and resolve contacts on ``flat.X``/``flat.V`` (already gathered).
 
         ``has_col``, ``ground``, ``boxes``, ``spheres``: the World's static colliders (rows
-        as in ``kernels.colliders.collide_point``), re-applied to every particle contact
-        moved.  ``gravity`` (3,): with a nonzero one, ``params.stacking`` and a body
-        marked in ``coupling``, the bodies so marked carry their contacts as a whole
-        (``solve_bodies``); otherwise every pair acts per particle (``solve_pairs``).
+        as in ``kernels.colliders.collide_point``); the bodies' own step left them to this
+        pass.  ``gravity`` (3,): a collider's restitution acts on the approach speed before
+        the step's gravity.
         """
         f = self.flat
-        half = 0.5 * self.skin
         p = self.params
-        grav = gravity is not None and bool(np.any(gravity != 0.0))
-        carried = p.stacking and grav and self.coupling.any()
-        if carried:
-            if self._bw_version != f.w_version:    # the bodies' masses, from W if changed
-                body_inverse_masses(f.W, f.off, self._bw)
-                self._bw_version = f.w_version
-            # the carried bodies' velocities, boxes and the displacements since the last
-            # build in one pass over the positions
-            spread2 = body_velocities(f.X, f.V, f.M, f.off, self.coupling, self._bw,
-                                      self._vb, self._zlo, self._bc, self._bom, self._biv,
-                                      self._xref, self.act, self._dbox)
-        else:
+        if self.needed:
+            half = 0.5 * self.skin
             spread2 = moved_spread2(f.X, self._xref, f.off, self.act)
-        # rebuilt once the displacements since the last build no longer fit in a ball of
-        # radius skin / 2 (no pair came closer by more than the skin; contact_build)
-        if not self.valid or spread2 > half * half:
-            self._build()
-            self._dbox[:] = 0.0                # nothing moved since this build
+            # rebuilt once the displacements since the last build no longer fit in a ball
+            # of radius skin / 2 (no pair came closer by more than the skin; contact_build)
+            if not self.valid or spread2 > half * half:
+                self._build()
+        self._solver_buffers()
+        if not self._warm:
+            self._wp[:, 4] = -np.inf          # the impulses were of the old list's pairs
+        self._warm = True
+        self._stamp += 1.0
+        bd, pt, rows = self._bodies, self._pt, self._rows
+        body_frames(pt, f.off, self.coupling, bd, float(h), self._bbox)
+        st = Statics(ground if has_col else _NO_GROUND, boxes if has_col else _NO_ROWS8,
+                     spheres if has_col else _NO_ROWS6)
+        if has_col:
+            collide_soft(pt, f.off, bd, st, thresh, f.touched)
+        g = (0.0, 0.0, 0.0) if gravity is None else gravity
+        law = np.array([h, thresh, p.friction, p.restitution, self._stamp, WARM, self.vel_sweeps,
+                        self.pos_sweeps, g[0], g[1], g[2]])
+        m = 0
+        if self.needed:
+            m = pair_rows(pt, bd, PairList(self._pi, self._pj, self.npairs), rows, law,
+                          self._wp)
+        if has_col:
+            m0 = m
+            m = collider_rows(pt, bd, f.off, st, rows, m, self._bbox)
+            fill_collider_rows(pt, bd, rows, m0, m, law, self._wc)
         self.count[:] = 0
         self.deepest[:] = 0.0
-        if not carried:
-            self._warm = False
-            self.found = solve_pairs(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
-                                     p.friction, p.restitution, thresh, float(h), p.iterations,
-                                     f.touched, self.count, self.deepest, bool(has_col),
-                                     ground, boxes, spheres, self._moved)
-            return
-        if self._acc.shape[1] < self.npairs:
-            m = len(self._pi)                  # grows with the pair list's capacity
-            self._acc = np.zeros((2, m))
-            self._tg = np.zeros(m)
-            self._active = np.zeros(m, dtype=np.int64)
-            self._cbuf = np.zeros((7, m))        # solve_bodies' compact rows
-            self._ibuf = np.zeros((5, m), dtype=np.int32)
-        ncand = 0
-        # the end of solve_bodies puts a carried body's particles through the boxes and
-        # spheres only where one can be inside (its particles near them, ``cand``, or one
-        # moved by this margin or more); with none, only the ground is left (no margin)
-        margin = np.inf
-        if has_col and (len(boxes) or len(spheres)):
-            margin = self.cell
-            ncand = wall_candidates(f.X, f.off, self.coupling, self._bw, boxes, spheres,
-                                    self.cell, self._cand, self._cptr, self.act,
-                                    self._box, self._dbox)
-            if ncand > len(self._cand):         # a particle near two of them: grow
-                self._cand = np.zeros(ncand, dtype=np.int64)
-                ncand = wall_candidates(f.X, f.off, self.coupling, self._bw, boxes,
-                                        spheres, self.cell, self._cand, self._cptr,
-                                        self.act, self._box, self._dbox)
-        self.found = solve_bodies(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
-                                  p.friction, p.restitution, thresh, float(h),
-                                  max(p.iterations, STACK_SWEEPS), f.touched, self.count,
-                                  self.deepest, bool(has_col), ground,
-                                  boxes, spheres, self._moved, f.off, self._bw, self.coupling,
-                                  self._dv, self._pend, self._active, self._acc, self._tg,
-                                  SWEEP_TOL * thresh, self._vb, self._noground,
-                                  self._cand[:ncand], self._cptr, self._zlo, self._accg,
-                                  WARM_START if self._warm else 0.0, self._bc, self._bom,
-                                  self._biv, margin, self._cbuf, self._ibuf)
-        self._warm = True
+        if len(self._order) < m:
+            self._order = np.zeros(rows.f.shape[0], np.int64)
+            self._start = np.zeros(rows.f.shape[0] + 1, np.int64)
+        ng = group_rows(rows, m, len(f.bodies), self._order, self._start)
+        solve_rows(pt, bd, rows, m, law, SWEEP_TOL * thresh, self._order, self._start, ng)
+        self.found = finish_rows(pt, bd, f.off, rows, m, law, self._wp, self._wc,
+                                 (f.touched, self.count, self.deepest))
+        if has_col:
+            collide_rows_soft(pt, bd, rows, m, st, thresh)
 
     def fast_particles(self, h):
         """Per body, the particles that moved more than their contact radius in the last

@@ -193,7 +193,7 @@ class World(WorldColliders):
         self._flat = FlatState(bodies)
         self._flat_builds += 1
         p = self._contact_params
-        if p.enabled and bodies:
+        if bodies:
             bcs = [self._contacts[b.name][0] for b in bodies]
             radii = [self.contact_radius(b.name) for b in bodies]
             self._contact = Contact(self._flat, p, bcs, radii)
@@ -270,8 +270,12 @@ class World(WorldColliders):
             self.time += h
             return
         _, pack, records, slow, parallel, helpers, nrec = self._split_now(h)
-        args = (h, self._gravity, self._has_col, self._ground_row, self._box_rows,
-                self._sphere_rows, thresh)
+        c = self._contact
+        # the contact pass takes the static colliders when it runs (contact.py)
+        stiff = c is not None and self._stiff_bodies(h)
+        takes = c is not None and (c.needed or (self._has_col and stiff))
+        args = (h, self._gravity, self._has_col and not takes, self._ground_row,
+                self._box_rows, self._sphere_rows, thresh)
         if nrec and helpers and step_threads.cores_free():
             # the records (kernels/world_step.py) shared with helper threads; a pack on one
             # thread is stepped here while they wake
@@ -294,11 +298,10 @@ class World(WorldColliders):
         for body in slow:
             if not body._flags[3] > 0.0:       # asleep: not stepped (sleep.py)
                 body._step(*args)
-        c = self._contact
         # the bodies' own passes ended the step unless a world pass runs (state_flagged)
-        self._flagged = cs is None and (c is None or not c.needed)
+        self._flagged = cs is None and not takes
         if not self._flagged:
-            self._world_passes(h, thresh)
+            self._world_passes(h, thresh, takes)
         if cs is not None:
             cs.imp_time += h
         self.time += h
@@ -368,7 +371,7 @@ class World(WorldColliders):
                                    len(records))
         return split
 
-    def _world_passes(self, h, thresh):
+    def _world_passes(self, h, thresh, takes):
         """Passes over the world's flat state after the bodies' step (flat.py), called by
         ``step`` only when one is needed: body-body contact to run (not off, and two
         colliding bodies or self-collision) or pass colliders.
@@ -380,13 +383,12 @@ class World(WorldColliders):
         """
         c = self._contact
         cs = self._cset
-        need_contact = c is not None and c.needed
+        need_contact = takes
         f = self._flat
         st = self._coll_stats
         if st is None or len(st) != len(f.bodies):
             st = self._coll_stats = np.zeros((len(f.bodies), 2))
         if need_contact:
-            self._contact_coupling(h)
             sl = self._sleep
             if sl is not None:
                 sl.sync()                      # bodies woken from outside: masses back
@@ -412,6 +414,12 @@ class World(WorldColliders):
             if sk[0, 0] > 0.0:
                 body._dirty = True            # moved particles: re-accumulate the next step
 
+    def _stiff_bodies(self, h):
+        """Whether a body is stiff (``_contact_coupling``; a lone stiff body on a collider
+        needs the contact pass, which turns it)."""
+        self._contact_coupling(h)
+        return self._any_stiff
+
     def _contact_coupling(self, h):
         """Mark the bodies that carry their contacts as a whole (``Contact.coupling``):
         alpha at the step at least ``contact.COUPLE_ALPHA``, with one cluster or many
@@ -425,6 +433,7 @@ class World(WorldColliders):
         c = self._contact.coupling
         for k, b in enumerate(self._flat.bodies):
             c[k] = b._params.at_step(h).alpha >= COUPLE_ALPHA
+        self._any_stiff = bool(c.any())
         self._coupling_key = key
 
     def _zero_bid(self, n):
