@@ -42,6 +42,7 @@ from .contact_solve import (POS_SWEEPS, ROW_WIDTH, VEL_SWEEPS, WARM, Bodies, Pai
                             Particles, Rows, Statics, fill_collider_rows, pair_rows,
                             solve_rows)
 from .contact_statics import collide_rows_soft, collide_soft, collider_rows
+from .kinematic import contact_rows as kinematic_rows, row_wrenches
 from .kernels.colliders import contact_velocity
 from .params import _finite
 
@@ -69,7 +70,7 @@ COUPLE_ALPHA = 0.5
 STACK_SWEEPS = 8
 #: ``solve_bodies`` stops sweeping once no velocity changed by more than this fraction of
 #: the resting threshold (``World.step``: 2 |g| h) in a sweep.
-SWEEP_TOL = 0.01
+SWEEP_TOL = 0.001
 #: ``solve_bodies`` starts each step from this fraction of the velocity impulses its
 #: pairs of carried bodies (and their ground contacts) ended the last step with, while the
 #: pair list is unchanged (``contact_kernels._warm_start``): without it the 8 sweeps did
@@ -162,6 +163,36 @@ class BodyContact:
             r = _finite('contact_radius', r, 0.0, lo_open=True)
         return replace(self, collide=_flag('collide', self.collide), radius=r,
                        self_collision=_flag('self_collision', self.self_collision))
+
+
+def surface_normals(X0, M, off, radii):
+    """Per particle, its outward surface normal in its body's rest shape (3, N): minus
+    the mean direction to its rest neighbours within 1.5 lattice spacings (twice the
+    contact radius), zero where they surround it (inside); and each body's rest centre of
+    mass (nb, 3).  Stiff bodies' pairs touch along these (``contact_solve``)."""
+    from scipy.spatial import cKDTree
+    nb = max(len(off) - 1, 1)
+    ns = np.zeros(X0.shape)
+    c0 = np.zeros((nb, 3))
+    for b in range(len(off) - 1):
+        x = X0[:, off[b]:off[b + 1]].T
+        m = M[off[b]:off[b + 1]]
+        if len(x) == 0:
+            continue
+        c0[b] = (m[:, None] * x).sum(axis=0) / m.sum()
+        reach = 3.0 * float(radii[b])
+        if len(x) < 2 or not reach > 0.0:
+            continue
+        pairs = cKDTree(x).query_pairs(reach, output_type='ndarray')
+        acc = np.zeros_like(x)
+        d = x[pairs[:, 1]] - x[pairs[:, 0]]
+        d /= np.linalg.norm(d, axis=1)[:, None]
+        np.add.at(acc, pairs[:, 0], d)
+        np.add.at(acc, pairs[:, 1], -d)
+        size = np.linalg.norm(acc, axis=1)
+        out = size > 0.5
+        ns[:, off[b]:off[b + 1]][:, out] = (-acc[out] / size[out, None]).T
+    return ns, c0
 
 
 def default_radius(points) -> float:
@@ -273,9 +304,11 @@ class Contact:
         self._bodies = None             # the solve's state (contact_solve), made at a run
         self._rows = None
         self._stamp = 0.0
-        self._order = np.zeros(0, np.int64)
-        self._start = np.zeros(1, np.int64)
+        self.soft_w = None              # inverse masses of the particles left to colliders
+        self._row_order = np.zeros(0, np.int64)     # the rows by pair of bodies
+        self._row_start = np.zeros(1, np.int64)
         self.vel_sweeps = VEL_SWEEPS
+        self.warm = WARM
         self.pos_sweeps = POS_SWEEPS
 
     def invalidate(self):
@@ -338,10 +371,11 @@ class Contact:
         f = self.flat
         nb = max(len(f.bodies), 1)
         if self._bodies is None:
+            ns, c0 = surface_normals(f.X0, f.M, f.off, self.radii)
             self._bodies = Bodies(np.zeros(nb), np.zeros((nb, 3)), np.zeros((nb, 9)),
                                   np.zeros((nb, 3)), np.zeros((nb, 3)), np.zeros(nb),
-                                  np.zeros((nb, 12)))
-            self._pt = Particles(f.X, f.V, f.W, f.R, f.B, f.M, np.zeros((3, f.n)))
+                                  np.zeros((nb, 12)), np.zeros((nb, 9)), c0)
+            self._pt = Particles(f.X, f.V, f.W, f.R, f.B, f.M, np.zeros((3, f.n)), ns)
             self._wc = np.full((f.n, 5), -np.inf)
             self._bbox = np.zeros((nb, 6))
         cap = len(self._pi) + f.n
@@ -350,13 +384,16 @@ class Contact:
             self._wp = np.full((len(self._pi), 5), -np.inf)
 
     def run(self, h, thresh, has_col=False, ground=_NO_GROUND, boxes=_NO_ROWS8,
-            spheres=_NO_ROWS6, gravity=None):
+            spheres=_NO_ROWS6, gravity=None, kin=None, kin_stats=None):
         """Detect and resolve contacts on ``flat.X``/``flat.V`` (already gathered).
 
         ``has_col``, ``ground``, ``boxes``, ``spheres``: the World's static colliders (rows
         as in ``kernels.colliders.collide_point``); the bodies' own step left them to this
         pass.  ``gravity`` (3,): a collider's restitution acts on the approach speed before
-        the step's gravity.
+        the step's gravity.  ``kin``: the world's named, oriented or moving colliders
+        (``colliders.ColliderSet``) or None: the stiff bodies' contacts with them are rows
+        of the solve (their wrenches and ``kin_stats`` counted); the caller then runs
+        their pass for the other particles with ``soft_w`` as inverse masses.
         """
         f = self.flat
         p = self.params
@@ -373,13 +410,13 @@ class Contact:
         self._warm = True
         self._stamp += 1.0
         bd, pt, rows = self._bodies, self._pt, self._rows
-        body_frames(pt, f.off, self.coupling, bd, float(h), self._bbox)
+        body_frames(pt, f.off, self.coupling, bd, float(h), self._bbox, f.X0)
         st = Statics(ground if has_col else _NO_GROUND, boxes if has_col else _NO_ROWS8,
                      spheres if has_col else _NO_ROWS6)
         if has_col:
             collide_soft(pt, f.off, bd, st, thresh, f.touched)
         g = (0.0, 0.0, 0.0) if gravity is None else gravity
-        law = np.array([h, thresh, p.friction, p.restitution, self._stamp, WARM, self.vel_sweeps,
+        law = np.array([h, thresh, p.friction, p.restitution, self._stamp, self.warm, self.vel_sweeps,
                         self.pos_sweeps, g[0], g[1], g[2]])
         m = 0
         if self.needed:
@@ -389,17 +426,27 @@ class Contact:
             m0 = m
             m = collider_rows(pt, bd, f.off, st, rows, m, self._bbox)
             fill_collider_rows(pt, bd, rows, m0, m, law, self._wc)
+        mk = m
+        if kin is not None:
+            m = kinematic_rows(f.X, f.off, bd.share, self._bbox, kin.rows, rows.f, rows.i, m)
+            fill_collider_rows(pt, bd, rows, mk, m, law, self._wc)
         self.count[:] = 0
         self.deepest[:] = 0.0
-        if len(self._order) < m:
-            self._order = np.zeros(rows.f.shape[0], np.int64)
-            self._start = np.zeros(rows.f.shape[0] + 1, np.int64)
-        ng = group_rows(rows, m, len(f.bodies), self._order, self._start)
-        solve_rows(pt, bd, rows, m, law, SWEEP_TOL * thresh, self._order, self._start, ng)
+        if len(self._row_order) < m:
+            self._row_order = np.zeros(rows.f.shape[0], np.int64)
+            self._row_start = np.zeros(rows.f.shape[0] + 1, np.int64)
+        ng = group_rows(rows, m, len(f.bodies), self._row_order, self._row_start)
+        solve_rows(pt, bd, rows, m, law, SWEEP_TOL * thresh, self._row_order, self._row_start,
+                   ng)
         self.found = finish_rows(pt, bd, f.off, rows, m, law, self._wp, self._wc,
                                  (f.touched, self.count, self.deepest))
         if has_col:
             collide_rows_soft(pt, bd, rows, m, st, thresh)
+        if kin is not None:
+            row_wrenches(f.X, kin.rows, rows.f, rows.i, mk, m, kin.imp, kin_stats)
+            if self.soft_w is None or len(self.soft_w) != f.n:
+                self.soft_w = np.zeros(f.n)
+            np.multiply(f.W, bd.share[f.B] == 0.0, out=self.soft_w)
 
     def fast_particles(self, h):
         """Per body, the particles that moved more than their contact radius in the last

@@ -32,12 +32,13 @@ def _imul(biv, b, a0, a1, a2):
 
 
 @njit(**JIT)
-def body_frames(pt, off, cpl, bd, h, box):
+def body_frames(pt, off, cpl, bd, h, box, X0):
     """Per body: rigid share (1 for a stiff body, ``cpl``, with no pinned or grabbed
     particle), and for those the inverse mass, centre, inverse inertia, velocity and spin
     at the start of the step (x - h v: the solve's impulses act there, so their moments
-    about the centre are those the particles get), the bounding box now ``box`` (nb, 6);
-    the step's changes cleared."""
+    about the centre are those the particles get), its rotation from the rest shape
+    ``X0`` (3, N) (rest centres ``bd.c0``), the bounding box now ``box`` (nb, 6); the
+    step's changes cleared."""
     X, V, W, M = pt.X, pt.V, pt.W, pt.M
     a = np.zeros(9)
     for b in range(off.shape[0] - 1):
@@ -54,6 +55,7 @@ def body_frames(pt, off, cpl, bd, h, box):
         q0, q1, q2 = X[0, o] - h * V[0, o], X[1, o] - h * V[1, o], X[2, o] - h * V[2, o]
         mt = p0 = p1 = p2 = s0 = s1 = s2 = l0 = l1 = l2 = 0.0
         xx = yy = zz = xy = yz = zx = 0.0
+        apq = np.zeros(9)              # sum m (x - q) (x0 - c0)^T: the body's rotation
         lo0 = lo1 = lo2 = np.inf
         hi0 = hi1 = hi2 = -np.inf
         for k in range(o, off[b + 1]):
@@ -75,6 +77,18 @@ def body_frames(pt, off, cpl, bd, h, box):
             l0 += c0
             l1 += c1
             l2 += c2
+            e0 = X0[0, k] - bd.c0[b, 0]
+            e1 = X0[1, k] - bd.c0[b, 1]
+            e2 = X0[2, k] - bd.c0[b, 2]
+            apq[0] += m * y0 * e0
+            apq[1] += m * y0 * e1
+            apq[2] += m * y0 * e2
+            apq[3] += m * y1 * e0
+            apq[4] += m * y1 * e1
+            apq[5] += m * y1 * e2
+            apq[6] += m * y2 * e0
+            apq[7] += m * y2 * e1
+            apq[8] += m * y2 * e2
             xx += m * y0 * y0
             yy += m * y1 * y1
             zz += m * y2 * y2
@@ -107,6 +121,23 @@ def body_frames(pt, off, cpl, bd, h, box):
         _inverse_sym3(a, bd.biv[b])
         w0, w1, w2 = _imul(bd.biv, b, l0, l1, l2)
         bd.bom[b, 0], bd.bom[b, 1], bd.bom[b, 2] = w0, w1, w2
+        _rotation(apq, bd.rot[b])
+
+
+@njit(inline='always', **JIT)
+def _rotation(apq, out):
+    """out (9,) = the rotation of the polar decomposition of apq (9,), row-major (the
+    best-fit rotation of a body from its rest shape; the first-moment terms about the
+    first particle vanish with the rest centre: sum m (x0 - c0) = 0)."""
+    u, _, vt = np.linalg.svd(apq.reshape(3, 3))
+    r = u @ vt
+    if np.linalg.det(r) < 0.0:
+        for i in range(3):
+            u[i, 2] = -u[i, 2]
+        r = u @ vt
+    for i in range(3):
+        for j in range(3):
+            out[3 * i + j] = r[i, j]
 
 
 @njit(inline='always', **JIT)

@@ -46,22 +46,35 @@ from .kernels.jit import JIT
 #: at creation and the two tangential inverse masses.
 ROW_N, ROW_RI, ROW_RJ, ROW_DEPTH, ROW_TARGET, ROW_KN = 0, 3, 6, 9, 10, 11
 ROW_ACCN, ROW_ACCP, ROW_ACCT = 12, 13, 14
-ROW_T1, ROW_T2, ROW_MU, ROW_VN0, ROW_KT = 16, 19, 22, 23, 24
-ROW_WIDTH = 26
+ROW_T1, ROW_T2, ROW_MU, ROW_VN0, ROW_KT, ROW_TOUCH = 16, 19, 22, 23, 24, 26
+ROW_WIDTH = 27
 #: (``contact_frames.py`` repeats the numbers of the columns it reads.)
 #: Velocity and position sweeps per step, and the share of the last step's impulses a
 #: row starts from.
 VEL_SWEEPS = 8
 POS_SWEEPS = 4
-WARM = 0.8
+#: The last this many velocity sweeps also visit each row's normal alone (the others
+#: only the groups, ``block_pass``, which keeps a symmetric load symmetric).
+ROW_SWEEPS = 0
+WARM = 1.0
+#: Pairs closer than (1 + this) times their contact distance are rows (speculative: a
+#: gap only limits the speed that closes it), so that a body stopped in the sweeps stops
+#: the one resting on it within the same step.
+SPECULATIVE = 0.2
+#: ``block_pass`` leaves out a tilt of a patch whose rows spread less than this (m)
+#: along it (an edge or a point of contact).
+THIN = 1.0
+#: A row within this gap (m) counts as touching in ``block_pass``.
+TOUCH = 1e-7
 #: Share of the overlap left after the velocity solve that a step's pseudo-velocities
 #: remove (1: all of it).
 POS_BETA = 0.8
 
 #: The per-body state of the solve (arrays over bodies): inverse mass, centre, inverse
-#: inertia (9,), linear velocity, spin, rigid share, and the changes of the step
-#: ``dvel`` (nb, 12): velocity, spin, pseudo-velocity, pseudo-spin.
-Bodies = namedtuple('Bodies', 'bw bc biv vb bom share dvel')
+#: inertia (9,), linear velocity, spin, rigid share, the changes of the step ``dvel``
+#: (nb, 12): velocity, spin, pseudo-velocity, pseudo-spin; rotation from the rest shape
+#: (9,) and rest centre.
+Bodies = namedtuple('Bodies', 'bw bc biv vb bom share dvel rot c0')
 #: The colliders as rows (``kernels.colliders.collide_point``): ground (4,), boxes (K, 8),
 #: spheres (K, 6), and the restitution threshold (m/s).
 Statics = namedtuple('Statics', 'ground boxes spheres')
@@ -99,7 +112,9 @@ def _side_velocity(bd, Vt, b, i, r0, r1, r2, col):
     """u of a side: s (V_b + W_b x r) + (1 - s) v_i with the step's changes so far
     (``col`` 0: velocities, ``Vt`` = V; 6: pseudo-velocities, ``Vt`` = their particle
     part)."""
-    if b < 0:
+    if b < 0:                          # a collider: its surface velocity (in the offset)
+        if col == 0:
+            return r0, r1, r2
         return 0.0, 0.0, 0.0
     s = bd.share[b]
     u0 = (1.0 - s) * Vt[0, i]
@@ -174,6 +189,9 @@ def fill_row(pt, bd, rf, ri, n, depth, mu, e, law, warm):
     (4,) the impulses to start from (normal, tangential vector)."""
     rf[0], rf[1], rf[2] = n
     rf[ROW_DEPTH] = depth
+    # what counts as touching for ``block_pass``: a lattice resting exactly on another
+    # has gaps of either sign at round-off (a subset of its rows would tilt it)
+    rf[ROW_TOUCH] = -TOUCH
     rf[ROW_MU] = mu
     u0, u1, u2 = _rel_velocity(bd, pt.V, rf, ri, 0)
     vn = u0 * n[0] + u1 * n[1] + u2 * n[2]
@@ -183,6 +201,9 @@ def fill_row(pt, bd, rf, ri, n, depth, mu, e, law, warm):
     if ri[1] < 0:
         va -= law[LAW_H] * (law[LAW_G] * n[0] + law[LAW_G + 1] * n[1] + law[LAW_G + 2] * n[2])
     rf[ROW_TARGET] = -e * va if -va > law[1] else 0.0
+    if depth < 0.0:
+        # speculative (a gap): any speed that does not close the gap by the step's end
+        rf[ROW_TARGET] = vn + depth / law[LAW_H]
     # tangent basis: along the sliding, else the warm friction, else any
     t0, t1, t2 = u0 - vn * n[0], u1 - vn * n[1], u2 - vn * n[2]
     tl = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
@@ -217,8 +238,9 @@ def fill_row(pt, bd, rf, ri, n, depth, mu, e, law, warm):
 
 
 #: The particles (flat state): positions, velocities, inverse masses, radii, bodies,
-#: masses and the particles' pseudo-velocities (3, N) of the position sweeps.
-Particles = namedtuple('Particles', 'X V W R B M PV')
+#: masses, the particles' pseudo-velocities (3, N) of the position sweeps and their
+#: outward surface normals in the rest shape (3, N; zero inside a body).
+Particles = namedtuple('Particles', 'X V W R B M PV NS')
 #: Contact rows: floats (M, ROW_WIDTH) and ints (M, 5); the pair list (pi, pj, count).
 Rows = namedtuple('Rows', 'f i')
 PairList = namedtuple('PairList', 'pi pj n')
@@ -252,9 +274,11 @@ def _offset(rf, col, bd, b, x0, x1, x2):
 
 @njit(**JIT)
 def fill_collider_rows(pt, bd, rows, lo, hi, law, wc):
-    """Finish rows lo..hi, particles inside static colliders as ``contact_statics`` left
-    them (particle, body, normal, depth, friction; restitution in the target's place):
-    the offset from the body's centre is the particle's position at the step's start."""
+    """Finish rows lo..hi, particles inside colliders as ``contact_statics`` and
+    ``kinematic.contact_rows`` left them (particle, body, normal, depth, friction;
+    restitution in the target's place, the collider's surface velocity in the second
+    offset's): the offset from the body's centre is the particle's position at the
+    step's start."""
     h = law[LAW_H]
     X, V = pt.X, pt.V
     for a in range(lo, hi):
@@ -263,7 +287,6 @@ def fill_collider_rows(pt, bd, rows, lo, hi, law, wc):
         k = ri[0]
         _offset(rf, 3, bd, ri[2], X[0, k] - h * V[0, k], X[1, k] - h * V[1, k],
                 X[2, k] - h * V[2, k])
-        rf[6] = rf[7] = rf[8] = 0.0
         fill_row(pt, bd, rf, ri, (rf[0], rf[1], rf[2]), rf[ROW_DEPTH], rf[ROW_MU],
                  rf[ROW_TARGET], law, _warm(wc, k, law))
 
@@ -289,11 +312,13 @@ def pair_rows(pt, bd, pl, rows, law, wp):
         dx, dy, dz = X[0, i] - X[0, j], X[1, i] - X[1, j], X[2, i] - X[2, j]
         d2 = dx * dx + dy * dy + dz * dz
         rr = R[i] + R[j]
-        if not d2 < rr * rr:
+        reach = (1.0 + SPECULATIVE) * rr
+        if not d2 < reach * reach:
             continue
         xi0, xi1, xi2 = X[0, i] - h * V[0, i], X[1, i] - h * V[1, i], X[2, i] - h * V[2, i]
         xj0, xj1, xj2 = X[0, j] - h * V[0, j], X[1, j] - h * V[1, j], X[2, j] - h * V[2, j]
         n = _pair_normal(xi0 - xj0, xi1 - xj1, xi2 - xj2, dx, dy, dz, d2, rr)
+        n = _surface_normal(pt, bd, i, j, bi, bj, n)
         if bd.share[bi] == 0.0:
             c0, c1, c2 = xi0, xi1, xi2
         elif bd.share[bj] == 0.0:
@@ -312,6 +337,37 @@ def pair_rows(pt, bd, pl, rows, law, wp):
                  _warm(wp, k, law))
         m += 1
     return m
+
+
+@njit(inline='always', **JIT)
+def _outward(pt, bd, b, k):
+    """Particle k's outward surface normal now (its rest normal turned with body b), or
+    zero for a particle of a body with no rigid share or inside its body."""
+    if not bd.share[b] > 0.0:
+        return 0.0, 0.0, 0.0
+    r = bd.rot[b]
+    a0, a1, a2 = pt.NS[0, k], pt.NS[1, k], pt.NS[2, k]
+    return (r[0] * a0 + r[1] * a1 + r[2] * a2, r[3] * a0 + r[4] * a1 + r[5] * a2,
+            r[6] * a0 + r[7] * a1 + r[8] * a2)
+
+
+@njit(inline='always', **JIT)
+def _surface_normal(pt, bd, i, j, bi, bj, n):
+    """The normal of a pair from the surfaces of its stiff bodies: the mean of j's
+    outward normal and minus i's (two flat faces of particles touch along their faces'
+    normal, not along the line between two particle centres, which tilts as the lattices
+    slide over each other like the bumps of an egg crate), unless no side has one or it
+    disagrees with the pair's normal ``n`` by more than 60 degrees (then ``n``)."""
+    a0, a1, a2 = _outward(pt, bd, bj, j)
+    c0, c1, c2 = _outward(pt, bd, bi, i)
+    s0, s1, s2 = a0 - c0, a1 - c1, a2 - c2
+    sl = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+    if not sl > 1e-6:
+        return n
+    s0, s1, s2 = s0 / sl, s1 / sl, s2 / sl
+    if s0 * n[0] + s1 * n[1] + s2 * n[2] < 0.5:
+        return n
+    return s0, s1, s2
 
 
 @njit(inline='always', **JIT)
@@ -389,81 +445,221 @@ def _warm_apply(pt, bd, rows, m, h):
 
 
 @njit(inline='always', **JIT)
-def _patch_mass(bd, W, rows, order, lo, hi, side):
-    """Inverse mass of one side of a group of rows pushed together (each row 1 / n of
-    one impulse along its own normal): the body's mean normal and mean moment arm, and
-    the particles' own parts."""
-    n0 = n1 = n2 = a0 = a1 = a2 = loc = 0.0
-    cnt = hi - lo
-    b = rows.i[order[lo], 2 + side]
-    if b < 0:
-        return 0.0
-    s = bd.share[b]
-    for q in range(lo, hi):
-        rf = rows.f[order[q]]
-        c0, c1, c2 = _cross(rf[3 + 3 * side], rf[4 + 3 * side], rf[5 + 3 * side],
-                            rf[0], rf[1], rf[2])
-        n0 += rf[0]
-        n1 += rf[1]
-        n2 += rf[2]
-        a0 += c0
-        a1 += c1
-        a2 += c2
-        loc += W[rows.i[order[q], side]]
-    k = (1.0 - s) * (1.0 - s) * loc / (cnt * cnt)
-    if s > 0.0:
-        n0, n1, n2, a0, a1, a2 = n0 / cnt, n1 / cnt, n2 / cnt, a0 / cnt, a1 / cnt, a2 / cnt
-        i0, i1, i2 = _imul(bd.biv, b, a0, a1, a2)
-        k += s * s * (bd.bw[b] * (n0 * n0 + n1 * n1 + n2 * n2) + a0 * i0 + a1 * i1 + a2 * i2)
-    return k
+def _side_block(bd, b, rows, order, lo, hi, side, phi, mat, buf):
+    """Add to ``mat`` (3, 3) one side's part of a group's block matrix: s^2 (M^-1 N^T N +
+    A^T I^-1 A), N and A (3, 3) the sums over the rows of n phi^T and (r x n) phi^T
+    (``phi`` (cnt, 3) the rows' basis values)."""
+    if b < 0 or not bd.share[b] > 0.0:
+        return
+    buf[:, :] = 0.0                    # rows 0-2: N, rows 3-5: A
+    q = 0
+    for a in range(lo, hi):
+        rf = rows.f[order[a]]
+        if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
+            continue
+        o = 3 + 3 * side
+        c0, c1, c2 = _cross(rf[o], rf[o + 1], rf[o + 2], rf[0], rf[1], rf[2])
+        for k in range(3):
+            f = phi[q, k]
+            buf[0, k] += rf[0] * f
+            buf[1, k] += rf[1] * f
+            buf[2, k] += rf[2] * f
+            buf[3, k] += c0 * f
+            buf[4, k] += c1 * f
+            buf[5, k] += c2 * f
+        q += 1
+    s2 = bd.share[b] * bd.share[b]
+    iv = bd.biv[b]
+    for k in range(3):
+        i0, i1, i2 = (iv[0] * buf[3, k] + iv[1] * buf[4, k] + iv[2] * buf[5, k],
+                      iv[3] * buf[3, k] + iv[4] * buf[4, k] + iv[5] * buf[5, k],
+                      iv[6] * buf[3, k] + iv[7] * buf[4, k] + iv[8] * buf[5, k])
+        for c in range(3):
+            mat[c, k] += s2 * (bd.bw[b] * (buf[0, c] * buf[0, k] + buf[1, c] * buf[1, k]
+                                           + buf[2, c] * buf[2, k])
+                               + buf[3, c] * i0 + buf[4, c] * i1 + buf[5, c] * i2)
+
+
+@njit(inline='always', **JIT)
+def _row_reach(rows, order, lo):
+    """A length of a group's scale: its first row's depth plus contact gap (the mean
+    normal speeds need no basis along a spread far below it)."""
+    return 1e-3
 
 
 @njit(**JIT)
-def patch_pass(pt, bd, rows, order, start, ng, h):
-    """Each group of rows (two bodies, or a body and a collider) pushed apart at once:
-    one normal impulse shared equally by its rows, towards their mean target speed
-    (block Jacobi over the group).  A body landing flat on many contact points so gets
-    its whole impulse without the spin a row-by-row sweep starts with; the sweeps that
-    follow correct the share of each row."""
+def block_pass(pt, bd, rows, grp, col, Vt, backward):
+    """Each group of rows in contact (two bodies, or a body and a collider) solved at
+    once for the linear part of its normal speeds over the contact patch: impulses
+    lambda_r = phi_r . c, phi_r = (1, s_r, t_r) the row's point in the patch's tangent
+    plane, with c from the 3x3 Galerkin system Phi^T K Phi c = Phi^T (target - v_n).  A
+    box landing flat or resting under a stack so gets the push and the torques of its
+    whole face at once, without the spin a row-by-row sweep starts with; the sweeps that
+    follow correct each row (and the clamp, accumulated impulses never negative).
+    ``col``, ``Vt``: velocities (0, V) or pseudo-velocities (6, PV); ``grp`` = (order,
+    start, groups, h); the groups in reverse order when ``backward`` (symmetric
+    Gauss-Seidel over the groups).  Returns the largest speed change."""
+    order, start, ng, h = grp
+    acc = ROW_ACCN if col == 0 else ROW_ACCP
+    big = 0.0
+    mat = np.zeros((3, 3))
+    rhs = np.zeros(3)
+    buf = np.zeros((6, 3))
+    phi = np.zeros((max(start[ng] - start[0], 1), 3))
+    for gg in range(ng):
+        g = ng - 1 - gg if backward else gg
+        lo, hi = start[g], start[g + 1]
+        cnt = 0
+        p0 = p1 = p2 = m0 = m1 = m2 = 0.0
+        for a in range(lo, hi):
+            rf = rows.f[order[a]]
+            if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
+                continue
+            cnt += 1
+            m0 += rf[0]
+            m1 += rf[1]
+            m2 += rf[2]
+            p0 += rf[3]
+            p1 += rf[4]
+            p2 += rf[5]
+        if cnt == 0:
+            continue
+        p0, p1, p2 = p0 / cnt, p1 / cnt, p2 / cnt
+        ml = np.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+        m0, m1, m2 = m0 / ml, m1 / ml, m2 / ml
+        if abs(m0) < 0.6:
+            e0, e1, e2 = 0.0, m2, -m1
+        else:
+            e0, e1, e2 = -m2, 0.0, m0
+        el = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+        e0, e1, e2 = e0 / el, e1 / el, e2 / el
+        f0, f1, f2 = _cross(m0, m1, m2, e0, e1, e2)
+        # the patch's spread along e and f: a basis function of a patch too thin along
+        # its direction (an edge, a point) is left out
+        s1 = s2 = 0.0
+        for a in range(lo, hi):
+            rf = rows.f[order[a]]
+            if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
+                continue
+            d0, d1, d2 = rf[3] - p0, rf[4] - p1, rf[5] - p2
+            s1 += (d0 * e0 + d1 * e1 + d2 * e2) ** 2
+            s2 += (d0 * f0 + d1 * f1 + d2 * f2) ** 2
+        s1 = np.sqrt(s1 / cnt)
+        s2 = np.sqrt(s2 / cnt)
+        w1 = 1.0 / s1 if s1 > THIN * _row_reach(rows, order, lo) else 0.0
+        w2 = 1.0 / s2 if s2 > THIN * _row_reach(rows, order, lo) else 0.0
+        mat[:, :] = 0.0
+        rhs[:] = 0.0
+        q = 0
+        for a in range(lo, hi):
+            rf = rows.f[order[a]]
+            if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
+                continue
+            ri = rows.i[order[a]]
+            d0, d1, d2 = rf[3] - p0, rf[4] - p1, rf[5] - p2
+            phi[q, 0] = 1.0
+            phi[q, 1] = (d0 * e0 + d1 * e1 + d2 * e2) * w1
+            phi[q, 2] = (d0 * f0 + d1 * f1 + d2 * f2) * w2
+            u0, u1, u2 = _rel_velocity(bd, Vt, rf, ri, col)
+            gap = (rf[ROW_TARGET] if col == 0 else rf[ROW_VN0]) - (
+                u0 * rf[0] + u1 * rf[1] + u2 * rf[2])
+            loc = 0.0
+            for c in range(2):
+                b = ri[2 + c]
+                if b >= 0:
+                    loc += (1.0 - bd.share[b]) ** 2 * pt.W[ri[c]]
+            for k in range(3):
+                rhs[k] += phi[q, k] * gap
+                for c in range(3):
+                    mat[k, c] += loc * phi[q, k] * phi[q, c]
+            q += 1
+        _side_block(bd, rows.i[order[lo], 2], rows, order, lo, hi, 0, phi, mat, buf)
+        _side_block(bd, rows.i[order[lo], 3], rows, order, lo, hi, 1, phi, mat, buf)
+        tr = mat[0, 0] + mat[1, 1] + mat[2, 2]
+        if not tr > 0.0:
+            continue
+        for k in range(3):
+            mat[k, k] += 1e-6 * tr
+        c = np.linalg.solve(mat, rhs)
+        # only a solution no row would have to pull for is taken (a clamped one can push
+        # far more than the patch needs); else the rows' sweeps do it alone
+        q = 0
+        pulls = False
+        for a in range(lo, hi):
+            rf = rows.f[order[a]]
+            if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
+                continue
+            if phi[q, 0] * c[0] + phi[q, 1] * c[1] + phi[q, 2] * c[2] < -rf[acc]:
+                pulls = True
+            q += 1
+        if pulls:
+            continue
+        q = 0
+        for a in range(lo, hi):
+            rf = rows.f[order[a]]
+            if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
+                continue
+            lam = phi[q, 0] * c[0] + phi[q, 1] * c[1] + phi[q, 2] * c[2]
+            q += 1
+            rf[acc] += lam
+            if lam != 0.0:
+                big = max(big, abs(lam) * rf[ROW_KN])
+                _apply(bd, pt.X, Vt, pt.W, rf, rows.i[order[a]], lam * rf[0], lam * rf[1],
+                       lam * rf[2], col, h)
+    return big
+
+
+@njit(**JIT)
+def jacobi_pass(pt, bd, rows, grp, col, Vt):
+    """Each row's normal impulse towards its target, all rows of a group from the same
+    state and each 1 / (rows of the group) of it (Jacobi, as FleX averages constraints):
+    what ``block_pass`` leaves (rows of a curved patch, clamped rows, gaps closing),
+    without favouring the rows swept first.  Returns the largest speed change."""
+    order, start, ng, h = grp
+    acc = ROW_ACCN if col == 0 else ROW_ACCP
+    big = 0.0
+    lam = np.zeros(max(start[ng] - start[0], 1))
     for g in range(ng):
         lo, hi = start[g], start[g + 1]
-        cnt = hi - lo
-        tv = 0.0
-        for q in range(lo, hi):
-            rf = rows.f[order[q]]
-            u0, u1, u2 = _rel_velocity(bd, pt.V, rf, rows.i[order[q]], 0)
-            tv += rf[ROW_TARGET] - (u0 * rf[0] + u1 * rf[1] + u2 * rf[2])
-        k = _patch_mass(bd, pt.W, rows, order, lo, hi, 0)
-        k += _patch_mass(bd, pt.W, rows, order, lo, hi, 1)
-        if not (tv > 0.0 and k > 0.0):
-            continue
-        lam = tv / cnt / k / cnt
-        for q in range(lo, hi):
-            rf = rows.f[order[q]]
-            rf[ROW_ACCN] += lam
-            _apply(bd, pt.X, pt.V, pt.W, rf, rows.i[order[q]], lam * rf[0], lam * rf[1],
-                   lam * rf[2], 0, h)
+        for a in range(lo, hi):
+            rf = rows.f[order[a]]
+            lam[a - lo] = 0.0
+            if not rf[ROW_KN] > 0.0:
+                continue
+            u0, u1, u2 = _rel_velocity(bd, Vt, rf, rows.i[order[a]], col)
+            target = rf[ROW_TARGET] if col == 0 else rf[ROW_VN0]
+            lam[a - lo] = (target - (u0 * rf[0] + u1 * rf[1] + u2 * rf[2])) / rf[ROW_KN]
+        for a in range(lo, hi):
+            rf = rows.f[order[a]]
+            new = max(rf[acc] + lam[a - lo] / (hi - lo), 0.0)
+            dl = new - rf[acc]
+            rf[acc] = new
+            if dl != 0.0:
+                big = max(big, abs(dl) * rf[ROW_KN])
+                _apply(bd, pt.X, Vt, pt.W, rf, rows.i[order[a]], dl * rf[0], dl * rf[1],
+                       dl * rf[2], col, h)
+    return big
 
 
 @njit(**JIT)
 def solve_rows(pt, bd, rows, m, law, tol, order, start, ng):
-    """The velocity sweeps (each a pass over the groups, ``patch_pass``, then normal and
+    """The velocity sweeps (each a pass over the groups, ``block_pass``, then normal and
     friction row by row, symmetric Gauss-Seidel, until no speed changes by more than
     ``tol``), then the position sweeps on pseudo-velocities towards removing
     ``POS_BETA`` of the overlap the velocities leave."""
     h = law[LAW_H]
     _warm_apply(pt, bd, rows, m, h)
-    for it in range(int(law[LAW_VEL])):
-        patch_pass(pt, bd, rows, order, start, ng, h)
-        big = 0.0
+    grp = (order, start, ng, h)
+    nvel = int(law[LAW_VEL])
+    for it in range(nvel):
+        big = block_pass(pt, bd, rows, grp, 0, pt.V, it % 2 == 1)
+        big = max(big, jacobi_pass(pt, bd, rows, grp, 0, pt.V))
         for kk in range(m):
             a = order[kk if it % 2 == 0 else m - 1 - kk]
             rf = rows.f[a]
             if not rf[ROW_KN] > 0.0:
                 continue
             ri = rows.i[a]
-            big = max(big, _normal_step(pt, bd, rf, ri, h, 0, pt.V, rf[ROW_TARGET],
-                                        ROW_ACCN))
             if rf[ROW_MU] > 0.0:
                 big = max(big, _friction_step(pt, bd, rf, ri, h))
         if big <= tol:
@@ -482,8 +678,5 @@ def solve_rows(pt, bd, rows, m, law, tol, order, start, ng):
             if p >= 0:
                 PV[0, p] = PV[1, p] = PV[2, p] = 0.0
     for it in range(int(law[LAW_POS])):
-        for kk in range(m):
-            a = order[kk if it % 2 == 0 else m - 1 - kk]
-            rf = rows.f[a]
-            if rf[ROW_KN] > 0.0 and rf[ROW_VN0] > 0.0 or rf[ROW_ACCP] > 0.0:
-                _normal_step(pt, bd, rf, rows.i[a], h, 6, PV, rf[ROW_VN0], ROW_ACCP)
+        block_pass(pt, bd, rows, grp, 6, PV, it % 2 == 1)
+        jacobi_pass(pt, bd, rows, grp, 6, PV)

@@ -64,6 +64,7 @@ def _add_row(rows, m, k, b, n, depth, mu, e):
     ri = rows.i[m]
     ri[0], ri[1], ri[2], ri[3], ri[4] = k, -1, b, -1, k
     rf[0], rf[1], rf[2] = n
+    rf[6] = rf[7] = rf[8] = 0.0             # a static collider's surface velocity
     rf[ROW_DEPTH] = depth
     rf[ROW_MU] = mu
     rf[ROW_TARGET] = e

@@ -273,7 +273,7 @@ class World(WorldColliders):
         c = self._contact
         # the contact pass takes the static colliders when it runs (contact.py)
         stiff = c is not None and self._stiff_bodies(h)
-        takes = c is not None and (c.needed or (self._has_col and stiff))
+        takes = c is not None and (c.needed or ((self._has_col or cs is not None) and stiff))
         args = (h, self._gravity, self._has_col and not takes, self._ground_row,
                 self._box_rows, self._sphere_rows, thresh)
         if nrec and helpers and step_threads.cores_free():
@@ -393,11 +393,11 @@ class World(WorldColliders):
             if sl is not None:
                 sl.sync()                      # bodies woken from outside: masses back
             f.gather()
+            st[:] = 0.0
             c.run(h, thresh, self._has_col, self._ground_row, self._box_rows,
-                  self._sphere_rows, self._gravity)
+                  self._sphere_rows, self._gravity, cs, st)
             if cs is not None:
-                st[:] = 0.0
-                cs.collide(f.X, f.V, f.W, f.B, 0, f.n, h, thresh, st, f.touched)
+                cs.collide(f.X, f.V, c.soft_w, f.B, 0, f.n, h, thresh, st, f.touched)
             # bodies sleep only under gravity: without it nothing rests on anything, and
             # freezing a slow drift would take momentum out of a conservative world
             if sl is not None and cs is None and self._contact_params.sleep and self._gnorm:
