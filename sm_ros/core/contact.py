@@ -37,8 +37,8 @@ from .contact_build import (body_overlaps, build_pairs, build_pairs_cells, build
 from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_bodies, solve_pairs,
                               wall_candidates)
-from .contact_frames import body_frames, finish_rows, group_rows
-from .contact_solve import (POS_SWEEPS, ROW_WIDTH, VEL_SWEEPS, WARM, Bodies, PairList,
+from .contact_frames import body_frames, finish_rows, group_rows, guarded
+from .contact_solve import (LAW_GUARD, POS_SWEEPS, ROW_WIDTH, VEL_SWEEPS, WARM, Bodies, PairList,
                             Particles, Rows, Statics, fill_collider_rows, pair_rows,
                             solve_rows)
 from .contact_statics import collide_rows_soft, collide_soft, collider_rows
@@ -417,7 +417,7 @@ class Contact:
             collide_soft(pt, f.off, bd, st, thresh, f.touched)
         g = (0.0, 0.0, 0.0) if gravity is None else gravity
         law = np.array([h, thresh, p.friction, p.restitution, self._stamp, self.warm, self.vel_sweeps,
-                        self.pos_sweeps, g[0], g[1], g[2]])
+                        self.pos_sweeps, g[0], g[1], g[2], 0.0])
         m = 0
         if self.needed:
             m = pair_rows(pt, bd, PairList(self._pi, self._pj, self.npairs), rows, law,
@@ -436,6 +436,8 @@ class Contact:
             self._row_order = np.zeros(rows.f.shape[0], np.int64)
             self._row_start = np.zeros(rows.f.shape[0] + 1, np.int64)
         ng = group_rows(rows, m, len(f.bodies), self._row_order, self._row_start)
+        # the energy guard needs every row between stiff bodies or with static colliders
+        law[LAW_GUARD] = 1.0 if guarded(rows, m, bd.share) else 0.0
         solve_rows(pt, bd, rows, m, law, SWEEP_TOL * thresh, self._row_order, self._row_start,
                    ng)
         self.found = finish_rows(pt, bd, f.off, rows, m, law, self._wp, self._wc,

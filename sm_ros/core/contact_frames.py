@@ -231,3 +231,15 @@ def finish_rows(pt, bd, off, rows, m, law, wp, wc, stats):
             V[1, p] += g1
             V[2, p] += g2
     return found
+
+
+@njit(**JIT)
+def guarded(rows, m, share):
+    """Whether every row of ``m`` is between two stiff bodies or a stiff body and a static
+    collider (then the kinetic energy of the stiff bodies alone must not rise in the
+    solve: ``contact_solve.energy_guard``)."""
+    for a in range(m):
+        ri = rows.i[a]
+        if ri[3] < -1 or not share[ri[2]] > 0.0 or (ri[3] >= 0 and not share[ri[3]] > 0.0):
+            return False
+    return True

@@ -64,6 +64,9 @@ SPECULATIVE = 0.2
 #: ``block_pass`` leaves out a tilt of a patch whose rows spread less than this (m)
 #: along it (an edge or a point of contact).
 THIN = 1.0
+#: Two particles' outward normals face each other (``_surface_normal``) when their
+#: cosine is below minus this.
+FACE_COS = 0.9
 #: A row within this gap (m) counts as touching in ``block_pass``.
 TOUCH = 1e-7
 #: Share of the overlap left after the velocity solve that a step's pseudo-velocities
@@ -246,9 +249,11 @@ Rows = namedtuple('Rows', 'f i')
 PairList = namedtuple('PairList', 'pi pj n')
 #: ``law`` entries: step, restitution threshold, body-body friction and restitution, the
 #: step's number (warm-start stamps), the warm-start share, velocity and position sweeps,
-#: gravity (3).
+#: gravity (3), whether ``energy_guard`` applies (1: every row of a stiff body against a
+#: stiff body or a static collider).
 LAW_H, LAW_THRESH, LAW_MU, LAW_E, LAW_STAMP, LAW_WARM, LAW_VEL, LAW_POS = 0, 1, 2, 3, 4, 5, 6, 7
 LAW_G = 8
+LAW_GUARD = 11
 
 
 @njit(inline='always', **JIT)
@@ -353,13 +358,16 @@ def _outward(pt, bd, b, k):
 
 @njit(inline='always', **JIT)
 def _surface_normal(pt, bd, i, j, bi, bj, n):
-    """The normal of a pair from the surfaces of its stiff bodies: the mean of j's
-    outward normal and minus i's (two flat faces of particles touch along their faces'
-    normal, not along the line between two particle centres, which tilts as the lattices
-    slide over each other like the bumps of an egg crate), unless no side has one or it
-    disagrees with the pair's normal ``n`` by more than 60 degrees (then ``n``)."""
+    """The normal of a pair of particles on two faces of stiff bodies that face each
+    other (outward normals within ``FACE_COS`` of opposite): the mean of j's outward
+    normal and minus i's (two flat faces of particles touch along their normal, not along
+    the line between two particle centres, which tilts as the lattices slide over each
+    other like the bumps of an egg crate); else, or when it disagrees with the pair's
+    normal ``n`` by more than 60 degrees, ``n``."""
     a0, a1, a2 = _outward(pt, bd, bj, j)
     c0, c1, c2 = _outward(pt, bd, bi, i)
+    if a0 * c0 + a1 * c1 + a2 * c2 > -FACE_COS:
+        return n                       # not two faces: an edge or a corner meets
     s0, s1, s2 = a0 - c0, a1 - c1, a2 - c2
     sl = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
     if not sl > 1e-6:
@@ -610,6 +618,35 @@ def block_pass(pt, bd, rows, grp, col, Vt, backward):
 
 
 @njit(**JIT)
+def energy_guard(bd):
+    """Scale the velocity changes of the step's stiff bodies by one common factor when
+    they raised the bodies' kinetic energy (restitution over many contact points can:
+    Newton's law per point is not energy-consistent): K(s) = K0 + s A + s^2 B back to
+    K0.  A common factor scales every impulse alike, so both momenta stay exact."""
+    lin = quad = 0.0
+    for b in range(bd.share.shape[0]):
+        if not bd.share[b] > 0.0:
+            continue
+        dv = bd.dvel[b]
+        if dv[0] == 0.0 and dv[1] == 0.0 and dv[2] == 0.0 and dv[3] == 0.0 and (
+                dv[4] == 0.0 and dv[5] == 0.0):
+            continue
+        inertia = np.linalg.inv(bd.biv[b].reshape(3, 3))
+        mass = 1.0 / bd.bw[b]
+        for k in range(3):
+            lin += mass * bd.vb[b, k] * dv[k]
+            quad += 0.5 * mass * dv[k] * dv[k]
+            for c in range(3):
+                lin += bd.bom[b, k] * inertia[k, c] * dv[3 + c]
+                quad += 0.5 * dv[3 + k] * inertia[k, c] * dv[3 + c]
+    if lin + quad > 0.0 and quad > 0.0 and lin < 0.0:
+        f = -lin / quad
+        for b in range(bd.share.shape[0]):
+            for k in range(6):
+                bd.dvel[b, k] *= f
+
+
+@njit(**JIT)
 def jacobi_pass(pt, bd, rows, grp, col, Vt):
     """Each row's normal impulse towards its target, all rows of a group from the same
     state and each 1 / (rows of the group) of it (Jacobi, as FleX averages constraints):
@@ -664,6 +701,8 @@ def solve_rows(pt, bd, rows, m, law, tol, order, start, ng):
                 big = max(big, _friction_step(pt, bd, rf, ri, h))
         if big <= tol:
             break
+    if law[LAW_GUARD] > 0.0:
+        energy_guard(bd)
     PV = pt.PV
     for a in range(m):
         rf = rows.f[a]
