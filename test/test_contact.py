@@ -311,7 +311,7 @@ def test_one_colliding_body_without_self_collision_is_a_no_op(second):
     for a, b in zip(on.bodies, off.bodies):
         np.testing.assert_array_equal(a.x, b.x)
         np.testing.assert_array_equal(a.v, b.v)
-    assert not on._flat.X.any()                     # never gathered
+    assert on._contact.found == 0                   # the ground only: no pair of bodies
 
 
 def test_self_collision_needs_no_second_body():
@@ -474,7 +474,10 @@ def test_head_on_in_zero_gravity(mu):
     np.testing.assert_allclose(a.momentum() + b.momentum(), p0, atol=1e-12)
     lx = a.angular_momentum() + b.angular_momentum()
     if mu == 0.0:
-        np.testing.assert_allclose(lx, l0, atol=1e-12)
+        # the impulses keep it to round-off; the position sweeps that remove the overlap
+        # of a fast approach (8 mm a step here) move bodies without changing their
+        # velocities, which changes it by up to 1e-3 of it (doc/contact.md, limits)
+        np.testing.assert_allclose(lx, l0, rtol=0.0, atol=1e-3 * np.abs(l0).max())
     else:
         assert np.abs(lx - l0).max() > 1e-6               # friction couples do act
 
@@ -686,9 +689,10 @@ def test_stacking_changes_nothing_without_gravity():
     np.testing.assert_array_equal(states[0], states[1])
 
 
-def test_which_bodies_carry_their_contacts_as_a_whole():
+def test_which_bodies_take_contact_as_rigid_bodies():
+    # stiff (alpha at the step >= COUPLE_ALPHA, one cluster or many) and free: rigid share
+    # 1; soft, or with a pinned particle: 0 (dented per particle)
     w = World()
-    assert w.contact_params.stacking                      # the default
     pts = lattice(3, 3, 3)
     w.add_body(pts, 0.01, BodyParams(mode='rigid', alpha=0.9), 'stiff')
     w.add_body(pts + 1.0, 0.01, BodyParams(mode='linear', alpha=0.3), 'soft')
@@ -696,8 +700,7 @@ def test_which_bodies_carry_their_contacts_as_a_whole():
     w.add_body(pts + 3.0, 0.01, BodyParams(mode='rigid'), 'pinned', pinned=[0])
     w.step(1 / 120)
     assert w.contact.coupling[:4].tolist() == [True, False, True, True]
-    # a pinned particle makes the body per particle in the kernel (infinite mass)
-    assert w.contact._bw[3] == 0.0 and w.contact._bw[0] > 0.0
+    assert w.contact._bodies.share[:4].tolist() == [1.0, 0.0, 1.0, 0.0]
 
 
 def test_resting_pair_is_pushed_apart_without_speed():
@@ -732,20 +735,17 @@ def test_pile_of_27_many_cluster_balls_comes_to_rest():
     # as a whole too: per particle they keep jittering (measured 1.1 % of the peak kinetic
     # energy after 4 s, 0.12 m/s RMS), carried 0.003 % (0.006 m/s)
     from sm_ros.bench.contact import ball_pile
-    out = {}
-    for stacking in (True, False):
-        w, bodies = ball_pile(stacking, clusters=2)
-        ke = []
-        for _ in range(4 * 120):
-            w.step(1 / 120)
-            ke.append(sum(0.5 * float((b.m[:, None] * b.v ** 2).sum()) for b in bodies))
-        assert bodies[0].num_clusters == 8 and w.contact.coupling[:27].all()
-        m = float(sum(b.m.sum() for b in bodies))
-        out[stacking] = (np.mean(ke[-60:]) / max(ke), np.sqrt(2 * np.mean(ke[-60:]) / m))
-        x = np.concatenate([b.x for b in bodies])
-        assert x[:, 2].max() > 0.12 and x[:, 2].min() >= 0.0             # heaped, above
-    assert out[True][0] < 1e-3 and out[True][1] < 0.03
-    assert out[False][0] > 1e-3                                          # per particle
+    w, bodies = ball_pile(True, clusters=2)
+    ke = []
+    for _ in range(4 * 120):
+        w.step(1 / 120)
+        ke.append(sum(0.5 * float((b.m[:, None] * b.v ** 2).sum()) for b in bodies))
+    assert bodies[0].num_clusters == 8 and w.contact.coupling[:27].all()
+    m = float(sum(b.m.sum() for b in bodies))
+    x = np.concatenate([b.x for b in bodies])
+    assert x[:, 2].max() > 0.12 and x[:, 2].min() >= 0.0                 # heaped, above
+    assert np.mean(ke[-60:]) / max(ke) < 1e-3
+    assert np.sqrt(2 * np.mean(ke[-60:]) / m) < 0.03
 
 
 def test_inverse_sym3_matches_numpy():
@@ -804,10 +804,10 @@ def test_body_velocities_match_numpy():
     assert zlo[1, 0] == V[2, 3] != V[2, 5]
 
 
-def test_spin_of_a_body_held_by_another_is_stopped():
-    # a spinning box lands on a box: carried bodies are not turned by their contacts, and
-    # one held by another body does not keep spinning (a spinning body in a heap would
-    # otherwise drive its neighbours sideways forever); linear momentum stays exact
+def test_spin_of_a_body_resting_on_another_is_braked_by_friction():
+    # a spinning box lands on a box: friction at its contacts brakes the spin within a
+    # fraction of a second (a spinning body in a heap would otherwise drive its
+    # neighbours sideways forever)
     w = World()
     w.set_colliders(ground=Ground())
     p = BodyParams(mode='linear', alpha=0.9, clusters=2)
@@ -815,16 +815,14 @@ def test_spin_of_a_body_held_by_another_is_stopped():
     pts = lattice(4, 4, 3, center=(0, 0, 0.079))         # 1 mm into it
     spin = np.cross([0.0, 0.0, 3.0], pts - pts.mean(axis=0))
     b = w.add_body(pts, 0.01, p, 'b', velocities=spin)
-    w.step(1 / 120)
+    for _ in range(60):
+        w.step(1 / 120)
     assert w.contact.coupling[:2].all() and w.contact.count[1] > 0
     r = b.x - b.com()
     ang = (b.m[:, None] * np.cross(r, b.v - b.v.mean(axis=0))).sum(0)
     ang0 = (b.m[:, None] * np.cross(pts - pts.mean(axis=0), spin)).sum(0)
     assert abs(ang[2]) < 1e-3 * abs(ang0[2])
-    # the pair's impulses are equal and opposite: only gravity and the ground changed the
-    # total momentum, the ground only upwards (z)
-    tot = a.momentum() + b.momentum()
-    np.testing.assert_allclose(tot[:2], 0.0, atol=1e-12)
+    assert np.linalg.norm(b.com()[:2]) < 0.005 and np.linalg.norm(a.com()[:2]) < 0.005
 
 
 def _overlaps_numpy(X, off, act, selfc, grow):
@@ -932,7 +930,9 @@ def test_pair_list_kept_for_a_common_motion_and_always_complete():
     met = 0
     for _ in range(240):
         w.step(1 / 120)
-        touching = brute_pairs(f.X.T, f.R, f.B, c.act, c.selfc, f.X0.T, 0.0)
+        # the pairs in contact and the speculative ones (within 10 % of their contact
+        # distance: the solve stops most pairs before they overlap)
+        touching = brute_pairs(f.X.T, f.R, f.B, c.act, c.selfc, f.X0.T, 0.1 * 2 * f.R.max())
         listed = set(zip(c._pi[:c.npairs].tolist(), c._pj[:c.npairs].tolist()))
         assert touching <= listed
         met += len(touching)

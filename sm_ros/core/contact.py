@@ -41,7 +41,7 @@ from .contact_frames import body_frames, finish_rows, group_rows, guarded
 from .contact_solve import (LAW_GUARD, POS_SWEEPS, ROW_WIDTH, VEL_SWEEPS, WARM, Bodies, PairList,
                             Particles, Rows, Statics, fill_collider_rows, pair_rows,
                             solve_rows)
-from .contact_statics import collide_rows_soft, collide_soft, collider_rows
+from .contact_statics import collide_rows_soft, collide_soft, collider_rows, project_moved
 from .kinematic import contact_rows as kinematic_rows, row_wrenches
 from .kernels.colliders import contact_velocity
 from .params import _finite
@@ -444,6 +444,7 @@ class Contact:
                                  (f.touched, self.count, self.deepest))
         if has_col:
             collide_rows_soft(pt, bd, rows, m, st, thresh)
+            project_moved(pt, f.off, bd, st)
         if kin is not None:
             row_wrenches(f.X, kin.rows, rows.f, rows.i, mk, m, kin.imp, kin_stats)
             if self.soft_w is None or len(self.soft_w) != f.n:

@@ -144,3 +144,26 @@ def collide_rows_soft(pt, bd, rows, m, st, thresh):
             X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p] = collide_point(
                 X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p], st.ground, st.boxes,
                 st.spheres, thresh)
+
+
+@njit(**JIT)
+def project_moved(pt, off, bd, st):
+    """Put the particles of the stiff bodies the solve moved that are left inside a
+    static collider onto its surface, positions only (what the position sweeps did not
+    remove, or a body pushed down by a load: no particle ends a step inside one; the shape
+    match takes the small deviation back)."""
+    X = pt.X
+    for b in range(off.shape[0] - 1):
+        if not bd.share[b] > 0.0:
+            continue
+        dv = bd.dvel[b]
+        moved = False
+        for k in range(12):
+            if dv[k] != 0.0:
+                moved = True
+        if not moved:
+            continue
+        for p in range(off[b], off[b + 1]):
+            X[0, p], X[1, p], X[2, p], _, _, _ = collide_point(
+                X[0, p], X[1, p], X[2, p], 0.0, 0.0, 0.0, st.ground, st.boxes, st.spheres,
+                1.0)
