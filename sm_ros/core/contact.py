@@ -38,10 +38,11 @@ from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_bodies, solve_pairs,
                               wall_candidates)
 from .contact_frames import body_frames, finish_rows, group_rows, guarded
-from .contact_solve import (LAW_GUARD, POS_SWEEPS, ROW_WIDTH, VEL_SWEEPS, WARM, Bodies, PairList,
-                            Particles, Rows, Statics, fill_collider_rows, pair_rows,
-                            solve_rows)
+from .contact_solve import fill_collider_rows, pair_rows
 from .contact_statics import collide_rows_soft, collide_soft, collider_rows, project_moved
+from .contact_sweeps import POS_SWEEPS, VEL_SWEEPS, WARM, solve_rows
+from .kernels.contact_rows import (LAW_GUARD, ROW_WIDTH, WARM_STAMP, WARM_WIDTH, Bodies,
+                                   PairList, Particles, Rows, Statics)
 from .kinematic import contact_rows as kinematic_rows, row_wrenches
 from .kernels.colliders import contact_velocity
 from .params import _finite
@@ -59,11 +60,15 @@ SKIN_FACTOR = 0.5
 #: while the second core was free, and 12-60 ms whenever another job held it (OpenMP waits
 #: for the descheduled thread; ``python -m sm_ros.bench contact`` times both side by side).
 PARALLEL_BUILD_MIN = 262144
-#: A body carries its contacts as a whole (``Contact.coupling``) when its goal pull alpha
-#: at the step is at least this (one cluster or many): the shape match then restores
-#: most of a deviation within the step, so the body is stiff (README "Contact between
-#: bodies"); softer bodies give way at their contacts, per particle.
-COUPLE_ALPHA = 0.5
+#: A body takes its contacts as a rigid body (``Contact.coupling``, rigid share 1:
+#: ``contact_solve``) when the pull of its goals towards their rigid part at the step,
+#: alpha (1 - beta) (alpha in rigid mode), is at least this and it has at most
+#: ``RIGID_CLUSTERS`` clusters per axis: the shape match then restores most of a
+#: deviation within the step and the body does not bend between its clusters.  Softer
+#: bodies, many-cluster ones (a sheet that folds), self-colliding ones and ones with a
+#: pinned or grabbed particle take their contacts per particle and are dented.
+COUPLE_ALPHA = 0.6
+RIGID_CLUSTERS = 2
 #: With stacking, ``solve_bodies`` sweeps the pairs of bodies carried as a whole at most
 #: this many times a step (at least ``iterations``): 4 left five stacked boxes jittering
 #: by 1.2 mm at the node's step, 8 by 0.01 mm.
@@ -376,12 +381,12 @@ class Contact:
                                   np.zeros((nb, 3)), np.zeros((nb, 3)), np.zeros(nb),
                                   np.zeros((nb, 12)), np.zeros((nb, 9)), c0)
             self._pt = Particles(f.X, f.V, f.W, f.R, f.B, f.M, np.zeros((3, f.n)), ns)
-            self._wc = np.full((f.n, 5), -np.inf)
+            self._wc = np.full((f.n, WARM_WIDTH), -np.inf)
             self._bbox = np.zeros((nb, 6))
         cap = len(self._pi) + f.n
         if self._rows is None or self._rows.f.shape[0] < cap:
             self._rows = Rows(np.zeros((cap, ROW_WIDTH)), np.zeros((cap, 5), np.int64))
-            self._wp = np.full((len(self._pi), 5), -np.inf)
+            self._wp = np.full((len(self._pi), WARM_WIDTH), -np.inf)
 
     def run(self, h, thresh, has_col=False, ground=_NO_GROUND, boxes=_NO_ROWS8,
             spheres=_NO_ROWS6, gravity=None, kin=None, kin_stats=None):
@@ -406,18 +411,20 @@ class Contact:
                 self._build()
         self._solver_buffers()
         if not self._warm:
-            self._wp[:, 4] = -np.inf          # the impulses were of the old list's pairs
+            self._wp[:, WARM_STAMP] = -np.inf          # the impulses were of the old list's pairs
         self._warm = True
         self._stamp += 1.0
         bd, pt, rows = self._bodies, self._pt, self._rows
-        body_frames(pt, f.off, self.coupling, bd, float(h), self._bbox, f.X0)
+        # a self-colliding body folds onto itself: it takes its contacts per particle
+        cpl = self.coupling & ~self.selfc[:len(self.coupling)]
+        body_frames(pt, f.off, cpl, bd, float(h), self._bbox, f.X0)
         st = Statics(ground if has_col else _NO_GROUND, boxes if has_col else _NO_ROWS8,
                      spheres if has_col else _NO_ROWS6)
         if has_col:
             collide_soft(pt, f.off, bd, st, thresh, f.touched)
         g = (0.0, 0.0, 0.0) if gravity is None else gravity
-        law = np.array([h, thresh, p.friction, p.restitution, self._stamp, self.warm, self.vel_sweeps,
-                        self.pos_sweeps, g[0], g[1], g[2], 0.0])
+        law = np.array([h, thresh, p.friction, p.restitution, self._stamp, self.warm,
+                        self.vel_sweeps, self.pos_sweeps, g[0], g[1], g[2], 0.0])
         m = 0
         if self.needed:
             m = pair_rows(pt, bd, PairList(self._pi, self._pj, self.npairs), rows, law,

@@ -3,32 +3,18 @@
 ``body_frames`` gives each stiff body its mass, centre, inertia, velocity and spin at the
 start of the step; ``group_rows`` sorts the contact rows by pair of bodies;
 ``finish_rows`` keeps the impulses for the next step's warm start and moves the stiff
-bodies' particles by what the solve gave their bodies.  No jitted function here calls
-one of another ``sm_ros/core`` module (each module's cache is stamped with its own
-source: ``kernels/jit.py``).
+bodies' particles by what the solve gave their bodies.  Like every module of the solve,
+it calls no jitted function of another ``sm_ros/core`` module, only of the kernel package
+(``kernels/contact_rows.py``: a module's cache is stamped with its own source and that
+package's, ``kernels/jit.py``).
 """
 
 import numpy as np
 from numba import njit
 
+from .kernels.contact_rows import (LAW_H, LAW_STAMP, ROW_ACCN, ROW_ACCP, ROW_ACCT, ROW_DEPTH,
+                                   ROW_T1, ROW_T2, WARM_POS, WARM_STAMP, _cross, _imul)
 from .kernels.jit import JIT
-
-#: Columns of ``contact_solve``'s rows used here (the same numbers as there).
-ROW_DEPTH, ROW_ACCN, ROW_ACCT, ROW_T1, ROW_T2 = 9, 12, 14, 16, 19
-LAW_H, LAW_STAMP = 0, 4
-
-
-@njit(inline='always', **JIT)
-def _cross(a0, a1, a2, b0, b1, b2):
-    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-
-
-@njit(inline='always', **JIT)
-def _imul(biv, b, a0, a1, a2):
-    """biv[b] (a 3x3 row-major inverse inertia) times a."""
-    m = biv[b]
-    return (m[0] * a0 + m[1] * a1 + m[2] * a2, m[3] * a0 + m[4] * a1 + m[5] * a2,
-            m[6] * a0 + m[7] * a1 + m[8] * a2)
 
 
 @njit(**JIT)
@@ -200,7 +186,8 @@ def finish_rows(pt, bd, off, rows, m, law, wp, wc, stats):
         store[k, 0] = rf[ROW_ACCN]
         for c in range(3):
             store[k, 1 + c] = rf[ROW_ACCT] * rf[ROW_T1 + c] + rf[ROW_ACCT + 1] * rf[ROW_T2 + c]
-        store[k, 4] = law[LAW_STAMP]
+        store[k, WARM_STAMP] = law[LAW_STAMP]
+        store[k, WARM_POS] = rf[ROW_ACCP]
         touched[ri[2]] = 1
         if ri[1] >= 0:
             found += 1

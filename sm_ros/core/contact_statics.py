@@ -11,10 +11,8 @@ import numpy as np
 from numba import njit
 
 from .kernels.colliders import collide_point
+from .kernels.contact_rows import ROW_DEPTH, ROW_MU, ROW_TARGET
 from .kernels.jit import JIT
-
-#: Columns of ``contact_solve``'s rows written here (the same numbers as there).
-ROW_DEPTH, ROW_TARGET, ROW_MU = 9, 10, 22
 
 
 @njit(inline='always', **JIT)
@@ -72,8 +70,9 @@ def _add_row(rows, m, k, b, n, depth, mu, e):
 
 @njit(**JIT)
 def collider_rows(pt, bd, off, st, rows, m, box):
-    """Append the (unfinished: ``contact_solve.fill_collider_rows``) rows of the stiff bodies' particles inside the static colliders
-    (``st``: ground, boxes, spheres) from row m; returns the new count.  A body whose
+    """Append the (unfinished: ``contact_solve.fill_collider_rows``) rows of the stiff
+    bodies' particles inside the static colliders (``st``: ground, boxes, spheres) from
+    row m; returns the new count.  A body whose
     bounding box (``box``, ``contact_solve.body_frames``) misses a collider skips it."""
     X = pt.X
     g = st.ground

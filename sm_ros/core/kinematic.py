@@ -30,6 +30,8 @@ import numpy as np
 from numba import njit
 
 from .kernels.colliders import contact_velocity
+from .kernels.contact_rows import (ROW_ACCN, ROW_ACCT, ROW_DEPTH, ROW_MU, ROW_RJ, ROW_T1,
+                                   ROW_T2, ROW_TARGET)
 from .kernels.jit import JIT
 
 # columns of a collider row
@@ -173,8 +175,6 @@ def collide_range(X, V, w, bid, start, end, rows, h, thresh, imp, stats, touched
             touched[bid[i]] = 1
 
 
-#: Columns of ``contact_solve``'s contact rows written here (the same numbers as there).
-ROW_VEL_J, ROW_DEPTH, ROW_TARGET, ROW_MU = 6, 9, 10, 22
 
 
 @njit(**JIT)
@@ -211,9 +211,9 @@ def contact_rows(X, off, share, box, rows, crows, cint, m):
                 ry = X[1, k] - row[C_POS + 1]
                 rz = X[2, k] - row[C_POS + 2]
                 wx, wy, wz = row[C_ANG], row[C_ANG + 1], row[C_ANG + 2]
-                rf[ROW_VEL_J] = row[C_VEL] + wy * rz - wz * ry
-                rf[ROW_VEL_J + 1] = row[C_VEL + 1] + wz * rx - wx * rz
-                rf[ROW_VEL_J + 2] = row[C_VEL + 2] + wx * ry - wy * rx
+                rf[ROW_RJ] = row[C_VEL] + wy * rz - wz * ry
+                rf[ROW_RJ + 1] = row[C_VEL + 1] + wz * rx - wx * rz
+                rf[ROW_RJ + 2] = row[C_VEL + 2] + wx * ry - wy * rx
                 m += 1
     return m
 
@@ -232,9 +232,10 @@ def row_wrenches(X, rows, crows, cint, lo, hi, imp, stats):
         rf = crows[a]
         k = ci[0]
         b = ci[2]
-        jx = -(rf[12] * rf[0] + rf[14] * rf[16] + rf[15] * rf[19])
-        jy = -(rf[12] * rf[1] + rf[14] * rf[17] + rf[15] * rf[20])
-        jz = -(rf[12] * rf[2] + rf[14] * rf[18] + rf[15] * rf[21])
+        a1, a2 = rf[ROW_ACCT], rf[ROW_ACCT + 1]
+        jx = -(rf[ROW_ACCN] * rf[0] + a1 * rf[ROW_T1] + a2 * rf[ROW_T2])
+        jy = -(rf[ROW_ACCN] * rf[1] + a1 * rf[ROW_T1 + 1] + a2 * rf[ROW_T2 + 1])
+        jz = -(rf[ROW_ACCN] * rf[2] + a1 * rf[ROW_T1 + 2] + a2 * rf[ROW_T2 + 2])
         rx = X[0, k] - rows[c, C_POS]
         ry = X[1, k] - rows[c, C_POS + 1]
         rz = X[2, k] - rows[c, C_POS + 2]

@@ -12,7 +12,8 @@ from . import step_threads
 from .body import Body
 from .kernels.world_step import step_bodies_parallel, step_single_bodies
 from .packed import Pack
-from .contact import COUPLE_ALPHA, BodyContact, Contact, ContactParams, default_radius
+from .contact import (COUPLE_ALPHA, RIGID_CLUSTERS, BodyContact, Contact, ContactParams,
+                      default_radius)
 from .flat import FlatState
 from .sleep import Sleep
 from .world_colliders import WorldColliders
@@ -421,9 +422,10 @@ class World(WorldColliders):
         return self._any_stiff
 
     def _contact_coupling(self, h):
-        """Mark the bodies that carry their contacts as a whole (``Contact.coupling``):
-        alpha at the step at least ``contact.COUPLE_ALPHA``, with one cluster or many
-        (README "Contact between bodies").  Recomputed when a body, its parameters or the
+        """Mark the bodies that take their contacts as rigid bodies (``Contact.coupling``):
+        alpha (1 - beta) at the step (alpha in rigid mode) at least
+        ``contact.COUPLE_ALPHA``, at most ``contact.RIGID_CLUSTERS`` clusters per axis
+        (doc/contact.md).  Recomputed when a body, its parameters or the
         step change.  Keyed by the count of flat states built, not the flat state's id: a
         copy of the world (deep, or synced: ``sm_ros.world_sync``) holds the coupling flags
         with the key they were set for, and keeps them."""
@@ -432,7 +434,9 @@ class World(WorldColliders):
             return
         c = self._contact.coupling
         for k, b in enumerate(self._flat.bodies):
-            c[k] = b._params.at_step(h).alpha >= COUPLE_ALPHA
+            p = b._params.at_step(h)
+            held = p.alpha * (1.0 if b._params.mode == 'rigid' else 1.0 - p.beta)
+            c[k] = held >= COUPLE_ALPHA and b._params.clusters <= RIGID_CLUSTERS
         self._any_stiff = bool(c.any())
         self._coupling_key = key
 
