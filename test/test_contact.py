@@ -11,7 +11,7 @@ from sm_ros.core import contact as C
 from sm_ros.core.contact import BodyContact, ContactParams
 
 S = 0.02                                           # lattice spacing of the test bodies
-NO_COLLIDERS = (False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)))
+RIGID = BodyParams(mode='rigid', alpha=0.9)
 
 
 def lattice(nx, ny, nz, s=S, center=(0.0, 0.0, 0.0)):
@@ -245,41 +245,6 @@ def test_grid_refuses_a_box_larger_than_its_table():
     assert C.build_pairs_grid_par(*args, *scratch, *out, 2) == -1
 
 
-def test_pair_response_conserves_momentum_and_separates():
-    rng = np.random.default_rng(1)
-    X = np.ascontiguousarray(np.array([[0.0, 0.015], [0.0, 0.004], [0.0, -0.002]]))
-    V = np.ascontiguousarray(rng.normal(size=(3, 2)))
-    W = np.array([1.0 / 0.3, 1.0 / 0.7])
-    R = np.full(2, 0.01)
-    B = np.array([0, 1], np.int32)
-    p0 = V @ (1.0 / W)
-    lever = X - 1e-3 * V                                  # positions at the step's start
-    l0 = np.cross(lever.T, V.T * (1.0 / W)[:, None]).sum(axis=0)
-    touched = np.zeros(2, np.uint8)
-    found = C.solve_pairs(X, V, W, R, B, np.array([0], np.int32), np.array([1], np.int32),
-                          1, 0.0, 0.0, 0.0, 1e-3, 1, touched, np.zeros(2, np.int64),
-                          np.zeros(2), *NO_COLLIDERS, np.zeros(2, np.uint8))
-    assert found == 1 and touched.all()
-    assert np.linalg.norm(X[:, 0] - X[:, 1]) >= 0.02 - 1e-12
-    np.testing.assert_allclose(V @ (1.0 / W), p0, atol=1e-14)
-    l1 = np.cross((X - 1e-3 * V).T, V.T * (1.0 / W)[:, None]).sum(axis=0)
-    np.testing.assert_allclose(l1, l0, atol=1e-14)
-    np.testing.assert_allclose(X - 1e-3 * V, lever, atol=1e-15)   # start of step kept
-
-
-def test_pinned_particles_are_infinite_mass():
-    X = np.ascontiguousarray(np.array([[0.0, 0.015], [0.0, 0.0], [0.0, 0.0]]))
-    V = np.zeros((3, 2))
-    W = np.array([0.0, 2.0])
-    before = X[:, 0].copy()
-    C.solve_pairs(X, V, W, np.full(2, 0.01), np.array([0, 1], np.int32),
-                  np.array([0], np.int32), np.array([1], np.int32), 1, 0.5, 0.0, 0.0, 0.01, 1,
-                  np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2), *NO_COLLIDERS,
-                  np.zeros(2, np.uint8))
-    np.testing.assert_array_equal(X[:, 0], before)
-    assert X[0, 1] == pytest.approx(0.02)
-
-
 def test_default_radius_is_half_the_spacing():
     assert C.default_radius(lattice(5, 4, 3, 0.03)) == pytest.approx(0.015)
     assert C.default_radius(lattice(40, 30, 2, 0.01)) == pytest.approx(0.005)   # sampled
@@ -350,25 +315,12 @@ def _five_boxes(stagger, contact=None):
     return w, boxes
 
 
-def test_stack_of_five_boxes_falls_through_per_particle():
-    # the per-particle path (stacking=False, kept for soft and many-cluster bodies and
-    # zero gravity): the same stack sinks (the test above can fail)
-    w, boxes = _five_boxes(1.0, ContactParams(stacking=False))
-    top0 = boxes[-1].com()[2]
-    for _ in range(4 * 120):
-        w.step(1 / 120)
-    assert boxes[-1].com()[2] < top0 - 0.01
-
-
 @pytest.mark.parametrize('stagger', [0.0, 1.0])
 def test_stack_of_five_boxes_stands(stagger):
-    # at the node's step (dt 1/120 s, World.step as Simulation.tick calls it) with the
-    # default contact (stacking): stiff one-cluster bodies carry their contacts as a whole
-    # (README "Contact between bodies"); per particle (stacking=False) the touching layer
-    # alone gives way and these boxes fall through one another (the next test).  Stacked
-    # exactly (lattices particle on particle) and with every other box put a little off
+    # at the node's step (dt 1/120 s, World.step as Simulation.tick calls it): stiff
+    # bodies take their contacts as rigid bodies (doc/contact.md).  Stacked exactly
+    # (lattices particle on particle) and with every other box put a little off
     w, boxes = _five_boxes(stagger)
-    assert w.contact_params.stacking
     h = 1 / 120
     for _ in range(4 * 120):                                  # settle 4 s
         w.step(h)
@@ -387,8 +339,7 @@ def test_stack_of_five_boxes_stands(stagger):
 
 
 def test_box_resting_partly_over_an_edge_stays():
-    # its centre of mass over the lower box, with stacking (the default): it stays where
-    # it was put (per particle, stacking=False, the lattice bumps kick it off sideways)
+    # its centre of mass over the lower box: it stays where it was put
     w = World()
     w.set_colliders(ground=Ground())
     p = BodyParams(mode='rigid', alpha=0.99, damping=0.2)
@@ -402,8 +353,8 @@ def test_box_resting_partly_over_an_edge_stays():
 
 @pytest.mark.parametrize('mode', ['rigid', 'soft'])
 def test_sideways_collision_under_gravity_exchanges_momentum_exactly(mode):
-    # with stacking (the default), bodies carrying their contacts as a whole (and, soft,
-    # one per particle) exchange momentum equal and opposite
+    # a rigid body and a linear one (stiff or soft: rigid body or per particle) exchange
+    # momentum equal and opposite
     w = World()
     n = 27
     a = w.add_body(lattice(3, 3, 3, center=(-0.05, 0, 1.0)), 0.01, BodyParams(mode='rigid'),
@@ -418,7 +369,7 @@ def test_sideways_collision_under_gravity_exchanges_momentum_exactly(mode):
         w.step(h)
         met += w.contact.found
     assert met > 0 and a.com()[0] < b.com()[0]
-    assert w.contact.coupling[:2].tolist() == [True, mode == 'rigid']
+    assert w.contact.coupling[0]
     m = float(a.m.sum() + b.m.sum())
     expected = p0 + m * 30 * h * np.array([0.0, 0.0, -9.81])
     np.testing.assert_allclose(a.momentum() + b.momentum(), expected, atol=1e-12)
@@ -671,62 +622,35 @@ def test_paper_384_scene_pours_into_its_bin():
     assert world.contact.found > 1000                      # they land on one another
 
 
-def test_stacking_changes_nothing_without_gravity():
-    # bodies carry their contacts as a whole only under gravity (where loads rest on
-    # them): without it every pair acts per particle, bit for bit as without stacking
+@pytest.mark.parametrize('gravity', [(0.0, 0.0, 0.0), (0.0, 0.0, -9.81)])
+def test_stacking_changes_nothing(gravity):
+    # ``contact.stacking`` is accepted for old scenes and has no effect (one model)
     states = []
     for stacking in (True, False):
-        w = World(gravity=(0, 0, 0))
+        w = World(gravity=gravity)
         w.contact_params = ContactParams(stacking=stacking)
-        a = w.add_body(lattice(3, 3, 3, center=(-0.04, 0, 0)), 0.01, None, 'a',
+        a = w.add_body(lattice(3, 3, 3, center=(-0.04, 0, 0)), 0.01, RIGID, 'a',
                        velocities=np.tile([1.0, 0.0, 0.0], (27, 1)))
-        b = w.add_body(lattice(3, 3, 3, center=(0.04, 0.01, 0)), 0.01, None, 'b')
+        b = w.add_body(lattice(3, 3, 3, center=(0.04, 0.01, 0)), 0.01, RIGID, 'b')
         for _ in range(30):
             w.step(1 / 120)
-        assert w.contact.coupling[:2].all()           # carried as a whole under gravity
         states.append(np.concatenate([a.x, b.x, a.v, b.v]))
-    assert w.contact.builds > 0
+    assert w.contact.builds > 0 and w.contact.coupling[:2].all()
     np.testing.assert_array_equal(states[0], states[1])
 
 
 def test_which_bodies_take_contact_as_rigid_bodies():
-    # stiff (alpha at the step >= COUPLE_ALPHA, one cluster or many) and free: rigid share
-    # 1; soft, or with a pinned particle: 0 (dented per particle)
+    # stiff (alpha (1 - beta) at the step >= COUPLE_ALPHA, at most RIGID_CLUSTERS per
+    # axis) and free: rigid share 1; soft, or with a pinned particle: 0 (per particle)
     w = World()
     pts = lattice(3, 3, 3)
     w.add_body(pts, 0.01, BodyParams(mode='rigid', alpha=0.9), 'stiff')
     w.add_body(pts + 1.0, 0.01, BodyParams(mode='linear', alpha=0.3), 'soft')
     w.add_body(pts + 2.0, 0.01, BodyParams(mode='rigid', alpha=0.9, clusters=2), 'clustered')
-    w.add_body(pts + 3.0, 0.01, BodyParams(mode='rigid'), 'pinned', pinned=[0])
+    w.add_body(pts + 3.0, 0.01, BodyParams(mode='rigid', alpha=0.9), 'pinned', pinned=[0])
     w.step(1 / 120)
     assert w.contact.coupling[:4].tolist() == [True, False, True, True]
     assert w.contact._bodies.share[:4].tolist() == [1.0, 0.0, 1.0, 0.0]
-
-
-def test_resting_pair_is_pushed_apart_without_speed():
-    # two bodies carrying their contacts as a whole, overlapping at rest under gravity:
-    # the overlap is removed by moving the bodies (equal and opposite position impulses),
-    # not by giving them speed that the next step would turn into a bounce
-    X = np.ascontiguousarray(np.array([[0.0, 0.0], [0.0, 0.0], [0.0, 0.015]]))
-    V = np.zeros((3, 2))
-    W = np.array([1 / 0.2, 1 / 0.6])
-    B = np.array([0, 1], np.int32)
-    off = np.array([0, 1, 2])
-    bw = np.array([5.0, 1 / 0.6])
-    acc = np.zeros((2, 1))
-    x0 = X.copy()
-    C.solve_bodies(X, V, W, np.full(2, 0.01), B, np.array([0], np.int32),
-                   np.array([1], np.int32), 1, 0.5, 0.0, 0.1, 1 / 120, 8,
-                   np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2), *NO_COLLIDERS,
-                   np.zeros(2, np.uint8), off, bw, np.ones(2, np.bool_), np.zeros((2, 7)),
-                   np.zeros(2, np.uint8), np.zeros(1, np.int64), acc, np.zeros(1), 1e-3,
-                   np.zeros((2, 3)), np.zeros(4), np.zeros(0, np.int64), np.zeros(3, np.int64),
-                   np.zeros((2, 2)), np.zeros((2, 2)), 0.0, X.T.copy(), np.zeros((2, 3)),
-                   np.zeros((2, 9)), np.inf, np.zeros((12, 1)), np.zeros((5, 1), np.int32))
-    assert X[2, 1] - X[2, 0] == pytest.approx(0.02)
-    np.testing.assert_array_equal(V, 0.0)
-    moves = (X - x0) / W                                  # mass x move: equal, opposite
-    np.testing.assert_allclose(moves[:, 0], -moves[:, 1], atol=1e-15)
 
 
 @pytest.mark.slow
@@ -748,69 +672,13 @@ def test_pile_of_27_many_cluster_balls_comes_to_rest():
     assert np.sqrt(2 * np.mean(ke[-60:]) / m) < 0.03
 
 
-def test_inverse_sym3_matches_numpy():
-    rng = np.random.default_rng(3)
-    for _ in range(20):
-        a = rng.normal(size=(3, 3))
-        a = a @ a.T + 0.1 * np.eye(3)
-        out = np.zeros(9)
-        C.inverse_sym3(a.reshape(-1).copy(), out)
-        np.testing.assert_allclose(out.reshape(3, 3), np.linalg.inv(a), rtol=1e-9, atol=1e-9)
-    out[:] = 1.0
-    C.inverse_sym3(np.array([1.0, 0, 0, 0, 1, 0, 0, 0, 0]), out)       # singular: zero
-    np.testing.assert_array_equal(out, 0.0)
-
-
-def test_body_velocities_match_numpy():
-    # centre of mass, its velocity, lowest particle, inverse inertia and spin of the bodies
-    # carried as a whole, against the NumPy twin; bodies not carried get zero velocity
-    rng = np.random.default_rng(4)
-    n = [7, 11, 5]
-    off = np.concatenate([[0], np.cumsum(n)])
-    X = np.ascontiguousarray(rng.normal(size=(3, off[-1])) + 3.0)
-    V = np.ascontiguousarray(rng.normal(size=(3, off[-1])))
-    W = rng.uniform(0.5, 2.0, off[-1])
-    X[2, 3] = X[2, 5] = X[2, :7].min() - 1.0     # two lowest: the first one's velocity
-    cpl = np.array([True, True, False])
-    bw = np.array([1 / (1 / W[off[b]:off[b + 1]]).sum() for b in range(3)])
-    vb, zlo, bc, bom, biv = (np.zeros((3, 3)), np.zeros((2, 3)), np.zeros((3, 3)),
-                             np.zeros((3, 3)), np.zeros((3, 9)))
-    Xref = X + rng.normal(scale=0.01, size=X.shape)
-    act = np.array([True, False, True])
-    dbox = np.zeros(6)
-    spread2 = C.body_velocities(X, V, 1.0 / W, off, cpl, bw, vb, zlo, bc, bom, biv, Xref,
-                                act, dbox)
-    # the colliding bodies' displacements (body 1 does not collide), as moved_spread2
-    assert spread2 == C.moved_spread2(X, Xref, off.astype(np.int64), act)
-    keep = np.repeat(act, n)
-    d = (X - Xref)[:, keep]
-    e = 0.5 * (d.max(axis=1) - d.min(axis=1))
-    assert spread2 == pytest.approx(e @ e, rel=1e-12)
-    np.testing.assert_array_equal(dbox, np.concatenate([d.min(axis=1), d.max(axis=1)]))
-    for b in range(2):
-        s = slice(off[b], off[b + 1])
-        m, x, v = 1 / W[s], X[:, s].T, V[:, s].T
-        c = (m[:, None] * x).sum(0) / m.sum()
-        r = x - c
-        inertia = (m[:, None, None] * ((r * r).sum(1)[:, None, None] * np.eye(3)
-                                        - r[:, :, None] * r[:, None, :])).sum(0)
-        ang = (m[:, None] * np.cross(r, v)).sum(0)
-        np.testing.assert_allclose(bc[b], c, rtol=1e-12)
-        np.testing.assert_allclose(vb[b], (m[:, None] * v).sum(0) / m.sum(), rtol=1e-12)
-        assert zlo[0, b] == x[:, 2].min() and zlo[1, b] == v[np.argmin(x[:, 2]), 2]
-        np.testing.assert_allclose(biv[b].reshape(3, 3), np.linalg.inv(inertia), rtol=1e-9)
-        np.testing.assert_allclose(bom[b], np.linalg.solve(inertia, ang), rtol=1e-9)
-    np.testing.assert_array_equal(vb[2], 0.0)
-    assert zlo[1, 0] == V[2, 3] != V[2, 5]
-
-
 def test_spin_of_a_body_resting_on_another_is_braked_by_friction():
     # a spinning box lands on a box: friction at its contacts brakes the spin within a
     # fraction of a second (a spinning body in a heap would otherwise drive its
     # neighbours sideways forever)
     w = World()
     w.set_colliders(ground=Ground())
-    p = BodyParams(mode='linear', alpha=0.9, clusters=2)
+    p = BodyParams(mode='rigid', alpha=0.9, clusters=2)
     a = w.add_body(lattice(4, 4, 3, center=(0, 0, 0.02)), 0.01, p, 'a')
     pts = lattice(4, 4, 3, center=(0, 0, 0.079))         # 1 mm into it
     spin = np.cross([0.0, 0.0, 3.0], pts - pts.mean(axis=0))

@@ -224,3 +224,85 @@ def test_capsule_finger_pushes_a_box(push):
         assert turned_deg(box) < 5.0
     else:
         assert turned_deg(box) > 10.0
+
+
+# ---------------------------------------------------------------------------------------
+# Kernels against NumPy
+# ---------------------------------------------------------------------------------------
+
+def _one_body_state(seed):
+    """A jittered 5^3 box (flat state of one body) just below the ground, with a linear
+    and an angular velocity, after a step of H (x = x_start + H v)."""
+    from sm_ros.core.kernels import contact_rows as KR
+    rng = np.random.default_rng(seed)
+    x0 = lattice(5, 5, 5, (0.0, 0.0, 0.0)).T.copy()
+    rot = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    rot *= np.sign(np.linalg.det(rot))
+    xs = rot @ x0 + np.array([[0.0], [0.0], [0.039]]) + rng.normal(0.0, 1e-4, x0.shape)
+    n = x0.shape[1]
+    m = rng.uniform(0.5, 1.5, n)
+    c = (xs * m).sum(axis=1) / m.sum()
+    v = np.array([[0.1], [-0.05], [-0.5]]) + np.cross([0.3, -0.2, 0.1], (xs - c[:, None]).T).T
+    X = xs + H * v
+    pt = KR.Particles(X, v.copy(), 1.0 / m, np.full(n, 0.01), np.zeros(n, np.int32), m,
+                      np.zeros((3, n)), np.zeros((3, n)))
+    c0 = (x0 * m).sum(axis=1) / m.sum()
+    bd = KR.Bodies(np.zeros(1), np.zeros((1, 3)), np.zeros((1, 9)), np.zeros((1, 3)),
+                   np.zeros((1, 3)), np.zeros(1), np.zeros((1, 12)), np.zeros((1, 9)),
+                   c0[None].copy())
+    return pt, bd, xs, x0, rot
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_body_frames_match_numpy(seed):
+    from sm_ros.core.contact_frames import body_frames
+    pt, bd, xs, x0, rot = _one_body_state(seed)
+    box = np.zeros((1, 6))
+    body_frames(pt, np.array([0, xs.shape[1]]), np.array([True]), bd, H, box, x0)
+    m = pt.M
+    c = (xs * m).sum(axis=1) / m.sum()
+    r = (xs - c[:, None]).T
+    inertia = (m[:, None, None] * ((r * r).sum(1)[:, None, None] * np.eye(3)
+                                   - r[:, :, None] * r[:, None, :])).sum(0)
+    ang = np.cross(r, m[:, None] * pt.V.T).sum(0)
+    assert bd.share[0] == 1.0 and bd.bw[0] == pytest.approx(1.0 / m.sum())
+    np.testing.assert_allclose(bd.bc[0], c, atol=1e-14)
+    np.testing.assert_allclose(bd.vb[0], (m * pt.V).sum(1) / m.sum(), atol=1e-14)
+    np.testing.assert_allclose(bd.biv[0].reshape(3, 3) @ inertia, np.eye(3), atol=1e-6)
+    np.testing.assert_allclose(bd.bom[0], np.linalg.solve(inertia, ang), rtol=1e-6)
+    np.testing.assert_allclose(bd.rot[0].reshape(3, 3), rot, atol=1e-3)
+    np.testing.assert_allclose(box[0, :3], pt.X.min(axis=1))
+
+
+def test_block_pass_meets_the_targets_of_a_flat_patch_at_once():
+    # a box landing tilted and spinning on the ground: one block solve of its 25 ground
+    # rows leaves every row at its target normal speed (no spin left over), exactly as
+    # the 3x3 system of the linear normal-speed field promises
+    from sm_ros.core import contact_frames as F, contact_solve as CS, contact_statics as T
+    from sm_ros.core import contact_sweeps as SW
+    from sm_ros.core.kernels import contact_rows as KR
+    pt, bd, xs, x0, _ = _one_body_state(0)
+    pt = pt._replace(X=lattice(5, 5, 5, (0.0, 0.0, 0.039)).T + H * pt.V)
+    n = pt.X.shape[1]
+    off = np.array([0, n])
+    box = np.zeros((1, 6))
+    F.body_frames(pt, off, np.array([True]), bd, H, box, pt.X - H * pt.V)
+    rows = KR.Rows(np.zeros((2 * n, KR.ROW_WIDTH)), np.zeros((2 * n, 5), np.int64))
+    st = KR.Statics(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros((0, 8)), np.zeros((0, 6)))
+    m = T.collider_rows(pt, bd, off, st, rows, 0, box)
+    law = np.array([H, 1e-3, 0.0, 0.0, 1.0, 1.0, 8, 4, 0.0, 0.0, 0.0, 0.0])
+    CS.fill_collider_rows(pt, bd, rows, 0, m, law, np.full((n, KR.WARM_WIDTH), -np.inf))
+    assert m == 25
+    order, start = np.zeros(m, np.int64), np.zeros(m + 1, np.int64)
+    ng = F.group_rows(rows, m, 1, order, start)
+
+    def residual():
+        out = []
+        for a in range(m):
+            u = KR._rel_velocity(bd, pt.V, rows.f[a], rows.i[a], 0)
+            out.append(np.dot(u, rows.f[a, :3]) - rows.f[a, KR.ROW_TARGET])
+        return np.array(out)
+    assert residual().min() < -0.4
+    SW.block_pass(pt, bd, rows, (order, start, ng, H), 0, pt.V, False)
+    np.testing.assert_allclose(residual(), 0.0, atol=1e-5)      # 1e-6 regularised
+    assert (rows.f[:m, KR.ROW_ACCN] > 0.0).all()

@@ -1,26 +1,22 @@
 """Contact between bodies, and self-collision, on the world's flat state (``flat.py``).
 
-Model (README "Contact between bodies"): every particle of a colliding body is a sphere of
-its body's contact radius ``r``; two particles of different bodies (or of one
-self-colliding body whose rest distance exceeds ``SELF_REST_FACTOR`` times their contact
-distance) must stay at least ``r_i + r_j`` apart.  After the bodies' own step (each
-substep) every overlapping pair is pushed apart along the line of its start-of-step
-positions (x - h v), weighted by inverse mass (pinned and grabbed particles have infinite
-mass), equal and opposite, so linear momentum is kept to round-off; its relative velocity
-then gets the ground's contact law (``solve_pairs``).  Every velocity change also moves the
-particles by h times it, so without friction angular momentum is kept to round-off too.
-Particles that contact moved are then projected out of the static colliders again.
-With ``ContactParams.stacking`` (the default), under gravity, a stiff body (alpha at the
-step at least ``COUPLE_ALPHA``, one cluster or many, no pinned or grabbed particle) carries
-its contacts as a whole: an impulse on one of its particles translates the body, so its
-load reaches all of it within the step instead of compressing its touching layer; such
-pairs, and such bodies on the ground, are solved with accumulated impulses over several
-sweeps, warm-started from the last step (``WARM_START``), and a carried body held by
-another does not spin (``contact_kernels.solve_bodies``): stacks stand and heaps of such
-bodies (``paper_384``) come to rest at the node's step.
+Model (doc/contact.md): every particle of a colliding body is a sphere of its body's
+contact radius ``r``; two particles of different bodies (or of one self-colliding body
+whose rest distance exceeds ``SELF_REST_FACTOR`` times their contact distance) must stay
+at least ``r_i + r_j`` apart.  After the bodies' own step (each substep) the pairs within
+1.2 contact distances and the stiff bodies' particles inside colliders are the rows of a
+sequential-impulse solve in which a stiff body (``COUPLE_ALPHA``, ``RIGID_CLUSTERS``)
+takes every impulse as a rigid body (its velocity and spin change: contact tips, rolls and
+yaws it) and a soft one per particle; accumulated, warm-started normal and friction
+impulses, restitution from the approach before the step, position correction by
+pseudo-velocities that never enter the velocities (``contact_solve.py``,
+``contact_sweeps.py``).  The soft bodies' particles meet the static colliders with the
+per-particle law first (the bodies' own step leaves the colliders to this pass when it
+runs).
 
-Neighbour search (a Verlet pair list on a cell grid) and the per-pair solve are compiled
-kernels in ``contact_build.py`` and ``contact_kernels.py``; this file holds the settings
+Neighbour search (a Verlet pair list on a cell grid) and the solve are compiled kernels in
+``contact_build.py``, ``contact_solve.py``, ``contact_sweeps.py``, ``contact_frames.py`` and
+``contact_statics.py``; this file holds the settings
 (``ContactParams``, ``BodyContact``) and the pass ``Contact`` that owns the buffers and calls
 them.
 """
@@ -34,9 +30,7 @@ import numpy as np
 
 from .contact_build import (body_overlaps, build_pairs, build_pairs_cells, build_pairs_grid,
                             build_pairs_grid_par, moved_spread2, sort_pairs)
-from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
-                              inverse_sym3, median_nn_distance, solve_bodies, solve_pairs,
-                              wall_candidates)
+from .contact_kernels import count_fast, median_nn_distance
 from .contact_frames import body_frames, finish_rows, group_rows, guarded
 from .contact_solve import fill_collider_rows, pair_rows
 from .contact_statics import collide_rows_soft, collide_soft, collider_rows, project_moved
@@ -69,20 +63,9 @@ PARALLEL_BUILD_MIN = 262144
 #: pinned or grabbed particle take their contacts per particle and are dented.
 COUPLE_ALPHA = 0.6
 RIGID_CLUSTERS = 2
-#: With stacking, ``solve_bodies`` sweeps the pairs of bodies carried as a whole at most
-#: this many times a step (at least ``iterations``): 4 left five stacked boxes jittering
-#: by 1.2 mm at the node's step, 8 by 0.01 mm.
-STACK_SWEEPS = 8
-#: ``solve_bodies`` stops sweeping once no velocity changed by more than this fraction of
-#: the resting threshold (``World.step``: 2 |g| h) in a sweep.
+#: The velocity sweeps stop once no speed changed by more than this fraction of the
+#: resting threshold (``World.step``: 2 |g| h) in a sweep.
 SWEEP_TOL = 0.001
-#: ``solve_bodies`` starts each step from this fraction of the velocity impulses its
-#: pairs of carried bodies (and their ground contacts) ended the last step with, while the
-#: pair list is unchanged (``contact_kernels._warm_start``): without it the 8 sweeps did
-#: not carry the load of ``paper_384``'s heap (up to ten bodies high) to the ground, its
-#: top bodies kept about 2 g h of downward speed that the position impulses cancelled
-#: every step (1.3 J left); with 1.0 five stacked boxes sank 14 mm in 10 s.
-WARM_START = 0.5
 _NO_GROUND = np.zeros(4)
 _NO_ROWS8 = np.zeros((0, 8))
 _NO_ROWS6 = np.zeros((0, 6))
@@ -105,12 +88,9 @@ class ContactParams:
     ``enabled`` turns body-body contact on; ``friction`` (Coulomb mu) and ``restitution``
     act like the ground's; ``radius_scale`` multiplies every body's default contact
     radius (half its median nearest-neighbour distance; a body's own ``contact_radius``
-    is used as given); ``iterations`` Gauss-Seidel sweeps over the pairs per step.
-    ``stacking`` (on by default; scene key ``contact: {stacking: ...}``, node parameter
-    ``contact.stacking``): under gravity, stiff bodies carry their contacts as a whole
-    (``COUPLE_ALPHA``, ``STACK_SWEEPS``, ``WARM_START``; README "Contact between bodies":
-    stacks stand and heaps of such bodies come to rest at the node's step); False: every
-    particle acts on its own (``solve_pairs``), as softer bodies always do.
+    is used as given); ``iterations``: velocity sweeps per step beyond the solve's own
+    (``contact_sweeps.VEL_SWEEPS``).  ``stacking`` is accepted for old scenes and has no
+    effect: the model is one for every setting (doc/contact.md).
     ``sleep`` (on by default): a body whose particles all moved slower than
     ``sleep_speed`` (m/s) for ``sleep_time`` seconds and that touches no moving body falls
     asleep and is not stepped until something wakes it (``sleep.py``, README "Sleeping
@@ -283,29 +263,9 @@ class Contact:
         self.count = np.zeros(max(nb, 1), dtype=np.int64)
         self.deepest = np.zeros(max(nb, 1))
         self.fast = np.zeros(max(nb, 1), dtype=np.int64)
-        # solve_bodies: which bodies carry their contacts as a whole (set by World),
-        # their inverse masses and moves, per-pair and per-particle impulses
+        # which bodies take their contacts as rigid bodies (set by World)
         self.coupling = np.zeros(max(nb, 1), dtype=np.bool_)
-        self._bw = np.zeros(max(nb, 1))
-        self._bw_version = -1                   # flat.w_version that _bw was computed at
-        self._dv = np.zeros((max(nb, 1), 7))     # velocity, position changes; held
-        self._pend = np.zeros(max(nb, 1), dtype=np.uint8)
-        self._active = np.zeros(0, dtype=np.int64)
-        self._acc = np.zeros((2, 0))
-        self._tg = np.zeros(0)
-        self._cbuf = np.zeros((7, 0))
-        self._ibuf = np.zeros((5, 0), dtype=np.int32)
-        self._vb = np.zeros((max(nb, 1), 3))
-        self._zlo = np.zeros((2, max(nb, 1)))   # lowest particle per body: z, its v_z
-        self._bc = np.zeros((max(nb, 1), 3))            # centre of mass
-        self._bom = np.zeros((max(nb, 1), 3))           # spin
-        self._biv = np.zeros((max(nb, 1), 9))           # inverse inertia tensor
-        self._dbox = np.zeros(6)        # displacements since the last build: their box
-        self._accg = np.zeros((2, max(nb, 1)))          # ground impulses per body
-        self._warm = False              # acc, accg hold the last step's impulses (list kept)
-        self._noground = np.zeros(4)
-        self._cand = np.zeros(n, dtype=np.int64)        # particles near boxes, spheres
-        self._cptr = np.zeros(max(nb, 1) + 1, dtype=np.int64)
+        self._warm = False              # the pair impulses kept are of this list's pairs
         self._bodies = None             # the solve's state (contact_solve), made at a run
         self._rows = None
         self._stamp = 0.0
@@ -424,7 +384,8 @@ class Contact:
             collide_soft(pt, f.off, bd, st, thresh, f.touched)
         g = (0.0, 0.0, 0.0) if gravity is None else gravity
         law = np.array([h, thresh, p.friction, p.restitution, self._stamp, self.warm,
-                        self.vel_sweeps, self.pos_sweeps, g[0], g[1], g[2], 0.0])
+                        max(self.vel_sweeps, p.iterations), self.pos_sweeps, g[0], g[1],
+                        g[2], 0.0])
         m = 0
         if self.needed:
             m = pair_rows(pt, bd, PairList(self._pi, self._pj, self.npairs), rows, law,
@@ -467,10 +428,7 @@ class Contact:
 
 
 __all__ = ['ContactParams', 'BodyContact', 'Contact', 'default_radius', 'SELF_REST_FACTOR',
-           'COUPLE_ALPHA', 'STACK_SWEEPS', 'PARALLEL_BUILD_MIN', 'body_inverse_masses',
-           'body_overlaps',
-           'body_velocities', 'build_pairs', 'build_pairs_cells', 'build_pairs_grid',
-           'build_pairs_grid_par', 'contact_velocity', 'count_fast', 'inverse_sym3',
-           'moved_spread2',
-           'median_nn_distance', 'solve_bodies', 'solve_pairs', 'sort_pairs',
-           'wall_candidates']
+           'COUPLE_ALPHA', 'RIGID_CLUSTERS', 'PARALLEL_BUILD_MIN', 'body_overlaps',
+           'build_pairs', 'build_pairs_cells', 'build_pairs_grid', 'build_pairs_grid_par',
+           'contact_velocity', 'count_fast', 'moved_spread2', 'median_nn_distance',
+           'sort_pairs', 'surface_normals']

@@ -17,6 +17,53 @@ from .kernels.contact_rows import (LAW_H, LAW_STAMP, ROW_ACCN, ROW_ACCP, ROW_ACC
 from .kernels.jit import JIT
 
 
+#: Entries of ``_body_sums``' accumulator: mass, momentum (3), first moment (3), angular
+#: momentum (3), second moments xx yy zz xy yz zx (6), sum m y (x0 - c0)^T (9), bounding
+#: box (6).
+S_M, S_P, S_S, S_L, S_MOM, S_APQ, S_BOX, S_WIDTH = 0, 1, 4, 7, 10, 16, 25, 31
+
+
+@njit(inline='always', **JIT)
+def _body_sums(pt, X0, c0, o, e, h, q, acc):
+    """The sums over particles o..e of a body about q (its first particle at the step's
+    start, for round-off), into ``acc`` (``S_*``)."""
+    X, V, M = pt.X, pt.V, pt.M
+    acc[:S_BOX] = 0.0
+    acc[S_BOX:S_BOX + 3] = np.inf
+    acc[S_BOX + 3:S_WIDTH] = -np.inf
+    for k in range(o, e):
+        for c in range(3):
+            acc[S_BOX + c] = min(acc[S_BOX + c], X[c, k])
+            acc[S_BOX + 3 + c] = max(acc[S_BOX + 3 + c], X[c, k])
+        m = M[k]
+        y0 = X[0, k] - h * V[0, k] - q[0]
+        y1 = X[1, k] - h * V[1, k] - q[1]
+        y2 = X[2, k] - h * V[2, k] - q[2]
+        u0, u1, u2 = m * V[0, k], m * V[1, k], m * V[2, k]
+        acc[S_M] += m
+        w0, w1, w2 = _cross(y0, y1, y2, u0, u1, u2)
+        acc[S_P] += u0
+        acc[S_P + 1] += u1
+        acc[S_P + 2] += u2
+        acc[S_S] += m * y0
+        acc[S_S + 1] += m * y1
+        acc[S_S + 2] += m * y2
+        acc[S_L] += w0
+        acc[S_L + 1] += w1
+        acc[S_L + 2] += w2
+        for d in range(3):
+            r = m * (X0[d, k] - c0[d])
+            acc[S_APQ + d] += y0 * r
+            acc[S_APQ + 3 + d] += y1 * r
+            acc[S_APQ + 6 + d] += y2 * r
+        acc[S_MOM] += m * y0 * y0
+        acc[S_MOM + 1] += m * y1 * y1
+        acc[S_MOM + 2] += m * y2 * y2
+        acc[S_MOM + 3] += m * y0 * y1
+        acc[S_MOM + 4] += m * y1 * y2
+        acc[S_MOM + 5] += m * y2 * y0
+
+
 @njit(**JIT)
 def body_frames(pt, off, cpl, bd, h, box, X0):
     """Per body: rigid share (1 for a stiff body, ``cpl``, with no pinned or grabbed
@@ -25,8 +72,10 @@ def body_frames(pt, off, cpl, bd, h, box, X0):
     about the centre are those the particles get), its rotation from the rest shape
     ``X0`` (3, N) (rest centres ``bd.c0``), the bounding box now ``box`` (nb, 6); the
     step's changes cleared."""
-    X, V, W, M = pt.X, pt.V, pt.W, pt.M
+    X, V, W = pt.X, pt.V, pt.W
     a = np.zeros(9)
+    acc = np.zeros(S_WIDTH)
+    q = np.zeros(3)
     for b in range(off.shape[0] - 1):
         bd.dvel[b, :] = 0.0
         s = 1.0 if cpl[b] else 0.0
@@ -38,66 +87,30 @@ def body_frames(pt, off, cpl, bd, h, box, X0):
         if s == 0.0:
             continue
         o = off[b]
-        q0, q1, q2 = X[0, o] - h * V[0, o], X[1, o] - h * V[1, o], X[2, o] - h * V[2, o]
-        mt = p0 = p1 = p2 = s0 = s1 = s2 = l0 = l1 = l2 = 0.0
-        xx = yy = zz = xy = yz = zx = 0.0
-        apq = np.zeros(9)              # sum m (x - q) (x0 - c0)^T: the body's rotation
-        lo0 = lo1 = lo2 = np.inf
-        hi0 = hi1 = hi2 = -np.inf
-        for k in range(o, off[b + 1]):
-            lo0, lo1, lo2 = min(lo0, X[0, k]), min(lo1, X[1, k]), min(lo2, X[2, k])
-            hi0, hi1, hi2 = max(hi0, X[0, k]), max(hi1, X[1, k]), max(hi2, X[2, k])
-            m = M[k]
-            y0 = X[0, k] - h * V[0, k] - q0
-            y1 = X[1, k] - h * V[1, k] - q1
-            y2 = X[2, k] - h * V[2, k] - q2
-            u0, u1, u2 = m * V[0, k], m * V[1, k], m * V[2, k]
-            mt += m
-            p0 += u0
-            p1 += u1
-            p2 += u2
-            s0 += m * y0
-            s1 += m * y1
-            s2 += m * y2
-            c0, c1, c2 = _cross(y0, y1, y2, u0, u1, u2)
-            l0 += c0
-            l1 += c1
-            l2 += c2
-            e0 = X0[0, k] - bd.c0[b, 0]
-            e1 = X0[1, k] - bd.c0[b, 1]
-            e2 = X0[2, k] - bd.c0[b, 2]
-            apq[0] += m * y0 * e0
-            apq[1] += m * y0 * e1
-            apq[2] += m * y0 * e2
-            apq[3] += m * y1 * e0
-            apq[4] += m * y1 * e1
-            apq[5] += m * y1 * e2
-            apq[6] += m * y2 * e0
-            apq[7] += m * y2 * e1
-            apq[8] += m * y2 * e2
-            xx += m * y0 * y0
-            yy += m * y1 * y1
-            zz += m * y2 * y2
-            xy += m * y0 * y1
-            yz += m * y1 * y2
-            zx += m * y2 * y0
+        for c in range(3):
+            q[c] = X[c, o] - h * V[c, o]
+        _body_sums(pt, X0, bd.c0[b], o, off[b + 1], h, q, acc)
+        mt = acc[S_M]
+        if not mt > 0.0:
+            bd.share[b] = 0.0              # massless (never in a scene): per particle
+            continue
         iw = 1.0 / mt
-        g0, g1, g2 = s0 * iw, s1 * iw, s2 * iw
         bd.bw[b] = iw
-        bd.bc[b, 0], bd.bc[b, 1], bd.bc[b, 2] = q0 + g0, q1 + g1, q2 + g2
-        bd.vb[b, 0], bd.vb[b, 1], bd.vb[b, 2] = p0 * iw, p1 * iw, p2 * iw
-        box[b, 0], box[b, 1], box[b, 2], box[b, 3], box[b, 4], box[b, 5] = (
-            lo0, lo1, lo2, hi0, hi1, hi2)
-        xx -= mt * g0 * g0
-        yy -= mt * g1 * g1
-        zz -= mt * g2 * g2
-        xy -= mt * g0 * g1
-        yz -= mt * g1 * g2
-        zx -= mt * g2 * g0
-        c0, c1, c2 = _cross(g0, g1, g2, p0, p1, p2)
-        l0 -= c0
-        l1 -= c1
-        l2 -= c2
+        g = acc[S_S:S_S + 3] * iw
+        p = acc[S_P:S_P + 3]
+        for c in range(3):
+            bd.bc[b, c] = q[c] + g[c]
+            bd.vb[b, c] = p[c] * iw
+        box[b, :] = acc[S_BOX:S_WIDTH]
+        mom = acc[S_MOM:S_MOM + 6]
+        xx = mom[0] - mt * g[0] * g[0]
+        yy = mom[1] - mt * g[1] * g[1]
+        zz = mom[2] - mt * g[2] * g[2]
+        xy = mom[3] - mt * g[0] * g[1]
+        yz = mom[4] - mt * g[1] * g[2]
+        zx = mom[5] - mt * g[2] * g[0]
+        c0, c1, c2 = _cross(g[0], g[1], g[2], p[0], p[1], p[2])
+        l0, l1, l2 = acc[S_L] - c0, acc[S_L + 1] - c1, acc[S_L + 2] - c2
         a[0] = yy + zz
         a[4] = zz + xx
         a[8] = xx + yy
@@ -107,7 +120,7 @@ def body_frames(pt, off, cpl, bd, h, box, X0):
         _inverse_sym3(a, bd.biv[b])
         w0, w1, w2 = _imul(bd.biv, b, l0, l1, l2)
         bd.bom[b, 0], bd.bom[b, 1], bd.bom[b, 2] = w0, w1, w2
-        _rotation(apq, bd.rot[b])
+        _rotation(acc[S_APQ:S_APQ + 9], bd.rot[b])
 
 
 @njit(inline='always', **JIT)

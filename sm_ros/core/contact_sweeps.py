@@ -115,6 +115,109 @@ def _side_block(bd, b, rows, order, lo, hi, side, phi, mat, buf):
                                + buf[3, c] * i0 + buf[4, c] * i1 + buf[5, c] * i2)
 
 
+@njit(inline='always', **JIT)
+def _patch_basis(rows, order, lo, hi, phi):
+    """phi (cnt, 3) = (1, s, t) of the touching rows lo..hi of a group, s and t their
+    points' coordinates in the patch's tangent plane over its spread along them (left
+    out, 0, where the patch is thinner than ``THIN``: an edge, a point).  Returns cnt, 0
+    for none or normals that cancel (then the rows alone)."""
+    cnt = 0
+    p0 = p1 = p2 = m0 = m1 = m2 = 0.0
+    for a in range(lo, hi):
+        rf = rows.f[order[a]]
+        if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
+            continue
+        cnt += 1
+        m0, m1, m2 = m0 + rf[0], m1 + rf[1], m2 + rf[2]
+        p0, p1, p2 = p0 + rf[3], p1 + rf[4], p2 + rf[5]
+    ml = np.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+    if cnt == 0 or not ml > 1e-9 * cnt:
+        return 0
+    p0, p1, p2 = p0 / cnt, p1 / cnt, p2 / cnt
+    m0, m1, m2 = m0 / ml, m1 / ml, m2 / ml
+    e0, e1, e2 = (0.0, m2, -m1) if abs(m0) < 0.6 else (-m2, 0.0, m0)
+    el = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    e0, e1, e2 = e0 / el, e1 / el, e2 / el
+    f0, f1, f2 = _cross(m0, m1, m2, e0, e1, e2)
+    q = 0
+    for a in range(lo, hi):
+        rf = rows.f[order[a]]
+        if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
+            continue
+        d0, d1, d2 = rf[3] - p0, rf[4] - p1, rf[5] - p2
+        phi[q, 0] = 1.0
+        phi[q, 1] = d0 * e0 + d1 * e1 + d2 * e2
+        phi[q, 2] = d0 * f0 + d1 * f1 + d2 * f2
+        q += 1
+    for k in (1, 2):
+        spread = np.sqrt((phi[:cnt, k] ** 2).sum() / cnt)
+        w = 1.0 / spread if spread > THIN else 0.0
+        phi[:cnt, k] *= w
+    return cnt
+
+
+@njit(inline='always', **JIT)
+def _patch_system(pt, bd, rows, order, lo, hi, phi, vel, work):
+    """The 3x3 system of a group (``work`` = (mat, rhs, buf)): mat = Phi^T K Phi, rhs =
+    Phi^T (target - v_n); ``vel`` = (col, Vt, h)."""
+    col, Vt, _ = vel
+    mat, rhs, buf = work
+    mat[:, :] = 0.0
+    rhs[:] = 0.0
+    q = 0
+    for a in range(lo, hi):
+        rf = rows.f[order[a]]
+        if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
+            continue
+        ri = rows.i[order[a]]
+        u0, u1, u2 = _rel_velocity(bd, Vt, rf, ri, col)
+        gap = (rf[ROW_TARGET] if col == 0 else rf[ROW_VN0]) - (
+            u0 * rf[0] + u1 * rf[1] + u2 * rf[2])
+        loc = 0.0
+        for c in range(2):
+            b = ri[2 + c]
+            if b >= 0:
+                loc += (1.0 - bd.share[b]) ** 2 * pt.W[ri[c]]
+        for k in range(3):
+            rhs[k] += phi[q, k] * gap
+            for c in range(3):
+                mat[k, c] += loc * phi[q, k] * phi[q, c]
+        q += 1
+    _side_block(bd, rows.i[order[lo], 2], rows, order, lo, hi, 0, phi, mat, buf)
+    _side_block(bd, rows.i[order[lo], 3], rows, order, lo, hi, 1, phi, mat, buf)
+
+
+@njit(inline='always', **JIT)
+def _patch_apply(pt, bd, rows, order, lo, hi, phi, coef, vel):
+    """Apply lambda_r = phi_r . coef to the touching rows lo..hi, unless a row would have
+    to pull (a clamped solution can push far more than the patch needs: then nothing,
+    and the rows' sweeps do it alone).  Returns the largest speed change."""
+    col, Vt, h = vel
+    acc = ROW_ACCN if col == 0 else ROW_ACCP
+    q = 0
+    for a in range(lo, hi):
+        rf = rows.f[order[a]]
+        if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
+            continue
+        if phi[q, 0] * coef[0] + phi[q, 1] * coef[1] + phi[q, 2] * coef[2] < -rf[acc]:
+            return 0.0
+        q += 1
+    big = 0.0
+    q = 0
+    for a in range(lo, hi):
+        rf = rows.f[order[a]]
+        if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
+            continue
+        lam = phi[q, 0] * coef[0] + phi[q, 1] * coef[1] + phi[q, 2] * coef[2]
+        q += 1
+        rf[acc] += lam
+        if lam != 0.0:
+            big = max(big, abs(lam) * rf[ROW_KN])
+            _apply(bd, pt.X, Vt, pt.W, rf, rows.i[order[a]], lam * rf[0], lam * rf[1],
+                   lam * rf[2], col, h)
+    return big
+
+
 @njit(**JIT)
 def block_pass(pt, bd, rows, grp, col, Vt, backward):
     """Each group of rows in contact (two bodies, or a body and a collider) solved at
@@ -128,112 +231,24 @@ def block_pass(pt, bd, rows, grp, col, Vt, backward):
     start, groups, h); the groups in reverse order when ``backward`` (symmetric
     Gauss-Seidel over the groups).  Returns the largest speed change."""
     order, start, ng, h = grp
-    acc = ROW_ACCN if col == 0 else ROW_ACCP
-    big = 0.0
-    mat = np.zeros((3, 3))
-    rhs = np.zeros(3)
-    buf = np.zeros((6, 3))
+    vel = (col, Vt, h)
+    work = (np.zeros((3, 3)), np.zeros(3), np.zeros((6, 3)))
     phi = np.zeros((max(start[ng] - start[0], 1), 3))
+    big = 0.0
     for gg in range(ng):
         g = ng - 1 - gg if backward else gg
         lo, hi = start[g], start[g + 1]
-        cnt = 0
-        p0 = p1 = p2 = m0 = m1 = m2 = 0.0
-        for a in range(lo, hi):
-            rf = rows.f[order[a]]
-            if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
-                continue
-            cnt += 1
-            m0 += rf[0]
-            m1 += rf[1]
-            m2 += rf[2]
-            p0 += rf[3]
-            p1 += rf[4]
-            p2 += rf[5]
-        if cnt == 0:
+        if _patch_basis(rows, order, lo, hi, phi) == 0:
             continue
-        p0, p1, p2 = p0 / cnt, p1 / cnt, p2 / cnt
-        ml = np.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
-        m0, m1, m2 = m0 / ml, m1 / ml, m2 / ml
-        if abs(m0) < 0.6:
-            e0, e1, e2 = 0.0, m2, -m1
-        else:
-            e0, e1, e2 = -m2, 0.0, m0
-        el = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
-        e0, e1, e2 = e0 / el, e1 / el, e2 / el
-        f0, f1, f2 = _cross(m0, m1, m2, e0, e1, e2)
-        # the patch's spread along e and f: a basis function of a patch too thin along
-        # its direction (an edge, a point) is left out
-        s1 = s2 = 0.0
-        for a in range(lo, hi):
-            rf = rows.f[order[a]]
-            if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
-                continue
-            d0, d1, d2 = rf[3] - p0, rf[4] - p1, rf[5] - p2
-            s1 += (d0 * e0 + d1 * e1 + d2 * e2) ** 2
-            s2 += (d0 * f0 + d1 * f1 + d2 * f2) ** 2
-        s1 = np.sqrt(s1 / cnt)
-        s2 = np.sqrt(s2 / cnt)
-        w1 = 1.0 / s1 if s1 > THIN else 0.0
-        w2 = 1.0 / s2 if s2 > THIN else 0.0
-        mat[:, :] = 0.0
-        rhs[:] = 0.0
-        q = 0
-        for a in range(lo, hi):
-            rf = rows.f[order[a]]
-            if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
-                continue
-            ri = rows.i[order[a]]
-            d0, d1, d2 = rf[3] - p0, rf[4] - p1, rf[5] - p2
-            phi[q, 0] = 1.0
-            phi[q, 1] = (d0 * e0 + d1 * e1 + d2 * e2) * w1
-            phi[q, 2] = (d0 * f0 + d1 * f1 + d2 * f2) * w2
-            u0, u1, u2 = _rel_velocity(bd, Vt, rf, ri, col)
-            gap = (rf[ROW_TARGET] if col == 0 else rf[ROW_VN0]) - (
-                u0 * rf[0] + u1 * rf[1] + u2 * rf[2])
-            loc = 0.0
-            for c in range(2):
-                b = ri[2 + c]
-                if b >= 0:
-                    loc += (1.0 - bd.share[b]) ** 2 * pt.W[ri[c]]
-            for k in range(3):
-                rhs[k] += phi[q, k] * gap
-                for c in range(3):
-                    mat[k, c] += loc * phi[q, k] * phi[q, c]
-            q += 1
-        _side_block(bd, rows.i[order[lo], 2], rows, order, lo, hi, 0, phi, mat, buf)
-        _side_block(bd, rows.i[order[lo], 3], rows, order, lo, hi, 1, phi, mat, buf)
+        _patch_system(pt, bd, rows, order, lo, hi, phi, vel, work)
+        mat = work[0]
         tr = mat[0, 0] + mat[1, 1] + mat[2, 2]
         if not tr > 0.0:
             continue
         for k in range(3):
             mat[k, k] += 1e-6 * tr
-        c = np.linalg.solve(mat, rhs)
-        # only a solution no row would have to pull for is taken (a clamped one can push
-        # far more than the patch needs); else the rows' sweeps do it alone
-        q = 0
-        pulls = False
-        for a in range(lo, hi):
-            rf = rows.f[order[a]]
-            if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
-                continue
-            if phi[q, 0] * c[0] + phi[q, 1] * c[1] + phi[q, 2] * c[2] < -rf[acc]:
-                pulls = True
-            q += 1
-        if pulls:
-            continue
-        q = 0
-        for a in range(lo, hi):
-            rf = rows.f[order[a]]
-            if rf[ROW_DEPTH] < rf[ROW_TOUCH]:
-                continue
-            lam = phi[q, 0] * c[0] + phi[q, 1] * c[1] + phi[q, 2] * c[2]
-            q += 1
-            rf[acc] += lam
-            if lam != 0.0:
-                big = max(big, abs(lam) * rf[ROW_KN])
-                _apply(bd, pt.X, Vt, pt.W, rf, rows.i[order[a]], lam * rf[0], lam * rf[1],
-                       lam * rf[2], col, h)
+        coef = np.linalg.solve(mat, work[1])
+        big = max(big, _patch_apply(pt, bd, rows, order, lo, hi, phi, coef, vel))
     return big
 
 
