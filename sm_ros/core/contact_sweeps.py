@@ -281,18 +281,38 @@ def energy_guard(bd):
                 bd.dvel[b, k] *= f
 
 
+@njit(inline='always', **JIT)
+def _row_push(pt, bd, rows, a, lam, vel):
+    """Row a's accumulated normal (or position) impulse changed by ``lam``, never below
+    zero, and applied; returns the speed change.  ``vel`` = (col, Vt, h)."""
+    col, Vt, h = vel
+    acc = ROW_ACCN if col == 0 else ROW_ACCP
+    rf = rows.f[a]
+    new = max(rf[acc] + lam, 0.0)
+    dl = new - rf[acc]
+    rf[acc] = new
+    if dl == 0.0:
+        return 0.0
+    _apply(bd, pt.X, Vt, pt.W, rf, rows.i[a], dl * rf[0], dl * rf[1], dl * rf[2], col, h)
+    return abs(dl) * rf[ROW_KN]
+
+
 @njit(**JIT)
 def jacobi_pass(pt, bd, rows, grp, col, Vt):
-    """Each row's normal impulse towards its target, all rows of a group from the same
-    state and each 1 / (rows of the group) of it (Jacobi, as FleX averages constraints):
-    what ``block_pass`` leaves (rows of a curved patch, clamped rows, gaps closing),
-    without favouring the rows swept first.  Returns the largest speed change."""
+    """Each row's normal impulse towards its target.  The rows of a group with a stiff
+    body all from the same state and each 1 / (rows of the group) of it (Jacobi, as FleX
+    averages constraints): what ``block_pass`` leaves (rows of a curved patch, clamped
+    rows, gaps closing), without favouring the rows swept first.  Rows of two soft bodies
+    (particles alone) one after the other in full (Gauss-Seidel).  Returns the largest
+    speed change."""
     order, start, ng, h = grp
-    acc = ROW_ACCN if col == 0 else ROW_ACCP
+    vel = (col, Vt, h)
     big = 0.0
     lam = np.zeros(max(start[ng] - start[0], 1))
     for g in range(ng):
         lo, hi = start[g], start[g + 1]
+        ri = rows.i[order[lo]]
+        stiff = bd.share[ri[2]] > 0.0 or (ri[3] >= 0 and bd.share[ri[3]] > 0.0)
         for a in range(lo, hi):
             rf = rows.f[order[a]]
             lam[a - lo] = 0.0
@@ -301,15 +321,12 @@ def jacobi_pass(pt, bd, rows, grp, col, Vt):
             u0, u1, u2 = _rel_velocity(bd, Vt, rf, rows.i[order[a]], col)
             target = rf[ROW_TARGET] if col == 0 else rf[ROW_VN0]
             lam[a - lo] = (target - (u0 * rf[0] + u1 * rf[1] + u2 * rf[2])) / rf[ROW_KN]
+            if not stiff:
+                big = max(big, _row_push(pt, bd, rows, order[a], lam[a - lo], vel))
+        if not stiff:
+            continue
         for a in range(lo, hi):
-            rf = rows.f[order[a]]
-            new = max(rf[acc] + lam[a - lo] / (hi - lo), 0.0)
-            dl = new - rf[acc]
-            rf[acc] = new
-            if dl != 0.0:
-                big = max(big, abs(dl) * rf[ROW_KN])
-                _apply(bd, pt.X, Vt, pt.W, rf, rows.i[order[a]], dl * rf[0], dl * rf[1],
-                       dl * rf[2], col, h)
+            big = max(big, _row_push(pt, bd, rows, order[a], lam[a - lo] / (hi - lo), vel))
     return big
 
 
