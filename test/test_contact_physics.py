@@ -294,7 +294,7 @@ def test_block_pass_meets_the_targets_of_a_flat_patch_at_once():
     CS.fill_collider_rows(pt, bd, rows, 0, m, law, np.full((n, KR.WARM_WIDTH), -np.inf))
     assert m == 25
     order, start = np.zeros(m, np.int64), np.zeros(m + 1, np.int64)
-    ng = F.group_rows(rows, m, 1, order, start)
+    ng = F.group_rows(rows, m, bd.share, order, start)
 
     def residual():
         out = []
@@ -305,4 +305,4 @@ def test_block_pass_meets_the_targets_of_a_flat_patch_at_once():
     assert residual().min() < -0.4
     SW.block_pass(pt, bd, rows, (order, start, ng, H), 0, pt.V, False)
     np.testing.assert_allclose(residual(), 0.0, atol=1e-5)      # 1e-6 regularised
-    assert (rows.f[:m, KR.ROW_ACCN] > 0.0).all()
+    assert (rows.f[order[:start[ng]], KR.ROW_ACCN] > 0.0).all()

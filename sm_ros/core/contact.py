@@ -65,7 +65,7 @@ COUPLE_ALPHA = 0.6
 RIGID_CLUSTERS = 2
 #: The velocity sweeps stop once no speed changed by more than this fraction of the
 #: resting threshold (``World.step``: 2 |g| h) in a sweep.
-SWEEP_TOL = 0.001
+SWEEP_TOL = 0.01
 _NO_GROUND = np.zeros(4)
 _NO_ROWS8 = np.zeros((0, 8))
 _NO_ROWS6 = np.zeros((0, 6))
@@ -403,7 +403,7 @@ class Contact:
         if len(self._row_order) < m:
             self._row_order = np.zeros(rows.f.shape[0], np.int64)
             self._row_start = np.zeros(rows.f.shape[0] + 1, np.int64)
-        ng = group_rows(rows, m, len(f.bodies), self._row_order, self._row_start)
+        ng = group_rows(rows, m, bd.share, self._row_order, self._row_start)
         # the energy guard needs every row between stiff bodies or with static colliders
         law[LAW_GUARD] = 1.0 if guarded(rows, m, bd.share) else 0.0
         solve_rows(pt, bd, rows, m, law, SWEEP_TOL * thresh, self._row_order, self._row_start,

@@ -13,8 +13,12 @@ import numpy as np
 from numba import njit
 
 from .kernels.contact_rows import (LAW_H, LAW_STAMP, ROW_ACCN, ROW_ACCP, ROW_ACCT, ROW_DEPTH,
-                                   ROW_T1, ROW_T2, WARM_POS, WARM_STAMP, _cross, _imul)
+                                   ROW_KN, ROW_T1, ROW_T2, WARM_POS, WARM_STAMP, _cross,
+                                   _imul)
 from .kernels.jit import JIT
+
+#: Rows a group of two stiff bodies (or a stiff body and a collider) keeps (``group_rows``).
+KEEP = 9
 
 
 #: Entries of ``_body_sums``' accumulator: mass, momentum (3), first moment (3), angular
@@ -164,9 +168,14 @@ def _inverse_sym3(a, out):
 
 
 @njit(**JIT)
-def group_rows(rows, m, nb, order, start):
+def group_rows(rows, m, share, order, start):
     """Sort the rows by their pair of bodies (``order``) and return the number of groups,
-    ``start[g]:start[g + 1]`` the positions in ``order`` of group g."""
+    ``start[g]:start[g + 1]`` the positions in ``order`` of group g.  A group of two stiff
+    bodies, or of a stiff body and a collider, keeps at most ``KEEP`` rows (contact
+    reduction, as Bullet's manifold keeps four points): the deepest and the extremes of
+    its patch in eight directions, which span its support; the others leave the solve
+    (their impulses zero)."""
+    nb = share.shape[0]
     keys = np.empty(m, dtype=np.int64)
     for a in range(m):
         keys[a] = rows.i[a, 2] * (nb + 1) + rows.i[a, 3] + 1
@@ -178,7 +187,58 @@ def group_rows(rows, m, nb, order, start):
             start[ng] = a
             ng += 1
     start[ng] = m
+    kept = np.zeros(m, dtype=np.bool_)
+    w = 0
+    for g in range(ng):
+        lo, hi = start[g], start[g + 1]
+        start[g] = w
+        ri = rows.i[order[lo]]
+        rigid = share[ri[2]] > 0.0 and (ri[3] < 0 or share[ri[3]] > 0.0)
+        if rigid and hi - lo > KEEP:
+            _reduce(rows, order, lo, hi, kept)
+        for a in range(lo, hi):
+            r = order[a]
+            if not rigid or hi - lo <= KEEP or kept[r]:
+                order[w] = r
+                w += 1
+            else:
+                f = rows.f[r]
+                f[ROW_KN] = f[ROW_ACCN] = f[ROW_ACCT] = f[ROW_ACCT + 1] = 0.0
+    start[ng] = w
     return ng
+
+
+@njit(inline='always', **JIT)
+def _reduce(rows, order, lo, hi, kept):
+    """Mark in ``kept`` the deepest row of a group and its extremes in eight directions of
+    its patch's tangent plane (offsets from body i's centre)."""
+    m0 = m1 = m2 = 0.0
+    deep = order[lo]
+    for a in range(lo, hi):
+        f = rows.f[order[a]]
+        m0, m1, m2 = m0 + f[0], m1 + f[1], m2 + f[2]
+        if f[ROW_DEPTH] > rows.f[deep, ROW_DEPTH]:
+            deep = order[a]
+    kept[deep] = True
+    ml = np.sqrt(m0 * m0 + m1 * m1 + m2 * m2) + 1e-300
+    m0, m1, m2 = m0 / ml, m1 / ml, m2 / ml
+    e0, e1, e2 = (0.0, m2, -m1) if abs(m0) < 0.6 else (-m2, 0.0, m0)
+    el = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    e0, e1, e2 = e0 / el, e1 / el, e2 / el
+    f0, f1, f2 = _cross(m0, m1, m2, e0, e1, e2)
+    for k in range(8):
+        ca = np.cos(0.25 * np.pi * k)
+        sa = np.sin(0.25 * np.pi * k)
+        best = -np.inf
+        arg = order[lo]
+        for a in range(lo, hi):
+            f = rows.f[order[a]]
+            d = (ca * (f[3] * e0 + f[4] * e1 + f[5] * e2)
+                 + sa * (f[3] * f0 + f[4] * f1 + f[5] * f2))
+            if d > best + 1e-12:
+                best = d
+                arg = order[a]
+        kept[arg] = True
 
 
 @njit(**JIT)

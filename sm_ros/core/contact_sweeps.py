@@ -23,7 +23,7 @@ from .kernels.jit import JIT
 #: Velocity and position sweeps per step, and the share of the last step's impulses a
 #: row starts from.
 VEL_SWEEPS = 8
-POS_SWEEPS = 4
+POS_SWEEPS = 2
 WARM = 1.0
 #: ``block_pass`` leaves out a tilt of a patch whose rows spread less than this (m)
 #: along it (an edge or a point of contact).
@@ -150,10 +150,30 @@ def _patch_basis(rows, order, lo, hi, phi):
         phi[q, 2] = d0 * f0 + d1 * f1 + d2 * f2
         q += 1
     for k in (1, 2):
-        spread = np.sqrt((phi[:cnt, k] ** 2).sum() / cnt)
+        sq = 0.0
+        for q in range(cnt):
+            sq += phi[q, k] * phi[q, k]
+        spread = np.sqrt(sq / cnt)
         w = 1.0 / spread if spread > THIN else 0.0
-        phi[:cnt, k] *= w
+        for q in range(cnt):
+            phi[q, k] *= w
     return cnt
+
+
+@njit(inline='always', **JIT)
+def _solve3(a, b, out):
+    """out = a^-1 b for a 3x3 a (Cramer's rule; a is regularised by the caller)."""
+    c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    c01 = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    c02 = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    det = a[0, 0] * c00 + a[0, 1] * c01 + a[0, 2] * c02
+    idet = 1.0 / det
+    out[0] = (b[0] * c00 + b[1] * (a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2])
+              + b[2] * (a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1])) * idet
+    out[1] = (b[0] * c01 + b[1] * (a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0])
+              + b[2] * (a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2])) * idet
+    out[2] = (b[0] * c02 + b[1] * (a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1])
+              + b[2] * (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0])) * idet
 
 
 @njit(inline='always', **JIT)
@@ -233,6 +253,7 @@ def block_pass(pt, bd, rows, grp, col, Vt, backward):
     order, start, ng, h = grp
     vel = (col, Vt, h)
     work = (np.zeros((3, 3)), np.zeros(3), np.zeros((6, 3)))
+    coef = np.zeros(3)
     phi = np.zeros((max(start[ng] - start[0], 1), 3))
     big = 0.0
     for gg in range(ng):
@@ -247,7 +268,7 @@ def block_pass(pt, bd, rows, grp, col, Vt, backward):
             continue
         for k in range(3):
             mat[k, k] += 1e-6 * tr
-        coef = np.linalg.solve(mat, work[1])
+        _solve3(mat, work[1], coef)
         big = max(big, _patch_apply(pt, bd, rows, order, lo, hi, phi, coef, vel))
     return big
 
@@ -298,13 +319,14 @@ def _row_push(pt, bd, rows, a, lam, vel):
 
 
 @njit(**JIT)
-def jacobi_pass(pt, bd, rows, grp, col, Vt):
+def jacobi_pass(pt, bd, rows, grp, col, Vt, soft):
     """Each row's normal impulse towards its target.  The rows of a group with a stiff
     body all from the same state and each 1 / (rows of the group) of it (Jacobi, as FleX
     averages constraints): what ``block_pass`` leaves (rows of a curved patch, clamped
     rows, gaps closing), without favouring the rows swept first.  Rows of two soft bodies
-    (particles alone) one after the other in full (Gauss-Seidel).  Returns the largest
-    speed change."""
+    (particles alone) one after the other in full (Gauss-Seidel), only when ``soft`` (the
+    first sweep: the shape match spreads what a particle gets, as the per-particle law
+    always did).  Returns the largest speed change."""
     order, start, ng, h = grp
     vel = (col, Vt, h)
     big = 0.0
@@ -313,6 +335,8 @@ def jacobi_pass(pt, bd, rows, grp, col, Vt):
         lo, hi = start[g], start[g + 1]
         ri = rows.i[order[lo]]
         stiff = bd.share[ri[2]] > 0.0 or (ri[3] >= 0 and bd.share[ri[3]] > 0.0)
+        if not (stiff or soft):
+            continue
         for a in range(lo, hi):
             rf = rows.f[order[a]]
             lam[a - lo] = 0.0
@@ -342,9 +366,10 @@ def solve_rows(pt, bd, rows, m, law, tol, order, start, ng):
     nvel = int(law[LAW_VEL])
     for it in range(nvel):
         big = block_pass(pt, bd, rows, grp, 0, pt.V, it % 2 == 1)
-        big = max(big, jacobi_pass(pt, bd, rows, grp, 0, pt.V))
-        for kk in range(m):
-            a = order[kk if it % 2 == 0 else m - 1 - kk]
+        big = max(big, jacobi_pass(pt, bd, rows, grp, 0, pt.V, it == 0))
+        mk = start[ng]
+        for kk in range(mk):
+            a = order[kk if it % 2 == 0 else mk - 1 - kk]
             rf = rows.f[a]
             if not rf[ROW_KN] > 0.0:
                 continue
@@ -370,4 +395,4 @@ def solve_rows(pt, bd, rows, m, law, tol, order, start, ng):
                 PV[0, p] = PV[1, p] = PV[2, p] = 0.0
     for it in range(int(law[LAW_POS])):
         block_pass(pt, bd, rows, grp, 6, PV, it % 2 == 1)
-        jacobi_pass(pt, bd, rows, grp, 6, PV)
+        jacobi_pass(pt, bd, rows, grp, 6, PV, it == 0)
