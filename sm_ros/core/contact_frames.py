@@ -17,8 +17,10 @@ from .kernels.contact_rows import (LAW_H, LAW_STAMP, ROW_ACCN, ROW_ACCP, ROW_ACC
                                    _imul)
 from .kernels.jit import JIT
 
-#: Rows a group of two stiff bodies (or a stiff body and a collider) keeps (``group_rows``).
+#: Rows a group of two stiff bodies (or a stiff body and a collider) keeps (``group_rows``)
+#: when it is one flat patch: all its normals within acos(``FLAT_COS``) of their mean.
 KEEP = 9
+FLAT_COS = 0.995
 
 
 #: Entries of ``_body_sums``' accumulator: mass, momentum (3), first moment (3), angular
@@ -172,9 +174,9 @@ def group_rows(rows, m, share, order, start):
     """Sort the rows by their pair of bodies (``order``) and return the number of groups,
     ``start[g]:start[g + 1]`` the positions in ``order`` of group g.  A group of two stiff
     bodies, or of a stiff body and a collider, keeps at most ``KEEP`` rows (contact
-    reduction, as Bullet's manifold keeps four points): the deepest and the extremes of
-    its patch in eight directions, which span its support; the others leave the solve
-    (their impulses zero)."""
+    reduction, as Bullet's manifold keeps four points) when its rows form one flat patch:
+    the deepest and the extremes of the patch in eight directions, which span its
+    support; the others leave the solve (their impulses zero)."""
     nb = share.shape[0]
     keys = np.empty(m, dtype=np.int64)
     for a in range(m):
@@ -222,6 +224,12 @@ def _reduce(rows, order, lo, hi, kept):
     kept[deep] = True
     ml = np.sqrt(m0 * m0 + m1 * m1 + m2 * m2) + 1e-300
     m0, m1, m2 = m0 / ml, m1 / ml, m2 / ml
+    for a in range(lo, hi):
+        f = rows.f[order[a]]
+        if f[0] * m0 + f[1] * m1 + f[2] * m2 < FLAT_COS:
+            for q in range(lo, hi):       # not one flat patch: every row stays
+                kept[order[q]] = True
+            return
     e0, e1, e2 = (0.0, m2, -m1) if abs(m0) < 0.6 else (-m2, 0.0, m0)
     el = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
     e0, e1, e2 = e0 / el, e1 / el, e2 / el
