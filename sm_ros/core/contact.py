@@ -65,7 +65,7 @@ COUPLE_ALPHA = 0.6
 RIGID_CLUSTERS = 2
 #: The velocity sweeps stop once no speed changed by more than this fraction of the
 #: resting threshold (``World.step``: 2 |g| h) in a sweep.
-SWEEP_TOL = 0.01
+SWEEP_TOL = 0.001
 _NO_GROUND = np.zeros(4)
 _NO_ROWS8 = np.zeros((0, 8))
 _NO_ROWS6 = np.zeros((0, 6))

@@ -23,7 +23,7 @@ from .kernels.jit import JIT
 #: Velocity and position sweeps per step, and the share of the last step's impulses a
 #: row starts from.
 VEL_SWEEPS = 8
-POS_SWEEPS = 2
+POS_SWEEPS = 4
 WARM = 1.0
 #: ``block_pass`` leaves out a tilt of a patch whose rows spread less than this (m)
 #: along it (an edge or a point of contact).
@@ -366,7 +366,7 @@ def solve_rows(pt, bd, rows, m, law, tol, order, start, ng):
     nvel = int(law[LAW_VEL])
     for it in range(nvel):
         big = block_pass(pt, bd, rows, grp, 0, pt.V, it % 2 == 1)
-        big = max(big, jacobi_pass(pt, bd, rows, grp, 0, pt.V, it == 0))
+        big = max(big, jacobi_pass(pt, bd, rows, grp, 0, pt.V, True))
         mk = start[ng]
         for kk in range(mk):
             a = order[kk if it % 2 == 0 else mk - 1 - kk]
@@ -395,4 +395,4 @@ def solve_rows(pt, bd, rows, m, law, tol, order, start, ng):
                 PV[0, p] = PV[1, p] = PV[2, p] = 0.0
     for it in range(int(law[LAW_POS])):
         block_pass(pt, bd, rows, grp, 6, PV, it % 2 == 1)
-        jacobi_pass(pt, bd, rows, grp, 6, PV, it == 0)
+        jacobi_pass(pt, bd, rows, grp, 6, PV, True)
