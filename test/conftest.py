@@ -167,6 +167,27 @@ def ros(warm):
         harness.close()
 
 
+def _copy_world(world):
+    """A deep copy of ``world`` whose read-only arrays stay read-only (Numba types them
+    apart: a plain deep copy's first step would load other kernel specialisations)."""
+    import copy
+    import numpy as np
+    memo = {}
+    twin = copy.deepcopy(world, memo)
+    for original in memo.get(id(memo), ()):
+        if isinstance(original, np.ndarray) and not original.flags.writeable:
+            dup = memo.get(id(original))
+            if isinstance(dup, np.ndarray) and dup is not original:
+                dup.flags.writeable = False
+    return twin
+
+
+@pytest.fixture
+def copy_world():
+    """``copy_world(world)``: a deep copy of a world that steps through the same kernels."""
+    return _copy_world
+
+
 @pytest.fixture
 def scene_file(tmp_path):
     """Return a function that writes a scene YAML (text, dedented) and returns its path."""

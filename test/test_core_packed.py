@@ -10,19 +10,6 @@ import sm_ros.core.world as world_mod
 from sm_ros.core import BodyParams, Box, Ground, World
 
 
-def copy_world(world):
-    """A deep copy of ``world`` whose read-only arrays stay read-only (Numba types them
-    apart: a plain deep copy's first step would load other kernel specialisations)."""
-    import copy
-    memo = {}
-    twin = copy.deepcopy(world, memo)
-    for original in memo.get(id(memo), ()):
-        if isinstance(original, np.ndarray) and not original.flags.writeable:
-            dup = memo.get(id(original))
-            if isinstance(dup, np.ndarray) and dup is not original:
-                dup.flags.writeable = False
-    return twin
-
 
 def lattice(n, spacing=0.02):
     g = np.arange(n) * spacing
@@ -154,7 +141,7 @@ def test_packed_damping_of_bodies_of_one_mass_matches_the_kernel_by_kernel_step(
         assert np.abs(g[1] - f[1]).max() > 1e-4 * np.abs(f[1]).max()
 
 
-def test_packed_bodies_read_their_state_from_the_pack():
+def test_packed_bodies_read_their_state_from_the_pack(copy_world):
     """A packed body's attributes are views of its row: what the step wrote is what the
     body reports (rotation, shape error, counts), a body stepped on its own in between is
     packed again (not left stale in the world's rows), and a copied world steps as the
@@ -245,7 +232,7 @@ def test_a_force_command_reaches_the_packed_row_without_repacking():
     assert world._split is not split and body not in world._split[1].bodies
 
 
-def test_two_worlds_stepped_in_turn_keep_their_packs():
+def test_two_worlds_stepped_in_turn_keep_their_packs(copy_world):
     """Two worlds stepping in turn (the live error estimate's coarse and fine copies, a
     user's second world) keep their packs and splits: a pack is rebuilt only when one of
     its own bodies was packed elsewhere (re-packing both worlds at every turn would cost

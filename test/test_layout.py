@@ -16,19 +16,6 @@ from sm_ros.core import body as body_mod
 from sm_ros.core.reference import ReferenceBody
 
 
-def copy_world(world):
-    """A deep copy of ``world`` whose read-only arrays stay read-only (Numba types them
-    apart: a plain deep copy's first step would load other kernel specialisations)."""
-    import copy
-    memo = {}
-    twin = copy.deepcopy(world, memo)
-    for original in memo.get(id(memo), ()):
-        if isinstance(original, np.ndarray) and not original.flags.writeable:
-            dup = memo.get(id(original))
-            if isinstance(dup, np.ndarray) and dup is not original:
-                dup.flags.writeable = False
-    return twin
-
 H = 1.0 / 120.0
 
 
@@ -96,7 +83,7 @@ def test_compiled_world_step_takes_a_one_particle_body():
 
 
 @pytest.mark.parametrize('copy', ['pickle', 'copy_world'])
-def test_copies_keep_the_layout_and_the_trajectory(copy):
+def test_copies_keep_the_layout_and_the_trajectory(copy, copy_world):
     world = World(gravity=(0.0, 0.0, -9.81))
     world.set_colliders(ground=Ground(height=0.0))
     world.add_body(_lattice(5) + (0.0, 0.0, 0.2), name='a',
