@@ -446,7 +446,7 @@ def sleeping(scene: str, seconds: float) -> Optional[Dict[str, Any]]:
     """The node's tick of ``scene`` from the start for ``seconds`` of simulated time with
     sleeping bodies on and off (``contact.sleep``), the two simulations ticked in turn:
     median and 90th percentile over the run, the median once every body sleeps and when
-    that happened (README "Sleeping bodies")."""
+    that happened (doc/sleeping.md)."""
     if seconds <= 0:
         return None
     from sm_ros.sim import Simulation

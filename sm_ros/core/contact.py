@@ -1,6 +1,6 @@
 """Contact between bodies, and self-collision, on the world's flat state (``flat.py``).
 
-Model (README "Contact between bodies"): every particle of a colliding body is a sphere of
+Model (doc/contact.md): every particle of a colliding body is a sphere of
 its body's contact radius ``r``; two particles of different bodies (or of one
 self-colliding body whose rest distance exceeds ``SELF_REST_FACTOR`` times their contact
 distance) must stay at least ``r_i + r_j`` apart.  After the bodies' own step (each
@@ -55,8 +55,8 @@ SKIN_FACTOR = 0.5
 PARALLEL_BUILD_MIN = 262144
 #: A body carries its contacts as a whole (``Contact.coupling``) when its goal pull alpha
 #: at the step is at least this (one cluster or many): the shape match then restores
-#: most of a deviation within the step, so the body is stiff (README "Contact between
-#: bodies"); softer bodies give way at their contacts, per particle.
+#: most of a deviation within the step, so the body is stiff (doc/contact.md); softer
+#: bodies give way at their contacts, per particle.
 COUPLE_ALPHA = 0.5
 #: With stacking, ``solve_bodies`` sweeps the pairs of bodies carried as a whole at most
 #: this many times a step (at least ``iterations``): 4 left five stacked boxes jittering
@@ -89,7 +89,7 @@ def _flag(name, value):
 
 @dataclass(frozen=True)
 class ContactParams:
-    """Scene-wide contact settings (README "Contact").
+    """Scene-wide contact settings (doc/contact.md).
 
     ``enabled`` turns body-body contact on; ``friction`` (Coulomb mu) and ``restitution``
     act like the ground's; ``radius_scale`` multiplies every body's default contact
@@ -97,13 +97,12 @@ class ContactParams:
     is used as given); ``iterations`` Gauss-Seidel sweeps over the pairs per step.
     ``stacking`` (on by default; scene key ``contact: {stacking: ...}``, node parameter
     ``contact.stacking``): under gravity, stiff bodies carry their contacts as a whole
-    (``COUPLE_ALPHA``, ``STACK_SWEEPS``, ``WARM_START``; README "Contact between bodies":
+    (``COUPLE_ALPHA``, ``STACK_SWEEPS``, ``WARM_START``; doc/contact.md:
     stacks stand and heaps of such bodies come to rest at the node's step); False: every
     particle acts on its own (``solve_pairs``), as softer bodies always do.
     ``sleep`` (on by default): a body whose particles all moved slower than
     ``sleep_speed`` (m/s) for ``sleep_time`` seconds and that touches no moving body falls
-    asleep and is not stepped until something wakes it (``sleep.py``, README "Sleeping
-    bodies").
+    asleep and is not stepped until something wakes it (``sleep.py``, doc/sleeping.md).
     """
 
     enabled: bool = True

@@ -303,7 +303,7 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
                  active, acc, tg, tol, vb, noground, cand, cptr, zlo, accg, warm, bc, bom,
                  biv, margin=0.0, cbuf=None, ibuf=None):
     """Body-body contact under gravity, the stiff bodies carrying their contacts as a
-    whole (README "Contact between bodies"; ``Contact.run`` calls ``solve_pairs``
+    whole (doc/contact.md; ``Contact.run`` calls ``solve_pairs``
     without gravity or without such bodies).
 
     A body with ``cpl[b]`` and an inverse mass ``bw[b]`` (stiff, one cluster or many, no

@@ -105,10 +105,6 @@ class FlatState:
         self._fl = None
         self.refresh_masses()
 
-    #: What a copy synced from another world keeps as its own (``sm_ros.world_sync``): the
-    #: flag arrays its typed list was built of, checked against its own bodies' flags
-    #: (``flag_list``), so the list is not rebuilt at its first step.
-    SYNC_OWN = frozenset(('_flags_seen',))
 
     def __getstate__(self):
         state = self.__dict__.copy()           # the typed lists do not pickle: rebuilt

@@ -1,5 +1,5 @@
 """Sleeping bodies: a body at rest in a contact world is not stepped until something
-wakes it (README "Sleeping bodies").
+wakes it (doc/sleeping.md).
 
 Physics engines put bodies that have come to rest to sleep (Box2D, Bullet, PhysX): a heap
 at rest then costs almost nothing.  Here, in a world where body-body contact runs

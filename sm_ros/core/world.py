@@ -395,10 +395,9 @@ class World(WorldColliders):
     def _contact_coupling(self, h):
         """Mark the bodies that carry their contacts as a whole (``Contact.coupling``):
         alpha at the step at least ``contact.COUPLE_ALPHA``, with one cluster or many
-        (README "Contact between bodies").  Recomputed when a body, its parameters or the
-        step change.  Keyed by the count of flat states built, not the flat state's id: a
-        copy of the world (deep, or synced: ``sm_ros.world_sync``) holds the coupling flags
-        with the key they were set for, and keeps them."""
+        (doc/contact.md).  Recomputed when a body, its parameters or the step change.
+        Keyed by the count of flat states built, not the flat state's id: a deep copy of
+        the world holds the coupling flags with the key they were set for, and keeps them."""
         key = (body_mod._GENERATION[0], h, self._flat_builds)
         if self._coupling_key == key:
             return
