@@ -5,6 +5,7 @@ Exit code 2 and one line for a bad scene or parameter file, a clean Ctrl-C (no
 traceback), and the first cloud seen by another process.
 """
 
+import contextlib
 import os
 import random
 import signal
@@ -63,14 +64,15 @@ def _write(path, text):
     return str(path)
 
 
-def test_first_cloud_then_clean_ctrl_c(warm, tmp_path):
+@contextlib.contextmanager
+def _cloud_probe(domain):
+    """A subscriber to /points in a context of its own on ``domain``: yields the executor
+    to spin and the list the clouds arrive in; shut down on leaving."""
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from sensor_msgs.msg import PointCloud2
-    domain = random.randint(201, 230)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     ctx = Context()
     rclpy.init(context=ctx, domain_id=domain)
     node = Node('probe', context=ctx)
@@ -78,23 +80,37 @@ def test_first_cloud_then_clean_ctrl_c(warm, tmp_path):
     ex.add_node(node)
     got = []
     node.create_subscription(PointCloud2, '/points', got.append, 10)
-    proc = subprocess.Popen(sim_node_cmd('--ros-args', '-p', 'rate:=30.0'), env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 120
-        while not got and time.monotonic() < deadline and proc.poll() is None:
-            ex.spin_once(timeout_sec=0.05)
-        assert got, 'no cloud from sim_node'
-        assert got[0].width > 100 and got[0].header.frame_id == 'world'
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=30)
+        yield ex, got
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
         ex.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
+
+
+def _reap(proc):
+    """Kill ``proc`` if it still runs, and collect it."""
+    if proc.poll() is None:
+        proc.kill()
+        proc.communicate()
+
+
+def test_first_cloud_then_clean_ctrl_c(warm, tmp_path):
+    domain = random.randint(201, 230)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    with _cloud_probe(domain) as (ex, got):
+        proc = subprocess.Popen(sim_node_cmd('--ros-args', '-p', 'rate:=30.0'), env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 120
+            while not got and time.monotonic() < deadline and proc.poll() is None:
+                ex.spin_once(timeout_sec=0.05)
+            assert got, 'no cloud from sim_node'
+            assert got[0].width > 100 and got[0].header.frame_id == 'world'
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=30)
+        finally:
+            _reap(proc)
     assert proc.returncode == 0, err
     assert 'Traceback' not in err and 'Traceback' not in out
 
@@ -213,41 +229,25 @@ def test_a_large_cloud_goes_out_over_the_packaged_profile_to_a_plain_subscriber(
     """With no DDS profile chosen, sim_node's participant takes config/fastdds_shm.xml (its
     256 MiB shared-memory segment, mapped by the node) and says so; a subscriber in this
     process, which sets nothing, receives the 56,000-point (896 KB) cloud whole."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from sensor_msgs.msg import PointCloud2
     scene = _write(tmp_path / 'big.yaml', BIG_SCENE)
     domain = random.randint(201, 230)
     env = {k: v for k, v in os.environ.items()
            if k not in ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE',
                         'FASTDDS_BUILTIN_TRANSPORTS')}
     env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    node = Node('probe', context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    got = []
-    node.create_subscription(PointCloud2, '/points', got.append, 10)
-    proc = subprocess.Popen(sim_node_cmd('--ros-args', '-p', f'scene:={scene}', '-p',
-                                         'rate:=10.0'), env=env, cwd=tmp_path,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 180
-        while len(got) < 3 and time.monotonic() < deadline and proc.poll() is None:
-            ex.spin_once(timeout_sec=0.05)
-        segments = _shm_segments(proc.pid) if proc.poll() is None else []
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-        ex.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
+    with _cloud_probe(domain) as (ex, got):
+        proc = subprocess.Popen(sim_node_cmd('--ros-args', '-p', f'scene:={scene}', '-p',
+                                             'rate:=10.0'), env=env, cwd=tmp_path,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 180
+            while len(got) < 3 and time.monotonic() < deadline and proc.poll() is None:
+                ex.spin_once(timeout_sec=0.05)
+            segments = _shm_segments(proc.pid) if proc.poll() is None else []
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=30)
+        finally:
+            _reap(proc)
     assert got, f'no cloud from sim_node: {err[-2000:]}'
     assert got[-1].width * got[-1].height == 56_000
     assert len(got[-1].data) == 56_000 * got[-1].point_step > 512 * 1024

@@ -1,11 +1,11 @@
 """Per-step poses of the collider pass's colliders: one compiled call for all of them.
 
-``ColliderSet.advance`` used to walk its colliders in Python (a slerp, a rotation matrix and
-a few small NumPy arrays per moving collider: 10-45 us each per step, more than the whole
-step of a small scene).  ``advance_poses`` (compiled, in ``kinematic.py`` beside the row
+Walking the colliders in Python (a slerp, a rotation matrix and a few small NumPy arrays
+per moving collider) would cost more than the whole step of a small scene.
+``advance_poses`` (compiled, in ``kinematic.py`` beside the row
 layout it writes, so that Numba's cache sees an edit of either) does the same arithmetic
 for every collider in one loop over plain arrays; ``advance_reference`` here is its
-plain-Python twin (the former per-collider code on the same arrays) that the tests compare
+plain-Python twin (per-collider code on the same arrays) that the tests compare
 it against.
 
 State (owned by ``ColliderSet``; ``nc`` colliders):

@@ -47,11 +47,9 @@ SELF_REST_FACTOR = 2.0
 #: Verlet skin as a fraction of the largest contact radius.
 SKIN_FACTOR = 0.5
 #: The pair list is built on the Numba threads (``build_pairs_grid_par``) from this many
-#: particles when more than one thread is set, like the bodies' step
-#: (``world.WORLD_PARALLEL_MIN_WORK``): on the two shared cores of the development machine
-#: the two-thread build of ``paper_384`` (55k particles) took 3.6 ms against 9.7 ms serial
-#: while the second core was free, and 12-60 ms whenever another job held it (OpenMP waits
-#: for the descheduled thread; ``python -m sm_ros.bench contact`` times both side by side).
+#: particles when more than one thread is set: below it a threaded build loses whenever
+#: another job holds a core (OpenMP waits for the descheduled thread;
+#: ``python -m sm_ros.bench contact`` times both side by side).
 PARALLEL_BUILD_MIN = 262144
 #: A body carries its contacts as a whole (``Contact.coupling``) when its goal pull alpha
 #: at the step is at least this (one cluster or many): the shape match then restores

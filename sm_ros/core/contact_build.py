@@ -61,8 +61,7 @@ def _bucket(key, mask):
 
 # The builders share their inner pair test (distance with skin, same body only with
 # self-collision and beyond the rest distance).  It is written out in each on purpose: as
-# a shared helper (also with inline='always') the rebuild of the 384-block bin took 14-39
-# ms against 6 ms (one thread, side by side).
+# a shared helper (also with inline='always') the rebuild was several times slower.
 
 
 @njit(**JIT)
@@ -640,8 +639,8 @@ def sort_pairs(pi, pj, m, n, cnt, ti, tj):
     """Order the first m pairs by their lower index (counting sort, stable: a particle's
     partners stay in build order; ``cnt`` (n + 1,) int64, ``ti``/``tj`` scratch like
     ``pi``/``pj``): the per-step sweep then reads X, V in increasing order for one particle
-    of each pair (3.9 -> 1.2 ms a step at 55k particles in the bench's bin: the (3, N) rows
-    are read by prefetched streams, not at random).  Ordering each particle's partners too
+    of each pair (the (3, N) rows are read by prefetched streams, not at random).
+    Ordering each particle's partners too
     would make the list independent of the builder, but the Gauss-Seidel sweep's result
     depends on that order, and tests tuned on this one (the head-on bounce) change."""
     cnt[:] = 0

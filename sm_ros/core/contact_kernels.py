@@ -358,8 +358,7 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
     selfp = False                      # a row of one carried body (self-collision)
     # the compact rows of the later sweeps: the caller's buffers (``cbuf`` (7, P) float64,
     # ``ibuf`` (5, P) int32; ``Contact``: sized to the pair list's capacity, so nothing is
-    # allocated a step; a fresh 1.3 MB a call cost about 0.3 ms of page faults in
-    # paper_384) or, without them, allocated here
+    # allocated a step and no page faults are paid) or, without them, allocated here
     if cbuf is None:
         cf = np.empty((7, npairs))
     else:
@@ -506,7 +505,7 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
                 # particles do not move within the sweeps, its bodies' moves are kept in
                 # dv), written here once the sweep has changed something; until then a
                 # second sweep may not come (a first sweep that changed nothing ends the
-                # pass: a resting bin's 20,000 rows cost 0.4-0.7 ms a step), so those are
+                # pass, which keeps a resting bin cheap), so those are
                 # written before the second sweep
                 if big > 0.0:
                     cm[nact] = 0

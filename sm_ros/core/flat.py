@@ -39,8 +39,8 @@ def gather_state(xs, vs, off, X, V, flags):
     asleep (``flags[b][3]`` > 0: its flat state is already its own, ``sleep.py``).
 
     ``xs[b]``, ``vs[b]`` are the bodies' (3, n) blocks (``Body._x.T``): each row is a
-    unit-stride copy, written as a slice assignment (a vectorised copy loop; 140 against
-    187 us for ``paper_384``'s 55,680 particles as an element loop).
+    unit-stride copy, written as a slice assignment (a vectorised copy loop, faster than
+    an element loop).
     """
     for b in range(len(xs)):
         if flags[b][3] > 0.0:
@@ -129,7 +129,7 @@ class FlatState:
         A body's masses are fixed (read-only) and its pinned and grabbed particles
         (``_kin_idx``) change only with a new body generation (``body_build.
         merge_kinematic``), so nothing is read while the generation is the one of the last
-        refresh (the loop over the bodies took 26 us a substep in ``paper_384``).
+        refresh (the loop over the bodies is not free in a scene of hundreds of bodies).
         """
         gen = _GENERATION[0]
         if gen == self._mass_gen:
@@ -160,8 +160,8 @@ class FlatState:
         """The bodies' flag arrays (``Body._flags``) as a typed list for the kernels."""
         # the bodies' flag arrays (``Body._dirty`` is ``_flags[0]``): a packed body's are
         # a view of its pack's row, replaced when it is packed again, so the typed list is
-        # rebuilt when one of them is not the array it holds (a check of identities: the
-        # property set of 384 bodies took 0.15-0.9 ms a substep in ``paper_384``)
+        # rebuilt when one of them is not the array it holds (a check of identities,
+        # cheaper than setting a property on every body)
         flags = [b._flags for b in self.bodies]
         seen = self._flags_seen
         if seen is None or any(map(operator.is_not, flags, seen)):

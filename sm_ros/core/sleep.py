@@ -28,8 +28,8 @@ at rest then costs almost nothing.  Here, in a world where body-body contact run
   of a conservative world) or with collider-pass colliders (``World._sleep_check``).
 
 The pass over the awake bodies' particles (reads of X, the previous positions and the
-spell's anchors, one write) costs about as much as the gather copy (~0.1 ms a step for
-``paper_384`` awake); the pass over the pair list (who touches whom) runs only while a
+spell's anchors, one write) costs about as much as the gather copy; the pass over the
+pair list (who touches whom) runs only while a
 body sleeps or has settled, so not while the bodies pour; the gather skips sleeping
 bodies, and a world whose bodies are all asleep skips the bodies' step, the contact pass
 and this pass.
