@@ -184,6 +184,19 @@ class Body:
         held = bool(self._force.any() or self._torque.any() or len(self._grab_idx))
         self._flags[SLEEP] = -1.0 if held else 0.0
 
+    def step_state(self) -> tuple:
+        """The attributes a step changes and a later step reads (``snapshot``): positions,
+        velocities, flags, the clusters' reference points, rotations and the sums carried
+        to the next step, the linear mode's warm start, the damping sums, the shape error,
+        the limit counts, the set layout; a plastic body's plastic state and the rest
+        data it reshapes too."""
+        names = ('_x', '_v', '_flags', '_ref', '_quat', '_part', '_err', '_shape_err',
+                 '_dpart', '_udv', '_limit_counts', '_sets')
+        if self._params.plastic:
+            names += ('_s_plastic', '_rest_lin', '_rest_off', '_sum_q', '_aqq3', '_aqq9',
+                      '_nmat', '_cdet')
+        return names
+
     def _fast_ok(self) -> bool:
         """Whether ``kernels.world_step`` may step this body (see its docstring)."""
         return ((self._sets is not None or self._params.clusters == 1)

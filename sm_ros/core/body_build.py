@@ -122,6 +122,11 @@ class _SetLayout:
     steps run by run without looking for the ends).
     """
 
+    def step_state(self) -> tuple:
+        """What a step changes and the next reads (``snapshot``): the per-set sums and
+        their reference points."""
+        return ('part', 'ref')
+
     def __init__(self, x0, m, ptr, cl, c0, cm0, quad, groups=None):
         n = len(x0)
         sid, uniq = group_sets(ptr, cl) if groups is None else groups
@@ -402,13 +407,8 @@ def fast_record(body, h):
     """The tuple of buffers ``kernels.world_step`` steps (valid until the next rebuild)."""
     if getattr(body, '_arena', None) is None:
         compact(body)
-    p = body._params.at_step(h)
-    body._at_step = (h, body._params, p)
-    body._fstate = np.array([p.alpha, p.beta, p.damping, body._params.max_speed,
-                             body._params.max_turn, 1.0 / body.total_mass, body._mode,
-                             1.0 if body._damp_fused else 0.0, 1.0 if body._quad else 0.0,
-                             1.0 if body._sets is not None else 0.0,
-                             body._params.max_turn / h, body._wuni])
+    body._fstate = np.zeros(12)
+    retime_record(body, body._fstate, h)
     sptr, scl, scnt = body._dsets if body._dsets else (
         np.zeros(2, dtype=np.int64), np.zeros(1, dtype=np.int32), np.ones(1))
     lin = body._lin if body._lin is not None else np.zeros((body.num_clusters, 13))
@@ -426,6 +426,17 @@ def fast_record(body, h):
             sptr, scl, scnt, body._quat_prev, body._flagged, body._lim_lin, body._lim_w,
             body._facc, body._fstate, body._flags, body._limit_counts) + body._fast_sets() + (
                 body._udv,)
+
+
+def retime_record(body, fstate, h):
+    """Write the numbers of a record for steps of ``h`` (``fast_record``'s ``_fstate``:
+    the material's coefficients at the step, the turn limit's rate) into ``fstate``."""
+    p = body._params.at_step(h)
+    body._at_step = (h, body._params, p)
+    fstate[:] = (p.alpha, p.beta, p.damping, body._params.max_speed, body._params.max_turn,
+                 1.0 / body.total_mass, body._mode, 1.0 if body._damp_fused else 0.0,
+                 1.0 if body._quad else 0.0, 1.0 if body._sets is not None else 0.0,
+                 body._params.max_turn / h, body._wuni)
 
 
 def one_record(body, h):

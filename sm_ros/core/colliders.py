@@ -138,6 +138,11 @@ class ColliderSet:
         self.imp_time = 0.0
         self.reset()
 
+    def step_state(self) -> tuple:
+        """What a step changes and a later step reads (``snapshot``): poses, motion, the
+        rows the pass reads, the accumulated impulses and their time."""
+        return ('pos', 'quat', 'mode', 'mv', 'motion', 'rows', 'imp', 'imp_time')
+
     def __len__(self):
         return len(self.items)
 

@@ -262,6 +262,13 @@ class Contact:
         self._cand = np.zeros(n, dtype=np.int64)        # particles near boxes, spheres
         self._cptr = np.zeros(max(nb, 1) + 1, dtype=np.int64)
 
+    def step_state(self) -> tuple:
+        """What a step changes and a later step reads (``snapshot``): the pair list and
+        what its build measured (boxes, positions, displacements since), the impulses that
+        warm-start the next step, the body masses and the last step's counts."""
+        return ('npairs', 'valid', 'builds', 'found', '_warm', '_pi', '_pj', '_xref', '_box',
+                '_dbox', '_acc', '_accg', '_bw', '_bw_version', 'count', 'deepest')
+
     def invalidate(self):
         """Force a rebuild of the pair list at the next step."""
         self.valid = False

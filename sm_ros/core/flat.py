@@ -106,6 +106,11 @@ class FlatState:
         self.refresh_masses()
 
 
+    def step_state(self) -> tuple:
+        """What a step changes and a later step reads (``snapshot``): the flat positions
+        and velocities (a sleeping body's are not gathered again) and inverse masses."""
+        return ('X', 'V', 'W', 'w_version')
+
     def __getstate__(self):
         state = self.__dict__.copy()           # the typed lists do not pickle: rebuilt
         del state['_xs'], state['_vs'], state['_fl']

@@ -105,14 +105,10 @@ class Pack:
         self.stale = False
         #: ``_resolve``'s compiled entry of the one-chunk call, and what it was resolved for
         self._entry = None
+        self.retime(h)
         for b, body in enumerate(self.bodies):
-            p = body._params.at_step(h)
-            body._at_step = (h, body._params, p)
             row = self.P[b]
             rebuild = False
-            row[:NPARAM] = (p.alpha, p.beta, p.damping, body._params.max_speed,
-                            body._params.max_turn, body._params.max_turn / h, body._mode,
-                            body._wuni)
             for name, (off, size, shape) in COLS.items():
                 src = np.asarray(getattr(body, name))
                 if name in _CHUNKED and src.shape[1:] == shape[1:] and len(src) > 1:
@@ -147,6 +143,17 @@ class Pack:
                                          f'{a.dtype} is not a C-contiguous float64 {shape}')
             self._held.append(arrays)
             self.ptrs[b] = [a.ctypes.data for a in arrays] + [n]
+
+    def retime(self, h):
+        """The parameter columns for steps of ``h`` (the material's coefficients at the step
+        and the turn limit's rate); the rows' state stays."""
+        self.h = h
+        for b, body in enumerate(self.bodies):
+            p = body._params.at_step(h)
+            body._at_step = (h, body._params, p)
+            self.P[b, :NPARAM] = (p.alpha, p.beta, p.damping, body._params.max_speed,
+                                  body._params.max_turn, body._params.max_turn / h,
+                                  body._mode, body._wuni)
 
     def __len__(self):
         return len(self.bodies)

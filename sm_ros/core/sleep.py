@@ -248,6 +248,11 @@ class Sleep:
             if b._flags[3] > 0.0:
                 b._flags[3] = 0.0
 
+    def step_state(self) -> tuple:
+        """What a step changes and a later step reads (``snapshot``): who sleeps, the still
+        spells and restless counts, the last positions and the spells' anchors."""
+        return ('slept', 'calm', 'fast', 'Xp', 'Xa')
+
     def all_asleep(self) -> bool:
         """Whether every body is asleep (one compiled call over the flags)."""
         return bool(all_asleep(self.flat.flag_list()))

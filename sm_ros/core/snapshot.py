@@ -1,11 +1,16 @@
 """Save a world's state and put it back bit for bit (the live error estimate's steps).
 
-A :class:`Snapshot` keeps the attribute bindings of the world and of every ``sm_ros.core``
-object reachable from it, the items of their lists and dicts, and the bytes of every
-writeable array they hold (in buffers allocated once).  Nothing is named, so it follows the
-solver's storage as that changes; ``load`` rebinds what a step at another size re-packed
-and writes the bytes back (``test/test_snapshot.py``).  The walk is reused while the same
-objects stay bound."""
+Each stateful solver class names the attributes a step changes and a later step reads in
+its ``step_state()`` (the world, bodies and their set layouts, the flat state, the contact
+pass, sleep, the collider pass).  From the world a :class:`Snapshot` follows those names:
+an attribute holding an object with ``step_state`` (or a dict or list of them) is
+followed, an array is copied by value into one buffer allocated once (again only when the
+world's arrays change size), a list's items are kept, anything else (numbers, flags,
+tuples, None) keeps its binding.  Derived and scratch arrays, which a step writes before
+it reads them, are not named and not saved.  ``load`` writes the values back into the
+arrays the attributes hold then, so a step at another size that re-packed the bodies
+(``packed.Pack``: their attributes become views of new rows) is undone too
+(``test/test_snapshot.py`` checks both the continuation and the names)."""
 
 from collections import deque
 from ctypes import memmove
@@ -13,93 +18,188 @@ import operator
 
 import numpy as np
 
-#: Immutable values: their binding is all there is to save.
-_PLAIN = (type(None), bool, int, float, complex, str, bytes, np.generic, frozenset, type)
+
+def holders(world) -> list:
+    """Every object of ``world`` with a ``step_state``, the world first, each once."""
+    out, seen, stack = [], set(), [world]
+    while stack:
+        obj = stack.pop()
+        if obj is None or id(obj) in seen:
+            continue
+        seen.add(id(obj))
+        if isinstance(obj, dict):
+            stack.extend(reversed(list(obj.values())))
+        elif isinstance(obj, (list, tuple)):
+            stack.extend(reversed(obj))
+        elif hasattr(obj, 'step_state'):
+            out.append(obj)
+            names = obj.step_state()
+            stack.extend(reversed([getattr(obj, n) for n in names]))
+    return out
 
 
-def _values(cont) -> list:
-    return list(cont.values()) if isinstance(cont, dict) else list(cont)
+def _followed(value) -> bool:
+    """Whether ``value`` is a holder or a container of holders (followed, not saved)."""
+    if isinstance(value, dict):
+        value = list(value.values())
+    if isinstance(value, (list, tuple)):
+        return bool(value) and all(hasattr(v, 'step_state') for v in value)
+    return hasattr(value, 'step_state')
 
 
-def _block(a: np.ndarray) -> np.ndarray:
-    """The writeable array owning ``a``'s memory (``a`` where that one is read-only)."""
-    base = a.base if isinstance(a.base, np.ndarray) else a      # NumPy: the owner
-    return base if base.flags.writeable else a
+def _getter(names):
+    """A function of an object giving the tuple of its attributes ``names``."""
+    return operator.attrgetter(*names, *names[:1]) if names else (lambda obj: ())
+
+
+def _items(value) -> list:
+    return list(value.values()) if isinstance(value, dict) else list(value)
+
+
+class _Plan:
+    """Where each named array of each holder goes in the buffer (the arrays as saved), and
+    what the plan is good for: the holders as followed (their objects, containers and
+    the attributes that were None) and the arrays as planned."""
+
+    def __init__(self, objs):
+        self.objs = objs
+        self.arrays, self.others, self.lists = [], [], []   # per holder: names
+        self.getters, self.refs, self.offsets = [], [], []
+        self.fixed = []                         # per holder: getter, values (identity)
+        self.sizes = []                         # (holder, name, items) of the containers
+        total = 0
+        for obj in objs:
+            arr, other, lists, fixed = [], [], [], []
+            for name in obj.step_state():
+                value = getattr(obj, name)
+                if isinstance(value, np.ndarray):
+                    arr.append(name)
+                elif isinstance(value, list) and not _followed(value):
+                    lists.append(name)
+                elif not _followed(value):
+                    other.append(name)
+                    fixed += [name] if value is None else []
+                else:
+                    fixed.append(name)
+                    if isinstance(value, (dict, list, tuple)):
+                        self.sizes.append((obj, name, _items(value)))
+            get = _getter(arr)
+            refs = get(obj)[:len(arr)]
+            offs = []
+            for a in refs:
+                offs.append(total)
+                total += -(-a.nbytes // 8) * 8
+            self.arrays.append(tuple(arr))
+            self.others.append(tuple(other))
+            self.lists.append(tuple(lists))
+            self.getters.append(get)
+            self.refs.append(refs)
+            self.offsets.append(offs)
+            self.fixed.append((_getter(fixed), _getter(fixed)(obj)))
+        self.nbytes = total
+
+    def valid(self) -> bool:
+        """Whether the holders hold the objects, containers and arrays planned."""
+        return (all(map(self.same_arrays, range(len(self.objs)), self.objs))
+                and all(all(map(operator.is_, get(obj), refs))
+                        for obj, (get, refs) in zip(self.objs, self.fixed))
+                and all(len(getattr(obj, name)) == len(items)
+                        and all(map(operator.is_, _items(getattr(obj, name)), items))
+                        for obj, name, items in self.sizes))
+
+    def same_arrays(self, k, obj) -> bool:
+        """Whether holder ``k`` holds the very arrays it held when planned."""
+        return all(map(operator.is_, self.getters[k](obj), self.refs[k]))
+
+    def moves(self, start: int):
+        """(array addresses, buffer addresses, sizes) of every array, contiguous ones."""
+        src, dst, size = [], [], []
+        for refs, offs in zip(self.refs, self.offsets):
+            for a, off in zip(refs, offs):
+                src.append(a.ctypes.data)
+                dst.append(start + off)
+                size.append(a.nbytes)
+        return src, dst, size
 
 
 class Snapshot:
     """A world's state: ``save(world)`` copies it in, ``load(world)`` puts it back."""
 
     def __init__(self):
-        self.world, self._buf, self._addr = None, np.zeros(0, np.uint8), ([], [], [])
-        self._holders, self._keys, self._conts, self._blocks, self._dicts, self._items = (
-            [], [], [], [], [], [])
+        self.world, self._plan, self._buf = None, None, np.zeros(0, np.uint8)
+        self._moves, self._others, self._lists = ([], [], []), [], []
 
-    def _walk(self, world) -> None:
-        """Find the solver objects, lists, dicts and memory blocks of ``world``."""
-        holders, conts, blocks, seen, stack = [], [], {}, set(), [world]
-        while stack:
-            obj = stack.pop()
-            if id(obj) in seen or isinstance(obj, _PLAIN):
-                continue
-            seen.add(id(obj))
-            if isinstance(obj, np.ndarray):
-                blocks.update({id(_block(obj)): _block(obj)} if obj.flags.writeable else {})
-            elif isinstance(obj, (list, tuple, dict)):
-                conts += [obj] if isinstance(obj, (list, dict)) else []
-                stack.extend(obj.values() if isinstance(obj, dict) else obj)
-            elif (type(obj).__module__ or '').startswith('sm_ros.core') \
-                    and hasattr(obj, '__dict__'):
-                holders.append(obj)
-                stack.extend(vars(obj).values())
-        self.world, self._holders, self._conts = world, holders, conts
-        self._keys = []                 # per holder: its size, a getter of its objects
-        for obj in holders:
-            keys = [k for k, v in vars(obj).items() if not isinstance(v, _PLAIN)]
-            # a tuple for one key too, and for none
-            get = operator.itemgetter(*keys, *keys[:1]) if keys else (lambda state: ())
-            self._keys.append((len(vars(obj)), get, get(vars(obj))))
-        flat = list(blocks.values())            # saved in one buffer, copied by address
-        if not all(b.flags.c_contiguous or b.flags.f_contiguous for b in flat):
-            raise TypeError('a solver array owns memory it does not hold contiguously')
-        sizes = [b.nbytes for b in flat]
-        if self._buf.nbytes != sum(sizes):
-            self._buf = np.empty(sum(sizes), dtype=np.uint8)
-        start = self._buf.ctypes.data
-        offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int).tolist()
-        self._blocks = flat                     # held: their addresses are used
-        self._addr = ([b.ctypes.data for b in flat], [start + o for o in offsets], sizes)
+    @property
+    def nbytes(self) -> int:
+        """Bytes of array state the last save copied."""
+        return 0 if self._plan is None else self._plan.nbytes
 
-    def _same_make(self, world) -> bool:
-        """Whether the walk still covers ``world``: the same objects bound and held."""
-        if world is not self.world:
-            return False
-        for obj, (count, get, refs) in zip(self._holders, self._keys):
-            state = vars(obj)
-            if len(state) != count or not all(map(operator.is_, get(state), refs)):
-                return False
-        return all(len(c) == len(saved) and all(map(operator.is_, _values(c),
-                                                     _values(saved)))
-                   for c, saved in zip(self._conts, self._items))
+    def _replan(self, world, objs) -> None:
+        plan = _Plan(objs)
+        for refs in plan.refs:
+            for a in refs:
+                if not (a.flags.c_contiguous or a.flags.f_contiguous):
+                    raise TypeError('a solver state array is not contiguous')
+        if self._buf.nbytes < plan.nbytes:
+            self._buf = np.empty(plan.nbytes, dtype=np.uint8)
+        self.world, self._plan = world, plan
+        self._moves = plan.moves(self._buf.ctypes.data)
+
+    def _view(self, k, j, a) -> np.ndarray:
+        """The buffer's copy of array ``j`` of holder ``k`` (saved as ``a``'s shape)."""
+        off = self._plan.offsets[k][j]
+        order = 'F' if a.flags.f_contiguous and not a.flags.c_contiguous else 'C'
+        return self._buf[off:off + a.nbytes].view(a.dtype).reshape(a.shape, order=order)
 
     def save(self, world) -> None:
         """Copy ``world``'s state into the snapshot."""
-        if not self._same_make(world):
-            self._walk(world)
-        self._dicts = [dict(vars(o)) for o in self._holders]
-        self._items = [c.copy() for c in self._conts]
-        blocks, bufs, sizes = self._addr                # one memmove a block, C speed
-        deque(map(memmove, bufs, blocks, sizes), maxlen=0)
+        plan = self._plan
+        if plan is None or world is not self.world or not plan.valid():
+            self._replan(world, holders(world))
+            plan = self._plan
+        objs = plan.objs
+        src, dst, size = self._moves                   # one memmove an array, C speed
+        deque(map(memmove, dst, src, size), maxlen=0)
+        self._others = [operator.attrgetter(*names, *names[:1])(obj) if names else ()
+                        for obj, names in zip(objs, plan.others)]
+        self._lists = [[list(getattr(obj, n)) for n in names]
+                       for obj, names in zip(objs, plan.lists)]
 
     def load(self, world) -> None:
-        """Put the saved state back into ``world`` (the world it was saved from)."""
-        if world is not self.world:
+        """Put the saved state back into ``world`` (the world it was saved from, with the
+        same bodies)."""
+        plan = self._plan
+        if world is not self.world or plan is None:
             raise ValueError('a snapshot loads only into the world it was saved from')
-        for obj, saved in zip(self._holders, self._dicts):
-            vars(obj).clear()
-            vars(obj).update(saved)
-        for c, saved in zip(self._conts, self._items):
-            c.clear()
-            c.update(saved) if isinstance(c, dict) else c.extend(saved)
-        blocks, bufs, sizes = self._addr
-        deque(map(memmove, blocks, bufs, sizes), maxlen=0)
+        if any(len(getattr(obj, name)) != len(items) for obj, name, items in plan.sizes):
+            raise ValueError('the world has other bodies than when it was saved')
+        objs = plan.objs                    # objects built since (a first step) are let go
+        src, dst, size = self._moves
+        same = list(map(plan.same_arrays, range(len(objs)), objs))
+        if all(same):
+            deque(map(memmove, src, dst, size), maxlen=0)
+        else:
+            for k, obj in enumerate(objs):
+                self._load_arrays(k, obj, same[k])
+        for obj, names, values in zip(objs, plan.others, self._others):
+            for name, value in zip(names, values):
+                setattr(obj, name, value)
+        for obj, names, items in zip(objs, plan.lists, self._lists):
+            for name, saved in zip(names, items):
+                getattr(obj, name)[:] = saved
+
+    def _load_arrays(self, k, obj, same) -> None:
+        """Holder ``k``'s arrays back where a step rebound some of them (a new pack's rows,
+        a pair list grown): the values into the arrays held now, or the saved arrays'
+        copies where the shape changed."""
+        plan = self._plan
+        for j, (name, ref) in enumerate(zip(plan.arrays[k], plan.refs[k])):
+            saved = self._view(k, j, ref)
+            now = getattr(obj, name)
+            if same or now is ref:
+                np.copyto(ref, saved)
+            elif (isinstance(now, np.ndarray) and now.shape == ref.shape
+                  and now.dtype == ref.dtype):
+                np.copyto(now, saved)
+            else:
+                setattr(obj, name, saved.copy(order='A'))

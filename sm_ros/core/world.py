@@ -7,7 +7,7 @@ import numpy as np
 import numba
 from numba.typed import List as TypedList
 
-from . import body as body_mod
+from . import body as body_mod, body_build
 from .body import Body
 from .kernels.world_step import step_bodies_parallel, step_single_bodies
 from .packed import Pack
@@ -39,6 +39,7 @@ class World(WorldColliders):
         self._contact_params = ContactParams()
         self._flat = None                      # FlatState + Contact, rebuilt lazily
         self._split = None                     # compiled-step records (_split_bodies)
+        self._split_fstates = []               # (body, numbers of its record) in _split
         self._layout = 0                       # bumped when bodies are added or removed
         self._contact = None
         self._sleep = None                     # sleep.Sleep with the contact pass
@@ -51,6 +52,12 @@ class World(WorldColliders):
         self._flagged = False                  # see state_flagged
         self.time = 0.0
         self.set_colliders()
+
+    def step_state(self) -> tuple:
+        """What a step changes and a later step reads (``snapshot``): the time, the bodies,
+        the flat state, contact, sleep, the collider pass and what the last step saw."""
+        return ('time', '_flagged', '_wake_key', '_coll_stats', '_bodies', '_flat',
+                '_contact', '_sleep', '_cset')
 
     @property
     def gravity(self) -> np.ndarray:
@@ -307,6 +314,7 @@ class World(WorldColliders):
     def __getstate__(self):
         state = self.__dict__.copy()
         state['_split'] = None                 # a typed list does not copy: rebuilt
+        state['_split_fstates'] = []
         return state
 
     #: Step the bodies ``kernels.world_step`` covers in one compiled call (tests compare).
@@ -332,13 +340,24 @@ class World(WorldColliders):
         list's ``len`` is a compiled call."""
         key = (body_mod._GENERATION[0], h, self._layout, self.compiled_step)
         split = self._split
+        fresh = split is not None and not (split[1] is not None and split[1].stale)
+        if fresh and split[0] != key and split[0][:1] + split[0][2:] == key[:1] + key[2:]:
+            # only the step changed (the live error estimate's half steps): the numbers
+            # that depend on it, in place
+            if split[1] is not None:
+                split[1].retime(h)
+            for body, fstate in self._split_fstates:
+                body_build.retime_record(body, fstate, h)
+            split = self._split = (key,) + split[1:]
         if split is None or split[0] != key or (split[1] is not None and split[1].stale):
             records, packed, slow, rec_work = TypedList(), [], [], 0
+            self._split_fstates = []            # each record's numbers (``retime_record``)
             for body in self._bodies.values():
                 if self.compiled_step and body._packed_ok():
                     packed.append(body)
                 elif self.compiled_step and body._fast_ok():
                     records.append(body._fast_record(h))
+                    self._split_fstates.append((body, body._fstate))
                     rec_work += body.n
                 else:
                     slow.append(body)
