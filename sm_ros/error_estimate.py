@@ -92,6 +92,10 @@ class LiveEstimate:
         self._started, self._due, self._deadline = 0.0, -math.inf, math.inf
         self._snaps = (Snapshot(), Snapshot())
 
+    def snapshot_bytes(self) -> int:
+        """Bytes of state a save copies (the larger of the two snapshots)."""
+        return max(snap.nbytes for snap in self._snaps)
+
     def age(self, now: float) -> Optional[float]:
         """Seconds since the state of the last estimate, or None before the first."""
         return None if self.result_at is None else now - self.result_at

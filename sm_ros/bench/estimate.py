@@ -8,7 +8,8 @@ accuracy --estimate-only`` (or ``--estimate`` after the sweep).
 - ``estimate_cost``: bundled scenes ticked in real time (the node's rate, a tick waits for
   its period) with the estimate at its default rate: the estimate's seconds as a fraction
   of the ticks' step seconds, the oldest estimate seen (``error_estimate_age_s``) against
-  2 / rate, and the ticks that overran their period.
+  2 / rate, the estimates made, the milliseconds of each and the megabytes a save copies,
+  and the ticks that overran their period.
 """
 
 import math
@@ -79,12 +80,16 @@ def cost_run(scene: str, seconds: float) -> Dict[str, Any]:
     sim = Simulation({'scene': scene})
     rate = float(sim.params['error_estimate.rate'])
     period = 1.0 / float(sim.params['rate'])
-    ages, t_end = [], time.monotonic() + seconds
+    ages, t_end, done, saved = [], time.monotonic() + seconds, set(), 0
     next_tick = time.monotonic()
     while time.monotonic() < t_end:
         sim.tick()
         age = sim.status_values()['error_estimate_age_s']
         ages.append(-1.0 if age is None else age)
+        est = sim._estimates
+        if est.result is not None and est.result.get('steps'):
+            done.add(est.result_at)
+        saved = max(saved, est.snapshot_bytes())
         next_tick += period
         time.sleep(max(0.0, next_tick - time.monotonic()))
     st = sim.stats
@@ -94,20 +99,27 @@ def cost_run(scene: str, seconds: float) -> Dict[str, Any]:
             'fraction': st.estimate_s_sum / st.step_s_sum if st.step_s_sum else 0.0,
             'age_max_s': max(late) if late else -1.0,
             'age_limit_s': 2.0 / rate if rate > 0.0 else math.inf,
-            'overruns': st.overruns_total, 'rate_hz': rate}
+            'overruns': st.overruns_total, 'rate_hz': rate, 'estimates': len(done),
+            'ms_per_estimate': 1e3 * st.estimate_s_sum / max(len(done), 1),
+            'saved_mb': saved / 1e6}
 
 
 def estimate_cost(seconds: float, out) -> List[dict]:
     """The table of the estimate's cost and age on ``COST_SCENES``."""
     t = bc.Table('estimate_cost', ['scene', 'rate_hz', 'ticks', 'step_s', 'estimate_s',
-                                   'fraction', 'age_max_s', 'age_limit_s', 'overruns'],
+                                   'fraction', 'estimates', 'ms_per_estimate', 'saved_mb',
+                                   'age_max_s', 'age_limit_s', 'overruns'],
                  f'Live error estimate at its default rate, {seconds:g} s of real-time '
-                 "ticks: its seconds as a fraction of the steps' seconds, the oldest "
-                 'estimate seen (after the first 10 % of the ticks) and the limit 2 / rate')
+                 "ticks: its seconds as a fraction of the steps' seconds, the estimates "
+                 'made (not counting those of a world asleep) and the seconds of each, the '
+                 'megabytes a save copies, the oldest estimate seen (after the first 10 % '
+                 'of the ticks) and the limit 2 / rate')
     for scene in COST_SCENES:
         res = cost_run(scene, seconds)
         t.add(**res)
         bc.log(f'[estimate] {scene}: {100 * res["fraction"]:.1f} % of the step time, '
-               f'oldest {res["age_max_s"]:.2f} s (limit {res["age_limit_s"]:g} s)')
+               f'{res["ms_per_estimate"]:.1f} ms an estimate, {res["saved_mb"]:.2f} MB saved, '
+               f'oldest {res["age_max_s"]:.2f} s (limit {res["age_limit_s"]:g} s), '
+               f'{res["overruns"]} overruns')
     t.write(out)
     return t.rows

@@ -97,10 +97,21 @@ class _Plan:
             self.offsets.append(offs)
             self.fixed.append((_getter(fixed), _getter(fixed)(obj)))
         self.nbytes = total
+        # every array's holder and name in one list each: one check at C speed
+        self.flat = ([o for o, names in zip(objs, self.arrays) for _ in names],
+                     [n for names in self.arrays for n in names],
+                     [a for refs in self.refs for a in refs])
+        self.bound = ([o for o, names in zip(objs, self.others) for _ in names],
+                      [n for names in self.others for n in names])
+
+    def all_same(self) -> bool:
+        """Whether every holder holds the very arrays it held when planned."""
+        objs, names, refs = self.flat
+        return all(map(operator.is_, map(getattr, objs, names), refs))
 
     def valid(self) -> bool:
         """Whether the holders hold the objects, containers and arrays planned."""
-        return (all(map(self.same_arrays, range(len(self.objs)), self.objs))
+        return (self.all_same()
                 and all(all(map(operator.is_, get(obj), refs))
                         for obj, (get, refs) in zip(self.objs, self.fixed))
                 and all(len(getattr(obj, name)) == len(items)
@@ -160,8 +171,7 @@ class Snapshot:
         objs = plan.objs
         src, dst, size = self._moves                   # one memmove an array, C speed
         deque(map(memmove, dst, src, size), maxlen=0)
-        self._others = [operator.attrgetter(*names, *names[:1])(obj) if names else ()
-                        for obj, names in zip(objs, plan.others)]
+        self._others = list(map(getattr, *plan.bound))
         self._lists = [[list(getattr(obj, n)) for n in names]
                        for obj, names in zip(objs, plan.lists)]
 
@@ -175,15 +185,12 @@ class Snapshot:
             raise ValueError('the world has other bodies than when it was saved')
         objs = plan.objs                    # objects built since (a first step) are let go
         src, dst, size = self._moves
-        same = list(map(plan.same_arrays, range(len(objs)), objs))
-        if all(same):
+        if plan.all_same():
             deque(map(memmove, src, dst, size), maxlen=0)
         else:
             for k, obj in enumerate(objs):
-                self._load_arrays(k, obj, same[k])
-        for obj, names, values in zip(objs, plan.others, self._others):
-            for name, value in zip(names, values):
-                setattr(obj, name, value)
+                self._load_arrays(k, obj, plan.same_arrays(k, obj))
+        deque(map(setattr, *plan.bound, self._others), maxlen=0)
         for obj, names, items in zip(objs, plan.lists, self._lists):
             for name, saved in zip(names, items):
                 getattr(obj, name)[:] = saved
