@@ -317,6 +317,7 @@ def run(args, out: Path) -> Dict[str, Any]:
         if only or getattr(args, 'estimate', False):
             findings['estimate_accuracy'] = estimate.estimate_accuracy(
                 list(ESTIMATE_SCENES), args.accuracy_points, args.duration, out)
+            findings['estimate_timing'] = estimate.estimate_timing(out)
             findings['estimate_cost'] = estimate.estimate_cost(args.estimate_seconds, out)
         return findings
     finally:

@@ -5,6 +5,8 @@ accuracy --estimate-only`` (or ``--estimate`` after the sweep).
 - ``estimate_accuracy``: on the accuracy scenes at 1/120 and 1/240 s, eight estimates
   along T s against the scene's true error (the sweep's error: the largest RMS position
   error over T); the mean ratio and the worst single one;
+- ``estimate_timing``: one estimate's milliseconds against one step's, and the bytes a
+  save copies, on the default scene and in ``paper_384``'s pour;
 - ``estimate_cost``: bundled scenes ticked in real time (the node's rate, a tick waits for
   its period) with the estimate at its default rate: the estimate's seconds as a fraction
   of the ticks' step seconds, the oldest estimate seen (``error_estimate_age_s``) against
@@ -20,8 +22,10 @@ import numpy as np
 
 from . import common as bc
 
-#: Scenes whose estimate cost and age are measured (``--estimate-seconds`` of ticks each).
-COST_SCENES = ('default', 'paper_384')
+#: Scenes whose estimate cost and age are measured (``--estimate-seconds`` of ticks each)
+#: and the rate (None: the default): ``paper_384`` at 2 Hz too, so that estimates fall in
+#: its pour (at the default rate the first is due when the heap may be asleep already).
+COST_SCENES = (('default', None), ('paper_384', None), ('paper_384', 2.0))
 
 
 def ratios(scene, h: float, duration: float, every_s: float = 0.25) -> Dict[str, Any]:
@@ -74,10 +78,57 @@ def estimate_accuracy(names: List[str], points: int, duration: float, out) -> Li
     return t.rows
 
 
-def cost_run(scene: str, seconds: float) -> Dict[str, Any]:
-    """Tick ``scene`` in real time for ``seconds``; the estimate's cost and age."""
+#: Scenes whose estimates are timed against their steps, and the steps before the first.
+TIMING_SCENES = (('default', 40), ('paper_384', 120))
+
+
+def timing_run(scene: str, lead: int, count: int = 12) -> Dict[str, Any]:
+    """From step ``lead`` of ``scene``, ``count`` estimates (``error_estimate.estimate``),
+    one every 12 steps: the median milliseconds of an estimate and of a step, and the
+    megabytes a save copies."""
+    from sm_ros import error_estimate as EE
+    from sm_ros.core.snapshot import Snapshot
     from sm_ros.sim import Simulation
-    sim = Simulation({'scene': scene})
+    sim = Simulation({'scene': scene, 'error_estimate.rate': 0.0})
+    world, h = sim.world, float(sim.params['dt'])
+    for _ in range(lead):
+        world.step(h)
+    snap, est, steps = Snapshot(), [], []
+    for _ in range(count):
+        t0 = time.perf_counter()
+        EE.estimate(world, h, snap)
+        est.append(time.perf_counter() - t0)
+        for _ in range(12):
+            t0 = time.perf_counter()
+            world.step(h)
+            steps.append(time.perf_counter() - t0)
+    ms, step_ms = 1e3 * float(np.median(est)), 1e3 * float(np.median(steps))
+    return {'scene': scene, 'from_step': lead, 'estimate_ms': ms, 'step_ms': step_ms,
+            'steps_worth': ms / step_ms, 'saved_mb': snap.nbytes / 1e6}
+
+
+def estimate_timing(out) -> List[dict]:
+    """The table of an estimate's milliseconds against a step's on ``TIMING_SCENES``."""
+    t = bc.Table('estimate_timing', ['scene', 'from_step', 'estimate_ms', 'step_ms',
+                                     'steps_worth', 'saved_mb'],
+                 'One live error estimate (three steps, a save, two loads) against one '
+                 'step: medians of 12 estimates one every 12 steps, and the megabytes a '
+                 'save copies')
+    for scene, lead in TIMING_SCENES:
+        res = timing_run(scene, lead)
+        t.add(**res)
+        bc.log(f'[estimate] {scene}: {res["estimate_ms"]:.2f} ms an estimate, '
+               f'{res["steps_worth"]:.1f} steps, {res["saved_mb"]:.2f} MB saved')
+    t.write(out)
+    return t.rows
+
+
+def cost_run(scene: str, seconds: float, rate=None) -> Dict[str, Any]:
+    """Tick ``scene`` in real time for ``seconds`` with estimates at ``rate`` Hz (None:
+    the default); the estimate's cost and age."""
+    from sm_ros.sim import Simulation
+    sim = Simulation({'scene': scene} if rate is None else
+                     {'scene': scene, 'error_estimate.rate': float(rate)})
     rate = float(sim.params['error_estimate.rate'])
     period = 1.0 / float(sim.params['rate'])
     ages, t_end, done, saved = [], time.monotonic() + seconds, set(), 0
@@ -114,10 +165,11 @@ def estimate_cost(seconds: float, out) -> List[dict]:
                  'made (not counting those of a world asleep) and the seconds of each, the '
                  'megabytes a save copies, the oldest estimate seen (after the first 10 % '
                  'of the ticks) and the limit 2 / rate')
-    for scene in COST_SCENES:
-        res = cost_run(scene, seconds)
+    for scene, rate in COST_SCENES:
+        res = cost_run(scene, seconds, rate)
         t.add(**res)
-        bc.log(f'[estimate] {scene}: {100 * res["fraction"]:.1f} % of the step time, '
+        bc.log(f'[estimate] {scene} at {res["rate_hz"]:g} Hz: {100 * res["fraction"]:.1f} % '
+               'of the step time, '
                f'{res["ms_per_estimate"]:.1f} ms an estimate, {res["saved_mb"]:.2f} MB saved, '
                f'oldest {res["age_max_s"]:.2f} s (limit {res["age_limit_s"]:g} s), '
                f'{res["overruns"]} overruns')

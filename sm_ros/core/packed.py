@@ -92,7 +92,6 @@ class Pack:
     def __init__(self, bodies, h):
         nb = len(bodies)
         self.bodies = list(bodies)
-        self.h = h
         self.P = np.zeros((max(nb, 1), NCOL))
         self.counts = np.zeros((max(nb, 1), 2), dtype=np.int64)
         #: per body the addresses of x, v, x0 as (3, N) blocks and of the masses, and N
@@ -101,8 +100,7 @@ class Pack:
         self._held = []
         #: ``SCRATCH`` numbers for ``_step_chunk``
         self.scratch = np.zeros((1, SCRATCH))
-        #: set when one of the bodies was packed since into another pack
-        self.stale = False
+        self.stale = False          # set when a body was packed since into another pack
         #: ``_resolve``'s compiled entry of the one-chunk call, and what it was resolved for
         self._entry = None
         self.retime(h)
@@ -145,15 +143,14 @@ class Pack:
             self.ptrs[b] = [a.ctypes.data for a in arrays] + [n]
 
     def retime(self, h):
-        """The parameter columns for steps of ``h`` (the material's coefficients at the step
-        and the turn limit's rate); the rows' state stays."""
+        """The parameter columns for steps of ``h``; the rows' state stays."""
         self.h = h
         for b, body in enumerate(self.bodies):
-            p = body._params.at_step(h)
-            body._at_step = (h, body._params, p)
-            self.P[b, :NPARAM] = (p.alpha, p.beta, p.damping, body._params.max_speed,
-                                  body._params.max_turn, body._params.max_turn / h,
-                                  body._mode, body._wuni)
+            prm = body._params
+            p = prm.at_step(h)
+            body._at_step = (h, prm, p)
+            self.P[b, :NPARAM] = (p.alpha, p.beta, p.damping, prm.max_speed, prm.max_turn,
+                                  prm.max_turn / h, body._mode, body._wuni)
 
     def __len__(self):
         return len(self.bodies)
