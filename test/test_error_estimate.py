@@ -21,9 +21,9 @@ def _ratios(name, h, points=125, duration=2.0):
 
 
 #: Where the local error rate does not add up to the 2 s error (doc/error_estimate.md):
-#: the rigid spin's local difference is mostly the rotation match's in-step distortion
-#: (its true error converges at order 2; mean 7-11x), and the press's jaws reach their
-#: targets in the fine answer's first half step (mean 6-10x, single up to 16x).
+#: the rigid spin's difference of the h and h/2 runs is a bounded oscillation (its true
+#: error, the rotation's phase, converges at order 2; mean 7-11x), and the press's shape
+#: match and plastic flow damp it (mean 6-10x, single up to 16x).
 _KNOWN_OFF = {'rigid_spin', 'plastic_press'}
 
 
