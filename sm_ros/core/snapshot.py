@@ -8,9 +8,10 @@ followed, an array is copied by value into one buffer allocated once (again only
 world's arrays change size), a list's items are kept, anything else (numbers, flags,
 tuples, None) keeps its binding.  Derived and scratch arrays, which a step writes before
 it reads them, are not named and not saved.  ``load`` writes the values back into the
-arrays the attributes hold then, so a step at another size that re-packed the bodies
-(``packed.Pack``: their attributes become views of new rows) is undone too
-(``test/test_snapshot.py`` checks both the continuation and the names)."""
+arrays the attributes hold then, so a re-packing of the bodies since the save
+(``packed.Pack``, after a change of a body's grabs or parameters: their attributes become
+views of new rows) is undone too (``test/test_snapshot.py`` checks both the continuation
+and the names)."""
 
 from collections import deque
 from ctypes import memmove
@@ -53,6 +54,7 @@ def _getter(names):
 
 
 def _items(value) -> list:
+    """The items of a list or tuple, the values of a dict."""
     return list(value.values()) if isinstance(value, dict) else list(value)
 
 
@@ -111,19 +113,22 @@ class _Plan:
 
     def valid(self) -> bool:
         """Whether the holders hold the objects, containers and arrays planned."""
-        return (self.all_same()
+        return (self.all_same() and self.same_items()
                 and all(all(map(operator.is_, get(obj), refs))
-                        for obj, (get, refs) in zip(self.objs, self.fixed))
-                and all(len(getattr(obj, name)) == len(items)
-                        and all(map(operator.is_, _items(getattr(obj, name)), items))
-                        for obj, name, items in self.sizes))
+                        for obj, (get, refs) in zip(self.objs, self.fixed)))
+
+    def same_items(self) -> bool:
+        """Whether the followed dicts and lists (the world's bodies) hold what they held."""
+        return all(len(getattr(obj, name)) == len(items)
+                   and all(map(operator.is_, _items(getattr(obj, name)), items))
+                   for obj, name, items in self.sizes)
 
     def same_arrays(self, k, obj) -> bool:
         """Whether holder ``k`` holds the very arrays it held when planned."""
         return all(map(operator.is_, self.getters[k](obj), self.refs[k]))
 
     def moves(self, start: int):
-        """(array addresses, buffer addresses, sizes) of every array, contiguous ones."""
+        """(array addresses, buffer addresses, sizes in bytes) of every planned array."""
         src, dst, size = [], [], []
         for refs, offs in zip(self.refs, self.offsets):
             for a, off in zip(refs, offs):
@@ -181,7 +186,7 @@ class Snapshot:
         plan = self._plan
         if world is not self.world or plan is None:
             raise ValueError('a snapshot loads only into the world it was saved from')
-        if any(len(getattr(obj, name)) != len(items) for obj, name, items in plan.sizes):
+        if not plan.same_items():
             raise ValueError('the world has other bodies than when it was saved')
         objs = plan.objs                    # objects built since (a first step) are let go
         src, dst, size = self._moves
