@@ -13,10 +13,11 @@ import pytest
 from sm_ros.core.snapshot import Snapshot
 
 #: Arrays a step writes before it reads them (per step scratch, work buffers and the
-#: results of a body's shape match, damping and limits; the contact solve's per-step rows;
-#: the pair build's grid and hash tables; the sleep pass's per-step figures), which a
-#: snapshot does not save; and what holds addresses, not values (``ptrs``, ``_arena``:
-#: the addresses of a world's own arrays and a block whose alignment is its own).
+#: results of a body's shape match, damping and limits, the plastic refresh's moments; the
+#: contact solve's per-step rows; the pair build's grid, hash tables and sort buffers; the
+#: sleep pass's per-step figures), which a snapshot does not save; and what holds
+#: addresses, not values (``ptrs``, ``_arena``: the addresses of a world's own arrays and a
+#: block whose alignment is its own).
 SCRATCH = {
     'Body': {'_accbuf', '_apq', '_acc', '_ang', '_com', '_dacc', '_dmp', '_dref',
              '_goal_lin', '_goal_off', '_lin', '_w3', '_m39', '_n4', '_v4', '_quat_prev',
@@ -36,9 +37,9 @@ _PLAIN = (type(None), bool, int, float, complex, str, bytes, np.generic)
 def walk(world) -> dict:
     """{path: value} of every number, flag and array (as bytes) reachable from ``world``
     through solver objects, lists and dicts; a path ends in 'Class.attribute'."""
-    out, seen, stack = {}, set(), [(world, 'World', '')]
+    out, seen, stack = {}, set(), [(world, 'World')]
     while stack:
-        obj, path, owner = stack.pop()
+        obj, path = stack.pop()
         if isinstance(obj, _PLAIN):
             out[path] = obj
             continue
@@ -48,13 +49,13 @@ def walk(world) -> dict:
         if isinstance(obj, np.ndarray):
             out[path] = obj.tobytes()
         elif isinstance(obj, (list, tuple)):
-            stack.extend((v, f'{path}[{k}]', owner) for k, v in enumerate(obj))
+            stack.extend((v, f'{path}[{k}]') for k, v in enumerate(obj))
         elif isinstance(obj, dict):
-            stack.extend((v, f'{path}[{k!r}]', owner) for k, v in obj.items())
+            stack.extend((v, f'{path}[{k!r}]') for k, v in obj.items())
         elif (type(obj).__module__ or '').startswith('sm_ros.core') and \
                 hasattr(obj, '__dict__'):
             name = type(obj).__name__
-            stack.extend((v, f'{path}/{name}.{k}', name) for k, v in vars(obj).items())
+            stack.extend((v, f'{path}/{name}.{k}') for k, v in vars(obj).items())
     return out
 
 
