@@ -122,11 +122,6 @@ class _SetLayout:
     steps run by run without looking for the ends).
     """
 
-    def step_state(self) -> tuple:
-        """What a step changes and the next reads (``snapshot``): the per-set sums and
-        their reference points."""
-        return ('part', 'ref')
-
     def __init__(self, x0, m, ptr, cl, c0, cm0, quad, groups=None):
         n = len(x0)
         sid, uniq = group_sets(ptr, cl) if groups is None else groups
@@ -160,6 +155,11 @@ class _SetLayout:
         self.pm = np.zeros((9, 10))
         self.pairs = len(self.cl)
         self.part = None
+
+    def step_state(self) -> tuple:
+        """What a step changes and the next reads (``snapshot``): the per-set sums and
+        their reference points."""
+        return ('part', 'ref')
 
 
 def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,

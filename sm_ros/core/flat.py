@@ -105,7 +105,6 @@ class FlatState:
         self._fl = None
         self.refresh_masses()
 
-
     def step_state(self) -> tuple:
         """What a step changes and a later step reads (``snapshot``): the flat positions
         and velocities (a sleeping body's are not gathered again) and inverse masses."""
