@@ -12,7 +12,7 @@ at rest then costs almost nothing.  Here, in a world where body-body contact run
   body falls asleep unless a restless body touches it (one moving faster than
   ``WAKE_FACTOR`` times ``sleep_speed`` in two steps in a row, or held awake by a force,
   torque or grab) or an unsettled one supports it (touches it from below): its velocities are set
-  to zero and it is no longer stepped (``Body._flags[3]`` = 1: the compiled steps skip
+  to zero and it is no longer stepped (``Body._flags[SLEEP]`` = 1: the compiled steps skip
   it).  So no body falls asleep on a support that still slides or sinks (it would float
   once the support moved on), while bodies beside a slowly creeping one may.
 * **Asleep** it is an obstacle of infinite mass for contact (its inverse masses ``W`` are
@@ -22,7 +22,7 @@ at rest then costs almost nothing.  Here, in a world where body-body contact run
   found and is stepped from the next), and whenever an input changes it
   (``Body.wake``: state, parameters, wrench, grabs, reset) or the world (gravity, the
   colliders, the bodies, the contact settings).  A body with a force, torque or grab is
-  held awake (``_flags[3]`` = -1) while it acts.
+  held awake (``_flags[SLEEP]`` = -1) while it acts.
 * A world of one colliding body (no contact pass) never sleeps: it pays nothing.  Nor
   does a world without gravity (nothing rests; freezing a drift would take momentum out
   of a conservative world) or with collider-pass colliders (``World._sleep_check``).
@@ -35,10 +35,13 @@ bodies, and a world whose bodies are all asleep skips the bodies' step, the cont
 and this pass.
 """
 
+from typing import Any, NamedTuple
+
 import numpy as np
 from numba import njit
 
 from .kernels import JIT
+from .kernels.flags import SLEEP
 
 #: A body is restless (wakes the sleeping bodies it touches) while a particle moves
 #: faster than this many times ``sleep_speed`` in two steps in a row.
@@ -50,11 +53,11 @@ TOUCH_FACTOR = 1.1
 
 @njit(**JIT)
 def sleep_sync(flags, slept, off, W, Wa, calm):
-    """Bodies woken from outside since the last step (``flags[b][3]`` <= 0 while
+    """Bodies woken from outside since the last step (``flags[b][SLEEP]`` <= 0 while
     ``slept[b]``): their inverse masses back from ``Wa``; returns how many."""
     woken = 0
     for b in range(len(flags)):
-        if slept[b] and flags[b][3] <= 0.0:
+        if slept[b] and flags[b][SLEEP] <= 0.0:
             slept[b] = 0
             calm[b] = 0.0
             for k in range(off[b], off[b + 1]):
@@ -67,7 +70,7 @@ def sleep_sync(flags, slept, off, W, Wa, calm):
 def all_asleep(flags):
     """Whether every body is asleep (then a step has nothing to do)."""
     for b in range(len(flags)):
-        if not flags[b][3] > 0.0:
+        if not flags[b][SLEEP] > 0.0:
             return False
     return len(flags) > 0
 
@@ -78,7 +81,7 @@ def body_moves(X, Xp, Xa, off, flags, step2, drift2):
     ``Xp`` (the last step's positions; ``Xp`` = ``X`` after), ``drift2[b]`` the largest
     from ``Xa`` (where its still spell started); both 0 for a sleeping body."""
     for b in range(len(flags)):
-        if flags[b][3] > 0.0:
+        if flags[b][SLEEP] > 0.0:
             step2[b] = 0.0
             drift2[b] = 0.0
             continue
@@ -139,91 +142,151 @@ def touch_restless(xs, off, R, B, pi, pj, npairs, level, up, near):
                 near[bj] = li
 
 
-@njit(**JIT)
-def sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, fast, step2,
-                 drift2, level, near, pi, pj, npairs, up, h, speed, t_sleep, allow, touched):
-    """One step's sleep bookkeeping (see the module); returns how many bodies fell asleep
-    or woke (their ``W`` changed).
+class FlatArrays(NamedTuple):
+    """The flat state's arrays the sleep pass reads and writes (``FlatState``)."""
 
-    A body is *still* while no particle is farther than ``speed * t_sleep`` from where
-    it was when its still spell began (``Xa``; a jiggle in place does not end the spell,
-    a slow drift does), *settled* when asleep or still for ``t_sleep`` (``level`` 0),
-    *restless* while a particle moved faster than ``WAKE_FACTOR * speed`` in each of the
-    last two steps (``fast``: (bodies,) uint8, the count of such steps in a row, up to 2;
-    one step is not enough: when a body falls asleep the one resting on it settles by up
-    to g h^2 in one step), or a force, torque or grab holds it (``level`` 2), and
-    unsettled otherwise (1).  A body
-    falls asleep once settled while no restless body touches it and no unsettled one
-    supports it (touches it from below, along ``up``: against gravity; from any side
-    without gravity); a sleeping body wakes when a restless one touches it.  ``step2``,
-    ``drift2``, ``level``, ``near``: (bodies,) scratch.  ``X``, ``V``: the flat state
-    after the contact pass; ``xs``: the bodies' own positions, before it (who touches
-    whom, ``touch_restless``).  ``allow``: whether bodies may
-    fall asleep (False: only waking).  A body that falls asleep gets ``touched`` (the
-    flat state's scatter writes its zero velocities back).
-    """
-    nb = len(flags)
-    body_moves(X, Xp, Xa, off, flags, step2, drift2)
-    quick = WAKE_FACTOR * speed * h
-    fast2 = quick * quick
-    room = speed * t_sleep
-    room2 = room * room
-    for b in range(nb):
-        f = flags[b][3]
+    x: np.ndarray               # (3, N) positions after the contact pass
+    v: np.ndarray               # (3, N) velocities after it
+    inv_mass: np.ndarray        # (N,) inverse masses (0 while asleep)
+    awake_inv_mass: np.ndarray  # (N,) inverse masses of the bodies awake
+    body_x: Any                 # typed list of the bodies' own (3, n) positions
+    radius: np.ndarray          # (N,) contact radii
+    body: np.ndarray            # (N,) body index of each particle
+    offset: np.ndarray          # (bodies + 1,) first particle of each body
+    flags: Any                  # typed list of the bodies' flag arrays (``flags.SLEEP``)
+    touched: np.ndarray         # (bodies,) 1: the scatter writes the body back
+
+
+class SleepArrays(NamedTuple):
+    """Sleep bookkeeping of each body (``Sleep`` owns it; see ``sleep_update``)."""
+
+    prev: np.ndarray            # (3, N) positions after the last step
+    anchor: np.ndarray          # (3, N) positions where the still spell began
+    slept: np.ndarray           # (bodies,) uint8: asleep as of the last step
+    calm: np.ndarray            # (bodies,) seconds still in a row
+    fast: np.ndarray            # (bodies,) uint8: steps above the restless speed in a row
+    step2: np.ndarray           # (bodies,) scratch: largest squared move in the step
+    drift2: np.ndarray          # (bodies,) scratch: largest squared move from the anchor
+    level: np.ndarray           # (bodies,) uint8 scratch: 0 settled, 1 unsettled, 2 restless
+    near: np.ndarray            # (bodies,) uint8 scratch: largest level touching the body
+
+
+class Pairs(NamedTuple):
+    """The contact pass's pair list: particles ``first[p]``, ``second[p]``, p < count."""
+
+    first: np.ndarray
+    second: np.ndarray
+    count: int
+
+
+class SleepRule(NamedTuple):
+    """The settings of one step's sleep pass."""
+
+    up: np.ndarray              # unit vector against gravity (zero without gravity)
+    h: float                    # step (s)
+    speed: float                # ``sleep_speed`` (m/s)
+    t_sleep: float              # ``sleep_time`` (s)
+    allow: bool                 # whether bodies may fall asleep (False: only waking)
+
+
+@njit(**JIT)
+def _spells(flat, state, rule):
+    """Each awake body's still spell, restless count and ``level`` after the step."""
+    X, off, flags = flat.x, flat.offset, flat.flags
+    calm, fast, level = state.calm, state.fast, state.level
+    h, t_sleep = rule.h, rule.t_sleep
+    body_moves(X, state.prev, state.anchor, off, flags, state.step2, state.drift2)
+    quick = WAKE_FACTOR * rule.speed * h
+    room = rule.speed * t_sleep
+    for b in range(len(flags)):
+        f = flags[b][SLEEP]
         if f > 0.0:
             level[b] = 0
             continue
-        if drift2[b] <= room2 and f == 0.0:
+        if state.drift2[b] <= room * room and f == 0.0:
             calm[b] += h
         else:                                  # a new still spell starts here
             calm[b] = 0.0
             for k in range(off[b], off[b + 1]):
-                Xa[0, k] = X[0, k]
-                Xa[1, k] = X[1, k]
-                Xa[2, k] = X[2, k]
-        fast[b] = min(fast[b] + 1, 2) if step2[b] > fast2 else 0
+                state.anchor[0, k] = X[0, k]
+                state.anchor[1, k] = X[1, k]
+                state.anchor[2, k] = X[2, k]
+        fast[b] = min(fast[b] + 1, 2) if state.step2[b] > quick * quick else 0
         if fast[b] >= 2 or f < 0.0:
             level[b] = 2
         else:
             level[b] = 0 if calm[b] >= t_sleep else 1
+
+
+@njit(**JIT)
+def _wake(b, flat, state):
+    """Body b wakes: its inverse masses back, a new still spell from where it is."""
+    X = flat.x
+    flat.flags[b][SLEEP] = 0.0
+    state.slept[b] = 0
+    state.calm[b] = 0.0
+    for k in range(flat.offset[b], flat.offset[b + 1]):
+        flat.inv_mass[k] = flat.awake_inv_mass[k]
+        for axis in range(3):
+            state.prev[axis, k] = X[axis, k]
+            state.anchor[axis, k] = X[axis, k]
+
+
+@njit(**JIT)
+def _fall_asleep(b, flat, state):
+    """Body b falls asleep: infinite mass for contact, at rest, written back."""
+    flat.flags[b][SLEEP] = 1.0
+    state.slept[b] = 1
+    for k in range(flat.offset[b], flat.offset[b + 1]):
+        flat.inv_mass[k] = 0.0
+        flat.v[0, k] = 0.0
+        flat.v[1, k] = 0.0
+        flat.v[2, k] = 0.0
+    flat.touched[b] = 1
+
+
+@njit(**JIT)
+def sleep_update(flat, state, pairs, rule):
+    """One step's sleep bookkeeping (see the module); returns how many bodies fell asleep
+    or woke (their inverse masses changed).
+
+    A body is *still* while no particle is farther than ``speed * t_sleep`` from where
+    it was when its still spell began (``state.anchor``; a jiggle in place does not end
+    the spell, a slow drift does), *settled* when asleep or still for ``t_sleep``
+    (``level`` 0), *restless* while a particle moved faster than ``WAKE_FACTOR * speed``
+    in each of the last two steps (``state.fast``, up to 2; one step is not enough: when
+    a body falls asleep the one resting on it settles by up to g h^2 in one step), or a
+    force, torque or grab holds it (``level`` 2), and unsettled otherwise (1).  A body
+    falls asleep once settled while no restless body touches it and no unsettled one
+    supports it (touches it from below, along ``rule.up``: against gravity; from any side
+    without gravity); a sleeping body wakes when a restless one touches it.
+    ``flat.x``, ``flat.v``: the flat state after the contact pass; ``flat.body_x``: the
+    bodies' own positions, before it (who touches whom, ``touch_restless``).  A body that
+    falls asleep gets ``touched`` (the flat state's scatter writes its zero velocities
+    back).
+    """
+    _spells(flat, state, rule)
+    flags, calm, t_sleep = flat.flags, state.calm, rule.t_sleep
     # who touches whom matters only to a sleeping body (woken?) or to a settled awake one
     # (falls asleep?); while bodies pour, none is either and the pair pass is skipped
     decide = False
-    for b in range(nb):
-        if flags[b][3] > 0.0 or (flags[b][3] == 0.0 and calm[b] >= t_sleep):
+    for b in range(len(flags)):
+        if flags[b][SLEEP] > 0.0 or (flags[b][SLEEP] == 0.0 and calm[b] >= t_sleep):
             decide = True
             break
     if not decide:
         return 0
-    touch_restless(xs, off, R, B, pi, pj, npairs, level, up, near)
+    touch_restless(flat.body_x, flat.offset, flat.radius, flat.body, pairs.first,
+                   pairs.second, pairs.count, state.level, rule.up, state.near)
     changed = 0
-    for b in range(nb):
-        f = flags[b][3]
-        o0 = off[b]
-        o1 = off[b + 1]
+    for b in range(len(flags)):
+        f = flags[b][SLEEP]
         if f > 0.0:
-            if near[b] == 2:                   # a restless body touches it: awake
-                flags[b][3] = 0.0
-                slept[b] = 0
-                calm[b] = 0.0
-                for k in range(o0, o1):
-                    W[k] = Wa[k]
-                    Xp[0, k] = X[0, k]
-                    Xp[1, k] = X[1, k]
-                    Xp[2, k] = X[2, k]
-                    Xa[0, k] = X[0, k]
-                    Xa[1, k] = X[1, k]
-                    Xa[2, k] = X[2, k]
+            if state.near[b] == 2:             # a restless body touches it: awake
+                _wake(b, flat, state)
                 changed += 1
-        elif allow and f == 0.0 and calm[b] >= t_sleep and near[b] == 0:
-            flags[b][3] = 1.0
-            slept[b] = 1
-            for k in range(o0, o1):
-                W[k] = 0.0
-                V[0, k] = 0.0
-                V[1, k] = 0.0
-                V[2, k] = 0.0
-            touched[b] = 1
+        elif rule.allow and f == 0.0 and calm[b] >= t_sleep and state.near[b] == 0:
+            _fall_asleep(b, flat, state)
             changed += 1
     return changed
 
@@ -233,20 +296,27 @@ class Sleep:
     pass; see the module)."""
 
     def __init__(self, flat):
-        nb = max(len(flat.bodies), 1)
+        count = max(len(flat.bodies), 1)
         self.flat = flat
-        self.slept = np.zeros(nb, dtype=np.uint8)  # asleep as of the last step
-        self.calm = np.zeros(nb)                   # seconds below the speed in a row
-        self.fast = np.zeros(nb, dtype=np.uint8)   # steps above the restless speed in a row
-        self.step2 = np.zeros(nb)
-        self.drift2 = np.zeros(nb)
-        self.level = np.zeros(nb, dtype=np.uint8)
-        self.near = np.zeros(nb, dtype=np.uint8)
-        self.Xp = flat.X.copy()
-        self.Xa = flat.X.copy()
-        for b in flat.bodies:                      # a new flat state: every body awake
-            if b._flags[3] > 0.0:
-                b._flags[3] = 0.0
+        self.state = SleepArrays(
+            prev=flat.X.copy(), anchor=flat.X.copy(),
+            slept=np.zeros(count, dtype=np.uint8), calm=np.zeros(count),
+            fast=np.zeros(count, dtype=np.uint8), step2=np.zeros(count),
+            drift2=np.zeros(count), level=np.zeros(count, dtype=np.uint8),
+            near=np.zeros(count, dtype=np.uint8))
+        for body in flat.bodies:                   # a new flat state: every body awake
+            if body._flags[SLEEP] > 0.0:
+                body._flags[SLEEP] = 0.0
+
+    @property
+    def slept(self) -> np.ndarray:
+        """(bodies,) uint8: asleep as of the last step."""
+        return self.state.slept
+
+    @property
+    def calm(self) -> np.ndarray:
+        """(bodies,) seconds each body has been still in a row."""
+        return self.state.calm
 
     def all_asleep(self) -> bool:
         """Whether every body is asleep (one compiled call over the flags)."""
@@ -254,32 +324,34 @@ class Sleep:
 
     def sync(self):
         """Restore the inverse masses of the bodies woken from outside (before contact)."""
-        f = self.flat
-        if self.slept.any() and sleep_sync(f.flag_list(), self.slept, f.off, f.W, f.Wa,
-                                           self.calm):
-            f.w_version += 1
+        flat = self.flat
+        if self.slept.any() and sleep_sync(flat.flag_list(), self.slept, flat.off, flat.W,
+                                           flat.Wa, self.calm):
+            flat.w_version += 1
 
     def update(self, contact, h, params, gravity):
         """After the contact pass, before the scatter (``sleep_update``)."""
-        f = self.flat
-        g = float(np.linalg.norm(gravity))
-        up = -gravity / g if g > 0.0 else np.zeros(3)
-        if sleep_update(f.X, self.Xp, self.Xa, f.V, f.W, f.Wa, f._xs, f.R, f.B, f.off,
-                        f.flag_list(), self.slept, self.calm, self.fast, self.step2,
-                        self.drift2,
-                        self.level, self.near, contact._pi, contact._pj, contact.npairs,
-                        up, float(h), float(params.sleep_speed), float(params.sleep_time),
-                        bool(params.sleep), f.touched):
-            f.w_version += 1
+        flat = self.flat
+        norm = float(np.linalg.norm(gravity))
+        up = -gravity / norm if norm > 0.0 else np.zeros(3)
+        arrays = FlatArrays(x=flat.X, v=flat.V, inv_mass=flat.W, awake_inv_mass=flat.Wa,
+                            body_x=flat._xs, radius=flat.R, body=flat.B, offset=flat.off,
+                            flags=flat.flag_list(), touched=flat.touched)
+        rule = SleepRule(up=up, h=float(h), speed=float(params.sleep_speed),
+                         t_sleep=float(params.sleep_time), allow=bool(params.sleep))
+        if sleep_update(arrays, self.state, Pairs(contact._pi, contact._pj, contact.npairs),
+                        rule):
+            flat.w_version += 1
 
     def wake_all(self):
         """Every body awake (the world changed); inverse masses restored."""
-        for b in self.flat.bodies:
-            if b._flags[3] > 0.0:
-                b._flags[3] = 0.0
+        for body in self.flat.bodies:
+            if body._flags[SLEEP] > 0.0:
+                body._flags[SLEEP] = 0.0
         self.sync()
         self.calm[:] = 0.0
 
 
-__all__ = ['Sleep', 'TOUCH_FACTOR', 'WAKE_FACTOR', 'all_asleep', 'body_moves', 'sleep_sync',
-           'sleep_update', 'touch_restless']
+__all__ = ['FlatArrays', 'Pairs', 'Sleep', 'SleepArrays', 'SleepRule', 'TOUCH_FACTOR',
+           'WAKE_FACTOR', 'all_asleep', 'body_moves', 'sleep_sync', 'sleep_update',
+           'touch_restless']
