@@ -386,12 +386,24 @@ def write_strip(rec: Recording, out: Path, panels: int = 5, panel_w: int = 240,
     img.quantize(colors=128, method=Image.Quantize.MEDIANCUT).save(out, optimize=True)
 
 
+@dataclass
+class View:
+    """How a run is drawn: the GIF's size, the PNG strip's panels, the camera, and how many
+    particles are drawn at most."""
+
+    width: int = 400
+    height: int = 300
+    panels: int = 5
+    max_draw: int = 4000
+    elev: float = 22.0
+    azim: float = -60.0
+
+
 def render(scene: str, out: str, seconds: float = 3.0, fps: float = 10.0,
            dt: float = DEFAULT_DT, params: Optional[Dict[str, Any]] = None,
-           frames: int = 5, max_draw: int = 4000, width: int = 400, height: int = 300,
-           elev: float = 22.0, azim: float = -60.0,
-           topic: Optional[str] = None) -> Dict[str, float]:
+           view: Optional[View] = None, topic: Optional[str] = None) -> Dict[str, float]:
     """Simulate (or read a recording) and write `out`; return timing figures."""
+    view = view or View()
     path = Path(out)
     kind = path.suffix.lower()
     if kind not in ('.gif', '.png'):
@@ -400,15 +412,17 @@ def render(scene: str, out: str, seconds: float = 3.0, fps: float = 10.0,
         raise ValueError('seconds, fps and dt must be > 0')
     t0 = time.perf_counter()
     if is_recording(scene):
-        rec = load_recording(scene, seconds=seconds, fps=fps, max_draw=max_draw, topic=topic)
+        rec = load_recording(scene, seconds=seconds, fps=fps, max_draw=view.max_draw,
+                             topic=topic)
     else:
         rec = simulate(scene, seconds=seconds, fps=fps, dt=dt, params=params,
-                       max_draw=max_draw)
+                       max_draw=view.max_draw)
     t1 = time.perf_counter()
     if kind == '.gif':
-        write_gif(rec, path, width=width, height=height, elev=elev, azim=azim)
+        write_gif(rec, path, width=view.width, height=view.height, elev=view.elev,
+                  azim=view.azim)
     else:
-        write_strip(rec, path, panels=frames, elev=elev, azim=azim)
+        write_strip(rec, path, panels=view.panels, elev=view.elev, azim=view.azim)
     t2 = time.perf_counter()
     return {'points': rec.n_points, 'bodies': len(rec.faces), 'simulate_s': t1 - t0,
             'frames': len(rec.frames),
@@ -452,10 +466,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     recording = is_recording(args.scene)
     seconds = args.seconds if args.seconds is not None else (None if recording else 3.0)
     try:
+        view = View(width=width, height=height, panels=args.frames, max_draw=args.max_draw,
+                    elev=args.elev, azim=args.azim)
         figures = render(args.scene, args.out, seconds=seconds, fps=args.fps, dt=args.dt,
-                         params=params, frames=args.frames, max_draw=args.max_draw,
-                         width=width, height=height, elev=args.elev, azim=args.azim,
-                         topic=args.topic)
+                         params=params, view=view, topic=args.topic)
     except (SceneError, ValueError, ImportError) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
