@@ -73,8 +73,11 @@ def test_touch_restless_matches_numpy():
     xs = List([X[:, off[b]:off[b + 1]].copy() for b in range(nb)])
     d = np.linalg.norm(X[:, i] - X[:, j], axis=0)
     touch = (d < SL.TOUCH_FACTOR * (R[i] + R[j])) & (B[i] != B[j])
+    flat = SL.FlatArrays(x=X, v=X, inv_mass=R, awake_inv_mass=R, body_x=xs, radius=R, body=B,
+                         offset=off, flags=_flags([0.0] * nb), touched=np.zeros(nb, np.uint8))
     for up in (np.zeros(3), np.array([0.0, 0.0, 1.0]), np.array([0.6, 0.0, -0.8])):
-        SL.touch_restless(xs, off, R, B, pi, pj, len(pi), level, up, near)
+        SL.touch_restless(flat, SL.Pairs(pi, pj, len(pi)), level, up, near,
+                          SL.TOUCH_FACTOR)
         want = np.zeros(nb, dtype=np.uint8)
         for a, b, above in zip(B[i][touch], B[j][touch], (X[:, i] - X[:, j]).T[touch] @ up):
             # a level 1 counts only from below (any side without gravity); 2 always

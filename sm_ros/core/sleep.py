@@ -10,7 +10,7 @@ at rest then costs almost nothing.  Here, in a world where body-body contact run
   ``sleep_speed`` times ``sleep_time`` from where they were ``sleep_time`` seconds ago (a
   still spell: jiggling in place is still, a drift at ``sleep_speed`` is not).  A settled
   body falls asleep unless a restless body touches it (one moving faster than
-  ``WAKE_FACTOR`` times ``sleep_speed`` in two steps in a row, or held awake by a force,
+  ``tuning.WAKE_FACTOR`` times ``sleep_speed`` in two steps in a row, or held awake by a force,
   torque or grab) or an unsettled one supports it (touches it from below): its velocities are set
   to zero and it is no longer stepped (``Body._flags[SLEEP]`` = 1: the compiled steps skip
   it).  So no body falls asleep on a support that still slides or sinks (it would float
@@ -18,7 +18,7 @@ at rest then costs almost nothing.  Here, in a world where body-body contact run
 * **Asleep** it is an obstacle of infinite mass for contact (its inverse masses ``W`` are
   0 in the flat state, as for pinned particles) and keeps its state bit for bit.
 * **Waking.** A sleeping body wakes when a restless body touches it (a pair closer than
-  ``TOUCH_FACTOR`` times the contact distance; it stays put for the step in which that is
+  ``tuning.TOUCH_FACTOR`` times the contact distance; it stays put for the step in which that is
   found and is stepped from the next), and whenever an input changes it
   (``Body.wake``: state, parameters, wrench, grabs, reset) or the world (gravity, the
   colliders, the bodies, the contact settings).  A body with a force, torque or grab is
@@ -42,14 +42,7 @@ from numba import njit
 
 from .kernels import JIT
 from .kernels.flags import SLEEP
-
-#: A body is restless (wakes the sleeping bodies it touches) while a particle moves
-#: faster than this many times ``sleep_speed`` in two steps in a row.
-WAKE_FACTOR = 4.0
-#: A pair touches (for waking and for keeping awake) when closer than this many times
-#: its contact distance r_i + r_j (resting contacts sit at about 1).
-TOUCH_FACTOR = 1.1
-
+from .tuning import TOUCH_FACTOR, WAKE_FACTOR
 
 @njit(**JIT)
 def sleep_sync(flags, slept, off, W, Wa, calm):
@@ -107,26 +100,28 @@ def body_moves(X, Xp, Xa, off, flags, step2, drift2):
 
 
 @njit(**JIT)
-def touch_restless(xs, off, R, B, pi, pj, npairs, level, up, near):
+def touch_restless(flat, pairs, level, up, near, touch):
     """near[b] = the largest ``level`` of the other bodies a particle of body b touches
-    (``TOUCH_FACTOR``), where a level 1 (unsettled) counts only from a body below b's
-    particle (along ``up``, the unit vector against gravity; every direction when it is
-    zero: a support that still moves); 0 where none counts.  Positions from ``xs`` (the
-    bodies' own (3, n) blocks): before the contact pass, where a body thrown at a
-    sleeping one overlaps it (the pass then stops it where the step began, a gap away).
-    A pass over the pair list that reads positions only of pairs with a side above 0."""
+    (closer than ``touch`` times the pair's contact distance), where a level 1
+    (unsettled) counts only from a body below b's particle (along ``up``, the unit vector
+    against gravity; every direction when it is zero: a support that still moves); 0
+    where none counts.  Positions from ``flat.body_x`` (the bodies' own (3, n) blocks):
+    before the contact pass, where a body thrown at a sleeping one overlaps it (the pass
+    then stops it where the step began, a gap away).  A pass over the pair list that
+    reads positions only of pairs with a side above 0."""
+    xs, off, R, B = flat.body_x, flat.offset, flat.radius, flat.body
     near[:] = 0
     anyway = up[0] == 0.0 and up[1] == 0.0 and up[2] == 0.0
-    for p in range(npairs):
-        i = pi[p]
-        j = pj[p]
+    for p in range(pairs.count):
+        i = pairs.first[p]
+        j = pairs.second[p]
         bi = B[i]
         bj = B[j]
         li = level[bi]
         lj = level[bj]
         if bi == bj or (li == 0 and lj == 0) or (lj <= near[bi] and li <= near[bj]):
             continue
-        s = TOUCH_FACTOR * (R[i] + R[j])
+        s = touch * (R[i] + R[j])
         xi = xs[bi]
         xj = xs[bj]
         ki = i - off[bi]
@@ -187,6 +182,8 @@ class SleepRule(NamedTuple):
     speed: float                # ``sleep_speed`` (m/s)
     t_sleep: float              # ``sleep_time`` (s)
     allow: bool                 # whether bodies may fall asleep (False: only waking)
+    wake_factor: float = WAKE_FACTOR    # restless above this many times ``speed``
+    touch_factor: float = TOUCH_FACTOR  # touching within this many contact distances
 
 
 @njit(**JIT)
@@ -196,7 +193,7 @@ def _spells(flat, state, rule):
     calm, fast, level = state.calm, state.fast, state.level
     h, t_sleep = rule.h, rule.t_sleep
     body_moves(X, state.prev, state.anchor, off, flags, state.step2, state.drift2)
-    quick = WAKE_FACTOR * rule.speed * h
+    quick = rule.wake_factor * rule.speed * h
     room = rule.speed * t_sleep
     for b in range(len(flags)):
         f = flags[b][SLEEP]
@@ -253,7 +250,7 @@ def sleep_update(flat, state, pairs, rule):
     A body is *still* while no particle is farther than ``speed * t_sleep`` from where
     it was when its still spell began (``state.anchor``; a jiggle in place does not end
     the spell, a slow drift does), *settled* when asleep or still for ``t_sleep``
-    (``level`` 0), *restless* while a particle moved faster than ``WAKE_FACTOR * speed``
+    (``level`` 0), *restless* while a particle moved faster than ``rule.wake_factor * speed``
     in each of the last two steps (``state.fast``, up to 2; one step is not enough: when
     a body falls asleep the one resting on it settles by up to g h^2 in one step), or a
     force, torque or grab holds it (``level`` 2), and unsettled otherwise (1).  A body
@@ -276,8 +273,7 @@ def sleep_update(flat, state, pairs, rule):
             break
     if not decide:
         return 0
-    touch_restless(flat.body_x, flat.offset, flat.radius, flat.body, pairs.first,
-                   pairs.second, pairs.count, state.level, rule.up, state.near)
+    touch_restless(flat, pairs, state.level, rule.up, state.near, rule.touch_factor)
     changed = 0
     for b in range(len(flags)):
         f = flags[b][SLEEP]
