@@ -131,7 +131,7 @@ def solver_status(node_name: str, stats: TickStats, now: float,
     status.hardware_id = HARDWARE_ID
     if stats.nonfinite:
         status.level = DiagnosticStatus.ERROR
-        names = ', '.join(f"'{n}'" for n in dict.fromkeys(stats.nonfinite))
+        names = ', '.join(f"'{body}'" for body in dict.fromkeys(stats.nonfinite))
         status.message = f'body {names} went non-finite and was reset'
     elif stats.overruns:
         status.level = DiagnosticStatus.WARN
@@ -144,7 +144,7 @@ def solver_status(node_name: str, stats: TickStats, now: float,
     else:
         status.level = DiagnosticStatus.OK
         status.message = 'paused' if figures.paused else 'running'
-    status.values = [KeyValue(key=k, value=values[k]) for k in KEYS]
+    status.values = [KeyValue(key=key, value=values[key]) for key in KEYS]
     return status
 
 
@@ -161,13 +161,13 @@ def contact_status(node_name: str, per_body) -> DiagnosticStatus:
     status.name = f'{node_name}: contacts'
     status.hardware_id = HARDWARE_ID
     status.level = DiagnosticStatus.OK
-    total = sum(int(n) for n, _ in per_body.values())
+    total = sum(int(count) for count, _ in per_body.values())
     status.message = f'{total} contacts'
     values = []
-    for name, (n, depth) in per_body.items():
-        if not n:
+    for name, (count, depth) in per_body.items():
+        if not count:
             continue                  # only the bodies in contact (a bin of 384 bodies)
-        values.append(KeyValue(key=f'{name}.contacts', value=str(int(n))))
+        values.append(KeyValue(key=f'{name}.contacts', value=str(int(count))))
         values.append(KeyValue(key=f'{name}.penetration_max_m', value=fmt(depth)))
     status.values = values
     return status

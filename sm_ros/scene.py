@@ -82,14 +82,14 @@ def scene_dirs() -> List[Path]:
     except Exception:  # noqa: B902 - not installed, not found: fall through
         pass
     dirs.append(Path(sys.prefix) / 'share' / 'sm_ros' / 'config' / 'scenes')
-    return [d for d in dirs if d.is_dir()]
+    return [folder for folder in dirs if folder.is_dir()]
 
 
 def list_scenes() -> List[str]:
     """Names of the bundled scenes."""
     names = set()
-    for d in scene_dirs():
-        names.update(p.stem for p in d.glob('*.yaml'))
+    for folder in scene_dirs():
+        names.update(path.stem for path in folder.glob('*.yaml'))
     return sorted(names)
 
 
@@ -100,15 +100,15 @@ def resolve_scene(name_or_path: Union[str, Path]) -> Path:
     '' means 'default'. Raises SceneError when neither exists.
     """
     text = str(name_or_path).strip() or 'default'
-    p = Path(text).expanduser()
-    if p.is_file():
-        return p
+    path = Path(text).expanduser()
+    if path.is_file():
+        return path
     looks_like_path = ('/' in text or text.endswith(('.yaml', '.yml')))
     if not looks_like_path:
-        for d in scene_dirs():
-            cand = d / f'{text}.yaml'
-            if cand.is_file():
-                return cand
+        for folder in scene_dirs():
+            candidate = folder / f'{text}.yaml'
+            if candidate.is_file():
+                return candidate
     bundled = ', '.join(list_scenes()) or 'none found'
     raise SceneError(f'{text}: no such scene file and no bundled scene of that name '
                      f'(bundled: {bundled})')
@@ -180,15 +180,15 @@ def _parse_contact(where: _Where, raw: Any) -> Dict[str, Any]:
     c = where.mapping('contact', raw, CONTACT_SCENE_KEYS)
     out: Dict[str, Any] = {}
     for key, value in c.items():
-        p = params.BY_NAME[f'contact.{key}']
-        if p.type_name == 'bool':
+        param = params.BY_NAME[f'contact.{key}']
+        if param.type_name == 'bool':
             out[key] = where.boolean(f'contact.{key}', value)
             continue
-        v = where.number(f'contact.{key}', value)
-        why = p.check(v)
+        number = where.number(f'contact.{key}', value)
+        why = param.check(number)
         if why:
             raise where.error(f'contact.{key}', why.split(' ', 1)[1])
-        out[key] = v
+        out[key] = number
     return out
 
 
@@ -223,17 +223,17 @@ def _parse_overrides(where: _Where, entry: Mapping[str, Any]) -> Dict[str, Any]:
     return found
 
 
-def _override(where: _Where, p: 'params.Param', value: Any) -> Any:
+def _override(where: _Where, param: 'params.Param', value: Any) -> Any:
     """Validate one override against its row of the parameter table."""
-    if p.choices:
-        return where.choice(p.name, value, p.choices)
-    if p.type_name == 'integer':
-        return where.integer(p.name, value, ge=int(p.lo), le=int(p.hi))
-    if p.type_name == 'double':
-        if p.positive:
-            return where.number(p.name, value, gt=p.lo, le=p.hi)
-        return where.number(p.name, value, ge=p.lo, le=p.hi)
-    raise TypeError(f'parameter {p.name}: a scene override of type {p.type_name} is not '
+    if param.choices:
+        return where.choice(param.name, value, param.choices)
+    if param.type_name == 'integer':
+        return where.integer(param.name, value, ge=int(param.lo), le=int(param.hi))
+    if param.type_name == 'double':
+        if param.positive:
+            return where.number(param.name, value, gt=param.lo, le=param.hi)
+        return where.number(param.name, value, ge=param.lo, le=param.hi)
+    raise TypeError(f'parameter {param.name}: a scene override of type {param.type_name} is not '
                     'supported')
 
 
@@ -253,12 +253,12 @@ def _orientation(where: _Where, raw: Any) -> np.ndarray:
 
 def _resolve_file(where: _Where, base: Path, raw: Any) -> Path:
     name = where.string('file', raw)
-    p = Path(name).expanduser()
-    if not p.is_absolute():
-        p = base / p
-    if not p.is_file():
-        raise where.error('file', f"'{name}' not found (looked for {p})")
-    return p
+    path = Path(name).expanduser()
+    if not path.is_absolute():
+        path = base / path
+    if not path.is_file():
+        raise where.error('file', f"'{name}' not found (looked for {path})")
+    return path
 
 
 def _load_mesh(where: _Where, path: Path) -> Tuple[np.ndarray, np.ndarray]:
@@ -304,8 +304,8 @@ def _build_local(where: _Where, shape: str, entry: Mapping[str, Any], base: Path
             radius = where.number('radius', entry.get('radius'), gt=0.0)
             length = where.number('length', entry.get('length'),
                               **({'gt': 0.0} if shape == 'cylinder' else {'ge': 0.0}))
-            fn = shapes.cylinder_lattice if shape == 'cylinder' else shapes.capsule_lattice
-            pts = fn(radius, length, spacing)
+            lattice = shapes.cylinder_lattice if shape == 'cylinder' else shapes.capsule_lattice
+            pts = lattice(radius, length, spacing)
         elif shape == 'sheet':
             pts = shapes.sheet_lattice(where.vector('size', entry.get('size'), 2, gt=0.0), spacing)
         elif shape == 'rope':
@@ -357,9 +357,9 @@ def _pinned(where: _Where, raw: Any, points: np.ndarray, offset: np.ndarray) -> 
     mask = np.zeros(len(points), dtype=bool)
     for i, r in enumerate(regions):
         key = 'pinned' if not isinstance(raw, list) else f'pinned[{i}]'
-        rm = where.mapping(key, r, ('lo', 'hi'))
-        lo = where.vector(f'{key}.lo', rm.get('lo'), 3) + offset
-        hi = where.vector(f'{key}.hi', rm.get('hi'), 3) + offset
+        region = where.mapping(key, r, ('lo', 'hi'))
+        lo = where.vector(f'{key}.lo', region.get('lo'), 3) + offset
+        hi = where.vector(f'{key}.hi', region.get('hi'), 3) + offset
         if not np.all(hi >= lo):
             raise where.error(f'{key}.hi', f'must be >= lo in every axis, got lo '
                                        f'{(lo - offset).tolist()} hi {(hi - offset).tolist()}')

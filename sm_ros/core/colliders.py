@@ -20,21 +20,21 @@ _IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 
 def check_pose(name, position, orientation):
     """Validated (position (3,), unit quaternion (4,)) or ValueError with the reason."""
-    p = np.asarray(position, dtype=float).reshape(-1)
-    if p.shape != (3,) or not np.all(np.isfinite(p)):
+    pos = np.asarray(position, dtype=float).reshape(-1)
+    if pos.shape != (3,) or not np.all(np.isfinite(pos)):
         raise ValueError(f'collider {name!r}: position must be 3 finite numbers, '
                          f'got {position!r}')
-    q = np.asarray(orientation, dtype=float).reshape(-1)
-    if q.shape != (4,) or not np.all(np.isfinite(q)):
+    quat = np.asarray(orientation, dtype=float).reshape(-1)
+    if quat.shape != (4,) or not np.all(np.isfinite(quat)):
         raise ValueError(f'collider {name!r}: orientation must be a quaternion of 4 finite '
                          f'numbers (x, y, z, w), got {orientation!r}')
-    n = float(np.linalg.norm(q))
-    if n == 0.0:
+    norm = float(np.linalg.norm(quat))
+    if norm == 0.0:
         raise ValueError(f'collider {name!r}: orientation is a zero quaternion')
-    if abs(n - 1.0) > QUAT_TOLERANCE:
+    if abs(norm - 1.0) > QUAT_TOLERANCE:
         raise ValueError(f'collider {name!r}: orientation must be a unit quaternion, '
-                         f'its norm is {n:.6g}')
-    return p, q / n
+                         f'its norm is {norm:.6g}')
+    return pos, quat / norm
 
 
 class ColliderSet:
@@ -118,29 +118,30 @@ class ColliderSet:
         c = self.lookup(name)
         if not self.items[c].kinematic:
             raise ValueError(f'collider {name!r} is static (declare it kinematic to move it)')
-        p, q = check_pose(name, position, orientation)
+        pos, quat = check_pose(name, position, orientation)
         try:
-            d = float(duration)
+            seconds = float(duration)
         except (TypeError, ValueError):
             raise ValueError(f'duration must be a number, got {duration!r}') from None
-        if not (math.isfinite(d) and d >= 0.0):
+        if not (math.isfinite(seconds) and seconds >= 0.0):
             raise ValueError(f'duration must be finite and >= 0, got {duration!r}')
-        if d == 0.0:
+        if seconds == 0.0:
             self.mode[c] = CM.IDLE        # a commanded move ends the scripted path
-            self.pos[c] = p
-            self.quat[c] = q
+            self.pos[c] = pos
+            self.quat[c] = quat
             self.motion[c] = None
             self._write_pose(c, np.zeros(3), np.zeros(3))
             return
-        axis, angle = rotation_between(self.quat[c], q)
-        vel = (p - self.pos[c]) / d
-        self.motion[c] = (self.pos[c].copy(), self.quat[c].copy(), p, q, d, vel, axis, angle)
+        axis, angle = rotation_between(self.quat[c], quat)
+        vel = (pos - self.pos[c]) / seconds
+        self.motion[c] = (self.pos[c].copy(), self.quat[c].copy(), pos, quat, seconds, vel,
+                          axis, angle)
         row = self.moves[c]
         row[CM.M_P0:CM.M_P0 + 3] = self.pos[c]
         row[CM.M_Q0:CM.M_Q0 + 4] = self.quat[c]
-        row[CM.M_P1:CM.M_P1 + 3] = p
-        row[CM.M_Q1:CM.M_Q1 + 4] = q
-        row[CM.M_DUR] = d
+        row[CM.M_P1:CM.M_P1 + 3] = pos
+        row[CM.M_Q1:CM.M_Q1 + 4] = quat
+        row[CM.M_DUR] = seconds
         row[CM.M_EL] = 0.0
         row[CM.M_VEL:CM.M_VEL + 3] = vel
         row[CM.M_AXIS:CM.M_AXIS + 3] = axis
