@@ -40,15 +40,9 @@ def _node(a) -> dict:
 
     _time_steps(node, rec, current, measuring)
     _time_cloud(node, rec, current, measuring)
-    t_end_warm = time.monotonic() + a.warmup
-    while time.monotonic() < t_end_warm:
-        ex.spin_once(timeout_sec=0.05)
+    harness.spin_for(ex, a.warmup, 0.05)
     measuring[0] = True
-    t0 = time.monotonic()
-    t_end = t0 + a.seconds
-    while time.monotonic() < t_end:
-        ex.spin_once(timeout_sec=0.05)
-    elapsed = time.monotonic() - t0
+    elapsed = harness.spin_for(ex, a.seconds, 0.05)
     ticks = len(rec['tick'])
     out = {'points': node.num_points, 'rate_target': a.rate, 'substeps': a.substeps,
            'elapsed_s': elapsed, 'ticks': ticks,

@@ -68,9 +68,7 @@ def run_node(a) -> Dict[str, Any]:
             node.count_publishers('force') > 0
             and node.pub_points.get_subscription_count() >= a.subscribers):
         ex.spin_once(timeout_sec=0.01)
-    lead_end = time.monotonic() + a.lead
-    while time.monotonic() < lead_end:
-        ex.spin_once(timeout_sec=0.01)
+    harness.spin_for(ex, a.lead)
     print(json.dumps({'window': _measure_window(node, ex, a, rec, measuring, received)}),
           flush=True)
     # the others finish against a live node (answers to the last parameter requests)
@@ -142,11 +140,7 @@ def _measure_window(node, ex, a, rec, measuring, received) -> Dict[str, Any]:
     received_start = dict(received)
     refused_start = dict(node.refused)
     measuring[0] = True
-    t0 = time.monotonic()
-    t_end = t0 + a.seconds
-    while time.monotonic() < t_end:
-        ex.spin_once(timeout_sec=0.01)
-    elapsed = time.monotonic() - t0
+    elapsed = harness.spin_for(ex, a.seconds)
     measuring[0] = False
     rss_end = harness.rss_bytes()
     refused = {k: v - refused_start.get(k, 0) for k, v in node.refused.items()

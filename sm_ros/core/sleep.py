@@ -35,7 +35,7 @@ bodies, and a world whose bodies are all asleep skips the bodies' step, the cont
 and this pass.
 """
 
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -100,16 +100,16 @@ def body_moves(X, Xp, Xa, off, flags, step2, drift2):
 
 
 @njit(**JIT)
-def touch_restless(flat, pairs, level, up, near, touch):
+def touch_restless(flat, body_x, pairs, level, up, near, touch):
     """near[b] = the largest ``level`` of the other bodies a particle of body b touches
     (closer than ``touch`` times the pair's contact distance), where a level 1
     (unsettled) counts only from a body below b's particle (along ``up``, the unit vector
     against gravity; every direction when it is zero: a support that still moves); 0
-    where none counts.  Positions from ``flat.body_x`` (the bodies' own (3, n) blocks):
+    where none counts.  Positions from ``body_x`` (the bodies' own (3, n) blocks):
     before the contact pass, where a body thrown at a sleeping one overlaps it (the pass
     then stops it where the step began, a gap away).  A pass over the pair list that
     reads positions only of pairs with a side above 0."""
-    xs, off, R, B = flat.body_x, flat.offset, flat.radius, flat.body
+    xs, off, R, B = body_x, flat.offset, flat.radius, flat.body
     near[:] = 0
     anyway = up[0] == 0.0 and up[1] == 0.0 and up[2] == 0.0
     for p in range(pairs.count):
@@ -138,17 +138,17 @@ def touch_restless(flat, pairs, level, up, near, touch):
 
 
 class FlatArrays(NamedTuple):
-    """The flat state's arrays the sleep pass reads and writes (``FlatState``)."""
+    """The flat state's arrays the sleep pass reads and writes (``FlatState``; its typed
+    lists, the bodies' positions and flags, go beside it: in a tuple they would cost the
+    call a slow typing of every array)."""
 
     x: np.ndarray               # (3, N) positions after the contact pass
     v: np.ndarray               # (3, N) velocities after it
     inv_mass: np.ndarray        # (N,) inverse masses (0 while asleep)
     awake_inv_mass: np.ndarray  # (N,) inverse masses of the bodies awake
-    body_x: Any                 # typed list of the bodies' own (3, n) positions
     radius: np.ndarray          # (N,) contact radii
     body: np.ndarray            # (N,) body index of each particle
     offset: np.ndarray          # (bodies + 1,) first particle of each body
-    flags: Any                  # typed list of the bodies' flag arrays (``flags.SLEEP``)
     touched: np.ndarray         # (bodies,) 1: the scatter writes the body back
 
 
@@ -187,9 +187,9 @@ class SleepRule(NamedTuple):
 
 
 @njit(**JIT)
-def _spells(flat, state, rule):
+def _spells(flat, flags, state, rule):
     """Each awake body's still spell, restless count and ``level`` after the step."""
-    X, off, flags = flat.x, flat.offset, flat.flags
+    X, off = flat.x, flat.offset
     calm, fast, level = state.calm, state.fast, state.level
     h, t_sleep = rule.h, rule.t_sleep
     body_moves(X, state.prev, state.anchor, off, flags, state.step2, state.drift2)
@@ -216,10 +216,10 @@ def _spells(flat, state, rule):
 
 
 @njit(**JIT)
-def _wake(b, flat, state):
+def _wake(b, flat, flags, state):
     """Body b wakes: its inverse masses back, a new still spell from where it is."""
     X = flat.x
-    flat.flags[b][SLEEP] = 0.0
+    flags[b][SLEEP] = 0.0
     state.slept[b] = 0
     state.calm[b] = 0.0
     for k in range(flat.offset[b], flat.offset[b + 1]):
@@ -230,9 +230,9 @@ def _wake(b, flat, state):
 
 
 @njit(**JIT)
-def _fall_asleep(b, flat, state):
+def _fall_asleep(b, flat, flags, state):
     """Body b falls asleep: infinite mass for contact, at rest, written back."""
-    flat.flags[b][SLEEP] = 1.0
+    flags[b][SLEEP] = 1.0
     state.slept[b] = 1
     for k in range(flat.offset[b], flat.offset[b + 1]):
         flat.inv_mass[k] = 0.0
@@ -243,7 +243,7 @@ def _fall_asleep(b, flat, state):
 
 
 @njit(**JIT)
-def sleep_update(flat, state, pairs, rule):
+def sleep_update(flat, body_x, flags, state, pairs, rule):
     """One step's sleep bookkeeping (see the module); returns how many bodies fell asleep
     or woke (their inverse masses changed).
 
@@ -257,13 +257,13 @@ def sleep_update(flat, state, pairs, rule):
     falls asleep once settled while no restless body touches it and no unsettled one
     supports it (touches it from below, along ``rule.up``: against gravity; from any side
     without gravity); a sleeping body wakes when a restless one touches it.
-    ``flat.x``, ``flat.v``: the flat state after the contact pass; ``flat.body_x``: the
+    ``flat.x``, ``flat.v``: the flat state after the contact pass; ``body_x``: the
     bodies' own positions, before it (who touches whom, ``touch_restless``).  A body that
     falls asleep gets ``touched`` (the flat state's scatter writes its zero velocities
     back).
     """
-    _spells(flat, state, rule)
-    flags, calm, t_sleep = flat.flags, state.calm, rule.t_sleep
+    _spells(flat, flags, state, rule)
+    calm, t_sleep = state.calm, rule.t_sleep
     # who touches whom matters only to a sleeping body (woken?) or to a settled awake one
     # (falls asleep?); while bodies pour, none is either and the pair pass is skipped
     decide = False
@@ -273,16 +273,16 @@ def sleep_update(flat, state, pairs, rule):
             break
     if not decide:
         return 0
-    touch_restless(flat, pairs, state.level, rule.up, state.near, rule.touch_factor)
+    touch_restless(flat, body_x, pairs, state.level, rule.up, state.near, rule.touch_factor)
     changed = 0
     for b in range(len(flags)):
         f = flags[b][SLEEP]
         if f > 0.0:
             if state.near[b] == 2:             # a restless body touches it: awake
-                _wake(b, flat, state)
+                _wake(b, flat, flags, state)
                 changed += 1
         elif rule.allow and f == 0.0 and calm[b] >= t_sleep and state.near[b] == 0:
-            _fall_asleep(b, flat, state)
+            _fall_asleep(b, flat, flags, state)
             changed += 1
     return changed
 
@@ -331,12 +331,11 @@ class Sleep:
         norm = float(np.linalg.norm(gravity))
         up = -gravity / norm if norm > 0.0 else np.zeros(3)
         arrays = FlatArrays(x=flat.X, v=flat.V, inv_mass=flat.W, awake_inv_mass=flat.Wa,
-                            body_x=flat._xs, radius=flat.R, body=flat.B, offset=flat.off,
-                            flags=flat.flag_list(), touched=flat.touched)
+                            radius=flat.R, body=flat.B, offset=flat.off, touched=flat.touched)
         rule = SleepRule(up=up, h=float(h), speed=float(params.sleep_speed),
                          t_sleep=float(params.sleep_time), allow=bool(params.sleep))
-        if sleep_update(arrays, self.state, Pairs(contact._pi, contact._pj, contact.npairs),
-                        rule):
+        pairs = Pairs(contact._pi, contact._pj, contact.npairs)
+        if sleep_update(arrays, flat._xs, flat.flag_list(), self.state, pairs, rule):
             flat.w_version += 1
 
     def wake_all(self):
