@@ -350,91 +350,76 @@ def _write_pose(row, p, q, vx, vy, vz, wx, wy, wz):
 
 
 @njit(**JIT)
-def _advance_path(c, motion, keys, row, h, t):
-    """One step of collider c along its keyframes (at rest at the last one once over)."""
-    pos, quat = motion.pos, motion.quat
-    k0, k1 = keys.offset[c], keys.offset[c + 1]
-    ktime, kpos, kquat, kseg = keys.time, keys.pos, keys.quat, keys.segment
-    end = ktime[k1 - 1]
-    if t >= end:                        # the path is over: at rest there
-        motion.mode[c] = IDLE
-        _write_pose(row, pos[c], quat[c], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        return
-    tt = t + h
-    if tt >= end:
-        px, py, pz = kpos[k1 - 1, 0], kpos[k1 - 1, 1], kpos[k1 - 1, 2]
-        last = kquat[k1 - 1]
-        qx, qy, qz, qw = last[0], last[1], last[2], last[3]
-    else:
-        k = k0
-        while k + 1 < k1 and ktime[k + 1] <= tt:
-            k += 1
-        s = (tt - ktime[k]) / (ktime[k + 1] - ktime[k])
-        px = kpos[k, 0] + (kpos[k + 1, 0] - kpos[k, 0]) * s
-        py = kpos[k, 1] + (kpos[k + 1, 1] - kpos[k, 1]) * s
-        pz = kpos[k, 2] + (kpos[k + 1, 2] - kpos[k, 2]) * s
-        qx, qy, qz, qw = _axis_angle_mul(kseg[k, 0], kseg[k, 1], kseg[k, 2],
-                                         kseg[k, 3] * s, kquat[k])
-    vx, vy, vz = (px - pos[c, 0]) / h, (py - pos[c, 1]) / h, (pz - pos[c, 2]) / h
-    ax, ay, az, angle = _rotation_between(quat[c], qx, qy, qz, qw)
-    pos[c, 0], pos[c, 1], pos[c, 2] = px, py, pz
-    quat[c, 0], quat[c, 1], quat[c, 2], quat[c, 3] = qx, qy, qz, qw
-    w = angle / h
-    _write_pose(row, pos[c], quat[c], vx, vy, vz, ax * w, ay * w, az * w)
-
-
-@njit(**JIT)
-def _advance_move(c, motion, row, h):
-    """One step of collider c's commanded move; returns 1 when the move ended in it."""
-    pos, quat, move = motion.pos, motion.quat, motion.moves[c]
-    ended = 0
-    d = move[M_DUR]
-    t_new = move[M_EL] + h
-    if t_new >= d * (1.0 - 1e-9):
-        for i in range(3):
-            pos[c, i] = move[M_P1 + i]
-        for i in range(4):
-            quat[c, i] = move[M_Q1 + i]
-        motion.mode[c] = IDLE
-        motion.done[c] = 1
-        ended = 1
-    else:
-        s = t_new / d
-        for i in range(3):
-            pos[c, i] = move[M_P0 + i] + (move[M_P1 + i] - move[M_P0 + i]) * s
-        qx, qy, qz, qw = _axis_angle_mul(move[M_AXIS], move[M_AXIS + 1], move[M_AXIS + 2],
-                                         move[M_ANGLE] * s, move[M_Q0:M_Q0 + 4])
-        quat[c, 0], quat[c, 1], quat[c, 2], quat[c, 3] = qx, qy, qz, qw
-        move[M_EL] = t_new
-    w = move[M_ANGLE] / d
-    _write_pose(row, pos[c], quat[c], move[M_VEL], move[M_VEL + 1], move[M_VEL + 2],
-                move[M_AXIS] * w, move[M_AXIS + 1] * w, move[M_AXIS + 2] * w)
-    return ended
-
-
-@njit(**JIT)
 def advance_poses(motion, keys, rows, h, t):
     """Poses at the end of the next step (from world time ``t``, of ``h`` s) and the
     velocities during it, for every collider (``ColliderMotion``, ``Keyframes``); returns
-    how many commanded moves ended.
-
-    One pass over the colliders (a few): each moving one costs a slerp, a rotation matrix
-    and, on a path, a scan of its keyframes; a collider at rest only has its velocities
-    zeroed once.
-    """
+    how many commanded moves ended.  One pass over the colliders (a few): each moving one
+    costs a slerp, a rotation matrix and, on a path, a scan of its keyframes; a collider at
+    rest only has its velocities zeroed once.  One function: a compiled callee would add
+    its own compile time to a cold start."""
+    pos, quat = motion.pos, motion.quat
+    ktime, kpos, kquat, kseg = keys.time, keys.pos, keys.quat, keys.segment
     ended = 0
     for c in range(motion.mode.shape[0]):
         row = rows[c]
         mode = motion.mode[c]
         if mode == PATH:
-            _advance_path(c, motion, keys, row, h, t)
+            k0, k1 = keys.offset[c], keys.offset[c + 1]
+            end = ktime[k1 - 1]
+            if t >= end:                        # the path is over: at rest there
+                motion.mode[c] = IDLE
+                _write_pose(row, pos[c], quat[c], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+                continue
+            tt = t + h
+            if tt >= end:
+                px, py, pz = kpos[k1 - 1, 0], kpos[k1 - 1, 1], kpos[k1 - 1, 2]
+                qx, qy, qz, qw = kquat[k1 - 1, 0], kquat[k1 - 1, 1], kquat[k1 - 1, 2], \
+                    kquat[k1 - 1, 3]
+            else:
+                k = k0
+                while k + 1 < k1 and ktime[k + 1] <= tt:
+                    k += 1
+                s = (tt - ktime[k]) / (ktime[k + 1] - ktime[k])
+                px = kpos[k, 0] + (kpos[k + 1, 0] - kpos[k, 0]) * s
+                py = kpos[k, 1] + (kpos[k + 1, 1] - kpos[k, 1]) * s
+                pz = kpos[k, 2] + (kpos[k + 1, 2] - kpos[k, 2]) * s
+                qx, qy, qz, qw = _axis_angle_mul(kseg[k, 0], kseg[k, 1], kseg[k, 2],
+                                                 kseg[k, 3] * s, kquat[k])
+            vx, vy, vz = (px - pos[c, 0]) / h, (py - pos[c, 1]) / h, (pz - pos[c, 2]) / h
+            ax, ay, az, angle = _rotation_between(quat[c], qx, qy, qz, qw)
+            pos[c, 0], pos[c, 1], pos[c, 2] = px, py, pz
+            quat[c, 0], quat[c, 1], quat[c, 2], quat[c, 3] = qx, qy, qz, qw
+            w = angle / h
+            _write_pose(row, pos[c], quat[c], vx, vy, vz, ax * w, ay * w, az * w)
         elif mode == MOVE:
-            ended += _advance_move(c, motion, row, h)
+            move = motion.moves[c]
+            d = move[M_DUR]
+            t_new = move[M_EL] + h
+            if t_new >= d * (1.0 - 1e-9):
+                for i in range(3):
+                    pos[c, i] = move[M_P1 + i]
+                for i in range(4):
+                    quat[c, i] = move[M_Q1 + i]
+                motion.mode[c] = IDLE
+                motion.done[c] = 1
+                ended += 1
+            else:
+                s = t_new / d
+                for i in range(3):
+                    pos[c, i] = move[M_P0 + i] + (move[M_P1 + i] - move[M_P0 + i]) * s
+                qx, qy, qz, qw = _axis_angle_mul(move[M_AXIS], move[M_AXIS + 1],
+                                                 move[M_AXIS + 2], move[M_ANGLE] * s,
+                                                 move[M_Q0:M_Q0 + 4])
+                quat[c, 0], quat[c, 1], quat[c, 2], quat[c, 3] = qx, qy, qz, qw
+                move[M_EL] = t_new
+            w = move[M_ANGLE] / d
+            _write_pose(row, pos[c], quat[c], move[M_VEL], move[M_VEL + 1], move[M_VEL + 2],
+                        move[M_AXIS] * w, move[M_AXIS + 1] * w, move[M_AXIS + 2] * w)
         else:
             moving = False
             for i in range(C_VEL, C_ANG + 3):
                 if row[i] != 0.0:
                     moving = True
             if moving:
-                _write_pose(row, motion.pos[c], motion.quat[c], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+                _write_pose(row, pos[c], quat[c], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     return ended

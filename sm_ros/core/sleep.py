@@ -187,14 +187,19 @@ class SleepRule(NamedTuple):
 
 
 @njit(**JIT)
-def _spells(flat, flags, state, rule):
-    """Each awake body's still spell, restless count and ``level`` after the step."""
-    X, off = flat.x, flat.offset
-    calm, fast, level = state.calm, state.fast, state.level
+def sleep_update(flat, body_x, flags, state, pairs, rule):
+    """One step's sleep bookkeeping after the contact pass (see the module: still spells,
+    settled, restless, unsettled); returns how many bodies fell asleep or woke (their
+    inverse masses changed).  ``body_x``: the bodies' own positions, before the contact
+    pass (who touches whom, ``touch_restless``).  One function, not several: each compiled
+    callee would add its own compile time to a cold start."""
+    X, off, touched = flat.x, flat.offset, flat.touched
+    prev, anchor, calm, fast, level = (state.prev, state.anchor, state.calm, state.fast,
+                                       state.level)
     h, t_sleep = rule.h, rule.t_sleep
-    body_moves(X, state.prev, state.anchor, off, flags, state.step2, state.drift2)
-    quick = rule.wake_factor * rule.speed * h
-    room = rule.speed * t_sleep
+    body_moves(X, prev, anchor, off, flags, state.step2, state.drift2)
+    quick = rule.wake_factor * rule.speed * h       # restless: a particle this far a step
+    room = rule.speed * t_sleep                     # still: no particle this far in a spell
     for b in range(len(flags)):
         f = flags[b][SLEEP]
         if f > 0.0:
@@ -205,65 +210,16 @@ def _spells(flat, flags, state, rule):
         else:                                  # a new still spell starts here
             calm[b] = 0.0
             for k in range(off[b], off[b + 1]):
-                state.anchor[0, k] = X[0, k]
-                state.anchor[1, k] = X[1, k]
-                state.anchor[2, k] = X[2, k]
+                anchor[0, k] = X[0, k]
+                anchor[1, k] = X[1, k]
+                anchor[2, k] = X[2, k]
+        # restless after two fast steps in a row: when a body falls asleep, the one resting
+        # on it settles by up to g h^2 in one step
         fast[b] = min(fast[b] + 1, 2) if state.step2[b] > quick * quick else 0
         if fast[b] >= 2 or f < 0.0:
             level[b] = 2
         else:
             level[b] = 0 if calm[b] >= t_sleep else 1
-
-
-@njit(**JIT)
-def _wake(b, flat, flags, state):
-    """Body b wakes: its inverse masses back, a new still spell from where it is."""
-    X = flat.x
-    flags[b][SLEEP] = 0.0
-    state.slept[b] = 0
-    state.calm[b] = 0.0
-    for k in range(flat.offset[b], flat.offset[b + 1]):
-        flat.inv_mass[k] = flat.awake_inv_mass[k]
-        for axis in range(3):
-            state.prev[axis, k] = X[axis, k]
-            state.anchor[axis, k] = X[axis, k]
-
-
-@njit(**JIT)
-def _fall_asleep(b, flat, flags, state):
-    """Body b falls asleep: infinite mass for contact, at rest, written back."""
-    flags[b][SLEEP] = 1.0
-    state.slept[b] = 1
-    for k in range(flat.offset[b], flat.offset[b + 1]):
-        flat.inv_mass[k] = 0.0
-        flat.v[0, k] = 0.0
-        flat.v[1, k] = 0.0
-        flat.v[2, k] = 0.0
-    flat.touched[b] = 1
-
-
-@njit(**JIT)
-def sleep_update(flat, body_x, flags, state, pairs, rule):
-    """One step's sleep bookkeeping (see the module); returns how many bodies fell asleep
-    or woke (their inverse masses changed).
-
-    A body is *still* while no particle is farther than ``speed * t_sleep`` from where
-    it was when its still spell began (``state.anchor``; a jiggle in place does not end
-    the spell, a slow drift does), *settled* when asleep or still for ``t_sleep``
-    (``level`` 0), *restless* while a particle moved faster than ``rule.wake_factor * speed``
-    in each of the last two steps (``state.fast``, up to 2; one step is not enough: when
-    a body falls asleep the one resting on it settles by up to g h^2 in one step), or a
-    force, torque or grab holds it (``level`` 2), and unsettled otherwise (1).  A body
-    falls asleep once settled while no restless body touches it and no unsettled one
-    supports it (touches it from below, along ``rule.up``: against gravity; from any side
-    without gravity); a sleeping body wakes when a restless one touches it.
-    ``flat.x``, ``flat.v``: the flat state after the contact pass; ``body_x``: the
-    bodies' own positions, before it (who touches whom, ``touch_restless``).  A body that
-    falls asleep gets ``touched`` (the flat state's scatter writes its zero velocities
-    back).
-    """
-    _spells(flat, flags, state, rule)
-    calm, t_sleep = state.calm, rule.t_sleep
     # who touches whom matters only to a sleeping body (woken?) or to a settled awake one
     # (falls asleep?); while bodies pour, none is either and the pair pass is skipped
     decide = False
@@ -273,16 +229,30 @@ def sleep_update(flat, body_x, flags, state, pairs, rule):
             break
     if not decide:
         return 0
-    touch_restless(flat, body_x, pairs, state.level, rule.up, state.near, rule.touch_factor)
+    touch_restless(flat, body_x, pairs, level, rule.up, state.near, rule.touch_factor)
     changed = 0
     for b in range(len(flags)):
         f = flags[b][SLEEP]
-        if f > 0.0:
-            if state.near[b] == 2:             # a restless body touches it: awake
-                _wake(b, flat, flags, state)
-                changed += 1
-        elif rule.allow and f == 0.0 and calm[b] >= t_sleep and state.near[b] == 0:
-            _fall_asleep(b, flat, flags, state)
+        if f > 0.0 and state.near[b] == 2:     # a restless body touches it: awake
+            flags[b][SLEEP] = 0.0
+            state.slept[b] = 0
+            calm[b] = 0.0
+            for k in range(off[b], off[b + 1]):
+                flat.inv_mass[k] = flat.awake_inv_mass[k]
+                for axis in range(3):
+                    prev[axis, k] = X[axis, k]
+                    anchor[axis, k] = X[axis, k]
+            changed += 1
+        elif (rule.allow and f == 0.0 and calm[b] >= t_sleep
+              and state.near[b] == 0):         # asleep: infinite mass, at rest, written back
+            flags[b][SLEEP] = 1.0
+            state.slept[b] = 1
+            for k in range(off[b], off[b + 1]):
+                flat.inv_mass[k] = 0.0
+                flat.v[0, k] = 0.0
+                flat.v[1, k] = 0.0
+                flat.v[2, k] = 0.0
+            touched[b] = 1
             changed += 1
     return changed
 
