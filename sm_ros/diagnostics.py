@@ -7,7 +7,8 @@ Values are plain decimal strings; the level is compared as
 ``DiagnosticStatus.OK/WARN/ERROR`` (bytes).
 """
 
-from typing import Optional
+from dataclasses import dataclass
+from typing import Dict, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from sm_ros.stats import TickStats
@@ -37,83 +38,113 @@ def fmt(value: float) -> str:
     return text if text not in ('', '-0') else '0'
 
 
-def solver_status(node_name: str, stats: TickStats, now: float, *, points: int, bodies: int,
-                  clusters: int, mode: str, rate_target_hz: float, shape_error_rms_m: float,
-                  momentum_drift: Optional[float], refused_messages: int,
-                  paused: bool = False, recording: str = '', recorder_messages: int = 0,
-                  recorder_dropped: int = 0, recorder_dropped_window: int = 0,
-                  speed_limited: int = 0, turn_limited: int = 0,
-                  error_estimate_m: float = 0.0, error_estimate_ms: float = 0.0,
-                  error_estimate_age_s: Optional[float] = None) -> DiagnosticStatus:
-    """
-    Build the '<node name>: solver' status for the window that ends at ``now``.
+@dataclass
+class SolverFigures:
+    """The figures of the solver status beside the tick statistics: the world's
+    (``Simulation.status_values``), the node's and the recorder's
+    (``Outputs.recorder_status``).
 
-    Level: ERROR when a body went non-finite in the window, else WARN when ticks overran
-    or the recorder dropped messages in the window, else OK. ``recording`` is the folder
-    being recorded into ('' when not recording); ``recorder_*`` count over the recording.
+    ``recording`` is the folder being recorded into ('' when not recording);
+    ``recorder_*`` count over the recording, ``recorder_dropped_window`` over the window.
     ``error_estimate_age_s``: seconds since the state of the last error estimate (None:
     no estimate yet, published as -1).
     """
-    span = max(now - stats.window_start, 1e-9)
-    tick_ms = 1e3 * stats.tick_s_sum / stats.ticks if stats.ticks else 0.0
-    step_ms = 1e3 * stats.step_s_sum / stats.ticks if stats.ticks else 0.0
-    publish_ms = 1e3 * stats.publish_s_sum / stats.ticks if stats.ticks else 0.0
-    estimate_ms = 1e3 * getattr(stats, 'estimate_s_sum', 0.0) / stats.ticks \
-        if stats.ticks else 0.0
-    values = {
-        'points': str(int(points)),
-        'bodies': str(int(bodies)),
-        'clusters': str(int(clusters)),
-        'mode': mode,
+
+    points: int
+    bodies: int
+    clusters: int
+    mode: str
+    rate_target_hz: float
+    shape_error_rms_m: float
+    momentum_drift: Optional[float]
+    refused_messages: int
+    paused: bool = False
+    recording: str = ''
+    recorder_messages: int = 0
+    recorder_dropped: int = 0
+    recorder_dropped_window: int = 0
+    speed_limited: int = 0
+    turn_limited: int = 0
+    error_estimate_m: float = 0.0
+    error_estimate_ms: float = 0.0
+    error_estimate_age_s: Optional[float] = None
+
+
+def _per_tick_ms(stats: TickStats, total_s: float) -> float:
+    return 1e3 * total_s / stats.ticks if stats.ticks else 0.0
+
+
+def _values(stats: TickStats, span: float, fig: SolverFigures) -> Dict[str, str]:
+    """Every key of ``KEYS`` as its published string."""
+    tick_ms = _per_tick_ms(stats, stats.tick_s_sum)
+    step_ms = _per_tick_ms(stats, stats.step_s_sum)
+    publish_ms = _per_tick_ms(stats, stats.publish_s_sum)
+    estimate_ms = _per_tick_ms(stats, getattr(stats, 'estimate_s_sum', 0.0))
+    return {
+        'points': str(int(fig.points)),
+        'bodies': str(int(fig.bodies)),
+        'clusters': str(int(fig.clusters)),
+        'mode': fig.mode,
         'step_ms_mean': fmt(1e3 * stats.step_s_sum / stats.steps if stats.steps else 0.0),
         'step_ms_max': fmt(1e3 * stats.step_s_max),
         'publish_ms_mean': fmt(
             1e3 * stats.publish_s_sum / stats.publishes if stats.publishes else 0.0),
         'tick_ms_max': fmt(1e3 * stats.tick_s_max),
-        'rate_target_hz': fmt(rate_target_hz),
+        'rate_target_hz': fmt(fig.rate_target_hz),
         'rate_achieved_hz': fmt(stats.ticks / span),
         'real_time_factor': fmt(stats.sim_s / span),
         'overruns': str(stats.overruns_total),
-        'shape_error_rms_m': fmt(shape_error_rms_m),
-        'momentum_drift': fmt(momentum_drift or 0.0),
-        'momentum_drift_measured': 'true' if momentum_drift is not None else 'false',
+        'shape_error_rms_m': fmt(fig.shape_error_rms_m),
+        'momentum_drift': fmt(fig.momentum_drift or 0.0),
+        'momentum_drift_measured': 'true' if fig.momentum_drift is not None else 'false',
         'nonfinite_resets': str(stats.nonfinite_total),
-        'refused_messages': str(int(refused_messages)),
+        'refused_messages': str(int(fig.refused_messages)),
         'tick_ms_mean': fmt(tick_ms),
         'other_ms_mean': fmt(max(0.0, tick_ms - step_ms - publish_ms - estimate_ms)),
-        'recording': recording,
-        'recorder_messages': str(int(recorder_messages)),
-        'recorder_dropped': str(int(recorder_dropped)),
+        'recording': fig.recording,
+        'recorder_messages': str(int(fig.recorder_messages)),
+        'recorder_dropped': str(int(fig.recorder_dropped)),
         'contacts': str(int(getattr(stats, 'contacts', 0))),
         'contact_fast_particles': str(int(getattr(stats, 'contact_fast_max', 0))),
         'bodies_asleep': str(int(getattr(stats, 'asleep', 0))),
-        'speed_limited': str(int(speed_limited)),
-        'turn_limited': str(int(turn_limited)),
-        'error_estimate_m': fmt(error_estimate_m),
-        'error_estimate_ms': fmt(error_estimate_ms),
-        'error_estimate_age_s': '-1' if error_estimate_age_s is None
-        else fmt(error_estimate_age_s),
+        'speed_limited': str(int(fig.speed_limited)),
+        'turn_limited': str(int(fig.turn_limited)),
+        'error_estimate_m': fmt(fig.error_estimate_m),
+        'error_estimate_ms': fmt(fig.error_estimate_ms),
+        'error_estimate_age_s': '-1' if fig.error_estimate_age_s is None
+        else fmt(fig.error_estimate_age_s),
         'error_estimate_ms_mean': fmt(estimate_ms),
     }
+
+
+def solver_status(node_name: str, stats: TickStats, now: float,
+                  figures: SolverFigures) -> DiagnosticStatus:
+    """
+    Build the '<node name>: solver' status for the window that ends at ``now``.
+
+    Level: ERROR when a body went non-finite in the window, else WARN when ticks overran
+    or the recorder dropped messages in the window, else OK.
+    """
+    values = _values(stats, max(now - stats.window_start, 1e-9), figures)
     status = DiagnosticStatus()
     status.name = f'{node_name}: solver'
     status.hardware_id = HARDWARE_ID
     if stats.nonfinite:
         status.level = DiagnosticStatus.ERROR
-        names = ', '.join(f"'{n}'" for n in dict.fromkeys(stats.nonfinite))
+        names = ', '.join(f"'{body}'" for body in dict.fromkeys(stats.nonfinite))
         status.message = f'body {names} went non-finite and was reset'
     elif stats.overruns:
         status.level = DiagnosticStatus.WARN
         status.message = (f'{stats.overruns} of {stats.ticks} ticks overran the period '
-                          f'of {fmt(1e3 / rate_target_hz)} ms')
-    elif recorder_dropped_window:
+                          f'of {fmt(1e3 / figures.rate_target_hz)} ms')
+    elif figures.recorder_dropped_window:
         status.level = DiagnosticStatus.WARN
-        status.message = (f'the recorder dropped {int(recorder_dropped_window)} messages '
-                          '(the disk did not keep up)')
+        status.message = (f'the recorder dropped {int(figures.recorder_dropped_window)} '
+                          'messages (the disk did not keep up)')
     else:
         status.level = DiagnosticStatus.OK
-        status.message = 'paused' if paused else 'running'
-    status.values = [KeyValue(key=k, value=values[k]) for k in KEYS]
+        status.message = 'paused' if figures.paused else 'running'
+    status.values = [KeyValue(key=key, value=values[key]) for key in KEYS]
     return status
 
 
@@ -130,13 +161,13 @@ def contact_status(node_name: str, per_body) -> DiagnosticStatus:
     status.name = f'{node_name}: contacts'
     status.hardware_id = HARDWARE_ID
     status.level = DiagnosticStatus.OK
-    total = sum(int(n) for n, _ in per_body.values())
+    total = sum(int(count) for count, _ in per_body.values())
     status.message = f'{total} contacts'
     values = []
-    for name, (n, depth) in per_body.items():
-        if not n:
+    for name, (count, depth) in per_body.items():
+        if not count:
             continue                  # only the bodies in contact (a bin of 384 bodies)
-        values.append(KeyValue(key=f'{name}.contacts', value=str(int(n))))
+        values.append(KeyValue(key=f'{name}.contacts', value=str(int(count))))
         values.append(KeyValue(key=f'{name}.penetration_max_m', value=fmt(depth)))
     status.values = values
     return status

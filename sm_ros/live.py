@@ -35,18 +35,16 @@ The module is ROS-free: it takes NumPy arrays and the cloud's raw bytes.
 from __future__ import annotations
 
 import math
-import struct
 from typing import Any, Callable, Dict, Iterable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from sm_ros.live_cloud import (CLOUD_FIELDS, CLOUD_POINT_STEP,  # noqa: F401
+                               encode_point_cloud, point_cloud_header)
+
 #: Default port of ``foxglove.port``. 0 (off) is the node's default; 8765 is Foxglove's
 #: own default port, the one ``make run`` passes and the app's connection dialog proposes.
 FOXGLOVE_DEFAULT_PORT = 8765
-
-#: PackedElementFieldNumericType values of foxglove.PackedElementField.
-_UINT32 = 5
-_FLOAT32 = 7
 
 #: Colour of the surfaces and colliders (RGBA in [0, 1]).
 SURFACE_RGBA = (0.85, 0.45, 0.2, 0.9)
@@ -71,82 +69,6 @@ def _foxglove():
 
 
 # ----------------------------------------------------------------------------------------
-# Protobuf encoding of foxglove.PointCloud around the cloud's own bytes
-# ----------------------------------------------------------------------------------------
-
-def _varint(n: int) -> bytes:
-    out = bytearray()
-    n = int(n)
-    if n < 0:
-        n += 1 << 64
-    while True:
-        b = n & 0x7F
-        n >>= 7
-        if n:
-            out.append(b | 0x80)
-        else:
-            out.append(b)
-            return bytes(out)
-
-
-def _key(field: int, wire: int) -> bytes:
-    return _varint((field << 3) | wire)
-
-
-def _len_field(field: int, payload: bytes) -> bytes:
-    return _key(field, 2) + _varint(len(payload)) + payload
-
-
-def _timestamp(ns: int) -> bytes:
-    sec, nsec = divmod(int(ns), 1_000_000_000)
-    body = (_key(1, 0) + _varint(sec) if sec else b'') + \
-        (_key(2, 0) + _varint(nsec) if nsec else b'')
-    return body
-
-
-def _packed_field(name: str, offset: int, numeric_type: int) -> bytes:
-    body = _len_field(1, name.encode('utf-8'))
-    if offset:
-        body += _key(2, 5) + struct.pack('<I', offset)
-    body += _key(3, 0) + _varint(numeric_type)
-    return body
-
-
-#: The published cloud's layout with ``body`` listed first (Foxglove colours a cloud by
-#: its first field when it has no colour field).
-CLOUD_FIELDS = (('body', 12, _UINT32), ('x', 0, _FLOAT32), ('y', 4, _FLOAT32),
-                ('z', 8, _FLOAT32))
-CLOUD_POINT_STEP = 16
-
-
-def point_cloud_header(stamp_ns: int, frame_id: str, nbytes: int,
-                       fields=CLOUD_FIELDS, point_step: int = CLOUD_POINT_STEP) -> bytes:
-    """
-    Return the protobuf bytes of a foxglove.PointCloud up to (not including) its data.
-
-    Appending ``nbytes`` bytes of point data gives the whole message. The pose is the
-    identity (orientation w = 1), as the points are in ``frame_id``.
-    """
-    out = [_len_field(1, _timestamp(stamp_ns))]
-    if frame_id:
-        out.append(_len_field(2, frame_id.encode('utf-8')))
-    identity = _len_field(1, b'') + _len_field(2, _key(4, 1) + struct.pack('<d', 1.0))
-    out.append(_len_field(3, identity))
-    out.append(_key(4, 5) + struct.pack('<I', point_step))
-    for name, offset, numeric_type in fields:
-        out.append(_len_field(5, _packed_field(name, offset, numeric_type)))
-    if nbytes:
-        out.append(_key(6, 2) + _varint(nbytes))
-    return b''.join(out)
-
-
-def encode_point_cloud(data, stamp_ns: int, frame_id: str) -> bytes:
-    """Return a foxglove.PointCloud (protobuf) holding ``data`` (the cloud's raw bytes)."""
-    view = memoryview(data).cast('B')
-    return b''.join((point_cloud_header(stamp_ns, frame_id, view.nbytes), view))
-
-
-# ----------------------------------------------------------------------------------------
 # Scene entities
 # ----------------------------------------------------------------------------------------
 
@@ -158,56 +80,60 @@ def body_rgba(index: int, count: int) -> Tuple[float, float, float, float]:
     return (r, g, b, 1.0)
 
 
-def _color(fg, rgba):
-    return fg.messages.Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
+def _color(sdk, rgba):
+    return sdk.messages.Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
 
 
-def _pose(fg, centre, quat):
-    m = fg.messages
-    return m.Pose(position=m.Vector3(x=float(centre[0]), y=float(centre[1]),
-                                     z=float(centre[2])),
-                  orientation=m.Quaternion(x=float(quat[0]), y=float(quat[1]),
-                                           z=float(quat[2]), w=float(quat[3])))
+def _pose(sdk, centre, quat):
+    msgs = sdk.messages
+    return msgs.Pose(position=msgs.Vector3(x=float(centre[0]), y=float(centre[1]),
+                                           z=float(centre[2])),
+                     orientation=msgs.Quaternion(x=float(quat[0]), y=float(quat[1]),
+                                                 z=float(quat[2]), w=float(quat[3])))
 
 
-def _ground_entity(fg, ground, pose) -> Dict[str, list]:
-    m = fg.messages
+def _ground_entity(sdk, ground, pose) -> Dict[str, list]:
+    msgs = sdk.messages
     centre = (0.0, 0.0, float(ground.height) - 0.0005)
-    return {'cubes': [m.CubePrimitive(pose=_pose(fg, centre, (0, 0, 0, 1)),
-                                      size=m.Vector3(x=GROUND_SIDE, y=GROUND_SIDE, z=0.001),
-                                      color=_color(fg, GROUND_RGBA))]}
+    return {'cubes': [msgs.CubePrimitive(pose=_pose(sdk, centre, (0, 0, 0, 1)),
+                                         size=msgs.Vector3(x=GROUND_SIDE, y=GROUND_SIDE,
+                                                           z=0.001),
+                                         color=_color(sdk, GROUND_RGBA))]}
 
 
-def _box_entity(fg, box, pose) -> Dict[str, list]:
-    m = fg.messages
+def _box_entity(sdk, box, pose) -> Dict[str, list]:
+    msgs = sdk.messages
     size = np.asarray(box.hi, float) - np.asarray(box.lo, float)
-    return {'cubes': [m.CubePrimitive(pose=_pose(fg, *pose),
-                                      size=m.Vector3(x=size[0], y=size[1], z=size[2]),
-                                      color=_color(fg, COLLIDER_RGBA))]}
+    return {'cubes': [msgs.CubePrimitive(pose=_pose(sdk, *pose),
+                                         size=msgs.Vector3(x=size[0], y=size[1], z=size[2]),
+                                         color=_color(sdk, COLLIDER_RGBA))]}
 
 
-def _sphere_entity(fg, sphere, pose) -> Dict[str, list]:
-    m = fg.messages
-    d = 2.0 * float(sphere.radius)
-    return {'spheres': [m.SpherePrimitive(pose=_pose(fg, *pose), size=m.Vector3(x=d, y=d, z=d),
-                                          color=_color(fg, COLLIDER_RGBA))]}
+def _ball(sdk, centre, quat, diameter):
+    msgs = sdk.messages
+    return msgs.SpherePrimitive(pose=_pose(sdk, centre, quat),
+                                size=msgs.Vector3(x=diameter, y=diameter, z=diameter),
+                                color=_color(sdk, COLLIDER_RGBA))
 
 
-def _capsule_entity(fg, capsule, pose) -> Dict[str, list]:
+def _sphere_entity(sdk, sphere, pose) -> Dict[str, list]:
+    return {'spheres': [_ball(sdk, *pose, 2.0 * float(sphere.radius))]}
+
+
+def _capsule_entity(sdk, capsule, pose) -> Dict[str, list]:
     """A cylinder along the local z axis and a sphere at each end."""
-    m = fg.messages
+    msgs = sdk.messages
     centre, quat = np.asarray(pose[0], float), np.asarray(pose[1], float)
-    r, length = float(capsule.radius), float(capsule.length)
+    radius, length = float(capsule.radius), float(capsule.length)
     x, y, z, w = quat
     axis = np.array([2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y)])
-    d = 2.0 * r
+    diameter = 2.0 * radius
     ends = [centre + 0.5 * length * axis, centre - 0.5 * length * axis]
-    return {'cylinders': [m.CylinderPrimitive(pose=_pose(fg, centre, quat),
-                                              size=m.Vector3(x=d, y=d, z=length),
-                                              bottom_scale=1.0, top_scale=1.0,
-                                              color=_color(fg, COLLIDER_RGBA))],
-            'spheres': [m.SpherePrimitive(pose=_pose(fg, e, quat), size=m.Vector3(x=d, y=d, z=d),
-                                          color=_color(fg, COLLIDER_RGBA)) for e in ends]}
+    return {'cylinders': [msgs.CylinderPrimitive(
+                pose=_pose(sdk, centre, quat),
+                size=msgs.Vector3(x=diameter, y=diameter, z=length),
+                bottom_scale=1.0, top_scale=1.0, color=_color(sdk, COLLIDER_RGBA))],
+            'spheres': [_ball(sdk, end, quat, diameter) for end in ends]}
 
 
 #: Collider class name -> function(foxglove, collider, (centre, quaternion x y z w))
@@ -222,14 +148,14 @@ COLLIDER_ENTITIES: Dict[str, Callable] = {
 }
 
 
-def _declared_pose(c) -> Tuple[np.ndarray, np.ndarray]:
+def _declared_pose(collider) -> Tuple[np.ndarray, np.ndarray]:
     """Return the centre and quaternion a collider was declared with."""
-    if hasattr(c, 'lo'):
-        centre = (np.asarray(c.lo, float) + np.asarray(c.hi, float)) / 2.0
+    if hasattr(collider, 'lo'):
+        centre = (np.asarray(collider.lo, float) + np.asarray(collider.hi, float)) / 2.0
     else:
-        centre = np.asarray(getattr(c, 'center', (0.0, 0.0, 0.0)), float)
-    q = getattr(c, 'orientation', None)
-    return centre, np.asarray(q if q is not None else (0.0, 0.0, 0.0, 1.0), float)
+        centre = np.asarray(getattr(collider, 'center', (0.0, 0.0, 0.0)), float)
+    quat = getattr(collider, 'orientation', None)
+    return centre, np.asarray(quat if quat is not None else (0.0, 0.0, 0.0, 1.0), float)
 
 
 def world_colliders(world) -> List[Tuple[str, Any, Tuple[np.ndarray, np.ndarray]]]:
@@ -244,21 +170,22 @@ def world_colliders(world) -> List[Tuple[str, Any, Tuple[np.ndarray, np.ndarray]
     if ground is not None:
         out.append(('ground', ground, (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))))
     for kind in ('boxes', 'spheres', 'capsules'):
-        for i, c in enumerate(getattr(world, kind, ()) or ()):
-            name = getattr(c, 'name', None)
-            pose = _declared_pose(c)
+        for index, collider in enumerate(getattr(world, kind, ()) or ()):
+            name = getattr(collider, 'name', None)
+            pose = _declared_pose(collider)
             if name and hasattr(world, 'collider_pose'):
                 try:
                     pose = world.collider_pose(name)
                 except (ValueError, KeyError):
                     pass
-            out.append((name or f'{kind[:-1] if kind != "boxes" else "box"}{i}', c, pose))
+            fallback = f'{kind[:-1] if kind != "boxes" else "box"}{index}'
+            out.append((name or fallback, collider, pose))
     return out
 
 
-def _timestamp_msg(fg, ns: int):
-    sec, nsec = divmod(int(ns), 1_000_000_000)
-    return fg.messages.Timestamp(sec=sec, nsec=nsec)
+def _timestamp_msg(sdk, stamp_ns: int):
+    sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+    return sdk.messages.Timestamp(sec=sec, nsec=nsec)
 
 
 class FoxgloveView:
@@ -272,25 +199,25 @@ class FoxgloveView:
     def __init__(self, port: int = FOXGLOVE_DEFAULT_PORT, host: str = '127.0.0.1',
                  name: str = 'sm_ros', frame_id: str = 'world'):
         """Start the server; raises VizUnavailable without foxglove-sdk, OSError if busy."""
-        fg = _foxglove()
+        sdk = _foxglove()
         from foxglove.channels import PosesInFrameChannel, SceneUpdateChannel
         from foxglove.messages import PointCloud
-        self._fg = fg
+        self._sdk = sdk
         self.frame_id = frame_id
-        self.context = fg.Context()
+        self.context = sdk.Context()
         try:
-            self.server = fg.start_server(name=name, host=host, port=int(port),
+            self.server = sdk.start_server(name=name, host=host, port=int(port),
                                           context=self.context)
         except Exception as exc:  # noqa: BLE001 - the SDK raises its own error type
             raise OSError(f'Foxglove server on {host}:{port}: {exc}') from exc
         self.host = host
-        self.points = fg.Channel('/points', schema=PointCloud.get_schema(),
+        self.points = sdk.Channel('/points', schema=PointCloud.get_schema(),
                                  message_encoding='protobuf', context=self.context)
         self.poses = PosesInFrameChannel('/poses', context=self.context)
         self.surfaces = SceneUpdateChannel('/surfaces', context=self.context)
         self.colliders = SceneUpdateChannel('/colliders', context=self.context)
         self.contacts = SceneUpdateChannel('/contacts', context=self.context)
-        self.diagnostics = fg.Channel('/diagnostics', context=self.context)
+        self.diagnostics = sdk.Channel('/diagnostics', context=self.context)
         self.messages_logged = 0
         self._collider_key = None
 
@@ -336,13 +263,11 @@ class FoxgloveView:
         """Send one pose per body: positions (B, 3), quaternions (B, 4) as x, y, z, w."""
         if not self.poses.has_sinks():
             return False
-        m = self._fg.messages
-        poses = [m.Pose(position=m.Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                        orientation=m.Quaternion(x=float(q[0]), y=float(q[1]),
-                                                 z=float(q[2]), w=float(q[3])))
-                 for p, q in zip(np.asarray(positions), np.asarray(quaternions))]
-        self.poses.log(m.PosesInFrame(timestamp=_timestamp_msg(self._fg, stamp_ns),
-                                      frame_id=self.frame_id, poses=poses), log_time=stamp_ns)
+        poses = [_pose(self._sdk, centre, quat)
+                 for centre, quat in zip(np.asarray(positions), np.asarray(quaternions))]
+        message = self._sdk.messages.PosesInFrame(
+            timestamp=_timestamp_msg(self._sdk, stamp_ns), frame_id=self.frame_id, poses=poses)
+        self.poses.log(message, log_time=stamp_ns)
         self.messages_logged += 1
         return True
 
@@ -351,18 +276,18 @@ class FoxgloveView:
         """Send the deformed surfaces: [(body name, triangle corners (3F, 3))]."""
         if not self.surfaces.has_sinks():
             return False
-        m = self._fg.messages
-        ts = _timestamp_msg(self._fg, stamp_ns)
+        msgs = self._sdk.messages
+        stamp = _timestamp_msg(self._sdk, stamp_ns)
         entities = []
-        for i, (name, corners) in enumerate(surfaces):
-            pts = [m.Point3(x=float(a), y=float(b), z=float(c))
-                   for a, b, c in np.asarray(corners, dtype=np.float64)]
-            r, g, b, a = SURFACE_RGBA
-            tri = m.TriangleListPrimitive(pose=m.Pose(orientation=m.Quaternion(w=1.0)),
-                                          points=pts, color=m.Color(r=r, g=g, b=b, a=a))
-            entities.append(m.SceneEntity(timestamp=ts, frame_id=self.frame_id,
-                                          id=f'surface/{name}', triangles=[tri]))
-        self.surfaces.log(m.SceneUpdate(entities=entities), log_time=stamp_ns)
+        for name, corners in surfaces:
+            pts = [msgs.Point3(x=float(x), y=float(y), z=float(z))
+                   for x, y, z in np.asarray(corners, dtype=np.float64)]
+            tri = msgs.TriangleListPrimitive(
+                pose=msgs.Pose(orientation=msgs.Quaternion(w=1.0)), points=pts,
+                color=_color(self._sdk, SURFACE_RGBA))
+            entities.append(msgs.SceneEntity(timestamp=stamp, frame_id=self.frame_id,
+                                             id=f'surface/{name}', triangles=[tri]))
+        self.surfaces.log(msgs.SceneUpdate(entities=entities), log_time=stamp_ns)
         self.messages_logged += 1
         return True
 
@@ -377,22 +302,23 @@ class FoxgloveView:
             self._collider_key = None
             return False
         colliders = list(colliders)
-        key = tuple((cid, repr(c), tuple(np.round(np.concatenate(
-            [np.ravel(pose[0]), np.ravel(pose[1])]), 9))) for cid, c, pose in colliders)
+        key = tuple((cid, repr(collider), tuple(np.round(np.concatenate(
+            [np.ravel(pose[0]), np.ravel(pose[1])]), 9))) for cid, collider, pose in colliders)
         if key == self._collider_key:
             return False
-        m = self._fg.messages
-        ts = _timestamp_msg(self._fg, stamp_ns)
+        msgs = self._sdk.messages
+        stamp = _timestamp_msg(self._sdk, stamp_ns)
         entities = []
-        for cid, c, pose in colliders:
-            draw = COLLIDER_ENTITIES.get(type(c).__name__)
+        for cid, collider, pose in colliders:
+            draw = COLLIDER_ENTITIES.get(type(collider).__name__)
             if draw is None:
                 continue
-            entities.append(m.SceneEntity(timestamp=ts, frame_id=self.frame_id,
-                                          id=f'collider/{cid}', **draw(self._fg, c, pose)))
-        deletions = [m.SceneEntityDeletion(timestamp=ts,
-                                           type=m.SceneEntityDeletionType.All)]
-        self.colliders.log(m.SceneUpdate(deletions=deletions, entities=entities),
+            entities.append(msgs.SceneEntity(timestamp=stamp, frame_id=self.frame_id,
+                                             id=f'collider/{cid}',
+                                             **draw(self._sdk, collider, pose)))
+        deletions = [msgs.SceneEntityDeletion(timestamp=stamp,
+                                              type=msgs.SceneEntityDeletionType.All)]
+        self.colliders.log(msgs.SceneUpdate(deletions=deletions, entities=entities),
                            log_time=stamp_ns)
         self._collider_key = key
         self.messages_logged += 1
@@ -403,24 +329,21 @@ class FoxgloveView:
         """Send contact forces as arrows: points (K, 3) where forces (K, 3) act."""
         if not self.contacts.has_sinks():
             return False
-        m = self._fg.messages
-        ts = _timestamp_msg(self._fg, stamp_ns)
+        msgs = self._sdk.messages
+        stamp = _timestamp_msg(self._sdk, stamp_ns)
         arrows = []
-        r, g, b, a = CONTACT_RGBA
-        for p, f in zip(np.asarray(points, float), np.asarray(forces, float)):
-            length = float(np.linalg.norm(f)) * metres_per_newton
+        for point, force in zip(np.asarray(points, float), np.asarray(forces, float)):
+            length = float(np.linalg.norm(force)) * metres_per_newton
             if not length > 0.0:
                 continue
-            q = _quaternion_x_to(f)
-            arrows.append(m.ArrowPrimitive(
-                pose=m.Pose(position=m.Vector3(x=p[0], y=p[1], z=p[2]),
-                            orientation=m.Quaternion(x=q[0], y=q[1], z=q[2], w=q[3])),
+            arrows.append(msgs.ArrowPrimitive(
+                pose=_pose(self._sdk, point, _quaternion_x_to(force)),
                 shaft_length=0.8 * length, shaft_diameter=0.1 * length,
                 head_length=0.2 * length, head_diameter=0.2 * length,
-                color=m.Color(r=r, g=g, b=b, a=a)))
-        entity = m.SceneEntity(timestamp=ts, frame_id=self.frame_id, id='contacts',
-                               arrows=arrows)
-        self.contacts.log(m.SceneUpdate(entities=[entity]), log_time=stamp_ns)
+                color=_color(self._sdk, CONTACT_RGBA)))
+        entity = msgs.SceneEntity(timestamp=stamp, frame_id=self.frame_id, id='contacts',
+                                  arrows=arrows)
+        self.contacts.log(msgs.SceneUpdate(entities=[entity]), log_time=stamp_ns)
         self.messages_logged += 1
         return True
 
@@ -429,12 +352,12 @@ class FoxgloveView:
         if not self.diagnostics.has_sinks():
             return False
         out: Dict[str, Any] = {}
-        for k, v in values.items():
+        for key, value in values.items():
             try:
-                f = float(v)
-                out[k] = f if math.isfinite(f) else None
+                number = float(value)
+                out[key] = number if math.isfinite(number) else None
             except (TypeError, ValueError):
-                out[k] = v
+                out[key] = value
         out['stamp'] = stamp_ns / 1e9
         self.diagnostics.log(out, log_time=stamp_ns)
         self.messages_logged += 1
@@ -500,10 +423,10 @@ def main(argv=None) -> int:
     """``python -m sm_ros.live --layout [FILE]``: write the Foxglove layout."""
     import argparse
     import sys
-    ap = argparse.ArgumentParser(prog='python -m sm_ros.live', description=layout_json.__doc__)
-    ap.add_argument('--layout', nargs='?', const=LAYOUT_FILE, default=None, metavar='FILE',
+    parser = argparse.ArgumentParser(prog='python -m sm_ros.live', description=layout_json.__doc__)
+    parser.add_argument('--layout', nargs='?', const=LAYOUT_FILE, default=None, metavar='FILE',
                     help=f'write the layout to FILE (default {LAYOUT_FILE})')
-    args = ap.parse_args(argv)
+    args = parser.parse_args(argv)
     if args.layout is None:
         sys.stdout.write(layout_json())
         return 0
@@ -515,16 +438,12 @@ def main(argv=None) -> int:
 
 def _quaternion_x_to(v: np.ndarray) -> Tuple[float, float, float, float]:
     """Return the shortest rotation (x, y, z, w) taking +x onto the direction of ``v``."""
-    n = float(np.linalg.norm(v))
-    d = np.asarray(v, float) / n
-    c = float(d[0])
-    if c < -0.999999:
+    d = np.asarray(v, float) / float(np.linalg.norm(v))
+    if d[0] < -0.999999:
         return (0.0, 0.0, 1.0, 0.0)
-    axis = np.array([0.0, -d[2], d[1]])
-    w = 1.0 + c
-    q = np.array([axis[0], axis[1], axis[2], w])
+    q = np.array([0.0, -d[2], d[1], 1.0 + d[0]])      # half-way rotation about x cross d
     q /= np.linalg.norm(q)
-    return tuple(float(x) for x in q)
+    return tuple(float(c) for c in q)
 
 
 if __name__ == '__main__':

@@ -30,7 +30,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
 from sm_ros.cloud import CloudError, read_xyz
-from sm_ros.diagnostics import solver_status
+from sm_ros.diagnostics import SolverFigures, solver_status
 from sm_ros.inputs import checked_points, InputError
 from sm_ros.outputs import Outputs
 from sm_ros.params import BY_NAME, NODE_PARAMS, Param
@@ -335,9 +335,10 @@ class SimNode(Node):
 
     def solver_status(self):
         """Return the '<node name>: solver' DiagnosticStatus of the current window."""
-        return solver_status(self.get_name(), self.sim.stats, time.monotonic(),
-                             refused_messages=sum(self.refused.values()), paused=self.paused,
-                             **self.outputs.recorder_status(), **self.sim.status_values())
+        figures = SolverFigures(refused_messages=sum(self.refused.values()),
+                                paused=self.paused, **self.outputs.recorder_status(),
+                                **self.sim.status_values())
+        return solver_status(self.get_name(), self.sim.stats, time.monotonic(), figures)
 
     # ------------------------------------------------------------------ live view, recording
 

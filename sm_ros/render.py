@@ -78,13 +78,14 @@ def simulate(scene: str, seconds: float = 3.0, fps: float = 10.0, dt: float = DE
     rng = np.random.default_rng(seed)
     total = max(1, spec.n_points)
     picks = []
-    for b in world.bodies:
-        k = max(1, int(round(max_draw * b.n / total))) if total > max_draw else b.n
-        picks.append(np.sort(rng.choice(b.n, size=min(k, b.n), replace=False)))
+    for body in world.bodies:
+        drawn = max(1, int(round(max_draw * body.n / total))) if total > max_draw else body.n
+        picks.append(np.sort(rng.choice(body.n, size=min(drawn, body.n), replace=False)))
     per_frame = max(1, int(round(1.0 / (fps * dt))))
     n_frames = int(round(seconds * fps)) + 1
     rec = Recording(name=Path(str(scene)).stem or 'default', times=[], frames=[], surfaces=[],
-                    faces=[m.surface.faces if m.surface is not None else None for m in metas],
+                    faces=[meta.surface.faces if meta.surface is not None else None
+                           for meta in metas],
                     colliders=spec.colliders, ground=None, n_points=spec.n_points,
                     step_ms=0.0)
     if world.ground is not None:
@@ -92,17 +93,18 @@ def simulate(scene: str, seconds: float = 3.0, fps: float = 10.0, dt: float = DE
     steps = 0
     busy = 0.0
     from sm_ros.progress import bar
-    for f in bar(iterable=range(n_frames), total=n_frames, desc='simulate', unit='frame'):
-        if f:
+    for frame in bar(iterable=range(n_frames), total=n_frames, desc='simulate', unit='frame'):
+        if frame:
             t0 = time.perf_counter()
             for _ in range(per_frame):
                 world.step(dt)
             busy += time.perf_counter() - t0
             steps += per_frame
         rec.times.append(world.time)
-        rec.frames.append([b.x[p].copy() for b, p in zip(world.bodies, picks)])
-        rec.surfaces.append([m.surface.vertices(b.x).copy() if m.surface is not None else None
-                             for b, m in zip(world.bodies, metas)])
+        rec.frames.append([body.x[pick].copy() for body, pick in zip(world.bodies, picks)])
+        rec.surfaces.append([meta.surface.vertices(body.x).copy()
+                             if meta.surface is not None else None
+                             for body, meta in zip(world.bodies, metas)])
         rec.solids.append(_solids(world))
     rec.step_ms = 1000.0 * busy / max(1, steps)
     return rec
@@ -110,13 +112,13 @@ def simulate(scene: str, seconds: float = 3.0, fps: float = 10.0, dt: float = DE
 
 def _solids(world) -> list:
     """Return the current (kind, centre, rotation, dims) of the collider pass's colliders."""
-    cs = getattr(world, '_cset', None)
-    if cs is None:
+    colliders = getattr(world, '_cset', None)
+    if colliders is None:
         return []
-    from sm_ros.core import kinematic as kc
-    return [(int(r[kc.C_KIND]), r[kc.C_POS:kc.C_POS + 3].copy(),
-             r[kc.C_ROT:kc.C_ROT + 9].reshape(3, 3).copy(), r[kc.C_DIM:kc.C_DIM + 3].copy())
-            for r in cs.rows]
+    from sm_ros.core import kinematic as KC
+    return [(int(row[KC.C_KIND]), row[KC.C_POS:KC.C_POS + 3].copy(),
+             row[KC.C_ROT:KC.C_ROT + 9].reshape(3, 3).copy(), row[KC.C_DIM:KC.C_DIM + 3].copy())
+            for row in colliders.rows]
 
 
 def _draw_solids(ax, solids, lo, hi) -> None:
@@ -146,9 +148,9 @@ def _draw_solids(ax, solids, lo, hi) -> None:
 
 def is_recording(path: str) -> bool:
     """Return True if ``path`` is a rosbag2 folder with an .mcap file, or an .mcap file."""
-    p = Path(str(path))
-    return (p.is_file() and p.suffix == '.mcap') or \
-        (p.is_dir() and any(p.glob('*.mcap')))
+    candidate = Path(str(path))
+    return (candidate.is_file() and candidate.suffix == '.mcap') or \
+        (candidate.is_dir() and any(candidate.glob('*.mcap')))
 
 
 def _cloud_columns(msg) -> np.ndarray:
@@ -156,15 +158,14 @@ def _cloud_columns(msg) -> np.ndarray:
     kinds = {1: 'i1', 2: 'u1', 3: 'i2', 4: 'u2', 5: 'i4', 6: 'u4', 7: 'f4', 8: 'f8'}
     order = '>' if msg.is_bigendian else '<'
     names, formats, offsets = [], [], []
-    for f in msg.fields:
-        if f.name in ('x', 'y', 'z', 'body') and f.datatype in kinds:
-            names.append(f.name)
-            formats.append(order + kinds[f.datatype])
-            offsets.append(f.offset)
+    for cloud_field in msg.fields:
+        if cloud_field.name in ('x', 'y', 'z', 'body') and cloud_field.datatype in kinds:
+            names.append(cloud_field.name)
+            formats.append(order + kinds[cloud_field.datatype])
+            offsets.append(cloud_field.offset)
     dtype = np.dtype({'names': names, 'formats': formats, 'offsets': offsets,
                       'itemsize': msg.point_step})
-    n = msg.width * msg.height
-    return np.frombuffer(bytes(msg.data), dtype=dtype, count=n)
+    return np.frombuffer(bytes(msg.data), dtype=dtype, count=msg.width * msg.height)
 
 
 def _cloud_records(bag: str, seconds: Optional[float], fps: float, topic: Optional[str]):
@@ -179,22 +180,22 @@ def _cloud_records(bag: str, seconds: Optional[float], fps: float, topic: Option
     next_t = None
     for path in mcap_paths(bag):            # a recording split into files, in order
         schemas, channels = {}, {}          # ids are per file
-        with open(path, 'rb') as f:
+        with open(path, 'rb') as stream:
             try:
-                for rec in StreamReader(f, record_size_limit=None).records:
+                for rec in StreamReader(stream, record_size_limit=None).records:
                     if isinstance(rec, Schema):
                         schemas[rec.id] = rec
                     elif isinstance(rec, Channel):
                         channels[rec.id] = rec
                     elif isinstance(rec, Message):
-                        ch = channels[rec.channel_id]
-                        sc = schemas.get(ch.schema_id)
-                        if sc is None or sc.name not in ('sensor_msgs/msg/PointCloud2',
-                                                         'sensor_msgs/PointCloud2'):
+                        channel = channels[rec.channel_id]
+                        schema = schemas.get(channel.schema_id)
+                        if schema is None or schema.name not in ('sensor_msgs/msg/PointCloud2',
+                                                                 'sensor_msgs/PointCloud2'):
                             continue
                         if topic is None:
-                            topic = ch.topic
-                        if ch.topic != topic:
+                            topic = channel.topic
+                        if channel.topic != topic:
                             continue
                         t = rec.publish_time     # the simulation time the node stamped
                         if t0 is None:
@@ -202,7 +203,7 @@ def _cloud_records(bag: str, seconds: Optional[float], fps: float, topic: Option
                         if seconds is not None and t - t0 > seconds * 1e9 + 1:
                             return frames_raw, topic
                         if t + 1 >= next_t:
-                            frames_raw.append((t, sc, rec.data))
+                            frames_raw.append((t, schema, rec.data))
                             next_t += period * max(1, int((t - next_t) // period) + 1)
             except Exception:  # noqa: BLE001 - a file cut short: keep what was read
                 pass
@@ -228,8 +229,8 @@ def load_recording(bag: str, seconds: Optional[float] = None, fps: float = 10.0,
     out = Recording(name=Path(str(bag)).stem, times=[], frames=[], surfaces=[], faces=[],
                     colliders={}, ground=None, n_points=0, step_ms=0.0)
     picks_key, picks = None, []
-    for stamp, sc, data in frames_raw:
-        msg = factory.decoder_for('cdr', sc)(data)
+    for stamp, schema, data in frames_raw:
+        msg = factory.decoder_for('cdr', schema)(data)
         cols = _cloud_columns(msg)
         xyz = np.stack([cols['x'], cols['y'], cols['z']], axis=1).astype(np.float64)
         body = cols['body'] if 'body' in cols.dtype.names else np.zeros(len(cols), np.uint32)
@@ -237,31 +238,32 @@ def load_recording(bag: str, seconds: Optional[float] = None, fps: float = 10.0,
         if counts != picks_key:
             total = max(1, len(body))
             picks = []
-            for j, n in enumerate(counts):
-                idx = np.flatnonzero(body == j)
-                k = max(1, int(round(max_draw * n / total))) if total > max_draw else n
-                picks.append(np.sort(rng.choice(idx, size=min(k, n), replace=False))
-                             if n else idx)
+            for index, count in enumerate(counts):
+                idx = np.flatnonzero(body == index)
+                drawn = max(1, int(round(max_draw * count / total))) if total > max_draw \
+                    else count
+                picks.append(np.sort(rng.choice(idx, size=min(drawn, count), replace=False))
+                             if count else idx)
             picks_key = counts
         out.times.append((stamp - frames_raw[0][0]) * 1e-9)
-        out.frames.append([xyz[p] for p in picks])
+        out.frames.append([xyz[pick] for pick in picks])
         out.surfaces.append([None] * len(picks))
         out.n_points = max(out.n_points, len(body))
-    out.faces = [None] * max(len(fr) for fr in out.frames)
+    out.faces = [None] * max(len(frame) for frame in out.frames)
     # every frame lists every body (a body that appeared later is empty before)
-    for fr, sf in zip(out.frames, out.surfaces):
-        while len(fr) < len(out.faces):
-            fr.append(np.zeros((0, 3)))
-            sf.append(None)
+    for frame, surfaces in zip(out.frames, out.surfaces):
+        while len(frame) < len(out.faces):
+            frame.append(np.zeros((0, 3)))
+            surfaces.append(None)
     return out
 
 
 def _limits(rec: Recording):
-    pts = np.concatenate([np.concatenate(fr, axis=0) for fr in rec.frames], axis=0)
+    pts = np.concatenate([np.concatenate(frame, axis=0) for frame in rec.frames], axis=0)
     lo = np.percentile(pts, 0.5, axis=0)
     hi = np.percentile(pts, 99.5, axis=0)
-    for s in rec.colliders.get('spheres', []):
-        c, r = np.asarray(s['center']), s['radius']
+    for sphere in rec.colliders.get('spheres', []):
+        c, r = np.asarray(sphere['center']), sphere['radius']
         lo, hi = np.minimum(lo, np.maximum(c - r, lo - 0.5)), np.maximum(hi, np.minimum(
             c + r, hi + 0.5))
     for solids in rec.solids:
@@ -294,33 +296,33 @@ def _draw(ax, rec: Recording, i: int, lo: np.ndarray, hi: np.ndarray, title: boo
     ax.set_box_aspect(hi - lo)
     ax.set_axis_off()
     if rec.ground is not None:
-        g = rec.ground
-        quad = [[(lo[0], lo[1], g), (hi[0], lo[1], g), (hi[0], hi[1], g), (lo[0], hi[1], g)]]
+        z = rec.ground
+        quad = [[(lo[0], lo[1], z), (hi[0], lo[1], z), (hi[0], hi[1], z), (lo[0], hi[1], z)]]
         ax.add_collection3d(Poly3DCollection(quad, facecolor='#d9d9d9', edgecolor='#b0b0b0',
                                              alpha=0.6, zorder=0))
     if rec.solids:
         _draw_solids(ax, rec.solids[i], lo, hi)
-    for b in rec.colliders.get('boxes', []):
-        if _in_pass(b):
+    for box in rec.colliders.get('boxes', []):
+        if _in_pass(box):
             continue
-        bl, bh = np.maximum(b['lo'], lo), np.minimum(b['hi'], hi)
-        if np.any(bh <= bl):
+        box_lo, box_hi = np.maximum(box['lo'], lo), np.minimum(box['hi'], hi)
+        if np.any(box_hi <= box_lo):
             continue
-        c = np.array([[x, y, z] for x in (bl[0], bh[0]) for y in (bl[1], bh[1])
-                      for z in (bl[2], bh[2])])
+        c = np.array([[x, y, z] for x in (box_lo[0], box_hi[0]) for y in (box_lo[1], box_hi[1])
+                      for z in (box_lo[2], box_hi[2])])
         quads = [c[[0, 1, 3, 2]], c[[4, 5, 7, 6]], c[[0, 1, 5, 4]], c[[2, 3, 7, 6]],
                  c[[0, 2, 6, 4]], c[[1, 3, 7, 5]]]
         ax.add_collection3d(Poly3DCollection(quads, facecolor='#9e9e9e', edgecolor='#707070',
                                              alpha=0.35, zorder=1))
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0, np.pi, 12))
-    for s in rec.colliders.get('spheres', []):
-        if _in_pass(s):
+    for sphere in rec.colliders.get('spheres', []):
+        if _in_pass(sphere):
             continue
-        c, r = np.asarray(s['center']), s['radius']
+        c, r = np.asarray(sphere['center']), sphere['radius']
         ax.plot_surface(c[0] + r * np.cos(u) * np.sin(v), c[1] + r * np.sin(u) * np.sin(v),
                         np.maximum(c[2] + r * np.cos(v), lo[2]), color='#9e9e9e', alpha=0.35,
                         linewidth=0, shade=True, zorder=1)
-    size = float(np.clip(6000.0 / max(1, sum(len(p) for p in rec.frames[i])), 0.4, 12.0))
+    size = float(np.clip(6000.0 / max(1, sum(len(pts) for pts in rec.frames[i])), 0.4, 12.0))
     for j, pts in enumerate(rec.frames[i]):
         colour = _COLOURS[j % len(_COLOURS)]
         surf = rec.surfaces[i][j]
@@ -357,7 +359,7 @@ def write_gif(rec: Recording, out: Path, width: int = 400, height: int = 300,
         images.append(Image.fromarray(rgb.copy()))
     plt.close(fig)
     palette = images[len(images) // 2].quantize(colors=colours, method=Image.Quantize.MEDIANCUT)
-    frames = [im.quantize(palette=palette, dither=Image.Dither.NONE) for im in images]
+    frames = [image.quantize(palette=palette, dither=Image.Dither.NONE) for image in images]
     duration = int(round(1000.0 * (rec.times[1] - rec.times[0]))) if len(rec.times) > 1 else 100
     frames[0].save(out, save_all=True, append_images=frames[1:], duration=max(20, duration),
                    loop=0, optimize=True, disposal=1)
@@ -386,12 +388,24 @@ def write_strip(rec: Recording, out: Path, panels: int = 5, panel_w: int = 240,
     img.quantize(colors=128, method=Image.Quantize.MEDIANCUT).save(out, optimize=True)
 
 
+@dataclass
+class View:
+    """How a run is drawn: the GIF's size, the PNG strip's panels, the camera, and how many
+    particles are drawn at most."""
+
+    width: int = 400
+    height: int = 300
+    panels: int = 5
+    max_draw: int = 4000
+    elev: float = 22.0
+    azim: float = -60.0
+
+
 def render(scene: str, out: str, seconds: float = 3.0, fps: float = 10.0,
            dt: float = DEFAULT_DT, params: Optional[Dict[str, Any]] = None,
-           frames: int = 5, max_draw: int = 4000, width: int = 400, height: int = 300,
-           elev: float = 22.0, azim: float = -60.0,
-           topic: Optional[str] = None) -> Dict[str, float]:
+           view: Optional[View] = None, topic: Optional[str] = None) -> Dict[str, float]:
     """Simulate (or read a recording) and write `out`; return timing figures."""
+    view = view or View()
     path = Path(out)
     kind = path.suffix.lower()
     if kind not in ('.gif', '.png'):
@@ -400,15 +414,17 @@ def render(scene: str, out: str, seconds: float = 3.0, fps: float = 10.0,
         raise ValueError('seconds, fps and dt must be > 0')
     t0 = time.perf_counter()
     if is_recording(scene):
-        rec = load_recording(scene, seconds=seconds, fps=fps, max_draw=max_draw, topic=topic)
+        rec = load_recording(scene, seconds=seconds, fps=fps, max_draw=view.max_draw,
+                             topic=topic)
     else:
         rec = simulate(scene, seconds=seconds, fps=fps, dt=dt, params=params,
-                       max_draw=max_draw)
+                       max_draw=view.max_draw)
     t1 = time.perf_counter()
     if kind == '.gif':
-        write_gif(rec, path, width=width, height=height, elev=elev, azim=azim)
+        write_gif(rec, path, width=view.width, height=view.height, elev=view.elev,
+                  azim=view.azim)
     else:
-        write_strip(rec, path, panels=frames, elev=elev, azim=azim)
+        write_strip(rec, path, panels=view.panels, elev=view.elev, azim=view.azim)
     t2 = time.perf_counter()
     return {'points': rec.n_points, 'bodies': len(rec.faces), 'simulate_s': t1 - t0,
             'frames': len(rec.frames),
@@ -417,45 +433,45 @@ def render(scene: str, out: str, seconds: float = 3.0, fps: float = 10.0,
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Command line entry point (``python -m sm_ros.render``)."""
-    ap = argparse.ArgumentParser(prog='python -m sm_ros.render',
+    parser = argparse.ArgumentParser(prog='python -m sm_ros.render',
                                  description='Run a scene headless and write a GIF or a '
                                              'PNG strip.')
-    ap.add_argument('scene', nargs='?', default='',
+    parser.add_argument('scene', nargs='?', default='',
                     help="bundled scene name, YAML path or recording (rosbag2 MCAP folder "
                          "or .mcap file) (default: 'default')")
-    ap.add_argument('--seconds', type=float, default=None,
+    parser.add_argument('--seconds', type=float, default=None,
                     help='simulated seconds (3); of a recording: from its start (all)')
-    ap.add_argument('--topic', default=None,
+    parser.add_argument('--topic', default=None,
                     help='cloud topic of a recording (default: the first PointCloud2 one)')
-    ap.add_argument('--out', default='run.gif', help='output .gif or .png (run.gif)')
-    ap.add_argument('--fps', type=float, default=10.0, help='frames per simulated second')
-    ap.add_argument('--dt', type=float, default=DEFAULT_DT, help='time step in s (1/120)')
-    ap.add_argument('--frames', type=int, default=5, help='panels of a .png strip (5)')
-    ap.add_argument('--max-draw', type=int, default=4000, help='particles drawn at most')
-    ap.add_argument('--size', default='400x300', help='GIF size WxH in pixels (400x300)')
-    ap.add_argument('--elev', type=float, default=22.0, help='view elevation (deg)')
-    ap.add_argument('--azim', type=float, default=-60.0, help='view azimuth (deg)')
-    ap.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
+    parser.add_argument('--out', default='run.gif', help='output .gif or .png (run.gif)')
+    parser.add_argument('--fps', type=float, default=10.0, help='frames per simulated second')
+    parser.add_argument('--dt', type=float, default=DEFAULT_DT, help='time step in s (1/120)')
+    parser.add_argument('--frames', type=int, default=5, help='panels of a .png strip (5)')
+    parser.add_argument('--max-draw', type=int, default=4000, help='particles drawn at most')
+    parser.add_argument('--size', default='400x300', help='GIF size WxH in pixels (400x300)')
+    parser.add_argument('--elev', type=float, default=22.0, help='view elevation (deg)')
+    parser.add_argument('--azim', type=float, default=-60.0, help='view azimuth (deg)')
+    parser.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
                     help='node parameter for the run, e.g. mode=quadratic (repeatable)')
-    args = ap.parse_args(argv)
+    args = parser.parse_args(argv)
     params: Dict[str, Any] = {}
     for item in args.set:
         key, sep, value = item.partition('=')
         if not sep or key not in scene_defaults():
-            ap.error(f'--set {item!r}: expected KEY=VALUE with KEY one of '
+            parser.error(f'--set {item!r}: expected KEY=VALUE with KEY one of '
                      f"{', '.join(scene_defaults())}")
         params[key] = _parse_value(value)
     try:
         width, height = (int(v) for v in args.size.lower().split('x'))
     except ValueError:
-        ap.error(f'--size must be WxH, got {args.size!r}')
+        parser.error(f'--size must be WxH, got {args.size!r}')
     recording = is_recording(args.scene)
     seconds = args.seconds if args.seconds is not None else (None if recording else 3.0)
     try:
+        view = View(width=width, height=height, panels=args.frames, max_draw=args.max_draw,
+                    elev=args.elev, azim=args.azim)
         figures = render(args.scene, args.out, seconds=seconds, fps=args.fps, dt=args.dt,
-                         params=params, frames=args.frames, max_draw=args.max_draw,
-                         width=width, height=height, elev=args.elev, azim=args.azim,
-                         topic=args.topic)
+                         params=params, view=view, topic=args.topic)
     except (SceneError, ValueError, ImportError) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2

@@ -25,13 +25,13 @@ def _set():
     return ColliderSet(items)
 
 
-def _state(cs):
-    return (cs.mode.copy(), cs.pos.copy(), cs.quat.copy(), cs.mv.copy(), cs.rows.copy())
+def _state(colliders):
+    return (colliders.mode.copy(), colliders.pos.copy(), colliders.quat.copy(),
+            colliders.moves.copy(), colliders.rows.copy())
 
 
-def _args(cs, h, t):
-    return (cs.mode, cs.pos, cs.quat, cs.mv, cs.ktime, cs.kpos, cs.kquat, cs.kseg, cs.koff,
-            cs.rows, h, t, cs.done)
+def _args(colliders, h, t):
+    return colliders.motion_arrays(), colliders.keys, colliders.rows, h, t
 
 
 def test_compiled_poses_match_the_python_twin_step_by_step():

@@ -40,7 +40,8 @@ def _collide(X, V, w, rows, h, thresh, imp=None, nbodies=1, bid=None):
     stats = np.zeros((nbodies, 2))
     touched = np.zeros(nbodies, dtype=np.uint8)
     imp = np.zeros((rows.shape[0], 6)) if imp is None else imp
-    KC.collide_range(X, V, w, bid, 0, n, rows, h, thresh, imp, stats, touched)
+    KC.collide_range(KC.Particles(X, V, w, bid), 0, n, rows, h, thresh,
+                     KC.ColliderTally(imp, stats, touched))
     return stats, touched
 
 
@@ -63,7 +64,8 @@ def test_kernel_matches_numpy_twin():
     bid = (np.arange(n) % 3).astype(np.int32)          # three bodies interleaved
     st, touched = _collide(X, V, w, cs.rows, 0.01, 0.05, imp, 3, bid)
     st2, touched2 = np.zeros((3, 2)), np.zeros(3, dtype=np.uint8)
-    KC.collide_numpy(X2, V2, w, bid, cs.rows, 0.01, 0.05, imp2, st2, touched2)
+    KC.collide_numpy(KC.Particles(X2, V2, w, bid), cs.rows, 0.01, 0.05,
+                     KC.ColliderTally(imp2, st2, touched2))
     assert st[:, 0].sum() > 400                        # the test exercises many contacts
     np.testing.assert_array_equal(st[:, 0], st2[:, 0])
     np.testing.assert_allclose(st[:, 1], st2[:, 1], atol=1e-14)

@@ -26,7 +26,8 @@ def test_gif_frames_and_size(tmp_path):
 
 def test_png_strip(tmp_path):
     out = tmp_path / 'strip.png'
-    render.render('mesh', str(out), seconds=0.4, fps=10, frames=3, params={'alpha': 0.9})
+    render.render('mesh', str(out), seconds=0.4, fps=10, params={'alpha': 0.9},
+                  view=render.View(panels=3))
     with Image.open(out) as im:
         assert im.format == 'PNG' and im.size == (720, 220)
 

@@ -29,6 +29,13 @@ def _flags(states):
     return out
 
 
+def _update(flat, bodies, state, pi, pj, count):
+    """``sleep_update`` with sleep_speed 0.01 m/s, sleep_time 0.5 s, sleeping allowed;
+    ``bodies``: (their positions, their flags)."""
+    return SL.sleep_update(flat, *bodies, state, SL.Pairs(pi, pj, count),
+                           SL.SleepRule(UP, H, 0.01, 0.5, True))
+
+
 # ---------------------------------------------------------------------------- kernels
 
 def test_body_moves_matches_numpy():
@@ -67,8 +74,11 @@ def test_touch_restless_matches_numpy():
     xs = List([X[:, off[b]:off[b + 1]].copy() for b in range(nb)])
     d = np.linalg.norm(X[:, i] - X[:, j], axis=0)
     touch = (d < SL.TOUCH_FACTOR * (R[i] + R[j])) & (B[i] != B[j])
+    flat = SL.FlatArrays(x=X, v=X, inv_mass=R, awake_inv_mass=R, radius=R, body=B, offset=off,
+                         touched=np.zeros(nb, np.uint8))
     for up in (np.zeros(3), np.array([0.0, 0.0, 1.0]), np.array([0.6, 0.0, -0.8])):
-        SL.touch_restless(xs, off, R, B, pi, pj, len(pi), level, up, near)
+        SL.touch_restless(flat, xs, SL.Pairs(pi, pj, len(pi)), level, up, near,
+                          SL.TOUCH_FACTOR)
         want = np.zeros(nb, dtype=np.uint8)
         for a, b, above in zip(B[i][touch], B[j][touch], (X[:, i] - X[:, j]).T[touch] @ up):
             # a level 1 counts only from below (any side without gravity); 2 always
@@ -101,9 +111,10 @@ def test_sleep_update_falls_asleep_wakes_and_holds():
                np.zeros(3, np.uint8)]
     pi, pj = np.array([0, 1], dtype=np.int32), np.array([2, 2], dtype=np.int32)
     touched = np.zeros(3, dtype=np.uint8)
+    flat = SL.FlatArrays(X, V, W, Wa, R, B, off, touched)
+    state = SL.SleepArrays(Xp, Xa, slept, calm, *scratch)
     Xp[0, 2] -= 0.01                          # body 2 moved 1 cm in the step: restless
-    n = SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch,
-                        pi, pj, 2, UP, H, 0.01, 0.5, True, touched)
+    n = _update(flat, (xs, flags), state, pi, pj, 2)
     assert n == 1
     assert flags[0][3] == 1.0 and slept[0] == 1 and touched[0] == 1    # asleep
     assert W[0] == 0.0 and np.all(V[:, 0] == 0.0)
@@ -112,8 +123,7 @@ def test_sleep_update_falls_asleep_wakes_and_holds():
     # body 2 jumps to touch the sleeping body 0: 0 wakes, W restored; body 1, no longer
     # touched by a restless body, falls asleep
     X[0, 2] = 0.03
-    n = SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch,
-                        pi, pj, 2, UP, H, 0.01, 0.5, True, touched)
+    n = _update(flat, (xs, flags), state, pi, pj, 2)
     assert n == 2 and flags[0][3] == 0.0 and slept[0] == 0 and W[0] == 1.0
     assert flags[1][3] == 1.0 and W[1] == 0.0
     flags[1][3] = 0.0                         # woken from outside (Body.wake)
@@ -122,8 +132,7 @@ def test_sleep_update_falls_asleep_wakes_and_holds():
     # held awake (-1): never sleeps, and counts as restless
     flags[1][3] = -1.0
     calm[1] = 10.0
-    SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch,
-                    pi, pj, 0, UP, H, 0.01, 0.5, True, touched)
+    _update(flat, (xs, flags), state, pi, pj, 0)
     assert flags[1][3] == -1.0 and calm[1] == 0.0
 
 
@@ -150,20 +159,19 @@ def test_no_body_falls_asleep_on_a_support_that_still_moves_slowly():
                np.zeros(2, np.uint8)]
     pi, pj = np.array([0], dtype=np.int32), np.array([1], dtype=np.int32)
     touched = np.zeros(2, dtype=np.uint8)
-    args = (pi, pj, 1, UP, H, 0.01, 0.5, True, touched)
-    assert SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm,
-                           *scratch, *args) == 0
+    flat = SL.FlatArrays(X, V, W, Wa, R, B, off, touched)
+    state = SL.SleepArrays(Xp, Xa, slept, calm, *scratch)
+    assert _update(flat, (xs, flags), state, pi, pj, 1) == 0
     assert calm[1] == 0.0 and scratch[3][1] == 1 and scratch[4][0] == 1     # unsettled
     assert flags[0][3] == 0.0
     for _ in range(int(0.5 / H)):             # 1 now still: settles after sleep_time
-        SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch,
-                        *args)
+        _update(flat, (xs, flags), state, pi, pj, 1)
         assert flags[0][3] == flags[1][3]     # together
     assert flags[0][3] == 1.0 and flags[1][3] == 1.0
     flags[1][3] = 0.0                         # 1 woken from outside, moves slowly
     SL.sleep_sync(flags, slept, off, W, Wa, calm)
     X[0, 1] += 0.0001
-    SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch, *args)
+    _update(flat, (xs, flags), state, pi, pj, 1)
     assert flags[0][3] == 1.0 and flags[1][3] == 0.0          # 0 sleeps on
     # side by side: 0 wakes from outside, 1 beside it is unsettled; 0 falls asleep
     X[:, 0] = (-0.03, 0.0, 0.0)
@@ -172,7 +180,7 @@ def test_no_body_falls_asleep_on_a_support_that_still_moves_slowly():
     Xp[:, 0] = Xa[:, 0] = X[:, 0]
     calm[0] = 1.0
     Xa[0, 1] -= 0.01
-    SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch, *args)
+    _update(flat, (xs, flags), state, pi, pj, 1)
     assert scratch[3][1] == 1 and flags[0][3] == 1.0
 
 
@@ -379,13 +387,14 @@ def test_one_fast_step_is_not_restless():
     calm = np.zeros(2)
     scratch = [np.zeros(2, np.uint8), np.zeros(2), np.zeros(2), np.zeros(2, np.uint8),
                np.zeros(2, np.uint8)]
-    args = (np.array([0], np.int32), np.array([1], np.int32), 1, UP, H, 0.01, 0.5, True,
-            np.zeros(2, np.uint8))
+    flat = SL.FlatArrays(X, V, W, Wa, R, B, off, np.zeros(2, np.uint8))
+    state = SL.SleepArrays(Xp, Xa, slept, calm, *scratch)
+    pi, pj = np.array([0], np.int32), np.array([1], np.int32)
     Xp[0, 1] -= 0.001                         # 1 mm in a step: 0.12 m/s
-    SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch, *args)
+    _update(flat, (xs, flags), state, pi, pj, 1)
     assert scratch[0][1] == 1 and scratch[3][1] == 1 and flags[0][3] == 1.0
     Xp[0, 1] -= 0.001                         # and again
-    SL.sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, *scratch, *args)
+    _update(flat, (xs, flags), state, pi, pj, 1)
     assert scratch[3][1] == 2 and flags[0][3] == 0.0 and W[0] == 1.0
 
 
@@ -427,9 +436,9 @@ def test_pair_pass_skipped_while_no_body_is_settled_or_asleep():
                    near]
         calm = np.array([calm0, 0.0])
         touched = np.zeros(2, dtype=np.uint8)
-        n = SL.sleep_update(X, X.copy(), Xa, V, W, W.copy(), xs, R, B, off, flags,
-                            np.zeros(2, np.uint8), calm, *scratch, pi, pj, 1, UP, H, 0.01,
-                            0.5, True, touched)
+        flat = SL.FlatArrays(X, V, W, W.copy(), R, B, off, touched)
+        state = SL.SleepArrays(X.copy(), Xa, np.zeros(2, np.uint8), calm, *scratch)
+        n = _update(flat, (xs, flags), state, pi, pj, 1)
         if decides:
             # body 0 settled; body 1 beside it is unsettled, not below it: 0 sleeps
             assert n == 1 and flags[0][3] == 1.0 and near[0] == 0

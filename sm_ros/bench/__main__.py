@@ -152,6 +152,20 @@ def _write_targets(f: Dict[str, Any], out: Path):
     t = bc.Table('targets', ['target', 'goal', 'measured', 'met'],
                  'Targets and what this run measured')
     sc = f.get('scaling') or {}
+    _step_targets(t, sc)
+    _reference_targets(t, sc)
+    _node_target(t, f.get('node') or {})
+    t.write(out)
+    with open(out / 'targets.md', 'a') as fh:
+        m = f['machine']
+        fh.write(f'\nCommand: `{f["command"]}`  \nMachine: {m["cpu"]}, {m["cpus"]} CPUs, '
+                 f'Numba {m["numba"]} ({m["numba_threads"]} threads), NumPy {m["numpy"]}, '
+                 f'load average at start {m.get("loadavg_1min", "?")}; '
+                 f'wall time {f["wall_s"]:.0f} s.\n')
+
+
+def _step_targets(t, sc: Dict[str, Any]):
+    """The targets of the scaling run's steps: per particle, damping, many bodies, 1M."""
     res = sc.get('scaling', [])
 
     def pick(n_side, mode, k, variant='plain'):
@@ -191,6 +205,10 @@ def _write_targets(f: Dict[str, Any], out: Path):
     r = pick(100, 'linear', 2)
     t.add(target='8 clusters, linear, 1M points', goal='<= 20 ms/step',
           measured=_fmt_ms(r and r['ms_median']), met=None if not r else r['ms_median'] <= 20)
+
+
+def _reference_targets(t, sc: Dict[str, Any]):
+    """The targets against the NumPy reference and pypbd."""
     rows = [x for x in sc.get('numpy', []) if x['N'] == 46 ** 3]
     if rows:
         worst = min(rows, key=lambda x: x['speedup_step'])
@@ -218,7 +236,10 @@ def _write_targets(f: Dict[str, Any], out: Path):
                        f'{worst["clusters"]} cl.)', met=worst['speedup_rigid'] >= 2)
     else:
         t.add(target='faster than pypbd', goal='>= 2x', measured='not run', met=None)
-    nd = f.get('node') or {}
+
+
+def _node_target(t, nd: Dict[str, Any]):
+    """The node's target: 100k points at 60 Hz with a subscriber in another process."""
     row = nd.get('target')
     what = ('node: 100k points, 8 clusters, damping 0.05, 2 substeps, 60 Hz, one '
             'subscriber in another process')
@@ -232,13 +253,6 @@ def _write_targets(f: Dict[str, Any], out: Path):
                    and row['other_ms_median'] <= 0.2))
     else:
         t.add(target=what, goal=goal, measured=nd.get('status', 'not run'), met=None)
-    t.write(out)
-    with open(out / 'targets.md', 'a') as fh:
-        m = f['machine']
-        fh.write(f'\nCommand: `{f["command"]}`  \nMachine: {m["cpu"]}, {m["cpus"]} CPUs, '
-                 f'Numba {m["numba"]} ({m["numba_threads"]} threads), NumPy {m["numpy"]}, '
-                 f'load average at start {m.get("loadavg_1min", "?")}; '
-                 f'wall time {f["wall_s"]:.0f} s.\n')
 
 
 if __name__ == '__main__':

@@ -119,76 +119,9 @@ def _rot(axis_angle) -> np.ndarray:
 
 def make_scenes(points: int) -> Dict[str, Scene]:
     """Build the five scenes at about ``points`` particles each."""
-    from sm_ros.core import BodyParams, Ground, World
-
-    side = 0.2
-    omega = np.array([0.0, 1.0, 4.0])
-    spin_pts = _cube(points, side, (-side / 2,) * 3)
-    c_spin = spin_pts.mean(axis=0)
     rigid = {'mode': 'rigid', 'alpha': 1.0, 'beta': 0.0, 'clusters': 1}
-
-    def thrown(v0, gravity):
-        def build(p):
-            world = World(gravity=gravity)
-            vel = v0 + np.cross(omega, spin_pts - c_spin)
-            body = world.add_body(spin_pts, 1.0 / len(spin_pts), BodyParams(**p), name='b',
-                                  velocities=vel)
-            return world, body, None
-
-        def exact(t):
-            return (c_spin + v0 * t + 0.5 * np.asarray(gravity) * t * t
-                    + (spin_pts - c_spin) @ _rot(omega * t).T)
-        return build, exact
-
-    spin_build, spin_exact = thrown(np.array([0.6, 0.0, 0.3]), (0.0, 0.0, 0.0))
-    ball_build, ball_exact = thrown(np.array([0.5, 0.2, 9.0]), (0.0, 0.0, -9.81))
-
-    drop_pts = _cube(points, side, (-side / 2, -side / 2, 0.15))
-    drop_v = np.tile([0.5, 0.0, 0.0], (len(drop_pts), 1))
-
-    def drop_build(p):
-        world = World(gravity=(0.0, 0.0, -9.81))
-        world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.0))
-        body = world.add_body(drop_pts, 1.0 / len(drop_pts), BodyParams(**p), name='b',
-                              velocities=drop_v)
-        return world, body, None
-
-    beam_len, beam_w = 0.6, 0.1
-    spacing = (beam_len * beam_w * beam_w / points) ** (1.0 / 3.0)
-    beam_pts = bc.box_lattice((beam_len, beam_w, beam_w), spacing, (0.0, -0.05, 0.5))
-    pinned = np.nonzero(beam_pts[:, 0] <= beam_pts[:, 0].min() + 1e-9)[0]
-
-    def beam_build(p):
-        world = World(gravity=(0.0, 0.0, -9.81))
-        body = world.add_body(beam_pts, 1.0 / len(beam_pts), BodyParams(**p), name='b',
-                              pinned=pinned)
-        return world, body, None
-
-    press_pts = _cube(points, side, (-side / 2, -side / 2, 0.0))
-    xs = press_pts[:, 0]
-    jaw_lo = np.nonzero(xs <= xs.min() + 1e-9)[0]
-    jaw_hi = np.nonzero(xs >= xs.max() - 1e-9)[0]
-    jaw = np.concatenate([jaw_lo, jaw_hi])
-    sign = np.concatenate([np.ones(len(jaw_lo)), -np.ones(len(jaw_hi))])
-    squeeze_speed, squeeze_time = 0.03, 1.0          # each jaw 3 cm/s for 1 s (30 % total)
-
-    def press_build(p):
-        world = World(gravity=(0.0, 0.0, -9.81))
-        world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.0))
-        body = world.add_body(press_pts, 1.0 / len(press_pts), BodyParams(**p), name='b')
-        start = press_pts[jaw].copy()
-        state = {'held': True}
-
-        def driver(world, body, t_next):
-            if t_next <= squeeze_time + 1e-12:
-                tgt = start.copy()
-                tgt[:, 0] += sign * squeeze_speed * t_next
-                body.set_kinematic(jaw, tgt)
-            elif state['held']:
-                body.clear_kinematic()
-                state['held'] = False
-        return world, body, driver
-
+    spin_build, spin_exact = _thrown(points, np.array([0.6, 0.0, 0.3]), (0.0, 0.0, 0.0))
+    ball_build, ball_exact = _thrown(points, np.array([0.5, 0.2, 9.0]), (0.0, 0.0, -9.81))
     box_build, incline_build = _contact_builds(points)
     return {
         'box_on_box': Scene('box_on_box', box_build, rigid, ['rigid']),
@@ -196,15 +129,99 @@ def make_scenes(points: int) -> Dict[str, Scene]:
                               {'mode': 'linear', 'alpha': 0.5, 'beta': 0.5, 'clusters': 2}),
         'rigid_spin': Scene('rigid_spin', spin_build, rigid, ['rigid'], spin_exact),
         'ballistic': Scene('ballistic', ball_build, rigid, ['rigid'], ball_exact),
-        'soft_drop': Scene('soft_drop', drop_build,
+        'soft_drop': Scene('soft_drop', _drop_build(points),
                            {'mode': 'linear', 'alpha': 0.3, 'beta': 0.5, 'clusters': 2}),
-        'cantilever': Scene('cantilever', beam_build,
+        'cantilever': Scene('cantilever', _beam_build(points),
                             {'mode': 'linear', 'alpha': 0.5, 'beta': 0.5, 'clusters': 2}),
-        'plastic_press': Scene('plastic_press', press_build,
+        'plastic_press': Scene('plastic_press', _press_build(points),
                                {'mode': 'linear', 'alpha': 0.5, 'beta': 0.3, 'clusters': 2,
                                 'plastic_yield': 0.05, 'plastic_creep': 2.0,
                                 'plastic_max': 0.3}),
     }
+
+
+_SIDE = 0.2                 # m, the side of the cubes of the scenes
+
+
+def _thrown(points: int, v0, gravity):
+    """(build, exact motion) of a rigid cube thrown spinning from v0 under ``gravity``."""
+    from sm_ros.core import BodyParams, World
+    omega = np.array([0.0, 1.0, 4.0])
+    spin_pts = _cube(points, _SIDE, (-_SIDE / 2,) * 3)
+    c_spin = spin_pts.mean(axis=0)
+
+    def build(params):
+        world = World(gravity=gravity)
+        vel = v0 + np.cross(omega, spin_pts - c_spin)
+        body = world.add_body(spin_pts, 1.0 / len(spin_pts), BodyParams(**params), name='b',
+                              velocities=vel)
+        return world, body, None
+
+    def exact(t):
+        return (c_spin + v0 * t + 0.5 * np.asarray(gravity) * t * t
+                + (spin_pts - c_spin) @ _rot(omega * t).T)
+    return build, exact
+
+
+def _drop_build(points: int):
+    """A soft cube thrown sideways onto the ground."""
+    from sm_ros.core import BodyParams, Ground, World
+    drop_pts = _cube(points, _SIDE, (-_SIDE / 2, -_SIDE / 2, 0.15))
+    drop_v = np.tile([0.5, 0.0, 0.0], (len(drop_pts), 1))
+
+    def build(params):
+        world = World(gravity=(0.0, 0.0, -9.81))
+        world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.0))
+        body = world.add_body(drop_pts, 1.0 / len(drop_pts), BodyParams(**params), name='b',
+                              velocities=drop_v)
+        return world, body, None
+    return build
+
+
+def _beam_build(points: int):
+    """A beam pinned at one end, sagging under gravity."""
+    from sm_ros.core import BodyParams, World
+    beam_len, beam_w = 0.6, 0.1
+    spacing = (beam_len * beam_w * beam_w / points) ** (1.0 / 3.0)
+    beam_pts = bc.box_lattice((beam_len, beam_w, beam_w), spacing, (0.0, -0.05, 0.5))
+    pinned = np.nonzero(beam_pts[:, 0] <= beam_pts[:, 0].min() + 1e-9)[0]
+
+    def build(params):
+        world = World(gravity=(0.0, 0.0, -9.81))
+        body = world.add_body(beam_pts, 1.0 / len(beam_pts), BodyParams(**params), name='b',
+                              pinned=pinned)
+        return world, body, None
+    return build
+
+
+def _press_build(points: int):
+    """A plastic cube on the ground squeezed by two jaws (its end faces), then let go."""
+    from sm_ros.core import BodyParams, Ground, World
+    press_pts = _cube(points, _SIDE, (-_SIDE / 2, -_SIDE / 2, 0.0))
+    xs = press_pts[:, 0]
+    jaw_lo = np.nonzero(xs <= xs.min() + 1e-9)[0]
+    jaw_hi = np.nonzero(xs >= xs.max() - 1e-9)[0]
+    jaw = np.concatenate([jaw_lo, jaw_hi])
+    sign = np.concatenate([np.ones(len(jaw_lo)), -np.ones(len(jaw_hi))])
+    squeeze_speed, squeeze_time = 0.03, 1.0          # each jaw 3 cm/s for 1 s (30 % total)
+
+    def build(params):
+        world = World(gravity=(0.0, 0.0, -9.81))
+        world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.0))
+        body = world.add_body(press_pts, 1.0 / len(press_pts), BodyParams(**params), name='b')
+        start = press_pts[jaw].copy()
+        state = {'held': True}
+
+        def driver(world, body, t_next):
+            if t_next <= squeeze_time + 1e-12:
+                target = start.copy()
+                target[:, 0] += sign * squeeze_speed * t_next
+                body.set_kinematic(jaw, target)
+            elif state['held']:
+                body.clear_kinematic()
+                state['held'] = False
+        return world, body, driver
+    return build
 
 
 def _contact_builds(points: int):
@@ -365,41 +382,20 @@ def _run(args, out: Path) -> Dict[str, Any]:
                     for s in subs:
                         if rate * s > finest * (1 + 1e-9) and s > 1:
                             continue
-                        h = 1.0 / (rate * s)
-                        r = simulate(scene, params, h, args.duration)
-                        target = (exact_samples(scene, r['t']) if scene.exact is not None
-                                  else ref_x)
-                        err = max_rms(r['x'], target) if r['finite'] else float('inf')
-                        a_h = converted_alpha(params, h)
-                        note = 'coarse' if 0.5 < a_h < 1.0 else ''
-                        if not r['finite']:
-                            note = 'not finite'
-                        row = dict(scene=name, mode=mode, clusters=k ** 3, rate_hz=rate,
-                                   substeps=s, dt_ms=1e3 * h, N=r['N'], alpha_h=a_h,
-                                   err_rms=err, ref_err=ref_err,
-                                   ms_per_sim_s=1e3 * r['step_s'] / h,
-                                   tick_ms=1e3 * r['step_s'] * s, note=note)
+                        row = dict(scene=name, mode=mode, clusters=k ** 3,
+                                   **_measure(scene, params, rate, s, args.duration,
+                                              (ref_x, ref_err)))
                         t.add(**row)
                         rows.append(row)
                         fam.append(row)
                         bc.log(f'[accuracy] {name} {mode} k={k} {rate:g} Hz x{s}: '
-                               f'err {err:.3g} m (ref {ref_err:.2g})')
+                               f'err {row["err_rms"]:.3g} m (ref {ref_err:.2g})')
                 p = order_of([r for r in fam if r['substeps'] == 1])
                 orders.add(scene=name, configuration=f'{mode}, {k ** 3} cl.', order=p,
                            points=sum(1 for r in fam if r['substeps'] == 1))
                 if mode == scene.nominal['mode'] and k == scene.nominal['clusters']:
                     findings.setdefault('order', {})[name] = p
-        for budget in BUDGETS:
-            ok = [r for r in rows if r['err_rms'] + r['ref_err'] <= budget]
-            if ok:
-                b = min(ok, key=lambda r: r['ms_per_sim_s'])
-                cheap.add(scene=name, budget_m=budget,
-                          cheapest=f'{b["mode"]}, {b["clusters"]} cl., '
-                                   f'{b["rate_hz"]:g} Hz x {b["substeps"]}',
-                          err_rms=b['err_rms'], ref_err=b['ref_err'],
-                          ms_per_sim_s=b['ms_per_sim_s'], tick_ms=b['tick_ms'])
-            else:
-                cheap.add(scene=name, budget_m=budget, cheapest='none in the sweep')
+        _add_cheapest(cheap, name, rows)
         findings[name] = {'nominal': scene.nominal, 'rows': len(rows)}
         _plot(name, scene, rows, out, args.duration)
     t.write(out)
@@ -408,6 +404,39 @@ def _run(args, out: Path) -> Dict[str, Any]:
     findings['budget'] = cheap.rows
     findings['orders'] = orders.rows
     return findings
+
+
+def _measure(scene: Scene, params, rate: float, substeps: int, duration: float,
+             reference) -> Dict[str, Any]:
+    """One configuration's figures: its error against the exact motion, or against
+    ``reference`` (positions, their own error) where there is none."""
+    ref_x, ref_err = reference
+    h = 1.0 / (rate * substeps)
+    run = simulate(scene, params, h, duration)
+    target = exact_samples(scene, run['t']) if scene.exact is not None else ref_x
+    err = max_rms(run['x'], target) if run['finite'] else float('inf')
+    alpha_h = converted_alpha(params, h)
+    note = 'coarse' if 0.5 < alpha_h < 1.0 else ''
+    if not run['finite']:
+        note = 'not finite'
+    return dict(rate_hz=rate, substeps=substeps, dt_ms=1e3 * h, N=run['N'], alpha_h=alpha_h,
+                err_rms=err, ref_err=ref_err, ms_per_sim_s=1e3 * run['step_s'] / h,
+                tick_ms=1e3 * run['step_s'] * substeps, note=note)
+
+
+def _add_cheapest(cheap, name: str, rows: List[Dict[str, Any]]):
+    """The cheapest row of a scene within each error budget (``BUDGETS``)."""
+    for budget in BUDGETS:
+        within = [r for r in rows if r['err_rms'] + r['ref_err'] <= budget]
+        if within:
+            best = min(within, key=lambda r: r['ms_per_sim_s'])
+            cheap.add(scene=name, budget_m=budget,
+                      cheapest=f'{best["mode"]}, {best["clusters"]} cl., '
+                               f'{best["rate_hz"]:g} Hz x {best["substeps"]}',
+                      err_rms=best['err_rms'], ref_err=best['ref_err'],
+                      ms_per_sim_s=best['ms_per_sim_s'], tick_ms=best['tick_ms'])
+        else:
+            cheap.add(scene=name, budget_m=budget, cheapest='none in the sweep')
 
 
 def _plot(name: str, scene: Scene, rows: List[Dict[str, Any]], out: Path, duration: float):

@@ -104,7 +104,7 @@ class Case:
 # --- Track and measurements (engine-agnostic) ---
 
 class Track:
-    """Sampled states of a case's solids: ``t`` (T,), ``com`` (T, B, 3), ``rot`` (T, B, 3,
+    """Sampled states of a case's solids: ``times`` (T,), ``com`` (T, B, 3), ``rot`` (T, B, 3,
     3), ``vel`` (T, B, 3), ``spin`` (T, B, 3), ``ke`` (T, B), ``mom`` (T, B, 3), ``angmom``
     (T, B, 3) about the origin; ``names`` (B,)."""
 
@@ -112,12 +112,12 @@ class Track:
 
     def __init__(self, names):
         self.names = list(names)
-        self.t: List[float] = []
+        self.times: List[float] = []
         self._rows: Dict[str, list] = {k: [] for k in self.KEYS}
 
     def add(self, t: float, **state):
         """Append one sample (every key of ``KEYS``, arrays over the solids)."""
-        self.t.append(float(t))
+        self.times.append(float(t))
         for k in self.KEYS:
             self._rows[k].append(np.asarray(state[k], dtype=float))
 
@@ -128,7 +128,7 @@ class Track:
 
     def at(self, t: float) -> int:
         """Index of the first sample at or after time ``t`` (the last one if none)."""
-        return min(int(np.searchsorted(np.asarray(self.t), t - 1e-9)), len(self.t) - 1)
+        return min(int(np.searchsorted(np.asarray(self.times), t - 1e-9)), len(self.times) - 1)
 
 
 def rotation_deg(rot_a: np.ndarray, rot_b: np.ndarray) -> np.ndarray:
@@ -192,7 +192,7 @@ def measure_slide(case: Case, tr: Track) -> Dict[str, float]:
     out = {'slide_mm': 1e3 * float(dist[-1]), 'turn_end_deg': float(turned_deg(tr, k)[-1])}
     expect = G * (math.sin(th) - mu * math.cos(th))
     if expect > 0:
-        out['accel_ratio'] = fit_accel(tr.t, dist) / expect
+        out['accel_ratio'] = fit_accel(tr.times, dist) / expect
     return out
 
 
@@ -202,7 +202,7 @@ def measure_roll(case: Case, tr: Track) -> Dict[str, float]:
     th = math.radians(case.extra['slope_deg'])
     dist = (tr.com[:, k] - tr.com[0, k]) @ _downhill(case)
     radius = case.solids[k].size[0]
-    return {'accel_ratio': fit_accel(tr.t, dist) / (5.0 / 7.0 * G * math.sin(th)),
+    return {'accel_ratio': fit_accel(tr.times, dist) / (5.0 / 7.0 * G * math.sin(th)),
             'slip': rolled_rad(tr, k) * radius / max(float(dist[-1]), 1e-12)}
 
 
@@ -224,7 +224,7 @@ def measure_drop(case: Case, tr: Track) -> Dict[str, float]:
     low = int(np.argmin(z[:tr.at(case.extra['first_low_s']) + 1]))
     drop = z[0] - z[low]
     energy = tr.ke[:, k] + m * G * (z - z[low])
-    flight = tr.at(tr.t[low] + 1.5 * math.sqrt(2.0 * drop / G))
+    flight = tr.at(tr.times[low] + 1.5 * math.sqrt(2.0 * drop / G))
     up = low + int(np.argmax(tr.vel[low:, k, 2] >= 0.0))      # the first sample after impact
     return {'bounce_ratio': float((z[low:flight + 1].max() - z[low]) / drop),
             'energy_ratio': float(energy[up:].max() / (m * G * drop))}
@@ -242,7 +242,7 @@ def measure_dominoes(case: Case, tr: Track) -> Dict[str, float]:
     """The row: how many fell (turned > 45 deg), whether in order, largest turn of those
     standing."""
     turns = [turned_deg(tr, k) for k in range(len(tr.names))]
-    times = [float(tr.t[int(np.argmax(a > 45.0))]) if a.max() > 45.0 else math.inf
+    times = [float(tr.times[int(np.argmax(a > 45.0))]) if a.max() > 45.0 else math.inf
              for a in turns]
     fell = [t for t in times if t < math.inf]
     standing = [float(a[-1]) for a in turns if a.max() <= 45.0]

@@ -91,9 +91,8 @@ def motion(rounds: int = 7, calls: int = 300, dt: float = 1.0 / 120.0):
     from sm_ros.core.colliders import ColliderSet
     from sm_ros.scene import build_world, load_scene
 
-    def args(cs, t):
-        return (cs.mode, cs.pos, cs.quat, cs.mv, cs.ktime, cs.kpos, cs.kquat, cs.kseg,
-                cs.koff, cs.rows, dt, t, cs.done)
+    def args(colliders, t):
+        return colliders.motion_arrays(), colliders.keys, colliders.rows, dt, t
 
     out = {}
     for k in (1, 2, 8, 32):
@@ -117,10 +116,7 @@ def motion(rounds: int = 7, calls: int = 300, dt: float = 1.0 / 120.0):
     python_advance = ColliderSet.advance
 
     def advance_python(self, h, t=0.0):
-        if CM.advance_reference(*args(self, t)[:10], float(h), float(t), self.done):
-            for c in np.flatnonzero(self.done):
-                self.motion[c] = None
-            self.done[:] = 0
+        python_advance(self, h, t, CM.advance_reference)
 
     worlds = {}
     for v in ('moving', 'at rest'):
@@ -150,14 +146,14 @@ def motion(rounds: int = 7, calls: int = 300, dt: float = 1.0 / 120.0):
 
 def main(argv: Optional[List[str]] = None) -> int:
     """Print the table; returns 0."""
-    ap = argparse.ArgumentParser(prog='python -m sm_ros.bench.colliders', description=__doc__,
+    parser = argparse.ArgumentParser(prog='python -m sm_ros.bench.colliders', description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument('--side', type=int, default=30, help='particles per box edge (30: 27k)')
-    ap.add_argument('--steps', type=int, default=60, help='steps per variant per round')
-    ap.add_argument('--rounds', type=int, default=5, help='round-robin rounds')
-    ap.add_argument('--motion', action='store_true',
+    parser.add_argument('--side', type=int, default=30, help='particles per box edge (30: 27k)')
+    parser.add_argument('--steps', type=int, default=60, help='steps per variant per round')
+    parser.add_argument('--rounds', type=int, default=5, help='round-robin rounds')
+    parser.add_argument('--motion', action='store_true',
                     help='moving colliders: compiled pose update against the Python loop')
-    args = ap.parse_args(argv)
+    args = parser.parse_args(argv)
     if args.motion:
         us, grasp = motion(args.rounds)
         print('moving colliders: pose update per step (median us), compiled and Python')

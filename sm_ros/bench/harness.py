@@ -195,6 +195,15 @@ def time_ticks(node, record: Callable[[float, float], None]) -> None:
     node.tick = tick
 
 
+def spin_for(executor, seconds: float, step: float = 0.01) -> float:
+    """Spin ``executor`` for ``seconds`` (waits of at most ``step`` s); the time it took."""
+    start = time.monotonic()
+    end = start + seconds
+    while time.monotonic() < end:
+        executor.spin_once(timeout_sec=step)
+    return time.monotonic() - start
+
+
 def spin_points(on_cloud: Callable[[Any, float], None], seconds: float, *,
                 namespace: str = '', reliable: bool = True, name: str = 'points_sub',
                 until: Callable[[], bool] = lambda: False) -> None:

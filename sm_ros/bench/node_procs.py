@@ -19,6 +19,7 @@ from . import harness
 
 
 def _node(a) -> dict:
+    """Run sim_node; time its ticks and their parts while measuring."""
     node, ex = harness.start_sim_node(
         {'scene': a.scene, 'rate': float(a.rate), 'dt': 1.0 / (a.rate * a.substeps),
          'substeps': int(a.substeps), 'mode': a.mode, 'clusters': int(a.clusters)},
@@ -26,17 +27,36 @@ def _node(a) -> dict:
     rec = {'step': [], 'fill': [], 'publish': [], 'tick': [], 'sent': {}, 'estimate': [],
            'other': []}
     measuring = [False]
-    cur = {'step': 0.0, 'fill': 0.0, 'publish': 0.0, 'estimate': 0.0}
+    current = {'step': 0.0, 'fill': 0.0, 'publish': 0.0, 'estimate': 0.0}
 
-    def tick_done(start, s):
+    def tick_done(start, seconds):
         if measuring[0]:
-            rec['tick'].append(s)
-            rec['estimate'].append(cur['estimate'])
-            rec['other'].append(s - sum(cur.values()))
-        for k in cur:
-            cur[k] = 0.0
+            rec['tick'].append(seconds)
+            rec['estimate'].append(current['estimate'])
+            rec['other'].append(seconds - sum(current.values()))
+        for k in current:
+            current[k] = 0.0
     harness.time_ticks(node, tick_done)
 
+    _time_steps(node, rec, current, measuring)
+    _time_cloud(node, rec, current, measuring)
+    harness.spin_for(ex, a.warmup, 0.05)
+    measuring[0] = True
+    elapsed = harness.spin_for(ex, a.seconds, 0.05)
+    ticks = len(rec['tick'])
+    out = {'points': node.num_points, 'rate_target': a.rate, 'substeps': a.substeps,
+           'elapsed_s': elapsed, 'ticks': ticks,
+           'step_s': rec['step'], 'fill_s': rec['fill'], 'publish_s': rec['publish'],
+           'tick_s': rec['tick'], 'estimate_s': rec['estimate'], 'other_s': rec['other'],
+           'sent': {str(k): v for k, v in rec['sent'].items()}}
+    node.destroy_node()
+    import rclpy
+    rclpy.try_shutdown()
+    return out
+
+
+def _time_steps(node, rec, current, measuring):
+    """Time the simulation's steps and the error estimate's share of each tick."""
     # the steps as the simulation times them (stats.add_step); wrapping world.step itself
     # would time the error estimate's steps of the world too
     stats = node.sim.stats
@@ -44,7 +64,7 @@ def _node(a) -> dict:
 
     def add_step(seconds):
         add_step0(seconds)
-        cur['step'] += seconds
+        current['step'] += seconds
         if measuring[0]:
             rec['step'].append(seconds)
     stats.add_step = add_step
@@ -55,17 +75,20 @@ def _node(a) -> dict:
     def before_tick(*args, **kwargs):
         t = time.perf_counter()
         out = before_tick0(*args, **kwargs)
-        cur['estimate'] += time.perf_counter() - t
+        current['estimate'] += time.perf_counter() - t
         return out
     estimates.before_tick = before_tick
 
+
+def _time_cloud(node, rec, current, measuring):
+    """Time the cloud's fill and its publishing; note when each cloud was sent."""
     fill0 = node.cloud.fill
 
     def fill(blocks, stamp):
         t = time.perf_counter()
         msg = fill0(blocks, stamp)
         s = time.perf_counter() - t
-        cur['fill'] += s
+        current['fill'] += s
         if measuring[0]:
             rec['fill'].append(s)
         return msg
@@ -79,30 +102,10 @@ def _node(a) -> dict:
         rec['sent'][key] = time.time()
         pub0(msg)
         s = time.perf_counter() - t
-        cur['publish'] += s
+        current['publish'] += s
         if measuring[0]:
             rec['publish'].append(s)
     node.pub_points.publish = publish
-
-    t_end_warm = time.monotonic() + a.warmup
-    while time.monotonic() < t_end_warm:
-        ex.spin_once(timeout_sec=0.05)
-    measuring[0] = True
-    t0 = time.monotonic()
-    t_end = t0 + a.seconds
-    while time.monotonic() < t_end:
-        ex.spin_once(timeout_sec=0.05)
-    elapsed = time.monotonic() - t0
-    ticks = len(rec['tick'])
-    out = {'points': node.num_points, 'rate_target': a.rate, 'substeps': a.substeps,
-           'elapsed_s': elapsed, 'ticks': ticks,
-           'step_s': rec['step'], 'fill_s': rec['fill'], 'publish_s': rec['publish'],
-           'tick_s': rec['tick'], 'estimate_s': rec['estimate'], 'other_s': rec['other'],
-           'sent': {str(k): v for k, v in rec['sent'].items()}}
-    node.destroy_node()
-    import rclpy
-    rclpy.try_shutdown()
-    return out
 
 
 def _sub(a) -> dict:

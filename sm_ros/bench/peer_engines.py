@@ -48,7 +48,7 @@ class Bullet:
 
     def __init__(self, case: Case):
         import pybullet as pb
-        self.pb, self.case, self.time = pb, case, 0.0
+        self.bullet, self.case, self.time = pb, case, 0.0
         self.cid = pb.connect(pb.DIRECT)
         kw = {'physicsClientId': self.cid}
         pb.setGravity(*case.gravity, **kw)
@@ -80,7 +80,7 @@ class Bullet:
             self.ids.append(body)
 
     def _shape(self, shape, size):
-        pb, kw = self.pb, {'physicsClientId': self.cid}
+        pb, kw = self.bullet, {'physicsClientId': self.cid}
         if shape == 'box':
             return pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[x / 2 for x in size], **kw)
         if shape == 'ball':
@@ -91,14 +91,14 @@ class Bullet:
     def step(self):
         """One step of 1/240 s (kinematic colliders set to their next pose first)."""
         for f, con in self.kinematic:
-            self.pb.changeConstraint(con, f.pose_at(self.time + self.DT), f.quat,
+            self.bullet.changeConstraint(con, f.pose_at(self.time + self.DT), f.quat,
                                      maxForce=1e4, physicsClientId=self.cid)
-        self.pb.stepSimulation(physicsClientId=self.cid)
+        self.bullet.stepSimulation(physicsClientId=self.cid)
         self.time += self.DT
 
     def state(self) -> Dict[str, list]:
         """The ``Track`` keys of every solid."""
-        pb, kw = self.pb, {'physicsClientId': self.cid}
+        pb, kw = self.bullet, {'physicsClientId': self.cid}
         rows = {k: [] for k in Track.KEYS}
         for s, body in zip(self.case.solids, self.ids):
             pos, quat = pb.getBasePositionAndOrientation(body, **kw)
@@ -111,7 +111,7 @@ class Bullet:
 
     def close(self):
         """Disconnect."""
-        self.pb.disconnect(self.cid)
+        self.bullet.disconnect(self.cid)
 
 
 def _wxyz(q) -> str:
@@ -148,7 +148,7 @@ class MuJoCo:
 
     def __init__(self, case: Case):
         import mujoco
-        self.mj, self.case = mujoco, case
+        self.mujoco, self.case = mujoco, case
         mat = mj_material(case.friction, case.restitution)
         parts = []
         if case.ground:
@@ -188,7 +188,7 @@ class MuJoCo:
         """One step (mocap bodies set to their next pose first)."""
         for k, f in enumerate(self.mocap):
             self.data.mocap_pos[k] = f.pose_at(self.time + self.model.opt.timestep)
-        self.mj.mj_step(self.model, self.data)
+        self.mujoco.mj_step(self.model, self.data)
 
     def state(self) -> Dict[str, list]:
         """The ``Track`` keys of every solid."""

@@ -12,64 +12,29 @@ import numpy as np
 
 from . import collider_motion as CM
 from . import kinematic as KC
-from .params import KIND_BOX, KIND_CAPSULE, QUAT_TOLERANCE
+from .params import _path, KIND_BOX, KIND_CAPSULE, QUAT_TOLERANCE
+from .quaternion import axis_angle_quat, quat_matrix, quat_mul, rotation_between  # noqa: F401
 
 _IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 
 
-def quat_mul(a, b):
-    """Hamilton product of quaternions (x, y, z, w)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return np.array([aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw,
-                     aw * bw - ax * bx - ay * by - az * bz])
-
-
-def quat_matrix(q):
-    """Rotation matrix of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
-def rotation_between(q0, q1):
-    """(axis, angle) of the world-frame rotation taking q0 to q1 (angle in [0, pi])."""
-    dq = quat_mul(q1, np.array([-q0[0], -q0[1], -q0[2], q0[3]]))
-    if dq[3] < 0.0:
-        dq = -dq
-    s = float(np.linalg.norm(dq[:3]))
-    if s < 1e-15:
-        return np.array([0.0, 0.0, 1.0]), 0.0
-    return dq[:3] / s, 2.0 * math.atan2(s, dq[3])
-
-
-def axis_angle_quat(axis, angle):
-    """Quaternion (x, y, z, w) of a rotation by ``angle`` about the unit ``axis``."""
-    s = math.sin(0.5 * angle)
-    return np.array([axis[0] * s, axis[1] * s, axis[2] * s, math.cos(0.5 * angle)])
-
-
 def check_pose(name, position, orientation):
     """Validated (position (3,), unit quaternion (4,)) or ValueError with the reason."""
-    p = np.asarray(position, dtype=float).reshape(-1)
-    if p.shape != (3,) or not np.all(np.isfinite(p)):
+    pos = np.asarray(position, dtype=float).reshape(-1)
+    if pos.shape != (3,) or not np.all(np.isfinite(pos)):
         raise ValueError(f'collider {name!r}: position must be 3 finite numbers, '
                          f'got {position!r}')
-    q = np.asarray(orientation, dtype=float).reshape(-1)
-    if q.shape != (4,) or not np.all(np.isfinite(q)):
+    quat = np.asarray(orientation, dtype=float).reshape(-1)
+    if quat.shape != (4,) or not np.all(np.isfinite(quat)):
         raise ValueError(f'collider {name!r}: orientation must be a quaternion of 4 finite '
                          f'numbers (x, y, z, w), got {orientation!r}')
-    n = float(np.linalg.norm(q))
-    if n == 0.0:
+    norm = float(np.linalg.norm(quat))
+    if norm == 0.0:
         raise ValueError(f'collider {name!r}: orientation is a zero quaternion')
-    if abs(n - 1.0) > QUAT_TOLERANCE:
+    if abs(norm - 1.0) > QUAT_TOLERANCE:
         raise ValueError(f'collider {name!r}: orientation must be a unit quaternion, '
-                         f'its norm is {n:.6g}')
-    return p, q / n
+                         f'its norm is {norm:.6g}')
+    return pos, quat / norm
 
 
 class ColliderSet:
@@ -103,36 +68,13 @@ class ColliderSet:
                 bound = dims[0]
             # a little slack: the bound only skips particles that cannot touch
             row[KC.C_BOUND] = bound * (1.0 + 1e-9) + 1e-12
-        # scripted paths: keyframe times (from 0), positions, quaternions, concatenated
-        # over the colliders (collider_motion.py), with each segment's axis and angle
-        self.paths = {}
-        from .params import _path
-        koff, ktime, kpos, kquat, kseg = [0], [], [], [], []
-        for c, item in enumerate(self.items):
-            frames = _path('collider', item)
-            if frames:
-                times = np.array([0.0] + [f[0] for f in frames])
-                pos = [self.pos0[c]]
-                quats = [self.quat0[c]]
-                for _, p, q in frames:
-                    pos.append(p)
-                    quats.append(quats[-1] if q is None else q)
-                self.paths[c] = (times, np.array(pos), np.array(quats))
-                ktime.extend(times)
-                kpos.extend(pos)
-                kquat.extend(quats)
-                for k in range(len(times)):
-                    axis, angle = (rotation_between(quats[k], quats[k + 1])
-                                   if k + 1 < len(times) else (np.zeros(3), 0.0))
-                    kseg.append([*axis, angle])
-            koff.append(len(ktime))
-        self.koff = np.array(koff, dtype=np.int64)
-        self.ktime = np.array(ktime, dtype=float)
-        self.kpos = np.array(kpos, dtype=float).reshape(-1, 3)
-        self.kquat = np.array(kquat, dtype=float).reshape(-1, 4)
-        self.kseg = np.array(kseg, dtype=float).reshape(-1, 4)
+        # scripted paths: per collider (times, positions, quaternions), and all of them
+        # concatenated for the compiled motion (collider_motion.py)
+        self.paths, self.keys = _keyframes(self.items, self.pos0, self.quat0)
         self.mode = np.zeros(nc, dtype=np.int64)
-        self.mv = np.zeros((nc, CM.MV))
+        self.pos = np.zeros((nc, 3))
+        self.quat = np.zeros((nc, 4))
+        self.moves = np.zeros((nc, CM.MV))
         self.done = np.zeros(nc, dtype=np.int64)
         self.imp = np.zeros((nc, 6))
         self.imp_time = 0.0
@@ -148,27 +90,23 @@ class ColliderSet:
 
     def reset(self):
         """Initial poses, no motion, no accumulated impulses."""
-        self.pos = self.pos0.copy()
-        self.quat = self.quat0.copy()
+        self.pos[:] = self.pos0
+        self.quat[:] = self.quat0
         # per collider: None or the commanded move in progress, (start pos, start quat,
         # target pos, target quat, duration, linear velocity, axis, angle) as commanded;
-        # its progress lives in ``mv`` (collider_motion.py)
+        # its progress lives in ``moves`` (collider_motion.py)
         self.motion = [None] * len(self.items)
         self.mode[:] = CM.IDLE
         for c in self.paths:
             self.mode[c] = CM.PATH
-        self.mv[:] = 0.0
+        self.moves[:] = 0.0
         for c in range(len(self.items)):
             self._write_pose(c, np.zeros(3), np.zeros(3))
         self.imp[:] = 0.0
         self.imp_time = 0.0
 
     def _write_pose(self, c, vel, ang):
-        row = self.rows[c]
-        row[KC.C_POS:KC.C_POS + 3] = self.pos[c]
-        row[KC.C_ROT:KC.C_ROT + 9] = quat_matrix(self.quat[c]).reshape(-1)
-        row[KC.C_VEL:KC.C_VEL + 3] = vel
-        row[KC.C_ANG:KC.C_ANG + 3] = ang
+        CM.write_pose(self.rows, c, self.motion_arrays(), vel, ang)
 
     # ------------------------------------------------------------------ motion
     def lookup(self, name):
@@ -185,33 +123,34 @@ class ColliderSet:
         c = self.lookup(name)
         if not self.items[c].kinematic:
             raise ValueError(f'collider {name!r} is static (declare it kinematic to move it)')
-        p, q = check_pose(name, position, orientation)
+        pos, quat = check_pose(name, position, orientation)
         try:
-            d = float(duration)
+            seconds = float(duration)
         except (TypeError, ValueError):
             raise ValueError(f'duration must be a number, got {duration!r}') from None
-        if not (math.isfinite(d) and d >= 0.0):
+        if not (math.isfinite(seconds) and seconds >= 0.0):
             raise ValueError(f'duration must be finite and >= 0, got {duration!r}')
-        if d == 0.0:
+        if seconds == 0.0:
             self.mode[c] = CM.IDLE        # a commanded move ends the scripted path
-            self.pos[c] = p
-            self.quat[c] = q
+            self.pos[c] = pos
+            self.quat[c] = quat
             self.motion[c] = None
             self._write_pose(c, np.zeros(3), np.zeros(3))
             return
-        axis, angle = rotation_between(self.quat[c], q)
-        vel = (p - self.pos[c]) / d
-        self.motion[c] = (self.pos[c].copy(), self.quat[c].copy(), p, q, d, vel, axis, angle)
-        mo = self.mv[c]
-        mo[CM.M_P0:CM.M_P0 + 3] = self.pos[c]
-        mo[CM.M_Q0:CM.M_Q0 + 4] = self.quat[c]
-        mo[CM.M_P1:CM.M_P1 + 3] = p
-        mo[CM.M_Q1:CM.M_Q1 + 4] = q
-        mo[CM.M_DUR] = d
-        mo[CM.M_EL] = 0.0
-        mo[CM.M_VEL:CM.M_VEL + 3] = vel
-        mo[CM.M_AXIS:CM.M_AXIS + 3] = axis
-        mo[CM.M_ANGLE] = angle
+        axis, angle = rotation_between(self.quat[c], quat)
+        vel = (pos - self.pos[c]) / seconds
+        self.motion[c] = (self.pos[c].copy(), self.quat[c].copy(), pos, quat, seconds, vel,
+                          axis, angle)
+        row = self.moves[c]
+        row[CM.M_P0:CM.M_P0 + 3] = self.pos[c]
+        row[CM.M_Q0:CM.M_Q0 + 4] = self.quat[c]
+        row[CM.M_P1:CM.M_P1 + 3] = pos
+        row[CM.M_Q1:CM.M_Q1 + 4] = quat
+        row[CM.M_DUR] = seconds
+        row[CM.M_EL] = 0.0
+        row[CM.M_VEL:CM.M_VEL + 3] = vel
+        row[CM.M_AXIS:CM.M_AXIS + 3] = axis
+        row[CM.M_ANGLE] = angle
         self.mode[c] = CM.MOVE            # a commanded move ends the scripted path
 
     def path_pose(self, c, t):
@@ -230,13 +169,15 @@ class ColliderSet:
         """Indices of the colliders still playing their scripted path."""
         return set(np.flatnonzero(self.mode == CM.PATH).tolist())
 
-    def advance(self, h, t=0.0):
+    def motion_arrays(self) -> KC.ColliderMotion:
+        """The arrays the compiled motion reads and writes (views of this set's own)."""
+        return KC.ColliderMotion(self.mode, self.pos, self.quat, self.moves, self.done)
+
+    def advance(self, h, t=0.0, advance_poses=CM.advance_poses):
         """Poses at the end of the next step (from time ``t``, of ``h`` s) and the
         velocities during it: one compiled call for every collider
-        (``collider_motion.advance_poses``)."""
-        if CM.advance_poses(self.mode, self.pos, self.quat, self.mv, self.ktime, self.kpos,
-                            self.kquat, self.kseg, self.koff, self.rows, float(h), float(t),
-                            self.done):
+        (``advance_poses``; the benchmark passes its Python twin)."""
+        if advance_poses(self.motion_arrays(), self.keys, self.rows, float(h), float(t)):
             for c in np.flatnonzero(self.done):
                 self.motion[c] = None
             self.done[:] = 0
@@ -245,8 +186,8 @@ class ColliderSet:
     def collide(self, X, V, w, bid, start, end, h, thresh, stats, touched):
         """Run the pass over particles start..end of (3, N) state after a step of h s
         (see ``kinematic.collide_range``)."""
-        KC.collide_range(X, V, w, bid, start, end, self.rows, h, thresh, self.imp, stats,
-                         touched)
+        KC.collide_range(KC.Particles(X, V, w, bid), start, end, self.rows, h, thresh,
+                         KC.ColliderTally(self.imp, stats, touched))
 
     def wrench(self, c):
         """(force, torque) on collider ``c`` averaged over the accumulated time."""
@@ -260,3 +201,35 @@ class ColliderSet:
         self.imp[:] = 0.0
         self.imp_time = 0.0
         return out
+
+
+def _keyframes(items, pos0, quat0):
+    """({collider: (times, positions, quaternions)} of the colliders with a scripted path
+    (times from 0, the declared pose first), and all of them as ``kinematic.Keyframes``
+    with each segment's axis and angle."""
+    paths = {}
+    offset, times_all, pos_all, quat_all, segments = [0], [], [], [], []
+    for c, item in enumerate(items):
+        frames = _path('collider', item)
+        if frames:
+            times = np.array([0.0] + [frame[0] for frame in frames])
+            pos = [pos0[c]]
+            quats = [quat0[c]]
+            for _, position, quat in frames:
+                pos.append(position)
+                quats.append(quats[-1] if quat is None else quat)
+            paths[c] = (times, np.array(pos), np.array(quats))
+            times_all.extend(times)
+            pos_all.extend(pos)
+            quat_all.extend(quats)
+            for k in range(len(times)):
+                axis, angle = (rotation_between(quats[k], quats[k + 1])
+                               if k + 1 < len(times) else (np.zeros(3), 0.0))
+                segments.append([*axis, angle])
+        offset.append(len(times_all))
+    keys = KC.Keyframes(time=np.array(times_all, dtype=float),
+                        pos=np.array(pos_all, dtype=float).reshape(-1, 3),
+                        quat=np.array(quat_all, dtype=float).reshape(-1, 4),
+                        segment=np.array(segments, dtype=float).reshape(-1, 4),
+                        offset=np.array(offset, dtype=np.int64))
+    return paths, keys

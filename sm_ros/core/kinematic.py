@@ -25,6 +25,7 @@ so an edit of the law recompiles ``collide_range``.
 """
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -43,6 +44,26 @@ C_MU = 22           # Coulomb friction coefficient
 C_E = 23            # restitution
 C_BOUND = 24        # radius of a sphere about the centre holding the collider (broad phase)
 ROW = 25
+
+
+class Particles(NamedTuple):
+    """The particles the pass acts on: (3, N) positions and velocities, inverse masses
+    (0: left alone) and the body index of each particle."""
+
+    x: np.ndarray
+    v: np.ndarray
+    inv_mass: np.ndarray
+    body: np.ndarray
+
+
+class ColliderTally(NamedTuple):
+    """What the pass adds up: ``impulse`` (C, 6) on each collider (linear, then angular
+    about its centre), ``stats`` (B, 2) per body [contacts, deepest penetration (m)] and
+    ``touched`` (B,) set to 1 for a body whose particles moved."""
+
+    impulse: np.ndarray
+    stats: np.ndarray
+    touched: np.ndarray
 
 
 @njit(**JIT)
@@ -102,17 +123,17 @@ def _closest_surface(row, px, py, pz):
 
 
 @njit(**JIT)
-def collide_range(X, V, w, bid, start, end, rows, h, thresh, imp, stats, touched):
-    """Collide particles start..end with every collider of ``rows`` after a step of h s.
-
-    ``w`` inverse masses (0: left alone), ``bid`` body index of each particle.  ``imp``
-    (C, 6) gets the impulse (3) and the angular impulse about the collider centre (3) that
-    the particles exert on each collider; ``stats[b]`` [contacts, deepest penetration (m)]
-    of body b is updated (one contact per particle and collider touched) and
-    ``touched[b]`` set to 1 when a particle of body b moved.
+def collide_range(particles, start, end, rows, h, thresh, tally):
+    """Collide particles start..end (``Particles``) with every collider of ``rows`` after a
+    step of h s, adding to ``tally`` (``ColliderTally``): the impulse (3) and the angular
+    impulse about the collider centre (3) that the particles exert on each collider, one
+    contact per particle and collider touched, the deepest penetration of each body, and
+    the bodies whose particles moved.
     Loops over particles (outer) and colliders (inner, a few): each particle's reject test
     against a collider's bounding sphere is six flops.
     """
+    X, V, w, bid = particles.x, particles.v, particles.inv_mass, particles.body
+    imp, stats, touched = tally.impulse, tally.stats, tally.touched
     nc = rows.shape[0]
     for i in range(start, end):
         if w[i] <= 0.0:
@@ -132,10 +153,10 @@ def collide_range(X, V, w, bid, start, end, rows, h, thresh, imp, stats, touched
             px += depth * nx
             py += depth * ny
             pz += depth * nz
-            b_i = bid[i]
-            stats[b_i, 0] += 1.0
-            if depth > stats[b_i, 1]:
-                stats[b_i, 1] = depth
+            owner = bid[i]
+            stats[owner, 0] += 1.0
+            if depth > stats[owner, 1]:
+                stats[owner, 1] = depth
             # surface velocity of the collider at the projected point
             rx, ry, rz = px - row[C_POS], py - row[C_POS + 1], pz - row[C_POS + 2]
             wx, wy, wz = row[C_ANG], row[C_ANG + 1], row[C_ANG + 2]
@@ -173,9 +194,11 @@ def collide_range(X, V, w, bid, start, end, rows, h, thresh, imp, stats, touched
             touched[bid[i]] = 1
 
 
-def collide_numpy(X, V, w, bid, rows, h, thresh, imp, stats, touched):
+def collide_numpy(particles, rows, h, thresh, tally):
     """Plain NumPy twin of ``collide_range`` over every particle (vectorised per collider;
     the same sequence of colliders per particle)."""
+    X, V, w, bid = particles.x, particles.v, particles.inv_mass, particles.body
+    imp, stats, touched = tally.impulse, tally.stats, tally.touched
     m = np.divide(1.0, w, out=np.zeros_like(w), where=w > 0)
     X = np.asarray(X)
     V = np.asarray(V)
@@ -244,7 +267,7 @@ def collide_numpy(X, V, w, bid, rows, h, thresh, imp, stats, touched):
 
 IDLE, MOVE, PATH = 0, 1, 2
 
-# columns of a commanded move (mv)
+# columns of a commanded move (a row of ``ColliderMotion.moves``)
 M_P0 = 0            # start position (3)
 M_Q0 = 3            # start quaternion (4)
 M_P1 = 7            # target position (3)
@@ -255,6 +278,27 @@ M_VEL = 16          # linear velocity (3)
 M_AXIS = 19         # rotation axis, world frame (3)
 M_ANGLE = 22        # rotation angle over the whole move (rad)
 MV = 23
+
+
+class ColliderMotion(NamedTuple):
+    """The motion state of every collider (``nc`` of them; ``ColliderSet`` owns it)."""
+
+    mode: np.ndarray        # (nc,) int64: IDLE, MOVE (a commanded move) or PATH (keyframes)
+    pos: np.ndarray         # (nc, 3) current positions
+    quat: np.ndarray        # (nc, 4) current orientations (x, y, z, w)
+    moves: np.ndarray       # (nc, MV) the commanded moves, columns M_*
+    done: np.ndarray        # (nc,) int64: set to 1 where a commanded move ended
+
+
+class Keyframes(NamedTuple):
+    """The keyframes of every scripted path, concatenated (K of them); collider c's are
+    ``offset[c]:offset[c + 1]`` (none without a path)."""
+
+    time: np.ndarray        # (K,) s from the start
+    pos: np.ndarray         # (K, 3)
+    quat: np.ndarray        # (K, 4)
+    segment: np.ndarray     # (K, 4) axis and angle from keyframe k to k + 1 (last unused)
+    offset: np.ndarray      # (nc + 1,) int64
 
 
 @njit(**JIT)
@@ -306,30 +350,31 @@ def _write_pose(row, p, q, vx, vy, vz, wx, wy, wz):
 
 
 @njit(**JIT)
-def advance_poses(mode, pos, quat, mv, ktime, kpos, kquat, kseg, koff, rows, h, t, done):
+def advance_poses(motion, keys, rows, h, t):
     """Poses at the end of the next step (from world time ``t``, of ``h`` s) and the
-    velocities during it, for every collider; returns how many commanded moves ended.
-
-    One pass over the colliders (a few): each moving one costs a slerp, a rotation matrix
-    and, on a path, a scan of its keyframes; a collider at rest only has its velocities
-    zeroed once.
-    """
+    velocities during it, for every collider (``ColliderMotion``, ``Keyframes``); returns
+    how many commanded moves ended.  One pass over the colliders (a few): each moving one
+    costs a slerp, a rotation matrix and, on a path, a scan of its keyframes; a collider at
+    rest only has its velocities zeroed once.  One function: a compiled callee would add
+    its own compile time to a cold start."""
+    pos, quat = motion.pos, motion.quat
+    ktime, kpos, kquat, kseg = keys.time, keys.pos, keys.quat, keys.segment
     ended = 0
-    for c in range(mode.shape[0]):
+    for c in range(motion.mode.shape[0]):
         row = rows[c]
-        m = mode[c]
-        if m == PATH:
-            k0, k1 = koff[c], koff[c + 1]
+        mode = motion.mode[c]
+        if mode == PATH:
+            k0, k1 = keys.offset[c], keys.offset[c + 1]
             end = ktime[k1 - 1]
             if t >= end:                        # the path is over: at rest there
-                mode[c] = IDLE
+                motion.mode[c] = IDLE
                 _write_pose(row, pos[c], quat[c], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
                 continue
             tt = t + h
             if tt >= end:
                 px, py, pz = kpos[k1 - 1, 0], kpos[k1 - 1, 1], kpos[k1 - 1, 2]
-                qk = kquat[k1 - 1]
-                qx, qy, qz, qw = qk[0], qk[1], qk[2], qk[3]
+                qx, qy, qz, qw = kquat[k1 - 1, 0], kquat[k1 - 1, 1], kquat[k1 - 1, 2], \
+                    kquat[k1 - 1, 3]
             else:
                 k = k0
                 while k + 1 < k1 and ktime[k + 1] <= tt:
@@ -346,29 +391,30 @@ def advance_poses(mode, pos, quat, mv, ktime, kpos, kquat, kseg, koff, rows, h, 
             quat[c, 0], quat[c, 1], quat[c, 2], quat[c, 3] = qx, qy, qz, qw
             w = angle / h
             _write_pose(row, pos[c], quat[c], vx, vy, vz, ax * w, ay * w, az * w)
-        elif m == MOVE:
-            mo = mv[c]
-            d = mo[M_DUR]
-            t_new = mo[M_EL] + h
+        elif mode == MOVE:
+            move = motion.moves[c]
+            d = move[M_DUR]
+            t_new = move[M_EL] + h
             if t_new >= d * (1.0 - 1e-9):
                 for i in range(3):
-                    pos[c, i] = mo[M_P1 + i]
+                    pos[c, i] = move[M_P1 + i]
                 for i in range(4):
-                    quat[c, i] = mo[M_Q1 + i]
-                mode[c] = IDLE
-                done[c] = 1
+                    quat[c, i] = move[M_Q1 + i]
+                motion.mode[c] = IDLE
+                motion.done[c] = 1
                 ended += 1
             else:
                 s = t_new / d
                 for i in range(3):
-                    pos[c, i] = mo[M_P0 + i] + (mo[M_P1 + i] - mo[M_P0 + i]) * s
-                qx, qy, qz, qw = _axis_angle_mul(mo[M_AXIS], mo[M_AXIS + 1], mo[M_AXIS + 2],
-                                                 mo[M_ANGLE] * s, mo[M_Q0:M_Q0 + 4])
+                    pos[c, i] = move[M_P0 + i] + (move[M_P1 + i] - move[M_P0 + i]) * s
+                qx, qy, qz, qw = _axis_angle_mul(move[M_AXIS], move[M_AXIS + 1],
+                                                 move[M_AXIS + 2], move[M_ANGLE] * s,
+                                                 move[M_Q0:M_Q0 + 4])
                 quat[c, 0], quat[c, 1], quat[c, 2], quat[c, 3] = qx, qy, qz, qw
-                mo[M_EL] = t_new
-            w = mo[M_ANGLE] / d
-            _write_pose(row, pos[c], quat[c], mo[M_VEL], mo[M_VEL + 1], mo[M_VEL + 2],
-                        mo[M_AXIS] * w, mo[M_AXIS + 1] * w, mo[M_AXIS + 2] * w)
+                move[M_EL] = t_new
+            w = move[M_ANGLE] / d
+            _write_pose(row, pos[c], quat[c], move[M_VEL], move[M_VEL + 1], move[M_VEL + 2],
+                        move[M_AXIS] * w, move[M_AXIS + 1] * w, move[M_AXIS + 2] * w)
         else:
             moving = False
             for i in range(C_VEL, C_ANG + 3):

@@ -10,19 +10,19 @@ at rest then costs almost nothing.  Here, in a world where body-body contact run
   ``sleep_speed`` times ``sleep_time`` from where they were ``sleep_time`` seconds ago (a
   still spell: jiggling in place is still, a drift at ``sleep_speed`` is not).  A settled
   body falls asleep unless a restless body touches it (one moving faster than
-  ``WAKE_FACTOR`` times ``sleep_speed`` in two steps in a row, or held awake by a force,
+  ``tuning.WAKE_FACTOR`` times ``sleep_speed`` in two steps in a row, or held awake by a force,
   torque or grab) or an unsettled one supports it (touches it from below): its velocities are set
-  to zero and it is no longer stepped (``Body._flags[3]`` = 1: the compiled steps skip
+  to zero and it is no longer stepped (``Body._flags[SLEEP]`` = 1: the compiled steps skip
   it).  So no body falls asleep on a support that still slides or sinks (it would float
   once the support moved on), while bodies beside a slowly creeping one may.
 * **Asleep** it is an obstacle of infinite mass for contact (its inverse masses ``W`` are
   0 in the flat state, as for pinned particles) and keeps its state bit for bit.
 * **Waking.** A sleeping body wakes when a restless body touches it (a pair closer than
-  ``TOUCH_FACTOR`` times the contact distance; it stays put for the step in which that is
+  ``tuning.TOUCH_FACTOR`` times the contact distance; it stays put for the step in which that is
   found and is stepped from the next), and whenever an input changes it
   (``Body.wake``: state, parameters, wrench, grabs, reset) or the world (gravity, the
   colliders, the bodies, the contact settings).  A body with a force, torque or grab is
-  held awake (``_flags[3]`` = -1) while it acts.
+  held awake (``_flags[SLEEP]`` = -1) while it acts.
 * A world of one colliding body (no contact pass) never sleeps: it pays nothing.  Nor
   does a world without gravity (nothing rests; freezing a drift would take momentum out
   of a conservative world) or with collider-pass colliders (``World._sleep_check``).
@@ -35,26 +35,22 @@ bodies, and a world whose bodies are all asleep skips the bodies' step, the cont
 and this pass.
 """
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
 from .kernels import JIT
-
-#: A body is restless (wakes the sleeping bodies it touches) while a particle moves
-#: faster than this many times ``sleep_speed`` in two steps in a row.
-WAKE_FACTOR = 4.0
-#: A pair touches (for waking and for keeping awake) when closer than this many times
-#: its contact distance r_i + r_j (resting contacts sit at about 1).
-TOUCH_FACTOR = 1.1
-
+from .kernels.flags import SLEEP
+from .tuning import TOUCH_FACTOR, WAKE_FACTOR
 
 @njit(**JIT)
 def sleep_sync(flags, slept, off, W, Wa, calm):
-    """Bodies woken from outside since the last step (``flags[b][3]`` <= 0 while
+    """Bodies woken from outside since the last step (``flags[b][SLEEP]`` <= 0 while
     ``slept[b]``): their inverse masses back from ``Wa``; returns how many."""
     woken = 0
     for b in range(len(flags)):
-        if slept[b] and flags[b][3] <= 0.0:
+        if slept[b] and flags[b][SLEEP] <= 0.0:
             slept[b] = 0
             calm[b] = 0.0
             for k in range(off[b], off[b + 1]):
@@ -67,7 +63,7 @@ def sleep_sync(flags, slept, off, W, Wa, calm):
 def all_asleep(flags):
     """Whether every body is asleep (then a step has nothing to do)."""
     for b in range(len(flags)):
-        if not flags[b][3] > 0.0:
+        if not flags[b][SLEEP] > 0.0:
             return False
     return len(flags) > 0
 
@@ -78,7 +74,7 @@ def body_moves(X, Xp, Xa, off, flags, step2, drift2):
     ``Xp`` (the last step's positions; ``Xp`` = ``X`` after), ``drift2[b]`` the largest
     from ``Xa`` (where its still spell started); both 0 for a sleeping body."""
     for b in range(len(flags)):
-        if flags[b][3] > 0.0:
+        if flags[b][SLEEP] > 0.0:
             step2[b] = 0.0
             drift2[b] = 0.0
             continue
@@ -104,26 +100,28 @@ def body_moves(X, Xp, Xa, off, flags, step2, drift2):
 
 
 @njit(**JIT)
-def touch_restless(xs, off, R, B, pi, pj, npairs, level, up, near):
+def touch_restless(flat, body_x, pairs, level, up, near, touch):
     """near[b] = the largest ``level`` of the other bodies a particle of body b touches
-    (``TOUCH_FACTOR``), where a level 1 (unsettled) counts only from a body below b's
-    particle (along ``up``, the unit vector against gravity; every direction when it is
-    zero: a support that still moves); 0 where none counts.  Positions from ``xs`` (the
-    bodies' own (3, n) blocks): before the contact pass, where a body thrown at a
-    sleeping one overlaps it (the pass then stops it where the step began, a gap away).
-    A pass over the pair list that reads positions only of pairs with a side above 0."""
+    (closer than ``touch`` times the pair's contact distance), where a level 1
+    (unsettled) counts only from a body below b's particle (along ``up``, the unit vector
+    against gravity; every direction when it is zero: a support that still moves); 0
+    where none counts.  Positions from ``body_x`` (the bodies' own (3, n) blocks):
+    before the contact pass, where a body thrown at a sleeping one overlaps it (the pass
+    then stops it where the step began, a gap away).  A pass over the pair list that
+    reads positions only of pairs with a side above 0."""
+    xs, off, R, B = body_x, flat.offset, flat.radius, flat.body
     near[:] = 0
     anyway = up[0] == 0.0 and up[1] == 0.0 and up[2] == 0.0
-    for p in range(npairs):
-        i = pi[p]
-        j = pj[p]
+    for p in range(pairs.count):
+        i = pairs.first[p]
+        j = pairs.second[p]
         bi = B[i]
         bj = B[j]
         li = level[bi]
         lj = level[bj]
         if bi == bj or (li == 0 and lj == 0) or (lj <= near[bi] and li <= near[bj]):
             continue
-        s = TOUCH_FACTOR * (R[i] + R[j])
+        s = touch * (R[i] + R[j])
         xi = xs[bi]
         xj = xs[bj]
         ki = i - off[bi]
@@ -139,49 +137,85 @@ def touch_restless(xs, off, R, B, pi, pj, npairs, level, up, near):
                 near[bj] = li
 
 
-@njit(**JIT)
-def sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, fast, step2,
-                 drift2, level, near, pi, pj, npairs, up, h, speed, t_sleep, allow, touched):
-    """One step's sleep bookkeeping (see the module); returns how many bodies fell asleep
-    or woke (their ``W`` changed).
+class FlatArrays(NamedTuple):
+    """The flat state's arrays the sleep pass reads and writes (``FlatState``; its typed
+    lists, the bodies' positions and flags, go beside it: in a tuple they would cost the
+    call a slow typing of every array)."""
 
-    A body is *still* while no particle is farther than ``speed * t_sleep`` from where
-    it was when its still spell began (``Xa``; a jiggle in place does not end the spell,
-    a slow drift does), *settled* when asleep or still for ``t_sleep`` (``level`` 0),
-    *restless* while a particle moved faster than ``WAKE_FACTOR * speed`` in each of the
-    last two steps (``fast``: (bodies,) uint8, the count of such steps in a row, up to 2;
-    one step is not enough: when a body falls asleep the one resting on it settles by up
-    to g h^2 in one step), or a force, torque or grab holds it (``level`` 2), and
-    unsettled otherwise (1).  A body
-    falls asleep once settled while no restless body touches it and no unsettled one
-    supports it (touches it from below, along ``up``: against gravity; from any side
-    without gravity); a sleeping body wakes when a restless one touches it.  ``step2``,
-    ``drift2``, ``level``, ``near``: (bodies,) scratch.  ``X``, ``V``: the flat state
-    after the contact pass; ``xs``: the bodies' own positions, before it (who touches
-    whom, ``touch_restless``).  ``allow``: whether bodies may
-    fall asleep (False: only waking).  A body that falls asleep gets ``touched`` (the
-    flat state's scatter writes its zero velocities back).
-    """
-    nb = len(flags)
-    body_moves(X, Xp, Xa, off, flags, step2, drift2)
-    quick = WAKE_FACTOR * speed * h
-    fast2 = quick * quick
-    room = speed * t_sleep
-    room2 = room * room
-    for b in range(nb):
-        f = flags[b][3]
+    x: np.ndarray               # (3, N) positions after the contact pass
+    v: np.ndarray               # (3, N) velocities after it
+    inv_mass: np.ndarray        # (N,) inverse masses (0 while asleep)
+    awake_inv_mass: np.ndarray  # (N,) inverse masses of the bodies awake
+    radius: np.ndarray          # (N,) contact radii
+    body: np.ndarray            # (N,) body index of each particle
+    offset: np.ndarray          # (bodies + 1,) first particle of each body
+    touched: np.ndarray         # (bodies,) 1: the scatter writes the body back
+
+
+class SleepArrays(NamedTuple):
+    """Sleep bookkeeping of each body (``Sleep`` owns it; see ``sleep_update``)."""
+
+    prev: np.ndarray            # (3, N) positions after the last step
+    anchor: np.ndarray          # (3, N) positions where the still spell began
+    slept: np.ndarray           # (bodies,) uint8: asleep as of the last step
+    calm: np.ndarray            # (bodies,) seconds still in a row
+    fast: np.ndarray            # (bodies,) uint8: steps above the restless speed in a row
+    step2: np.ndarray           # (bodies,) scratch: largest squared move in the step
+    drift2: np.ndarray          # (bodies,) scratch: largest squared move from the anchor
+    level: np.ndarray           # (bodies,) uint8 scratch: 0 settled, 1 unsettled, 2 restless
+    near: np.ndarray            # (bodies,) uint8 scratch: largest level touching the body
+
+
+class Pairs(NamedTuple):
+    """The contact pass's pair list: particles ``first[p]``, ``second[p]``, p < count."""
+
+    first: np.ndarray
+    second: np.ndarray
+    count: int
+
+
+class SleepRule(NamedTuple):
+    """The settings of one step's sleep pass."""
+
+    up: np.ndarray              # unit vector against gravity (zero without gravity)
+    h: float                    # step (s)
+    speed: float                # ``sleep_speed`` (m/s)
+    t_sleep: float              # ``sleep_time`` (s)
+    allow: bool                 # whether bodies may fall asleep (False: only waking)
+    wake_factor: float = WAKE_FACTOR    # restless above this many times ``speed``
+    touch_factor: float = TOUCH_FACTOR  # touching within this many contact distances
+
+
+@njit(**JIT)
+def sleep_update(flat, body_x, flags, state, pairs, rule):
+    """One step's sleep bookkeeping after the contact pass (see the module: still spells,
+    settled, restless, unsettled); returns how many bodies fell asleep or woke (their
+    inverse masses changed).  ``body_x``: the bodies' own positions, before the contact
+    pass (who touches whom, ``touch_restless``).  One function, not several: each compiled
+    callee would add its own compile time to a cold start."""
+    X, off, touched = flat.x, flat.offset, flat.touched
+    prev, anchor, calm, fast, level = (state.prev, state.anchor, state.calm, state.fast,
+                                       state.level)
+    h, t_sleep = rule.h, rule.t_sleep
+    body_moves(X, prev, anchor, off, flags, state.step2, state.drift2)
+    quick = rule.wake_factor * rule.speed * h       # restless: a particle this far a step
+    room = rule.speed * t_sleep                     # still: no particle this far in a spell
+    for b in range(len(flags)):
+        f = flags[b][SLEEP]
         if f > 0.0:
             level[b] = 0
             continue
-        if drift2[b] <= room2 and f == 0.0:
+        if state.drift2[b] <= room * room and f == 0.0:
             calm[b] += h
         else:                                  # a new still spell starts here
             calm[b] = 0.0
             for k in range(off[b], off[b + 1]):
-                Xa[0, k] = X[0, k]
-                Xa[1, k] = X[1, k]
-                Xa[2, k] = X[2, k]
-        fast[b] = min(fast[b] + 1, 2) if step2[b] > fast2 else 0
+                anchor[0, k] = X[0, k]
+                anchor[1, k] = X[1, k]
+                anchor[2, k] = X[2, k]
+        # restless after two fast steps in a row: when a body falls asleep, the one resting
+        # on it settles by up to g h^2 in one step
+        fast[b] = min(fast[b] + 1, 2) if state.step2[b] > quick * quick else 0
         if fast[b] >= 2 or f < 0.0:
             level[b] = 2
         else:
@@ -189,40 +223,35 @@ def sleep_update(X, Xp, Xa, V, W, Wa, xs, R, B, off, flags, slept, calm, fast, s
     # who touches whom matters only to a sleeping body (woken?) or to a settled awake one
     # (falls asleep?); while bodies pour, none is either and the pair pass is skipped
     decide = False
-    for b in range(nb):
-        if flags[b][3] > 0.0 or (flags[b][3] == 0.0 and calm[b] >= t_sleep):
+    for b in range(len(flags)):
+        if flags[b][SLEEP] > 0.0 or (flags[b][SLEEP] == 0.0 and calm[b] >= t_sleep):
             decide = True
             break
     if not decide:
         return 0
-    touch_restless(xs, off, R, B, pi, pj, npairs, level, up, near)
+    touch_restless(flat, body_x, pairs, level, rule.up, state.near, rule.touch_factor)
     changed = 0
-    for b in range(nb):
-        f = flags[b][3]
-        o0 = off[b]
-        o1 = off[b + 1]
-        if f > 0.0:
-            if near[b] == 2:                   # a restless body touches it: awake
-                flags[b][3] = 0.0
-                slept[b] = 0
-                calm[b] = 0.0
-                for k in range(o0, o1):
-                    W[k] = Wa[k]
-                    Xp[0, k] = X[0, k]
-                    Xp[1, k] = X[1, k]
-                    Xp[2, k] = X[2, k]
-                    Xa[0, k] = X[0, k]
-                    Xa[1, k] = X[1, k]
-                    Xa[2, k] = X[2, k]
-                changed += 1
-        elif allow and f == 0.0 and calm[b] >= t_sleep and near[b] == 0:
-            flags[b][3] = 1.0
-            slept[b] = 1
-            for k in range(o0, o1):
-                W[k] = 0.0
-                V[0, k] = 0.0
-                V[1, k] = 0.0
-                V[2, k] = 0.0
+    for b in range(len(flags)):
+        f = flags[b][SLEEP]
+        if f > 0.0 and state.near[b] == 2:     # a restless body touches it: awake
+            flags[b][SLEEP] = 0.0
+            state.slept[b] = 0
+            calm[b] = 0.0
+            for k in range(off[b], off[b + 1]):
+                flat.inv_mass[k] = flat.awake_inv_mass[k]
+                for axis in range(3):
+                    prev[axis, k] = X[axis, k]
+                    anchor[axis, k] = X[axis, k]
+            changed += 1
+        elif (rule.allow and f == 0.0 and calm[b] >= t_sleep
+              and state.near[b] == 0):         # asleep: infinite mass, at rest, written back
+            flags[b][SLEEP] = 1.0
+            state.slept[b] = 1
+            for k in range(off[b], off[b + 1]):
+                flat.inv_mass[k] = 0.0
+                flat.v[0, k] = 0.0
+                flat.v[1, k] = 0.0
+                flat.v[2, k] = 0.0
             touched[b] = 1
             changed += 1
     return changed
@@ -233,20 +262,27 @@ class Sleep:
     pass; see the module)."""
 
     def __init__(self, flat):
-        nb = max(len(flat.bodies), 1)
+        count = max(len(flat.bodies), 1)
         self.flat = flat
-        self.slept = np.zeros(nb, dtype=np.uint8)  # asleep as of the last step
-        self.calm = np.zeros(nb)                   # seconds below the speed in a row
-        self.fast = np.zeros(nb, dtype=np.uint8)   # steps above the restless speed in a row
-        self.step2 = np.zeros(nb)
-        self.drift2 = np.zeros(nb)
-        self.level = np.zeros(nb, dtype=np.uint8)
-        self.near = np.zeros(nb, dtype=np.uint8)
-        self.Xp = flat.X.copy()
-        self.Xa = flat.X.copy()
-        for b in flat.bodies:                      # a new flat state: every body awake
-            if b._flags[3] > 0.0:
-                b._flags[3] = 0.0
+        self.state = SleepArrays(
+            prev=flat.X.copy(), anchor=flat.X.copy(),
+            slept=np.zeros(count, dtype=np.uint8), calm=np.zeros(count),
+            fast=np.zeros(count, dtype=np.uint8), step2=np.zeros(count),
+            drift2=np.zeros(count), level=np.zeros(count, dtype=np.uint8),
+            near=np.zeros(count, dtype=np.uint8))
+        for body in flat.bodies:                   # a new flat state: every body awake
+            if body._flags[SLEEP] > 0.0:
+                body._flags[SLEEP] = 0.0
+
+    @property
+    def slept(self) -> np.ndarray:
+        """(bodies,) uint8: asleep as of the last step."""
+        return self.state.slept
+
+    @property
+    def calm(self) -> np.ndarray:
+        """(bodies,) seconds each body has been still in a row."""
+        return self.state.calm
 
     def step_state(self) -> tuple:
         """What a step changes and a later step reads (``snapshot``): who sleeps, the still
@@ -259,32 +295,33 @@ class Sleep:
 
     def sync(self):
         """Restore the inverse masses of the bodies woken from outside (before contact)."""
-        f = self.flat
-        if self.slept.any() and sleep_sync(f.flag_list(), self.slept, f.off, f.W, f.Wa,
-                                           self.calm):
-            f.w_version += 1
+        flat = self.flat
+        if self.slept.any() and sleep_sync(flat.flag_list(), self.slept, flat.off, flat.W,
+                                           flat.Wa, self.calm):
+            flat.w_version += 1
 
     def update(self, contact, h, params, gravity):
         """After the contact pass, before the scatter (``sleep_update``)."""
-        f = self.flat
-        g = float(np.linalg.norm(gravity))
-        up = -gravity / g if g > 0.0 else np.zeros(3)
-        if sleep_update(f.X, self.Xp, self.Xa, f.V, f.W, f.Wa, f._xs, f.R, f.B, f.off,
-                        f.flag_list(), self.slept, self.calm, self.fast, self.step2,
-                        self.drift2,
-                        self.level, self.near, contact._pi, contact._pj, contact.npairs,
-                        up, float(h), float(params.sleep_speed), float(params.sleep_time),
-                        bool(params.sleep), f.touched):
-            f.w_version += 1
+        flat = self.flat
+        norm = float(np.linalg.norm(gravity))
+        up = -gravity / norm if norm > 0.0 else np.zeros(3)
+        arrays = FlatArrays(x=flat.X, v=flat.V, inv_mass=flat.W, awake_inv_mass=flat.Wa,
+                            radius=flat.R, body=flat.B, offset=flat.off, touched=flat.touched)
+        rule = SleepRule(up=up, h=float(h), speed=float(params.sleep_speed),
+                         t_sleep=float(params.sleep_time), allow=bool(params.sleep))
+        pairs = Pairs(contact._pi, contact._pj, contact.npairs)
+        if sleep_update(arrays, flat._xs, flat.flag_list(), self.state, pairs, rule):
+            flat.w_version += 1
 
     def wake_all(self):
         """Every body awake (the world changed); inverse masses restored."""
-        for b in self.flat.bodies:
-            if b._flags[3] > 0.0:
-                b._flags[3] = 0.0
+        for body in self.flat.bodies:
+            if body._flags[SLEEP] > 0.0:
+                body._flags[SLEEP] = 0.0
         self.sync()
         self.calm[:] = 0.0
 
 
-__all__ = ['Sleep', 'TOUCH_FACTOR', 'WAKE_FACTOR', 'all_asleep', 'body_moves', 'sleep_sync',
-           'sleep_update', 'touch_restless']
+__all__ = ['FlatArrays', 'Pairs', 'Sleep', 'SleepArrays', 'SleepRule', 'TOUCH_FACTOR',
+           'WAKE_FACTOR', 'all_asleep', 'body_moves', 'sleep_sync', 'sleep_update',
+           'touch_restless']
