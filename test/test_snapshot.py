@@ -27,7 +27,7 @@ SCRATCH = {
     'Contact': {'_active', '_cbuf', '_ibuf', '_tg', '_bc', '_biv', '_bom', '_vb', '_zlo',
                 '_cnt', '_hb', '_srt', '_skey', '_sco', '_P', '_sb', '_cb', '_moved', '_dv',
                 '_pend', '_cand', '_cptr', '_order', '_act_eff', 'fast', '_ti', '_tj', '_pcnt'},
-    'Sleep': {'step2', 'drift2', 'level', 'near'},
+    'Sleep': {'state.step2', 'state.drift2', 'state.level', 'state.near'},
     'FlatState': {'touched'},
     'Pack': {'ptrs', 'scratch'},
 }
@@ -48,6 +48,8 @@ def walk(world) -> dict:
         seen.add(id(obj))
         if isinstance(obj, np.ndarray):
             out[path] = obj.tobytes()
+        elif isinstance(obj, tuple) and hasattr(obj, '_fields'):     # a named tuple
+            stack.extend((v, f'{path}.{k}') for k, v in zip(obj._fields, obj))
         elif isinstance(obj, (list, tuple)):
             stack.extend((v, f'{path}[{k}]') for k, v in enumerate(obj))
         elif isinstance(obj, dict):
@@ -203,7 +205,7 @@ def test_every_value_a_step_leaves_different_is_named_state_or_scratch(scene, le
 def test_a_forgotten_name_is_found(monkeypatch):
     """The check above fails where a class leaves out one of its state arrays."""
     from sm_ros.core.sleep import Sleep
-    monkeypatch.setattr(Sleep, 'step_state', lambda self: ('slept', 'calm', 'fast', 'Xp'))
+    monkeypatch.setattr(Sleep, 'step_state', lambda self: ('slept', 'calm', 'fast', 'prev'))
     world, twin, h = _lead('stack', 150)
     snap = Snapshot()
     snap.save(world)
@@ -214,7 +216,7 @@ def test_a_forgotten_name_is_found(monkeypatch):
         w.step(h)
     mine, theirs = walk(world), walk(twin)
     differ = [p for p in set(mine) | set(theirs) if mine.get(p) != theirs.get(p)]
-    assert [p for p in differ if _unnamed(p)] == ['World/World._sleep/Sleep.Xa']
+    assert [p for p in differ if _unnamed(p)] == ['World/World._sleep/Sleep.state.anchor']
 
 
 def test_a_load_after_the_bodies_were_packed_again_writes_into_their_new_rows():

@@ -83,7 +83,7 @@ class ColliderSet:
     def step_state(self) -> tuple:
         """What a step changes and a later step reads (``snapshot``): poses, motion, the
         rows the pass reads, the accumulated impulses and their time."""
-        return ('pos', 'quat', 'mode', 'mv', 'motion', 'rows', 'imp', 'imp_time')
+        return ('pos', 'quat', 'mode', 'moves', 'motion', 'rows', 'imp', 'imp_time')
 
     def __len__(self):
         return len(self.items)

@@ -284,10 +284,25 @@ class Sleep:
         """(bodies,) seconds each body has been still in a row."""
         return self.state.calm
 
+    @property
+    def fast(self) -> np.ndarray:
+        """(bodies,) uint8: steps above the restless speed in a row."""
+        return self.state.fast
+
+    @property
+    def prev(self) -> np.ndarray:
+        """(3, N) positions after the last step."""
+        return self.state.prev
+
+    @property
+    def anchor(self) -> np.ndarray:
+        """(3, N) positions where each body's still spell began."""
+        return self.state.anchor
+
     def step_state(self) -> tuple:
         """What a step changes and a later step reads (``snapshot``): who sleeps, the still
         spells and restless counts, the last positions and the spells' anchors."""
-        return ('slept', 'calm', 'fast', 'Xp', 'Xa')
+        return ('slept', 'calm', 'fast', 'prev', 'anchor')
 
     def all_asleep(self) -> bool:
         """Whether every body is asleep (one compiled call over the flags)."""
