@@ -8,8 +8,8 @@ in one row each of a world-level array ``Pack.P`` (nb, NCOL): the body's own att
 (``_ref``, ``_quat``, ``_part``, ...) become views of its row, so every reader of the body
 sees the state the packed step writes, and the compiled loop reads a body's state from
 ``P[b]`` with no array fetched but the four particle arrays (x, v, x0, m), viewed from
-their addresses (``Pack.ptrs``, ``jit.address_view``).  Scratch (3x3, 4x4, ...) is
-allocated once per pack, not per body.
+the pack's typed list (``Pack.arrays``).  Scratch (3x3, 4x4, ...) is allocated once per
+call, not per body.
 
 One pass over a body's particles does it all: in blocks of ``FUSED_BLOCK`` particles,
 the damping (the rigid field of the last pass's sums), Eq. 13-14, the static colliders,
@@ -29,6 +29,7 @@ copies, a user's second world) each keep their packs while they step in turn.
 """
 import numpy as np
 from numba import njit
+from numba.typed import List as TypedList
 
 from .kernels import (JIT, NDAMP, STRETCH_LIMIT, _collide_range, det3, extract_rotation,
                       limit_turn, unit_det_match_warm)
@@ -36,7 +37,7 @@ from .kernels.damping import damp_acc_range, damp_sums_range
 from .kernels.colliders import ground_range, ground_range_sums
 from .kernels.integrate import _acc_single, _add_rest_sums, _int_single_fused
 from .kernels.flags import DAMP_SUMS, DIRTY, ERR_STALE, SLEEP
-from .kernels.jit import address_view, finite, scratch_view
+from .kernels.jit import finite
 from .kernels.limits import limit_speed_range
 from .kernels.linalg import sym3_solve
 
@@ -67,18 +68,6 @@ def _columns():
 
 
 COLS, NCOL = _columns()
-#: The work arrays of ``_step_chunk`` (name, shape), views of ``Pack.scratch`` one after
-#: the other (``SCRATCH`` numbers); their offsets ``S_*`` follow from the shapes.
-SCRATCH_LAYOUT = (('part', (1, 12)), ('ref', (1, 3)), ('pnt', (1, 3)), ('quat', (4,)),
-                  ('rest_lin', (1, 3, 3)), ('rest_off', (1, 3)), ('goal_lin', (1, 3, 3)),
-                  ('goal_off', (1, 3)), ('m3', (4, 3, 3)), ('m39', (3, 9)), ('n4', (4, 4)),
-                  ('v4', (4, 4)), ('nmat', (3, 3)), ('udv', (3, 3)), ('dmp', (1, 6)),
-                  ('lim_lin', (1, 13)), ('lim_w', (1, 6)), ('acc', (3,)),
-                  ('dpart', (1, NDAMP)))
-_SCRATCH_OFFSETS = np.cumsum([0] + [int(np.prod(shape)) for _, shape in SCRATCH_LAYOUT])
-SCRATCH = int(_SCRATCH_OFFSETS[-1])
-(S_PART, S_REF, S_PNT, S_QUAT, S_RLIN, S_ROFF, S_GLIN, S_GOFF, S_M3, S_M39, S_N4, S_V4,
- S_NMAT, S_UDV, S_DMP, S_LLIN, S_LW, S_ACC, S_DPART) = (int(o) for o in _SCRATCH_OFFSETS[:-1])
 #: Row entries a body built for threads holds per chunk (leading axis: chunks).
 _CHUNKED = ('_part', '_err', '_dpart')
 # the first column of each STATE entry (C_FLAGS: the body's flags, ``kernels.flags``)
@@ -95,12 +84,8 @@ class Pack:
         self.h = h
         self.P = np.zeros((max(nb, 1), NCOL))
         self.counts = np.zeros((max(nb, 1), 2), dtype=np.int64)
-        #: per body the addresses of x, v, x0 as (3, N) blocks and of the masses, and N
-        #: (``jit.address_view``); ``_held`` keeps those arrays alive
-        self.ptrs = np.zeros((nb, 5), dtype=np.int64)
-        self._held = []
-        #: ``SCRATCH`` numbers for ``_step_chunk``
-        self.scratch = np.zeros((1, SCRATCH))
+        #: per body its particle arrays (x, v, x0 as (3, N) blocks, the masses read-only)
+        self.arrays = TypedList()
         #: set when one of the bodies was packed since into another pack
         self.stale = False
         #: ``_resolve``'s compiled entry of the one-chunk call, and what it was resolved for
@@ -145,17 +130,18 @@ class Pack:
                         or not a.flags['C_CONTIGUOUS']):
                     raise AssertionError(f'{body.name}: particle array {a.shape} '
                                          f'{a.dtype} is not a C-contiguous float64 {shape}')
-            self._held.append(arrays)
-            self.ptrs[b] = [a.ctypes.data for a in arrays] + [n]
+            mass = body._m.view()
+            mass.flags.writeable = False       # one element type for every body's masses
+            self.arrays.append(arrays[:3] + (mass,))
 
     def __len__(self):
         return len(self.bodies)
 
     def __reduce__(self):
-        # ``ptrs`` holds the addresses of the bodies' arrays: a copy would step them, not
-        # the copies' (worlds and bodies drop their packs when copied and pack again)
-        raise TypeError("a Pack holds the addresses of its bodies' arrays and is not "
-                        'copied: pack the copied bodies again')
+        # ``arrays`` holds the bodies' own particle arrays: a copy would step them, not the
+        # copies' (worlds and bodies drop their packs when copied and pack again)
+        raise TypeError("a Pack holds its bodies' particle arrays and is not copied: pack "
+                        'the copied bodies again')
 
     def step(self, h, gravity, has_col, ground, boxes, spheres, thresh):
         """Step every body of the pack once, on the calling thread (``step_packed``)."""
@@ -163,8 +149,8 @@ class Pack:
         if (call is None or call[1] is not gravity or call[2] is not ground
                 or call[3] is not boxes or call[4] is not spheres):
             call = self._entry = self._resolve(gravity, ground, boxes, spheres)
-        call[0](self.P, self.counts, self.ptrs, self.scratch, float(h), gravity,
-                bool(has_col), ground, boxes, spheres, float(thresh))
+        call[0](self.P, self.counts, self.arrays, float(h), gravity, bool(has_col), ground,
+                boxes, spheres, float(thresh))
 
     def _resolve(self, gravity, ground, boxes, spheres):
         """(compiled entry of ``step_packed`` for these arrays, the arrays): the entry point
@@ -182,8 +168,8 @@ class Pack:
         entry = fn
         overloads = getattr(fn, 'overloads', None)
         if overloads is not None:
-            args = (self.P, self.counts, self.ptrs, self.scratch, 0.0, gravity, False,
-                    ground, boxes, spheres, 0.0)
+            args = (self.P, self.counts, self.arrays, 0.0, gravity, False, ground, boxes,
+                    spheres, 0.0)
             sig = tuple(fn.typeof_pyval(a) for a in args)
             if sig not in overloads:
                 fn.compile(sig)
@@ -192,67 +178,48 @@ class Pack:
 
 
 @njit(**JIT)
-def step_packed(P, counts, ptrs, scratch, h, gravity, has_col, ground, boxes, spheres,
-                thresh):
-    """Every body of a pack, on the calling thread (``scratch``: a row of ``SCRATCH``).
+def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, thresh):
+    """Every body of a pack, on the calling thread (``arrays``: ``Pack.arrays``).
 
     A pack is not spread over threads: its bodies are small, and a body's particle pass
-    is not split (its sums would then depend on the split)."""
-    _step_chunk(P, counts, ptrs, scratch[0], 0, ptrs.shape[0], h, gravity, has_col, ground,
-                boxes, spheres, thresh)
-
-
-@njit(**JIT)
-def _step_chunk(P, counts, ptrs, scr, lo, hi, h, gravity, has_col, ground, boxes, spheres,
-                thresh):
-    """Bodies lo..hi with one set of scratch buffers (``scr``: ``SCRATCH`` numbers, the
-    3x3 and 4x4 work arrays of the kernels called here, viewed once a call).
+    is not split (its sums would then depend on the split).
 
     A body's one-cluster shape match is written out here on scalars read from its row
     (what ``goals.solve_clusters_warm`` does for one cluster of one chunk) instead of
-    calling the general kernel, which takes 26 arrays (each passed as a struct with a
-    reference count taken and given back at every call) and loops over clusters and
-    chunks; here only Horn's rotation
-    (``extract_rotation``) and the linear mode's minimiser (``unit_det_match_warm``, warm
-    started from the body's last eigenvectors ``_udv``, as ``Body._step`` and the
-    record step do) are calls."""
-    # scratch: views of ``Pack.scratch`` (``jit.scratch_view``: no allocation, no reference
-    # count), zeroed as fresh arrays would be
-    for j in range(SCRATCH):
-        scr[j] = 0.0
-    part0 = scratch_view(scr, S_PART, (1, 12))
-    ref = scratch_view(scr, S_REF, (1, 3))
-    pnt = scratch_view(scr, S_PNT, (1, 3))
-    quat1 = scratch_view(scr, S_QUAT, (4,))
-    rest_lin = scratch_view(scr, S_RLIN, (1, 3, 3))
-    rest_off = scratch_view(scr, S_ROFF, (1, 3))
-    goal_lin = scratch_view(scr, S_GLIN, (1, 3, 3))
-    goal_off = scratch_view(scr, S_GOFF, (1, 3))
-    m3 = scratch_view(scr, S_M3, (4, 3, 3))
+    calling the general kernel, which takes 26 arrays and loops over clusters and chunks;
+    here only Horn's rotation (``extract_rotation``) and the linear mode's minimiser
+    (``unit_det_match_warm``, warm started from the body's last eigenvectors ``_udv``, as
+    ``Body._step`` and the record step do) are calls.  The 3x3 and 4x4 work arrays of
+    those calls are allocated once a call, not once a body."""
+    part0 = np.zeros((1, 12))
+    ref = np.zeros((1, 3))
+    pnt = np.zeros((1, 3))
+    quat1 = np.zeros(4)
+    rest_lin = np.zeros((1, 3, 3))
+    rest_off = np.zeros((1, 3))
+    goal_lin = np.zeros((1, 3, 3))
+    goal_off = np.zeros((1, 3))
+    m3 = np.zeros((4, 3, 3))
     ma, mb, mc, md = m3[0], m3[1], m3[2], m3[3]
-    m39 = scratch_view(scr, S_M39, (3, 9))
+    m39 = np.zeros((3, 9))
     w1, w2 = m39[:, 3:6], m39[:, 6:9]
-    n4 = scratch_view(scr, S_N4, (4, 4))
-    v4 = scratch_view(scr, S_V4, (4, 4))
+    n4 = np.zeros((4, 4))
+    v4 = np.zeros((4, 4))
     wa, wv = n4[:3, :3], v4[:3, :3]
-    nmat0 = scratch_view(scr, S_NMAT, (3, 3))
-    udv0 = scratch_view(scr, S_UDV, (3, 3))
-    dmp = scratch_view(scr, S_DMP, (1, 6))
-    lim_lin = scratch_view(scr, S_LLIN, (1, 13))
-    lim_w = scratch_view(scr, S_LW, (1, 6))
-    acc = scratch_view(scr, S_ACC, (3,))
-    dpart0 = scratch_view(scr, S_DPART, (1, NDAMP))
+    nmat0 = np.zeros((3, 3))
+    udv0 = np.zeros((3, 3))
+    dmp = np.zeros((1, 6))
+    lim_lin = np.zeros((1, 13))
+    lim_w = np.zeros((1, 6))
+    acc = np.zeros(3)
+    dpart0 = np.zeros((1, NDAMP))
     dp = dpart0[0]
-    for b in range(lo, hi):
+    for b in range(len(arrays)):
         row = P[b]
         if row[C_FLAGS + SLEEP] > 0.0:         # asleep (``sm_ros.core.sleep``): not stepped
             continue
-        # the body's particle arrays (``Pack.ptrs``: no typed list, no reference counts)
-        n = ptrs[b, 4]
-        xt = address_view(ptrs[b, 0], (3, n))
-        vt = address_view(ptrs[b, 1], (3, n))
-        x0t = address_view(ptrs[b, 2], (3, n))
-        mass = address_view(ptrs[b, 3], (n,))
+        xt, vt, x0t, mass = arrays[b]
+        n = mass.shape[0]
         x, v, x0 = xt.T, vt.T, x0t.T
         # ---- the body's parameters and the state the pass reads as arrays (rest map, ref)
         for j in range(3):
@@ -428,11 +395,11 @@ def _step_chunk(P, counts, ptrs, scr, lo, hi, h, gravity, has_col, ground, boxes
             row[C_DPART + j] = dpart0[0, j]
 
 
-@njit(**JIT)
+@njit(inline='always', **JIT)
 def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp, k_damp, dmp,
           ref, pnt, rest_lin, rest_off, v_max, has_col, ground, boxes, spheres, thresh, sums,
           dsums):
-    """Particles lo..hi of a one-cluster body (see ``_step_chunk``); the next step's sums
+    """Particles lo..hi of a one-cluster body (see ``step_packed``); the next step's sums
     are added to ``sums`` (12) and, with ``damp``, ``dsums`` (its point set by the caller).
     Returns (shape-error sum, capped speeds).
 
@@ -449,21 +416,14 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
     capped = 0
     k0, k1, k2 = pnt[0, 0], pnt[0, 1], pnt[0, 2]
     boxed = has_col and (boxes.shape[0] > 0 or spheres.shape[0] > 0)
-    grounded = has_col and ground[0] > 0.5
+    # without a ground no height is below -inf
+    gz = ground[1] if has_col and ground[0] > 0.5 else -np.inf
     step = FUSED_BLOCK
     for bs in range(lo, hi, step):
         be = min(bs + step, hi)
-        # two call sites: the loop without a ground is compiled without the ground's test
-        if grounded:
-            e, over, low = _int_single_fused(bs, be, x, v, x0, mass, wuni, goal_lin, goal_off,
-                                             alpha, h, acc, damp, k_damp, dmp, ref, pnt,
-                                             rest_lin, rest_off, v_max, ground[1], boxed, sums,
-                                             dsums)
-        else:
-            e, over, low = _int_single_fused(bs, be, x, v, x0, mass, wuni, goal_lin, goal_off,
-                                             alpha, h, acc, damp, k_damp, dmp, ref, pnt,
-                                             rest_lin, rest_off, v_max, None, boxed, sums,
-                                             dsums)
+        e, over, low = _int_single_fused(bs, be, x, v, x0, mass, wuni, goal_lin, goal_off,
+                                         alpha, h, acc, damp, k_damp, dmp, ref, pnt, rest_lin,
+                                         rest_off, v_max, gz, boxed, sums, dsums)
         err2 += e
         if low and not (over or boxed):
             # the loop added its sums: the ground's projection, and what it changed in them

@@ -108,9 +108,10 @@ def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, th
     HELPERS.run(min(threads, len(bodies)) - 1, step_bodies_claimed, args, before)
 
 
-@njit(**JIT)
+@njit(inline='always', **JIT)
 def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
-    """``Body._step`` for one record."""
+    """``Body._step`` for one record (inlined into ``step_bodies_claimed`` by Numba: one
+    compiled function, not a second one linked and optimised again into it)."""
     (xt, vt, x0t, mass, ptr, cl, rest_lin, rest_off, part, wsum, sum_q, ref, quat, aqq3,
      aqq9, scale, trans, goal_lin, goal_off, apq, accbuf, m3a, m3b, m3c, m3d, m39, n4, v4,
      nmat, cdet, acc, ang, com, err, dpart, dmp, dref, dacc, lin, w3, sptr, scl, scnt,
