@@ -209,8 +209,9 @@ def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, 
         for j in range(12):
             part0[0, j] = 0.0 if dirty else row[C_PART + j]
         if dirty:
-            _acc_single(start=0, end=n, quad=False, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
-                        rest_off=rest_off, ref=ref, sums=part0)
+            # start as int64, not the literal 0: the specialisation ``_pass`` calls
+            _acc_single(start=np.int64(0), end=n, quad=False, x=x, x0=x0, mass=mass,
+                        rest_lin=rest_lin, rest_off=rest_off, ref=ref, sums=part0)
         q0, q1, q2, q3 = _goal_map(row, work)
         turned = 0
         turn = row[C_TURN]
@@ -261,12 +262,14 @@ def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, 
 def _work():
     """The work arrays of ``step_packed``, zeroed: (part, ref, pnt, quat, rest_lin,
     rest_off, goal_lin, goal_off, m3 (four 3x3), m39, n4, v4, nmat, udv, dmp, lim_lin,
-    lim_w, acc, dpart)."""
+    lim_w, acc, dpart, wa, wv): C-contiguous each, the layout the body build's calls of
+    the eigen-solvers use (one specialisation of them)."""
     return (np.zeros((1, 12)), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(4),
             np.zeros((1, 3, 3)), np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)),
             np.zeros((4, 3, 3)), np.zeros((3, 9)), np.zeros((4, 4)), np.zeros((4, 4)),
             np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((1, 6)), np.zeros((1, 13)),
-            np.zeros((1, 6)), np.zeros(3), np.zeros((1, NDAMP)))
+            np.zeros((1, 6)), np.zeros(3), np.zeros((1, NDAMP)), np.zeros((3, 3)),
+            np.zeros((3, 3)))
 
 
 @njit(inline='always', **JIT)
@@ -286,7 +289,7 @@ def _goal_map(row, work):
     m3, m39, n4, v4, nmat0, udv0 = work[8], work[9], work[10], work[11], work[12], work[13]
     ma, mb, mc = m3[0], m3[1], m3[2]
     w1, w2 = m39[:, 3:6], m39[:, 6:9]
-    wa, wv = n4[:3, :3], v4[:3, :3]
+    wa, wv = work[19], work[20]
     beta, mode = row[C_BETA], int(row[C_MODE])
     # x_cm = ref + sum w d / W, A_pq-hat = sum w d q^T - (x_cm - ref) (sum w q)^T, R (Horn,
     # ``extract_rotation``), linear: B (``unit_det_match_warm``, warm started from the
