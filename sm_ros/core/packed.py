@@ -209,8 +209,9 @@ def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, 
         for j in range(12):
             part0[0, j] = 0.0 if dirty else row[C_PART + j]
         if dirty:
-            # start as int64, not the literal 0: the specialisation ``_pass`` calls
-            _acc_single(start=np.int64(0), end=n, quad=False, x=x, x0=x0, mass=mass,
+            # int64 and bool arguments, not the literals 0 and False: the specialisation
+            # ``_pass`` and ``integrate._acc_range`` call (one compiled copy)
+            _acc_single(start=np.int64(0), end=n, quad=np.bool_(False), x=x, x0=x0, mass=mass,
                         rest_lin=rest_lin, rest_off=rest_off, ref=ref, sums=part0)
         q0, q1, q2, q3 = _goal_map(row, work)
         turned = 0
@@ -234,7 +235,7 @@ def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, 
             if dirty or turned or not row[C_FLAGS + DAMP_SUMS] > 0.0:
                 for j in range(NDAMP):
                     dpart0[0, j] = 0.0
-                damp_acc_range(0, n, x, v, mass, np.zeros(0, dtype=np.int32), dpart0)
+                damp_acc_range(np.int64(0), n, x, v, mass, np.zeros(0, dtype=np.int32), dpart0)
             else:
                 for j in range(NDAMP):
                     dpart0[0, j] = row[C_DPART + j]
@@ -247,8 +248,10 @@ def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, 
         # about that ref lose the body to rounding); undamped, ref (no velocity sums)
         for j in range(3):
             pnt[0, j] = ref[0, j] + (h * (dmp[0, j] + h * acc[j]) if damp else 0.0)
-        part0[0, :] = 0.0
-        dpart0[0, :] = 0.0
+        for j in range(12):
+            part0[0, j] = 0.0
+        for j in range(NDAMP):
+            dpart0[0, j] = 0.0
         for j in range(3):
             dp[15 + j] = pnt[0, j]
         dp[18] = 1.0
@@ -330,7 +333,7 @@ def _goal_map(row, work):
                 udv0[i // 3, i % 3] = row[C_UDV + i]
             lin_b = unit_det_match_warm(apq=ma, nmat=nmat0, c_s=s_k * c_det, rot=mb,
                                         out=mc, w1=w1, w2=w2, wa=wa, wv=wv,
-                                        limit=STRETCH_LIMIT, vw=udv0, warm=True)
+                                        limit=STRETCH_LIMIT, vw=udv0, warm=np.bool_(True))
             for i in range(9):
                 row[C_UDV + i] = udv0[i // 3, i % 3]
     # T = s (beta B + (1 - beta) R) or s R, then the goal map
@@ -463,7 +466,7 @@ def _pass(lo, hi, x, v, x0, mass, row, h, work, has_col, ground, boxes, spheres,
             # (``colliders.contact_velocity``)
             if over:
                 capped += limit_speed_range(bs, be, x, v, h, v_max)
-            _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass,
+            _acc_single(start=bs, end=be, quad=np.bool_(False), x=x, x0=x0, mass=mass,
                         rest_lin=rest_lin, rest_off=rest_off, ref=pnt, sums=sums)
             if damp:
                 # the damping sums of what they left about pnt (``damp_acc_range``'s rows

@@ -1,8 +1,8 @@
 """One compiled call steps the bodies of a world (Eq. 7-14, 23, damping, limits).
 
-``World.step`` used to call 4-6 kernels per body and step from Python; each call of a
-Numba function with 10-30 array arguments costs several microseconds in the dispatcher,
-while a 144-particle body's own work is about one.  ``step_single_bodies`` runs the same
+Each call of a Numba function with 10-30 array arguments from Python costs several
+microseconds in the dispatcher, while a 144-particle body's own work is about one, and a
+body's step calls 4-6 kernels.  ``step_single_bodies`` runs the same
 kernels, in the same order and with the same arguments as ``Body._step``, for every body
 of a typed list of per-body records, so the Python cost of a step no longer grows with the
 number of such bodies.  It covers set-layout bodies (and one-cluster quadratic ones)
