@@ -143,7 +143,8 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
                         aqq9=aqq9, rest_lin=rest_lin, rest_off=rest_off, scale=scale,
                         trans=trans, goal_lin=goal_lin, goal_off=goal_off, mode=mode,
                         beta=beta, apq=apq, acc=accbuf, m3a=m3a, m3b=m3b, m3c=m3c, m39=m39,
-                        n4=n4, v4=v4, nmat=nmat, cdet=cdet, udv=udv, warm=True)
+                        n4=n4, v4=v4, nmat=nmat, cdet=cdet, udv=udv,
+                        warm=np.bool_(True))       # bool, not a literal: Body._step's copy
     turned = 0
     if turn > 0.0:
         # |q_prev . q| = cos(angle / 2), as Body._step
