@@ -135,7 +135,7 @@ def test_fused_set_pass_matches_its_numpy_twin(masses, damping, cap):
         sid=st.sid, runs=st.runs, gm=st.gm, sref=st.ref, alpha_h=0.6 / H, h=H,
         hx=H * acc[0], hy=H * acc[1], hz=H * acc[2], damp=damping > 0.0, k_damp=damping,
         dmp=dmp, v_max=cap, sums=sums, dsums=dsums, has_col=False, ground=np.zeros(4),
-        boxes=np.zeros((0, 8)), spheres=np.zeros((0, 6)), thresh=1e-3, gz=None)
+        boxes=np.zeros((0, 8)), spheres=np.zeros((0, 6)), thresh=1e-3, gz=-np.inf)
     tx, tv, tsums, tds, terr, tcapped = _twin(
         x0, v0, np.asarray(st.y0), body._m, wuni, st.sid, st.runs, st.gm, st.ref, 0.6, H, acc,
         damping > 0.0, damping, dmp, cap, nsets)

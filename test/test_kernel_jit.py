@@ -1,45 +1,11 @@
-"""The compilation helpers of ``sm_ros.core.kernels.jit``: the scratch views that take no
-reference count (``scratch_view``), and the packed step's compiled entry
-(``packed.Pack._resolve``) that they serve."""
+"""The packed step's compiled entry (``packed.Pack._resolve``) and a pack's refusal to be
+copied."""
 
 import numpy as np
 import pytest
-from numba import njit
 
 import sm_ros.core.packed as packed
 from sm_ros.core import Ground, World
-from sm_ros.core.kernels.jit import scratch_view
-
-
-@njit
-def _views(buf, start):
-    a = scratch_view(buf, start, (2, 3))
-    b = scratch_view(buf, start + 6, (1, 2, 2))
-    a[1, 2] = -1.0
-    b[0, 1, 0] = -2.0
-    return a.sum() + b.sum()
-
-
-@njit
-def _view_past(buf, start, n):
-    return scratch_view(buf, start, (n,)).sum()
-
-
-def test_scratch_view_reads_and_writes_the_buffer_and_refuses_past_its_end():
-    """The views are the buffer's elements (C order, writes go through), and a view past
-    either end of the buffer is an IndexError, not a read of other memory."""
-    buf = np.arange(14.0)
-    want = buf.copy()
-    want[3 + 5] = -1.0                      # a[1, 2]: element 5 from the start
-    want[3 + 6 + 2] = -2.0                  # b[0, 1, 0]: element 2 of b
-    got = _views(buf, 3)
-    assert np.array_equal(buf, want)
-    assert got == want[3:13].sum()
-    assert _view_past(buf, 0, 14) == buf.sum()
-    with pytest.raises(IndexError):
-        _view_past(buf, 1, 14)
-    with pytest.raises(IndexError):
-        _view_past(buf, -1, 2)
 
 
 def _world():
@@ -87,7 +53,7 @@ def test_pack_entry_follows_the_colliders_and_steps_as_the_dispatcher():
 
 
 def test_a_copied_world_steps_its_own_bodies_and_a_pack_is_not_copied():
-    """A pack holds the addresses of its bodies' particle arrays (``Pack.ptrs``): copying
+    """A pack holds its bodies' particle arrays (``Pack.arrays``): copying
     it is refused, and a deep copy of a stepped world packs its own bodies again, so that
     stepping the copy leaves the original's state as it was (and both step alike)."""
     import copy
@@ -96,7 +62,7 @@ def test_a_copied_world_steps_its_own_bodies_and_a_pack_is_not_copied():
     for _ in range(3):
         world.step(h)
     pack = world._split_bodies(h)[0]
-    with pytest.raises(TypeError, match='addresses'):
+    with pytest.raises(TypeError, match='particle arrays'):
         copy.deepcopy(pack)
     twin = copy.deepcopy(world)
     x, v = world.bodies[0].x.copy(), world.bodies[0].v.copy()

@@ -8,8 +8,8 @@ in one row each of a world-level array ``Pack.P`` (nb, NCOL): the body's own att
 (``_ref``, ``_quat``, ``_part``, ...) become views of its row, so every reader of the body
 sees the state the packed step writes, and the compiled loop reads a body's state from
 ``P[b]`` with no array fetched but the four particle arrays (x, v, x0, m), viewed from
-their addresses (``Pack.ptrs``, ``jit.address_view``).  Scratch (3x3, 4x4, ...) is
-allocated once per pack, not per body.
+the pack's typed list (``Pack.arrays``).  Scratch (3x3, 4x4, ...) is allocated once per
+call, not per body.
 
 One pass over a body's particles does it all: in blocks of ``FUSED_BLOCK`` particles,
 the damping (the rigid field of the last pass's sums), Eq. 13-14, the static colliders,
@@ -29,6 +29,7 @@ copies, a user's second world) each keep their packs while they step in turn.
 """
 import numpy as np
 from numba import njit
+from numba.typed import List as TypedList
 
 from .kernels import (JIT, NDAMP, STRETCH_LIMIT, _collide_range, det3, extract_rotation,
                       limit_turn, unit_det_match_warm)
@@ -36,7 +37,7 @@ from .kernels.damping import damp_acc_range, damp_sums_range
 from .kernels.colliders import ground_range, ground_range_sums
 from .kernels.integrate import _acc_single, _add_rest_sums, _int_single_fused
 from .kernels.flags import DAMP_SUMS, DIRTY, ERR_STALE, SLEEP
-from .kernels.jit import address_view, finite, scratch_view
+from .kernels.jit import finite
 from .kernels.limits import limit_speed_range
 from .kernels.linalg import sym3_solve
 
@@ -67,18 +68,6 @@ def _columns():
 
 
 COLS, NCOL = _columns()
-#: The work arrays of ``_step_chunk`` (name, shape), views of ``Pack.scratch`` one after
-#: the other (``SCRATCH`` numbers); their offsets ``S_*`` follow from the shapes.
-SCRATCH_LAYOUT = (('part', (1, 12)), ('ref', (1, 3)), ('pnt', (1, 3)), ('quat', (4,)),
-                  ('rest_lin', (1, 3, 3)), ('rest_off', (1, 3)), ('goal_lin', (1, 3, 3)),
-                  ('goal_off', (1, 3)), ('m3', (4, 3, 3)), ('m39', (3, 9)), ('n4', (4, 4)),
-                  ('v4', (4, 4)), ('nmat', (3, 3)), ('udv', (3, 3)), ('dmp', (1, 6)),
-                  ('lim_lin', (1, 13)), ('lim_w', (1, 6)), ('acc', (3,)),
-                  ('dpart', (1, NDAMP)))
-_SCRATCH_OFFSETS = np.cumsum([0] + [int(np.prod(shape)) for _, shape in SCRATCH_LAYOUT])
-SCRATCH = int(_SCRATCH_OFFSETS[-1])
-(S_PART, S_REF, S_PNT, S_QUAT, S_RLIN, S_ROFF, S_GLIN, S_GOFF, S_M3, S_M39, S_N4, S_V4,
- S_NMAT, S_UDV, S_DMP, S_LLIN, S_LW, S_ACC, S_DPART) = (int(o) for o in _SCRATCH_OFFSETS[:-1])
 #: Row entries a body built for threads holds per chunk (leading axis: chunks).
 _CHUNKED = ('_part', '_err', '_dpart')
 # the first column of each STATE entry (C_FLAGS: the body's flags, ``kernels.flags``)
@@ -94,13 +83,10 @@ class Pack:
         self.bodies = list(bodies)
         self.P = np.zeros((max(nb, 1), NCOL))
         self.counts = np.zeros((max(nb, 1), 2), dtype=np.int64)
-        #: per body the addresses of x, v, x0 as (3, N) blocks and of the masses, and N
-        #: (``jit.address_view``); ``_held`` keeps those arrays alive
-        self.ptrs = np.zeros((nb, 5), dtype=np.int64)
-        self._held = []
-        #: ``SCRATCH`` numbers for ``_step_chunk``
-        self.scratch = np.zeros((1, SCRATCH))
-        self.stale = False          # set when a body was packed since into another pack
+        #: per body its particle arrays (x, v, x0 as (3, N) blocks, the masses read-only)
+        self.arrays = TypedList()
+        #: set when one of the bodies was packed since into another pack
+        self.stale = False
         #: ``_resolve``'s compiled entry of the one-chunk call, and what it was resolved for
         self._entry = None
         self.retime(h)
@@ -139,8 +125,9 @@ class Pack:
                         or not a.flags['C_CONTIGUOUS']):
                     raise AssertionError(f'{body.name}: particle array {a.shape} '
                                          f'{a.dtype} is not a C-contiguous float64 {shape}')
-            self._held.append(arrays)
-            self.ptrs[b] = [a.ctypes.data for a in arrays] + [n]
+            mass = body._m.view()
+            mass.flags.writeable = False       # one element type for every body's masses
+            self.arrays.append(arrays[:3] + (mass,))
 
     def retime(self, h):
         """The parameter columns for steps of ``h``; the rows' state stays."""
@@ -156,10 +143,10 @@ class Pack:
         return len(self.bodies)
 
     def __reduce__(self):
-        # ``ptrs`` holds the addresses of the bodies' arrays: a copy would step them, not
-        # the copies' (worlds and bodies drop their packs when copied and pack again)
-        raise TypeError("a Pack holds the addresses of its bodies' arrays and is not "
-                        'copied: pack the copied bodies again')
+        # ``arrays`` holds the bodies' own particle arrays: a copy would step them, not the
+        # copies' (worlds and bodies drop their packs when copied and pack again)
+        raise TypeError("a Pack holds its bodies' particle arrays and is not copied: pack "
+                        'the copied bodies again')
 
     def step(self, h, gravity, has_col, ground, boxes, spheres, thresh):
         """Step every body of the pack once, on the calling thread (``step_packed``)."""
@@ -167,8 +154,8 @@ class Pack:
         if (call is None or call[1] is not gravity or call[2] is not ground
                 or call[3] is not boxes or call[4] is not spheres):
             call = self._entry = self._resolve(gravity, ground, boxes, spheres)
-        call[0](self.P, self.counts, self.ptrs, self.scratch, float(h), gravity,
-                bool(has_col), ground, boxes, spheres, float(thresh))
+        call[0](self.P, self.counts, self.arrays, float(h), gravity, bool(has_col), ground,
+                boxes, spheres, float(thresh))
 
     def _resolve(self, gravity, ground, boxes, spheres):
         """(compiled entry of ``step_packed`` for these arrays, the arrays): the entry point
@@ -186,8 +173,8 @@ class Pack:
         entry = fn
         overloads = getattr(fn, 'overloads', None)
         if overloads is not None:
-            args = (self.P, self.counts, self.ptrs, self.scratch, 0.0, gravity, False,
-                    ground, boxes, spheres, 0.0)
+            args = (self.P, self.counts, self.arrays, 0.0, gravity, False, ground, boxes,
+                    spheres, 0.0)
             sig = tuple(fn.typeof_pyval(a) for a in args)
             if sig not in overloads:
                 fn.compile(sig)
@@ -196,159 +183,54 @@ class Pack:
 
 
 @njit(**JIT)
-def step_packed(P, counts, ptrs, scratch, h, gravity, has_col, ground, boxes, spheres,
-                thresh):
-    """Every body of a pack, on the calling thread (``scratch``: a row of ``SCRATCH``).
+def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, thresh):
+    """Every body of a pack, on the calling thread (``arrays``: ``Pack.arrays``).
 
     A pack is not spread over threads: its bodies are small, and a body's particle pass
-    is not split (its sums would then depend on the split)."""
-    _step_chunk(P, counts, ptrs, scratch[0], 0, ptrs.shape[0], h, gravity, has_col, ground,
-                boxes, spheres, thresh)
-
-
-@njit(**JIT)
-def _step_chunk(P, counts, ptrs, scr, lo, hi, h, gravity, has_col, ground, boxes, spheres,
-                thresh):
-    """Bodies lo..hi with one set of scratch buffers (``scr``: ``SCRATCH`` numbers, the
-    3x3 and 4x4 work arrays of the kernels called here, viewed once a call).
-
-    A body's one-cluster shape match is written out here on scalars read from its row
-    (what ``goals.solve_clusters_warm`` does for one cluster of one chunk) instead of
-    calling the general kernel, which takes 26 arrays (each passed as a struct with a
-    reference count taken and given back at every call) and loops over clusters and
-    chunks; here only Horn's rotation
-    (``extract_rotation``) and the linear mode's minimiser (``unit_det_match_warm``, warm
-    started from the body's last eigenvectors ``_udv``, as ``Body._step`` and the
-    record step do) are calls."""
-    # scratch: views of ``Pack.scratch`` (``jit.scratch_view``: no allocation, no reference
-    # count), zeroed as fresh arrays would be
-    for j in range(SCRATCH):
-        scr[j] = 0.0
-    part0 = scratch_view(scr, S_PART, (1, 12))
-    ref = scratch_view(scr, S_REF, (1, 3))
-    pnt = scratch_view(scr, S_PNT, (1, 3))
-    quat1 = scratch_view(scr, S_QUAT, (4,))
-    rest_lin = scratch_view(scr, S_RLIN, (1, 3, 3))
-    rest_off = scratch_view(scr, S_ROFF, (1, 3))
-    goal_lin = scratch_view(scr, S_GLIN, (1, 3, 3))
-    goal_off = scratch_view(scr, S_GOFF, (1, 3))
-    m3 = scratch_view(scr, S_M3, (4, 3, 3))
-    ma, mb, mc, md = m3[0], m3[1], m3[2], m3[3]
-    m39 = scratch_view(scr, S_M39, (3, 9))
-    w1, w2 = m39[:, 3:6], m39[:, 6:9]
-    n4 = scratch_view(scr, S_N4, (4, 4))
-    v4 = scratch_view(scr, S_V4, (4, 4))
-    wa, wv = n4[:3, :3], v4[:3, :3]
-    nmat0 = scratch_view(scr, S_NMAT, (3, 3))
-    udv0 = scratch_view(scr, S_UDV, (3, 3))
-    dmp = scratch_view(scr, S_DMP, (1, 6))
-    lim_lin = scratch_view(scr, S_LLIN, (1, 13))
-    lim_w = scratch_view(scr, S_LW, (1, 6))
-    acc = scratch_view(scr, S_ACC, (3,))
-    dpart0 = scratch_view(scr, S_DPART, (1, NDAMP))
+    is not split (its sums would then depend on the split).  The 3x3 and 4x4 work arrays
+    of the calls (``_work``) are allocated once a call, not once a body; the helpers are
+    inlined by Numba into this one compiled function."""
+    work = _work()
+    part0, ref, pnt, quat1, rest_lin, rest_off, goal_lin, goal_off = work[:8]
+    m3, acc, dpart0 = work[8], work[17], work[18]
+    dmp, lim_lin, lim_w = work[14], work[15], work[16]
     dp = dpart0[0]
-    for b in range(lo, hi):
+    for b in range(len(arrays)):
         row = P[b]
         if row[C_FLAGS + SLEEP] > 0.0:         # asleep (``sm_ros.core.sleep``): not stepped
             continue
-        # the body's particle arrays (``Pack.ptrs``: no typed list, no reference counts)
-        n = ptrs[b, 4]
-        xt = address_view(ptrs[b, 0], (3, n))
-        vt = address_view(ptrs[b, 1], (3, n))
-        x0t = address_view(ptrs[b, 2], (3, n))
-        mass = address_view(ptrs[b, 3], (n,))
+        xt, vt, x0t, mass = arrays[b]
+        n = mass.shape[0]
         x, v, x0 = xt.T, vt.T, x0t.T
-        # ---- the body's parameters and the state the pass reads as arrays (rest map, ref)
+        # ---- the state the pass reads as arrays (rest map, ref), the shape-match sums
         for j in range(3):
             ref[0, j] = row[C_REF + j]
             rest_off[0, j] = row[C_ROFF + j]
         for i in range(3):
             for j in range(3):
                 rest_lin[0, i, j] = row[C_RLIN + 3 * i + j]
-        alpha, beta, k_damp = row[C_ALPHA], row[C_BETA], row[C_DAMP]
-        v_max, turn = row[C_VMAX], row[C_TURN]
-        mode = int(row[C_MODE])
-        damp = k_damp > 0.0
+        damp = row[C_DAMP] > 0.0
         dirty = row[C_FLAGS + DIRTY] > 0.0
+        for j in range(12):
+            part0[0, j] = 0.0 if dirty else row[C_PART + j]
         if dirty:
-            for j in range(12):
-                part0[0, j] = 0.0
-            _acc_single(start=0, end=n, quad=False, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
-                        rest_off=rest_off, ref=ref, sums=part0)
-        else:
-            for j in range(12):
-                part0[0, j] = row[C_PART + j]
-        # ---- the one-cluster shape match (``goals.solve_clusters_warm`` for one cluster of
-        # one chunk, rigid or linear), its 3x3 algebra on scalars: x_cm = ref + sum w d / W,
-        # A_pq-hat = sum w d q^T - (x_cm - ref) (sum w q)^T, R (Horn, ``extract_rotation``),
-        # linear: B (``unit_det_match_warm``, warm started from the last step's V), then
-        # the affine goal map T (G x0 + h) + x_cm
-        inv_w = 1.0 / row[C_WSUM]
-        d0 = part0[0, 0] * inv_w
-        d1 = part0[0, 1] * inv_w
-        d2 = part0[0, 2] * inv_w
-        for j in range(3):
-            ma[0, j] = part0[0, 3 + j] - d0 * row[C_SUMQ + j]
-            ma[1, j] = part0[0, 6 + j] - d1 * row[C_SUMQ + j]
-            ma[2, j] = part0[0, 9 + j] - d2 * row[C_SUMQ + j]
-        r0 = ref[0, 0] + d0
-        r1 = ref[0, 1] + d1
-        r2 = ref[0, 2] + d2
-        ref[0, 0] = r0
-        ref[0, 1] = r1
-        ref[0, 2] = r2
-        q0, q1, q2, q3 = row[C_QUAT], row[C_QUAT + 1], row[C_QUAT + 2], row[C_QUAT + 3]
-        quat1[0] = q0
-        quat1[1] = q1
-        quat1[2] = q2
-        quat1[3] = q3
-        extract_rotation(mat=ma, quat=quat1, rot=mb, n4=n4, v4=v4)        # mb = R
-        s_k = row[C_SCALE]
-        lin_b = False
-        if mode == 1:
-            # A s = A_pq-hat A_qq-hat (``matmul``), its determinant over s^3
-            for i in range(3):
-                for j in range(3):
-                    mc[i, j] = (ma[i, 0] * row[C_AQQ3 + j] + ma[i, 1] * row[C_AQQ3 + 3 + j]
-                                + ma[i, 2] * row[C_AQQ3 + 6 + j])
-            det = det3(mc) / (s_k * s_k * s_k)
-            c_det = row[C_CDET]
-            if det > 1e-9 and finite(det) and c_det > 0.0:
-                for i in range(9):
-                    nmat0[i // 3, i % 3] = row[C_NMAT + i]
-                    udv0[i // 3, i % 3] = row[C_UDV + i]
-                lin_b = unit_det_match_warm(apq=ma, nmat=nmat0, c_s=s_k * c_det, rot=mb,
-                                            out=mc, w1=w1, w2=w2, wa=wa, wv=wv,
-                                            limit=STRETCH_LIMIT, vw=udv0, warm=True)
-                for i in range(9):
-                    row[C_UDV + i] = udv0[i // 3, i % 3]
-        # T = s (beta B + (1 - beta) R) or s R, then the goal map
-        for i in range(3):
-            if lin_b:
-                t0 = s_k * (beta * mc[i, 0] + (1.0 - beta) * mb[i, 0])
-                t1 = s_k * (beta * mc[i, 1] + (1.0 - beta) * mb[i, 1])
-                t2 = s_k * (beta * mc[i, 2] + (1.0 - beta) * mb[i, 2])
-            else:
-                t0 = s_k * mb[i, 0]
-                t1 = s_k * mb[i, 1]
-                t2 = s_k * mb[i, 2]
-            for j in range(3):
-                goal_lin[0, i, j] = (t0 * rest_lin[0, 0, j] + t1 * rest_lin[0, 1, j]
-                                     + t2 * rest_lin[0, 2, j])
-            goal_off[0, i] = (t0 * rest_off[0, 0] + t1 * rest_off[0, 1] + t2 * rest_off[0, 2]
-                              + ref[0, i])
+            # int64 and bool arguments, not the literals 0 and False: the specialisation
+            # ``_pass`` and ``integrate._acc_range`` call (one compiled copy)
+            _acc_single(start=np.int64(0), end=n, quad=np.bool_(False), x=x, x0=x0, mass=mass,
+                        rest_lin=rest_lin, rest_off=rest_off, ref=ref, sums=part0)
+        q0, q1, q2, q3 = _goal_map(row, work)
         turned = 0
+        turn = row[C_TURN]
         if turn > 0.0:
             # |q_prev . q| = cos(angle / 2), as Body._step
             dot = q0 * quat1[0] + q1 * quat1[1] + q2 * quat1[2] + q3 * quat1[3]
             if abs(dot) < np.cos(0.5 * turn):
                 # the arrays of one cluster (allocated here, not at every call)
-                flagged = np.ones(1, dtype=np.bool_)
-                noptr = np.zeros(0, dtype=np.int64)
-                nocl = np.zeros(0, dtype=np.int32)
-                turned = limit_turn(x=x, v=v, mass=mass, ptr=noptr, cl=nocl, flagged=flagged,
-                                    w_max=row[C_WMAX], lin=lim_lin, w3=lim_w, m3a=ma,
-                                    m3b=mb, m3c=mc, m3d=md)
+                turned = limit_turn(x=x, v=v, mass=mass, ptr=np.zeros(0, dtype=np.int64),
+                                    cl=np.zeros(0, dtype=np.int32),
+                                    flagged=np.ones(1, dtype=np.bool_), w_max=row[C_WMAX],
+                                    lin=lim_lin, w3=lim_w, m3a=m3[0], m3b=m3[1], m3c=m3[2],
+                                    m3d=m3[3])
                 counts[b, 1] += turned
         for i in range(3):
             acc[i] = row[C_FACC + i] + gravity[i]
@@ -358,39 +240,11 @@ def _step_chunk(P, counts, ptrs, scr, lo, hi, h, gravity, has_col, ground, boxes
             if dirty or turned or not row[C_FLAGS + DAMP_SUMS] > 0.0:
                 for j in range(NDAMP):
                     dpart0[0, j] = 0.0
-                damp_acc_range(0, n, x, v, mass, np.zeros(0, dtype=np.int32), dpart0)
+                damp_acc_range(np.int64(0), n, x, v, mass, np.zeros(0, dtype=np.int32), dpart0)
             else:
                 for j in range(NDAMP):
                     dpart0[0, j] = row[C_DPART + j]
-            # the rigid field c + omega x (x - ref) of the damping sums (about their point p =
-            # dp[15:18]; ``damping._rigid_fields`` for one cluster, on scalars): v_cm and L
-            # about the centre of mass, the inertia tensor I, omega = I^+ L
-            # (``sym3_solve``: the adjugate where I is well posed)
-            wk = dp[19]
-            u0, u1, u2 = dp[3] / wk, dp[4] / wk, dp[5] / wk
-            e0, e1, e2 = dp[0] / wk, dp[1] / wk, dp[2] / wk
-            l0 = dp[6] - wk * (e1 * u2 - e2 * u1)
-            l1 = dp[7] - wk * (e2 * u0 - e0 * u2)
-            l2 = dp[8] - wk * (e0 * u1 - e1 * u0)
-            ee = e0 * e0 + e1 * e1 + e2 * e2
-            ma[0, 0] = (dp[10] + dp[11]) - wk * (ee - e0 * e0)
-            ma[1, 1] = (dp[9] + dp[11]) - wk * (ee - e1 * e1)
-            ma[2, 2] = (dp[9] + dp[10]) - wk * (ee - e2 * e2)
-            ma[0, 1] = ma[1, 0] = -dp[12] + wk * e0 * e1
-            ma[1, 2] = ma[2, 1] = -dp[13] + wk * e1 * e2
-            ma[2, 0] = ma[0, 2] = -dp[14] + wk * e2 * e0
-            o0, o1, o2 = sym3_solve(mat=ma, b0=l0, b1=l1, b2=l2, rcond=1e-12, wout=mb, wa=mc,
-                                    wv=md)
-            # the field about the body's ref: (v_cm - omega x d) + omega x (ref - p)
-            f0 = ref[0, 0] - dp[15]
-            f1 = ref[0, 1] - dp[16]
-            f2 = ref[0, 2] - dp[17]
-            dmp[0, 0] = u0 - (o1 * e2 - o2 * e1) + o1 * f2 - o2 * f1
-            dmp[0, 1] = u1 - (o2 * e0 - o0 * e2) + o2 * f0 - o0 * f2
-            dmp[0, 2] = u2 - (o0 * e1 - o1 * e0) + o0 * f1 - o1 * f0
-            dmp[0, 3] = o0
-            dmp[0, 4] = o1
-            dmp[0, 5] = o2
+            _damping_field(work)
         # ---- the one particle pass: damping + Eq. 13-14, colliders, speed limit, then
         # the next step's sums about the point pnt, which becomes the body's ref (the
         # solver takes the centre of mass as ref + sum w (x - ref) / W: any point serves):
@@ -406,39 +260,170 @@ def _step_chunk(P, counts, ptrs, scr, lo, hi, h, gravity, has_col, ground, boxes
         for j in range(3):
             dp[15 + j] = pnt[0, j]
         dp[18] = 1.0
-        err2, capped = _pass(0, n, x, v, x0, mass, row[C_WUNI], goal_lin, goal_off, alpha, h,
-                             acc, damp, k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max,
-                             has_col, ground, boxes, spheres, thresh, part0, dpart0)
-        if damp:
-            # the damping row's W and sum w (x - pnt): the shape sums' (same point)
-            dp[19] = row[C_WSUM]
-            for j in range(3):
-                dpart0[0, j] = part0[0, j]
-        for j in range(3):
-            ref[0, j] = pnt[0, j]
+        err2, capped = _pass(0, n, x, v, x0, mass, row, h, work, has_col, ground, boxes,
+                             spheres, thresh)
         counts[b, 0] += capped
-        row[C_ERR] = err2
-        row[C_FLAGS + DIRTY] = 0.0             # the sums are those of the state just written
-        row[C_FLAGS + ERR_STALE] = 1.0
-        row[C_FLAGS + DAMP_SUMS] = 1.0 if damp else 0.0
-        # ---- store what the step changed
+        _store(row, err2, damp, work)
+
+
+@njit(inline='always', **JIT)
+def _work():
+    """The work arrays of ``step_packed``, zeroed: (part, ref, pnt, quat, rest_lin,
+    rest_off, goal_lin, goal_off, m3 (four 3x3), m39, n4, v4, nmat, udv, dmp, lim_lin,
+    lim_w, acc, dpart, wa, wv): C-contiguous each, the layout the body build's calls of
+    the eigen-solvers use (one specialisation of them)."""
+    return (np.zeros((1, 12)), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(4),
+            np.zeros((1, 3, 3)), np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)),
+            np.zeros((4, 3, 3)), np.zeros((3, 9)), np.zeros((4, 4)), np.zeros((4, 4)),
+            np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((1, 6)), np.zeros((1, 13)),
+            np.zeros((1, 6)), np.zeros(3), np.zeros((1, NDAMP)), np.zeros((3, 3)),
+            np.zeros((3, 3)))
+
+
+@njit(inline='always', **JIT)
+def _goal_map(row, work):
+    """The one-cluster shape match of a body's row (``goals.solve_clusters_warm`` for one
+    cluster of one chunk, rigid or linear) from the sums ``work[0]`` about ``work[1]``:
+    writes the centre of mass into ``work[1]``, the quaternion into ``work[3]`` and the
+    goal map into ``work[6:8]``; returns the last step's quaternion.
+
+    Its 3x3 algebra is written out on scalars read from the row instead of calling the
+    general kernel, which takes 26 arrays and loops over clusters and chunks; only Horn's
+    rotation (``extract_rotation``) and the linear mode's minimiser
+    (``unit_det_match_warm``, warm started from the body's last eigenvectors ``_udv``, as
+    ``Body._step`` and the record step do) are calls."""
+    part0, ref, quat1, rest_lin, rest_off, goal_lin, goal_off = (
+        work[0], work[1], work[3], work[4], work[5], work[6], work[7])
+    m3, m39, n4, v4, nmat0, udv0 = work[8], work[9], work[10], work[11], work[12], work[13]
+    ma, mb, mc = m3[0], m3[1], m3[2]
+    w1, w2 = m39[:, 3:6], m39[:, 6:9]
+    wa, wv = work[19], work[20]
+    beta, mode = row[C_BETA], int(row[C_MODE])
+    # x_cm = ref + sum w d / W, A_pq-hat = sum w d q^T - (x_cm - ref) (sum w q)^T, R (Horn,
+    # ``extract_rotation``), linear: B (``unit_det_match_warm``, warm started from the
+    # last step's V), then the affine goal map T (G x0 + h) + x_cm
+    inv_w = 1.0 / row[C_WSUM]
+    d0 = part0[0, 0] * inv_w
+    d1 = part0[0, 1] * inv_w
+    d2 = part0[0, 2] * inv_w
+    for j in range(3):
+        ma[0, j] = part0[0, 3 + j] - d0 * row[C_SUMQ + j]
+        ma[1, j] = part0[0, 6 + j] - d1 * row[C_SUMQ + j]
+        ma[2, j] = part0[0, 9 + j] - d2 * row[C_SUMQ + j]
+    r0 = ref[0, 0] + d0
+    r1 = ref[0, 1] + d1
+    r2 = ref[0, 2] + d2
+    ref[0, 0] = r0
+    ref[0, 1] = r1
+    ref[0, 2] = r2
+    q0, q1, q2, q3 = row[C_QUAT], row[C_QUAT + 1], row[C_QUAT + 2], row[C_QUAT + 3]
+    quat1[0] = q0
+    quat1[1] = q1
+    quat1[2] = q2
+    quat1[3] = q3
+    extract_rotation(mat=ma, quat=quat1, rot=mb, n4=n4, v4=v4)        # mb = R
+    s_k = row[C_SCALE]
+    lin_b = False
+    if mode == 1:
+        # A s = A_pq-hat A_qq-hat (``matmul``), its determinant over s^3
+        for i in range(3):
+            for j in range(3):
+                mc[i, j] = (ma[i, 0] * row[C_AQQ3 + j] + ma[i, 1] * row[C_AQQ3 + 3 + j]
+                            + ma[i, 2] * row[C_AQQ3 + 6 + j])
+        det = det3(mc) / (s_k * s_k * s_k)
+        c_det = row[C_CDET]
+        if det > 1e-9 and finite(det) and c_det > 0.0:
+            for i in range(9):
+                nmat0[i // 3, i % 3] = row[C_NMAT + i]
+                udv0[i // 3, i % 3] = row[C_UDV + i]
+            lin_b = unit_det_match_warm(apq=ma, nmat=nmat0, c_s=s_k * c_det, rot=mb,
+                                        out=mc, w1=w1, w2=w2, wa=wa, wv=wv,
+                                        limit=STRETCH_LIMIT, vw=udv0, warm=np.bool_(True))
+            for i in range(9):
+                row[C_UDV + i] = udv0[i // 3, i % 3]
+    # T = s (beta B + (1 - beta) R) or s R, then the goal map
+    for i in range(3):
+        if lin_b:
+            t0 = s_k * (beta * mc[i, 0] + (1.0 - beta) * mb[i, 0])
+            t1 = s_k * (beta * mc[i, 1] + (1.0 - beta) * mb[i, 1])
+            t2 = s_k * (beta * mc[i, 2] + (1.0 - beta) * mb[i, 2])
+        else:
+            t0 = s_k * mb[i, 0]
+            t1 = s_k * mb[i, 1]
+            t2 = s_k * mb[i, 2]
         for j in range(3):
-            row[C_REF + j] = ref[0, j]
-        for j in range(4):
-            row[C_QUAT + j] = quat1[j]
-        for j in range(12):
-            row[C_PART + j] = part0[0, j]
-        for j in range(NDAMP):
-            row[C_DPART + j] = dpart0[0, j]
+            goal_lin[0, i, j] = (t0 * rest_lin[0, 0, j] + t1 * rest_lin[0, 1, j]
+                                 + t2 * rest_lin[0, 2, j])
+        goal_off[0, i] = (t0 * rest_off[0, 0] + t1 * rest_off[0, 1] + t2 * rest_off[0, 2]
+                          + ref[0, i])
+    return q0, q1, q2, q3
 
 
-@njit(**JIT)
-def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp, k_damp, dmp,
-          ref, pnt, rest_lin, rest_off, v_max, has_col, ground, boxes, spheres, thresh, sums,
-          dsums):
-    """Particles lo..hi of a one-cluster body (see ``_step_chunk``); the next step's sums
-    are added to ``sums`` (12) and, with ``damp``, ``dsums`` (its point set by the caller).
-    Returns (shape-error sum, capped speeds).
+@njit(inline='always', **JIT)
+def _damping_field(work):
+    """The rigid field c + omega x (x - ref) of the damping sums ``work[18]`` (about their
+    point p = dp[15:18]; ``damping._rigid_fields`` for one cluster, on scalars) into
+    ``work[14]``: v_cm and L about the centre of mass, the inertia tensor I,
+    omega = I^+ L (``sym3_solve``: the adjugate where I is well posed)."""
+    ref, m3, dmp, dp = work[1], work[8], work[14], work[18][0]
+    ma, mb, mc, md = m3[0], m3[1], m3[2], m3[3]
+    wk = dp[19]
+    u0, u1, u2 = dp[3] / wk, dp[4] / wk, dp[5] / wk
+    e0, e1, e2 = dp[0] / wk, dp[1] / wk, dp[2] / wk
+    l0 = dp[6] - wk * (e1 * u2 - e2 * u1)
+    l1 = dp[7] - wk * (e2 * u0 - e0 * u2)
+    l2 = dp[8] - wk * (e0 * u1 - e1 * u0)
+    ee = e0 * e0 + e1 * e1 + e2 * e2
+    ma[0, 0] = (dp[10] + dp[11]) - wk * (ee - e0 * e0)
+    ma[1, 1] = (dp[9] + dp[11]) - wk * (ee - e1 * e1)
+    ma[2, 2] = (dp[9] + dp[10]) - wk * (ee - e2 * e2)
+    ma[0, 1] = ma[1, 0] = -dp[12] + wk * e0 * e1
+    ma[1, 2] = ma[2, 1] = -dp[13] + wk * e1 * e2
+    ma[2, 0] = ma[0, 2] = -dp[14] + wk * e2 * e0
+    o0, o1, o2 = sym3_solve(mat=ma, b0=l0, b1=l1, b2=l2, rcond=1e-12, wout=mb, wa=mc,
+                            wv=md)
+    # the field about the body's ref: (v_cm - omega x d) + omega x (ref - p)
+    f0 = ref[0, 0] - dp[15]
+    f1 = ref[0, 1] - dp[16]
+    f2 = ref[0, 2] - dp[17]
+    dmp[0, 0] = u0 - (o1 * e2 - o2 * e1) + o1 * f2 - o2 * f1
+    dmp[0, 1] = u1 - (o2 * e0 - o0 * e2) + o2 * f0 - o0 * f2
+    dmp[0, 2] = u2 - (o0 * e1 - o1 * e0) + o0 * f1 - o1 * f0
+    dmp[0, 3] = o0
+    dmp[0, 4] = o1
+    dmp[0, 5] = o2
+
+
+@njit(inline='always', **JIT)
+def _store(row, err2, damp, work):
+    """Store what the step changed into the body's row (the new ref: the point ``work[2]``
+    the sums were taken about)."""
+    part0, pnt, quat1, dpart0 = work[0], work[2], work[3], work[18]
+    if damp:
+        # the damping row's W and sum w (x - pnt): the shape sums' (same point)
+        dpart0[0, 19] = row[C_WSUM]
+        for j in range(3):
+            dpart0[0, j] = part0[0, j]
+    row[C_ERR] = err2
+    row[C_FLAGS + DIRTY] = 0.0             # the sums are those of the state just written
+    row[C_FLAGS + ERR_STALE] = 1.0
+    row[C_FLAGS + DAMP_SUMS] = 1.0 if damp else 0.0
+    for j in range(3):
+        row[C_REF + j] = pnt[0, j]
+    for j in range(4):
+        row[C_QUAT + j] = quat1[j]
+    for j in range(12):
+        row[C_PART + j] = part0[0, j]
+    for j in range(NDAMP):
+        row[C_DPART + j] = dpart0[0, j]
+
+
+@njit(inline='always', **JIT)
+def _pass(lo, hi, x, v, x0, mass, row, h, work, has_col, ground, boxes, spheres, thresh):
+    """Particles lo..hi of a one-cluster body (see ``step_packed``; its parameters from
+    ``row``); the next step's sums are added to ``work[0]`` (12) and, damped,
+    ``work[18]`` (its point set by the caller).  Returns (shape-error sum, capped
+    speeds).
 
     One loop does it all (``_int_single_fused``, ``FUSED_BLOCK`` particles a call), the
     damped body's damping sums included (12 of the 20 sums of ``damp_acc_range``: the
@@ -449,25 +434,22 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
     spheres, is projected onto the colliders (the ground alone: ``ground_range``, no bounds
     pass), capped and summed again (``_acc_single``, ``damp_sums_range``, vectorised).
     """
+    sums, ref, pnt, _, rest_lin, rest_off, goal_lin, goal_off = work[:8]
+    dmp, acc, dsums = work[14], work[17], work[18]
+    alpha, k_damp, v_max, wuni = row[C_ALPHA], row[C_DAMP], row[C_VMAX], row[C_WUNI]
+    damp = k_damp > 0.0
     err2 = 0.0
     capped = 0
     k0, k1, k2 = pnt[0, 0], pnt[0, 1], pnt[0, 2]
     boxed = has_col and (boxes.shape[0] > 0 or spheres.shape[0] > 0)
-    grounded = has_col and ground[0] > 0.5
+    # without a ground no height is below -inf
+    gz = ground[1] if has_col and ground[0] > 0.5 else -np.inf
     step = FUSED_BLOCK
     for bs in range(lo, hi, step):
         be = min(bs + step, hi)
-        # two call sites: the loop without a ground is compiled without the ground's test
-        if grounded:
-            e, over, low = _int_single_fused(bs, be, x, v, x0, mass, wuni, goal_lin, goal_off,
-                                             alpha, h, acc, damp, k_damp, dmp, ref, pnt,
-                                             rest_lin, rest_off, v_max, ground[1], boxed, sums,
-                                             dsums)
-        else:
-            e, over, low = _int_single_fused(bs, be, x, v, x0, mass, wuni, goal_lin, goal_off,
-                                             alpha, h, acc, damp, k_damp, dmp, ref, pnt,
-                                             rest_lin, rest_off, v_max, None, boxed, sums,
-                                             dsums)
+        e, over, low = _int_single_fused(bs, be, x, v, x0, mass, wuni, goal_lin, goal_off,
+                                         alpha, h, acc, damp, k_damp, dmp, ref, pnt, rest_lin,
+                                         rest_off, v_max, gz, boxed, sums, dsums)
         err2 += e
         if low and not (over or boxed):
             # the loop added its sums: the ground's projection, and what it changed in them
@@ -489,7 +471,7 @@ def _pass(lo, hi, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc, damp,
             # (``colliders.contact_velocity``)
             if over:
                 capped += limit_speed_range(bs, be, x, v, h, v_max)
-            _acc_single(start=bs, end=be, quad=False, x=x, x0=x0, mass=mass,
+            _acc_single(start=bs, end=be, quad=np.bool_(False), x=x, x0=x0, mass=mass,
                         rest_lin=rest_lin, rest_off=rest_off, ref=pnt, sums=sums)
             if damp:
                 # the damping sums of what they left about pnt (``damp_acc_range``'s rows

@@ -5,6 +5,7 @@ like the goals of Eq. 23), so damping removes deformation and spin-relative moti
 keeps every cluster's linear and angular momentum.
 """
 
+import numpy as np
 from numba import njit
 
 from .jit import JIT, U
@@ -336,7 +337,9 @@ def damp_accumulate(x, v, mass, sid, dpart):
         for s in range(dpart.shape[1]):
             for j in range(NDAMP):
                 dpart[c, s, j] = 0.0
-    damp_acc_range(start=0, end=x.shape[0], x=x, v=v, mass=mass, sid=sid, dsums=dpart[0])
+    # start as int64, not the literal 0: the specialisation the particle passes call
+    damp_acc_range(start=np.int64(0), end=x.shape[0], x=x, v=v, mass=mass, sid=sid,
+                   dsums=dpart[0])
 
 
 @njit(**JIT)

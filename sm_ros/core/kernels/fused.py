@@ -3,8 +3,7 @@ the next step's sums in one sweep), shared by the one-cluster pass
 (``integrate._int_single_fused``) and the set layout's runs (``sets._sets_fused_lin``).
 
 ``_fused_range`` is compiled once with the masses and once without (``particle_weight``,
-an overload on None: a body of one mass takes its sums unweighted), and once with the
-ground's height test and once without (``below_ground``, the same way);
+an overload on None: a body of one mass takes its sums unweighted);
 ``damp_constants`` folds the damping towards a rigid field into three multiply-adds a
 component.
 """
@@ -15,17 +14,11 @@ from numba.extending import overload
 from .jit import JIT, U
 
 
+@njit(inline='always', **JIT)
 def below_ground(y, gz):
-    """1 if the height ``y`` is below the ground's ``gz``, else 0; 0 for ``gz`` None (no
-    ground: the compiled loops then have no test at all, ``_fused_range``)."""
-    return 0 if gz is None else int(y < gz)
-
-
-@overload(below_ground, jit_options=JIT)
-def _below_ground(y, gz):
-    if isinstance(gz, types.NoneType):
-        return lambda y, gz: 0
-    return lambda y, gz: y < gz
+    """1 if the height ``y`` is below the ground's ``gz``, else 0 (no ground: ``gz`` is
+    -inf)."""
+    return int(y < gz)
 
 
 @njit(inline='always', **JIT)
@@ -60,8 +53,8 @@ def _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha_h, h
     with ``damp``), Eq. 13-14 towards the goal G x0 + b (``gmap``: G row by row, then b),
     and the 12 sums of the new state about the point k (``_rest_sums``'s).  Returns (sum of
     |g - p|^2 as ``advance``, speeds over sqrt(lim2), the 12 sums, new heights below gz:
-    the ground's test, so that a run the ground cannot reach skips its collider pass; with
-    gz None the loops are compiled without it, since it is not free), then,
+    the ground's test, so that a run the ground cannot reach skips its collider pass; gz
+    is -inf without a ground), then,
     with ``damp``, the next step's 13 damping sums of the new state about the same point
     (``damping.damp_sums_range``'s first 13: sum w v, sum w d x v, the six second moments
     of d, W; zeros without ``damp``).

@@ -10,6 +10,7 @@ moments A_qq = (sum m q q^T)^+ (Eq. 10) and A~_qq (Eq. 21) at build time and whe
 plastic state changes; ``_qhat`` is a particle's plastic, scaled rest offset q-hat.
 """
 
+import numpy as np
 from numba import njit
 
 from .jit import JIT, finite
@@ -74,7 +75,8 @@ def solve_clusters(part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin, rest_off,
                         aqq9=aqq9, rest_lin=rest_lin, rest_off=rest_off, scale=scale,
                         trans=trans, goal_lin=goal_lin, goal_off=goal_off, mode=mode,
                         beta=beta, apq=apq, acc=acc, m3a=m3a, m3b=m3b, m3c=m3c, m39=m39,
-                        n4=n4, v4=v4, nmat=nmat, cdet=cdet, udv=nmat, warm=False)
+                        n4=n4, v4=v4, nmat=nmat, cdet=cdet, udv=nmat,
+                        warm=np.bool_(False))      # bool, not a literal: one compiled copy
 
 
 @njit(**JIT)

@@ -275,8 +275,8 @@ def _int_single_fused(start, end, x, v, x0, mass, wuni, goal_lin, goal_off, alph
                       dsums):
     """The one-cluster pass over particles start..end in one loop (no torque): the damping
     towards ``dmp[0]`` about ``ref[0]`` (with ``damp``), Eq. 13-14, the count of speeds
-    above ``v_max`` (0: no cap) and of new heights below ``gz`` (the ground's height; None:
-    no ground, compiled without the test), and the shape match's 12 sums of the new state
+    above ``v_max`` (0: no cap) and of new heights below ``gz`` (the ground's height; -inf
+    without a ground), and the shape match's 12 sums of the new state
     about the point ``pnt[0]`` (``_acc_single``) into ``sums[0]`` (``_fused_range``, the
     loop), and with ``damp`` its 12 damping sums about the same point into ``dsums[0, 3:15]``
     (``damp_acc_range``'s rows; W and sum w d are the caller's).
@@ -334,7 +334,7 @@ def _acc_range(start, end, quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, 
                 _acc_lin(row=sums[k], w=w, d0=d0, d1=d1, d2=d2, q0=q0, q1=q1, q2=q2)
 
 
-@njit(**JIT)
+@njit(inline='always', **JIT)
 def _acc_chunk(chunk, nchunks, quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, part):
     n = x.shape[0]
     sums = part[chunk]
@@ -423,7 +423,7 @@ def _int_range(start, end, quad, x, v, x0, ptr, cl, rest_lin, rest_off, trans, g
     return err2
 
 
-@njit(**JIT)
+@njit(inline='always', **JIT)
 def _int_chunk(chunk, nchunks, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, goal_lin,
                goal_off, ref, alpha, h, acc, ang, com, part, err, has_col, ground, boxes, spheres,
                thresh, damp, k_damp, dmp, dpart):

@@ -14,11 +14,8 @@ import os
 
 import numpy as np
 
-from numba import carray as _carray
 from numba import njit as _njit
-from numba import types as _types
 from numba.core import config
-from numba.extending import intrinsic as _intrinsic
 
 #: Fastmath flags used by every kernel (no ``nnan``/``ninf``: NaN checks must still work).
 FASTMATH = {'nsz', 'arcp', 'contract', 'afn', 'reassoc'}
@@ -109,54 +106,3 @@ def finite(x):
     and are False for nan (``test/test_nonfinite_kernels.py``).
     """
     return -FLOAT_MAX <= x <= FLOAT_MAX
-
-
-@_intrinsic
-def _element_pointer(typingctx, arr, i):
-    """Pointer to element ``i`` of a 1-D C-contiguous array (no bounds check)."""
-    if not (isinstance(arr, _types.Array) and arr.ndim == 1 and arr.layout == 'C'):
-        return None
-    sig = _types.CPointer(arr.dtype)(arr, _types.intp)
-
-    def codegen(context, builder, sig, args):
-        ary = context.make_array(sig.args[0])(context, builder, args[0])
-        return builder.gep(ary.data, [args[1]])
-    return sig, codegen
-
-
-@_njit(inline='always', **JIT)
-def scratch_view(buf, start, shape):
-    """A C-contiguous array of ``shape`` on ``buf[start:]`` (1-D, C-contiguous) that takes
-    no reference count: valid while ``buf`` is, so only for scratch a compiled function
-    views at its start and drops before it returns (``packed._step_chunk``).  A reshaped
-    slice would call Numba's run-time reshape helper and move the buffer's reference count
-    for every view, which the one-cluster step pays at every call.  IndexError past the
-    end of ``buf``.
-    """
-    size = 1
-    for s in shape:
-        size *= s
-    if start < 0 or start + size > buf.shape[0]:
-        raise IndexError('scratch view past the end of its buffer')
-    return _carray(_element_pointer(buf, start), shape)
-
-
-@_intrinsic
-def _address_pointer(typingctx, addr):
-    """A float64 pointer to the address ``addr`` (an integer)."""
-    sig = _types.CPointer(_types.float64)(_types.intp)
-
-    def codegen(context, builder, sig, args):
-        return builder.inttoptr(args[0], context.get_value_type(sig.return_type))
-    return sig, codegen
-
-
-@_njit(inline='always', **JIT)
-def address_view(addr, shape):
-    """The C-contiguous float64 array of ``shape`` at the address ``addr`` (an array's
-    ``ctypes.data``), taking no reference count: valid only while that array lives and
-    keeps its buffer, with no bounds known (``packed.Pack`` holds its bodies' particle
-    arrays and checks their sizes when it takes their addresses).  A typed list of
-    per-body arrays would be unboxed at every call and move four reference counts a body.
-    """
-    return _carray(_address_pointer(addr), shape)

@@ -33,7 +33,7 @@ def limit_speed(x, v, h, v_max):
     Reads every velocity; writes only the capped particles (``limit_speed_range`` over
     all of them).
     """
-    return limit_speed_range(0, v.shape[0], x, v, h, v_max)
+    return limit_speed_range(np.int64(0), v.shape[0], x, v, h, v_max)   # int64: one copy
 
 
 @njit(**JIT)

@@ -34,7 +34,7 @@ def _top_jacobi(n4, v4, scale):
     """The unit top eigenvector of Horn's matrix ``n4`` (destroyed) closest to e0 (Jacobi):
     e0 projected onto the eigenspace of the eigenvalues within 1e-9 ``scale`` of the top,
     the sign with u0 >= 0."""
-    jacobi_eigh(n4, v4, 30)
+    jacobi_eigh(n4, v4, 50)      # the sweep cap of every caller: one specialisation
     lmax = n4[0, 0]
     for k in range(1, 4):
         if n4[k, k] > lmax:

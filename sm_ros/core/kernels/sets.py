@@ -201,8 +201,7 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     the final state and the step
     leaves them valid.  Damped, the loop also takes the run's 12 damping sums and W (a run
     that was moved: ``damping.damp_sums_range``, while it is in cache).  Returns (sum of
-    |g - x|^2, capped speeds).  ``gz``: the ground's height, None without a ground
-    (compiled without the ground's test, ``fused.below_ground``).
+    |g - x|^2, capped speeds).  ``gz``: the ground's height, -inf without a ground.
 
     The sums of a set are taken about one point P_s, its shape sums and damping sums alike
     (so the damping row's sum w d and W are the shape sums' own: 12 damping accumulators,
@@ -283,7 +282,7 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     return err2, capped
 
 
-@njit(**JIT)
+@njit(inline='always', **JIT)
 def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha, h,
                     acc, ang, com, part, err, has_col, ground, boxes, spheres, thresh, damp,
                     k_damp, dmp, dpart, v_max):
@@ -307,21 +306,15 @@ def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, wuni, sid, runs, gm, s
     err2 = 0.0
     capped = 0
     fused = _fused_pass(quad, has_col, ang, runs)
-    grounded = has_col and ground[0] > 0.5
+    gz = ground[1] if has_col and ground[0] > 0.5 else -np.inf    # no ground: nothing below
     step = FUSED_SETS_BLOCK if fused else BLOCK
     for bs in range(start, end, step):
         be = min(bs + step, end)
         if fused:
-            if grounded:
-                e, c = _sets_fused_lin(bs, be, x, v, y0, mass, wuni, sid, runs, gm, sref,
-                                       alpha / h, h, h * acc[0], h * acc[1], h * acc[2], damp,
-                                       k_damp, dmp, v_max, sums, dpart[chunk], has_col,
-                                       ground, boxes, spheres, thresh, ground[1])
-            else:                          # compiled without the ground's test
-                e, c = _sets_fused_lin(bs, be, x, v, y0, mass, wuni, sid, runs, gm, sref,
-                                       alpha / h, h, h * acc[0], h * acc[1], h * acc[2], damp,
-                                       k_damp, dmp, v_max, sums, dpart[chunk], has_col,
-                                       ground, boxes, spheres, thresh, None)
+            e, c = _sets_fused_lin(bs, be, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha / h,
+                                   h, h * acc[0], h * acc[1], h * acc[2], damp, k_damp, dmp,
+                                   v_max, sums, dpart[chunk], has_col, ground, boxes, spheres,
+                                   thresh, gz)
             err2 += e
             capped += c
             continue

@@ -263,7 +263,7 @@ def _sets_acc_range(start, end, quad, x, y0, mass, sid, runs, sref, sums):
                       sums=sums)
 
 
-@njit(**JIT)
+@njit(inline='always', **JIT)
 def _sets_acc_chunk(chunk, nchunks, quad, x, y0, mass, sid, runs, sref, part):
     n = x.shape[0]
     sums = part[chunk]

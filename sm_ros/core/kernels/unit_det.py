@@ -152,7 +152,7 @@ def _unit_det_sum(s0, s1, s2, mu, kmin):
 @njit(**JIT)
 def nearest_unit_det(f, out, wa, wv):
     """``nearest_unit_det_warm`` from a cold start (``jacobi3`` from the identity)."""
-    return nearest_unit_det_warm(f=f, out=out, wa=wa, wv=wv, vw=wv, warm=False)
+    return nearest_unit_det_warm(f=f, out=out, wa=wa, wv=wv, vw=wv, warm=np.bool_(False))
 
 
 @njit(**JIT)
@@ -264,7 +264,7 @@ def _stretch_ok(b, rot, blend, work, wa, wv, limit):
 def unit_det_match(apq, nmat, c_s, rot, out, w1, w2, wa, wv, limit):
     """``unit_det_match_warm`` from a cold start."""
     return unit_det_match_warm(apq=apq, nmat=nmat, c_s=c_s, rot=rot, out=out, w1=w1, w2=w2,
-                               wa=wa, wv=wv, limit=limit, vw=wv, warm=False)
+                               wa=wa, wv=wv, limit=limit, vw=wv, warm=np.bool_(False))
 
 
 @njit(**JIT)

@@ -1,8 +1,8 @@
 """One compiled call steps the bodies of a world (Eq. 7-14, 23, damping, limits).
 
-``World.step`` used to call 4-6 kernels per body and step from Python; each call of a
-Numba function with 10-30 array arguments costs several microseconds in the dispatcher,
-while a 144-particle body's own work is about one.  ``step_single_bodies`` runs the same
+Each call of a Numba function with 10-30 array arguments from Python costs several
+microseconds in the dispatcher, while a 144-particle body's own work is about one, and a
+body's step calls 4-6 kernels.  ``step_single_bodies`` runs the same
 kernels, in the same order and with the same arguments as ``Body._step``, for every body
 of a typed list of per-body records, so the Python cost of a step no longer grows with the
 number of such bodies.  It covers set-layout bodies (and one-cluster quadratic ones)
@@ -108,9 +108,10 @@ def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, th
     HELPERS.run(min(threads, len(bodies)) - 1, step_bodies_claimed, args, before)
 
 
-@njit(**JIT)
+@njit(inline='always', **JIT)
 def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
-    """``Body._step`` for one record."""
+    """``Body._step`` for one record (inlined into ``step_bodies_claimed`` by Numba: one
+    compiled function, not a second one linked and optimised again into it)."""
     (xt, vt, x0t, mass, ptr, cl, rest_lin, rest_off, part, wsum, sum_q, ref, quat, aqq3,
      aqq9, scale, trans, goal_lin, goal_off, apq, accbuf, m3a, m3b, m3c, m3d, m39, n4, v4,
      nmat, cdet, acc, ang, com, err, dpart, dmp, dref, dacc, lin, w3, sptr, scl, scnt,
@@ -142,7 +143,8 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
                         aqq9=aqq9, rest_lin=rest_lin, rest_off=rest_off, scale=scale,
                         trans=trans, goal_lin=goal_lin, goal_off=goal_off, mode=mode,
                         beta=beta, apq=apq, acc=accbuf, m3a=m3a, m3b=m3b, m3c=m3c, m39=m39,
-                        n4=n4, v4=v4, nmat=nmat, cdet=cdet, udv=udv, warm=True)
+                        n4=n4, v4=v4, nmat=nmat, cdet=cdet, udv=udv,
+                        warm=np.bool_(True))       # bool, not a literal: Body._step's copy
     turned = 0
     if turn > 0.0:
         # |q_prev . q| = cos(angle / 2), as Body._step
