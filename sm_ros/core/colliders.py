@@ -183,10 +183,11 @@ class ColliderSet:
             self.done[:] = 0
 
     # ------------------------------------------------------------------ contact
-    def collide(self, X, V, w, bid, start, end, h, thresh, stats, touched):
-        """Run the pass over particles start..end of (3, N) state after a step of h s
-        (see ``kinematic.collide_range``)."""
-        KC.collide_range(KC.Particles(X, V, w, bid), start, end, self.rows, h, thresh,
+    def collide(self, particles, h, thresh, stats, touched):
+        """Run the pass over ``particles`` (``kinematic.Particles``: (3, N) state and the
+        particles' bodies) after a step of h s (see ``kinematic.collide_range``)."""
+        n = particles.x.shape[1]
+        KC.collide_range(particles, 0, n, self.rows, h, thresh,
                          KC.ColliderTally(self.imp, stats, touched))
 
     def wrench(self, c):

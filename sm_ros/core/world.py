@@ -14,6 +14,7 @@ from .packed import Pack
 from .contact import COUPLE_ALPHA, BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
 from .kernels.flags import SLEEP
+from .kinematic import Particles
 from .sleep import Sleep
 from .world_colliders import WorldColliders
 
@@ -394,7 +395,7 @@ class World(WorldColliders):
                   self._sphere_rows, self._gravity)
             if cs is not None:
                 st[:] = 0.0
-                cs.collide(f.X, f.V, f.W, f.B, 0, f.n, h, thresh, st, f.touched)
+                cs.collide(Particles(f.X, f.V, f.W, f.B), h, thresh, st, f.touched)
             # bodies sleep only under gravity: without it nothing rests on anything, and
             # freezing a slow drift would take momentum out of a conservative world
             if sl is not None and cs is None and self._contact_params.sleep and self._gnorm:
@@ -406,7 +407,7 @@ class World(WorldColliders):
             o0, o1 = f.off[k], f.off[k + 1]
             sk = st[k:k + 1]
             sk[:] = 0.0
-            cs.collide(body._x.T, body._v.T, f.W[o0:o1], self._zero_bid(body.n), 0, body.n,
+            cs.collide(Particles(body._x.T, body._v.T, f.W[o0:o1], self._zero_bid(body.n)),
                        h, thresh, sk, self._one_touch)
             if sk[0, 0] > 0.0:
                 body._dirty = True            # moved particles: re-accumulate the next step
