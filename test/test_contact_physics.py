@@ -291,14 +291,16 @@ def test_block_pass_meets_the_targets_of_a_flat_patch_at_once():
     st = KR.Statics(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros((0, 8)), np.zeros((0, 6)))
     m = T.collider_rows(pt, bd, off, st, rows, 0, box)
     law = np.array([H, 1e-3, 0.0, 0.0, 1.0, 1.0, 8, 4, 0.0, 0.0, 0.0, 0.0])
-    CS.fill_collider_rows(pt, bd, rows, 0, m, law, np.full((n, KR.WARM_WIDTH), -np.inf))
+    CS.collider_offsets(pt, bd, rows, 0, m, H)
     assert m == 25
     order, start = np.zeros(m, np.int64), np.zeros(m + 1, np.int64)
     ng = F.group_rows(rows, m, bd.share, order, start)
+    cold = np.full((n, KR.WARM_WIDTH), -np.inf)
+    CS.fill_rows(pt, bd, rows, order, start[ng], law, cold, cold)
 
     def residual():
         out = []
-        for a in range(m):
+        for a in order[:start[ng]]:
             u = KR._rel_velocity(bd, pt.V, rows.f[a], rows.i[a], 0)
             out.append(np.dot(u, rows.f[a, :3]) - rows.f[a, KR.ROW_TARGET])
         return np.array(out)

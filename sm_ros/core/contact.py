@@ -32,7 +32,8 @@ from .contact_build import (body_overlaps, build_pairs, build_pairs_cells, build
                             build_pairs_grid_par, moved_spread2, sort_pairs)
 from .contact_kernels import count_fast, median_nn_distance
 from .contact_frames import body_frames, finish_rows, group_rows, guarded
-from .contact_solve import fill_collider_rows, pair_rows
+from .contact_soft import collide_moved, soft_pairs
+from .contact_solve import collider_offsets, fill_rows, pair_rows
 from .contact_statics import collide_rows_soft, collide_soft, collider_rows, project_moved
 from .contact_sweeps import POS_SWEEPS, VEL_SWEEPS, WARM, solve_rows
 from .kernels.contact_rows import (LAW_GUARD, ROW_WIDTH, WARM_STAMP, WARM_WIDTH, Bodies,
@@ -252,7 +253,7 @@ class Contact:
         self._tj = np.zeros(cap, dtype=np.int32)
         self._pcnt = np.zeros(n + 1, dtype=np.int64)
         self._xref = np.zeros((3, n))
-        self._moved = np.zeros(n, dtype=np.uint8)
+        self._moved = np.zeros(n, dtype=np.uint8)   # particles ``soft_pairs`` moved
         self.npairs = 0
         self.valid = False
         self.builds = 0
@@ -383,31 +384,33 @@ class Contact:
         law = np.array([h, thresh, p.friction, p.restitution, self._stamp, self.warm,
                         max(self.vel_sweeps, p.iterations), self.pos_sweeps, g[0], g[1],
                         g[2], 0.0])
-        m = 0
+        self.count[:] = 0
+        self.deepest[:] = 0.0
+        stats = (f.touched, self.count, self.deepest)
+        m = soft = 0
         if self.needed:
-            m = pair_rows(pt, bd, PairList(self._pi, self._pj, self.npairs), rows, law,
-                          self._wp)
+            pairs = PairList(self._pi, self._pj, self.npairs)
+            soft = soft_pairs(pt, bd.share, pairs, law, p.iterations, stats + (self._moved,))
+            m = pair_rows(pt, bd, pairs, rows, law)
+        m0 = m
         if has_col:
-            m0 = m
             m = collider_rows(pt, bd, f.off, st, rows, m, self._bbox)
-            fill_collider_rows(pt, bd, rows, m0, m, law, self._wc)
         mk = m
         if kin is not None:
             m = kinematic_rows(f.X, f.off, bd.share, self._bbox, kin.rows, rows.f, rows.i, m)
-            fill_collider_rows(pt, bd, rows, mk, m, law, self._wc)
-        self.count[:] = 0
-        self.deepest[:] = 0.0
+        collider_offsets(pt, bd, rows, m0, m, float(h))
         if len(self._row_order) < m:
             self._row_order = np.zeros(rows.f.shape[0], np.int64)
             self._row_start = np.zeros(rows.f.shape[0] + 1, np.int64)
         ng = group_rows(rows, m, bd.share, self._row_order, self._row_start)
+        fill_rows(pt, bd, rows, self._row_order, self._row_start[ng], law, self._wp, self._wc)
         # the energy guard needs every row between stiff bodies or with static colliders
         law[LAW_GUARD] = 1.0 if guarded(rows, m, bd.share) else 0.0
         solve_rows(pt, bd, rows, m, law, SWEEP_TOL * thresh, self._row_order, self._row_start,
                    ng)
-        self.found = finish_rows(pt, bd, f.off, rows, m, law, self._wp, self._wc,
-                                 (f.touched, self.count, self.deepest))
+        self.found = soft + finish_rows(pt, bd, f.off, rows, m, law, self._wp, self._wc, stats)
         if has_col:
+            collide_moved(pt, self._moved, st, thresh)
             collide_rows_soft(pt, bd, rows, m, st, thresh)
             project_moved(pt, f.off, bd, st)
         if kin is not None:

@@ -172,20 +172,24 @@ def _inverse_sym3(a, out):
 @njit(**JIT)
 def group_rows(rows, m, share, order, start):
     """Sort the rows by their pair of bodies (``order``) and return the number of groups,
-    ``start[g]:start[g + 1]`` the positions in ``order`` of group g.  A group of two stiff
-    bodies, or of a stiff body and a collider, keeps at most ``KEEP`` rows (contact
-    reduction, as Bullet's manifold keeps four points) when its rows form one flat patch:
-    the deepest and the extremes of the patch in eight directions, which span its
-    support; the others leave the solve (their impulses zero)."""
+    ``start[g]:start[g + 1]`` the positions in ``order`` of group g.  Contact reduction,
+    as Bullet's manifold keeps four points: a group of two stiff bodies, or of a stiff
+    body and a collider, keeps at most ``KEEP`` rows (``_reduce``); in a group of a stiff
+    and a soft body each soft particle keeps its deepest row.  The others leave the solve
+    (their impulses zero)."""
     nb = share.shape[0]
+    npt = 1
+    for a in range(m):
+        npt = max(npt, rows.i[a, 0] + 1, rows.i[a, 1] + 1)
     keys = np.empty(m, dtype=np.int64)
     for a in range(m):
-        keys[a] = rows.i[a, 2] * (nb + 1) + rows.i[a, 3] + 1
+        keys[a] = (rows.i[a, 2] * (nb + 1) + rows.i[a, 3] + 1) * (npt + 1) + _soft_particle(
+            rows.i[a], share) + 1
     srt = np.argsort(keys, kind='mergesort')
     ng = 0
     for a in range(m):
         order[a] = srt[a]
-        if a == 0 or keys[srt[a]] != keys[srt[a - 1]]:
+        if a == 0 or keys[srt[a]] // (npt + 1) != keys[srt[a - 1]] // (npt + 1):
             start[ng] = a
             ng += 1
     start[ng] = m
@@ -198,16 +202,51 @@ def group_rows(rows, m, share, order, start):
         rigid = share[ri[2]] > 0.0 and (ri[3] < 0 or share[ri[3]] > 0.0)
         if rigid and hi - lo > KEEP:
             _reduce(rows, order, lo, hi, kept)
+        elif not rigid:
+            _deepest_per_particle(rows, order, lo, hi, keys, npt, kept)
         for a in range(lo, hi):
             r = order[a]
-            if not rigid or hi - lo <= KEEP or kept[r]:
+            if (rigid and hi - lo <= KEEP) or kept[r]:
                 order[w] = r
                 w += 1
             else:
                 f = rows.f[r]
-                f[ROW_KN] = f[ROW_ACCN] = f[ROW_ACCT] = f[ROW_ACCT + 1] = 0.0
+                f[ROW_KN] = f[ROW_ACCN] = f[ROW_ACCP] = f[ROW_ACCT] = f[ROW_ACCT + 1] = 0.0
     start[ng] = w
     return ng
+
+
+@njit(inline='always', **JIT)
+def _soft_particle(ri, share):
+    """The particle of a row's soft side when its other side is a stiff body, else -1."""
+    if ri[3] < 0:
+        return -1
+    si, sj = share[ri[2]] > 0.0, share[ri[3]] > 0.0
+    if si and not sj:
+        return ri[1]
+    if sj and not si:
+        return ri[0]
+    return -1
+
+
+@njit(inline='always', **JIT)
+def _deepest_per_particle(rows, order, lo, hi, keys, npt, kept):
+    """Mark in ``kept`` the deepest row of each run of rows lo..hi with the same key (one
+    soft particle against a stiff body); rows whose key names no soft particle all stay."""
+    a = lo
+    while a < hi:
+        e = a + 1
+        while e < hi and keys[order[e]] == keys[order[a]]:
+            e += 1
+        deep = order[a]
+        for q in range(a, e):
+            r = order[q]
+            if keys[r] % (npt + 1) == 0:
+                kept[r] = True
+            elif rows.f[r, ROW_DEPTH] > rows.f[deep, ROW_DEPTH]:
+                deep = r
+        kept[deep] = True
+        a = e
 
 
 @njit(inline='always', **JIT)

@@ -40,7 +40,7 @@ from .kernels.contact_rows import (LAW_G, LAW_H, LAW_MU, LAW_E, LAW_STAMP, LAW_W
                                    ROW_ACCN, ROW_ACCP, ROW_ACCT, ROW_DEPTH, ROW_KN, ROW_KT,
                                    ROW_MU, ROW_SQUEEZE, ROW_T1, ROW_T2, ROW_TARGET, ROW_TOUCH,
                                    ROW_VN0, WARM_POS, WARM_STAMP,
-                                   _cross, _rel_velocity, _side_mass)
+                                   _cross, _pair_normal, _rel_velocity, _side_mass)
 from .kernels.jit import JIT
 
 #: Pairs closer than (1 + this) times their contact distance are rows (speculative: a
@@ -136,27 +136,37 @@ def _offset(rf, col, bd, b, x0, x1, x2):
 
 
 @njit(**JIT)
-def fill_collider_rows(pt, bd, rows, lo, hi, law, wc):
-    """Finish rows lo..hi, particles inside colliders as ``contact_statics`` and
+def collider_offsets(pt, bd, rows, lo, hi, h):
+    """Offsets of rows lo..hi, particles inside colliders as ``contact_statics`` and
     ``kinematic.contact_rows`` left them (particle, body, normal, depth, friction;
     restitution in the target's place, the collider's surface velocity in the second
-    offset's): the offset from the body's centre is the particle's position at the
-    step's start."""
-    h = law[LAW_H]
+    offset's): the particle's position at the step's start from its body's centre."""
     X, V = pt.X, pt.V
     for a in range(lo, hi):
-        rf = rows.f[a]
-        ri = rows.i[a]
-        k = ri[0]
-        _offset(rf, 3, bd, ri[2], X[0, k] - h * V[0, k], X[1, k] - h * V[1, k],
+        k = rows.i[a, 0]
+        _offset(rows.f[a], 3, bd, rows.i[a, 2], X[0, k] - h * V[0, k], X[1, k] - h * V[1, k],
                 X[2, k] - h * V[2, k])
-        fill_row(pt, bd, rf, ri, (rf[0], rf[1], rf[2]), rf[ROW_DEPTH], rf[ROW_MU],
-                 rf[ROW_TARGET], law, _warm(wc, k, law))
 
 
 @njit(**JIT)
-def pair_rows(pt, bd, pl, rows, law, wp):
-    """Rows of the overlapping pairs of the pair list (a stiff body's pairs with itself
+def fill_rows(pt, bd, rows, order, kept, law, wp, wc):
+    """Finish the rows ``order[:kept]`` that contact reduction kept (``group_rows``):
+    their law, tangents, inverse masses and warm start (``wp`` by pair, ``wc`` by
+    particle for a collider).  Their geometry, friction and restitution (in the target's
+    place) are set."""
+    for q in range(kept):
+        a = order[q]
+        rf = rows.f[a]
+        ri = rows.i[a]
+        warm = _warm(wp, ri[4], law) if ri[1] >= 0 else _warm(wc, ri[0], law)
+        fill_row(pt, bd, rf, ri, (rf[0], rf[1], rf[2]), rf[ROW_DEPTH], rf[ROW_MU],
+                 rf[ROW_TARGET], law, warm)
+
+
+@njit(**JIT)
+def pair_rows(pt, bd, pl, rows, law):
+    """The geometry of the rows (``fill_rows`` finishes those that contact reduction
+    keeps) of the overlapping pairs of the pair list (a stiff body's pairs with itself
     are left out: its shape holds them).  The normal is along the pair's separation at
     the start of the step (x - h v), the contact point the middle of the overlap there
     (the particle's own position when one side is a particle alone, so that the two
@@ -172,6 +182,8 @@ def pair_rows(pt, bd, pl, rows, law, wp):
         bi, bj = B[i], B[j]
         if bi == bj and bd.share[bi] > 0.0:
             continue
+        if not (bd.share[bi] > 0.0 or bd.share[bj] > 0.0):
+            continue                   # two soft sides: ``contact_soft.soft_pairs``
         dx, dy, dz = X[0, i] - X[0, j], X[1, i] - X[1, j], X[2, i] - X[2, j]
         d2 = dx * dx + dy * dy + dz * dz
         rr = R[i] + R[j]
@@ -196,8 +208,10 @@ def pair_rows(pt, bd, pl, rows, law, wp):
         ri[0], ri[1], ri[2], ri[3], ri[4] = i, j, bi, bj, k
         _offset(rf, 3, bd, bi, c0, c1, c2)
         _offset(rf, 6, bd, bj, c0, c1, c2)
-        fill_row(pt, bd, rf, ri, n, rr - np.sqrt(d2), law[LAW_MU], law[LAW_E], law,
-                 _warm(wp, k, law))
+        rf[0], rf[1], rf[2] = n
+        rf[ROW_DEPTH] = rr - np.sqrt(d2)
+        rf[ROW_MU] = law[LAW_MU]
+        rf[ROW_TARGET] = law[LAW_E]
         m += 1
     return m
 
@@ -234,15 +248,3 @@ def _surface_normal(pt, bd, i, j, bi, bj, n):
     if s0 * n[0] + s1 * n[1] + s2 * n[2] < 0.5:
         return n
     return s0, s1, s2
-
-
-@njit(inline='always', **JIT)
-def _pair_normal(sx, sy, sz, dx, dy, dz, d2, rr):
-    """Unit normal along s (the start-of-step separation), else d, else z."""
-    sl = np.sqrt(sx * sx + sy * sy + sz * sz)
-    if sl > 1e-9 * rr:
-        return sx / sl, sy / sl, sz / sl
-    d = np.sqrt(d2)
-    if d > 1e-9 * rr:
-        return dx / d, dy / d, dz / d
-    return 0.0, 0.0, 1.0

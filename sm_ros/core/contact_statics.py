@@ -57,7 +57,7 @@ def _sphere_face(x0, x1, x2, sp):
 @njit(inline='always', **JIT)
 def _add_row(rows, m, k, b, n, depth, mu, e):
     """Row m (its particle, body, normal, depth, friction and restitution): particle k of
-    stiff body b inside a collider; ``contact_solve.fill_collider_rows`` finishes it."""
+    stiff body b inside a collider; ``contact_solve.fill_rows`` finishes it."""
     rf = rows.f[m]
     ri = rows.i[m]
     ri[0], ri[1], ri[2], ri[3], ri[4] = k, -1, b, -1, k
@@ -70,7 +70,7 @@ def _add_row(rows, m, k, b, n, depth, mu, e):
 
 @njit(**JIT)
 def collider_rows(pt, bd, off, st, rows, m, box):
-    """Append the (unfinished: ``contact_solve.fill_collider_rows``) rows of the stiff
+    """Append the (unfinished: ``contact_solve.fill_rows``) rows of the stiff
     bodies' particles inside the static colliders (``st``: ground, boxes, spheres) from
     row m; returns the new count.  A body whose
     bounding box (``box``, ``contact_solve.body_frames``) misses a collider skips it."""

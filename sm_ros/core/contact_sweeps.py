@@ -240,16 +240,16 @@ def _patch_apply(pt, bd, rows, order, lo, hi, phi, coef, vel):
 
 @njit(**JIT)
 def block_pass(pt, bd, rows, grp, col, Vt, backward):
-    """Each group of rows in contact (two bodies, or a body and a collider) solved at
-    once for the linear part of its normal speeds over the contact patch: impulses
-    lambda_r = phi_r . c, phi_r = (1, s_r, t_r) the row's point in the patch's tangent
-    plane, with c from the 3x3 Galerkin system Phi^T K Phi c = Phi^T (target - v_n).  A
-    box landing flat or resting under a stack so gets the push and the torques of its
-    whole face at once, without the spin a row-by-row sweep starts with; the sweeps that
-    follow correct each row (and the clamp, accumulated impulses never negative).
-    ``col``, ``Vt``: velocities (0, V) or pseudo-velocities (6, PV); ``grp`` = (order,
-    start, groups, h); the groups in reverse order when ``backward`` (symmetric
-    Gauss-Seidel over the groups).  Returns the largest speed change."""
+    """Each group of rows of two rigid motions (``_rigid_group``: two stiff bodies, or
+    one and a collider) solved at once for the linear part of its normal speeds over the
+    contact patch: impulses lambda_r = phi_r . c, phi_r = (1, s_r, t_r) the row's point
+    in the patch's tangent plane, c from the 3x3 Galerkin system Phi^T K Phi c = Phi^T
+    (target - v_n).  A box landing flat or resting under a stack so gets the push and the
+    torques of its whole face at once, without the spin a row-by-row sweep starts with;
+    the sweeps that follow correct each row (and the clamp: accumulated impulses are
+    never negative).  ``col``, ``Vt``: velocities (0, V) or pseudo-velocities (6, PV);
+    ``grp`` = (order, start, groups, h); the groups in reverse order when ``backward``
+    (symmetric Gauss-Seidel over the groups).  Returns the largest speed change."""
     order, start, ng, h = grp
     vel = (col, Vt, h)
     work = (np.zeros((3, 3)), np.zeros(3), np.zeros((6, 3)))
@@ -259,7 +259,8 @@ def block_pass(pt, bd, rows, grp, col, Vt, backward):
     for gg in range(ng):
         g = ng - 1 - gg if backward else gg
         lo, hi = start[g], start[g + 1]
-        if _patch_basis(rows, order, lo, hi, phi) == 0:
+        if not _rigid_group(bd, rows.i[order[lo]]) or _patch_basis(rows, order, lo, hi,
+                                                                    phi) == 0:
             continue
         _patch_system(pt, bd, rows, order, lo, hi, phi, vel, work)
         mat = work[0]
@@ -318,15 +319,21 @@ def _row_push(pt, bd, rows, a, lam, vel):
     return abs(dl) * rf[ROW_KN]
 
 
+@njit(inline='always', **JIT)
+def _rigid_group(bd, ri):
+    """Whether a group (its first row's ints ``ri``) is two stiff bodies or a stiff body
+    and a collider: redundant rows on the same two rigid motions."""
+    return bd.share[ri[2]] > 0.0 and (ri[3] < 0 or bd.share[ri[3]] > 0.0)
+
+
 @njit(**JIT)
-def jacobi_pass(pt, bd, rows, grp, col, Vt, soft):
-    """Each row's normal impulse towards its target.  The rows of a group with a stiff
-    body all from the same state and each 1 / (rows of the group) of it (Jacobi, as FleX
-    averages constraints): what ``block_pass`` leaves (rows of a curved patch, clamped
-    rows, gaps closing), without favouring the rows swept first.  Rows of two soft bodies
-    (particles alone) one after the other in full (Gauss-Seidel), only when ``soft`` (the
-    first sweep: the shape match spreads what a particle gets, as the per-particle law
-    always did).  Returns the largest speed change."""
+def jacobi_pass(pt, bd, rows, grp, col, Vt):
+    """Each row's normal impulse towards its target.  The rows of a group of two rigid
+    motions (``_rigid_group``) all from the same state and each 1 / (rows of the group)
+    of it (Jacobi, as FleX averages constraints): what ``block_pass`` leaves (rows of a
+    curved patch, clamped rows, gaps closing), without favouring the rows swept first.
+    The rows of a stiff body and soft particles one after the other in full
+    (Gauss-Seidel): each is a particle of its own.  Returns the largest speed change."""
     order, start, ng, h = grp
     vel = (col, Vt, h)
     big = 0.0
@@ -334,9 +341,7 @@ def jacobi_pass(pt, bd, rows, grp, col, Vt, soft):
     for g in range(ng):
         lo, hi = start[g], start[g + 1]
         ri = rows.i[order[lo]]
-        stiff = bd.share[ri[2]] > 0.0 or (ri[3] >= 0 and bd.share[ri[3]] > 0.0)
-        if not (stiff or soft):
-            continue
+        stiff = _rigid_group(bd, ri)
         for a in range(lo, hi):
             rf = rows.f[order[a]]
             lam[a - lo] = 0.0
@@ -366,7 +371,7 @@ def solve_rows(pt, bd, rows, m, law, tol, order, start, ng):
     nvel = int(law[LAW_VEL])
     for it in range(nvel):
         big = block_pass(pt, bd, rows, grp, 0, pt.V, it % 2 == 1)
-        big = max(big, jacobi_pass(pt, bd, rows, grp, 0, pt.V, True))
+        big = max(big, jacobi_pass(pt, bd, rows, grp, 0, pt.V))
         mk = start[ng]
         for kk in range(mk):
             a = order[kk if it % 2 == 0 else mk - 1 - kk]
@@ -395,4 +400,4 @@ def solve_rows(pt, bd, rows, m, law, tol, order, start, ng):
                 PV[0, p] = PV[1, p] = PV[2, p] = 0.0
     for it in range(int(law[LAW_POS])):
         block_pass(pt, bd, rows, grp, 6, PV, it % 2 == 1)
-        jacobi_pass(pt, bd, rows, grp, 6, PV, True)
+        jacobi_pass(pt, bd, rows, grp, 6, PV)

@@ -180,7 +180,7 @@ def collide_range(X, V, w, bid, start, end, rows, h, thresh, imp, stats, touched
 @njit(**JIT)
 def contact_rows(X, off, share, box, rows, crows, cint, m):
     """Append, from row m, the contact rows (``contact_solve``, finished by its
-    ``fill_collider_rows``) of the particles of the stiff bodies (``share[b]`` > 0) inside
+    ``fill_rows``) of the particles of the stiff bodies (``share[b]`` > 0) inside
     the colliders ``rows``: particle, body, collider (-2 - c in the second body's place),
     normal, depth, friction, restitution (in the target's place) and the collider's
     surface velocity at the particle (in the second offset's place).  ``box`` (nb, 6): the

@@ -13,6 +13,7 @@ A collider side (body < 0) has infinite mass and its surface velocity in the row
 
 from collections import namedtuple
 
+import numpy as np
 from numba import njit
 
 from .jit import JIT
@@ -152,3 +153,17 @@ def _apply(bd, X, Vt, W, rf, ri, p0, p1, p2, col, h):
     """Impulse p on side i of a row and -p on side j."""
     _push(bd, X, Vt, W, ri[2], ri[0], rf[3:6], p0, p1, p2, col, h)
     _push(bd, X, Vt, W, ri[3], ri[1], rf[6:9], -p0, -p1, -p2, col, h)
+
+
+@njit(inline='always', **JIT)
+def _pair_normal(sx, sy, sz, dx, dy, dz, d2, rr):
+    """Unit normal of a pair of particles along s (their separation at the start of
+    the step), else d (now, squared length d2), else z; ``rr`` their contact distance
+    sets what counts as zero."""
+    sl = np.sqrt(sx * sx + sy * sy + sz * sz)
+    if sl > 1e-9 * rr:
+        return sx / sl, sy / sl, sz / sl
+    d = np.sqrt(d2)
+    if d > 1e-9 * rr:
+        return dx / d, dy / d, dz / d
+    return 0.0, 0.0, 1.0
