@@ -175,8 +175,9 @@ def group_rows(rows, m, share, order, start):
     ``start[g]:start[g + 1]`` the positions in ``order`` of group g.  Contact reduction,
     as Bullet's manifold keeps four points: a group of two stiff bodies, or of a stiff
     body and a collider, keeps at most ``KEEP`` rows (``_reduce``); in a group of a stiff
-    and a soft body each soft particle keeps its deepest row.  The others leave the solve
-    (their impulses zero)."""
+    and a soft body each soft particle keeps its deepest row.  The others follow the kept
+    ones in ``order`` (``order[start[ng]:m]``): they leave the sweeps and get one
+    clean-up visit (``contact_sweeps.left_out_pass``)."""
     nb = share.shape[0]
     npt = 1
     for a in range(m):
@@ -194,6 +195,8 @@ def group_rows(rows, m, share, order, start):
             ng += 1
     start[ng] = m
     kept = np.zeros(m, dtype=np.bool_)
+    left_out = np.empty(m, dtype=np.int64)
+    nout = 0
     w = 0
     for g in range(ng):
         lo, hi = start[g], start[g + 1]
@@ -212,7 +215,10 @@ def group_rows(rows, m, share, order, start):
             else:
                 f = rows.f[r]
                 f[ROW_KN] = f[ROW_ACCN] = f[ROW_ACCP] = f[ROW_ACCT] = f[ROW_ACCT + 1] = 0.0
+                left_out[nout] = r
+                nout += 1
     start[ng] = w
+    order[w:w + nout] = left_out[:nout]
     return ng
 
 

@@ -17,7 +17,7 @@ from .kernels.contact_rows import (LAW_GUARD, LAW_H, LAW_POS, LAW_VEL, ROW_ACCN,
                                    ROW_ACCT, ROW_DEPTH, ROW_KN, ROW_KT, ROW_MU, ROW_T1,
                                    ROW_SQUEEZE, ROW_T2, ROW_TARGET, ROW_TOUCH, ROW_VN0, _apply,
                                    _cross,
-                                   _rel_velocity)
+                                   _rel_velocity, _side_mass)
 from .kernels.jit import JIT
 
 #: Velocity and position sweeps per step, and the share of the last step's impulses a
@@ -360,11 +360,35 @@ def jacobi_pass(pt, bd, rows, grp, col, Vt):
 
 
 @njit(**JIT)
+def left_out_pass(pt, bd, rows, order, lo, hi, h):
+    """One Gauss-Seidel visit of the rows contact reduction left out (``order[lo:hi]``):
+    a normal impulse, never negative, where the sweeps left a pair approaching faster than
+    its gap closes within the step (or at all, once it touches).  Impulses, not position
+    corrections, so the points the kept rows do not cover do not sink in and both momenta
+    stay exact; no restitution, so it takes energy and never adds it."""
+    for q in range(lo, hi):
+        a = order[q]
+        rf = rows.f[a]
+        ri = rows.i[a]
+        n0, n1, n2 = rf[0], rf[1], rf[2]
+        kn = (_side_mass(bd, pt.W, ri[2], ri[0], rf[3], rf[4], rf[5], n0, n1, n2)
+              + _side_mass(bd, pt.W, ri[3], ri[1], rf[6], rf[7], rf[8], n0, n1, n2))
+        if not kn > 0.0:
+            continue
+        u0, u1, u2 = _rel_velocity(bd, pt.V, rf, ri, 0)
+        lam = (min(rf[ROW_DEPTH], 0.0) / h - (u0 * n0 + u1 * n1 + u2 * n2)) / kn
+        if lam > 0.0:
+            rf[ROW_ACCN] = lam
+            _apply(bd, pt.X, pt.V, pt.W, rf, ri, lam * n0, lam * n1, lam * n2, 0, h)
+
+
+@njit(**JIT)
 def solve_rows(pt, bd, rows, m, law, tol, order, start, ng):
     """The velocity sweeps (each a pass over the groups, ``block_pass``, then normal and
     friction row by row, symmetric Gauss-Seidel, until no speed changes by more than
     ``tol``), then the position sweeps on pseudo-velocities towards removing
-    ``POS_BETA`` of the overlap the velocities leave."""
+    ``POS_BETA`` of the overlap the velocities leave.  The rows contact reduction left
+    out (``order[start[ng]:m]``) get one visit between the two."""
     h = law[LAW_H]
     _warm_apply(pt, bd, rows, m, h)
     grp = (order, start, ng, h)
@@ -383,6 +407,7 @@ def solve_rows(pt, bd, rows, m, law, tol, order, start, ng):
                 big = max(big, _friction_step(pt, bd, rf, ri, h))
         if big <= tol:
             break
+    left_out_pass(pt, bd, rows, order, start[ng], m, h)
     if law[LAW_GUARD] > 0.0:
         energy_guard(bd)
     PV = pt.PV
