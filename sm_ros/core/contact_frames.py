@@ -17,10 +17,12 @@ from .kernels.contact_rows import (LAW_H, LAW_STAMP, ROW_ACCN, ROW_ACCP, ROW_ACC
                                    _imul)
 from .kernels.jit import JIT
 
-#: Rows a group of two stiff bodies (or a stiff body and a collider) keeps (``group_rows``)
-#: when it is one flat patch: all its normals within acos(``FLAT_COS``) of their mean.
+#: Contact reduction (``group_rows``): a group of two stiff bodies (or a stiff body and a
+#: collider) is split into at most ``PATCHES`` flat patches (normals within
+#: acos(``FLAT_COS``) of the patch's first), each keeping at most ``KEEP`` rows.
 KEEP = 9
 FLAT_COS = 0.995
+PATCHES = 4
 
 
 #: Entries of ``_body_sums``' accumulator: mass, momentum (3), first moment (3), angular
@@ -195,6 +197,8 @@ def group_rows(rows, m, share, order, start):
             ng += 1
     start[ng] = m
     kept = np.zeros(m, dtype=np.bool_)
+    label = np.empty(m, dtype=np.int64)
+    seeds = np.empty((PATCHES, 3))
     left_out = np.empty(m, dtype=np.int64)
     nout = 0
     w = 0
@@ -204,7 +208,7 @@ def group_rows(rows, m, share, order, start):
         ri = rows.i[order[lo]]
         rigid = share[ri[2]] > 0.0 and (ri[3] < 0 or share[ri[3]] > 0.0)
         if rigid and hi - lo > KEEP:
-            _reduce(rows, order, lo, hi, kept)
+            _reduce(rows, order, lo, hi, kept, label, seeds)
         elif not rigid:
             _deepest_per_particle(rows, order, lo, hi, keys, npt, kept)
         for a in range(lo, hi):
@@ -256,25 +260,55 @@ def _deepest_per_particle(rows, order, lo, hi, keys, npt, kept):
 
 
 @njit(inline='always', **JIT)
-def _reduce(rows, order, lo, hi, kept):
-    """Mark in ``kept`` the deepest row of a group and its extremes in eight directions of
-    its patch's tangent plane (offsets from body i's centre)."""
-    m0 = m1 = m2 = 0.0
-    deep = order[lo]
+def _reduce(rows, order, lo, hi, kept, label, seeds):
+    """Mark in ``kept`` what a group of rows lo..hi keeps: its rows split into flat
+    patches (normals within acos(``FLAT_COS``) of the patch's first row, at most
+    ``PATCHES`` of them; rows of none stay), each patch of more than ``KEEP`` rows its
+    deepest row and its extremes in eight directions of its tangent plane, a smaller
+    patch every row.  ``label`` (rows) and ``seeds`` (``PATCHES``, 3) are scratch."""
+    npatch = 0
     for a in range(lo, hi):
         f = rows.f[order[a]]
+        label[a - lo] = -1
+        for s in range(npatch):
+            if f[0] * seeds[s, 0] + f[1] * seeds[s, 1] + f[2] * seeds[s, 2] >= FLAT_COS:
+                label[a - lo] = s
+                break
+        if label[a - lo] < 0 and npatch < PATCHES:
+            seeds[npatch, 0], seeds[npatch, 1], seeds[npatch, 2] = f[0], f[1], f[2]
+            label[a - lo] = npatch
+            npatch += 1
+        if label[a - lo] < 0:
+            kept[order[a]] = True
+    for s in range(npatch):
+        cnt = 0
+        for a in range(lo, hi):
+            if label[a - lo] == s:
+                cnt += 1
+        if cnt <= KEEP:
+            for a in range(lo, hi):
+                if label[a - lo] == s:
+                    kept[order[a]] = True
+        else:
+            _keep_extremes(rows, order, lo, hi, label, s, kept)
+
+
+@njit(inline='always', **JIT)
+def _keep_extremes(rows, order, lo, hi, label, s, kept):
+    """Mark in ``kept`` the deepest row of patch s of a group and its extremes in eight
+    directions of the patch's tangent plane (offsets from body i's centre)."""
+    m0 = m1 = m2 = 0.0
+    deep = -1
+    for a in range(lo, hi):
+        if label[a - lo] != s:
+            continue
+        f = rows.f[order[a]]
         m0, m1, m2 = m0 + f[0], m1 + f[1], m2 + f[2]
-        if f[ROW_DEPTH] > rows.f[deep, ROW_DEPTH]:
+        if deep < 0 or f[ROW_DEPTH] > rows.f[deep, ROW_DEPTH]:
             deep = order[a]
     kept[deep] = True
     ml = np.sqrt(m0 * m0 + m1 * m1 + m2 * m2) + 1e-300
     m0, m1, m2 = m0 / ml, m1 / ml, m2 / ml
-    for a in range(lo, hi):
-        f = rows.f[order[a]]
-        if f[0] * m0 + f[1] * m1 + f[2] * m2 < FLAT_COS:
-            for q in range(lo, hi):       # not one flat patch: every row stays
-                kept[order[q]] = True
-            return
     e0, e1, e2 = (0.0, m2, -m1) if abs(m0) < 0.6 else (-m2, 0.0, m0)
     el = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
     e0, e1, e2 = e0 / el, e1 / el, e2 / el
@@ -283,8 +317,10 @@ def _reduce(rows, order, lo, hi, kept):
         ca = np.cos(0.25 * np.pi * k)
         sa = np.sin(0.25 * np.pi * k)
         best = -np.inf
-        arg = order[lo]
+        arg = deep
         for a in range(lo, hi):
+            if label[a - lo] != s:
+                continue
             f = rows.f[order[a]]
             d = (ca * (f[3] * e0 + f[4] * e1 + f[5] * e2)
                  + sa * (f[3] * f0 + f[4] * f1 + f[5] * f2))
