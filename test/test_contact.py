@@ -806,3 +806,17 @@ def test_pair_list_kept_for_a_common_motion_and_always_complete():
         # they overlap, ``contact_solve.SPECULATIVE``)
         met += len(brute_pairs(f.X.T, f.R, f.B, c.act, c.selfc, f.X0.T, 0.2 * f.R.max()))
     assert met > 0 and c.builds > builds + 2
+
+
+def test_neighbour_directions_match_a_numpy_twin():
+    # the sums behind the stiff bodies' surface normals (contact.surface_normals)
+    from sm_ros.core.contact_kernels import neighbour_directions
+    rng = np.random.default_rng(3)
+    x = np.vstack([lattice(4, 3, 2), rng.uniform(-0.05, 0.05, (40, 3))])
+    reach = 1.5 * S
+    d = x[None, :, :] - x[:, None, :]
+    dist = np.linalg.norm(d, axis=2)
+    near = (dist <= reach) & (dist > 0.0)
+    unit = np.where(near[:, :, None], d / np.where(near, dist, 1.0)[:, :, None], 0.0)
+    np.testing.assert_allclose(neighbour_directions(x, reach), unit.sum(axis=1), atol=1e-12)
+    assert np.abs(unit.sum(axis=1)).max() > 0.5          # the twin sees neighbours

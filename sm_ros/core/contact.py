@@ -30,7 +30,7 @@ import numpy as np
 
 from .contact_build import (body_overlaps, build_pairs, build_pairs_cells, build_pairs_grid,
                             build_pairs_grid_par, moved_spread2, sort_pairs)
-from .contact_kernels import count_fast, median_nn_distance
+from .contact_kernels import count_fast, median_nn_distance, neighbour_directions
 from .contact_frames import body_frames, finish_rows, group_rows, guarded
 from .contact_soft import collide_moved, soft_pairs
 from .contact_solve import collider_offsets, fill_rows, pair_rows
@@ -153,7 +153,6 @@ def surface_normals(X0, M, off, radii):
     the mean direction to its rest neighbours within 1.5 lattice spacings (twice the
     contact radius), zero where they surround it (inside); and each body's rest centre of
     mass (nb, 3).  Stiff bodies' pairs touch along these (``contact_solve``)."""
-    from scipy.spatial import cKDTree
     nb = max(len(off) - 1, 1)
     ns = np.zeros(X0.shape)
     c0 = np.zeros((nb, 3))
@@ -166,12 +165,7 @@ def surface_normals(X0, M, off, radii):
         reach = 3.0 * float(radii[b])
         if len(x) < 2 or not reach > 0.0:
             continue
-        pairs = cKDTree(x).query_pairs(reach, output_type='ndarray')
-        acc = np.zeros_like(x)
-        d = x[pairs[:, 1]] - x[pairs[:, 0]]
-        d /= np.linalg.norm(d, axis=1)[:, None]
-        np.add.at(acc, pairs[:, 0], d)
-        np.add.at(acc, pairs[:, 1], -d)
+        acc = neighbour_directions(np.ascontiguousarray(x), reach)
         size = np.linalg.norm(acc, axis=1)
         out = size > 0.5
         ns[:, off[b]:off[b + 1]][:, out] = (-acc[out] / size[out, None]).T

@@ -50,3 +50,33 @@ def median_nn_distance(x, step):
         best[a] = b2
     best.sort()
     return np.sqrt(best[ns // 2])
+
+
+@njit(**JIT)
+def neighbour_directions(x, reach):
+    """Per point of x (n, 3), the sum of the unit directions to its neighbours within
+    ``reach`` (n, 3): a sweep along x over the points sorted by it."""
+    n = x.shape[0]
+    order = np.argsort(x[:, 0])
+    acc = np.zeros((n, 3))
+    r2 = reach * reach
+    for a in range(n):
+        i = order[a]
+        for b in range(a + 1, n):
+            j = order[b]
+            dx = x[j, 0] - x[i, 0]
+            if dx > reach:
+                break
+            dy = x[j, 1] - x[i, 1]
+            dz = x[j, 2] - x[i, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 > r2 or not d2 > 0.0:
+                continue
+            d = np.sqrt(d2)
+            acc[i, 0] += dx / d
+            acc[i, 1] += dy / d
+            acc[i, 2] += dz / d
+            acc[j, 0] -= dx / d
+            acc[j, 1] -= dy / d
+            acc[j, 2] -= dz / d
+    return acc

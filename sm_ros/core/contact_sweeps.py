@@ -25,6 +25,10 @@ from .kernels.jit import JIT
 VEL_SWEEPS = 8
 POS_SWEEPS = 4
 WARM = 1.0
+#: The first this many sweeps of each kind start with ``block_pass``.
+BLOCK_SWEEPS = 8
+#: Rows of two rigid motions averaged (Jacobi) rather than swept one by one.
+JACOBI = False
 #: ``block_pass`` leaves out a tilt of a patch whose rows spread less than this (m)
 #: along it (an edge or a point of contact).
 THIN = 1e-3
@@ -341,7 +345,7 @@ def jacobi_pass(pt, bd, rows, grp, col, Vt):
     for g in range(ng):
         lo, hi = start[g], start[g + 1]
         ri = rows.i[order[lo]]
-        stiff = _rigid_group(bd, ri)
+        stiff = JACOBI and _rigid_group(bd, ri)
         for a in range(lo, hi):
             rf = rows.f[order[a]]
             lam[a - lo] = 0.0
@@ -394,7 +398,9 @@ def solve_rows(pt, bd, rows, m, law, tol, order, start, ng):
     grp = (order, start, ng, h)
     nvel = int(law[LAW_VEL])
     for it in range(nvel):
-        big = block_pass(pt, bd, rows, grp, 0, pt.V, it % 2 == 1)
+        big = 0.0
+        if it < BLOCK_SWEEPS:
+            big = block_pass(pt, bd, rows, grp, 0, pt.V, it % 2 == 1)
         big = max(big, jacobi_pass(pt, bd, rows, grp, 0, pt.V))
         mk = start[ng]
         for kk in range(mk):
@@ -424,5 +430,6 @@ def solve_rows(pt, bd, rows, m, law, tol, order, start, ng):
             if p >= 0:
                 PV[0, p] = PV[1, p] = PV[2, p] = 0.0
     for it in range(int(law[LAW_POS])):
-        block_pass(pt, bd, rows, grp, 6, PV, it % 2 == 1)
+        if it < BLOCK_SWEEPS:
+            block_pass(pt, bd, rows, grp, 6, PV, it % 2 == 1)
         jacobi_pass(pt, bd, rows, grp, 6, PV)
