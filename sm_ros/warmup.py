@@ -310,7 +310,7 @@ def warm_packed() -> None:
 
 def warm_extra() -> float:
     """The second process of a cold warm-up (:func:`warm_up`): the variants the node
-    meets less often: contact without gravity (``solve_pairs``),
+    meets less often: contact without gravity (``solve_pairs``), a turn limit,
     one-particle bodies (their (1, 3) arrays are C- and F-ordered at once, a specialisation
     of their own) and the threaded kernels of one big body (``body.PARALLEL_MIN_WORK``
     lowered here so that a small body takes them).  Return the seconds spent."""
@@ -323,6 +323,11 @@ def warm_extra() -> float:
         free.add_body(cube + (0.099 * i, 0.0, 0.0), masses=0.01,
                       velocities=np.tile(((1.0 - 2.0 * i) * 0.1, 0.0, 0.0), (len(cube), 1)))
     free.step(1.0 / 120.0)
+    # a packed body spinning past its max_turn (``Pack._limit_turn``, compiled apart)
+    spin = World(gravity=(0.0, 0.0, 0.0))
+    spin.add_body(cube, masses=0.01, velocities=np.cross((0.0, 0.0, 300.0), cube))
+    for _ in range(2):
+        spin.step(1.0 / 120.0)
     plastic = dict(plastic_yield=0.01, plastic_creep=1.0, plastic_max=0.5)
     one = World(gravity=(0.0, 0.0, -9.81))
     one.set_colliders(ground=Ground(height=0.0))
