@@ -276,7 +276,8 @@ def _cube(n: int = 3, half: float = 0.05) -> np.ndarray:
 def warm_packed() -> None:
     """Step the one-cluster rigid and linear bodies (the packed step, ``core/packed.py``)
     under the static and moving colliders, alone (the collider pass on the body's own
-    buffers) and several at once with contact under gravity (``solve_bodies``)."""
+    buffers) and several at once with contact under gravity (``solve_bodies``), and one
+    spinning past its turn limit (``Pack._limit_turn``)."""
     from sm_ros.core import BodyParams, Box, Capsule, Ground, Sphere, World
     cube = _cube()
     world = World(gravity=(0.0, 0.0, -9.81))
@@ -306,11 +307,16 @@ def warm_packed() -> None:
     solo.set_colliders(capsules=[Capsule(center=(0.0, 0.0, 0.0), radius=0.05, length=0.1)])
     solo.add_body(cube + (0.0, 0.0, 0.1), masses=0.01)
     solo.step(1.0 / 120.0)
+    # a packed body spinning past its max_turn (``Pack._limit_turn``, compiled apart)
+    spin = World(gravity=(0.0, 0.0, 0.0))
+    spin.add_body(cube, masses=0.01, velocities=np.cross((0.0, 0.0, 300.0), cube))
+    for _ in range(2):
+        spin.step(1.0 / 120.0)
 
 
 def warm_extra() -> float:
     """The second process of a cold warm-up (:func:`warm_up`): the variants the node
-    meets less often: contact without gravity (``solve_pairs``), a turn limit,
+    meets less often: contact without gravity (``solve_pairs``),
     one-particle bodies (their (1, 3) arrays are C- and F-ordered at once, a specialisation
     of their own) and the threaded kernels of one big body (``body.PARALLEL_MIN_WORK``
     lowered here so that a small body takes them).  Return the seconds spent."""
@@ -323,11 +329,6 @@ def warm_extra() -> float:
         free.add_body(cube + (0.099 * i, 0.0, 0.0), masses=0.01,
                       velocities=np.tile(((1.0 - 2.0 * i) * 0.1, 0.0, 0.0), (len(cube), 1)))
     free.step(1.0 / 120.0)
-    # a packed body spinning past its max_turn (``Pack._limit_turn``, compiled apart)
-    spin = World(gravity=(0.0, 0.0, 0.0))
-    spin.add_body(cube, masses=0.01, velocities=np.cross((0.0, 0.0, 300.0), cube))
-    for _ in range(2):
-        spin.step(1.0 / 120.0)
     plastic = dict(plastic_yield=0.01, plastic_creep=1.0, plastic_max=0.5)
     one = World(gravity=(0.0, 0.0, -9.81))
     one.set_colliders(ground=Ground(height=0.0))
