@@ -276,7 +276,8 @@ def _cube(n: int = 3, half: float = 0.05) -> np.ndarray:
 def warm_packed() -> None:
     """Step the one-cluster rigid and linear bodies (the packed step, ``core/packed.py``)
     under the static and moving colliders, alone (the collider pass on the body's own
-    buffers) and several at once with contact under gravity (``solve_bodies``)."""
+    buffers) and several at once with contact under gravity (``solve_bodies``), and one
+    spinning past its turn limit (``Pack._limit_turn``)."""
     from sm_ros.core import BodyParams, Box, Capsule, Ground, Sphere, World
     cube = _cube()
     world = World(gravity=(0.0, 0.0, -9.81))
@@ -306,6 +307,11 @@ def warm_packed() -> None:
     solo.set_colliders(capsules=[Capsule(center=(0.0, 0.0, 0.0), radius=0.05, length=0.1)])
     solo.add_body(cube + (0.0, 0.0, 0.1), masses=0.01)
     solo.step(1.0 / 120.0)
+    # a packed body spinning past its max_turn (``Pack._limit_turn``, compiled apart)
+    spin = World(gravity=(0.0, 0.0, 0.0))
+    spin.add_body(cube, masses=0.01, velocities=np.cross((0.0, 0.0, 300.0), cube))
+    for _ in range(2):
+        spin.step(1.0 / 120.0)
 
 
 def warm_extra() -> float:

@@ -116,8 +116,7 @@ class Pack:
             if old is not None and old is not self:
                 old.stale = True              # its row no longer holds this body's state
             body._pack_owner = self
-            # x, v, x0 as their (3, N) blocks (``body.soa``), viewed (3, N) and transposed
-            # back (F) in the compiled step
+            # x, v, x0 as their (3, N) blocks (``body.soa``), transposed back in the step
             arrays = (body._x.T, body._v.T, body._x0.T, body._m)
             n = body.n
             for a, shape in zip(arrays, ((3, n), (3, n), (3, n), (n,))):
@@ -143,8 +142,7 @@ class Pack:
         return len(self.bodies)
 
     def __reduce__(self):
-        # ``arrays`` holds the bodies' own particle arrays: a copy would step them, not the
-        # copies' (worlds and bodies drop their packs when copied and pack again)
+        # a copy's ``arrays`` would step the bodies' own particles (copies pack again)
         raise TypeError("a Pack holds its bodies' particle arrays and is not copied: pack "
                         'the copied bodies again')
 
@@ -154,27 +152,43 @@ class Pack:
         if (call is None or call[1] is not gravity or call[2] is not ground
                 or call[3] is not boxes or call[4] is not spheres):
             call = self._entry = self._resolve(gravity, ground, boxes, spheres)
-        call[0](self.P, self.counts, self.arrays, float(h), gravity, bool(has_col), ground,
-                boxes, spheres, float(thresh))
+        first, turned, nb = 0, -1, len(self.bodies)   # the body to step from, its turn
+        while first < nb:
+            first = call[0](self.P, self.counts, self.arrays, float(h), gravity,
+                            bool(has_col), ground, boxes, spheres, float(thresh), first,
+                            turned)
+            turned = self._limit_turn(first) if first < nb else -1
+
+    def _limit_turn(self, b):
+        """``limits.limit_turn`` of body ``b`` (its cluster turned past ``max_turn``), the
+        number of clusters it limited: compiled apart, when a body first spins that fast."""
+        xt, vt, _, mass = self.arrays[b]
+        m3 = np.zeros((4, 3, 3))
+        turned = int(limit_turn(x=xt.T, v=vt.T, mass=mass, ptr=np.zeros(0, dtype=np.int64),
+                                cl=np.zeros(0, dtype=np.int32),
+                                flagged=np.ones(1, dtype=np.bool_), w_max=self.P[b, C_WMAX],
+                                lin=np.zeros((1, 13)), w3=np.zeros((1, 6)), m3a=m3[0],
+                                m3b=m3[1], m3c=m3[2], m3d=m3[3]))
+        self.counts[b, 1] += turned
+        return turned
 
     def _resolve(self, gravity, ground, boxes, spheres):
         """(compiled entry of ``step_packed`` for these arrays, the arrays): the entry point
         of its compiled specialisation, called without Numba's dispatch.
 
         The dispatch types every argument at each call, a fixed cost that a small pack's
-        step notices.  The entry
-        unboxes the arguments as the types it was compiled for, so it is used only while
-        the collider arrays and gravity are the very objects it was resolved for (the
-        world replaces them when they change), with the pack's own arrays and the scalars
-        converted to the types of the first call.  Where ``step_packed`` is not a Numba
-        dispatcher (a test's spy), it is called as it is.
+        step notices.  The entry unboxes the arguments as the types it was compiled for,
+        so it is used only while the collider arrays and gravity are the very objects it
+        was resolved for (the world replaces them when they change), with the pack's own
+        arrays and the scalars converted to the types of the first call.  Where
+        ``step_packed`` is not a Numba dispatcher (a test's spy), it is called as it is.
         """
         fn = step_packed
         entry = fn
         overloads = getattr(fn, 'overloads', None)
         if overloads is not None:
             args = (self.P, self.counts, self.arrays, 0.0, gravity, False, ground, boxes,
-                    spheres, 0.0)
+                    spheres, 0.0, 0, 0)
             sig = tuple(fn.typeof_pyval(a) for a in args)
             if sig not in overloads:
                 fn.compile(sig)
@@ -183,8 +197,13 @@ class Pack:
 
 
 @njit(**JIT)
-def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, thresh):
-    """Every body of a pack, on the calling thread (``arrays``: ``Pack.arrays``).
+def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, thresh,
+                first, turned_first):
+    """The bodies ``first``, ... of a pack, on the calling thread (``arrays``: ``Pack.arrays``).
+    Returns their number, or the first body whose cluster turned past its ``max_turn``, its
+    row unchanged: ``Pack._limit_turn`` (a large kernel, rarely needed) limits its spin,
+    then this call resumes at it with ``turned_first`` the clusters limited (-1: none yet;
+    the goal map, independent of v, is taken again).
 
     A pack is not spread over threads: its bodies are small, and a body's particle pass
     is not split (its sums would then depend on the split).  The 3x3 and 4x4 work arrays
@@ -192,10 +211,10 @@ def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, 
     inlined by Numba into this one compiled function."""
     work = _work()
     part0, ref, pnt, quat1, rest_lin, rest_off, goal_lin, goal_off = work[:8]
-    m3, acc, dpart0 = work[8], work[17], work[18]
-    dmp, lim_lin, lim_w = work[14], work[15], work[16]
+    acc, dpart0, dmp = work[17], work[18], work[14]
+    udv0 = work[13]
     dp = dpart0[0]
-    for b in range(len(arrays)):
+    for b in range(first, len(arrays)):
         row = P[b]
         if row[C_FLAGS + SLEEP] > 0.0:         # asleep (``sm_ros.core.sleep``): not stepped
             continue
@@ -218,20 +237,17 @@ def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, 
             # ``_pass`` and ``integrate._acc_range`` call (one compiled copy)
             _acc_single(start=np.int64(0), end=n, quad=np.bool_(False), x=x, x0=x0, mass=mass,
                         rest_lin=rest_lin, rest_off=rest_off, ref=ref, sums=part0)
-        q0, q1, q2, q3 = _goal_map(row, work)
-        turned = 0
-        turn = row[C_TURN]
-        if turn > 0.0:
+        q0, q1, q2, q3, matched = _goal_map(row, work)
+        turned, turn = 0, row[C_TURN]
+        if b == first and turned_first >= 0:
+            turned = turned_first
+        elif turn > 0.0:
             # |q_prev . q| = cos(angle / 2), as Body._step
             dot = q0 * quat1[0] + q1 * quat1[1] + q2 * quat1[2] + q3 * quat1[3]
             if abs(dot) < np.cos(0.5 * turn):
-                # the arrays of one cluster (allocated here, not at every call)
-                turned = limit_turn(x=x, v=v, mass=mass, ptr=np.zeros(0, dtype=np.int64),
-                                    cl=np.zeros(0, dtype=np.int32),
-                                    flagged=np.ones(1, dtype=np.bool_), w_max=row[C_WMAX],
-                                    lin=lim_lin, w3=lim_w, m3a=m3[0], m3b=m3[1], m3c=m3[2],
-                                    m3d=m3[3])
-                counts[b, 1] += turned
+                return b                       # limited, then resumed at b
+        for i in range(9 if matched else 0):   # the next step's warm start
+            row[C_UDV + i] = udv0[i // 3, i % 3]
         for i in range(3):
             acc[i] = row[C_FACC + i] + gravity[i]
         if damp:
@@ -264,6 +280,7 @@ def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, 
                              spheres, thresh)
         counts[b, 0] += capped
         _store(row, err2, damp, work)
+    return len(arrays)
 
 
 @njit(inline='always', **JIT)
@@ -285,7 +302,8 @@ def _goal_map(row, work):
     """The one-cluster shape match of a body's row (``goals.solve_clusters_warm`` for one
     cluster of one chunk, rigid or linear) from the sums ``work[0]`` about ``work[1]``:
     writes the centre of mass into ``work[1]``, the quaternion into ``work[3]`` and the
-    goal map into ``work[6:8]``; returns the last step's quaternion.
+    goal map into ``work[6:8]``, the linear match's eigenvectors into ``work[13]``; returns
+    the last step's quaternion and whether the linear match ran (the caller stores them).
 
     Its 3x3 algebra is written out on scalars read from the row instead of calling the
     general kernel, which takes 26 arrays and loops over clusters and chunks; only Horn's
@@ -324,6 +342,7 @@ def _goal_map(row, work):
     extract_rotation(mat=ma, quat=quat1, rot=mb, n4=n4, v4=v4)        # mb = R
     s_k = row[C_SCALE]
     lin_b = False
+    matched = False
     if mode == 1:
         # A s = A_pq-hat A_qq-hat (``matmul``), its determinant over s^3
         for i in range(3):
@@ -339,8 +358,7 @@ def _goal_map(row, work):
             lin_b = unit_det_match_warm(apq=ma, nmat=nmat0, c_s=s_k * c_det, rot=mb,
                                         out=mc, w1=w1, w2=w2, wa=wa, wv=wv,
                                         limit=STRETCH_LIMIT, vw=udv0, warm=np.bool_(True))
-            for i in range(9):
-                row[C_UDV + i] = udv0[i // 3, i % 3]
+            matched = True
     # T = s (beta B + (1 - beta) R) or s R, then the goal map
     for i in range(3):
         if lin_b:
@@ -356,7 +374,7 @@ def _goal_map(row, work):
                                  + t2 * rest_lin[0, 2, j])
         goal_off[0, i] = (t0 * rest_off[0, 0] + t1 * rest_off[0, 1] + t2 * rest_off[0, 2]
                           + ref[0, i])
-    return q0, q1, q2, q3
+    return q0, q1, q2, q3, matched
 
 
 @njit(inline='always', **JIT)
