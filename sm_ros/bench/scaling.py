@@ -56,7 +56,7 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument('--pypbd-threads', default='1,2',
                    help='OMP_NUM_THREADS settings for pypbd (its best is compared)')
     p.add_argument('--bandwidth-mb', type=float, default=256.0,
-                   help='array size of the streaming copy (MB)')
+                   help='array size of the streaming copy (MB); 0: no bandwidth fraction')
     p.add_argument('--variants', default=','.join(DEFAULT_VARIANTS),
                    help='plain (no damping), damped (0.05), substeps2 (0.05, 2 substeps), '
                         'damped_pass (0.05 in the separate pass of small bodies), ground '
@@ -205,7 +205,7 @@ def _bandwidth_table(args, out: Path, bandwidth, nmax: int, modes, ks) -> Dict[s
                      'memory bandwidth and the fraction the single-cluster linear step '
                      'reaches (copies and steps interleaved, best of each)')
     found: Dict[str, Any] = {}
-    if 1 in ks and 'linear' in modes:
+    if args.bandwidth_mb > 0 and 1 in ks and 'linear' in modes:
         bc.log(f'[scaling] bandwidth fraction, linear, 1 cluster, N={nmax} (interleaved)')
         inter = bandwidth_fraction(bc.lattice_side(nmax), args.bandwidth_mb)
         for key, label in (('numpy_copy_GBps', 'streaming copy, NumPy (1 thread)'),
