@@ -16,11 +16,12 @@ its contacts as a whole: an impulse on one of its particles translates the body,
 load reaches all of it within the step instead of compressing its touching layer; such
 pairs, and such bodies on the ground, are solved with accumulated impulses over several
 sweeps, warm-started from the last step (``WARM_START``), and a carried body held by
-another does not spin (``contact_kernels.solve_bodies``): stacks stand and heaps of such
+another does not spin (``contact_bodies.solve_bodies``): stacks stand and heaps of such
 bodies (``paper_384``) come to rest at the node's step.
 
 Neighbour search (a Verlet pair list on a cell grid) and the per-pair solve are compiled
-kernels in ``contact_build.py`` and ``contact_kernels.py``; this file holds the settings
+kernels in ``contact_build.py``, ``contact_cells.py``, ``contact_kernels.py`` and
+``contact_bodies.py``; this file holds the settings
 (``ContactParams``, ``BodyContact``) and the pass ``Contact`` that owns the buffers and calls
 them.
 """
@@ -32,11 +33,12 @@ from typing import Optional
 import numba
 import numpy as np
 
-from .contact_build import (body_overlaps, build_pairs, build_pairs_cells, build_pairs_grid,
-                            build_pairs_grid_par, moved_spread2, sort_pairs)
+from .contact_bodies import solve_bodies
+from .contact_build import (body_overlaps, build_pairs_grid, build_pairs_grid_par,
+                            moved_spread2, sort_pairs)
+from .contact_cells import build_pairs, build_pairs_cells
 from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
-                              inverse_sym3, median_nn_distance, solve_bodies, solve_pairs,
-                              wall_candidates)
+                              inverse_sym3, median_nn_distance, solve_pairs, wall_candidates)
 from .kernels.colliders import contact_velocity
 from .params import _finite
 
@@ -65,7 +67,7 @@ STACK_SWEEPS = 8
 SWEEP_TOL = 0.01
 #: ``solve_bodies`` starts each step from this fraction of the velocity impulses its
 #: pairs of carried bodies (and their ground contacts) ended the last step with, while the
-#: pair list is unchanged (``contact_kernels._warm_start``): without it the 8 sweeps did
+#: pair list is unchanged (``kernels.pair_contact._warm_start``): without it the 8 sweeps did
 #: not carry the load of ``paper_384``'s heap (up to ten bodies high) to the ground, its
 #: top bodies kept about 2 g h of downward speed that the position impulses cancelled
 #: every step (1.3 J left); with 1.0 five stacked boxes sank 14 mm in 10 s.

@@ -1,0 +1,267 @@
+"""The two earlier builders of the contact pass's pair list, kept for sparse worlds and
+as references (tests, ``python -m sm_ros.bench contact``): a hashed cell grid
+(``build_pairs``: a world whose box holds too many cells for the dense grid of
+``contact_build.build_pairs_grid``) and a counting sort into dense cells
+(``build_pairs_cells``).  The same pairs, by the rules of ``contact_build``'s docstring.
+"""
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .kernels.jit import JIT
+
+
+@njit(**JIT)
+def _cell_key(cx, cy, cz):
+    """Pack three cell coordinates (21 bits each, wrapping) into one int64."""
+    return (((cx + 1048576) & 2097151) << 42) | (((cy + 1048576) & 2097151) << 21) | \
+        ((cz + 1048576) & 2097151)
+
+
+@njit(**JIT)
+def _bucket(key, mask):
+    """Hash table slot of a packed cell key (multiplicative hash)."""
+    h = np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)
+    return np.int64(h >> np.uint64(32)) & mask
+
+
+# The builders share their inner pair test (distance with skin, same body only with
+# self-collision and beyond the rest distance).  It is written out in each on purpose: as
+# a shared helper (also with inline='always') the rebuild was several times slower.
+
+
+@njit(**JIT)
+def build_pairs(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt, srt, skey, sco,
+                pi, pj):
+    """Candidate pairs closer than r_i + r_j + skin into pi, pj; returns their number.
+
+    ``act[b]`` says body b collides, ``selfc[b]`` that it self-collides.  Scratch: ``hb``
+    (N,) int64, ``cnt`` (T + 1,) int64 with T a power of two, ``srt`` (N,) int64 (the
+    particles sorted by hash slot), ``skey`` (N,) int64 and ``sco`` (5, N) float64 (their
+    cell keys and x, y, z, r, body copied in slot order, so the neighbour loops read
+    contiguous memory).  When more pairs exist than ``pi`` holds, the count is still
+    returned (the caller grows the arrays and calls again).
+    """
+    n = X.shape[1]
+    tsize = cnt.shape[0] - 1
+    mask = tsize - 1
+    inv = 1.0 / cell
+    cnt[:] = 0
+    # 1. hashed cell of every colliding particle; counting sort by slot
+    for i in range(n):
+        hb[i] = -1
+        if not act[B[i]]:
+            continue
+        x, y, z = X[0, i], X[1, i], X[2, i]
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            continue
+        k = _cell_key(np.int64(math.floor(x * inv)), np.int64(math.floor(y * inv)),
+                      np.int64(math.floor(z * inv)))
+        s = _bucket(k, mask)
+        hb[i] = s
+        cnt[s + 1] += 1
+    for s in range(tsize):
+        cnt[s + 1] += cnt[s]
+    for i in range(n):
+        s = hb[i]
+        if s >= 0:
+            a = cnt[s]
+            srt[a] = i
+            cnt[s] = a + 1
+    for s in range(tsize, 0, -1):
+        cnt[s] = cnt[s - 1]
+    cnt[0] = 0
+    nact = cnt[tsize]
+    for a in range(nact):
+        i = srt[a]
+        sco[0, a] = X[0, i]
+        sco[1, a] = X[1, i]
+        sco[2, a] = X[2, i]
+        sco[3, a] = R[i]
+        sco[4, a] = B[i]
+        skey[a] = _cell_key(np.int64(math.floor(X[0, i] * inv)),
+                            np.int64(math.floor(X[1, i] * inv)),
+                            np.int64(math.floor(X[2, i] * inv)))
+    # 2. pairs, cell by cell (a run of equal keys in slot order; a slot may also hold
+    # other cells, hash collisions, so exact keys are compared): a particle against the
+    # later ones of its run, and the run against the 13 cells of the forward half-stencil,
+    # so each pair is met once
+    cap = pi.shape[0]
+    m = 0
+    a0 = 0
+    while a0 < nact:
+        key = skey[a0]
+        a1 = a0 + 1
+        while a1 < nact and skey[a1] == key:
+            a1 += 1
+        cx = np.int64(math.floor(sco[0, a0] * inv))
+        cy = np.int64(math.floor(sco[1, a0] * inv))
+        cz = np.int64(math.floor(sco[2, a0] * inv))
+        for q in range(14):
+            # q = 0: own cell; 1..13: (ox, oy, oz) lexicographically after (0, 0, 0)
+            r = q + 13
+            k = _cell_key(cx + r // 9 - 1, cy + (r // 3) % 3 - 1, cz + r % 3 - 1)
+            s = _bucket(k, mask)
+            t1 = cnt[s + 1]
+            for a in range(a0, a1):
+                xi, yi, zi, ri = sco[0, a], sco[1, a], sco[2, a], sco[3, a]
+                bi = np.int64(sco[4, a])
+                si = selfc[bi]
+                t0 = a + 1 if q == 0 else cnt[s]
+                for t in range(t0, t1):
+                    if skey[t] != k:
+                        continue
+                    bj = np.int64(sco[4, t])
+                    same = bj == bi
+                    if same and not si:
+                        continue              # one body without self-collision: skip
+                    cut = ri + sco[3, t]
+                    dx = sco[0, t] - xi
+                    dy = sco[1, t] - yi
+                    dz = sco[2, t] - zi
+                    d2 = dx * dx + dy * dy + dz * dz
+                    lim = cut + skin
+                    if d2 >= lim * lim:
+                        continue
+                    i = srt[a]
+                    j = srt[t]
+                    if same:
+                        ex = X0[0, j] - X0[0, i]
+                        ey = X0[1, j] - X0[1, i]
+                        ez = X0[2, j] - X0[2, i]
+                        rest = self_fac * cut
+                        if ex * ex + ey * ey + ez * ez <= rest * rest:
+                            continue
+                    if m < cap:
+                        pi[m] = i
+                        pj[m] = j
+                    m += 1
+        a0 = a1
+    return m
+
+
+@njit(**JIT)
+def build_pairs_cells(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt, srt, sco,
+                      pi, pj):
+    """``build_pairs`` on a dense cell grid: the builder before ``build_pairs_grid`` (kept as
+    the reference that ``python -m sm_ros.bench contact`` times side by side with it).
+
+    Cells are numbered x fastest, so particles sorted by cell are sorted in space and the
+    half-stencil reads five nearby rows of the sorted arrays (the hashed grid jumps at
+    random: ~4x slower at 55k particles).  Returns -1, doing nothing else, when the box
+    holds more cells than ``cnt`` has slots (far-apart bodies: use ``build_pairs``).
+    """
+    n = X.shape[1]
+    tsize = cnt.shape[0] - 1
+    inv = 1.0 / cell
+    lo0 = lo1 = lo2 = np.inf
+    hi0 = hi1 = hi2 = -np.inf
+    for i in range(n):
+        hb[i] = -1
+        if not act[B[i]]:
+            continue
+        x, y, z = X[0, i], X[1, i], X[2, i]
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            continue
+        hb[i] = 0
+        lo0 = min(lo0, x)
+        lo1 = min(lo1, y)
+        lo2 = min(lo2, z)
+        hi0 = max(hi0, x)
+        hi1 = max(hi1, y)
+        hi2 = max(hi2, z)
+    if not lo0 <= hi0:
+        return 0
+    f0 = math.floor((hi0 - lo0) * inv) + 1.0
+    f1 = math.floor((hi1 - lo1) * inv) + 1.0
+    f2 = math.floor((hi2 - lo2) * inv) + 1.0
+    if f0 * f1 * f2 > tsize:
+        return -1
+    nx = np.int64(f0)
+    ny = np.int64(f1)
+    nz = np.int64(f2)
+    nxy = nx * ny
+    cnt[:] = 0
+    for i in range(n):
+        if hb[i] < 0:
+            continue
+        cx = min(np.int64((X[0, i] - lo0) * inv), nx - 1)
+        cy = min(np.int64((X[1, i] - lo1) * inv), ny - 1)
+        cz = min(np.int64((X[2, i] - lo2) * inv), nz - 1)
+        c = cx + nx * cy + nxy * cz
+        hb[i] = c
+        cnt[c + 1] += 1
+    for c in range(tsize):
+        cnt[c + 1] += cnt[c]
+    for i in range(n):
+        c = hb[i]
+        if c >= 0:
+            a = cnt[c]
+            srt[a] = i
+            cnt[c] = a + 1
+    for c in range(tsize, 0, -1):
+        cnt[c] = cnt[c - 1]
+    cnt[0] = 0
+    nact = cnt[tsize]
+    for a in range(nact):
+        i = srt[a]
+        sco[0, a] = X[0, i]
+        sco[1, a] = X[1, i]
+        sco[2, a] = X[2, i]
+        sco[3, a] = R[i]
+        sco[4, a] = B[i]
+    cap = pi.shape[0]
+    m = 0
+    a0 = 0
+    while a0 < nact:
+        c = hb[srt[a0]]
+        a1 = cnt[c + 1]
+        cz = c // nxy
+        cy = (c - cz * nxy) // nx
+        cx = c - cz * nxy - cy * nx
+        for q in range(14):
+            r = q + 13                     # q = 0: own cell; then the forward half-stencil
+            ox = r // 9 - 1
+            oy = (r // 3) % 3 - 1
+            oz = r % 3 - 1
+            # offsets ordered (z, y, x) like the cell numbers: (oz, oy, ox) > (0, 0, 0)
+            qx, qy, qz = cx + oz, cy + oy, cz + ox
+            if qx < 0 or qx >= nx or qy < 0 or qy >= ny or qz >= nz:
+                continue
+            c2 = qx + nx * qy + nxy * qz
+            t1 = cnt[c2 + 1]
+            for a in range(a0, a1):
+                xi, yi, zi, ri = sco[0, a], sco[1, a], sco[2, a], sco[3, a]
+                bi = np.int64(sco[4, a])
+                si = selfc[bi]
+                t0 = a + 1 if q == 0 else cnt[c2]
+                for t in range(t0, t1):
+                    bj = np.int64(sco[4, t])
+                    same = bj == bi
+                    if same and not si:
+                        continue              # one body without self-collision: skip
+                    cut = ri + sco[3, t]
+                    dx = sco[0, t] - xi
+                    dy = sco[1, t] - yi
+                    dz = sco[2, t] - zi
+                    d2 = dx * dx + dy * dy + dz * dz
+                    lim = cut + skin
+                    if d2 >= lim * lim:
+                        continue
+                    i = srt[a]
+                    j = srt[t]
+                    if same:
+                        ex = X0[0, j] - X0[0, i]
+                        ey = X0[1, j] - X0[1, i]
+                        ez = X0[2, j] - X0[2, i]
+                        rest = self_fac * cut
+                        if ex * ex + ey * ey + ez * ez <= rest * rest:
+                            continue
+                    if m < cap:
+                        pi[m] = i
+                        pj[m] = j
+                    m += 1
+        a0 = a1
+    return m
