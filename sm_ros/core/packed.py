@@ -27,6 +27,8 @@ left ``stale``, so a world whose bodies were packed elsewhere (a body stepped on
 packs them again before stepping, and only then: two worlds (the live error estimate's
 copies, a user's second world) each keep their packs while they step in turn.
 """
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 from numba.typed import List as TypedList
@@ -173,16 +175,11 @@ class Pack:
         return turned
 
     def _resolve(self, gravity, ground, boxes, spheres):
-        """(compiled entry of ``step_packed`` for these arrays, the arrays): the entry point
-        of its compiled specialisation, called without Numba's dispatch.
-
-        The dispatch types every argument at each call, a fixed cost that a small pack's
-        step notices.  The entry unboxes the arguments as the types it was compiled for,
-        so it is used only while the collider arrays and gravity are the very objects it
-        was resolved for (the world replaces them when they change), with the pack's own
-        arrays and the scalars converted to the types of the first call.  Where
-        ``step_packed`` is not a Numba dispatcher (a test's spy), it is called as it is.
-        """
+        """(compiled entry of ``step_packed`` for these arrays, the arrays): its compiled
+        specialisation called without Numba's dispatch, which types every argument at each
+        call.  Used only while the collider arrays and gravity are the very objects it was
+        resolved for (the world replaces them when they change); a test's spy that is no
+        dispatcher is called as it is."""
         fn = step_packed
         entry = fn
         overloads = getattr(fn, 'overloads', None)
@@ -205,14 +202,11 @@ def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, 
     then this call resumes at it with ``turned_first`` the clusters limited (-1: none yet;
     the goal map, independent of v, is taken again).
 
-    A pack is not spread over threads: its bodies are small, and a body's particle pass
-    is not split (its sums would then depend on the split).  The 3x3 and 4x4 work arrays
-    of the calls (``_work``) are allocated once a call, not once a body; the helpers are
-    inlined by Numba into this one compiled function."""
+    Serial: the bodies are small, and a split pass's sums would depend on the split.
+    ``Work`` is allocated once a call; the helpers are inlined into this function."""
     work = _work()
-    part0, ref, pnt, quat1, rest_lin, rest_off, goal_lin, goal_off = work[:8]
-    acc, dpart0, dmp = work[17], work[18], work[14]
-    udv0 = work[13]
+    part0, ref, pnt, quat1, rest_lin = work.part, work.ref, work.pnt, work.quat, work.rest_lin
+    rest_off, acc, dpart0, dmp, udv0 = work.rest_off, work.acc, work.dpart, work.dmp, work.udv
     dp = dpart0[0]
     for b in range(first, len(arrays)):
         row = P[b]
@@ -261,12 +255,9 @@ def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, 
                 for j in range(NDAMP):
                     dpart0[0, j] = row[C_DPART + j]
             _damping_field(work)
-        # ---- the one particle pass: damping + Eq. 13-14, colliders, speed limit, then
-        # the next step's sums about the point pnt, which becomes the body's ref (the
-        # solver takes the centre of mass as ref + sum w (x - ref) / W: any point serves):
-        # damped, where the centre of mass goes (the field's velocity at ref, plus h acc:
-        # a body flying at 3e10 m/s is 3e9 m past its old ref after one step, and sums
-        # about that ref lose the body to rounding); undamped, ref (no velocity sums)
+        # ---- the one particle pass, then the next step's sums about the point pnt (the
+        # body's next ref; any point serves): damped, where the centre of mass goes, so a
+        # very fast body is not lost to rounding; undamped, ref (no velocity sums)
         for j in range(3):
             pnt[0, j] = ref[0, j] + (h * (dmp[0, j] + h * acc[j]) if damp else 0.0)
         for j in range(12):
@@ -283,26 +274,32 @@ def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, 
     return len(arrays)
 
 
+#: The work arrays of ``step_packed``: the shape-match sums and their point, the point
+#: the next sums are taken about, the last quaternion, the rest and goal maps, 3x3 / 4x4
+#: scratch of the eigen-solvers (``m3``: four 3x3), the linear match's eigenvectors, the
+#: damping field, the acceleration, the damping sums and the damping solve's scratch.
+Work = namedtuple('Work', 'part ref pnt quat rest_lin rest_off goal_lin goal_off m3 m39 n4 '
+                          'v4 nmat udv dmp acc dpart wa wv')
+
+
 @njit(inline='always', **JIT)
 def _work():
-    """The work arrays of ``step_packed``, zeroed: (part, ref, pnt, quat, rest_lin,
-    rest_off, goal_lin, goal_off, m3 (four 3x3), m39, n4, v4, nmat, udv, dmp, lim_lin,
-    lim_w, acc, dpart, wa, wv): C-contiguous each, the layout the body build's calls of
+    """``Work``, zeroed: C-contiguous arrays each, the layout the body build's calls of
     the eigen-solvers use (one specialisation of them)."""
-    return (np.zeros((1, 12)), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(4),
-            np.zeros((1, 3, 3)), np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)),
-            np.zeros((4, 3, 3)), np.zeros((3, 9)), np.zeros((4, 4)), np.zeros((4, 4)),
-            np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((1, 6)), np.zeros((1, 13)),
-            np.zeros((1, 6)), np.zeros(3), np.zeros((1, NDAMP)), np.zeros((3, 3)),
-            np.zeros((3, 3)))
+    return Work(np.zeros((1, 12)), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(4),
+                np.zeros((1, 3, 3)), np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)),
+                np.zeros((4, 3, 3)), np.zeros((3, 9)), np.zeros((4, 4)), np.zeros((4, 4)),
+                np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((1, 6)), np.zeros(3),
+                np.zeros((1, NDAMP)), np.zeros((3, 3)), np.zeros((3, 3)))
 
 
 @njit(inline='always', **JIT)
 def _goal_map(row, work):
     """The one-cluster shape match of a body's row (``goals.solve_clusters_warm`` for one
-    cluster of one chunk, rigid or linear) from the sums ``work[0]`` about ``work[1]``:
-    writes the centre of mass into ``work[1]``, the quaternion into ``work[3]`` and the
-    goal map into ``work[6:8]``, the linear match's eigenvectors into ``work[13]``; returns
+    cluster of one chunk, rigid or linear) from the sums ``work.part`` about ``work.ref``:
+    writes the centre of mass into ``work.ref``, the quaternion into ``work.quat``, the
+    goal map into ``work.goal_lin``/``goal_off``, the linear match's eigenvectors into
+    ``work.udv``; returns
     the last step's quaternion and whether the linear match ran (the caller stores them).
 
     Its 3x3 algebra is written out on scalars read from the row instead of calling the
@@ -311,11 +308,12 @@ def _goal_map(row, work):
     (``unit_det_match_warm``, warm started from the body's last eigenvectors ``_udv``, as
     ``Body._step`` and the record step do) are calls."""
     part0, ref, quat1, rest_lin, rest_off, goal_lin, goal_off = (
-        work[0], work[1], work[3], work[4], work[5], work[6], work[7])
-    m3, m39, n4, v4, nmat0, udv0 = work[8], work[9], work[10], work[11], work[12], work[13]
+        work.part, work.ref, work.quat, work.rest_lin, work.rest_off, work.goal_lin,
+        work.goal_off)
+    m3, m39, n4, v4, nmat0, udv0 = work.m3, work.m39, work.n4, work.v4, work.nmat, work.udv
     ma, mb, mc = m3[0], m3[1], m3[2]
     w1, w2 = m39[:, 3:6], m39[:, 6:9]
-    wa, wv = work[19], work[20]
+    wa, wv = work.wa, work.wv
     beta, mode = row[C_BETA], int(row[C_MODE])
     # x_cm = ref + sum w d / W, A_pq-hat = sum w d q^T - (x_cm - ref) (sum w q)^T, R (Horn,
     # ``extract_rotation``), linear: B (``unit_det_match_warm``, warm started from the
@@ -379,11 +377,11 @@ def _goal_map(row, work):
 
 @njit(inline='always', **JIT)
 def _damping_field(work):
-    """The rigid field c + omega x (x - ref) of the damping sums ``work[18]`` (about their
-    point p = dp[15:18]; ``damping._rigid_fields`` for one cluster, on scalars) into
-    ``work[14]``: v_cm and L about the centre of mass, the inertia tensor I,
+    """The rigid field c + omega x (x - ref) of the damping sums ``work.dpart`` (about
+    their point p = dp[15:18]; ``damping._rigid_fields`` for one cluster, on scalars) into
+    ``work.dmp``: v_cm and L about the centre of mass, the inertia tensor I,
     omega = I^+ L (``sym3_solve``: the adjugate where I is well posed)."""
-    ref, m3, dmp, dp = work[1], work[8], work[14], work[18][0]
+    ref, m3, dmp, dp = work.ref, work.m3, work.dmp, work.dpart[0]
     ma, mb, mc, md = m3[0], m3[1], m3[2], m3[3]
     wk = dp[19]
     u0, u1, u2 = dp[3] / wk, dp[4] / wk, dp[5] / wk
@@ -414,9 +412,9 @@ def _damping_field(work):
 
 @njit(inline='always', **JIT)
 def _store(row, err2, damp, work):
-    """Store what the step changed into the body's row (the new ref: the point ``work[2]``
-    the sums were taken about)."""
-    part0, pnt, quat1, dpart0 = work[0], work[2], work[3], work[18]
+    """Store what the step changed into the body's row (the new ref: the point
+    ``work.pnt`` the sums were taken about)."""
+    part0, pnt, quat1, dpart0 = work.part, work.pnt, work.quat, work.dpart
     if damp:
         # the damping row's W and sum w (x - pnt): the shape sums' (same point)
         dpart0[0, 19] = row[C_WSUM]
@@ -439,8 +437,8 @@ def _store(row, err2, damp, work):
 @njit(inline='always', **JIT)
 def _pass(lo, hi, x, v, x0, mass, row, h, work, has_col, ground, boxes, spheres, thresh):
     """Particles lo..hi of a one-cluster body (see ``step_packed``; its parameters from
-    ``row``); the next step's sums are added to ``work[0]`` (12) and, damped,
-    ``work[18]`` (its point set by the caller).  Returns (shape-error sum, capped
+    ``row``); the next step's sums are added to ``work.part`` (12) and, damped,
+    ``work.dpart`` (its point set by the caller).  Returns (shape-error sum, capped
     speeds).
 
     One loop does it all (``_int_single_fused``, ``FUSED_BLOCK`` particles a call), the
@@ -452,8 +450,10 @@ def _pass(lo, hi, x, v, x0, mass, row, h, work, has_col, ground, boxes, spheres,
     spheres, is projected onto the colliders (the ground alone: ``ground_range``, no bounds
     pass), capped and summed again (``_acc_single``, ``damp_sums_range``, vectorised).
     """
-    sums, ref, pnt, _, rest_lin, rest_off, goal_lin, goal_off = work[:8]
-    dmp, acc, dsums = work[14], work[17], work[18]
+    sums, ref, pnt, rest_lin, rest_off = (work.part, work.ref, work.pnt, work.rest_lin,
+                                          work.rest_off)
+    goal_lin, goal_off, dmp, acc, dsums = (work.goal_lin, work.goal_off, work.dmp, work.acc,
+                                           work.dpart)
     alpha, k_damp, v_max, wuni = row[C_ALPHA], row[C_DAMP], row[C_VMAX], row[C_WUNI]
     damp = k_damp > 0.0
     err2 = 0.0
