@@ -276,7 +276,7 @@ def _cube(n: int = 3, half: float = 0.05) -> np.ndarray:
 def warm_packed() -> None:
     """Step the one-cluster rigid and linear bodies (the packed step, ``core/packed.py``)
     under the static and moving colliders, alone (the collider pass on the body's own
-    buffers) and several at once with contact under gravity (``solve_bodies``), and one
+    buffers) and several at once with contact under gravity (the contact solve), and one
     spinning past its turn limit (``Pack._limit_turn``)."""
     from sm_ros.core import BodyParams, Box, Capsule, Ground, Sphere, World
     cube = _cube()
@@ -316,7 +316,7 @@ def warm_packed() -> None:
 
 def warm_extra() -> float:
     """The second process of a cold warm-up (:func:`warm_up`): the variants the node
-    meets less often: contact without gravity (``solve_pairs``),
+    meets less often: contact without gravity (no sleeping),
     one-particle bodies (their (1, 3) arrays are C- and F-ordered at once, a specialisation
     of their own) and the threaded kernels of one big body (``body.PARALLEL_MIN_WORK``
     lowered here so that a small body takes them).  Return the seconds spent."""
