@@ -20,7 +20,7 @@ from .kernels.jit import JIT
 #: Contact reduction (``group_rows``): a group of two stiff bodies (or a stiff body and a
 #: collider) is split into at most ``PATCHES`` flat patches (normals within
 #: acos(``FLAT_COS``) of the patch's first), each keeping at most ``KEEP`` rows.
-KEEP = 9
+KEEP = 17
 FLAT_COS = 0.995
 PATCHES = 4
 #: A row deeper than this share of its contact distance is always kept: reduction only
@@ -280,7 +280,7 @@ def _reduce(rows, order, lo, hi, kept, label, seeds):
     """Mark in ``kept`` what a group of rows lo..hi keeps: its rows split into flat
     patches (normals within acos(``FLAT_COS``) of the patch's first row, at most
     ``PATCHES`` of them; rows of none are left out), each patch of more than ``KEEP``
-    rows its deepest row and its extremes in eight directions of its tangent plane, a
+    rows its deepest row and its extremes in 16 directions of its tangent plane, a
     smaller patch every row.  ``label`` (rows) and ``seeds`` (``PATCHES``, 3) are scratch."""
     npatch = 0
     for a in range(lo, hi):
@@ -309,7 +309,7 @@ def _reduce(rows, order, lo, hi, kept, label, seeds):
 
 @njit(inline='always', **JIT)
 def _keep_extremes(rows, order, lo, hi, label, s, kept):
-    """Mark in ``kept`` the deepest row of patch s of a group and its extremes in eight
+    """Mark in ``kept`` the deepest row of patch s of a group and its extremes in 16
     directions of the patch's tangent plane (offsets from body i's centre)."""
     m0 = m1 = m2 = 0.0
     deep = -1
@@ -327,9 +327,9 @@ def _keep_extremes(rows, order, lo, hi, label, s, kept):
     el = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
     e0, e1, e2 = e0 / el, e1 / el, e2 / el
     f0, f1, f2 = _cross(m0, m1, m2, e0, e1, e2)
-    for k in range(8):
-        ca = np.cos(0.25 * np.pi * k)
-        sa = np.sin(0.25 * np.pi * k)
+    for k in range(16):
+        ca = np.cos(0.125 * np.pi * k)
+        sa = np.sin(0.125 * np.pi * k)
         best = -np.inf
         arg = deep
         for a in range(lo, hi):
