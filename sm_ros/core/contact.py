@@ -38,7 +38,7 @@ from .contact_soft import collide_moved, soft_pairs
 from .contact_solve import collider_offsets, fill_rows, pair_rows
 from .contact_statics import collide_rows_soft, collide_soft, collider_rows, project_moved
 from .contact_sweeps import POS_SWEEPS, VEL_SWEEPS, WARM, solve_rows
-from .kernels.contact_rows import (LAW_GUARD, ROW_WIDTH, WARM_STAMP, WARM_WIDTH, Bodies,
+from .kernels.contact_rows import (LAW_GUARD, ROW_WIDTH, WARM_WIDTH, Bodies,
                                    PairList, Particles, Rows, Statics)
 from .kinematic import contact_rows as kinematic_rows, row_wrenches
 from .kernels.colliders import contact_velocity
