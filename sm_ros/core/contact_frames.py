@@ -155,14 +155,18 @@ def _inverse_sym3(a, out):
     """out (9,) = the inverse of the symmetric 3x3 a (9,) by its adjugate; for a body of
     collinear particles (singular) the inverse on the plane across the line is not
     needed by any contact along it: the pseudo-inverse is approximated by a tiny
-    regulariser."""
+    regulariser.  A single particle (no inertia) takes no spin: zero."""
     tr = a[0] + a[4] + a[8]
-    eps = 1e-9 * tr + 1e-300
+    eps = 1e-9 * tr
     a0, a4, a8 = a[0] + eps, a[4] + eps, a[8] + eps
     c00 = a4 * a8 - a[5] * a[7]
     c01 = a[5] * a[6] - a[3] * a8
     c02 = a[3] * a[7] - a4 * a[6]
-    idet = 1.0 / (a0 * c00 + a[1] * c01 + a[2] * c02)
+    det = a0 * c00 + a[1] * c01 + a[2] * c02
+    if not det > 0.0:
+        out[:] = 0.0
+        return
+    idet = 1.0 / det
     out[0] = c00 * idet
     out[1] = (a[2] * a[7] - a[1] * a8) * idet
     out[2] = (a[1] * a[5] - a[2] * a4) * idet
