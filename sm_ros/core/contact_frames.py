@@ -102,8 +102,8 @@ def body_frames(pt, off, cpl, bd, h, box, X0):
             q[c] = X[c, o] - h * V[c, o]
         _body_sums(pt, X0, bd.c0[b], o, off[b + 1], h, q, acc)
         mt = acc[S_M]
-        if not mt > 0.0:
-            bd.share[b] = 0.0              # massless (never in a scene): per particle
+        if not (mt > 0.0 and np.isfinite(np.sum(acc))):
+            bd.share[b] = 0.0              # massless or non-finite (reset after the step)
             continue
         iw = 1.0 / mt
         bd.bw[b] = iw
