@@ -260,6 +260,7 @@ class Contact:
         # which bodies take their contacts as rigid bodies (set by World)
         self.coupling = np.zeros(max(nb, 1), dtype=np.bool_)
         self._wp = None                 # warm-start impulses per pair of the list
+        self._wc = None                 # ... per particle against a collider
         self._bodies = None             # the solve's state (contact_solve), made at a run
         self._rows = None
         self._stamp = 0.0
