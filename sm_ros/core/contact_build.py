@@ -33,12 +33,12 @@ thread count; the other builders list the same pairs, a particle's partners mayb
 another order.
 """
 
-import math
 
 import numpy as np
 from numba import njit, prange
 
 from .kernels.jit import JIT
+from .kernels.pair_grid import grid_box
 from .kernels.spread import moved_box, spread_of
 
 #: ``cb`` of a cell without particles (``grid_sort``).
@@ -139,34 +139,10 @@ def grid_sort(X, R, B, act, cell, hb, cnt, srt, P, sb, cb, dims):
     ``EMPTY`` when none (every cell of the box written).
     """
     n = X.shape[1]
-    tsize = cnt.shape[0] - 1
     inv = 1.0 / cell
-    lo0 = lo1 = lo2 = np.inf
-    hi0 = hi1 = hi2 = -np.inf
-    for i in range(n):
-        hb[i] = -1
-        if not act[B[i]]:
-            continue
-        x, y, z = X[0, i], X[1, i], X[2, i]
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-            continue
-        hb[i] = 0
-        lo0 = min(lo0, x)
-        lo1 = min(lo1, y)
-        lo2 = min(lo2, z)
-        hi0 = max(hi0, x)
-        hi1 = max(hi1, y)
-        hi2 = max(hi2, z)
-    if not lo0 <= hi0:
-        return 0
-    f0 = math.floor((hi0 - lo0) * inv) + 1.0
-    f1 = math.floor((hi1 - lo1) * inv) + 1.0
-    f2 = math.floor((hi2 - lo2) * inv) + 1.0
-    if f0 * f1 * f2 > tsize:
-        return -1
-    nx = np.int64(f0)
-    ny = np.int64(f1)
-    nz = np.int64(f2)
+    lo0, lo1, lo2, nx, ny, nz = grid_box(X, B, act, hb, inv, cnt.shape[0] - 1)
+    if nx <= 0:
+        return nx
     nxy = nx * ny
     ncell = nxy * nz
     dims[0] = nx

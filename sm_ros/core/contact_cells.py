@@ -11,6 +11,7 @@ import numpy as np
 from numba import njit
 
 from .kernels.jit import JIT
+from .kernels.pair_grid import grid_box, kept_pair
 
 
 @njit(**JIT)
@@ -106,37 +107,15 @@ def build_pairs(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt, srt, ske
             s = _bucket(k, mask)
             t1 = cnt[s + 1]
             for a in range(a0, a1):
-                xi, yi, zi, ri = sco[0, a], sco[1, a], sco[2, a], sco[3, a]
-                bi = np.int64(sco[4, a])
-                si = selfc[bi]
                 t0 = a + 1 if q == 0 else cnt[s]
                 for t in range(t0, t1):
                     if skey[t] != k:
                         continue
-                    bj = np.int64(sco[4, t])
-                    same = bj == bi
-                    if same and not si:
-                        continue              # one body without self-collision: skip
-                    cut = ri + sco[3, t]
-                    dx = sco[0, t] - xi
-                    dy = sco[1, t] - yi
-                    dz = sco[2, t] - zi
-                    d2 = dx * dx + dy * dy + dz * dz
-                    lim = cut + skin
-                    if d2 >= lim * lim:
+                    if not kept_pair(sco, a, t, selfc, X0, srt, skin, self_fac):
                         continue
-                    i = srt[a]
-                    j = srt[t]
-                    if same:
-                        ex = X0[0, j] - X0[0, i]
-                        ey = X0[1, j] - X0[1, i]
-                        ez = X0[2, j] - X0[2, i]
-                        rest = self_fac * cut
-                        if ex * ex + ey * ey + ez * ez <= rest * rest:
-                            continue
                     if m < cap:
-                        pi[m] = i
-                        pj[m] = j
+                        pi[m] = srt[a]
+                        pj[m] = srt[t]
                     m += 1
         a0 = a1
     return m
@@ -156,32 +135,9 @@ def build_pairs_cells(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt, sr
     n = X.shape[1]
     tsize = cnt.shape[0] - 1
     inv = 1.0 / cell
-    lo0 = lo1 = lo2 = np.inf
-    hi0 = hi1 = hi2 = -np.inf
-    for i in range(n):
-        hb[i] = -1
-        if not act[B[i]]:
-            continue
-        x, y, z = X[0, i], X[1, i], X[2, i]
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-            continue
-        hb[i] = 0
-        lo0 = min(lo0, x)
-        lo1 = min(lo1, y)
-        lo2 = min(lo2, z)
-        hi0 = max(hi0, x)
-        hi1 = max(hi1, y)
-        hi2 = max(hi2, z)
-    if not lo0 <= hi0:
-        return 0
-    f0 = math.floor((hi0 - lo0) * inv) + 1.0
-    f1 = math.floor((hi1 - lo1) * inv) + 1.0
-    f2 = math.floor((hi2 - lo2) * inv) + 1.0
-    if f0 * f1 * f2 > tsize:
-        return -1
-    nx = np.int64(f0)
-    ny = np.int64(f1)
-    nz = np.int64(f2)
+    lo0, lo1, lo2, nx, ny, nz = grid_box(X, B, act, hb, inv, tsize)
+    if nx <= 0:
+        return nx
     nxy = nx * ny
     cnt[:] = 0
     for i in range(n):
@@ -233,35 +189,13 @@ def build_pairs_cells(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt, sr
             c2 = qx + nx * qy + nxy * qz
             t1 = cnt[c2 + 1]
             for a in range(a0, a1):
-                xi, yi, zi, ri = sco[0, a], sco[1, a], sco[2, a], sco[3, a]
-                bi = np.int64(sco[4, a])
-                si = selfc[bi]
                 t0 = a + 1 if q == 0 else cnt[c2]
                 for t in range(t0, t1):
-                    bj = np.int64(sco[4, t])
-                    same = bj == bi
-                    if same and not si:
-                        continue              # one body without self-collision: skip
-                    cut = ri + sco[3, t]
-                    dx = sco[0, t] - xi
-                    dy = sco[1, t] - yi
-                    dz = sco[2, t] - zi
-                    d2 = dx * dx + dy * dy + dz * dz
-                    lim = cut + skin
-                    if d2 >= lim * lim:
+                    if not kept_pair(sco, a, t, selfc, X0, srt, skin, self_fac):
                         continue
-                    i = srt[a]
-                    j = srt[t]
-                    if same:
-                        ex = X0[0, j] - X0[0, i]
-                        ey = X0[1, j] - X0[1, i]
-                        ez = X0[2, j] - X0[2, i]
-                        rest = self_fac * cut
-                        if ex * ex + ey * ey + ez * ez <= rest * rest:
-                            continue
                     if m < cap:
-                        pi[m] = i
-                        pj[m] = j
+                        pi[m] = srt[a]
+                        pj[m] = srt[t]
                     m += 1
         a0 = a1
     return m
