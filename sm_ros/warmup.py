@@ -24,7 +24,7 @@ import numpy as np
 #: Seconds a cold compile of every kernel takes on 2 idle cores: half the CPU seconds of
 #: the full warm-up that ``python -m sm_ros.bench startup`` reports (its two processes
 #: share the work); ``warmup`` quotes it in its cold-start line and progress bar.
-COLD_COMPILE_S = 90.0
+COLD_COMPILE_S = 60.0
 
 
 def _core_kernels():
@@ -181,10 +181,10 @@ def warm_up(on_stage: Optional[Callable[[str], None]] = None, split: bool = True
     cache warm this takes a fraction of a second.
 
     On a cold cache (and ``split``) a second process (``python -m sm_ros.warmup --extra``,
-    :func:`warm_extra`) compiles the variants the node meets less often at the same time
-    on the second core, while this one compiles everything else; Numba's cache files are
-    written whole (a temporary file, then renamed), so each process loads what the other
-    has finished.  Without a second process those variants compile when first met.
+    :func:`warm_extra`) compiles ``EXTRA_STAGES`` on the second core while this one
+    compiles ``MAIN_STAGES``; Numba's cache files are written whole (a temporary file, then
+    renamed), so each process loads what the other has finished.  Without a second process
+    this one does both.
     """
     t0 = time.perf_counter()
     extra = _start_extra() if split and _cpus() > 1 and cold_kernels() else None
@@ -220,50 +220,14 @@ def stop_helpers() -> None:
 
 
 def _warm_up(on_stage, extra, t0) -> float:
-    from sm_ros.core import BodyParams, Box, Capsule, Ground, Sphere, World
-    from sm_ros.core.contact import ContactParams
-    # body-body contact is warmed with the packed step (warm_packed, below)
-    contact = ContactParams(enabled=False)
-    cube = _cube()
-    world = World(gravity=(0.0, 0.0, -9.81))
-    world.contact_params = contact
-    world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.0),
-                        boxes=[Box(lo=(1.0, 1.0, 0.0), hi=(2.0, 2.0, 1.0))],
-                        spheres=[Sphere(center=(-1.0, -1.0, 0.0), radius=0.5)],
-                        capsules=[Capsule(center=(0.3, 0.0, 0.0), radius=0.05, length=0.2,
-                                          name='warm_finger', kinematic=True)])
-    configs = [BodyParams(mode='rigid'), BodyParams(mode='linear'),
-               BodyParams(mode='quadratic', clusters=2, plastic_yield=0.01,
-                          plastic_creep=1.0, plastic_max=0.5),
-               BodyParams(mode='linear', clusters=2, plastic_creep=1.0, plastic_max=0.5)]
-    bodies = [world.add_body(cube + (0.3 * i, 0.0, 0.1), masses=0.01, params=p,
-                             name=f'warm{i}') for i, p in enumerate(configs)]
-    bodies[0].set_wrench((0.0, 0.0, 1.0), (0.0, 0.0, 0.1))
-    bodies[1].set_kinematic(np.array([0]), cube[:1] + (0.3, 0.0, 0.12))
-    world.move_collider('warm_finger', (0.3, 0.0, 0.05), (0.0, 0.0, 0.0, 1.0), 1.0 / 60.0)
-    for _ in range(2):
-        world.step(1.0 / 120.0)
-    # damping: the separate pass (small bodies) and the one fused into the particle pass
-    # (bodies of FUSED_DAMPING_MIN particles and more; one cluster, and the set layout)
-    big = _cube(11)
-    damped = World(gravity=(0.0, 0.0, -9.81))
-    damped.contact_params = contact
-    damped.set_colliders(ground=Ground(height=0.0))
-    for i, (mode, k) in enumerate((('linear', 1), ('linear', 2), ('quadratic', 2))):
-        damped.add_body(big + (0.3 * i, 0.0, 0.1), masses=0.01,
-                        params=BodyParams(mode=mode, clusters=k, damping=0.05))
-    damped.bodies[0].set_kinematic(np.array([0]), big[:1] + (0.0, 0.0, 0.12))
-    for _ in range(2):
-        damped.step(1.0 / 120.0)
-    warm_packed()
+    for stage in MAIN_STAGES:
+        stage()
+        if on_stage is not None:
+            on_stage(stage.__name__.strip('_').replace('_', ' '))
     if extra is not None:
         _finish_extra(extra)
-    if on_stage is not None:
-        on_stage('world step')
-    for b in bodies:
-        b.com(), b.rotation(), b.shape_error_rms(), b.momentum(), b.is_finite()
-        if on_stage is not None:
-            on_stage(b.params.mode)
+    else:
+        warm_extra()
     mark_warm()
     return time.perf_counter() - t0
 
@@ -273,26 +237,80 @@ def _cube(n: int = 3, half: float = 0.05) -> np.ndarray:
     return np.stack(np.meshgrid(g, g, g, indexing='ij'), axis=-1).reshape(-1, 3)
 
 
-def warm_packed() -> None:
-    """Step the one-cluster rigid and linear bodies (the packed step, ``core/packed.py``)
-    under the static and moving colliders, alone (the collider pass on the body's own
-    buffers) and several at once with contact under gravity (``solve_bodies``), and one
-    spinning past its turn limit (``Pack._limit_turn``)."""
-    from sm_ros.core import BodyParams, Box, Capsule, Ground, Sphere, World
-    cube = _cube()
-    world = World(gravity=(0.0, 0.0, -9.81))
-    world.set_colliders(ground=Ground(height=0.0, friction=0.5),
+def _colliders(world, finger_x: float) -> None:
+    """The ground, a box, a sphere and a kinematic capsule finger that moves."""
+    from sm_ros.core import Box, Capsule, Ground, Sphere
+    world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.0),
                         boxes=[Box(lo=(1.0, 1.0, 0.0), hi=(2.0, 2.0, 1.0))],
                         spheres=[Sphere(center=(-1.0, -1.0, 0.0), radius=0.5)],
-                        capsules=[Capsule(center=(0.6, 0.0, 0.0), radius=0.05, length=0.2,
-                                          name='warm_finger', kinematic=True)])
+                        capsules=[Capsule(center=(finger_x, 0.0, 0.0), radius=0.05,
+                                          length=0.2, name='warm_finger', kinematic=True)])
+    world.move_collider('warm_finger', (finger_x, 0.0, 0.05), (0.0, 0.0, 0.0, 1.0), 1.0 / 60.0)
+
+
+_PLASTIC = dict(plastic_yield=0.01, plastic_creep=1.0, plastic_max=0.5)
+
+
+def _modes() -> None:
+    """Every deformation mode, clusters and plasticity, a wrench and a grabbed particle
+    under the colliders (body-body contact off), and the bodies' read-outs."""
+    from sm_ros.core import BodyParams, World
+    from sm_ros.core.contact import ContactParams
+    cube = _cube()
+    world = World(gravity=(0.0, 0.0, -9.81))
+    world.contact_params = ContactParams(enabled=False)
+    _colliders(world, 0.3)
+    configs = [BodyParams(mode='rigid'), BodyParams(mode='linear'),
+               BodyParams(mode='quadratic', clusters=2, plastic_yield=0.01,
+                          plastic_creep=1.0, plastic_max=0.5),
+               BodyParams(mode='linear', clusters=2, plastic_creep=1.0, plastic_max=0.5)]
+    bodies = [world.add_body(cube + (0.3 * i, 0.0, 0.1), masses=0.01, params=p,
+                             name=f'warm{i}') for i, p in enumerate(configs)]
+    bodies[0].set_wrench((0.0, 0.0, 1.0), (0.0, 0.0, 0.1))
+    bodies[1].set_kinematic(np.array([0]), cube[:1] + (0.3, 0.0, 0.12))
+    for _ in range(2):
+        world.step(1.0 / 120.0)
+    for b in bodies:
+        b.com(), b.rotation(), b.shape_error_rms(), b.momentum(), b.is_finite()
+
+
+def _damped() -> None:
+    """Damping: the separate pass (small bodies) and the one fused into the particle pass
+    (bodies of FUSED_DAMPING_MIN particles and more; one cluster, and the set layout)."""
+    from sm_ros.core import BodyParams, Ground, World
+    from sm_ros.core.contact import ContactParams
+    big = _cube(11)
+    damped = World(gravity=(0.0, 0.0, -9.81))
+    damped.contact_params = ContactParams(enabled=False)
+    damped.set_colliders(ground=Ground(height=0.0))
+    for i, (mode, k) in enumerate((('linear', 1), ('linear', 2), ('quadratic', 2))):
+        damped.add_body(big + (0.3 * i, 0.0, 0.1), masses=0.01,
+                        params=BodyParams(mode=mode, clusters=k, damping=0.05))
+    damped.bodies[0].set_kinematic(np.array([0]), big[:1] + (0.0, 0.0, 0.12))
+    for _ in range(2):
+        damped.step(1.0 / 120.0)
+
+
+def warm_packed() -> None:
+    """Step the one-cluster rigid and linear bodies (the packed step, ``core/packed.py``)
+    under the static and moving colliders, several at once with contact under gravity
+    (``solve_bodies``)."""
+    from sm_ros.core import BodyParams, World
+    cube = _cube()
+    world = World(gravity=(0.0, 0.0, -9.81))
+    _colliders(world, 0.6)
     for i, p in enumerate((BodyParams(mode='rigid', alpha=0.9), BodyParams(mode='linear'),
                            BodyParams(damping=0.05))):
         world.add_body(cube + (0.0, 0.0, 0.06 + 0.099 * i), masses=0.01, params=p)
-    world.move_collider('warm_finger', (0.6, 0.0, 0.05), (0.0, 0.0, 0.0, 1.0), 1.0 / 60.0)
     for _ in range(2):
         world.step(1.0 / 120.0)
-    # sleeping bodies (core/sleep.py): a pile without collider-pass colliders
+
+
+def _packed_alone() -> None:
+    """Sleeping bodies (``core/sleep.py``), a packed body alone (the collider pass on its
+    own buffers) and one spinning past its turn limit (``Pack._limit_turn``)."""
+    from sm_ros.core import BodyParams, Capsule, Ground, World
+    cube = _cube()
     pile = World(gravity=(0.0, 0.0, -9.81))
     pile.set_colliders(ground=Ground(height=0.0, friction=0.5))
     for i in range(2):
@@ -307,49 +325,73 @@ def warm_packed() -> None:
     solo.set_colliders(capsules=[Capsule(center=(0.0, 0.0, 0.0), radius=0.05, length=0.1)])
     solo.add_body(cube + (0.0, 0.0, 0.1), masses=0.01)
     solo.step(1.0 / 120.0)
-    # a packed body spinning past its max_turn (``Pack._limit_turn``, compiled apart)
     spin = World(gravity=(0.0, 0.0, 0.0))
     spin.add_body(cube, masses=0.01, velocities=np.cross((0.0, 0.0, 300.0), cube))
     for _ in range(2):
         spin.step(1.0 / 120.0)
 
 
-def warm_extra() -> float:
-    """The second process of a cold warm-up (:func:`warm_up`): the variants the node
-    meets less often: contact without gravity (``solve_pairs``),
-    one-particle bodies (their (1, 3) arrays are C- and F-ordered at once, a specialisation
-    of their own) and the threaded kernels of one big body (``body.PARALLEL_MIN_WORK``
-    lowered here so that a small body takes them).  Return the seconds spent."""
-    import sm_ros.core.body as body_mod
-    from sm_ros.core import BodyParams, Ground, World
-    t0 = time.perf_counter()
+def _free_contact() -> None:
+    """Body-body contact without gravity (``solve_pairs``)."""
+    from sm_ros.core import World
     cube = _cube()
     free = World(gravity=(0.0, 0.0, 0.0))
     for i in range(2):
         free.add_body(cube + (0.099 * i, 0.0, 0.0), masses=0.01,
                       velocities=np.tile(((1.0 - 2.0 * i) * 0.1, 0.0, 0.0), (len(cube), 1)))
     free.step(1.0 / 120.0)
-    plastic = dict(plastic_yield=0.01, plastic_creep=1.0, plastic_max=0.5)
+
+
+def _points() -> None:
+    """Bodies of one particle in every mode (the compiled world step's records)."""
+    from sm_ros.core import BodyParams, Ground, World
     one = World(gravity=(0.0, 0.0, -9.81))
     one.set_colliders(ground=Ground(height=0.0))
-    for i, p in enumerate((BodyParams(mode='rigid', damping=0.05, **plastic),
-                           BodyParams(mode='linear', clusters=2, **plastic),
-                           BodyParams(mode='quadratic', **plastic),
-                           BodyParams(mode='quadratic', clusters=2, **plastic),
+    for i, p in enumerate((BodyParams(mode='rigid', damping=0.05, **_PLASTIC),
+                           BodyParams(mode='linear', clusters=2, **_PLASTIC),
+                           BodyParams(mode='quadratic', **_PLASTIC),
+                           BodyParams(mode='quadratic', clusters=2, **_PLASTIC),
                            BodyParams(mode='quadratic', clusters=2, damping=0.05))):
         one.add_body(np.array([[0.5 * i, 0.0, 0.1]]), masses=0.01, params=p)
     one.step(1.0 / 120.0)
+
+
+def _threaded() -> None:
+    """The threaded kernels of one big body (``body.PARALLEL_MIN_WORK`` lowered here so
+    that a small body takes them)."""
+    import sm_ros.core.body as body_mod
+    from sm_ros.core import BodyParams, Ground, World
     threshold = body_mod.PARALLEL_MIN_WORK
     body_mod.PARALLEL_MIN_WORK = 0
     try:
         big = World(gravity=(0.0, 0.0, -9.81))
         big.set_colliders(ground=Ground(height=0.0))
-        for i, p in enumerate((BodyParams(mode='linear', **plastic),
+        for i, p in enumerate((BodyParams(mode='linear', **_PLASTIC),
                                BodyParams(mode='quadratic', clusters=2))):
             big.add_body(_cube(5) + (0.5 * i, 0.0, 0.1), masses=0.01, params=p)
         big.step(1.0 / 120.0)
     finally:
         body_mod.PARALLEL_MIN_WORK = threshold
+
+
+def _default_scene() -> None:
+    """The scene ``sim_node`` starts with (one soft block on the ground)."""
+    warm_scene('default')
+
+
+#: What a cold warm-up compiles, split between this process (``MAIN_STAGES``) and the
+#: second one (``EXTRA_STAGES``) so that both take about as long on 2 cores: the packed
+#: step's bodies here, the set layout's and the compiled records' there.
+MAIN_STAGES = (_default_scene, warm_packed, _modes, _packed_alone, _threaded, _free_contact)
+EXTRA_STAGES = (_damped, _points)
+
+
+def warm_extra() -> float:
+    """The second process of a cold warm-up (:func:`warm_up`): ``EXTRA_STAGES``.  Return
+    the seconds spent."""
+    t0 = time.perf_counter()
+    for stage in EXTRA_STAGES:
+        stage()
     return time.perf_counter() - t0
 
 
@@ -395,8 +437,8 @@ def _finish_extra(extra) -> None:
             warm_extra()
 
 
-#: Stages ``warm_up`` reports to ``on_stage`` (one world step, then one per body).
-WARM_UP_STAGES = 5
+#: Stages ``warm_up`` reports to ``on_stage``.
+WARM_UP_STAGES = len(MAIN_STAGES)
 
 
 def warm_scene(name: str) -> float:

@@ -181,7 +181,8 @@ def test_capped_and_collided_runs_leave_the_set_sums_valid(order):
     assert _fused(body) == (order == 'set')
     st = body._sets
     fresh = np.zeros_like(st.part)
-    K.sets_accumulate_serial(quad=False, x=body._x, y0=st.y0, mass=body._m, sid=st.sid,
+    K.sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64),
+                             quad=False, x=body._x, y0=st.y0, mass=body._m, sid=st.sid,
                              runs=st.runs, sref=st.ref, part=fresh)
     np.testing.assert_allclose(st.part, fresh, rtol=1e-10,
                                atol=1e-12 * np.abs(fresh).max())
@@ -332,7 +333,8 @@ def test_sums_stay_those_of_the_state_on_the_ground(layout):
         else:
             st = body._sets
             shape = np.zeros_like(st.part)
-            K.sets_accumulate_serial(quad=False, x=body._x, y0=st.y0, mass=body._m,
+            K.sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64),
+                                     quad=False, x=body._x, y0=st.y0, mass=body._m,
                                      sid=st.sid, runs=st.runs, sref=st.ref, part=shape)
             stored, sid = st.part, st.sid
         np.testing.assert_allclose(stored, shape, rtol=1e-10, atol=1e-12 * np.abs(shape).max())

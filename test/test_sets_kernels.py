@@ -45,7 +45,8 @@ def test_sets_reduce_matches_the_per_particle_sums(monkeypatch, mode):
     body = _body(monkeypatch, mode, 2)
     st, quad = body._sets, body._quad
     x = body._x
-    K.sets_accumulate_serial(quad=quad, x=x, y0=st.y0, mass=body._m, sid=st.sid, runs=st.runs,
+    K.sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64),
+                             quad=quad, x=x, y0=st.y0, mass=body._m, sid=st.sid, runs=st.runs,
                              sref=st.ref, part=st.part)
     ref = body._ref + np.array([0.01, -0.02, 0.015])      # any reference point
     out = np.zeros_like(body._part)

@@ -198,10 +198,14 @@ class Body:
         return names
 
     def _fast_ok(self) -> bool:
-        """Whether ``kernels.world_step`` may step this body (see its docstring)."""
-        return ((self._sets is not None or self._params.clusters == 1)
-                and not self._params.plastic and len(self._kin_idx) == 0
-                and not self._has_torque and not self._parallel)
+        """Whether ``kernels.world_step`` may step this body (see its docstring).  A body of
+        one particle has no shape to deform or turn, so plasticity and torque do nothing to
+        it; it takes this step, whose records hold x as a (3, 1) block, since its own (1, 3)
+        arrays would need kernels compiled for them alone."""
+        point = self.n == 1
+        return ((self._sets is not None or self._params.clusters == 1 or point)
+                and (point or not (self._params.plastic or self._has_torque))
+                and len(self._kin_idx) == 0 and not self._parallel)
 
     def _packed_ok(self) -> bool:
         """Whether the packed world step (``packed.py``) may step this body: one cluster,

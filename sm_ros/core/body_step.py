@@ -7,10 +7,16 @@ limit and the grabbed / pinned particles.  ``goals`` evaluates the goal position
 current state with scratch copies (nothing of the body changes).
 """
 
+import functools
+
 import numpy as np
 
 from . import kernels as K
+from .step_threads import HELPERS
 from .kernels.flags import DAMP_SUMS
+
+#: The set ids of a one-cluster body's fused damping: none, every particle in set 0.
+_ONE_SET = np.zeros(0, dtype=np.int32)
 
 
 def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
@@ -41,17 +47,15 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     turned = 0
     if sets is not None:
         if body._dirty:
-            acc = K.sets_accumulate_parallel if body._parallel else \
-                K.sets_accumulate_serial
-            acc(quad=body._quad, x=x, y0=sets.y0, mass=body._m, sid=sets.sid, runs=sets.runs,
-                sref=sets.ref, part=sets.part)
+            _chunks(body, K.sets_accumulate_chunks, quad=body._quad, x=x, y0=sets.y0,
+                    mass=body._m, sid=sets.sid, runs=sets.runs, sref=sets.ref, part=sets.part)
         K.sets_reduce(part=sets.part, sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sphi=sets.phi,
                       sref=sets.ref, stp=sets.tp, rest_lin=body._rest_lin, ref=body._ref,
                       quad=body._quad, out=body._part, wk=sets.wk, pm=sets.pm)
     elif body._dirty:
-        acc = K.accumulate_parallel if body._parallel else K.accumulate_serial
-        acc(quad=body._quad, x=x, x0=body._x0, mass=body._m, ptr=body._ptr, cl=body._cl,
-            rest_lin=body._rest_lin, rest_off=body._rest_off, ref=body._ref, part=body._part)
+        _chunks(body, K.accumulate_chunks, quad=body._quad, x=x, x0=body._x0, mass=body._m,
+                ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin, rest_off=body._rest_off,
+                ref=body._ref, part=body._part)
     turn = body._params.max_turn
     if turn > 0.0:
         np.copyto(body._quat_prev, body._quat)
@@ -107,7 +111,7 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
         # the rigid fields damping moves towards, from the sums of the last pass (taken
         # again if the state changed since: set by hand, contact, turn limit)
         sptr, scl, scnt = body._dsets
-        dsid = sets.sid if sets is not None else body._ptr
+        dsid = sets.sid if sets is not None else _ONE_SET
         if body._dirty or turned:
             K.damp_accumulate(x=x, v=v, mass=body._m, sid=dsid, dpart=body._dpart)
         K.damping_fields(dpart=body._dpart, sptr=sptr, scl=scl, scnt=scnt, lin=body._lin,
@@ -126,23 +130,24 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     capped = 0
     if sets is not None:
         # the speeds capped block by block before the sums are taken: the sums stay valid
-        integ = K.sets_integrate_parallel if body._parallel else K.sets_integrate_serial
-        capped = integ(quad=body._quad, x=x, v=v, y0=sets.y0, mass=body._m, wuni=body._wuni,
-                       sid=sets.sid, runs=sets.runs, gm=sets.gm, sref=sets.ref, alpha=p.alpha,
-                       h=h,
-                       acc=body._acc, ang=body._ang, com=body._com, part=sets.part,
-                       err=body._err, has_col=has_col, ground=ground, boxes=boxes,
-                       spheres=spheres, thresh=thresh, damp=fused, k_damp=p.damping,
-                       dmp=body._dmp, dpart=body._dpart, v_max=body._params.max_speed)
+        chunk_capped = np.zeros(len(sets.part), dtype=np.int64)
+        _chunks(body, K.sets_integrate_chunks, capped=chunk_capped, quad=body._quad, x=x, v=v,
+                y0=sets.y0, mass=body._m, wuni=body._wuni, sid=sets.sid, runs=sets.runs,
+                gm=sets.gm, sref=sets.ref, alpha=p.alpha, h=h, acc=body._acc, ang=body._ang,
+                com=body._com, part=sets.part, err=body._err, has_col=has_col, ground=ground,
+                boxes=boxes, spheres=spheres, thresh=thresh, damp=fused, k_damp=p.damping,
+                dmp=body._dmp, dpart=body._dpart, v_max=body._params.max_speed)
+        K._fused_refs(body._quad, has_col, body._ang, sets.runs, fused, sets.ref, body._dpart)
+        capped = int(chunk_capped.sum())
         body._limit_counts[0] += capped
     else:
-        integ = K.integrate_parallel if body._parallel else K.integrate_serial
-        integ(quad=body._quad, x=x, v=v, x0=body._x0, mass=body._m, ptr=body._ptr, cl=body._cl,
-              rest_lin=body._rest_lin, rest_off=body._rest_off, trans=body._trans,
-              goal_lin=body._goal_lin, goal_off=body._goal_off, ref=body._ref, alpha=p.alpha,
-              h=h, acc=body._acc, ang=body._ang, com=body._com, part=body._part, err=body._err,
-              has_col=has_col, ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
-              damp=fused, k_damp=p.damping, dmp=body._dmp, dpart=body._dpart)
+        _chunks(body, K.integrate_chunks, quad=body._quad, x=x, v=v, x0=body._x0,
+                mass=body._m, ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
+                rest_off=body._rest_off, trans=body._trans, goal_lin=body._goal_lin,
+                goal_off=body._goal_off, ref=body._ref, alpha=p.alpha, h=h, acc=body._acc,
+                ang=body._ang, com=body._com, part=body._part, err=body._err,
+                has_col=has_col, ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
+                damp=fused, k_damp=p.damping, dmp=body._dmp, dpart=body._dpart)
         if body._params.max_speed > 0.0:
             capped = K.limit_speed(x=x, v=v, h=h, v_max=body._params.max_speed)
             body._limit_counts[0] += capped
@@ -172,6 +177,18 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
         body._dirty = body._dirty or sets is None
 
 
+def _chunks(body, kernel, **args):
+    """Run a pass over the body's particle chunks (``kernel``: one that claims its chunks,
+    such as ``K.integrate_chunks``): on this thread, or on it and helper threads for a body
+    built for threads (``Body._parallel``: a chunk per thread)."""
+    claim = np.zeros(1, dtype=np.int64)
+    nchunks = len(args['part'])
+    if body._parallel and nchunks > 1:
+        HELPERS.run(nchunks - 1, functools.partial(kernel, claim, **args), ())
+    else:
+        kernel(claim, **args)
+
+
 def goals(body) -> np.ndarray:
     """Goal positions g_i for the current state (Eq. 12/18/22, averaged over clusters)."""
     p = body._params
@@ -179,9 +196,9 @@ def goals(body) -> np.ndarray:
     ref, quat = body._ref.copy(), body._quat.copy()
     trans, goal_lin = np.zeros_like(body._trans), np.zeros_like(body._goal_lin)
     goal_off = np.zeros_like(body._goal_off)
-    K.accumulate_serial(quad=body._quad, x=body._x, x0=body._x0, mass=body._m, ptr=body._ptr,
-                        cl=body._cl, rest_lin=body._rest_lin, rest_off=body._rest_off, ref=ref,
-                        part=part)
+    K.accumulate_chunks(claim=np.zeros(1, dtype=np.int64), quad=body._quad, x=body._x,
+                        x0=body._x0, mass=body._m, ptr=body._ptr, cl=body._cl,
+                        rest_lin=body._rest_lin, rest_off=body._rest_off, ref=ref, part=part)
     s3 = [np.zeros((3, 3)) for _ in range(3)]
     K.solve_clusters(part=part, wsum=body._wsum, sum_q=body._sum_q, ref=ref, quat=quat,
                      aqq3=body._aqq3, aqq9=body._aqq9, rest_lin=body._rest_lin,
@@ -191,7 +208,8 @@ def goals(body) -> np.ndarray:
                      m3c=s3[2], m39=np.zeros((3, 9)), n4=np.zeros((4, 4)), v4=np.zeros((4, 4)),
                      nmat=body._nmat, cdet=body._cdet)
     g = body._x.copy(order='K')            # the layout of x: the kernels' own specialisation
-    K.integrate_serial(quad=body._quad, x=g, v=np.zeros_like(g), x0=body._x0, mass=body._m,
+    K.integrate_chunks(claim=np.zeros(1, dtype=np.int64), quad=body._quad, x=g,
+                       v=np.zeros_like(g), x0=body._x0, mass=body._m,
                        ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
                        rest_off=body._rest_off, trans=trans, goal_lin=goal_lin,
                        goal_off=goal_off, ref=ref, alpha=1.0, h=1.0, acc=np.zeros(3),

@@ -38,15 +38,14 @@ from .damping import (NDAMP, damp_acc_range, damp_accumulate, damp_kinematic, da
 from .goals import (_goal_quad, _qhat, invert_moments, moments, quad_features, solve_clusters,
                     solve_clusters_warm)
 from .grabs import apply_kinematic, gather_rows, inertia
-from .integrate import (BLOCK, accumulate_parallel, accumulate_serial, advance,
-                        integrate_parallel, integrate_serial)
+from .integrate import BLOCK, accumulate_chunks, advance, integrate_chunks
 from .jit import FASTMATH, JIT
 from .limits import limit_speed, limit_turn
 from .linalg import det3, jacobi3, jacobi3_warm, jacobi_eigh, matmul, norm2, pinv_sym
 from .plasticity import _add_null_projector, _cap_plastic, plastic_update
 from .rotation import extract_rotation, quat_to_mat
-from .sets import sets_integrate_parallel, sets_integrate_serial, sets_kinematic
-from .sets_sums import sets_accumulate_parallel, sets_accumulate_serial, sets_maps, sets_reduce
+from .sets import _fused_refs, sets_integrate_chunks, sets_kinematic
+from .sets_sums import sets_accumulate_chunks, sets_maps, sets_reduce
 from .spread import moved_box, spread_of
 from .unit_det import (STRETCH_LIMIT, _logprod, _logx, _stretch_ok, _unit_det_sum,
                        nearest_unit_det, nearest_unit_det_warm, unit_det_frames, unit_det_match,
@@ -59,12 +58,11 @@ __all__ = ['_collide_range', 'contact_velocity', 'collide_point', 'NDAMP', 'damp
            '_stretch_ok', '_unit_det_sum', 'invert_moments', 'moments', 'nearest_unit_det',
            'nearest_unit_det_warm', 'quad_features', 'solve_clusters', 'solve_clusters_warm',
            'unit_det_frames', 'unit_det_match', 'unit_det_match_warm',
-           'volume_preserving', 'BLOCK', 'accumulate_parallel', 'accumulate_serial', 'advance',
-           'apply_kinematic', 'gather_rows', 'inertia', 'integrate_parallel', 'integrate_serial',
+           'volume_preserving', 'BLOCK', 'accumulate_chunks', 'advance',
+           'apply_kinematic', 'gather_rows', 'inertia', 'integrate_chunks',
            'FASTMATH', 'JIT', 'limit_speed', 'limit_turn', 'det3', 'jacobi3', 'jacobi3_warm',
            'jacobi_eigh', 'matmul',
            'norm2', 'pinv_sym', '_add_null_projector', '_cap_plastic', 'plastic_update',
            'extract_rotation', 'quat_to_mat', 'moved_box', 'spread_of', 'step_single_bodies',
-           'sets_accumulate_parallel',
-           'sets_accumulate_serial', 'sets_integrate_parallel', 'sets_integrate_serial',
+           'sets_accumulate_chunks', '_fused_refs', 'sets_integrate_chunks',
            'sets_kinematic', 'sets_maps', 'sets_reduce']

@@ -97,8 +97,9 @@ def solve_clusters_warm(part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin, rest
     nk = part.shape[1]
     na = part.shape[2]
     nq = 9 if mode == 2 else 3
-    # the linear mode's 3x3 scratch views, made once (not once a cluster)
-    w1, w2, wa, wv = m39[:, 3:6], m39[:, 6:9], n4[:3, :3], v4[:3, :3]
+    # the linear mode's 3x3 scratch, made once (not once a cluster); wa, wv C-contiguous
+    # like the packed step's, so both callers share one compiled eigen solver
+    w1, w2, wa, wv = m39[:, 3:6], m39[:, 6:9], np.empty((3, 3)), np.empty((3, 3))
     for k in range(nk):
         for a in range(na):
             s = 0.0

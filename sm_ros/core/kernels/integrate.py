@@ -23,9 +23,9 @@ stay scalar; multi-cluster bodies mostly take the set layout (``sets.py``).
 """
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
-from .jit import JIT, U
+from .jit import JIT, U, claim_next
 from .colliders import _collide_range
 from .damping import damp_acc_range, damp_towards
 from .goals import _goal_quad, _qhat
@@ -347,19 +347,15 @@ def _acc_chunk(chunk, nchunks, quad, x, x0, mass, ptr, cl, rest_lin, rest_off, r
 
 
 @njit(**JIT)
-def accumulate_serial(quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, part):
-    """Accumulation pass, one thread."""
+def accumulate_chunks(claim, quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, part):
+    """Accumulation pass over the chunks this call claims (``claim``, counted up
+    atomically): called once it does every chunk; called on several threads with one
+    ``claim`` (a body built for threads) each chunk once."""
     nchunks = part.shape[0]
-    for chunk in range(nchunks):
-        _acc_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
-                   rest_lin=rest_lin, rest_off=rest_off, ref=ref, part=part)
-
-
-@njit(parallel=True, **JIT)
-def accumulate_parallel(quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, part):
-    """Accumulation pass, one chunk per thread."""
-    nchunks = part.shape[0]
-    for chunk in prange(nchunks):
+    while True:
+        chunk = claim_next(claim)
+        if chunk >= nchunks:
+            return
         _acc_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
                    rest_lin=rest_lin, rest_off=rest_off, ref=ref, part=part)
 
@@ -455,32 +451,22 @@ def _int_chunk(chunk, nchunks, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off
         _acc_range(start=bs, end=be, quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
                    rest_lin=rest_lin, rest_off=rest_off, ref=ref, sums=sums)
         if damp:
-            damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass, sid=ptr, dsums=dpart[chunk])
+            # fused damping without the set layout: one cluster, all particles in set 0
+            damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass,
+                           sid=np.zeros(0, dtype=np.int32), dsums=dpart[chunk])
     err[chunk] = err2
 
 
 @njit(**JIT)
-def integrate_serial(quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, goal_lin, goal_off,
-                     ref, alpha, h, acc, ang, com, part, err, has_col, ground, boxes, spheres,
-                     thresh, damp, k_damp, dmp, dpart):
-    """Integration pass, one thread."""
+def integrate_chunks(claim, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, goal_lin,
+                     goal_off, ref, alpha, h, acc, ang, com, part, err, has_col, ground, boxes,
+                     spheres, thresh, damp, k_damp, dmp, dpart):
+    """Integration pass over the chunks this call claims (as ``accumulate_chunks``)."""
     nchunks = part.shape[0]
-    for chunk in range(nchunks):
-        _int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v, x0=x0, mass=mass, ptr=ptr,
-                   cl=cl, rest_lin=rest_lin, rest_off=rest_off, trans=trans, goal_lin=goal_lin,
-                   goal_off=goal_off, ref=ref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
-                   part=part, err=err, has_col=has_col, ground=ground, boxes=boxes,
-                   spheres=spheres, thresh=thresh, damp=damp, k_damp=k_damp, dmp=dmp,
-                   dpart=dpart)
-
-
-@njit(parallel=True, **JIT)
-def integrate_parallel(quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, goal_lin,
-                       goal_off, ref, alpha, h, acc, ang, com, part, err, has_col, ground, boxes,
-                       spheres, thresh, damp, k_damp, dmp, dpart):
-    """Integration pass, one chunk per thread."""
-    nchunks = part.shape[0]
-    for chunk in prange(nchunks):
+    while True:
+        chunk = claim_next(claim)
+        if chunk >= nchunks:
+            return
         _int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v, x0=x0, mass=mass, ptr=ptr,
                    cl=cl, rest_lin=rest_lin, rest_off=rest_off, trans=trans, goal_lin=goal_lin,
                    goal_off=goal_off, ref=ref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,

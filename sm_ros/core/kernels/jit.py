@@ -13,9 +13,10 @@ import hashlib
 import os
 
 import numpy as np
-
-from numba import njit as _njit
+from llvmlite import ir
+from numba import njit as _njit, types
 from numba.core import config
+from numba.extending import intrinsic
 
 #: Fastmath flags used by every kernel (no ``nnan``/``ninf``: NaN checks must still work).
 FASTMATH = {'nsz', 'arcp', 'contract', 'afn', 'reassoc'}
@@ -106,3 +107,20 @@ def finite(x):
     and are False for nan (``test/test_nonfinite_kernels.py``).
     """
     return -FLOAT_MAX <= x <= FLOAT_MAX
+
+
+@intrinsic
+def claim_next(typingctx, counter):
+    """``counter[0] += 1`` as one atomic operation (sequentially consistent); returns the
+    value before.  Threads that share one counter each take distinct work items with it
+    (the bodies of ``world_step.step_bodies_claimed``, the chunks of a big body's passes)."""
+    if not (isinstance(counter, types.Array) and counter.dtype == types.int64
+            and counter.ndim == 1):
+        return None
+    sig = types.int64(counter)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        return builder.atomic_rmw('add', ary.data, ir.Constant(ir.IntType(64), 1), 'seq_cst')
+
+    return sig, codegen

@@ -80,6 +80,7 @@ def plastic_update(apq, aqq3, scale, quat, s_plastic, c_yield, c_creep, c_max, h
     must be refreshed.  Returns the number of changed clusters.
     """
     nchanged = 0
+    wa, wv = np.empty((3, 3)), np.empty((3, 3))     # C-contiguous: one eigen solver for all
     for k in range(apq.shape[0]):
         changed[k] = False
         s_k = scale[k]
@@ -110,11 +111,11 @@ def plastic_update(apq, aqq3, scale, quat, s_plastic, c_yield, c_creep, c_max, h
         # A is blind along directions the rest shape does not span (flat, line-like,
         # single-point clusters: A_qq is a pseudo-inverse): S = I there, not 0, or
         # such a cluster flows plastically at rest
-        _add_null_projector(aqq3[k], m3a, n4[:3, :3], v4[:3, :3])
+        _add_null_projector(aqq3[k], m3a, wa, wv)
         for i in range(3):
             for j in range(3):
                 m3b[i, j] = m3a[i, j]
-        nrm = norm2(m3b, n4[:3, :3], v4[:3, :3])
+        nrm = norm2(m3b, wa, wv)
         if nrm > c_yield and c_creep > 0.0 and finite(nrm):
             tc = h * c_creep
             if tc > 1.0:
@@ -132,7 +133,7 @@ def plastic_update(apq, aqq3, scale, quat, s_plastic, c_yield, c_creep, c_max, h
                 for i in range(3):
                     for j in range(3):
                         m3c[i, j] *= inv_cbrt
-                _cap_plastic(s_plastic=m3c, c_max=c_max, m3=m3a, wa=n4[:3, :3], wv=v4[:3, :3])
+                _cap_plastic(s_plastic=m3c, c_max=c_max, m3=m3a, wa=wa, wv=wv)
                 for i in range(3):
                     for j in range(3):
                         s_plastic[k, i, j] = m3c[i, j]

@@ -27,9 +27,9 @@ caps the speeds block by block before it sums the block, so the sums stay valid.
 """
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
-from .jit import JIT, U
+from .jit import JIT, U, claim_next
 from .colliders import _collide_range, ground_range_sums
 from .damping import damp_acc_range, damp_sums_range, damp_towards
 from .fused import _fused_range, damp_constants
@@ -372,42 +372,23 @@ def _fused_refs(quad, has_col, ang, runs, damp, sref, dpart):
 
 
 @njit(**JIT)
-def sets_integrate_serial(quad, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha, h, acc, ang,
-                          com, part, err, has_col, ground, boxes, spheres, thresh, damp, k_damp,
-                          dmp, dpart, v_max):
-    """Fused step pass of a set-layout body, one thread; returns the capped speeds."""
+def sets_integrate_chunks(claim, capped, quad, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha,
+                          h, acc, ang, com, part, err, has_col, ground, boxes, spheres, thresh,
+                          damp, k_damp, dmp, dpart, v_max):
+    """Fused step pass of a set-layout body over the chunks this call claims (``claim``, as
+    ``integrate.accumulate_chunks``); ``capped[chunk]``: the speeds it capped there.  Once
+    every chunk is done, ``_fused_refs`` completes the pass."""
     nchunks = part.shape[0]
-    capped = 0
-    for chunk in range(nchunks):
-        capped += _sets_int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v, y0=y0,
-                                  mass=mass, wuni=wuni, sid=sid, runs=runs, gm=gm, sref=sref,
-                                  alpha=alpha,
-                                  h=h, acc=acc, ang=ang, com=com, part=part, err=err,
-                                  has_col=has_col, ground=ground, boxes=boxes, spheres=spheres,
-                                  thresh=thresh, damp=damp, k_damp=k_damp, dmp=dmp,
-                                  dpart=dpart, v_max=v_max)
-    _fused_refs(quad, has_col, ang, runs, damp, sref, dpart)
-    return capped
-
-
-@njit(parallel=True, **JIT)
-def sets_integrate_parallel(quad, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha, h, acc, ang,
-                            com, part, err, has_col, ground, boxes, spheres, thresh, damp, k_damp,
-                            dmp, dpart, v_max):
-    """Fused step pass of a set-layout body, one chunk per thread; returns the capped
-    speeds."""
-    nchunks = part.shape[0]
-    capped = 0
-    for chunk in prange(nchunks):
-        capped += _sets_int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v, y0=y0,
-                                  mass=mass, wuni=wuni, sid=sid, runs=runs, gm=gm, sref=sref,
-                                  alpha=alpha,
-                                  h=h, acc=acc, ang=ang, com=com, part=part, err=err,
-                                  has_col=has_col, ground=ground, boxes=boxes, spheres=spheres,
-                                  thresh=thresh, damp=damp, k_damp=k_damp, dmp=dmp,
-                                  dpart=dpart, v_max=v_max)
-    _fused_refs(quad, has_col, ang, runs, damp, sref, dpart)
-    return capped
+    while True:
+        chunk = claim_next(claim)
+        if chunk >= nchunks:
+            return
+        capped[chunk] = _sets_int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v,
+                                        y0=y0, mass=mass, wuni=wuni, sid=sid, runs=runs, gm=gm,
+                                        sref=sref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
+                                        part=part, err=err, has_col=has_col, ground=ground,
+                                        boxes=boxes, spheres=spheres, thresh=thresh, damp=damp,
+                                        k_damp=k_damp, dmp=dmp, dpart=dpart, v_max=v_max)
 
 
 @njit(**JIT)

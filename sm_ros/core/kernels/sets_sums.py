@@ -1,18 +1,18 @@
 """The per-set sums of the set layout and what is made of them: Eq. 7-9 taken per set
-(after the state was changed outside a step, ``sets_accumulate_*``, and inside the passes
+(after the state was changed outside a step, ``sets_accumulate_chunks``, and inside the passes
 run by run), turned into per-cluster sums (``sets_reduce``), and the per-set goal maps of
 Eq. 23, one affine (or quadratic) map a set from its clusters' goals (``sets_maps``).
 
 A run's 12 rigid/linear sums (sum w d and sum w d y0^T about the set's reference point
 ``sref``) stay in registers until the run ends (``_add_lin_sums``); quadratic sets take
-the 30 sums of the nine features.  ``sets_accumulate_parallel`` splits the particles in
-one chunk per thread (``part`` holds a slot per chunk).
+the 30 sums of the nine features.  A body built for threads splits its particles in one
+chunk per thread (``part`` holds a slot per chunk).
 """
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
-from .jit import JIT, U
+from .jit import JIT, U, claim_next
 
 
 @njit(inline='always', **JIT)
@@ -276,19 +276,15 @@ def _sets_acc_chunk(chunk, nchunks, quad, x, y0, mass, sid, runs, sref, part):
 
 
 @njit(**JIT)
-def sets_accumulate_serial(quad, x, y0, mass, sid, runs, sref, part):
-    """Per-set sums of the current state (when it was changed outside a step), one thread."""
+def sets_accumulate_chunks(claim, quad, x, y0, mass, sid, runs, sref, part):
+    """Per-set sums of the current state (when it was changed outside a step) over the
+    chunks this call claims (``claim``, counted up atomically; as
+    ``integrate.accumulate_chunks``)."""
     nchunks = part.shape[0]
-    for chunk in range(nchunks):
-        _sets_acc_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, y0=y0, mass=mass, sid=sid,
-                        runs=runs, sref=sref, part=part)
-
-
-@njit(parallel=True, **JIT)
-def sets_accumulate_parallel(quad, x, y0, mass, sid, runs, sref, part):
-    """Per-set sums of the current state, one chunk per thread."""
-    nchunks = part.shape[0]
-    for chunk in prange(nchunks):
+    while True:
+        chunk = claim_next(claim)
+        if chunk >= nchunks:
+            return
         _sets_acc_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, y0=y0, mass=mass, sid=sid,
                         runs=runs, sref=sref, part=part)
 

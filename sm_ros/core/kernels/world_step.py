@@ -23,35 +23,17 @@ damping, quadratic, set layout, max_turn / h, the particles' one mass or 0
 
 import numba
 import numpy as np
-from llvmlite import ir
-from numba import njit, types
-from numba.extending import intrinsic
+from numba import njit
 
 from ..step_threads import HELPERS
 from .flags import DIRTY, ERR_STALE, SLEEP
 from .damping import damp_accumulate, damp_rigid, damping_fields, damping_targets
 from .goals import solve_clusters_warm
-from .integrate import accumulate_serial, integrate_serial
-from .jit import JIT
+from .integrate import accumulate_chunks, integrate_chunks
+from .jit import JIT, claim_next
 from .limits import limit_speed, limit_turn
-from .sets import sets_integrate_serial
-from .sets_sums import sets_accumulate_serial, sets_maps, sets_reduce
-
-
-@intrinsic
-def _claim(typingctx, counter):
-    """``counter[0] += 1`` as one atomic operation (sequentially consistent); returns the
-    value before.  The threads of ``step_bodies_parallel`` take their bodies with it."""
-    if not (isinstance(counter, types.Array) and counter.dtype == types.int64
-            and counter.ndim == 1):
-        return None
-    sig = types.int64(counter)
-
-    def codegen(context, builder, signature, args):
-        ary = context.make_array(signature.args[0])(context, builder, args[0])
-        return builder.atomic_rmw('add', ary.data, ir.Constant(ir.IntType(64), 1), 'seq_cst')
-
-    return sig, codegen
+from .sets import _fused_refs, sets_integrate_chunks
+from .sets_sums import sets_accumulate_chunks, sets_maps, sets_reduce
 
 
 @njit(**JIT)
@@ -69,7 +51,7 @@ def step_bodies_claimed(bodies, claim, h, gravity, has_col, ground, boxes, spher
     n = len(bodies)
     stepped = 0
     while True:
-        b = _claim(claim)
+        b = claim_next(claim)
         if b >= n:
             return stepped
         _step_record(bodies[b], h, gravity, has_col, ground, boxes, spheres, thresh)
@@ -130,13 +112,14 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
     dirty = flags[DIRTY] > 0.0
     if sets:
         if dirty:
-            sets_accumulate_serial(quad=quad, x=x, y0=y0, mass=mass, sid=sid, runs=s_runs,
-                                   sref=sref, part=s_part)
+            sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64), quad=quad, x=x, y0=y0,
+                                   mass=mass, sid=sid, runs=s_runs, sref=sref, part=s_part)
         sets_reduce(part=s_part, sptr=s_ptr, scl=s_cl, scnt=s_cnt, sphi=s_phi, sref=sref,
                     stp=s_tp, rest_lin=rest_lin, ref=ref, quad=quad, out=part, wk=wk, pm=pm)
     elif dirty:
-        accumulate_serial(quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
-                          rest_lin=rest_lin, rest_off=rest_off, ref=ref, part=part)
+        accumulate_chunks(claim=np.zeros(1, dtype=np.int64), quad=quad, x=x, x0=x0, mass=mass,
+                          ptr=ptr, cl=cl, rest_lin=rest_lin, rest_off=rest_off, ref=ref,
+                          part=part)
     if turn > 0.0:
         quat_prev[:, :] = quat
     solve_clusters_warm(part=part, wsum=wsum, sum_q=sum_q, ref=ref, quat=quat, aqq3=aqq3,
@@ -172,7 +155,8 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
             if sets:
                 damp_accumulate(x=x, v=v, mass=mass, sid=sid, dpart=dpart)
             else:
-                damp_accumulate(x=x, v=v, mass=mass, sid=ptr, dpart=dpart)
+                damp_accumulate(x=x, v=v, mass=mass, sid=np.zeros(0, dtype=np.int32),
+                                dpart=dpart)
         damping_fields(dpart=dpart, sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3,
                        dref=dref, acc=dacc, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
         damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3, dref=dref,
@@ -183,22 +167,24 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
     capped = 0
     if sets:
         # the speeds capped block by block before the sums are taken: the sums stay valid
-        capped = sets_integrate_serial(quad=quad, x=x, v=v, y0=y0, mass=mass, wuni=state[11],
-                                       sid=sid, runs=s_runs, gm=gm, sref=sref, alpha=alpha,
-                                       h=h, acc=acc,
-                                       ang=ang, com=com, part=s_part, err=err,
-                                       has_col=has_col, ground=ground, boxes=boxes,
-                                       spheres=spheres, thresh=thresh, damp=fused,
-                                       k_damp=k_damp, dmp=dmp, dpart=dpart, v_max=v_max)
+        chunk_capped = np.zeros(s_part.shape[0], dtype=np.int64)
+        sets_integrate_chunks(claim=np.zeros(1, dtype=np.int64), capped=chunk_capped,
+                              quad=quad, x=x, v=v, y0=y0, mass=mass, wuni=state[11], sid=sid,
+                              runs=s_runs, gm=gm, sref=sref, alpha=alpha, h=h, acc=acc,
+                              ang=ang, com=com, part=s_part, err=err, has_col=has_col,
+                              ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
+                              damp=fused, k_damp=k_damp, dmp=dmp, dpart=dpart, v_max=v_max)
+        _fused_refs(quad, has_col, ang, s_runs, fused, sref, dpart)
+        capped = chunk_capped.sum()
         counts[0] += capped
         flags[DIRTY] = 0.0
     else:
-        integrate_serial(quad=quad, x=x, v=v, x0=x0, mass=mass, ptr=ptr, cl=cl,
-                         rest_lin=rest_lin, rest_off=rest_off, trans=trans,
-                         goal_lin=goal_lin, goal_off=goal_off, ref=ref, alpha=alpha, h=h,
-                         acc=acc, ang=ang, com=com, part=part, err=err, has_col=has_col,
-                         ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
-                         damp=fused, k_damp=k_damp, dmp=dmp, dpart=dpart)
+        integrate_chunks(claim=np.zeros(1, dtype=np.int64), quad=quad, x=x, v=v, x0=x0,
+                         mass=mass, ptr=ptr, cl=cl, rest_lin=rest_lin, rest_off=rest_off,
+                         trans=trans, goal_lin=goal_lin, goal_off=goal_off, ref=ref,
+                         alpha=alpha, h=h, acc=acc, ang=ang, com=com, part=part, err=err,
+                         has_col=has_col, ground=ground, boxes=boxes, spheres=spheres,
+                         thresh=thresh, damp=fused, k_damp=k_damp, dmp=dmp, dpart=dpart)
         if v_max > 0.0:
             capped = limit_speed(x=x, v=v, h=h, v_max=v_max)
             counts[0] += capped
