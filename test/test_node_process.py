@@ -251,7 +251,7 @@ def test_a_large_cloud_goes_out_over_the_packaged_profile_to_a_plain_subscriber(
     assert got, f'no cloud from sim_node: {err[-2000:]}'
     assert got[-1].width * got[-1].height == 56_000
     assert len(got[-1].data) == 56_000 * got[-1].point_step > 512 * 1024
-    assert segments and segments[-1] >= 256 * 1024 * 1024, segments
+    assert segments and segments[-1] >= 64 * 1024 * 1024, segments     # the packaged one
     assert 'DDS: the packaged Fast DDS profile' in out + err
     assert 'fastdds_shm.xml' in out + err
 
