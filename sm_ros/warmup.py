@@ -356,24 +356,6 @@ def _points() -> None:
     one.step(1.0 / 120.0)
 
 
-def _threaded() -> None:
-    """The threaded kernels of one big body (``body.PARALLEL_MIN_WORK`` lowered here so
-    that a small body takes them)."""
-    import sm_ros.core.body as body_mod
-    from sm_ros.core import BodyParams, Ground, World
-    threshold = body_mod.PARALLEL_MIN_WORK
-    body_mod.PARALLEL_MIN_WORK = 0
-    try:
-        big = World(gravity=(0.0, 0.0, -9.81))
-        big.set_colliders(ground=Ground(height=0.0))
-        for i, p in enumerate((BodyParams(mode='linear', **_PLASTIC),
-                               BodyParams(mode='quadratic', clusters=2))):
-            big.add_body(_cube(5) + (0.5 * i, 0.0, 0.1), masses=0.01, params=p)
-        big.step(1.0 / 120.0)
-    finally:
-        body_mod.PARALLEL_MIN_WORK = threshold
-
-
 def _default_scene() -> None:
     """The scene ``sim_node`` starts with (one soft block on the ground)."""
     warm_scene('default')
@@ -382,7 +364,7 @@ def _default_scene() -> None:
 #: What a cold warm-up compiles, split between this process (``MAIN_STAGES``) and the
 #: second one (``EXTRA_STAGES``) so that both take about as long on 2 cores: the packed
 #: step's bodies here, the set layout's and the compiled records' there.
-MAIN_STAGES = (_default_scene, warm_packed, _modes, _packed_alone, _threaded, _free_contact)
+MAIN_STAGES = (_default_scene, warm_packed, _modes, _packed_alone, _free_contact)
 EXTRA_STAGES = (_damped, _points)
 
 
