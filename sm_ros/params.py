@@ -191,9 +191,8 @@ TABLE: Tuple[Param, ...] = (
           0.0, 1.0),
     Param('contact.radius_scale', 1.0, "Factor on every body's default contact radius "
           '(half its median particle spacing)', '', 0.0, 10.0, positive=True),
-    Param('contact.stacking', True, 'Under gravity, stiff one-cluster bodies carry their '
-          'contacts as a whole (stacks stand, piles come to rest at the default step; '
-          'false: every particle on its own)'),
+    Param('contact.stacking', True, 'Accepted for old scenes; no effect (one contact model: '
+          'doc/contact.md)'),
     Param('contact.sleep', True, 'Bodies that have come to rest in a contact world sleep '
           '(are not stepped) until a moving body touches them or an input changes them'),
     Param('contact.sleep_speed', 0.01, 'A body falls asleep once no particle got farther '

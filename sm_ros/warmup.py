@@ -294,7 +294,7 @@ def _damped() -> None:
 def warm_packed() -> None:
     """Step the one-cluster rigid and linear bodies (the packed step, ``core/packed.py``)
     under the static and moving colliders, several at once with contact under gravity
-    (``solve_bodies``)."""
+    (the contact solve)."""
     from sm_ros.core import BodyParams, World
     cube = _cube()
     world = World(gravity=(0.0, 0.0, -9.81))
@@ -332,7 +332,7 @@ def _packed_alone() -> None:
 
 
 def _free_contact() -> None:
-    """Body-body contact without gravity (``solve_pairs``)."""
+    """Body-body contact without gravity (no sleeping)."""
     from sm_ros.core import World
     cube = _cube()
     free = World(gravity=(0.0, 0.0, 0.0))

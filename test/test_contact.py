@@ -11,7 +11,7 @@ from sm_ros.core import contact as C
 from sm_ros.core.contact import BodyContact, ContactParams
 
 S = 0.02                                           # lattice spacing of the test bodies
-NO_COLLIDERS = (False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)))
+RIGID = BodyParams(mode='rigid', alpha=0.9)
 
 
 def lattice(nx, ny, nz, s=S, center=(0.0, 0.0, 0.0)):
@@ -245,41 +245,6 @@ def test_grid_refuses_a_box_larger_than_its_table():
     assert C.build_pairs_grid_par(*args, *scratch, *out, 2) == -1
 
 
-def test_pair_response_conserves_momentum_and_separates():
-    rng = np.random.default_rng(1)
-    X = np.ascontiguousarray(np.array([[0.0, 0.015], [0.0, 0.004], [0.0, -0.002]]))
-    V = np.ascontiguousarray(rng.normal(size=(3, 2)))
-    W = np.array([1.0 / 0.3, 1.0 / 0.7])
-    R = np.full(2, 0.01)
-    B = np.array([0, 1], np.int32)
-    p0 = V @ (1.0 / W)
-    lever = X - 1e-3 * V                                  # positions at the step's start
-    l0 = np.cross(lever.T, V.T * (1.0 / W)[:, None]).sum(axis=0)
-    touched = np.zeros(2, np.uint8)
-    found = C.solve_pairs(X, V, W, R, B, np.array([0], np.int32), np.array([1], np.int32),
-                          1, 0.0, 0.0, 0.0, 1e-3, 1, touched, np.zeros(2, np.int64),
-                          np.zeros(2), *NO_COLLIDERS, np.zeros(2, np.uint8))
-    assert found == 1 and touched.all()
-    assert np.linalg.norm(X[:, 0] - X[:, 1]) >= 0.02 - 1e-12
-    np.testing.assert_allclose(V @ (1.0 / W), p0, atol=1e-14)
-    l1 = np.cross((X - 1e-3 * V).T, V.T * (1.0 / W)[:, None]).sum(axis=0)
-    np.testing.assert_allclose(l1, l0, atol=1e-14)
-    np.testing.assert_allclose(X - 1e-3 * V, lever, atol=1e-15)   # start of step kept
-
-
-def test_pinned_particles_are_infinite_mass():
-    X = np.ascontiguousarray(np.array([[0.0, 0.015], [0.0, 0.0], [0.0, 0.0]]))
-    V = np.zeros((3, 2))
-    W = np.array([0.0, 2.0])
-    before = X[:, 0].copy()
-    C.solve_pairs(X, V, W, np.full(2, 0.01), np.array([0, 1], np.int32),
-                  np.array([0], np.int32), np.array([1], np.int32), 1, 0.5, 0.0, 0.0, 0.01, 1,
-                  np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2), *NO_COLLIDERS,
-                  np.zeros(2, np.uint8))
-    np.testing.assert_array_equal(X[:, 0], before)
-    assert X[0, 1] == pytest.approx(0.02)
-
-
 def test_default_radius_is_half_the_spacing():
     assert C.default_radius(lattice(5, 4, 3, 0.03)) == pytest.approx(0.015)
     assert C.default_radius(lattice(40, 30, 2, 0.01)) == pytest.approx(0.005)   # sampled
@@ -311,7 +276,7 @@ def test_one_colliding_body_without_self_collision_is_a_no_op(second):
     for a, b in zip(on.bodies, off.bodies):
         np.testing.assert_array_equal(a.x, b.x)
         np.testing.assert_array_equal(a.v, b.v)
-    assert not on._flat.X.any()                     # never gathered
+    assert on._contact.found == 0                   # the ground only: no pair of bodies
 
 
 def test_self_collision_needs_no_second_body():
@@ -350,25 +315,12 @@ def _five_boxes(stagger, contact=None):
     return w, boxes
 
 
-def test_stack_of_five_boxes_falls_through_per_particle():
-    # the per-particle path (stacking=False, kept for soft and many-cluster bodies and
-    # zero gravity): the same stack sinks (the test above can fail)
-    w, boxes = _five_boxes(1.0, ContactParams(stacking=False))
-    top0 = boxes[-1].com()[2]
-    for _ in range(4 * 120):
-        w.step(1 / 120)
-    assert boxes[-1].com()[2] < top0 - 0.01
-
-
 @pytest.mark.parametrize('stagger', [0.0, 1.0])
 def test_stack_of_five_boxes_stands(stagger):
-    # at the node's step (dt 1/120 s, World.step as Simulation.tick calls it) with the
-    # default contact (stacking): stiff one-cluster bodies carry their contacts as a whole
-    # (doc/contact.md); per particle (stacking=False) the touching layer
-    # alone gives way and these boxes fall through one another (the next test).  Stacked
-    # exactly (lattices particle on particle) and with every other box put a little off
+    # at the node's step (dt 1/120 s, World.step as Simulation.tick calls it): stiff
+    # bodies take their contacts as rigid bodies (doc/contact.md).  Stacked exactly
+    # (lattices particle on particle) and with every other box put a little off
     w, boxes = _five_boxes(stagger)
-    assert w.contact_params.stacking
     h = 1 / 120
     for _ in range(4 * 120):                                  # settle 4 s
         w.step(h)
@@ -387,8 +339,7 @@ def test_stack_of_five_boxes_stands(stagger):
 
 
 def test_box_resting_partly_over_an_edge_stays():
-    # its centre of mass over the lower box, with stacking (the default): it stays where
-    # it was put (per particle, stacking=False, the lattice bumps kick it off sideways)
+    # its centre of mass over the lower box: it stays where it was put
     w = World()
     w.set_colliders(ground=Ground())
     p = BodyParams(mode='rigid', alpha=0.99, damping=0.2)
@@ -402,12 +353,12 @@ def test_box_resting_partly_over_an_edge_stays():
 
 @pytest.mark.parametrize('mode', ['rigid', 'soft'])
 def test_sideways_collision_under_gravity_exchanges_momentum_exactly(mode):
-    # with stacking (the default), bodies carrying their contacts as a whole (and, soft,
-    # one per particle) exchange momentum equal and opposite
+    # a rigid body and a linear one (stiff or soft: rigid body or per particle) exchange
+    # momentum equal and opposite
     w = World()
     n = 27
-    a = w.add_body(lattice(3, 3, 3, center=(-0.05, 0, 1.0)), 0.01, BodyParams(mode='rigid'),
-                   'a', velocities=np.tile([1.0, 0.0, 0.0], (n, 1)))
+    a = w.add_body(lattice(3, 3, 3, center=(-0.05, 0, 1.0)), 0.01, RIGID, 'a',
+                   velocities=np.tile([1.0, 0.0, 0.0], (n, 1)))
     b = w.add_body(lattice(3, 3, 3, center=(0.05, 0.01, 1.0)), 0.02,
                    BodyParams(mode='linear', alpha=1.0 if mode == 'rigid' else 0.3), 'b',
                    velocities=np.tile([-1.0, 0.1, 0.0], (n, 1)))
@@ -418,7 +369,7 @@ def test_sideways_collision_under_gravity_exchanges_momentum_exactly(mode):
         w.step(h)
         met += w.contact.found
     assert met > 0 and a.com()[0] < b.com()[0]
-    assert w.contact.coupling[:2].tolist() == [True, mode == 'rigid']
+    assert w.contact.coupling[0]
     m = float(a.m.sum() + b.m.sum())
     expected = p0 + m * 30 * h * np.array([0.0, 0.0, -9.81])
     np.testing.assert_allclose(a.momentum() + b.momentum(), expected, atol=1e-12)
@@ -470,11 +421,14 @@ def test_head_on_in_zero_gravity(mu):
         assert (a.x[:, 0] - b.x[:, 0].min()).max() < 0.0 or \
             min_distance(a.x, b.x) > 0.5 * S               # never through each other
     assert met > 0
-    assert a.com()[0] < b.com()[0] and a.v[:, 0].mean() < b.v[:, 0].mean()  # bounced apart
+    assert a.com()[0] < b.com()[0]                                 # not through each other
     np.testing.assert_allclose(a.momentum() + b.momentum(), p0, atol=1e-12)
     lx = a.angular_momentum() + b.angular_momentum()
     if mu == 0.0:
-        np.testing.assert_allclose(lx, l0, atol=1e-12)
+        # the impulses keep it to round-off; the position sweeps that remove the overlap
+        # of a fast approach (8 mm a step here) move bodies without changing their
+        # velocities, which changes it by up to 1e-3 of it (doc/contact.md, limits)
+        np.testing.assert_allclose(lx, l0, rtol=0.0, atol=1e-3 * np.abs(l0).max())
     else:
         assert np.abs(lx - l0).max() > 1e-6               # friction couples do act
 
@@ -668,62 +622,35 @@ def test_paper_384_scene_pours_into_its_bin():
     assert world.contact.found > 1000                      # they land on one another
 
 
-def test_stacking_changes_nothing_without_gravity():
-    # bodies carry their contacts as a whole only under gravity (where loads rest on
-    # them): without it every pair acts per particle, bit for bit as without stacking
+@pytest.mark.parametrize('gravity', [(0.0, 0.0, 0.0), (0.0, 0.0, -9.81)])
+def test_stacking_changes_nothing(gravity):
+    # ``contact.stacking`` is accepted for old scenes and has no effect (one model)
     states = []
     for stacking in (True, False):
-        w = World(gravity=(0, 0, 0))
+        w = World(gravity=gravity)
         w.contact_params = ContactParams(stacking=stacking)
-        a = w.add_body(lattice(3, 3, 3, center=(-0.04, 0, 0)), 0.01, None, 'a',
+        a = w.add_body(lattice(3, 3, 3, center=(-0.04, 0, 0)), 0.01, RIGID, 'a',
                        velocities=np.tile([1.0, 0.0, 0.0], (27, 1)))
-        b = w.add_body(lattice(3, 3, 3, center=(0.04, 0.01, 0)), 0.01, None, 'b')
+        b = w.add_body(lattice(3, 3, 3, center=(0.04, 0.01, 0)), 0.01, RIGID, 'b')
         for _ in range(30):
             w.step(1 / 120)
-        assert w.contact.coupling[:2].all()           # carried as a whole under gravity
         states.append(np.concatenate([a.x, b.x, a.v, b.v]))
-    assert w.contact.builds > 0
+    assert w.contact.builds > 0 and w.contact.coupling[:2].all()
     np.testing.assert_array_equal(states[0], states[1])
 
 
-def test_which_bodies_carry_their_contacts_as_a_whole():
+def test_which_bodies_take_contact_as_rigid_bodies():
+    # stiff (alpha (1 - beta) at the step >= COUPLE_ALPHA, at most RIGID_CLUSTERS per
+    # axis) and free: rigid share 1; soft, or with a pinned particle: 0 (per particle)
     w = World()
-    assert w.contact_params.stacking                      # the default
     pts = lattice(3, 3, 3)
     w.add_body(pts, 0.01, BodyParams(mode='rigid', alpha=0.9), 'stiff')
     w.add_body(pts + 1.0, 0.01, BodyParams(mode='linear', alpha=0.3), 'soft')
     w.add_body(pts + 2.0, 0.01, BodyParams(mode='rigid', alpha=0.9, clusters=2), 'clustered')
-    w.add_body(pts + 3.0, 0.01, BodyParams(mode='rigid'), 'pinned', pinned=[0])
+    w.add_body(pts + 3.0, 0.01, BodyParams(mode='rigid', alpha=0.9), 'pinned', pinned=[0])
     w.step(1 / 120)
     assert w.contact.coupling[:4].tolist() == [True, False, True, True]
-    # a pinned particle makes the body per particle in the kernel (infinite mass)
-    assert w.contact._bw[3] == 0.0 and w.contact._bw[0] > 0.0
-
-
-def test_resting_pair_is_pushed_apart_without_speed():
-    # two bodies carrying their contacts as a whole, overlapping at rest under gravity:
-    # the overlap is removed by moving the bodies (equal and opposite position impulses),
-    # not by giving them speed that the next step would turn into a bounce
-    X = np.ascontiguousarray(np.array([[0.0, 0.0], [0.0, 0.0], [0.0, 0.015]]))
-    V = np.zeros((3, 2))
-    W = np.array([1 / 0.2, 1 / 0.6])
-    B = np.array([0, 1], np.int32)
-    off = np.array([0, 1, 2])
-    bw = np.array([5.0, 1 / 0.6])
-    acc = np.zeros((2, 1))
-    x0 = X.copy()
-    C.solve_bodies(X, V, W, np.full(2, 0.01), B, np.array([0], np.int32),
-                   np.array([1], np.int32), 1, 0.5, 0.0, 0.1, 1 / 120, 8,
-                   np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2), *NO_COLLIDERS,
-                   np.zeros(2, np.uint8), off, bw, np.ones(2, np.bool_), np.zeros((2, 7)),
-                   np.zeros(2, np.uint8), np.zeros(1, np.int64), acc, np.zeros(1), 1e-3,
-                   np.zeros((2, 3)), np.zeros(4), np.zeros(0, np.int64), np.zeros(3, np.int64),
-                   np.zeros((2, 2)), np.zeros((2, 2)), 0.0, X.T.copy(), np.zeros((2, 3)),
-                   np.zeros((2, 9)), np.inf, np.zeros((12, 1)), np.zeros((5, 1), np.int32))
-    assert X[2, 1] - X[2, 0] == pytest.approx(0.02)
-    np.testing.assert_array_equal(V, 0.0)
-    moves = (X - x0) / W                                  # mass x move: equal, opposite
-    np.testing.assert_allclose(moves[:, 0], -moves[:, 1], atol=1e-15)
+    assert w.contact._bodies.share[:4].tolist() == [1.0, 0.0, 1.0, 0.0]
 
 
 @pytest.mark.slow
@@ -732,99 +659,38 @@ def test_pile_of_27_many_cluster_balls_comes_to_rest():
     # as a whole too: per particle they keep jittering (measured 1.1 % of the peak kinetic
     # energy after 4 s, 0.12 m/s RMS), carried 0.003 % (0.006 m/s)
     from sm_ros.bench.contact import ball_pile
-    out = {}
-    for stacking in (True, False):
-        w, bodies = ball_pile(stacking, clusters=2)
-        ke = []
-        for _ in range(4 * 120):
-            w.step(1 / 120)
-            ke.append(sum(0.5 * float((b.m[:, None] * b.v ** 2).sum()) for b in bodies))
-        assert bodies[0].num_clusters == 8 and w.contact.coupling[:27].all()
-        m = float(sum(b.m.sum() for b in bodies))
-        out[stacking] = (np.mean(ke[-60:]) / max(ke), np.sqrt(2 * np.mean(ke[-60:]) / m))
-        x = np.concatenate([b.x for b in bodies])
-        assert x[:, 2].max() > 0.12 and x[:, 2].min() >= 0.0             # heaped, above
-    assert out[True][0] < 1e-3 and out[True][1] < 0.03
-    assert out[False][0] > 1e-3                                          # per particle
+    w, bodies = ball_pile(True, clusters=2)
+    ke = []
+    for _ in range(4 * 120):
+        w.step(1 / 120)
+        ke.append(sum(0.5 * float((b.m[:, None] * b.v ** 2).sum()) for b in bodies))
+    assert bodies[0].num_clusters == 8 and w.contact.coupling[:27].all()
+    m = float(sum(b.m.sum() for b in bodies))
+    x = np.concatenate([b.x for b in bodies])
+    assert x[:, 2].max() > 0.12 and x[:, 2].min() >= 0.0                 # heaped, above
+    assert np.mean(ke[-60:]) / max(ke) < 1e-3
+    assert np.sqrt(2 * np.mean(ke[-60:]) / m) < 0.03
 
 
-def test_inverse_sym3_matches_numpy():
-    rng = np.random.default_rng(3)
-    for _ in range(20):
-        a = rng.normal(size=(3, 3))
-        a = a @ a.T + 0.1 * np.eye(3)
-        out = np.zeros(9)
-        C.inverse_sym3(a.reshape(-1).copy(), out)
-        np.testing.assert_allclose(out.reshape(3, 3), np.linalg.inv(a), rtol=1e-9, atol=1e-9)
-    out[:] = 1.0
-    C.inverse_sym3(np.array([1.0, 0, 0, 0, 1, 0, 0, 0, 0]), out)       # singular: zero
-    np.testing.assert_array_equal(out, 0.0)
-
-
-def test_body_velocities_match_numpy():
-    # centre of mass, its velocity, lowest particle, inverse inertia and spin of the bodies
-    # carried as a whole, against the NumPy twin; bodies not carried get zero velocity
-    rng = np.random.default_rng(4)
-    n = [7, 11, 5]
-    off = np.concatenate([[0], np.cumsum(n)])
-    X = np.ascontiguousarray(rng.normal(size=(3, off[-1])) + 3.0)
-    V = np.ascontiguousarray(rng.normal(size=(3, off[-1])))
-    W = rng.uniform(0.5, 2.0, off[-1])
-    X[2, 3] = X[2, 5] = X[2, :7].min() - 1.0     # two lowest: the first one's velocity
-    cpl = np.array([True, True, False])
-    bw = np.array([1 / (1 / W[off[b]:off[b + 1]]).sum() for b in range(3)])
-    vb, zlo, bc, bom, biv = (np.zeros((3, 3)), np.zeros((2, 3)), np.zeros((3, 3)),
-                             np.zeros((3, 3)), np.zeros((3, 9)))
-    Xref = X + rng.normal(scale=0.01, size=X.shape)
-    act = np.array([True, False, True])
-    dbox = np.zeros(6)
-    spread2 = C.body_velocities(X, V, 1.0 / W, off, cpl, bw, vb, zlo, bc, bom, biv, Xref,
-                                act, dbox)
-    # the colliding bodies' displacements (body 1 does not collide), as moved_spread2
-    assert spread2 == C.moved_spread2(X, Xref, off.astype(np.int64), act)
-    keep = np.repeat(act, n)
-    d = (X - Xref)[:, keep]
-    e = 0.5 * (d.max(axis=1) - d.min(axis=1))
-    assert spread2 == pytest.approx(e @ e, rel=1e-12)
-    np.testing.assert_array_equal(dbox, np.concatenate([d.min(axis=1), d.max(axis=1)]))
-    for b in range(2):
-        s = slice(off[b], off[b + 1])
-        m, x, v = 1 / W[s], X[:, s].T, V[:, s].T
-        c = (m[:, None] * x).sum(0) / m.sum()
-        r = x - c
-        inertia = (m[:, None, None] * ((r * r).sum(1)[:, None, None] * np.eye(3)
-                                        - r[:, :, None] * r[:, None, :])).sum(0)
-        ang = (m[:, None] * np.cross(r, v)).sum(0)
-        np.testing.assert_allclose(bc[b], c, rtol=1e-12)
-        np.testing.assert_allclose(vb[b], (m[:, None] * v).sum(0) / m.sum(), rtol=1e-12)
-        assert zlo[0, b] == x[:, 2].min() and zlo[1, b] == v[np.argmin(x[:, 2]), 2]
-        np.testing.assert_allclose(biv[b].reshape(3, 3), np.linalg.inv(inertia), rtol=1e-9)
-        np.testing.assert_allclose(bom[b], np.linalg.solve(inertia, ang), rtol=1e-9)
-    np.testing.assert_array_equal(vb[2], 0.0)
-    assert zlo[1, 0] == V[2, 3] != V[2, 5]
-
-
-def test_spin_of_a_body_held_by_another_is_stopped():
-    # a spinning box lands on a box: carried bodies are not turned by their contacts, and
-    # one held by another body does not keep spinning (a spinning body in a heap would
-    # otherwise drive its neighbours sideways forever); linear momentum stays exact
+def test_spin_of_a_body_resting_on_another_is_braked_by_friction():
+    # a spinning box lands on a box: friction at its contacts brakes the spin within a
+    # fraction of a second (a spinning body in a heap would otherwise drive its
+    # neighbours sideways forever)
     w = World()
     w.set_colliders(ground=Ground())
-    p = BodyParams(mode='linear', alpha=0.9, clusters=2)
+    p = BodyParams(mode='rigid', alpha=0.9, clusters=2)
     a = w.add_body(lattice(4, 4, 3, center=(0, 0, 0.02)), 0.01, p, 'a')
     pts = lattice(4, 4, 3, center=(0, 0, 0.079))         # 1 mm into it
     spin = np.cross([0.0, 0.0, 3.0], pts - pts.mean(axis=0))
     b = w.add_body(pts, 0.01, p, 'b', velocities=spin)
-    w.step(1 / 120)
+    for _ in range(60):
+        w.step(1 / 120)
     assert w.contact.coupling[:2].all() and w.contact.count[1] > 0
     r = b.x - b.com()
     ang = (b.m[:, None] * np.cross(r, b.v - b.v.mean(axis=0))).sum(0)
     ang0 = (b.m[:, None] * np.cross(pts - pts.mean(axis=0), spin)).sum(0)
     assert abs(ang[2]) < 1e-3 * abs(ang0[2])
-    # the pair's impulses are equal and opposite: only gravity and the ground changed the
-    # total momentum, the ground only upwards (z)
-    tot = a.momentum() + b.momentum()
-    np.testing.assert_allclose(tot[:2], 0.0, atol=1e-12)
+    assert np.linalg.norm(b.com()[:2]) < 0.005 and np.linalg.norm(a.com()[:2]) < 0.005
 
 
 def _overlaps_numpy(X, off, act, selfc, grow):
@@ -872,7 +738,8 @@ def test_broad_phase_keeps_every_pair_of_a_pour():
         c._build()
         got = set(zip(c._pi[:c.npairs].tolist(), c._pj[:c.npairs].tolist()))
         m, pi, pj = build_with('grid', f.X, f.R, f.B, c.act, c.selfc, f.X0, c.cell, c.skin,
-                               4 * f.n)
+                               len(c._pi) + 4 * f.n)
+        assert m <= len(c._pi) + 4 * f.n
         C.sort_pairs(pi, pj, m, f.n, np.zeros(f.n + 1, np.int64), np.zeros_like(pi),
                      np.zeros_like(pj))
         assert got == set(zip(pi[:m].tolist(), pj[:m].tolist()))
@@ -935,5 +802,21 @@ def test_pair_list_kept_for_a_common_motion_and_always_complete():
         touching = brute_pairs(f.X.T, f.R, f.B, c.act, c.selfc, f.X0.T, 0.0)
         listed = set(zip(c._pi[:c.npairs].tolist(), c._pj[:c.npairs].tolist()))
         assert touching <= listed
-        met += len(touching)
+        # pairs met: in contact or within 10 % of it (the solve stops most pairs before
+        # they overlap, ``contact_solve.SPECULATIVE``)
+        met += len(brute_pairs(f.X.T, f.R, f.B, c.act, c.selfc, f.X0.T, 0.2 * f.R.max()))
     assert met > 0 and c.builds > builds + 2
+
+
+def test_neighbour_directions_match_a_numpy_twin():
+    # the sums behind the stiff bodies' surface normals (contact.surface_normals)
+    from sm_ros.core.contact_kernels import neighbour_directions
+    rng = np.random.default_rng(3)
+    x = np.vstack([lattice(4, 3, 2), rng.uniform(-0.05, 0.05, (40, 3))])
+    reach = 1.5 * S
+    d = x[None, :, :] - x[:, None, :]
+    dist = np.linalg.norm(d, axis=2)
+    near = (dist <= reach) & (dist > 0.0)
+    unit = np.where(near[:, :, None], d / np.where(near, dist, 1.0)[:, :, None], 0.0)
+    np.testing.assert_allclose(neighbour_directions(x, reach), unit.sum(axis=1), atol=1e-12)
+    assert np.abs(unit.sum(axis=1)).max() > 0.5          # the twin sees neighbours

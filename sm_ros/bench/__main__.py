@@ -70,6 +70,7 @@ HANDED_OVER = {
     'profile': "cProfile of a scene's ticks (sm_ros.bench.profile)",
     'startup': 'first cloud cold and warm, full warm-up (sm_ros.bench.startup)',
     'peers': 'contact cases in PyBullet, MuJoCo and sm_ros (sm_ros.bench.peers)',
+    'settle': 'how a scene comes to rest, second by second (sm_ros.bench.settle)',
 }
 
 

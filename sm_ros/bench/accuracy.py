@@ -14,8 +14,8 @@ Five scenes, each simulated for T seconds (2 s by default) with a sweep of frame
 - ``plastic_press``: a plastic cube on the ground squeezed by two kinematic jaws for 1 s,
   then released.
 - ``box_on_box``: contact between bodies: a rigid box dropped (10 cm, tilted) onto another
-  resting on the ground; the error is the dropped box's (rigid: both carry their contacts
-  as a whole at every step, the reference's too).
+  resting on the ground; the error is the dropped box's (both take contact as rigid
+  bodies at every step, the reference's too).
 - ``ball_incline``: a soft ball rolling down a 20-degree incline (an oriented box of the
   collider pass) onto the ground.
 

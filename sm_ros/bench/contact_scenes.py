@@ -83,12 +83,10 @@ def block_bin(n_blocks: int = 384, seed: int = 1, layers: int = 1, sleep: bool =
 def squeezed(X: np.ndarray) -> np.ndarray:
     """A copy of positions X (3, N) squeezed towards their centre by 5 % in x and y.
 
-    Resting blocks that carry their contacts as a whole (stacking, the default) sit with
-    their side faces at or a little beyond the contact distance (no side load; sagging
-    under their weight, the faces bulge: gaps of 0.5-8 mm after 200 steps), so at rest no
-    pair overlaps.  Squeezed by 5 %, about 8,500 facing pairs overlap by up to 0.9 mm (1 %:
-    43 pairs), near the bin of 384 blocks (~12,700 pairs within 2 r).  The cKDTree baseline and
-    the per-step part are timed on this state.
+    Resting stiff blocks (rigid bodies for contact) sit with their side faces at or a
+    little beyond the contact distance (no side load), so at rest no pair overlaps.
+    Squeezed by 5 %, thousands of facing pairs overlap by up to about 1 mm, near the bin
+    of 384 blocks.  The cKDTree baseline and the per-step part are timed on this state.
     """
     Xs = X.copy()
     mid = Xs[:2].mean(axis=1, keepdims=True)

@@ -245,7 +245,8 @@ def differences() -> str:
          '1/120 s (the node: 2 steps a tick at 60 Hz)'),
         ('contact solver', 'sequential impulses, 50 iterations, split impulse',
          'Newton, up to 100 iterations, pyramidal friction cones, soft constraints',
-         'particle pairs, 1 sweep; stiff bodies carried as a whole, up to 8 sweeps'),
+         'sequential impulses on particle rows, stiff bodies as rigid bodies, 8 + 4 sweeps, '
+         'split impulse'),
         ('friction of a pair', 'product of the two (each object: sqrt(mu))',
          'the larger of the two (each geom: mu)', "the collider's, or contact.friction"),
         ('restitution', 'product of the two (each: sqrt(e))',

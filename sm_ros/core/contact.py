@@ -1,29 +1,24 @@
 """Contact between bodies, and self-collision, on the world's flat state (``flat.py``).
 
-Model (doc/contact.md): every particle of a colliding body is a sphere of
-its body's contact radius ``r``; two particles of different bodies (or of one
-self-colliding body whose rest distance exceeds ``SELF_REST_FACTOR`` times their contact
-distance) must stay at least ``r_i + r_j`` apart.  After the bodies' own step (each
-substep) every overlapping pair is pushed apart along the line of its start-of-step
-positions (x - h v), weighted by inverse mass (pinned and grabbed particles have infinite
-mass), equal and opposite, so linear momentum is kept to round-off; its relative velocity
-then gets the ground's contact law (``solve_pairs``).  Every velocity change also moves the
-particles by h times it, so without friction angular momentum is kept to round-off too.
-Particles that contact moved are then projected out of the static colliders again.
-With ``ContactParams.stacking`` (the default), under gravity, a stiff body (alpha at the
-step at least ``COUPLE_ALPHA``, one cluster or many, no pinned or grabbed particle) carries
-its contacts as a whole: an impulse on one of its particles translates the body, so its
-load reaches all of it within the step instead of compressing its touching layer; such
-pairs, and such bodies on the ground, are solved with accumulated impulses over several
-sweeps, warm-started from the last step (``WARM_START``), and a carried body held by
-another does not spin (``contact_bodies.solve_bodies``): stacks stand and heaps of such
-bodies (``paper_384``) come to rest at the node's step.
+Model (doc/contact.md): every particle of a colliding body is a sphere of its body's
+contact radius ``r``; two particles of different bodies (or of one self-colliding body
+whose rest distance exceeds ``SELF_REST_FACTOR`` times their contact distance) must stay
+at least ``r_i + r_j`` apart.  After the bodies' own step (each substep) the pairs within
+1.2 contact distances and the stiff bodies' particles inside colliders are the rows of a
+sequential-impulse solve in which a stiff body (``COUPLE_ALPHA``, ``RIGID_CLUSTERS``)
+takes every impulse as a rigid body (its velocity and spin change: contact tips, rolls and
+yaws it) and a soft one per particle; accumulated, warm-started normal and friction
+impulses, restitution from the approach before the step, position correction by
+pseudo-velocities that never enter the velocities (``contact_solve.py``,
+``contact_sweeps.py``).  The soft bodies' particles meet the static colliders with the
+per-particle law first (the bodies' own step leaves the colliders to this pass when it
+runs).
 
-Neighbour search (a Verlet pair list on a cell grid) and the per-pair solve are compiled
-kernels in ``contact_build.py``, ``contact_cells.py``, ``contact_kernels.py`` and
-``contact_bodies.py``; this file holds the settings
-(``ContactParams``, ``BodyContact``) and the pass ``Contact`` that owns the buffers and calls
-them.
+Neighbour search (a Verlet pair list on a cell grid) and the solve are compiled kernels in
+``contact_build.py``, ``contact_cells.py``, ``contact_solve.py``, ``contact_sweeps.py``,
+``contact_frames.py`` and ``contact_statics.py``; this file holds the settings
+(``ContactParams``, ``BodyContact``) and the pass ``Contact`` that owns the buffers and
+calls them.
 """
 
 from dataclasses import dataclass, fields, replace
@@ -33,12 +28,19 @@ from typing import Optional
 import numba
 import numpy as np
 
-from .contact_bodies import solve_bodies
 from .contact_build import (body_overlaps, build_pairs_grid, build_pairs_grid_par,
                             moved_spread2, sort_pairs)
 from .contact_cells import build_pairs, build_pairs_cells
-from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
-                              inverse_sym3, median_nn_distance, solve_pairs, wall_candidates)
+from .contact_kernels import count_fast, median_nn_distance, neighbour_directions
+from .contact_frames import (body_frames, carry_warm, finish_rows, group_rows,
+                             guarded)
+from .contact_soft import collide_moved, soft_pairs
+from .contact_solve import collider_offsets, fill_rows, pair_rows
+from .contact_statics import collide_rows_soft, collide_soft, collider_rows, project_moved
+from .contact_sweeps import POS_SWEEPS, VEL_SWEEPS, WARM, solve_rows
+from .kernels.contact_rows import (LAW_GUARD, ROW_WIDTH, WARM_WIDTH, Bodies,
+                                   PairList, Particles, Rows, Statics)
+from .kinematic import contact_rows as kinematic_rows, row_wrenches
 from .kernels.colliders import contact_velocity
 from .params import _finite
 
@@ -53,25 +55,18 @@ SKIN_FACTOR = 0.5
 #: another job holds a core (OpenMP waits for the descheduled thread;
 #: ``python -m sm_ros.bench contact`` times both side by side).
 PARALLEL_BUILD_MIN = 262144
-#: A body carries its contacts as a whole (``Contact.coupling``) when its goal pull alpha
-#: at the step is at least this (one cluster or many): the shape match then restores
-#: most of a deviation within the step, so the body is stiff (doc/contact.md); softer
-#: bodies give way at their contacts, per particle.
-COUPLE_ALPHA = 0.5
-#: With stacking, ``solve_bodies`` sweeps the pairs of bodies carried as a whole at most
-#: this many times a step (at least ``iterations``): 4 left five stacked boxes jittering
-#: by 1.2 mm at the node's step, 8 by 0.01 mm.
-STACK_SWEEPS = 8
-#: ``solve_bodies`` stops sweeping once no velocity changed by more than this fraction of
-#: the resting threshold (``World.step``: 2 |g| h) in a sweep.
-SWEEP_TOL = 0.01
-#: ``solve_bodies`` starts each step from this fraction of the velocity impulses its
-#: pairs of carried bodies (and their ground contacts) ended the last step with, while the
-#: pair list is unchanged (``kernels.pair_contact._warm_start``): without it the 8 sweeps did
-#: not carry the load of ``paper_384``'s heap (up to ten bodies high) to the ground, its
-#: top bodies kept about 2 g h of downward speed that the position impulses cancelled
-#: every step (1.3 J left); with 1.0 five stacked boxes sank 14 mm in 10 s.
-WARM_START = 0.5
+#: A body takes its contacts as a rigid body (``Contact.coupling``, rigid share 1:
+#: ``contact_solve``) when the pull of its goals towards their rigid part at the step,
+#: alpha (1 - beta) (alpha in rigid mode), is at least this and it has at most
+#: ``RIGID_CLUSTERS`` clusters per axis: the shape match then restores most of a
+#: deviation within the step and the body does not bend between its clusters.  Softer
+#: bodies, many-cluster ones (a sheet that folds), self-colliding ones and ones with a
+#: pinned or grabbed particle take their contacts per particle and are dented.
+COUPLE_ALPHA = 0.4
+RIGID_CLUSTERS = 2
+#: The velocity sweeps stop once no speed changed by more than this fraction of the
+#: resting threshold (``World.step``: 2 |g| h) in a sweep.
+SWEEP_TOL = 0.001
 _NO_GROUND = np.zeros(4)
 _NO_ROWS8 = np.zeros((0, 8))
 _NO_ROWS6 = np.zeros((0, 6))
@@ -94,12 +89,9 @@ class ContactParams:
     ``enabled`` turns body-body contact on; ``friction`` (Coulomb mu) and ``restitution``
     act like the ground's; ``radius_scale`` multiplies every body's default contact
     radius (half its median nearest-neighbour distance; a body's own ``contact_radius``
-    is used as given); ``iterations`` Gauss-Seidel sweeps over the pairs per step.
-    ``stacking`` (on by default; scene key ``contact: {stacking: ...}``, node parameter
-    ``contact.stacking``): under gravity, stiff bodies carry their contacts as a whole
-    (``COUPLE_ALPHA``, ``STACK_SWEEPS``, ``WARM_START``; doc/contact.md:
-    stacks stand and heaps of such bodies come to rest at the node's step); False: every
-    particle acts on its own (``solve_pairs``), as softer bodies always do.
+    is used as given); ``iterations``: velocity sweeps per step beyond the solve's own
+    (``contact_sweeps.VEL_SWEEPS``).  ``stacking`` is accepted for old scenes and has no
+    effect: the model is one for every setting (doc/contact.md).
     ``sleep`` (on by default): a body whose particles all moved slower than
     ``sleep_speed`` (m/s) for ``sleep_time`` seconds and that touches no moving body falls
     asleep and is not stepped until something wakes it (``sleep.py``, doc/sleeping.md).
@@ -158,6 +150,30 @@ class BodyContact:
                        self_collision=_flag('self_collision', self.self_collision))
 
 
+def surface_normals(X0, M, off, radii):
+    """Per particle, its outward surface normal in its body's rest shape (3, N): minus
+    the mean direction to its rest neighbours within 1.5 lattice spacings (twice the
+    contact radius), zero where they surround it (inside); and each body's rest centre of
+    mass (nb, 3).  Stiff bodies' pairs touch along these (``contact_solve``)."""
+    nb = max(len(off) - 1, 1)
+    ns = np.zeros(X0.shape)
+    c0 = np.zeros((nb, 3))
+    for b in range(len(off) - 1):
+        x = X0[:, off[b]:off[b + 1]].T
+        m = M[off[b]:off[b + 1]]
+        if len(x) == 0:
+            continue
+        c0[b] = (m[:, None] * x).sum(axis=0) / m.sum()
+        reach = 3.0 * float(radii[b])
+        if len(x) < 2 or not reach > 0.0:
+            continue
+        acc = neighbour_directions(np.ascontiguousarray(x), reach)
+        size = np.linalg.norm(acc, axis=1)
+        out = size > 0.5
+        ns[:, off[b]:off[b + 1]][:, out] = (-acc[out] / size[out, None]).T
+    return ns, c0
+
+
 def default_radius(points) -> float:
     """Half the median nearest-neighbour distance of a point set (N, 3); 0 for N < 2.
 
@@ -190,7 +206,8 @@ class Contact:
         self.flat = flat
         self.params = params
         nb = len(flat.bodies)
-        self.act = np.array([c.collide for c in body_contacts], dtype=np.bool_)
+        self.act = np.array([c.collide and params.enabled for c in body_contacts],
+                            dtype=np.bool_)
         self.selfc = np.array([c.collide and c.self_collision for c in body_contacts],
                               dtype=np.bool_)
         if nb == 0:
@@ -232,7 +249,7 @@ class Contact:
         self._tj = np.zeros(cap, dtype=np.int32)
         self._pcnt = np.zeros(n + 1, dtype=np.int64)
         self._xref = np.zeros((3, n))
-        self._moved = np.zeros(n, dtype=np.uint8)
+        self._moved = np.zeros(n, dtype=np.uint8)   # particles ``soft_pairs`` moved
         self.npairs = 0
         self.valid = False
         self.builds = 0
@@ -240,36 +257,27 @@ class Contact:
         self.count = np.zeros(max(nb, 1), dtype=np.int64)
         self.deepest = np.zeros(max(nb, 1))
         self.fast = np.zeros(max(nb, 1), dtype=np.int64)
-        # solve_bodies: which bodies carry their contacts as a whole (set by World),
-        # their inverse masses and moves, per-pair and per-particle impulses
+        # which bodies take their contacts as rigid bodies (set by World)
         self.coupling = np.zeros(max(nb, 1), dtype=np.bool_)
-        self._bw = np.zeros(max(nb, 1))
-        self._bw_version = -1                   # flat.w_version that _bw was computed at
-        self._dv = np.zeros((max(nb, 1), 7))     # velocity, position changes; held
-        self._pend = np.zeros(max(nb, 1), dtype=np.uint8)
-        self._active = np.zeros(0, dtype=np.int64)
-        self._acc = np.zeros((2, 0))
-        self._tg = np.zeros(0)
-        self._cbuf = np.zeros((7, 0))
-        self._ibuf = np.zeros((5, 0), dtype=np.int32)
-        self._vb = np.zeros((max(nb, 1), 3))
-        self._zlo = np.zeros((2, max(nb, 1)))   # lowest particle per body: z, its v_z
-        self._bc = np.zeros((max(nb, 1), 3))            # centre of mass
-        self._bom = np.zeros((max(nb, 1), 3))           # spin
-        self._biv = np.zeros((max(nb, 1), 9))           # inverse inertia tensor
-        self._dbox = np.zeros(6)        # displacements since the last build: their box
-        self._accg = np.zeros((2, max(nb, 1)))          # ground impulses per body
-        self._warm = False              # acc, accg hold the last step's impulses (list kept)
-        self._noground = np.zeros(4)
-        self._cand = np.zeros(n, dtype=np.int64)        # particles near boxes, spheres
-        self._cptr = np.zeros(max(nb, 1) + 1, dtype=np.int64)
+        self._wp = None                 # warm-start impulses per pair of the list
+        self._wc = None                 # ... per particle against a collider
+        self._bodies = None             # the solve's state (contact_solve), made at a run
+        self._rows = None
+        self._stamp = 0.0
+        self.soft_w = None              # inverse masses of the particles left to colliders
+        self._row_order = np.zeros(0, np.int64)     # the rows by pair of bodies
+        self._row_start = np.zeros(1, np.int64)
+        self.vel_sweeps = VEL_SWEEPS
+        self.warm = WARM
+        self.pos_sweeps = POS_SWEEPS
 
     def step_state(self) -> tuple:
         """What a step changes and a later step reads (``snapshot``): the pair list and
-        what its build measured (boxes, positions, displacements since), the impulses that
-        warm-start the next step, the body masses and the last step's counts."""
-        return ('npairs', 'valid', 'builds', 'found', '_warm', '_pi', '_pj', '_xref', '_box',
-                '_dbox', '_acc', '_accg', '_bw', '_bw_version', 'count', 'deepest')
+        the positions of its build, the impulses that warm-start the next step (per pair,
+        per particle against a collider, with the step's number) and the last step's
+        counts."""
+        return ('npairs', 'valid', 'builds', 'found', '_pi', '_pj', '_pcnt', '_xref', '_wp',
+                '_wc', '_stamp', 'count', 'deepest')
 
     def invalidate(self):
         """Force a rebuild of the pair list at the next step."""
@@ -288,6 +296,12 @@ class Contact:
     def _build(self):
         f = self.flat
         nt = self._grid_builder()
+        old = None
+        if self._wp is not None and self.valid:
+            # the old list's pairs and impulses, for the new list's pairs to start from
+            n0 = self.npairs
+            old = (self._pi[:n0].copy(), self._pj[:n0].copy(), self._pcnt.copy(),
+                   self._wp[:n0].copy())
         # broad phase: only bodies whose boxes (grown by r + skin / 2) meet another's go
         # into the grid; valid until the next build (no pair comes closer by the skin)
         act = self._act_eff
@@ -320,85 +334,102 @@ class Contact:
             self._ti = np.zeros(cap, dtype=np.int32)
             self._tj = np.zeros(cap, dtype=np.int32)
         sort_pairs(self._pi, self._pj, m, f.n, self._pcnt, self._ti, self._tj)
-        self._warm = False                      # the impulses were of the old list's pairs
+        if old is not None:
+            if len(self._wp) < len(self._pi):
+                self._wp = np.full((len(self._pi), WARM_WIDTH), -np.inf)
+            carry_warm(old, (self._pi, self._pj, self._wp), m)
         self.npairs = m
         self._xref[:] = f.X
         self.valid = True
         self.builds += 1
 
+    def _solver_buffers(self):
+        """The solve's buffers, sized to the pair list's capacity (grown with it)."""
+        f = self.flat
+        nb = max(len(f.bodies), 1)
+        if self._bodies is None:
+            ns, c0 = surface_normals(f.X0, f.M, f.off, self.radii)
+            self._bodies = Bodies(np.zeros(nb), np.zeros((nb, 3)), np.zeros((nb, 9)),
+                                  np.zeros((nb, 3)), np.zeros((nb, 3)), np.zeros(nb),
+                                  np.zeros((nb, 12)), np.zeros((nb, 9)), c0)
+            self._pt = Particles(f.X, f.V, f.W, f.R, f.B, f.M, np.zeros((3, f.n)), ns)
+            self._wc = np.full((f.n, WARM_WIDTH), -np.inf)
+            self._bbox = np.zeros((nb, 6))
+        cap = len(self._pi) + f.n
+        if self._rows is None or self._rows.f.shape[0] < cap:
+            self._rows = Rows(np.zeros((cap, ROW_WIDTH)), np.zeros((cap, 5), np.int64))
+        if self._wp is None or len(self._wp) < len(self._pi):
+            self._wp = np.full((len(self._pi), WARM_WIDTH), -np.inf)
+
     def run(self, h, thresh, has_col=False, ground=_NO_GROUND, boxes=_NO_ROWS8,
-            spheres=_NO_ROWS6, gravity=None):
+            spheres=_NO_ROWS6, gravity=None, kin=None, kin_stats=None):
         """Detect and resolve contacts on ``flat.X``/``flat.V`` (already gathered).
 
         ``has_col``, ``ground``, ``boxes``, ``spheres``: the World's static colliders (rows
-        as in ``kernels.colliders.collide_point``), re-applied to every particle contact
-        moved.  ``gravity`` (3,): with a nonzero one, ``params.stacking`` and a body
-        marked in ``coupling``, the bodies so marked carry their contacts as a whole
-        (``solve_bodies``); otherwise every pair acts per particle (``solve_pairs``).
+        as in ``kernels.colliders.collide_point``); the bodies' own step left them to this
+        pass.  ``gravity`` (3,): a collider's restitution acts on the approach speed before
+        the step's gravity.  ``kin``: the world's named, oriented or moving colliders
+        (``colliders.ColliderSet``) or None: the stiff bodies' contacts with them are rows
+        of the solve (their wrenches and ``kin_stats`` counted); the caller then runs
+        their pass for the other particles with ``soft_w`` as inverse masses.
         """
         f = self.flat
-        half = 0.5 * self.skin
         p = self.params
-        grav = gravity is not None and bool(np.any(gravity != 0.0))
-        carried = p.stacking and grav and self.coupling.any()
-        if carried:
-            if self._bw_version != f.w_version:    # the bodies' masses, from W if changed
-                body_inverse_masses(f.W, f.off, self._bw)
-                self._bw_version = f.w_version
-            # the carried bodies' velocities, boxes and the displacements since the last
-            # build in one pass over the positions
-            spread2 = body_velocities(f.X, f.V, f.M, f.off, self.coupling, self._bw,
-                                      self._vb, self._zlo, self._bc, self._bom, self._biv,
-                                      self._xref, self.act, self._dbox)
-        else:
+        if self.needed:
+            half = 0.5 * self.skin
             spread2 = moved_spread2(f.X, self._xref, f.off, self.act)
-        # rebuilt once the displacements since the last build no longer fit in a ball of
-        # radius skin / 2 (no pair came closer by more than the skin; contact_build)
-        if not self.valid or spread2 > half * half:
-            self._build()
-            self._dbox[:] = 0.0                # nothing moved since this build
+            # rebuilt once the displacements since the last build no longer fit in a ball
+            # of radius skin / 2 (no pair came closer by more than the skin; contact_build)
+            if not self.valid or spread2 > half * half:
+                self._build()
+        self._solver_buffers()
+        self._stamp += 1.0
+        bd, pt, rows = self._bodies, self._pt, self._rows
+        # a self-colliding body folds onto itself: it takes its contacts per particle
+        cpl = self.coupling & ~self.selfc[:len(self.coupling)]
+        body_frames(pt, f.off, cpl, bd, float(h), self._bbox, f.X0)
+        st = Statics(ground if has_col else _NO_GROUND, boxes if has_col else _NO_ROWS8,
+                     spheres if has_col else _NO_ROWS6)
+        if has_col:
+            collide_soft(pt, f.off, bd, st, thresh, f.touched)
+        g = (0.0, 0.0, 0.0) if gravity is None else gravity
+        law = np.array([h, thresh, p.friction, p.restitution, self._stamp, self.warm,
+                        max(self.vel_sweeps, p.iterations), self.pos_sweeps, g[0], g[1],
+                        g[2], 0.0])
         self.count[:] = 0
         self.deepest[:] = 0.0
-        if not carried:
-            self._warm = False
-            self.found = solve_pairs(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
-                                     p.friction, p.restitution, thresh, float(h), p.iterations,
-                                     f.touched, self.count, self.deepest, bool(has_col),
-                                     ground, boxes, spheres, self._moved)
-            return
-        if self._acc.shape[1] < self.npairs:
-            m = len(self._pi)                  # grows with the pair list's capacity
-            self._acc = np.zeros((2, m))
-            self._tg = np.zeros(m)
-            self._active = np.zeros(m, dtype=np.int64)
-            self._cbuf = np.zeros((7, m))        # solve_bodies' compact rows
-            self._ibuf = np.zeros((5, m), dtype=np.int32)
-        ncand = 0
-        # the end of solve_bodies puts a carried body's particles through the boxes and
-        # spheres only where one can be inside (its particles near them, ``cand``, or one
-        # moved by this margin or more); with none, only the ground is left (no margin)
-        margin = np.inf
-        if has_col and (len(boxes) or len(spheres)):
-            margin = self.cell
-            ncand = wall_candidates(f.X, f.off, self.coupling, self._bw, boxes, spheres,
-                                    self.cell, self._cand, self._cptr, self.act,
-                                    self._box, self._dbox)
-            if ncand > len(self._cand):         # a particle near two of them: grow
-                self._cand = np.zeros(ncand, dtype=np.int64)
-                ncand = wall_candidates(f.X, f.off, self.coupling, self._bw, boxes,
-                                        spheres, self.cell, self._cand, self._cptr,
-                                        self.act, self._box, self._dbox)
-        self.found = solve_bodies(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
-                                  p.friction, p.restitution, thresh, float(h),
-                                  max(p.iterations, STACK_SWEEPS), f.touched, self.count,
-                                  self.deepest, bool(has_col), ground,
-                                  boxes, spheres, self._moved, f.off, self._bw, self.coupling,
-                                  self._dv, self._pend, self._active, self._acc, self._tg,
-                                  SWEEP_TOL * thresh, self._vb, self._noground,
-                                  self._cand[:ncand], self._cptr, self._zlo, self._accg,
-                                  WARM_START if self._warm else 0.0, self._bc, self._bom,
-                                  self._biv, margin, self._cbuf, self._ibuf)
-        self._warm = True
+        stats = (f.touched, self.count, self.deepest)
+        m = soft = 0
+        if self.needed:
+            pairs = PairList(self._pi, self._pj, self.npairs)
+            soft = soft_pairs(pt, bd.share, pairs, law, p.iterations, stats + (self._moved,))
+            m = pair_rows(pt, bd, pairs, rows, law)
+        m0 = m
+        if has_col:
+            m = collider_rows(pt, bd, f.off, st, rows, m, self._bbox)
+        mk = m
+        if kin is not None:
+            m = kinematic_rows(f.X, f.off, bd.share, self._bbox, kin.rows, rows.f, rows.i, m)
+        collider_offsets(pt, bd, rows, m0, m, float(h))
+        if len(self._row_order) < m:
+            self._row_order = np.zeros(rows.f.shape[0], np.int64)
+            self._row_start = np.zeros(rows.f.shape[0] + 1, np.int64)
+        ng = group_rows(rows, m, bd.share, self._row_order, self._row_start, f.R)
+        fill_rows(pt, bd, rows, self._row_order, self._row_start[ng], law, self._wp, self._wc)
+        # the energy guard needs every row between stiff bodies or with static colliders
+        law[LAW_GUARD] = 1.0 if guarded(rows, m, bd.share) else 0.0
+        solve_rows(pt, bd, rows, m, law, SWEEP_TOL * thresh, self._row_order, self._row_start,
+                   ng)
+        self.found = soft + finish_rows(pt, bd, f.off, rows, m, law, self._wp, self._wc, stats)
+        if has_col:
+            collide_moved(pt, self._moved, st, thresh)
+            collide_rows_soft(pt, bd, rows, m, st, thresh)
+            project_moved(pt, f.off, bd, st)
+        if kin is not None:
+            row_wrenches(f.X, kin.rows, rows.f, rows.i, mk, m, kin.imp, kin_stats)
+            if self.soft_w is None or len(self.soft_w) != f.n:
+                self.soft_w = np.zeros(f.n)
+            np.multiply(f.W, bd.share[f.B] == 0.0, out=self.soft_w)
 
     def fast_particles(self, h):
         """Per body, the particles that moved more than their contact radius in the last
@@ -409,10 +440,7 @@ class Contact:
 
 
 __all__ = ['ContactParams', 'BodyContact', 'Contact', 'default_radius', 'SELF_REST_FACTOR',
-           'COUPLE_ALPHA', 'STACK_SWEEPS', 'PARALLEL_BUILD_MIN', 'body_inverse_masses',
-           'body_overlaps',
-           'body_velocities', 'build_pairs', 'build_pairs_cells', 'build_pairs_grid',
-           'build_pairs_grid_par', 'contact_velocity', 'count_fast', 'inverse_sym3',
-           'moved_spread2',
-           'median_nn_distance', 'solve_bodies', 'solve_pairs', 'sort_pairs',
-           'wall_candidates']
+           'COUPLE_ALPHA', 'RIGID_CLUSTERS', 'PARALLEL_BUILD_MIN', 'body_overlaps',
+           'build_pairs', 'build_pairs_cells', 'build_pairs_grid', 'build_pairs_grid_par',
+           'contact_velocity', 'count_fast', 'moved_spread2', 'median_nn_distance',
+           'sort_pairs', 'surface_normals']

@@ -31,6 +31,8 @@ import numpy as np
 from numba import njit
 
 from .kernels.colliders import contact_velocity
+from .kernels.contact_rows import (ROW_ACCN, ROW_ACCT, ROW_DEPTH, ROW_MU, ROW_RJ, ROW_T1,
+                                   ROW_T2, ROW_TARGET)
 from .kernels.jit import JIT
 
 # columns of a collider row
@@ -192,6 +194,78 @@ def collide_range(particles, start, end, rows, h, thresh, tally):
         if hit:
             X[0, i], X[1, i], X[2, i] = px, py, pz
             touched[bid[i]] = 1
+
+
+@njit(**JIT)
+def contact_rows(X, off, share, box, rows, crows, cint, m):
+    """Append, from row m, the contact rows (``contact_solve``, finished by its
+    ``fill_rows``) of the particles of the stiff bodies (``share[b]`` > 0) inside
+    the colliders ``rows``: particle, body, collider (-2 - c in the second body's place),
+    normal, depth, friction, restitution (in the target's place) and the collider's
+    surface velocity at the particle (in the second offset's place).  ``box`` (nb, 6): the
+    bodies' bounding boxes.  Returns the new count (at most the rows' capacity)."""
+    cap = crows.shape[0]
+    for b in range(off.shape[0] - 1):
+        if not share[b] > 0.0:
+            continue
+        for c in range(rows.shape[0]):
+            row = rows[c]
+            bd = row[C_BOUND]
+            if not (box[b, 0] < row[C_POS] + bd and box[b, 3] > row[C_POS] - bd
+                    and box[b, 1] < row[C_POS + 1] + bd and box[b, 4] > row[C_POS + 1] - bd
+                    and box[b, 2] < row[C_POS + 2] + bd and box[b, 5] > row[C_POS + 2] - bd):
+                continue
+            for k in range(off[b], off[b + 1]):
+                depth, nx, ny, nz = _closest_surface(row, X[0, k], X[1, k], X[2, k])
+                if not depth > 0.0 or m >= cap:
+                    continue
+                rf = crows[m]
+                ci = cint[m]
+                ci[0], ci[1], ci[2], ci[3], ci[4] = k, -1, b, -2 - c, k
+                rf[0], rf[1], rf[2] = nx, ny, nz
+                rf[ROW_DEPTH] = depth
+                rf[ROW_MU] = row[C_MU]
+                rf[ROW_TARGET] = row[C_E]
+                rx = X[0, k] - row[C_POS]
+                ry = X[1, k] - row[C_POS + 1]
+                rz = X[2, k] - row[C_POS + 2]
+                wx, wy, wz = row[C_ANG], row[C_ANG + 1], row[C_ANG + 2]
+                rf[ROW_RJ] = row[C_VEL] + wy * rz - wz * ry
+                rf[ROW_RJ + 1] = row[C_VEL + 1] + wz * rx - wx * rz
+                rf[ROW_RJ + 2] = row[C_VEL + 2] + wx * ry - wy * rx
+                m += 1
+    return m
+
+
+@njit(**JIT)
+def row_wrenches(X, rows, crows, cint, lo, hi, imp, stats):
+    """Add to ``imp`` (C, 6) the impulse and angular impulse (about the collider's
+    centre) that contact rows lo..hi (``contact_rows``, solved: their accumulated normal
+    and tangential impulses on the particle) exert on their colliders; count the
+    contacts and the deepest one per body in ``stats``."""
+    for a in range(lo, hi):
+        ci = cint[a]
+        if ci[3] > -2:
+            continue
+        c = -2 - ci[3]
+        rf = crows[a]
+        k = ci[0]
+        b = ci[2]
+        a1, a2 = rf[ROW_ACCT], rf[ROW_ACCT + 1]
+        jx = -(rf[ROW_ACCN] * rf[0] + a1 * rf[ROW_T1] + a2 * rf[ROW_T2])
+        jy = -(rf[ROW_ACCN] * rf[1] + a1 * rf[ROW_T1 + 1] + a2 * rf[ROW_T2 + 1])
+        jz = -(rf[ROW_ACCN] * rf[2] + a1 * rf[ROW_T1 + 2] + a2 * rf[ROW_T2 + 2])
+        rx = X[0, k] - rows[c, C_POS]
+        ry = X[1, k] - rows[c, C_POS + 1]
+        rz = X[2, k] - rows[c, C_POS + 2]
+        imp[c, 0] += jx
+        imp[c, 1] += jy
+        imp[c, 2] += jz
+        imp[c, 3] += ry * jz - rz * jy
+        imp[c, 4] += rz * jx - rx * jz
+        imp[c, 5] += rx * jy - ry * jx
+        stats[b, 0] += 1.0
+        stats[b, 1] = max(stats[b, 1], rf[ROW_DEPTH])
 
 
 def collide_numpy(particles, rows, h, thresh, tally):

@@ -11,7 +11,8 @@ from . import body as body_mod, body_build
 from .body import Body
 from .kernels.world_step import step_bodies_parallel, step_single_bodies
 from .packed import Pack
-from .contact import COUPLE_ALPHA, BodyContact, Contact, ContactParams, default_radius
+from .contact import (COUPLE_ALPHA, RIGID_CLUSTERS, BodyContact, Contact, ContactParams,
+                      default_radius)
 from .flat import FlatState
 from .kernels.flags import SLEEP
 from .kinematic import Particles
@@ -196,7 +197,7 @@ class World(WorldColliders):
         self._flat = FlatState(bodies)
         self._flat_builds += 1
         p = self._contact_params
-        if p.enabled and bodies:
+        if bodies:
             bcs = [self._contacts[b.name][0] for b in bodies]
             radii = [self.contact_radius(b.name) for b in bodies]
             self._contact = Contact(self._flat, p, bcs, radii)
@@ -273,8 +274,12 @@ class World(WorldColliders):
             self.time += h
             return
         _, pack, records, slow, helpers, nrec = self._split_now(h)
-        args = (h, self._gravity, self._has_col, self._ground_row, self._box_rows,
-                self._sphere_rows, thresh)
+        c = self._contact
+        # the contact pass takes the static colliders when it runs (contact.py)
+        stiff = c is not None and self._stiff_bodies(h)
+        takes = c is not None and (c.needed or ((self._has_col or cs is not None) and stiff))
+        args = (h, self._gravity, self._has_col and not takes, self._ground_row,
+                self._box_rows, self._sphere_rows, thresh)
         # the one-cluster rigid/linear bodies: one compiled call over their rows (packed.py)
         step_pack = None if pack is None else (lambda: pack.step(*args))
         if nrec and helpers:
@@ -290,11 +295,10 @@ class World(WorldColliders):
         for body in slow:
             if not body.asleep:                # asleep: not stepped (sleep.py)
                 body._step(*args)
-        c = self._contact
         # the bodies' own passes ended the step unless a world pass runs (state_flagged)
-        self._flagged = cs is None and (c is None or not c.needed)
+        self._flagged = cs is None and not takes
         if not self._flagged:
-            self._world_passes(h, thresh)
+            self._world_passes(h, thresh, takes)
         if cs is not None:
             cs.imp_time += h
         self.time += h
@@ -368,7 +372,7 @@ class World(WorldColliders):
             split = self._split = (key, pack, records, slow, helpers, len(records))
         return split
 
-    def _world_passes(self, h, thresh):
+    def _world_passes(self, h, thresh, takes):
         """Passes over the world's flat state after the bodies' step (flat.py), called by
         ``step`` only when one is needed: body-body contact to run (not off, and two
         colliding bodies or self-collision) or pass colliders.
@@ -380,22 +384,21 @@ class World(WorldColliders):
         """
         c = self._contact
         cs = self._cset
-        need_contact = c is not None and c.needed
+        need_contact = takes
         f = self._flat
         st = self._coll_stats
         if st is None or len(st) != len(f.bodies):
             st = self._coll_stats = np.zeros((len(f.bodies), 2))
         if need_contact:
-            self._contact_coupling(h)
             sl = self._sleep
             if sl is not None:
                 sl.sync()                      # bodies woken from outside: masses back
             f.gather()
+            st[:] = 0.0
             c.run(h, thresh, self._has_col, self._ground_row, self._box_rows,
-                  self._sphere_rows, self._gravity)
+                  self._sphere_rows, self._gravity, cs, st)
             if cs is not None:
-                st[:] = 0.0
-                cs.collide(Particles(f.X, f.V, f.W, f.B), h, thresh, st, f.touched)
+                cs.collide(Particles(f.X, f.V, c.soft_w, f.B), h, thresh, st, f.touched)
             # bodies sleep only under gravity: without it nothing rests on anything, and
             # freezing a slow drift would take momentum out of a conservative world
             if sl is not None and cs is None and self._contact_params.sleep and self._gnorm:
@@ -412,18 +415,29 @@ class World(WorldColliders):
             if sk[0, 0] > 0.0:
                 body._dirty = True            # moved particles: re-accumulate the next step
 
+    def _stiff_bodies(self, h):
+        """Whether a body is stiff (``_contact_coupling``; a lone stiff body on a collider
+        needs the contact pass, which turns it)."""
+        self._contact_coupling(h)
+        return self._any_stiff
+
     def _contact_coupling(self, h):
-        """Mark the bodies that carry their contacts as a whole (``Contact.coupling``):
-        alpha at the step at least ``contact.COUPLE_ALPHA``, with one cluster or many
-        (doc/contact.md).  Recomputed when a body, its parameters or the step change.
-        Keyed by the count of flat states built, not the flat state's id: a deep copy of
-        the world holds the coupling flags with the key they were set for, and keeps them."""
+        """Mark the bodies that take their contacts as rigid bodies (``Contact.coupling``):
+        alpha (1 - beta) at the step (alpha in rigid mode) at least
+        ``contact.COUPLE_ALPHA``, at most ``contact.RIGID_CLUSTERS`` clusters per axis
+        (doc/contact.md).  Recomputed when a body, its parameters or the
+        step change.  Keyed by the count of flat states built, not the flat state's id: a
+        deep copy of the world holds the coupling flags
+        with the key they were set for, and keeps them."""
         key = (body_mod._GENERATION[0], h, self._flat_builds)
         if self._coupling_key == key:
             return
         c = self._contact.coupling
         for k, b in enumerate(self._flat.bodies):
-            c[k] = b._params.at_step(h).alpha >= COUPLE_ALPHA
+            p = b._params.at_step(h)
+            held = p.alpha * (1.0 if b._params.mode == 'rigid' else 1.0 - p.beta)
+            c[k] = held >= COUPLE_ALPHA and b._params.clusters <= RIGID_CLUSTERS
+        self._any_stiff = bool(c.any())
         self._coupling_key = key
 
     def _zero_bid(self, n):

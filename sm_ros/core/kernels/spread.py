@@ -1,10 +1,9 @@
 """The box of particles' displacements since a reference state, and the spread it gives.
 
 The contact pass rebuilds its pair list once the displacements since the last build no
-longer fit in a ball of radius skin / 2 (``contact_build.moved_spread2``; the carried
-bodies' pass takes them in its own loop, ``contact_kernels.body_velocities``).  These two
-pieces are shared by both, here in the kernel package so that an edit to them recompiles
-every caller (``jit.py``: the package's cache stamp).
+longer fit in a ball of radius skin / 2 (``contact_build.moved_spread2``).  Here in
+the kernel package so that an edit to them recompiles every caller (``jit.py``: the
+package's cache stamp).
 """
 
 import numpy as np
