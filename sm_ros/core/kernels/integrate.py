@@ -438,6 +438,8 @@ def _int_chunk(chunk, nchunks, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off
         for k in range(dsums.shape[0]):
             for j in range(dsums.shape[1]):
                 dsums[k, j] = 0.0
+    # fused damping without the set layout: one cluster, all particles in set 0 (no ids)
+    one_set = np.zeros(0, dtype=np.int32)
     err2 = 0.0
     for bs in range(start, end, BLOCK):
         be = min(bs + BLOCK, end)
@@ -451,9 +453,8 @@ def _int_chunk(chunk, nchunks, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off
         _acc_range(start=bs, end=be, quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
                    rest_lin=rest_lin, rest_off=rest_off, ref=ref, sums=sums)
         if damp:
-            # fused damping without the set layout: one cluster, all particles in set 0
-            damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass,
-                           sid=np.zeros(0, dtype=np.int32), dsums=dpart[chunk])
+            damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass, sid=one_set,
+                           dsums=dpart[chunk])
     err[chunk] = err2
 
 
