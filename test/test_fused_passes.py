@@ -30,8 +30,9 @@ def _lattice(n, spacing=0.04):
 
 
 def _fused(body):
-    """Whether ``body``'s pass takes the one-loop pass (``sets._fused_pass``'s run test)."""
-    return KS.long_runs(body._sets.runs)
+    """Whether ``body``'s pass takes the one-loop pass (``sets._fused_pass``: long runs,
+    every particle of one mass)."""
+    return KS.long_runs(body._sets.runs) and body._wuni > 0.0
 
 
 def _world(n, order, masses, damping, max_speed=100.0, seed=4, ground=False):
@@ -106,13 +107,12 @@ def _twin(x, v, y0, mass, wuni, sid, runs, gm, sref, alpha, h, acc, damp, k_damp
 
 @pytest.mark.parametrize('cap', [2.0, 100.0])
 @pytest.mark.parametrize('damping', [0.0, 0.08])
-@pytest.mark.parametrize('masses', ['one', 'many'])
-def test_fused_set_pass_matches_its_numpy_twin(masses, damping, cap):
+def test_fused_set_pass_matches_its_numpy_twin(damping, cap):
     """One call over a whole body (one block) against the twin: positions, velocities, the
     set sums, the damping rows (their point where the set goes), the error sum and the
     capped speeds.  With a cap low enough to catch some particles (their runs summed again
     after the cap) and with none capped (every sum the loop's own)."""
-    world, body = _world(10, 'set', masses, damping, max_speed=2.0)
+    world, body = _world(10, 'set', 'one', damping, max_speed=2.0)
     for _ in range(3):
         world.step(H)                      # moving, deformed: sums, fields, maps of a step
     assert _fused(body)
@@ -129,7 +129,7 @@ def test_fused_set_pass_matches_its_numpy_twin(masses, damping, cap):
     sums = np.zeros((nsets, 12))
     dsums = np.zeros((nsets, K.NDAMP))
     wuni = body._wuni
-    assert (wuni > 0.0) == (masses == 'one')
+    assert wuni == 1.5
     err2, capped = KS._sets_fused_lin(
         start=0, end=body.n, x=body._x, v=body._v, y0=st.y0, mass=body._m, wuni=wuni,
         sid=st.sid, runs=st.runs, gm=st.gm, sref=st.ref, alpha_h=0.6 / H, h=H,
@@ -157,7 +157,8 @@ def test_fused_set_pass_steps_as_the_two_loop_pass(masses, damping, ground):
     body lands on it (the runs it reaches summed again after the colliders)."""
     a_world, a = _world(10, 'set', masses, damping, max_speed=2.0, ground=ground)
     b_world, b = _world(10, None, masses, damping, max_speed=2.0, ground=ground)
-    assert _fused(a) and not _fused(b)
+    # the one loop sums unweighted: a body of several masses takes the two-loop pass
+    assert _fused(a) == (masses == 'one') and not _fused(b)
     for _ in range(40):
         a_world.step(H)
         b_world.step(H)
@@ -174,7 +175,7 @@ def test_capped_and_collided_runs_leave_the_set_sums_valid(order):
     """Both passes cap each block's speeds (and project onto the colliders) before they sum
     it, so after a step that capped speeds on the ground the stored sums are those of the
     state (not marked stale)."""
-    world, body = _world(10, order, 'many', 0.05, max_speed=1.0, ground=True)
+    world, body = _world(10, order, 'one', 0.05, max_speed=1.0, ground=True)
     body.set_state(x=body.x - (0.0, 0.0, 0.11))          # the lowest layer under the ground
     world.step(H)
     assert body.limit_counts[0] > 0 and not body._dirty
@@ -223,7 +224,7 @@ def test_one_cluster_body_landing_on_the_ground_matches_the_numpy_twin(mode):
     from sm_ros.core.reference import ReferenceBody
     rng = np.random.default_rng(5)
     x0 = _lattice(17)[:, ::-1] + rng.uniform(-0.004, 0.004, (17 ** 3, 3)) + (0.0, 0.0, 0.03)
-    m = rng.uniform(0.5, 2.0, len(x0))
+    m = 0.7                                  # one mass: the one-loop pass
     params = BodyParams(mode=mode, alpha=0.5, beta=0.5)
     ground = Ground(height=0.0, friction=0.4, restitution=0.2)
     world = World(gravity=(0.0, 0.0, -9.81))
@@ -257,8 +258,7 @@ def _sums_about(x, v, x0, w, k):
 
 
 @pytest.mark.parametrize('damp', [False, True])
-@pytest.mark.parametrize('masses', ['one', 'many'])
-def test_ground_projection_corrects_the_sums_it_changes(masses, damp):
+def test_ground_projection_corrects_the_sums_it_changes(damp):
     """``colliders.ground_range_sums`` projects the particles below the ground as
     ``ground_range`` does and returns what that changed in the sums the one-loop pass took
     before it: sums before + its deltas = the sums of the projected state (NumPy), and
@@ -269,8 +269,7 @@ def test_ground_projection_corrects_the_sums_it_changes(masses, damp):
     x = np.asfortranarray(rng.uniform(-0.5, 0.5, (n, 3)) + (3.0, -2.0, 0.4))
     v = np.asfortranarray(rng.normal(scale=1.5, size=(n, 3)))
     x0 = np.asfortranarray(rng.uniform(-0.5, 0.5, (n, 3)))
-    w = np.full(n, 1.5) if masses == 'one' else rng.uniform(0.5, 2.0, n)
-    wuni = 1.5 if masses == 'one' else 0.0
+    w = np.full(n, 1.5)
     ground = np.array([1.0, 0.35, 0.4, 0.3])             # on, height, friction, restitution
     k = np.array([3.1, -1.9, 0.5])
     below = x[:, 2] < ground[1]
@@ -278,8 +277,7 @@ def test_ground_projection_corrects_the_sums_it_changes(masses, damp):
     shape0, damp0 = _sums_about(x, v, x0, w, k)
     xr, vr = np.asfortranarray(x.copy()), np.asfortranarray(v.copy())
     ground_range(0, n, xr, vr, ground, 1e-3)
-    g = np.array(ground_range_sums(0, n, x, v, x0, w, wuni, ground, 1e-3, k[0], k[1], k[2],
-                                   damp))
+    g = np.array(ground_range_sums(0, n, x, v, x0, 1.5, ground, 1e-3, k[0], k[1], k[2], damp))
     assert np.array_equal(x, xr) and np.array_equal(v, vr)   # the same projection
     shape1, damp1 = _sums_about(x, v, x0, w, k)
     want = shape1 - shape0
@@ -308,7 +306,7 @@ def test_sums_stay_those_of_the_state_on_the_ground(layout):
     rng = np.random.default_rng(6)
     side = 17 if layout == 'packed' else 10
     x0 = _lattice(side)[:, ::-1] + rng.uniform(-0.004, 0.004, (side ** 3, 3)) + (0, 0, 0.02)
-    m = rng.uniform(0.5, 2.0, len(x0))
+    m = 1.3                                  # one mass: the one-loop passes
     world = World(gravity=(0.0, 0.0, -9.81))
     world.set_colliders(ground=Ground(height=0.0, friction=0.4, restitution=0.2))
     params = BodyParams(mode='linear', alpha=0.5, beta=0.5, damping=0.05,

@@ -22,7 +22,7 @@ def _world(damping, ground, max_speed):
     rng = np.random.default_rng(5)
     c = x0.mean(axis=0)
     v = np.cross((0.0, 0.0, 8.0), x0 - c) + rng.standard_normal(x0.shape)
-    world.add_body(x0, masses=0.01 + 0.01 * rng.random(len(x0)), velocities=v,
+    world.add_body(x0, masses=0.015, velocities=v,
                    params=BodyParams(mode='linear', clusters=1, damping=damping, alpha=0.4,
                                      beta=0.6, max_speed=max_speed, max_turn=0.0))
     return world

@@ -209,9 +209,11 @@ class Body:
 
     def _packed_ok(self) -> bool:
         """Whether the packed world step (``packed.py``) may step this body: one cluster,
-        rigid or linear, no plasticity, grabs or torque (a body built for threads too: it
-        steps on one thread in the pack)."""
+        rigid or linear, every particle of one mass (its loop sums unweighted), no
+        plasticity, grabs or torque (a body built for threads too: it steps on one thread in
+        the pack)."""
         return (self._params.clusters == 1 and self._sets is None and not self._quad
+                and self._wuni > 0.0
                 and (self._fast_ok() or (self._parallel and not self._params.plastic
                                          and len(self._kin_idx) == 0
                                          and not self._has_torque)))

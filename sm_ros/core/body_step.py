@@ -137,7 +137,7 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
                 com=body._com, part=sets.part, err=body._err, has_col=has_col, ground=ground,
                 boxes=boxes, spheres=spheres, thresh=thresh, damp=fused, k_damp=p.damping,
                 dmp=body._dmp, dpart=body._dpart, v_max=body._params.max_speed)
-        K._fused_refs(body._quad, has_col, body._ang, sets.runs, fused, sets.ref, body._dpart)
+        K._fused_refs(body._quad, body._wuni, body._ang, sets.runs, fused, sets.ref, body._dpart)
         capped = int(chunk_capped.sum())
         body._limit_counts[0] += capped
     else:

@@ -160,26 +160,26 @@ def ground_range(start, end, x, v, ground, thresh):
 
 
 @njit(inline='always', **JIT)
-def ground_range_sums(start, end, x, v, x0, mass, wuni, ground, thresh, k0, k1, k2, damp):
+def ground_range_sums(start, end, x, v, x0, wuni, ground, thresh, k0, k1, k2, damp):
     """``ground_range`` for a range whose sums the one-loop pass has just taken about the
     point k: returns what the projection changed in them, so that the sums stay those of
     the final state without a second pass over the range (a body resting on the ground has
     a layer of particles in contact in every block it is stored in).
 
     A projected particle only moves up (z -> the ground's height, dz) and changes its
-    velocity v -> v', so with w its weight (``wuni`` > 0: every particle's, else
-    ``mass[i]``), d = x - k and a = x0[i]: (delta sum w d_z, delta sum w d_z a^T (3), then
+    velocity v -> v', so with w = ``wuni`` its weight (the one-loop passes serve bodies of
+    one mass), d = x - k and a = x0[i]: (delta sum w d_z, delta sum w d_z a^T (3), then
     the 12 damping sums' deltas in ``damping.damp_sums_range``'s order: sum w v, sum w d x v,
     sum w d d^T as xx, yy, zz, xy, yz, zx, of which xx, yy and xy do not change; zeros
     without ``damp``), 16 numbers.  The other shape sums do not change.
     """
     gz, mu, e = ground[1], ground[2], ground[3]
+    w = wuni
     s2 = c20 = c21 = c22 = 0.0
     b0 = b1 = b2 = a0 = a1 = a2 = e22 = e12 = e20 = 0.0
     for i in range(start, end):
         z = x[i, 2]
         if z < gz:
-            w = wuni if wuni > 0.0 else mass[i]
             u0, u1, u2 = v[i, 0], v[i, 1], v[i, 2]
             n0, n1, n2 = contact_velocity(vx=u0, vy=u1, vz=u2, nx=0.0, ny=0.0, nz=1.0,
                                           friction=mu, restitution=e, thresh=thresh)

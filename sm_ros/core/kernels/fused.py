@@ -2,14 +2,13 @@
 the next step's sums in one sweep), shared by the one-cluster pass
 (``integrate._int_single_fused``) and the set layout's runs (``sets._sets_fused_lin``).
 
-``_fused_range`` is compiled once with the masses and once without (``particle_weight``,
-an overload on None: a body of one mass takes its sums unweighted);
-``damp_constants`` folds the damping towards a rigid field into three multiply-adds a
-component.
+The loop serves bodies whose particles all have one mass (``wuni`` > 0): it sums
+unweighted and scales once, so a body of several masses takes the two-loop passes instead
+(``Body._packed_ok``, ``sets._fused_pass``).  ``damp_constants`` folds the damping towards a
+rigid field into three multiply-adds a component.
 """
 
-from numba import njit, types
-from numba.extending import overload
+from numba import njit
 
 from .jit import JIT, U
 
@@ -32,22 +31,8 @@ def damp_constants(damp, k_damp, c0, c1, c2, o0, o1, o2, r0, r1, r2):
             kd * c2 - (q0 * r1 - q1 * r0), q0, q1, q2)
 
 
-def particle_weight(mass, i):
-    """The weight of particle i in a sum: ``mass[i]``, 1 for ``mass`` None (a body of one
-    mass, whose sums are taken unweighted and scaled once: the loop is then compiled
-    without the masses, ``_fused_range``)."""
-    return 1.0 if mass is None else mass[i]
-
-
-@overload(particle_weight, jit_options=JIT)
-def _particle_weight(mass, i):
-    if isinstance(mass, types.NoneType):
-        return lambda mass, i: 1.0
-    return lambda mass, i: mass[i]
-
-
 @njit(inline='always', **JIT)
-def _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha_h, h, hx, hy, hz,
+def _fused_range(start, end, x, v, x0, wuni, gmap, damp, field, alpha_h, h, hx, hy, hz,
                  k0, k1, k2, lim2, gz):
     """One loop over particles start..end: the damping (``field``, ``damp_constants``;
     with ``damp``), Eq. 13-14 towards the goal G x0 + b (``gmap``: G row by row, then b),
@@ -59,28 +44,21 @@ def _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha_h, h
     (``damping.damp_sums_range``'s first 13: sum w v, sum w d x v, the six second moments
     of d, W; zeros without ``damp``).
 
-    With ``wuni`` > 0 (every particle of that mass) the sums are taken unweighted and
-    scaled once: the loop is a second compilation, without the masses (``_fused_loop``
-    with ``mass`` None), because LLVM does not hoist a test of ``wuni`` out of a loop this
-    large.
+    Every particle weighs ``wuni``: the loop sums unweighted and scales the sums once.
     """
-    if wuni > 0.0:
-        t = _fused_loop(start, end, x, v, x0, None, gmap, damp, field, alpha_h, h, hx, hy,
-                        hz, k0, k1, k2, lim2, gz)
-        return (t[0], t[1], wuni * t[2], wuni * t[3], wuni * t[4], wuni * t[5], wuni * t[6],
-                wuni * t[7], wuni * t[8], wuni * t[9], wuni * t[10], wuni * t[11],
-                wuni * t[12], wuni * t[13], t[14], wuni * t[15], wuni * t[16], wuni * t[17],
-                wuni * t[18], wuni * t[19], wuni * t[20], wuni * t[21], wuni * t[22],
-                wuni * t[23], wuni * t[24], wuni * t[25], wuni * t[26],
-                wuni * (end - start) if damp else 0.0)
-    return _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, hy, hz,
-                       k0, k1, k2, lim2, gz)
+    t = _fused_loop(start, end, x, v, x0, gmap, damp, field, alpha_h, h, hx, hy, hz, k0, k1,
+                    k2, lim2, gz)
+    return (t[0], t[1], wuni * t[2], wuni * t[3], wuni * t[4], wuni * t[5], wuni * t[6],
+            wuni * t[7], wuni * t[8], wuni * t[9], wuni * t[10], wuni * t[11], wuni * t[12],
+            wuni * t[13], t[14], wuni * t[15], wuni * t[16], wuni * t[17], wuni * t[18],
+            wuni * t[19], wuni * t[20], wuni * t[21], wuni * t[22], wuni * t[23],
+            wuni * t[24], wuni * t[25], wuni * t[26], wuni * (end - start) if damp else 0.0)
 
 
 @njit(inline='always', **JIT)
-def _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, hy, hz,
+def _fused_loop(start, end, x, v, x0, gmap, damp, field, alpha_h, h, hx, hy, hz,
                 k0, k1, k2, lim2, gz):
-    """``_fused_range``'s loop, its sums weighted by ``mass`` (None: unweighted).
+    """``_fused_range``'s loop, its sums unweighted.
 
     Vectorises across particles (unit-stride columns, unsigned index, every constant in a
     local: one lane a particle; the 12 sums, the error and the count as vector accumulators
@@ -99,7 +77,7 @@ def _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, h
     c00 = c01 = c02 = c10 = c11 = c12 = c20 = c21 = c22 = 0.0
     # the damping sums: momentum, angular momentum about k, second moments of d, mass
     pm0 = pm1 = pm2 = am0 = am1 = am2 = 0.0
-    e00 = e11 = e22 = e01 = e12 = e20 = ms = 0.0
+    e00 = e11 = e22 = e01 = e12 = e20 = 0.0
     if damp:
         for i in range(U(start), U(end)):
             a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
@@ -128,10 +106,9 @@ def _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, h
             over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
             low += below_ground(y2, gz)
             # the next step's shape-match sums of the new state
-            w = particle_weight(mass, i)
-            wd0 = w * (y0 - k0)
-            wd1 = w * (y1 - k1)
-            wd2 = w * (y2 - k2)
+            wd0 = y0 - k0
+            wd1 = y1 - k1
+            wd2 = y2 - k2
             s0 += wd0
             s1 += wd1
             s2 += wd2
@@ -146,10 +123,9 @@ def _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, h
             c22 += wd2 * a2
             # the next step's damping sums of the new state (``damp_sums_range``'s)
             d0, d1, d2 = y0 - k0, y1 - k1, y2 - k2
-            ms += w
-            pm0 += w * v0
-            pm1 += w * v1
-            pm2 += w * v2
+            pm0 += v0
+            pm1 += v1
+            pm2 += v2
             am0 += wd1 * v2 - wd2 * v1
             am1 += wd2 * v0 - wd0 * v2
             am2 += wd0 * v1 - wd1 * v0
@@ -181,10 +157,9 @@ def _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, h
             err2 += e0 * e0 + e1 * e1 + e2 * e2
             over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
             low += below_ground(y2, gz)
-            w = particle_weight(mass, i)
-            wd0 = w * (y0 - k0)
-            wd1 = w * (y1 - k1)
-            wd2 = w * (y2 - k2)
+            wd0 = y0 - k0
+            wd1 = y1 - k1
+            wd2 = y2 - k2
             s0 += wd0
             s1 += wd1
             s2 += wd2
@@ -202,4 +177,4 @@ def _fused_loop(start, end, x, v, x0, mass, gmap, damp, field, alpha_h, h, hx, h
     # ``Body._err`` still flags the state the pass wrote (``World.state_flagged``).
     err2 += 0.0 * (s0 + s1 + s2)
     return (err2, over, s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22, low,
-            pm0, pm1, pm2, am0, am1, am2, e00, e11, e22, e01, e12, e20, ms)
+            pm0, pm1, pm2, am0, am1, am2, e00, e11, e22, e01, e12, e20)

@@ -270,7 +270,7 @@ def _int_single_lin(start, end, x, v, x0, goal_lin, goal_off, alpha, h, acc, ang
 
 
 @njit(**JIT)
-def _int_single_fused(start, end, x, v, x0, mass, wuni, goal_lin, goal_off, alpha, h, acc,
+def _int_single_fused(start, end, x, v, x0, wuni, goal_lin, goal_off, alpha, h, acc,
                       damp, k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max, gz, boxed, sums,
                       dsums):
     """The one-cluster pass over particles start..end in one loop (no torque): the damping
@@ -295,7 +295,7 @@ def _int_single_fused(start, end, x, v, x0, mass, wuni, goal_lin, goal_off, alph
     field = damp_constants(damp, k_damp, dmp[0, 0], dmp[0, 1], dmp[0, 2], dmp[0, 3],
                            dmp[0, 4], dmp[0, 5], ref[0, 0], ref[0, 1], ref[0, 2])
     lim2 = v_max * v_max if v_max > 0.0 else np.inf
-    out = _fused_range(start, end, x, v, x0, mass, wuni, gmap, damp, field, alpha / h, h,
+    out = _fused_range(start, end, x, v, x0, wuni, gmap, damp, field, alpha / h, h,
                        h * acc[0], h * acc[1], h * acc[2], pnt[0, 0], pnt[0, 1], pnt[0, 2],
                        lim2, gz)
     err2, over, low = out[0], out[1], out[14]

@@ -31,7 +31,7 @@ from numba import njit
 
 from .jit import JIT, U, claim_next
 from .colliders import _collide_range, ground_range_sums
-from .damping import damp_acc_range, damp_sums_range, damp_towards
+from .damping import damp_acc_range, damp_sums_uniform, damp_towards
 from .fused import _fused_range, damp_constants
 from .integrate import BLOCK, _rest_sums, advance
 from .limits import limit_speed_range
@@ -200,7 +200,7 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     or a box or sphere moved is summed again (``integrate._rest_sums``), so the sums are of
     the final state and the step
     leaves them valid.  Damped, the loop also takes the run's 12 damping sums and W (a run
-    that was moved: ``damping.damp_sums_range``, while it is in cache).  Returns (sum of
+    that was moved: ``damping.damp_sums_uniform``, while it is in cache).  Returns (sum of
     |g - x|^2, capped speeds).  ``gz``: the ground's height, -inf without a ground.
 
     The sums of a set are taken about one point P_s, its shape sums and damping sums alike
@@ -232,7 +232,7 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
             r0 += h * (dmp[s, 0] + hx)
             r1 += h * (dmp[s, 1] + hy)
             r2 += h * (dmp[s, 2] + hz)
-        t = _fused_range(i, j, x, v, y0, mass, wuni, gmap, damp, field, alpha_h, h, hx, hy, hz, r0,
+        t = _fused_range(i, j, x, v, y0, wuni, gmap, damp, field, alpha_h, h, hx, hy, hz, r0,
                          r1, r2, lim2, gz)
         err2 += t[0]
         ss = t[2:14]                   # the run's 12 shape sums: sum w d, sum w d y0^T
@@ -245,7 +245,7 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
             moved = _collide_range(start=i, end=j, x=x, v=v, ground=ground, boxes=boxes,
                                    spheres=spheres, thresh=thresh)
         elif t[14] > 0:
-            g = ground_range_sums(i, j, x, v, y0, mass, wuni, ground, thresh, r0, r1, r2,
+            g = ground_range_sums(i, j, x, v, y0, wuni, ground, thresh, r0, r1, r2,
                                   damp)
             ss = (ss[0], ss[1], ss[2] + g[0], ss[3], ss[4], ss[5], ss[6], ss[7], ss[8],
                   ss[9] + g[1], ss[10] + g[2], ss[11] + g[3])
@@ -262,7 +262,7 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
         if moved:
             ss = _rest_sums(i, j, x, y0, mass, r0, r1, r2)
             if damp:
-                dsum = damp_sums_range(i, j, x, v, mass, wuni, r0, r1, r2)[:13]
+                dsum = damp_sums_uniform(i, j, x, v, wuni, r0, r1, r2)[:13]
         # the set sums' layout: per row of d, [sum w d, sum w d y^T]
         _add_lin_sums(sums, s, ss[0], ss[3], ss[4], ss[5], ss[1], ss[6], ss[7], ss[8], ss[2],
                       ss[9], ss[10], ss[11])
@@ -305,7 +305,7 @@ def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, wuni, sid, runs, gm, s
                 dsums[s, j] = 0.0
     err2 = 0.0
     capped = 0
-    fused = _fused_pass(quad, has_col, ang, runs)
+    fused = _fused_pass(quad, wuni, ang, runs)
     gz = ground[1] if has_col and ground[0] > 0.5 else -np.inf    # no ground: nothing below
     step = FUSED_SETS_BLOCK if fused else BLOCK
     for bs in range(start, end, step):
@@ -348,18 +348,19 @@ def long_runs(runs):
 
 
 @njit(inline='always', **JIT)
-def _fused_pass(quad, has_col, ang, runs):
-    """Whether a pass takes ``_sets_fused_lin``: rigid/linear, no torque, long runs
-    (``long_runs``; ``has_col``: either way)."""
-    return not quad and ang[0] == 0.0 and ang[1] == 0.0 and ang[2] == 0.0 and long_runs(runs)
+def _fused_pass(quad, wuni, ang, runs):
+    """Whether a pass takes ``_sets_fused_lin``: rigid/linear, no torque, every particle
+    of one mass (``wuni`` > 0: the loop sums unweighted), long runs (``long_runs``)."""
+    return (not quad and wuni > 0.0 and ang[0] == 0.0 and ang[1] == 0.0 and ang[2] == 0.0
+            and long_runs(runs))
 
 
 @njit(**JIT)
-def _fused_refs(quad, has_col, ang, runs, damp, sref, dpart):
+def _fused_refs(quad, wuni, ang, runs, damp, sref, dpart):
     """After a damped ``_sets_fused_lin`` pass: each set's reference becomes the point its
     sums were taken about (the damping row's P_s, alike in every chunk), which the next
     step's ``sets_reduce`` expects."""
-    if not (damp and _fused_pass(quad, has_col, ang, runs)):
+    if not (damp and _fused_pass(quad, wuni, ang, runs)):
         return
     for s in range(sref.shape[0]):
         for c in range(dpart.shape[0]):

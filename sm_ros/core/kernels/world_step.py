@@ -174,7 +174,7 @@ def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
                               ang=ang, com=com, part=s_part, err=err, has_col=has_col,
                               ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
                               damp=fused, k_damp=k_damp, dmp=dmp, dpart=dpart, v_max=v_max)
-        _fused_refs(quad, has_col, ang, s_runs, fused, sref, dpart)
+        _fused_refs(quad, state[11], ang, s_runs, fused, sref, dpart)
         capped = chunk_capped.sum()
         counts[0] += capped
         flags[DIRTY] = 0.0
