@@ -33,9 +33,9 @@ import numpy as np
 from numba import njit
 from numba.typed import List as TypedList
 
-from .kernels import (JIT, NDAMP, STRETCH_LIMIT, _collide_range, det3, extract_rotation,
-                      limit_turn, unit_det_match_warm)
-from .kernels.damping import damp_acc_range, damp_sums_uniform
+from .kernels import (JIT, NDAMP, STRETCH_LIMIT, _collide_range, damp_acc_range, det3,
+                      extract_rotation, limit_turn, unit_det_match_warm)
+from .kernels.fused import damp_sums_uniform
 from .kernels.colliders import ground_range, ground_range_sums
 from .kernels.integrate import _acc_single, _add_rest_sums, _int_single_fused
 from .kernels.flags import DAMP_SUMS, DIRTY, ERR_STALE, SLEEP

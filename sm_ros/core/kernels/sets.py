@@ -31,8 +31,8 @@ from numba import njit
 
 from .jit import JIT, U, claim_next
 from .colliders import _collide_range, ground_range_sums
-from .damping import damp_acc_range, damp_sums_uniform, damp_towards
-from .fused import _fused_range, damp_constants
+from .damping import damp_acc_range, damp_towards
+from .fused import _fused_range, damp_constants, damp_sums_uniform
 from .integrate import BLOCK, _rest_sums, advance
 from .limits import limit_speed_range
 from .sets_sums import _add_lin_sums, _sets_acc_damp_lin, _sets_acc_range, first_run
