@@ -24,7 +24,7 @@ import numpy as np
 #: Seconds a cold compile of every kernel takes on 2 idle cores: half the CPU seconds of
 #: the full warm-up that ``python -m sm_ros.bench startup`` reports (its two processes
 #: share the work); ``warmup`` quotes it in its cold-start line and progress bar.
-COLD_COMPILE_S = 60.0
+COLD_COMPILE_S = 50.0
 
 
 def _core_kernels():
