@@ -75,7 +75,7 @@ def volume_preserving(a: np.ndarray, limit: float = STRETCH_LIMIT):
     Singular values s_i -> x_i = (s_i + sqrt(s_i^2 + 4 lam)) / 2 with prod x_i = 1
     (least squares under the constraint), then limited to [1 / limit, limit].  Eq. 18's
     uniform a / cbrt(det a) pumps energy into bodies flattened on impact.  (The linear
-    mode no longer uses this rule; see ``unit_det_match``.)
+    mode uses ``unit_det_match`` instead.)
     """
     if not np.linalg.det(a) > 1e-9:
         return None

@@ -155,7 +155,7 @@ def jacobi3_warm(mat, vecs, warm, work):
     products of rotations drift from orthonormality by rounding, step after step); a
     ``warm`` that is not finite or not orthonormal within 1e-6 (never set, or a
     non-finite state went through it) is replaced by the identity: a cold start.
-    ``work`` (3x3 scratch) is no longer written: every product is on scalar locals.
+    ``work`` (3x3 scratch) is not written: every product is on scalar locals.
     """
     # on scalar locals throughout (the same operations as through ``work``, ``warm``,
     # ``vecs`` and ``jacobi3``: every store into one of those could alias the next loads,

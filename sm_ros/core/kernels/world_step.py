@@ -4,7 +4,7 @@ Each call of a Numba function with 10-30 array arguments from Python costs sever
 microseconds in the dispatcher, while a 144-particle body's own work is about one, and a
 body's step calls 4-6 kernels.  ``step_single_bodies`` runs the same
 kernels, in the same order and with the same arguments as ``Body._step``, for every body
-of a typed list of per-body records, so the Python cost of a step no longer grows with the
+of a typed list of per-body records, so the Python cost of a step does not grow with the
 number of such bodies.  It covers set-layout bodies (and one-cluster quadratic ones)
 without plasticity, kinematic particles or torque, on one thread (``Body._fast_ok``);
 one-cluster rigid/linear bodies take the packed step (``sm_ros.core.packed``: no per-body
