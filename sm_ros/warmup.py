@@ -276,7 +276,7 @@ def _modes() -> None:
 
 def _damped() -> None:
     """Damping: the separate pass (small bodies) and the one fused into the particle pass
-    (bodies of FUSED_DAMPING_MIN particles and more; one cluster, and the set layout)."""
+    (bodies of tuning.FUSED_DAMPING_MIN particles and more; one cluster, and the set layout)."""
     from sm_ros.core import BodyParams, Ground, World
     from sm_ros.core.contact import ContactParams
     big = _cube(11)

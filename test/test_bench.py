@@ -93,15 +93,15 @@ def test_scaling_subcommand_as_a_process(tmp_path):
 def test_damped_pass_times_the_separate_damping_pass():
     """``damped_pass`` damps in the separate pass through every rebuild (``World.reset``
     before each timed batch), where ``damped`` fuses it; the thresholds come back."""
-    from sm_ros.core import body as body_mod
+    from sm_ros.core import tuning
     from sm_ros.bench import scaling
-    saved = body_mod.FUSED_DAMPING_MIN, body_mod.FUSED_DAMPING_MIN_SETS
+    saved = tuning.FUSED_DAMPING_MIN, tuning.FUSED_DAMPING_MIN_SETS
     rows = scaling.time_size(11, ['linear'], [1, 2], 0.0, ('plain', 'damped', 'damped_pass'))
     assert [(r['clusters'], r['variant'], r['damping_pass']) for r in rows] == [
         (1, 'plain', ''), (1, 'damped', 'fused'), (1, 'damped_pass', 'separate'),
         (8, 'plain', ''), (8, 'damped', 'fused'), (8, 'damped_pass', 'separate')]
     assert all(r['finite'] and r['rounds'] >= 3 for r in rows)
-    assert (body_mod.FUSED_DAMPING_MIN, body_mod.FUSED_DAMPING_MIN_SETS) == saved
+    assert (tuning.FUSED_DAMPING_MIN, tuning.FUSED_DAMPING_MIN_SETS) == saved
 
 
 def test_soak_hook_hands_over_its_arguments(monkeypatch):

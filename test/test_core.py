@@ -558,9 +558,9 @@ def test_world_refuses_bad_dt_and_gravity():
 # ---------------------------------------------------------------- layouts and threads
 
 def _run_layout(monkeypatch, mode, clusters, **consts):
-    from sm_ros.core import body as body_mod
+    from sm_ros.core import tuning
     for name, value in consts.items():
-        monkeypatch.setattr(body_mod, name, value)
+        monkeypatch.setattr(tuning, name, value)
     x0 = lattice(7, 6, 5, 0.05, jitter=0.2, seed=4) + [0.0, 0.0, 0.1]
     world = World()
     world.set_colliders(ground=Ground(friction=0.4))

@@ -4,9 +4,7 @@ import numba
 import numpy as np
 import pytest
 
-import sm_ros.core.body as body_mod
-import sm_ros.core.world as world_mod
-from sm_ros.core import BodyParams, Box, Ground, Sphere, World
+from sm_ros.core import BodyParams, Box, Ground, Sphere, World, tuning
 
 
 def lattice(n, spacing=0.02):
@@ -53,9 +51,9 @@ def test_fused_damping_matches_the_damping_pass(monkeypatch, mode, clusters, pla
     over 60 steps without colliders (which amplify a 1e-15 change to 1e-8 in this violent
     scene, as for two runs of the same solver) to 1e-8.
     """
-    monkeypatch.setattr(body_mod, 'PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
-    monkeypatch.setattr(body_mod, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
-    monkeypatch.setattr(body_mod, 'FUSED_DAMPING_MIN', 0)       # and fused damping
+    monkeypatch.setattr(tuning, 'PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
+    monkeypatch.setattr(tuning, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
+    monkeypatch.setattr(tuning, 'FUSED_DAMPING_MIN', 0)       # and fused damping
     states = []
     for fused in (True, False):
         world, bodies = _world(mode, clusters, plastic, fused, colliders)
@@ -73,8 +71,8 @@ def test_fused_damping_matches_the_damping_pass(monkeypatch, mode, clusters, pla
 
 def test_fused_damping_keeps_momentum(monkeypatch):
     """Damping alone (no gravity, no goals' net force) keeps linear and angular momentum."""
-    monkeypatch.setattr(body_mod, 'SET_LAYOUT_MIN_RATIO', 0)
-    monkeypatch.setattr(body_mod, 'FUSED_DAMPING_MIN', 0)
+    monkeypatch.setattr(tuning, 'SET_LAYOUT_MIN_RATIO', 0)
+    monkeypatch.setattr(tuning, 'FUSED_DAMPING_MIN', 0)
     world = World(gravity=(0.0, 0.0, 0.0))
     rng = np.random.default_rng(0)
     x0 = lattice(5)
@@ -142,11 +140,11 @@ def test_compiled_world_step_equals_stepping_bodies_one_by_one(monkeypatch, para
     called body by body (the same kernels in the same order: bit for bit), through
     parameter changes, a state set by hand, a torque (the body leaves the compiled step
     and comes back), a new body and two step sizes."""
-    monkeypatch.setattr(body_mod, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
+    monkeypatch.setattr(tuning, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
     states = []
     for compiled in (True, False):
         # the records on the helper threads
-        monkeypatch.setattr(world_mod, 'RECORDS_PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
+        monkeypatch.setattr(tuning, 'RECORDS_PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
         world = _many_world(compiled)
         for step in range(40):
             world.step(1.0 / 240.0 if step < 20 else 1.0 / 120.0)

@@ -6,8 +6,7 @@ import pytest
 
 import sm_ros.core.body as body_mod
 import sm_ros.core.packed as packed
-import sm_ros.core.world as world_mod
-from sm_ros.core import BodyParams, Box, Ground, World
+from sm_ros.core import BodyParams, Box, Ground, World, tuning
 
 
 
@@ -74,7 +73,7 @@ def test_packed_step_equals_stepping_bodies_one_at_a_time(monkeypatch, parallel)
     state set by hand, damping switched off and on, a torque (the body leaves the pack and
     comes back) and a new body; the limits and colliders are hit.  ``parallel``: the
     records on the helper threads (the pack is stepped meanwhile)."""
-    monkeypatch.setattr(world_mod, 'RECORDS_PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
+    monkeypatch.setattr(tuning, 'RECORDS_PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
     got = _run(_world(True), 12)
     want = _run(_world(False), 12)
     pack, records, slow, _ = got._split_bodies(1.0 / 240.0)

@@ -15,9 +15,7 @@ import math
 import numpy as np
 import pytest
 
-import sm_ros.core.body as body_mod
-import sm_ros.core.world as world_mod
-from sm_ros.core import BodyParams, World
+from sm_ros.core import BodyParams, World, tuning
 from sm_ros.core.contact import BodyContact, ContactParams
 from sm_ros import nonfinite
 from sm_ros.nonfinite import NonFiniteCheck
@@ -32,9 +30,9 @@ BAD = (math.nan, math.inf, -math.inf)
 @pytest.mark.parametrize('where', ['x', 'v'])
 def test_the_pass_flags_a_poisoned_value(monkeypatch, mode, clusters, plastic, parallel,
                                          where):
-    monkeypatch.setattr(body_mod, 'PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
-    monkeypatch.setattr(body_mod, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
-    monkeypatch.setattr(body_mod, 'FUSED_DAMPING_MIN', 0)
+    monkeypatch.setattr(tuning, 'PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
+    monkeypatch.setattr(tuning, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
+    monkeypatch.setattr(tuning, 'FUSED_DAMPING_MIN', 0)
     rng = np.random.default_rng(7)
     for bad in BAD:
         world, bodies = _world(mode, clusters, plastic, True)
@@ -63,8 +61,8 @@ def test_the_compiled_world_step_flags_it(monkeypatch, threaded, in_python):
     stepped them, the flags read in Python or in one compiled call."""
     monkeypatch.setattr(nonfinite, 'PYTHON_FLAGS_MAX', 10 ** 6 if in_python else 0)
     # the records on the helper threads
-    monkeypatch.setattr(world_mod, 'RECORDS_PARALLEL_MIN_WORK', 0 if threaded else 1 << 40)
-    monkeypatch.setattr(body_mod, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
+    monkeypatch.setattr(tuning, 'RECORDS_PARALLEL_MIN_WORK', 0 if threaded else 1 << 40)
+    monkeypatch.setattr(tuning, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
     rng = np.random.default_rng(11)
     world = World()
     world.contact_params = ContactParams(enabled=False)

@@ -3,8 +3,7 @@ bit as ``Body._step`` steps its body, also for a body built for threads."""
 
 import numpy as np
 
-import sm_ros.core.body as body_mod
-from sm_ros.core import BodyParams, Ground, World
+from sm_ros.core import BodyParams, Ground, World, tuning
 
 
 def lattice(n, spacing=0.02):
@@ -31,7 +30,7 @@ def _world(damping, ground, max_speed):
 def test_world_of_one_packed_body_steps_as_the_body_does(monkeypatch):
     """A packed body built for threads (``Body._parallel``: its sums per chunk) steps in
     the pack, and its World.step is bit for bit ``Body._step``'s."""
-    monkeypatch.setattr(body_mod, 'PARALLEL_MIN_WORK', 1000)
+    monkeypatch.setattr(tuning, 'PARALLEL_MIN_WORK', 1000)
     world = _world(0.05, True, 2.0)
     assert world.bodies[0].n >= 1000
     pack, records, slow, helpers = world._split_bodies(0.01)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sm_ros.core import Body, BodyParams, World
-from sm_ros.core import body as body_mod
+from sm_ros.core import tuning
 from sm_ros.core.clusters import build_memberships
 from sm_ros.core.pose import BodyPose
 from sm_ros.params import scene_defaults
@@ -57,13 +57,13 @@ def test_bodies_without_a_set_layout_keep_the_callers_order():
         body = Body(pts, params=params)
         assert body._perm is None and np.array_equal(body._x, pts)
     # memberships that do not pass SET_LAYOUT_MIN_RATIO: the membership path, unsorted
-    old = body_mod.SET_LAYOUT_MIN_RATIO
-    body_mod.SET_LAYOUT_MIN_RATIO = 10 ** 6
+    old = tuning.SET_LAYOUT_MIN_RATIO
+    tuning.SET_LAYOUT_MIN_RATIO = 10 ** 6
     try:
         body = Body(pts, params=BodyParams(clusters=2))
         assert body._sets is None and body._perm is None and np.array_equal(body._x, pts)
     finally:
-        body_mod.SET_LAYOUT_MIN_RATIO = old
+        tuning.SET_LAYOUT_MIN_RATIO = old
 
 
 def scrambled():

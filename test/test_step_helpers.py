@@ -92,15 +92,14 @@ def test_the_world_shares_its_records_with_the_helpers(monkeypatch):
     import numba
     import numpy as np
 
-    import sm_ros.core.body as body_mod
     import sm_ros.core.world as world_mod
-    from sm_ros.core import BodyParams, World
+    from sm_ros.core import BodyParams, World, tuning
     from sm_ros.core.contact import ContactParams
 
     if numba.get_num_threads() < 2:
         pytest.skip('one Numba thread: no helpers')
-    monkeypatch.setattr(world_mod, 'RECORDS_PARALLEL_MIN_WORK', 0)
-    monkeypatch.setattr(body_mod, 'SET_LAYOUT_MIN_RATIO', 0)
+    monkeypatch.setattr(tuning, 'RECORDS_PARALLEL_MIN_WORK', 0)
+    monkeypatch.setattr(tuning, 'SET_LAYOUT_MIN_RATIO', 0)
     calls = []
     real = world_mod.step_bodies_parallel
 

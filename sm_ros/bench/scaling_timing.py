@@ -21,7 +21,7 @@ GRAVITY = (0.0, 0.0, -9.81)
 MODES = ('rigid', 'linear', 'quadratic')
 CLUSTER_NAMES = {1: 1, 2: 8, 3: 27, 4: 64}
 #: variant -> (damping, steps per tick); ``damped_pass`` is ``damped`` with the damping in
-#: the separate pass (the one of one-cluster bodies below ``sm_ros.core.body``'s
+#: the separate pass (the one of one-cluster bodies below ``sm_ros.core.tuning``'s
 #: ``FUSED_DAMPING_MIN`` and of membership-layout bodies; set-layout bodies always fuse),
 #: for the side-by-side figure of what the fused pass saves
 VARIANTS = {'plain': (0.0, 1), 'damped': (0.05, 1), 'substeps2': (0.05, 2),
@@ -146,15 +146,15 @@ def build_world(n_side: int, mode: str, k: int, alpha: float = 1.0, damping: flo
 @contextlib.contextmanager
 def separate_damping(on: bool):
     """Bodies built inside (``on``) damp in the separate pass: the fused pass's size
-    thresholds (``sm_ros.core.body``, read at each build) out of reach."""
-    from sm_ros.core import body as body_mod
-    saved = body_mod.FUSED_DAMPING_MIN, body_mod.FUSED_DAMPING_MIN_SETS
+    thresholds (``sm_ros.core.tuning``, read at each build) out of reach."""
+    from sm_ros.core import tuning
+    saved = tuning.FUSED_DAMPING_MIN, tuning.FUSED_DAMPING_MIN_SETS
     if on:
-        body_mod.FUSED_DAMPING_MIN = body_mod.FUSED_DAMPING_MIN_SETS = 2 ** 62
+        tuning.FUSED_DAMPING_MIN = tuning.FUSED_DAMPING_MIN_SETS = 2 ** 62
     try:
         yield
     finally:
-        body_mod.FUSED_DAMPING_MIN, body_mod.FUSED_DAMPING_MIN_SETS = saved
+        tuning.FUSED_DAMPING_MIN, tuning.FUSED_DAMPING_MIN_SETS = saved
 
 
 def damping_pass(body) -> str:

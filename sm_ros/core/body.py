@@ -9,29 +9,12 @@ without plasticity no plastic state, a one-cluster body no membership lists.
 
 import numpy as np
 
-from . import body_build, body_step
+from . import body_build, body_step, tuning
 from . import kernels as K
 from .kernels.flags import DIRTY, ERR_STALE, SLEEP
 from .body_build import _EMPTY_I64, _GENERATION, soa  # noqa: F401 (body.soa)
 from .packed import Pack
 from .params import BodyParams
-
-#: Bodies with at least this much work per step (particles, or cluster memberships on the
-#: membership path) run the multi-threaded kernels: below it a step takes well under a
-#: millisecond on one thread, and the threads' fork/join waits on shared cores cost more.
-PARALLEL_MIN_WORK = 262144
-#: One-cluster bodies with at least this many particles damp inside the particle pass
-#: (``kernels.damping``); smaller ones keep the separate pass, which costs less there.
-FUSED_DAMPING_MIN = 1024
-#: The same for set-layout bodies: their separate pass walks every cluster membership
-#: twice, the fused one takes per-set sums in the particle pass, cheaper at any size.
-FUSED_DAMPING_MIN_SETS = 0
-#: A multi-cluster body uses the set layout (``kernels.sets_*``) when its cluster
-#: memberships outnumber its set-cluster pairs by at least this factor (each pair costs
-#: about as much per step as this many memberships).
-SET_LAYOUT_MIN_RATIO = 8
-#: Single-cluster quadratic bodies use the set layout too (one set).
-SINGLE_QUADRATIC_SETS = True
 
 
 def uniform_mass(m) -> float:
@@ -77,7 +60,7 @@ class Body:
         # the storage order; the memberships computed for it are reused by the first build
         self._perm, self._inv = None, None
         perm, self._members = body_build.set_order(
-            x - (m @ x) / m.sum(), params.clusters, SET_LAYOUT_MIN_RATIO)
+            x - (m @ x) / m.sum(), params.clusters, tuning.SET_LAYOUT_MIN_RATIO)
         if perm is not None:
             x, m, v = x[perm], np.ascontiguousarray(m[perm]), v[perm]
             self._perm = perm
@@ -147,12 +130,12 @@ class Body:
 
     def _build(self):
         """Precompute everything that depends on the rest shape and the parameters
-        (``body_build.build`` with this module's layout thresholds, read at each build)."""
-        body_build.build(self, parallel_min_work=PARALLEL_MIN_WORK,
-                         fused_damping_min=FUSED_DAMPING_MIN,
-                         fused_damping_min_sets=FUSED_DAMPING_MIN_SETS,
-                         set_layout_min_ratio=SET_LAYOUT_MIN_RATIO,
-                         single_quadratic_sets=SINGLE_QUADRATIC_SETS)
+        (``body_build.build`` with the layout thresholds of ``tuning``, read at each build)."""
+        body_build.build(self, parallel_min_work=tuning.PARALLEL_MIN_WORK,
+                         fused_damping_min=tuning.FUSED_DAMPING_MIN,
+                         fused_damping_min_sets=tuning.FUSED_DAMPING_MIN_SETS,
+                         set_layout_min_ratio=tuning.SET_LAYOUT_MIN_RATIO,
+                         single_quadratic_sets=tuning.SINGLE_QUADRATIC_SETS)
 
     def _refresh_rest(self, which):
         """Plastic rest data of the clusters in ``which`` (``body_build.refresh_rest``)."""

@@ -265,7 +265,7 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     body._lin = np.zeros((nk, 13)) if p.damping > 0 else None
     body._w3 = np.zeros((nk, 3)) if p.damping > 0 else None
     # damping fused into the particle pass (set layout, one cluster; kernels/damping.py)
-    # where the pass it saves costs more than the fused one (body.FUSED_DAMPING_MIN, and
+    # where the pass it saves costs more than the fused one (tuning.FUSED_DAMPING_MIN, and
     # FUSED_DAMPING_MIN_SETS for the set layout)
     if fused_damping_min_sets is None:
         fused_damping_min_sets = fused_damping_min

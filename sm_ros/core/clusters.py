@@ -11,20 +11,17 @@ cluster holds together: a 4 x 4 x 4 lattice cut into 4 cubes per axis has no par
 the overlap of the two middle cubes, and spun at 3 rad/s it flew apart to 16 times its
 size.  So along an axis where an overlap holds no particle, the number of cubes is lowered
 until every overlap holds one; and if the cubes still do not hold the body in one piece
-(cubes linked through face neighbours that share at least ``MIN_SHARED`` particles, three:
-a joint that does not hinge; every particle in a cube of the largest linked piece), fewer
-cubes are used on every axis until they do.
+(cubes linked through face neighbours that share at least ``tuning.MIN_SHARED``
+particles, three: a joint that does not hinge; every particle in a cube of the largest
+linked piece), fewer cubes are used on every axis until they do.
 """
 
 import numpy as np
 
-#: Enlargement of each cube on every side, in cube widths (0.5: "by half a cell").
-DEFAULT_MARGIN = 0.5
-#: Particles two face-neighbouring cubes must share to count as joined.
-MIN_SHARED = 3
+from . import tuning
 
 
-def build_memberships(x0: np.ndarray, k: int, margin: float = DEFAULT_MARGIN):
+def build_memberships(x0: np.ndarray, k: int, margin: float = tuning.DEFAULT_MARGIN):
     """Cluster memberships of the rest positions ``x0`` (N, 3).
 
     Returns ``(ptr, cl, n_clusters)``: particle i belongs to clusters
@@ -84,7 +81,7 @@ def _one_piece(first, last, rows, raw, kk) -> bool:
     for axis in range(3):
         shared[:, axis] = _pair_counts(first, last, kk, axis).ravel()
     shared = shared.ravel()
-    link = np.nonzero(shared >= MIN_SHARED)[0]
+    link = np.nonzero(shared >= tuning.MIN_SHARED)[0]
     a = link // 3
     b = a + stride[link % 3]
     label = np.arange(ncell)

@@ -1,7 +1,30 @@
 """Tuning constants of the solver core, one line each (the kernels get them as arguments,
-so that a change here needs no recompilation)."""
+so that a change here needs no recompilation).  The users read them at call time
+(``tuning.NAME``), so a test may set them with ``monkeypatch.setattr(tuning, ...)``.
+
+The block sizes that Numba kernels compile in (``packed.FUSED_BLOCK``, those in
+``kernels/``) stay beside their kernels: Numba's on-disk cache is keyed on the kernel's own
+source file, so such a constant edited here would leave a stale cached kernel."""
 
 #: Sleeping: restless above this many times ``sleep_speed``, two steps in a row.
 WAKE_FACTOR = 4.0
 #: Sleeping: a pair touches when closer than this many times its contact distance.
 TOUCH_FACTOR = 1.1
+
+#: Bodies with this much work per step (particles or memberships) run multi-threaded kernels.
+PARALLEL_MIN_WORK = 262144
+#: One-cluster bodies with this many particles damp inside the particle pass.
+FUSED_DAMPING_MIN = 1024
+#: Set-layout bodies with this many particles damp inside the particle pass.
+FUSED_DAMPING_MIN_SETS = 0
+#: Multi-cluster bodies use the set layout when memberships / set-cluster pairs reach this.
+SET_LAYOUT_MIN_RATIO = 8
+#: Single-cluster quadratic bodies use the set layout too (one set).
+SINGLE_QUADRATIC_SETS = True
+#: Compiled-step records are shared with helper threads from this many particles in records.
+RECORDS_PARALLEL_MIN_WORK = 16384
+
+#: Clusters: each cube's enlargement on every side, in cube widths.
+DEFAULT_MARGIN = 0.5
+#: Clusters: particles two face-neighbouring cubes must share to count as joined.
+MIN_SHARED = 3

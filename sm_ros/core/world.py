@@ -7,7 +7,7 @@ import numpy as np
 import numba
 from numba.typed import List as TypedList
 
-from . import body as body_mod, body_build
+from . import body as body_mod, body_build, tuning
 from .body import Body
 from .kernels.world_step import step_bodies_parallel, step_single_bodies
 from .packed import Pack
@@ -17,12 +17,6 @@ from .kernels.flags import SLEEP
 from .kinematic import Particles
 from .sleep import Sleep
 from .world_colliders import WorldColliders
-
-#: The compiled-step records (set-layout bodies, ``kernels.world_step``) are shared with
-#: helper threads (``step_bodies_parallel``) from this many particles in records: the
-#: calling thread never waits for a helper that gets no core, so the threshold is the cost
-#: of waking a helper, not of a fork/join on shared cores.
-RECORDS_PARALLEL_MIN_WORK = 16384
 
 
 class World(WorldColliders):
@@ -336,8 +330,8 @@ class World(WorldColliders):
         (``Pack.stale``: one of its bodies was packed elsewhere since) changed.  Python
         cost per step does not grow with the number of bodies.  The records are shared
         with helper threads with several threads, several records and
-        ``RECORDS_PARALLEL_MIN_WORK`` particles in records (``step_bodies_parallel`` never
-        waits for a helper that has not started).  The record count is kept: a typed
+        ``tuning.RECORDS_PARALLEL_MIN_WORK`` particles in records (``step_bodies_parallel``
+        never waits for a helper that has not started).  The record count is kept: a typed
         list's ``len`` is a compiled call."""
         key = (body_mod._GENERATION[0], h, self._layout, self.compiled_step)
         split = self._split
@@ -364,7 +358,7 @@ class World(WorldColliders):
                     slow.append(body)
             pack = Pack(packed, h) if packed else None
             helpers = (numba.get_num_threads() > 1 and len(records) > 1
-                       and rec_work >= RECORDS_PARALLEL_MIN_WORK)
+                       and rec_work >= tuning.RECORDS_PARALLEL_MIN_WORK)
             split = self._split = (key, pack, records, slow, helpers, len(records))
         return split
 
