@@ -39,23 +39,52 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     if body._at_step[0] != h or body._at_step[1] is not body._params:
         body._at_step = (h, body._params, body._params.at_step(h))
     p = body._at_step[2]                   # the material's coefficients at this step
-    plastic = body._params.plastic
-    x, v = body._x, body._v
-    s3 = body._s3
-    sets = body._sets
     fused = body._damp_fused and p.damping > 0.0
-    turned = 0
+    _take_sums(body)
+    turned = _match(body, p, h)
+    nchanged = _plastic_flow(body, p, h)
+    _forces(body, gravity, h)
+    _damping(body, p, fused, turned)
+    kin = len(body._kin_idx) > 0
+    if kin:
+        K.gather_rows(body._x, body._kin_idx, body._kin_prev)
+    capped = _integrate(body, p, h, fused, (has_col, ground, boxes, spheres, thresh))
+    if kin:
+        _grabbed(body, fused, h)
+    body._shape_err = None                 # computed from body._err when asked
+    body._flags[DAMP_SUMS] = 1.0 if fused else 0.0
+    # capped positions: the membership layout's sums are stale (the set layout caps
+    # before it sums)
+    sets = body._sets
+    body._dirty = capped > 0 and sets is None
+    if nchanged:
+        body._refresh_rest(body._changed)
+        # the per-set sums do not depend on the rest shape; the per-cluster ones do
+        body._dirty = body._dirty or sets is None
+
+
+def _take_sums(body) -> None:
+    """The clusters' sums of the current state (Eq. 7-11): taken afresh where the state
+    changed since the last pass summed it (``body._dirty``); the set layout reduces its
+    per-set sums to the clusters'."""
+    sets = body._sets
     if sets is not None:
         if body._dirty:
-            _chunks(body, K.sets_accumulate_chunks, quad=body._quad, x=x, y0=sets.y0,
+            _chunks(body, K.sets_accumulate_chunks, quad=body._quad, x=body._x, y0=sets.y0,
                     mass=body._m, sid=sets.sid, runs=sets.runs, sref=sets.ref, part=sets.part)
         K.sets_reduce(part=sets.part, sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sphi=sets.phi,
                       sref=sets.ref, stp=sets.tp, rest_lin=body._rest_lin, ref=body._ref,
                       quad=body._quad, out=body._part, wk=sets.wk, pm=sets.pm)
     elif body._dirty:
-        _chunks(body, K.accumulate_chunks, quad=body._quad, x=x, x0=body._x0, mass=body._m,
-                ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin, rest_off=body._rest_off,
-                ref=body._ref, part=body._part)
+        _chunks(body, K.accumulate_chunks, quad=body._quad, x=body._x, x0=body._x0,
+                mass=body._m, ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
+                rest_off=body._rest_off, ref=body._ref, part=body._part)
+
+
+def _match(body, p, h) -> int:
+    """The shape match of every cluster (Eq. 7-12, 18-22), then the turn limit; returns
+    the clusters whose spin was capped."""
+    s3 = body._s3
     turn = body._params.max_turn
     if turn > 0.0:
         np.copyto(body._quat_prev, body._quat)
@@ -67,53 +96,75 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
                           m3a=s3[0], m3b=s3[1], m3c=s3[2], m39=body._m39, n4=body._n4,
                           v4=body._v4, nmat=body._nmat, cdet=body._cdet, udv=body._udv,
                           warm=True)
-    if turn > 0.0:
-        # |q_prev . q| = cos(angle / 2): clusters whose rotation turned more than
-        # max_turn in the last step have their angular velocity measured and capped
-        np.less(np.abs(np.einsum('ij,ij->i', body._quat_prev, body._quat)),
-                np.cos(0.5 * turn), out=body._flagged)
-        if body._flagged.any():
-            turned = K.limit_turn(
-                x=x, v=v, mass=body._m, ptr=body._ptr, cl=body._cl, flagged=body._flagged,
-                w_max=turn / h, lin=body._lim_lin, w3=body._lim_w, m3a=s3[0], m3b=s3[1],
-                m3c=s3[2], m3d=s3[3])
-            body._limit_counts[1] += turned
+    if turn <= 0.0:
+        return 0
+    # |q_prev . q| = cos(angle / 2): clusters whose rotation turned more than max_turn in
+    # the last step have their angular velocity measured and capped
+    np.less(np.abs(np.einsum('ij,ij->i', body._quat_prev, body._quat)),
+            np.cos(0.5 * turn), out=body._flagged)
+    if not body._flagged.any():
+        return 0
+    turned = K.limit_turn(x=body._x, v=body._v, mass=body._m, ptr=body._ptr, cl=body._cl,
+                          flagged=body._flagged, w_max=turn / h, lin=body._lim_lin,
+                          w3=body._lim_w, m3a=s3[0], m3b=s3[1], m3c=s3[2], m3d=s3[3])
+    body._limit_counts[1] += turned
+    return turned
+
+
+def _plastic_flow(body, p, h) -> int:
+    """Plasticity (Eq. 24-27) and the set layout's goal maps; returns the clusters whose
+    rest shape changed."""
+    s3 = body._s3
     nchanged = 0
-    if plastic:
+    if body._params.plastic:
         nchanged = K.plastic_update(apq=body._apq, aqq3=body._aqq3, scale=body._scale,
                                     quat=body._quat, s_plastic=body._s_plastic,
                                     c_yield=body._params.plastic_yield, c_creep=p.creep,
                                     c_max=body._params.plastic_max, h=h, changed=body._changed,
                                     q4=body._q4, m3a=s3[0], m3b=s3[1], m3c=s3[2], n4=body._n4,
                                     v4=body._v4)
+    sets = body._sets
     if sets is not None:
         K.sets_maps(sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sorg=sets.org, stp=sets.tp,
                     rest_lin=body._rest_lin, trans=body._trans, goal_lin=body._goal_lin,
                     goal_off=body._goal_off, ref=body._ref, quad=body._quad, gm=sets.gm,
                     sref=sets.ref, pm=sets.pm, ck=sets.ck)
+    return nchanged
+
+
+def _forces(body, gravity, h) -> None:
+    """The step's acceleration (the body's force over its mass, gravity) and angular
+    acceleration (the torque through the inverse inertia, at most ``max_turn`` / h of spin
+    added in one step: beyond that the step cannot represent the turn)."""
     np.add(body._facc, gravity, out=body._acc)
-    if body._has_torque:
-        np.dot(body._wsum, body._ref, out=body._com)
-        body._com /= body._wsum.sum()
-        K.inertia(x, body._m, body._com, body._i3)
-        K.pinv_sym(mat=body._i3, out=body._i3inv, wa=s3[0], wv=s3[1], rcond=1e-12)
-        np.dot(body._i3inv, body._torque, out=body._ang)
-        if turn > 0.0:
-            # a torque may add at most max_turn / h of spin in one step: beyond that the
-            # step cannot represent the turn and the body is smeared at once
-            a_norm = float(np.sqrt(body._ang @ body._ang))
-            if a_norm * h * h > turn:
-                body._ang *= turn / (a_norm * h * h)
-                body._limit_counts[1] += 1
-    else:
+    if not body._has_torque:
         body._ang[:] = 0.0
+        return
+    s3 = body._s3
+    np.dot(body._wsum, body._ref, out=body._com)
+    body._com /= body._wsum.sum()
+    K.inertia(body._x, body._m, body._com, body._i3)
+    K.pinv_sym(mat=body._i3, out=body._i3inv, wa=s3[0], wv=s3[1], rcond=1e-12)
+    np.dot(body._i3inv, body._torque, out=body._ang)
+    turn = body._params.max_turn
+    if turn > 0.0:
+        a_norm = float(np.sqrt(body._ang @ body._ang))
+        if a_norm * h * h > turn:
+            body._ang *= turn / (a_norm * h * h)
+            body._limit_counts[1] += 1
+
+
+def _damping(body, p, fused, turned) -> None:
+    """Damping towards each cluster's rigid motion: fused into the particle pass (the rigid
+    fields from the sums of the last pass, taken again if the state changed since: set by
+    hand, contact, turn limit) or a pass of its own."""
+    s3 = body._s3
     if fused:
-        # the rigid fields damping moves towards, from the sums of the last pass (taken
-        # again if the state changed since: set by hand, contact, turn limit)
+        sets = body._sets
         sptr, scl, scnt = body._dsets
-        dsid = sets.sid if sets is not None else _ONE_SET
         if body._dirty or turned:
-            K.damp_accumulate(x=x, v=v, mass=body._m, sid=dsid, dpart=body._dpart)
+            K.damp_accumulate(x=body._x, v=body._v, mass=body._m, sid=_set_ids(body),
+                              dpart=body._dpart)
         K.damping_fields(dpart=body._dpart, sptr=sptr, scl=scl, scnt=scnt, lin=body._lin,
                          w3=body._w3, dref=body._dref, acc=body._dacc, m3a=s3[0], m3b=s3[1],
                          m3c=s3[2], m3d=s3[3])
@@ -121,60 +172,69 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
                           dref=body._dref, sref=sets.ref if sets is not None else body._ref,
                           dmp=body._dmp)
     elif p.damping > 0.0:
-        K.damp_rigid(x=x, v=v, mass=body._m, ptr=body._ptr, cl=body._cl, ref=body._ref,
-                     k_damp=p.damping, lin=body._lin, w3=body._w3, m3a=s3[0], m3b=s3[1],
-                     m3c=s3[2], m3d=s3[3])
-    kin = len(body._kin_idx) > 0
-    if kin:
-        K.gather_rows(x, body._kin_idx, body._kin_prev)
-    capped = 0
+        K.damp_rigid(x=body._x, v=body._v, mass=body._m, ptr=body._ptr, cl=body._cl,
+                     ref=body._ref, k_damp=p.damping, lin=body._lin, w3=body._w3, m3a=s3[0],
+                     m3b=s3[1], m3c=s3[2], m3d=s3[3])
+
+
+def _set_ids(body):
+    """The set id of each particle for the fused damping (none: one set)."""
+    return body._sets.sid if body._sets is not None else _ONE_SET
+
+
+def _integrate(body, p, h, fused, colliders) -> int:
+    """Eq. 13-14 with the static colliders (``colliders``: has_col, ground, boxes,
+    spheres, thresh) and the speed cap, the next step's sums taken in the same pass;
+    returns the capped speeds."""
+    has_col, ground, boxes, spheres, thresh = colliders
+    sets = body._sets
+    v_max = body._params.max_speed
     if sets is not None:
         # the speeds capped block by block before the sums are taken: the sums stay valid
         chunk_capped = np.zeros(len(sets.part), dtype=np.int64)
-        _chunks(body, K.sets_integrate_chunks, capped=chunk_capped, quad=body._quad, x=x, v=v,
-                y0=sets.y0, mass=body._m, wuni=body._wuni, sid=sets.sid, runs=sets.runs,
-                gm=sets.gm, sref=sets.ref, alpha=p.alpha, h=h, acc=body._acc, ang=body._ang,
-                com=body._com, part=sets.part, err=body._err, has_col=has_col, ground=ground,
-                boxes=boxes, spheres=spheres, thresh=thresh, damp=fused, k_damp=p.damping,
-                dmp=body._dmp, dpart=body._dpart, v_max=body._params.max_speed)
+        _chunks(body, K.sets_integrate_chunks, capped=chunk_capped, quad=body._quad,
+                x=body._x, v=body._v, y0=sets.y0, mass=body._m, wuni=body._wuni,
+                sid=sets.sid, runs=sets.runs, gm=sets.gm, sref=sets.ref, alpha=p.alpha, h=h,
+                acc=body._acc, ang=body._ang, com=body._com, part=sets.part, err=body._err,
+                has_col=has_col, ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
+                damp=fused, k_damp=p.damping, dmp=body._dmp, dpart=body._dpart, v_max=v_max)
         K._fused_refs(body._quad, body._wuni, body._ang, sets.runs, fused, sets.ref, body._dpart)
         capped = int(chunk_capped.sum())
         body._limit_counts[0] += capped
+        return capped
+    _chunks(body, K.integrate_chunks, quad=body._quad, x=body._x, v=body._v, x0=body._x0,
+            mass=body._m, ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
+            rest_off=body._rest_off, trans=body._trans, goal_lin=body._goal_lin,
+            goal_off=body._goal_off, ref=body._ref, alpha=p.alpha, h=h, acc=body._acc,
+            ang=body._ang, com=body._com, part=body._part, err=body._err, has_col=has_col,
+            ground=ground, boxes=boxes, spheres=spheres, thresh=thresh, damp=fused,
+            k_damp=p.damping, dmp=body._dmp, dpart=body._dpart)
+    if v_max <= 0.0:
+        return 0
+    capped = K.limit_speed(x=body._x, v=body._v, h=h, v_max=v_max)
+    body._limit_counts[0] += capped
+    return capped
+
+
+def _grabbed(body, fused, h) -> None:
+    """The grabbed and pinned particles to their targets (their sums, and with fused
+    damping their damping sums, follow them)."""
+    sets = body._sets
+    if fused:
+        K.damp_kinematic(x=body._x, v=body._v, mass=body._m, sid=_set_ids(body),
+                         dpart=body._dpart, idx=body._kin_idx, sign=-1.0)
+    if sets is not None:
+        K.sets_kinematic(quad=body._quad, x=body._x, v=body._v, y0=sets.y0, mass=body._m,
+                         sid=sets.sid, sref=sets.ref, part=sets.part, idx=body._kin_idx,
+                         tgt=body._kin_tgt, prev=body._kin_prev, h=h)
     else:
-        _chunks(body, K.integrate_chunks, quad=body._quad, x=x, v=v, x0=body._x0,
-                mass=body._m, ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
-                rest_off=body._rest_off, trans=body._trans, goal_lin=body._goal_lin,
-                goal_off=body._goal_off, ref=body._ref, alpha=p.alpha, h=h, acc=body._acc,
-                ang=body._ang, com=body._com, part=body._part, err=body._err,
-                has_col=has_col, ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
-                damp=fused, k_damp=p.damping, dmp=body._dmp, dpart=body._dpart)
-        if body._params.max_speed > 0.0:
-            capped = K.limit_speed(x=x, v=v, h=h, v_max=body._params.max_speed)
-            body._limit_counts[0] += capped
-    if kin and fused:                      # their damping sums follow them
-        K.damp_kinematic(x=x, v=v, mass=body._m, sid=dsid, dpart=body._dpart,
-                         idx=body._kin_idx, sign=-1.0)
-    if kin and sets is not None:
-        K.sets_kinematic(quad=body._quad, x=x, v=v, y0=sets.y0, mass=body._m, sid=sets.sid,
-                         sref=sets.ref, part=sets.part, idx=body._kin_idx, tgt=body._kin_tgt,
-                         prev=body._kin_prev, h=h)
-    elif kin:
-        K.apply_kinematic(quad=body._quad, x=x, v=v, x0=body._x0, mass=body._m, ptr=body._ptr,
-                          cl=body._cl, rest_lin=body._rest_lin, rest_off=body._rest_off,
-                          ref=body._ref, part=body._part, idx=body._kin_idx, tgt=body._kin_tgt,
-                          prev=body._kin_prev, h=h)
-    if kin and fused:
-        K.damp_kinematic(x=x, v=v, mass=body._m, sid=dsid, dpart=body._dpart,
-                         idx=body._kin_idx, sign=1.0)
-    body._shape_err = None                 # computed from body._err when asked
-    body._flags[DAMP_SUMS] = 1.0 if fused else 0.0
-    # capped positions: the membership layout's sums are stale (the set layout caps
-    # before it sums)
-    body._dirty = capped > 0 and sets is None
-    if nchanged:
-        body._refresh_rest(body._changed)
-        # the per-set sums do not depend on the rest shape; the per-cluster ones do
-        body._dirty = body._dirty or sets is None
+        K.apply_kinematic(quad=body._quad, x=body._x, v=body._v, x0=body._x0, mass=body._m,
+                          ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
+                          rest_off=body._rest_off, ref=body._ref, part=body._part,
+                          idx=body._kin_idx, tgt=body._kin_tgt, prev=body._kin_prev, h=h)
+    if fused:
+        K.damp_kinematic(x=body._x, v=body._v, mass=body._m, sid=_set_ids(body),
+                         dpart=body._dpart, idx=body._kin_idx, sign=1.0)
 
 
 def _chunks(body, kernel, **args):
