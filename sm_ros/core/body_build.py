@@ -166,18 +166,34 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
           single_quadratic_sets, fused_damping_min_sets=None):
     """Precompute everything of ``body`` that depends on the rest shape and the parameters.
 
-    The layout thresholds are the ``sm_ros.core.body`` constants of the same names (passed
-    by ``Body._build``, read there at each build).
+    The layout thresholds are the ``sm_ros.core.tuning`` constants of the same names
+    (passed by ``Body._build``, read there at each build).
     """
     body.shape_error_rms()                 # keep the last step's figure across a rebuild
     p = body._params
-    n = body.n
-    x0, m = body._x0, body._m
     mode = _MODE_ID[p.mode]
     body._mode = mode
     body._quad = mode == 2
     body._need3 = mode == 1 or p.plastic
     body._need9 = body._quad
+    groups = _rest_moments(body)
+    _cluster_state(body)
+    _layout(body, groups, parallel_min_work, set_layout_min_ratio, single_quadratic_sets)
+    if fused_damping_min_sets is None:
+        fused_damping_min_sets = fused_damping_min
+    _damping_buffers(body, fused_damping_min, fused_damping_min_sets)
+    body._dirty = True
+    body._flags[DAMP_SUMS] = 0.0           # no fused damping sums yet
+    body._arena = None                     # fast_record packs the new buffers (compact)
+    _GENERATION[0] += 1
+
+
+def _rest_moments(body):
+    """The memberships (``body._ptr``, ``body._cl``; none for one cluster), and each
+    cluster's weight, rest centre, scale and rest moments about its centre; returns the
+    set grouping ``set_order`` computed with the memberships (or None)."""
+    p, n = body._params, body.n
+    x0, m = body._x0, body._m
     groups = None
     if p.clusters == 1:
         body._ptr, body._cl, nk = _EMPTY_I64, _EMPTY_I32, 1
@@ -213,6 +229,12 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
             body._cov0[:, i, j] = body._cov0[:, j, i] = np.bincount(
                 member, weights=w * d[:, i] * d[:, j], minlength=nk)
     body._scale = np.where(rms > 0.0, rms, 1.0)
+    return groups
+
+
+def _cluster_state(body) -> None:
+    """Each cluster's plastic state, rest data, rotation and the shape match's buffers."""
+    nk, mode = body.num_clusters, body._mode
     body._s_plastic = np.tile(np.eye(3), (nk, 1, 1))
     body._rest_lin = np.zeros((nk, 3, 3))
     body._rest_off = np.zeros((nk, 3))
@@ -232,17 +254,32 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     body._udv = np.tile(np.eye(3), (nk if mode == 1 else 1, 1, 1))
     body._changed = np.ones(nk, dtype=np.bool_)
     body._refresh_rest(body._changed)
+    body._trans = np.zeros((nk, 3, 9))
+    body._goal_lin = np.zeros((nk, 3, 3))
+    body._goal_off = np.zeros((nk, 3))
+    body._ref = body._cm0 + body._c0
+    # speed and turn limits (kernels/limits.py): previous rotations, scratch, flags
+    body._quat_prev = np.zeros((nk, 4))
+    body._flagged = np.zeros(nk, dtype=np.bool_)
+    body._lim_lin = np.zeros((nk, 13))
+    body._lim_w = np.zeros((nk, 6))
+
+
+def _layout(body, groups, parallel_min_work, set_layout_min_ratio, single_quadratic_sets):
+    """The set layout (or none), whether the body runs on threads, and the per-chunk sums."""
+    p, n, nk = body._params, body.n, body.num_clusters
     na = 30 if body._quad else 12
     body._sets = None
     if p.clusters > 1:
-        sets = _SetLayout(x0, m, body._ptr, body._cl, body._c0, cm0, body._quad, groups)
+        sets = _SetLayout(body._x0, body._m, body._ptr, body._cl, body._c0, body._cm0,
+                          body._quad, groups)
         if sets.pairs * set_layout_min_ratio <= len(body._cl):
             body._sets = sets
     elif body._quad and single_quadratic_sets:
         # one set: the quadratic goal as one polynomial of x0 (27 multiply-adds less
         # per particle than features-then-transform)
-        body._sets = _SetLayout(x0, m, np.arange(n + 1, dtype=np.int64),
-                                np.zeros(n, dtype=np.int32), body._c0, cm0, True)
+        body._sets = _SetLayout(body._x0, body._m, np.arange(n + 1, dtype=np.int64),
+                                np.zeros(n, dtype=np.int32), body._c0, body._cm0, True)
     # work per step: one unit per particle (one cluster, set layout) or per membership
     work = len(body._cl) if p.clusters > 1 and body._sets is None else n
     body._parallel = work >= parallel_min_work and numba.get_num_threads() > 1
@@ -253,27 +290,18 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
         nch = 1                            # body._part: the reduced per-cluster sums
     body._part = np.zeros((nch, nk, na))
     body._err = np.zeros(len(body._sets.part) if body._sets is not None else nch)
-    body._trans = np.zeros((nk, 3, 9))
-    body._goal_lin = np.zeros((nk, 3, 3))
-    body._goal_off = np.zeros((nk, 3))
-    body._ref = cm0 + body._c0
-    # speed and turn limits (kernels/limits.py): previous rotations, scratch, flags
-    body._quat_prev = np.zeros((nk, 4))
-    body._flagged = np.zeros(nk, dtype=np.bool_)
-    body._lim_lin = np.zeros((nk, 13))
-    body._lim_w = np.zeros((nk, 6))
+
+
+def _damping_buffers(body, fused_damping_min, fused_damping_min_sets) -> None:
+    """Damping's buffers, and whether it is fused into the particle pass (set layout, one
+    cluster; kernels/damping.py): where the pass it saves costs more than the fused one."""
+    p, n, nk, sets = body._params, body.n, body.num_clusters, body._sets
     body._lin = np.zeros((nk, 13)) if p.damping > 0 else None
     body._w3 = np.zeros((nk, 3)) if p.damping > 0 else None
-    # damping fused into the particle pass (set layout, one cluster; kernels/damping.py)
-    # where the pass it saves costs more than the fused one (tuning.FUSED_DAMPING_MIN, and
-    # FUSED_DAMPING_MIN_SETS for the set layout)
-    if fused_damping_min_sets is None:
-        fused_damping_min_sets = fused_damping_min
     body._damp_fused = p.damping > 0 and (
-        (body._sets is not None and n >= min(fused_damping_min, fused_damping_min_sets))
-        or (body._sets is None and p.clusters == 1 and n >= fused_damping_min))
-    if body._damp_fused and body._sets is not None:
-        sets = body._sets
+        (sets is not None and n >= min(fused_damping_min, fused_damping_min_sets))
+        or (sets is None and p.clusters == 1 and n >= fused_damping_min))
+    if body._damp_fused and sets is not None:
         body._dsets = (sets.ptr, sets.cl, sets.cnt)
         body._dpart = np.zeros((len(sets.part), len(sets.cnt), K.NDAMP))
     elif body._damp_fused:
@@ -286,10 +314,6 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     body._dmp = np.zeros((len(body._dsets[2]) if body._dsets else 1, 6))
     body._dref = np.zeros((nk, 3))
     body._dacc = np.zeros(K.NDAMP)
-    body._dirty = True
-    body._flags[DAMP_SUMS] = 0.0           # no fused damping sums yet
-    body._arena = None                     # fast_record packs the new buffers (compact)
-    _GENERATION[0] += 1
 
 
 def refresh_rest(body, which):
