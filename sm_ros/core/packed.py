@@ -35,7 +35,7 @@ from numba.typed import List as TypedList
 
 from .kernels import (JIT, NDAMP, STRETCH_LIMIT, _collide_range, damp_acc_range, det3,
                       extract_rotation, limit_turn, unit_det_match_warm)
-from .kernels.damping import damp_sums_range
+from .kernels.fused import damp_sums_uniform
 from .kernels.colliders import ground_range, ground_range_sums
 from .kernels.integrate import _acc_single, _add_rest_sums, _int_single_fused
 from .kernels.flags import DAMP_SUMS, DIRTY, ERR_STALE, SLEEP
@@ -448,7 +448,7 @@ def _pass(lo, hi, x, v, x0, mass, row, h, work, has_col, ground, boxes, spheres,
     projected by ``ground_range_sums``, which corrects the loop's sums for the particles
     it moved.  A block with a speed over the cap, or any block in a world with boxes or
     spheres, is projected onto the colliders (the ground alone: ``ground_range``, no bounds
-    pass), capped and summed again (``_acc_single``, ``damp_sums_range``, vectorised).
+    pass), capped and summed again (``_acc_single``, ``damp_sums_uniform``, vectorised).
     """
     sums, ref, pnt, rest_lin, rest_off = (work.part, work.ref, work.pnt, work.rest_lin,
                                           work.rest_off)
@@ -494,7 +494,7 @@ def _pass(lo, hi, x, v, x0, mass, row, h, work, has_col, ground, boxes, spheres,
             if damp:
                 # the damping sums of what they left about pnt (``damp_acc_range``'s rows
                 # 3-14; its W and sum w d are the shape sums', the caller copies them)
-                t = damp_sums_range(bs, be, x, v, mass, k0, k1, k2)
+                t = damp_sums_uniform(bs, be, x, v, wuni, k0, k1, k2)
                 for j in range(12):
                     dsums[0, 3 + j] += t[j]
     return err2, capped

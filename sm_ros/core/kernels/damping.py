@@ -232,9 +232,7 @@ def damp_sums_range(lo, hi, x, v, mass, k0, k1, k2):
     sum w v, sum w d x v, the six second moments of d = x - k), then their mass sum (row
     19) and sum w d (rows 0-2), 16 values, w = ``mass``.  Vectorises across particles
     (unit-stride columns of x, v, unsigned index: one lane a particle, a vector
-    accumulator a sum).  Inlined by Numba into ``damp_acc_range`` and into the one-loop
-    passes (``packed._pass``, ``sets._sets_fused_lin``) for a block or run the colliders or
-    the speed cap moved after their loop (``fused._fused_loop`` takes the same sums)."""
+    accumulator a sum).  Inlined by Numba into ``damp_acc_range``."""
     a0 = a1 = a2 = b0 = b1 = b2 = c0 = c1 = c2 = 0.0
     e00 = e11 = e22 = e01 = e12 = e20 = 0.0
     ms = 0.0

@@ -31,8 +31,8 @@ from numba import njit
 
 from .jit import JIT, U, claim_next
 from .colliders import _collide_range, ground_range_sums
-from .damping import damp_acc_range, damp_sums_range, damp_towards
-from .fused import _fused_range, damp_constants
+from .damping import damp_acc_range, damp_towards
+from .fused import _fused_range, damp_constants, damp_sums_uniform
 from .integrate import BLOCK, _rest_sums, advance
 from .limits import limit_speed_range
 from .sets_sums import _add_lin_sums, _sets_acc_damp_lin, _sets_acc_range, first_run
@@ -200,7 +200,7 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     or a box or sphere moved is summed again (``integrate._rest_sums``), so the sums are of
     the final state and the step
     leaves them valid.  Damped, the loop also takes the run's 12 damping sums and W (a run
-    that was moved: ``damping.damp_sums_range``, while it is in cache).  Returns (sum of
+    that was moved: ``damping.damp_sums_uniform``, while it is in cache).  Returns (sum of
     |g - x|^2, capped speeds).  ``gz``: the ground's height, -inf without a ground.
 
     The sums of a set are taken about one point P_s, its shape sums and damping sums alike
@@ -262,7 +262,7 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
         if moved:
             ss = _rest_sums(i, j, x, y0, mass, r0, r1, r2)
             if damp:
-                dsum = damp_sums_range(i, j, x, v, mass, r0, r1, r2)[:13]
+                dsum = damp_sums_uniform(i, j, x, v, wuni, r0, r1, r2)[:13]
         # the set sums' layout: per row of d, [sum w d, sum w d y^T]
         _add_lin_sums(sums, s, ss[0], ss[3], ss[4], ss[5], ss[1], ss[6], ss[7], ss[8], ss[2],
                       ss[9], ss[10], ss[11])
