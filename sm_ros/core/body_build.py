@@ -428,7 +428,8 @@ def compact(body):
 
 
 def fast_record(body, h):
-    """The tuple of buffers ``kernels.world_step`` steps (valid until the next rebuild)."""
+    """The buffers ``kernels.world_step`` steps, a ``StepRecord`` (valid until the next
+    rebuild)."""
     if getattr(body, '_arena', None) is None:
         compact(body)
     body._fstate = np.zeros(12)
@@ -441,15 +442,15 @@ def fast_record(body, h):
     # x, v, x0 (and the set layout's y0) as their (3, N) C-contiguous blocks: a typed list
     # fixes the element type from its first record, and a one-particle body's (1, 3) view
     # is typed C (both orders at once); the world step transposes them back (layout F)
-    return (body._x.T, body._v.T, body._x0.T, body._m, body._ptr, body._cl, body._rest_lin,
-            body._rest_off, body._part, body._wsum, body._sum_q, body._ref, body._quat,
-            body._aqq3, body._aqq9, body._scale, body._trans, body._goal_lin,
-            body._goal_off, body._apq, body._accbuf, s3[0], s3[1], s3[2], s3[3],
-            body._m39, body._n4, body._v4, body._nmat, body._cdet, body._acc, body._ang,
-            body._com, body._err, body._dpart, body._dmp, body._dref, body._dacc, lin, w3,
-            sptr, scl, scnt, body._quat_prev, body._flagged, body._lim_lin, body._lim_w,
-            body._facc, body._fstate, body._flags, body._limit_counts) + body._fast_sets() + (
-                body._udv,)
+    own = (body._x.T, body._v.T, body._x0.T, body._m, body._ptr, body._cl, body._rest_lin,
+           body._rest_off, body._part, body._wsum, body._sum_q, body._ref, body._quat,
+           body._aqq3, body._aqq9, body._scale, body._trans, body._goal_lin, body._goal_off,
+           body._apq, body._accbuf, s3[0], s3[1], s3[2], s3[3], body._m39, body._n4,
+           body._v4, body._nmat, body._cdet, body._acc, body._ang, body._com, body._err,
+           body._dpart, body._dmp, body._dref, body._dacc, lin, w3, sptr, scl, scnt,
+           body._quat_prev, body._flagged, body._lim_lin, body._lim_w, body._facc,
+           body._fstate, body._flags, body._limit_counts)
+    return K.StepRecord(*own, *body._fast_sets(), body._udv)
 
 
 def retime_record(body, fstate, h):

@@ -50,7 +50,7 @@ from .spread import moved_box, spread_of
 from .unit_det import (STRETCH_LIMIT, _logprod, _logx, _stretch_ok, _unit_det_sum,
                        nearest_unit_det, nearest_unit_det_warm, unit_det_frames, unit_det_match,
                        unit_det_match_warm, volume_preserving)
-from .world_step import step_single_bodies
+from .world_step import StepRecord, step_single_bodies
 
 __all__ = ['_collide_range', 'contact_velocity', 'collide_point', 'NDAMP', 'damp_acc_range',
            'damp_accumulate', 'damp_kinematic', 'damp_rigid', 'damp_velocity', 'damping_fields',
@@ -64,5 +64,6 @@ __all__ = ['_collide_range', 'contact_velocity', 'collide_point', 'NDAMP', 'damp
            'jacobi_eigh', 'matmul',
            'norm2', 'pinv_sym', '_add_null_projector', '_cap_plastic', 'plastic_update',
            'extract_rotation', 'quat_to_mat', 'moved_box', 'spread_of', 'step_single_bodies',
+           'StepRecord',
            'sets_accumulate_chunks', '_fused_refs', 'sets_integrate_chunks',
            'sets_kinematic', 'sets_maps', 'sets_reduce']

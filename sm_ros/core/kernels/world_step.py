@@ -11,8 +11,9 @@ one-cluster rigid/linear bodies take the packed step (``sm_ros.core.packed``: no
 record) and the others keep ``Body._step``, which steps a covered body as a list of one
 record.
 
-A record (``Body._fast_record``) is a tuple of the body's own buffers (x, v, x0, y0 as their
-(3, N) blocks, transposed back to (N, 3) views of layout F here); ``state`` holds
+A record (``Body._fast_record``) is a ``StepRecord``, a named tuple of the body's own buffers
+(x, v, x0, y0 as their (3, N) blocks, transposed back to (N, 3) views of layout F here);
+``state`` holds
 [alpha, beta, damping (per step), max_speed, max_turn, 1 / total mass, mode, fused
 damping, quadratic, set layout, max_turn / h, the particles' one mass or 0
 (``Body._wuni``)], ``force`` the force over the total mass (both divided in Python, as
@@ -20,6 +21,8 @@ damping, quadratic, set layout, max_turn / h, the particles' one mass or 0
 (``kernels.flags``: a sleeping record is not stepped),
 ``counts`` the limit counters; the set-layout buffers (``s_*``) are empty for one-cluster bodies.
 """
+
+from collections import namedtuple
 
 import numba
 import numpy as np
@@ -34,6 +37,15 @@ from .jit import JIT, claim_next
 from .limits import limit_speed, limit_turn
 from .sets import _fused_refs, sets_integrate_chunks
 from .sets_sums import sets_accumulate_chunks, sets_maps, sets_reduce
+
+#: The buffers of one body that ``step_bodies_claimed`` steps (``body_build.fast_record``):
+#: the names of ``Body``'s own attributes, the set layout's with ``s_``.
+StepRecord = namedtuple('StepRecord', (
+    'xt vt x0t mass ptr cl rest_lin rest_off part wsum sum_q ref quat aqq3 aqq9 scale trans '
+    'goal_lin goal_off apq accbuf m3a m3b m3c m3d m39 n4 v4 nmat cdet acc ang com err dpart '
+    'dmp dref dacc lin w3 sptr scl scnt quat_prev flagged lim_lin lim_w force state flags '
+    'counts y0t sid gm sref s_part s_ptr s_cl s_cnt s_phi s_org wk pm s_tp s_ck s_runs '
+    'udv').split())
 
 
 @njit(**JIT)
@@ -54,7 +66,7 @@ def step_bodies_claimed(bodies, claim, h, gravity, has_col, ground, boxes, spher
         b = claim_next(claim)
         if b >= n:
             return stepped
-        _step_record(bodies[b], h, gravity, has_col, ground, boxes, spheres, thresh)
+        _step_record(bodies[b], h, gravity, (has_col, ground, boxes, spheres, thresh))
         stepped += 1
 
 
@@ -91,102 +103,151 @@ def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, th
 
 
 @njit(inline='always', **JIT)
-def _step_record(record, h, gravity, has_col, ground, boxes, spheres, thresh):
+def _step_record(rec, h, gravity, colliders):
     """``Body._step`` for one record (inlined into ``step_bodies_claimed`` by Numba: one
-    compiled function, not a second one linked and optimised again into it)."""
-    (xt, vt, x0t, mass, ptr, cl, rest_lin, rest_off, part, wsum, sum_q, ref, quat, aqq3,
-     aqq9, scale, trans, goal_lin, goal_off, apq, accbuf, m3a, m3b, m3c, m3d, m39, n4, v4,
-     nmat, cdet, acc, ang, com, err, dpart, dmp, dref, dacc, lin, w3, sptr, scl, scnt,
-     quat_prev, flagged, lim_lin, lim_w, force, state, flags, counts, y0t, sid, gm, sref,
-     s_part, s_ptr, s_cl, s_cnt, s_phi, s_org, wk, pm, s_tp, s_ck, s_runs, udv) = record
-    if flags[SLEEP] > 0.0:                     # asleep (``sm_ros.core.sleep``): not stepped
+    compiled function, not a second one linked and optimised again into it); ``colliders``:
+    (has_col, ground, boxes, spheres, thresh)."""
+    if rec.flags[SLEEP] > 0.0:                 # asleep (``sm_ros.core.sleep``): not stepped
         return
-    # the (3, N) blocks seen as (N, 3) arrays of layout F, as the bodies' own x, v
-    x, v, x0, y0 = xt.T, vt.T, x0t.T, y0t.T
-    alpha, beta, k_damp = state[0], state[1], state[2]
-    v_max, turn = state[3], state[4]
-    mode = int(state[6])
-    fused = state[7] > 0.0 and k_damp > 0.0
-    quad = state[8] > 0.0
+    state = rec.state
+    fused = state[7] > 0.0 and state[2] > 0.0
     sets = state[9] > 0.0
-    dirty = flags[DIRTY] > 0.0
+    dirty = rec.flags[DIRTY] > 0.0
+    _record_sums(rec, sets, dirty)
+    turned = _record_match(rec)
+    if sets:
+        sets_maps(sptr=rec.s_ptr, scl=rec.s_cl, scnt=rec.s_cnt, sorg=rec.s_org, stp=rec.s_tp,
+                  rest_lin=rec.rest_lin, trans=rec.trans, goal_lin=rec.goal_lin,
+                  goal_off=rec.goal_off, ref=rec.ref, quad=state[8] > 0.0, gm=rec.gm,
+                  sref=rec.sref, pm=rec.pm, ck=rec.s_ck)
+    for i in range(3):
+        rec.acc[i] = rec.force[i] + gravity[i]
+        rec.ang[i] = 0.0
+    _record_damping(rec, fused, sets, dirty or turned > 0)
+    if sets:
+        _record_integrate_sets(rec, h, colliders, fused)
+    else:
+        _record_integrate(rec, h, colliders, fused)
+    rec.flags[ERR_STALE] = 1.0
+
+
+@njit(inline='always', **JIT)
+def _record_sums(rec, sets, dirty):
+    """The clusters' sums of the current state: taken afresh where the state changed since
+    the last pass summed it (``dirty``); the set layout reduces its per-set sums."""
+    quad = rec.state[8] > 0.0
     if sets:
         if dirty:
-            sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64), quad=quad, x=x, y0=y0,
-                                   mass=mass, sid=sid, runs=s_runs, sref=sref, part=s_part)
-        sets_reduce(part=s_part, sptr=s_ptr, scl=s_cl, scnt=s_cnt, sphi=s_phi, sref=sref,
-                    stp=s_tp, rest_lin=rest_lin, ref=ref, quad=quad, out=part, wk=wk, pm=pm)
+            sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64), quad=quad, x=rec.xt.T,
+                                   y0=rec.y0t.T, mass=rec.mass, sid=rec.sid, runs=rec.s_runs,
+                                   sref=rec.sref, part=rec.s_part)
+        sets_reduce(part=rec.s_part, sptr=rec.s_ptr, scl=rec.s_cl, scnt=rec.s_cnt,
+                    sphi=rec.s_phi, sref=rec.sref, stp=rec.s_tp, rest_lin=rec.rest_lin,
+                    ref=rec.ref, quad=quad, out=rec.part, wk=rec.wk, pm=rec.pm)
     elif dirty:
-        accumulate_chunks(claim=np.zeros(1, dtype=np.int64), quad=quad, x=x, x0=x0, mass=mass,
-                          ptr=ptr, cl=cl, rest_lin=rest_lin, rest_off=rest_off, ref=ref,
-                          part=part)
+        accumulate_chunks(claim=np.zeros(1, dtype=np.int64), quad=quad, x=rec.xt.T,
+                          x0=rec.x0t.T, mass=rec.mass, ptr=rec.ptr, cl=rec.cl,
+                          rest_lin=rec.rest_lin, rest_off=rec.rest_off, ref=rec.ref,
+                          part=rec.part)
+
+
+@njit(inline='always', **JIT)
+def _record_match(rec):
+    """The shape match of every cluster, then the turn limit (as ``Body._step``); returns
+    the clusters whose spin was capped."""
+    state = rec.state
+    turn = state[4]
+    quat, quat_prev, flagged = rec.quat, rec.quat_prev, rec.flagged
     if turn > 0.0:
         quat_prev[:, :] = quat
-    solve_clusters_warm(part=part, wsum=wsum, sum_q=sum_q, ref=ref, quat=quat, aqq3=aqq3,
-                        aqq9=aqq9, rest_lin=rest_lin, rest_off=rest_off, scale=scale,
-                        trans=trans, goal_lin=goal_lin, goal_off=goal_off, mode=mode,
-                        beta=beta, apq=apq, acc=accbuf, m3a=m3a, m3b=m3b, m3c=m3c, m39=m39,
-                        n4=n4, v4=v4, nmat=nmat, cdet=cdet, udv=udv,
+    solve_clusters_warm(part=rec.part, wsum=rec.wsum, sum_q=rec.sum_q, ref=rec.ref, quat=quat,
+                        aqq3=rec.aqq3, aqq9=rec.aqq9, rest_lin=rec.rest_lin,
+                        rest_off=rec.rest_off, scale=rec.scale, trans=rec.trans,
+                        goal_lin=rec.goal_lin, goal_off=rec.goal_off, mode=int(state[6]),
+                        beta=state[1], apq=rec.apq, acc=rec.accbuf, m3a=rec.m3a, m3b=rec.m3b,
+                        m3c=rec.m3c, m39=rec.m39, n4=rec.n4, v4=rec.v4, nmat=rec.nmat,
+                        cdet=rec.cdet, udv=rec.udv,
                         warm=np.bool_(True))       # bool, not a literal: Body._step's copy
-    turned = 0
-    if turn > 0.0:
-        # |q_prev . q| = cos(angle / 2), as Body._step
-        limit = np.cos(0.5 * turn)
-        any_flagged = False
-        for k in range(quat.shape[0]):
-            dot = (quat_prev[k, 0] * quat[k, 0] + quat_prev[k, 1] * quat[k, 1]
-                   + quat_prev[k, 2] * quat[k, 2] + quat_prev[k, 3] * quat[k, 3])
-            flagged[k] = abs(dot) < limit
-            any_flagged = any_flagged or flagged[k]
-        if any_flagged:
-            turned = limit_turn(x=x, v=v, mass=mass, ptr=ptr, cl=cl, flagged=flagged,
-                                w_max=state[10], lin=lim_lin, w3=lim_w, m3a=m3a, m3b=m3b,
-                                m3c=m3c, m3d=m3d)
-            counts[1] += turned
-    if sets:
-        sets_maps(sptr=s_ptr, scl=s_cl, scnt=s_cnt, sorg=s_org, stp=s_tp, rest_lin=rest_lin,
-                  trans=trans, goal_lin=goal_lin, goal_off=goal_off, ref=ref, quad=quad,
-                  gm=gm, sref=sref, pm=pm, ck=s_ck)
-    for i in range(3):
-        acc[i] = force[i] + gravity[i]
-        ang[i] = 0.0
+    if turn <= 0.0:
+        return 0
+    # |q_prev . q| = cos(angle / 2), as Body._step
+    limit = np.cos(0.5 * turn)
+    any_flagged = False
+    for k in range(quat.shape[0]):
+        dot = (quat_prev[k, 0] * quat[k, 0] + quat_prev[k, 1] * quat[k, 1]
+               + quat_prev[k, 2] * quat[k, 2] + quat_prev[k, 3] * quat[k, 3])
+        flagged[k] = abs(dot) < limit
+        any_flagged = any_flagged or flagged[k]
+    if not any_flagged:
+        return 0
+    turned = limit_turn(x=rec.xt.T, v=rec.vt.T, mass=rec.mass, ptr=rec.ptr, cl=rec.cl,
+                        flagged=flagged, w_max=state[10], lin=rec.lim_lin, w3=rec.lim_w,
+                        m3a=rec.m3a, m3b=rec.m3b, m3c=rec.m3c, m3d=rec.m3d)
+    rec.counts[1] += turned
+    return turned
+
+
+@njit(inline='always', **JIT)
+def _record_damping(rec, fused, sets, stale):
+    """Damping towards each cluster's rigid motion: fused into the particle pass (its
+    fields from the last pass's sums, taken again where the state is ``stale``) or a pass
+    of its own."""
+    x, v = rec.xt.T, rec.vt.T
     if fused:
-        if dirty or turned:
+        if stale:
             if sets:
-                damp_accumulate(x=x, v=v, mass=mass, sid=sid, dpart=dpart)
+                damp_accumulate(x=x, v=v, mass=rec.mass, sid=rec.sid, dpart=rec.dpart)
             else:
-                damp_accumulate(x=x, v=v, mass=mass, sid=np.zeros(0, dtype=np.int32),
-                                dpart=dpart)
-        damping_fields(dpart=dpart, sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3,
-                       dref=dref, acc=dacc, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
-        damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=lin, w3=w3, dref=dref,
-                        sref=sref if sets else ref, dmp=dmp)
-    elif k_damp > 0.0:
-        damp_rigid(x=x, v=v, mass=mass, ptr=ptr, cl=cl, ref=ref, k_damp=k_damp, lin=lin,
-                   w3=w3, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
+                damp_accumulate(x=x, v=v, mass=rec.mass, sid=np.zeros(0, dtype=np.int32),
+                                dpart=rec.dpart)
+        damping_fields(dpart=rec.dpart, sptr=rec.sptr, scl=rec.scl, scnt=rec.scnt, lin=rec.lin,
+                       w3=rec.w3, dref=rec.dref, acc=rec.dacc, m3a=rec.m3a, m3b=rec.m3b,
+                       m3c=rec.m3c, m3d=rec.m3d)
+        damping_targets(sptr=rec.sptr, scl=rec.scl, scnt=rec.scnt, lin=rec.lin, w3=rec.w3,
+                        dref=rec.dref, sref=rec.sref if sets else rec.ref, dmp=rec.dmp)
+    elif rec.state[2] > 0.0:
+        damp_rigid(x=x, v=v, mass=rec.mass, ptr=rec.ptr, cl=rec.cl, ref=rec.ref,
+                   k_damp=rec.state[2], lin=rec.lin, w3=rec.w3, m3a=rec.m3a, m3b=rec.m3b,
+                   m3c=rec.m3c, m3d=rec.m3d)
+
+
+@njit(inline='always', **JIT)
+def _record_integrate_sets(rec, h, colliders, fused):
+    """Eq. 13-14 with the static colliders and the speed cap, set by set: the speeds are
+    capped block by block before the sums are taken, so the sums stay valid."""
+    has_col, ground, boxes, spheres, thresh = colliders
+    state = rec.state
+    quad = state[8] > 0.0
+    chunk_capped = np.zeros(rec.s_part.shape[0], dtype=np.int64)
+    sets_integrate_chunks(claim=np.zeros(1, dtype=np.int64), capped=chunk_capped, quad=quad,
+                          x=rec.xt.T, v=rec.vt.T, y0=rec.y0t.T, mass=rec.mass, wuni=state[11],
+                          sid=rec.sid, runs=rec.s_runs, gm=rec.gm, sref=rec.sref,
+                          alpha=state[0], h=h, acc=rec.acc, ang=rec.ang, com=rec.com,
+                          part=rec.s_part, err=rec.err, has_col=has_col, ground=ground,
+                          boxes=boxes, spheres=spheres, thresh=thresh, damp=fused,
+                          k_damp=state[2], dmp=rec.dmp, dpart=rec.dpart, v_max=state[3])
+    _fused_refs(quad, state[11], rec.ang, rec.s_runs, fused, rec.sref, rec.dpart)
+    rec.counts[0] += chunk_capped.sum()
+    rec.flags[DIRTY] = 0.0
+
+
+@njit(inline='always', **JIT)
+def _record_integrate(rec, h, colliders, fused):
+    """Eq. 13-14 with the static colliders, then the speed cap (capped positions leave
+    the sums stale: ``DIRTY``)."""
+    has_col, ground, boxes, spheres, thresh = colliders
+    state = rec.state
+    x, v = rec.xt.T, rec.vt.T
+    integrate_chunks(claim=np.zeros(1, dtype=np.int64), quad=state[8] > 0.0, x=x, v=v,
+                     x0=rec.x0t.T, mass=rec.mass, ptr=rec.ptr, cl=rec.cl,
+                     rest_lin=rec.rest_lin, rest_off=rec.rest_off, trans=rec.trans,
+                     goal_lin=rec.goal_lin, goal_off=rec.goal_off, ref=rec.ref,
+                     alpha=state[0], h=h, acc=rec.acc, ang=rec.ang, com=rec.com,
+                     part=rec.part, err=rec.err, has_col=has_col, ground=ground, boxes=boxes,
+                     spheres=spheres, thresh=thresh, damp=fused, k_damp=state[2],
+                     dmp=rec.dmp, dpart=rec.dpart)
     capped = 0
-    if sets:
-        # the speeds capped block by block before the sums are taken: the sums stay valid
-        chunk_capped = np.zeros(s_part.shape[0], dtype=np.int64)
-        sets_integrate_chunks(claim=np.zeros(1, dtype=np.int64), capped=chunk_capped,
-                              quad=quad, x=x, v=v, y0=y0, mass=mass, wuni=state[11], sid=sid,
-                              runs=s_runs, gm=gm, sref=sref, alpha=alpha, h=h, acc=acc,
-                              ang=ang, com=com, part=s_part, err=err, has_col=has_col,
-                              ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
-                              damp=fused, k_damp=k_damp, dmp=dmp, dpart=dpart, v_max=v_max)
-        _fused_refs(quad, state[11], ang, s_runs, fused, sref, dpart)
-        capped = chunk_capped.sum()
-        counts[0] += capped
-        flags[DIRTY] = 0.0
-    else:
-        integrate_chunks(claim=np.zeros(1, dtype=np.int64), quad=quad, x=x, v=v, x0=x0,
-                         mass=mass, ptr=ptr, cl=cl, rest_lin=rest_lin, rest_off=rest_off,
-                         trans=trans, goal_lin=goal_lin, goal_off=goal_off, ref=ref,
-                         alpha=alpha, h=h, acc=acc, ang=ang, com=com, part=part, err=err,
-                         has_col=has_col, ground=ground, boxes=boxes, spheres=spheres,
-                         thresh=thresh, damp=fused, k_damp=k_damp, dmp=dmp, dpart=dpart)
-        if v_max > 0.0:
-            capped = limit_speed(x=x, v=v, h=h, v_max=v_max)
-            counts[0] += capped
-        flags[DIRTY] = 1.0 if capped > 0 else 0.0
-    flags[ERR_STALE] = 1.0
+    if state[3] > 0.0:
+        capped = limit_speed(x=x, v=v, h=h, v_max=state[3])
+        rec.counts[0] += capped
+    rec.flags[DIRTY] = 1.0 if capped > 0 else 0.0
