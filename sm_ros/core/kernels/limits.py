@@ -81,21 +81,35 @@ def limit_turn(x, v, mass, ptr, cl, flagged, w_max, lin, w3, m3a, m3b, m3c, m3d)
     e_k = omega (1 - w_max / |omega|) is removed from each member's velocity as the mean
     over its clusters of e_k x (x_i - c_k).  ``lin`` (K, 13), ``w3`` (K, 6) are scratch.
     """
-    nk = flagged.shape[0]
-    for k in range(nk):
-        for j in range(13):
-            lin[k, j] = 0.0
-        for j in range(6):
-            w3[k, j] = 0.0
+    lin[:, :] = 0.0
+    w3[:, :] = 0.0
+    _turn_centres(x, v, mass, ptr, cl, flagged, lin, w3)
+    _turn_moments(x, v, mass, ptr, cl, flagged, lin, w3)
+    count = 0
+    for k in range(flagged.shape[0]):
+        if flagged[k] and lin[k, 0] > 0.0:
+            count += _turn_excess(k, w_max, lin, w3, m3a, m3b, m3c, m3d)
+    if count > 0:
+        _remove_excess(x, v, ptr, cl, flagged, w3)
+    return count
+
+
+@njit(inline='always', **JIT)
+def _span(i, single, ptr, mass):
+    """Particle i's memberships j0..j1 (one cluster: 0..1) and its weight in each."""
+    if single:
+        return 0, 1, mass[i]
+    j0, j1 = ptr[i], ptr[i + 1]
+    return j0, j1, mass[i] / (j1 - j0)
+
+
+@njit(inline='always', **JIT)
+def _turn_centres(x, v, mass, ptr, cl, flagged, lin, w3):
+    """Each flagged cluster's weight W (``lin[k, 0]``), centre (``w3[k, 3:6]``) and mean
+    velocity (``lin[k, 1:4]``), the particles' own."""
     single = ptr.shape[0] == 0
-    n = x.shape[0]
-    # centres first (the particles' own mean position per cluster), then moments about them
-    for i in range(n):
-        if single:
-            j0, j1, w = 0, 1, mass[i]
-        else:
-            j0, j1 = ptr[i], ptr[i + 1]
-            w = mass[i] / (j1 - j0)
+    for i in range(x.shape[0]):
+        j0, j1, w = _span(i, single, ptr, mass)
         for j in range(j0, j1):
             k = 0 if single else cl[j]
             if not flagged[k]:
@@ -107,18 +121,21 @@ def limit_turn(x, v, mass, ptr, cl, flagged, w_max, lin, w3, m3a, m3b, m3c, m3d)
             lin[k, 1] += w * v[i, 0]
             lin[k, 2] += w * v[i, 1]
             lin[k, 3] += w * v[i, 2]
-    for k in range(nk):
+    for k in range(flagged.shape[0]):
         if flagged[k] and lin[k, 0] > 0.0:
             for j in range(1, 4):
                 lin[k, j] /= lin[k, 0]
             for j in range(3, 6):
                 w3[k, j] /= lin[k, 0]
-    for i in range(n):
-        if single:
-            j0, j1, w = 0, 1, mass[i]
-        else:
-            j0, j1 = ptr[i], ptr[i + 1]
-            w = mass[i] / (j1 - j0)
+
+
+@njit(inline='always', **JIT)
+def _turn_moments(x, v, mass, ptr, cl, flagged, lin, w3):
+    """Each flagged cluster's angular momentum L (``lin[k, 4:7]``) and inertia I
+    (``lin[k, 7:13]``: xx, yy, zz, xy, yz, zx) about its centre."""
+    single = ptr.shape[0] == 0
+    for i in range(x.shape[0]):
+        j0, j1, w = _span(i, single, ptr, mass)
         for j in range(j0, j1):
             k = 0 if single else cl[j]
             if not flagged[k]:
@@ -139,35 +156,36 @@ def limit_turn(x, v, mass, ptr, cl, flagged, w_max, lin, w3, m3a, m3b, m3c, m3d)
             lin[k, 10] -= w * r0 * r1
             lin[k, 11] -= w * r1 * r2
             lin[k, 12] -= w * r2 * r0
-    count = 0
-    for k in range(nk):
-        w3[k, 0] = 0.0
-        w3[k, 1] = 0.0
-        w3[k, 2] = 0.0
-        if not flagged[k] or not lin[k, 0] > 0.0:
-            continue
-        m3a[0, 0] = lin[k, 7]
-        m3a[1, 1] = lin[k, 8]
-        m3a[2, 2] = lin[k, 9]
-        m3a[0, 1] = m3a[1, 0] = lin[k, 10]
-        m3a[1, 2] = m3a[2, 1] = lin[k, 11]
-        m3a[2, 0] = m3a[0, 2] = lin[k, 12]
-        o0, o1, o2 = sym3_solve(mat=m3a, b0=lin[k, 4], b1=lin[k, 5], b2=lin[k, 6],
-                                rcond=1e-12, wout=m3b, wa=m3c, wv=m3d)
-        om = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
-        if om > w_max and finite(om):
-            f = 1.0 - w_max / om
-            w3[k, 0] = f * o0
-            w3[k, 1] = f * o1
-            w3[k, 2] = f * o2
-            count += 1
-    if count == 0:
+
+
+@njit(inline='always', **JIT)
+def _turn_excess(k, w_max, lin, w3, m3a, m3b, m3c, m3d):
+    """Cluster k's omega = I^+ L; its excess over ``w_max`` into ``w3[k, 0:3]``; returns 1
+    if it had one, else 0."""
+    m3a[0, 0] = lin[k, 7]
+    m3a[1, 1] = lin[k, 8]
+    m3a[2, 2] = lin[k, 9]
+    m3a[0, 1] = m3a[1, 0] = lin[k, 10]
+    m3a[1, 2] = m3a[2, 1] = lin[k, 11]
+    m3a[2, 0] = m3a[0, 2] = lin[k, 12]
+    o0, o1, o2 = sym3_solve(mat=m3a, b0=lin[k, 4], b1=lin[k, 5], b2=lin[k, 6],
+                            rcond=1e-12, wout=m3b, wa=m3c, wv=m3d)
+    om = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+    if not (om > w_max and finite(om)):
         return 0
-    for i in range(n):
-        if single:
-            j0, j1 = 0, 1
-        else:
-            j0, j1 = ptr[i], ptr[i + 1]
+    f = 1.0 - w_max / om
+    w3[k, 0] = f * o0
+    w3[k, 1] = f * o1
+    w3[k, 2] = f * o2
+    return 1
+
+
+@njit(inline='always', **JIT)
+def _remove_excess(x, v, ptr, cl, flagged, w3):
+    """Take from each particle the mean over its clusters of e_k x (x_i - c_k)."""
+    single = ptr.shape[0] == 0
+    for i in range(x.shape[0]):
+        j0, j1 = (0, 1) if single else (ptr[i], ptr[i + 1])
         t0 = 0.0
         t1 = 0.0
         t2 = 0.0
@@ -185,4 +203,3 @@ def limit_turn(x, v, mass, ptr, cl, flagged, w_max, lin, w3, m3a, m3b, m3c, m3d)
         v[i, 0] -= t0 * inv
         v[i, 1] -= t1 * inv
         v[i, 2] -= t2 * inv
-    return count
