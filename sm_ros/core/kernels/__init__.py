@@ -11,7 +11,8 @@ file               what it computes                                            e
                    Eq. 13-14, accumulation of the next step's sums              23
 ``sets.py``        the same passes for particles grouped by cluster sets       7-9, 13-14,
                                                                                21, 23
-``sets_sums.py``   the per-set sums, to per-cluster sums; the per-set goal maps  7-9, 23
+``sets_sums.py``   the per-set sums                                            7-9
+``set_maps.py``    per-set sums to per-cluster sums; the per-set goal maps     7-9, 23
 ``fused.py``       the one loop of the fused passes (one cluster, set runs)     13-14
 ``grabs.py``       grabbed and pinned particles; a body's inertia tensor        (grabs)
 ``plasticity.py``  plastic state update and its caps                            24-27
@@ -45,7 +46,8 @@ from .linalg import det3, jacobi3, jacobi3_warm, jacobi_eigh, matmul, norm2, pin
 from .plasticity import _add_null_projector, _cap_plastic, plastic_update
 from .rotation import extract_rotation, quat_to_mat
 from .sets import _fused_refs, sets_integrate_chunks, sets_kinematic
-from .sets_sums import sets_accumulate_chunks, sets_maps, sets_reduce
+from .set_maps import sets_maps, sets_reduce
+from .sets_sums import sets_accumulate_chunks
 from .spread import moved_box, spread_of
 from .unit_det import (STRETCH_LIMIT, _logprod, _logx, _stretch_ok, _unit_det_sum,
                        nearest_unit_det, nearest_unit_det_warm, unit_det_frames, unit_det_match,

@@ -36,7 +36,8 @@ from .integrate import accumulate_chunks, integrate_chunks
 from .jit import JIT, claim_next
 from .limits import limit_speed, limit_turn
 from .sets import _fused_refs, sets_integrate_chunks
-from .sets_sums import sets_accumulate_chunks, sets_maps, sets_reduce
+from .set_maps import sets_maps, sets_reduce
+from .sets_sums import sets_accumulate_chunks
 
 #: The buffers of one body that ``step_bodies_claimed`` steps (``body_build.fast_record``):
 #: the names of ``Body``'s own attributes, the set layout's with ``s_``.
