@@ -200,7 +200,7 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     or a box or sphere moved is summed again (``integrate._rest_sums``), so the sums are of
     the final state and the step
     leaves them valid.  Damped, the loop also takes the run's 12 damping sums and W (a run
-    that was moved: ``damping.damp_sums_uniform``, while it is in cache).  Returns (sum of
+    that was moved: ``fused.damp_sums_uniform``, while it is in cache).  Returns (sum of
     |g - x|^2, capped speeds).  ``gz``: the ground's height, -inf without a ground.
 
     The sums of a set are taken about one point P_s, its shape sums and damping sums alike
