@@ -257,6 +257,22 @@ def _sums_about(x, v, x0, w, k):
     return shape, damp
 
 
+def test_damping_sums_of_one_mass_match_numpy():
+    """``fused.damp_sums_uniform`` (a moved block's damping sums, every particle of one
+    mass) against NumPy on a sub-range of F-ordered state: sum w v, sum w d x v, the six
+    second moments, W; the particles outside the range count for nothing."""
+    from sm_ros.core.kernels.fused import damp_sums_uniform
+    rng = np.random.default_rng(12)
+    n, lo, hi, wuni = 500, 37, 461, 0.7
+    x = np.asfortranarray(rng.uniform(-0.5, 0.5, (n, 3)) + (2.0, -1.0, 0.3))
+    v = np.asfortranarray(rng.normal(scale=2.0, size=(n, 3)))
+    k = np.array([2.1, -0.9, 0.2])
+    got = np.array(damp_sums_uniform(lo, hi, x, v, wuni, k[0], k[1], k[2]))
+    _, want = _sums_about(x[lo:hi], v[lo:hi], np.zeros((hi - lo, 3)), np.full(hi - lo, wuni), k)
+    np.testing.assert_allclose(got[:12], want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+    assert got[12] == pytest.approx(wuni * (hi - lo), rel=1e-15)
+
+
 @pytest.mark.parametrize('damp', [False, True])
 def test_ground_projection_corrects_the_sums_it_changes(damp):
     """``colliders.ground_range_sums`` projects the particles below the ground as

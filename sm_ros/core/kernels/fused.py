@@ -182,20 +182,19 @@ def _fused_loop(start, end, x, v, x0, gmap, damp, field, alpha_h, h, hx, hy, hz,
 
 @njit(inline='always', **JIT)
 def damp_sums_uniform(lo, hi, x, v, wuni, k0, k1, k2):
-    """``damping.damp_sums_range`` for particles that all weigh ``wuni``: summed unweighted
-    and scaled once (12 products a particle, not 18).  Inlined by Numba into the one-loop
-    passes (``packed._pass``, ``sets._sets_fused_lin``) for a block or run the colliders or
-    the speed cap moved after their loop (``fused._fused_loop`` takes the same sums)."""
-    a0 = a1 = a2 = b0 = b1 = b2 = c0 = c1 = c2 = 0.0
+    """The first 13 of ``damping.damp_sums_range``'s sums (sum w v, sum w d x v, the six
+    second moments of d = x - k, W) for particles that all weigh ``wuni``: summed
+    unweighted and scaled once (12 products a particle, not 18).  Inlined by Numba into the
+    one-loop passes (``packed._pass``, ``sets._sets_fused_lin``) for a block or run the
+    colliders or the speed cap moved after their loop (``_fused_loop`` takes the same
+    sums); they take sum w d from their shape sums."""
+    b0 = b1 = b2 = c0 = c1 = c2 = 0.0
     e00 = e11 = e22 = e01 = e12 = e20 = 0.0
     for k in range(U(lo), U(hi)):
         d0 = x[k, 0] - k0
         d1 = x[k, 1] - k1
         d2 = x[k, 2] - k2
         v0, v1, v2 = v[k, 0], v[k, 1], v[k, 2]
-        a0 += d0
-        a1 += d1
-        a2 += d2
         b0 += v0
         b1 += v1
         b2 += v2
@@ -210,4 +209,4 @@ def damp_sums_uniform(lo, hi, x, v, wuni, k0, k1, k2):
         e20 += d2 * d0
     return (wuni * b0, wuni * b1, wuni * b2, wuni * c0, wuni * c1, wuni * c2,
             wuni * e00, wuni * e11, wuni * e22, wuni * e01, wuni * e12, wuni * e20,
-            wuni * (hi - lo), wuni * a0, wuni * a1, wuni * a2)
+            wuni * (hi - lo))

@@ -262,7 +262,7 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
         if moved:
             ss = _rest_sums(i, j, x, y0, mass, r0, r1, r2)
             if damp:
-                dsum = damp_sums_uniform(i, j, x, v, wuni, r0, r1, r2)[:13]
+                dsum = damp_sums_uniform(i, j, x, v, wuni, r0, r1, r2)
         # the set sums' layout: per row of d, [sum w d, sum w d y^T]
         _add_lin_sums(sums, s, ss[0], ss[3], ss[4], ss[5], ss[1], ss[6], ss[7], ss[8], ss[2],
                       ss[9], ss[10], ss[11])
