@@ -41,6 +41,7 @@ from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_pairs, wall_candidates)
 from .kernels.colliders import contact_velocity
 from .params import _finite
+from .stiff_kernels import drop_rigid_pairs
 
 #: Same-body pairs self-collide only when their rest distance exceeds this many times
 #: their contact distance ``r_i + r_j`` (lattice neighbours up to two spacings apart
@@ -243,6 +244,8 @@ class Contact:
         # solve_bodies: which bodies carry their contacts as a whole (set by World),
         # their inverse masses and moves, per-pair and per-particle impulses
         self.coupling = np.zeros(max(nb, 1), dtype=np.bool_)
+        # the bodies whose pairs the stiff pass takes (stiff_colliders.py; set by World)
+        self.rigid = np.zeros(max(nb, 1), dtype=np.bool_)
         self._bw = np.zeros(max(nb, 1))
         self._bw_version = -1                   # flat.w_version that _bw was computed at
         self._dv = np.zeros((max(nb, 1), 7))     # velocity, position changes; held
@@ -274,6 +277,22 @@ class Contact:
     def invalidate(self):
         """Force a rebuild of the pair list at the next step."""
         self.valid = False
+
+    def set_rigid(self, flags):
+        """Mark the bodies whose pairs with one another the stiff pass takes."""
+        self.rigid[:len(flags)] = flags
+
+    def _solved_pairs(self):
+        """(pi, pj, count) of the pairs this pass solves: the list without the pairs of
+        two rigid bodies."""
+        if not self.rigid.any():
+            return self._pi, self._pj, self.npairs
+        if len(self._ti) < len(self._pi):
+            self._ti = np.zeros(len(self._pi), dtype=np.int32)
+            self._tj = np.zeros(len(self._pi), dtype=np.int32)
+        kept = drop_rigid_pairs(self._pi, self._pj, self.npairs, self.flat.B, self.rigid,
+                                self._ti, self._tj)
+        return self._ti, self._tj, kept
 
     def _grid_builder(self):
         """'cells' (the previous builder), or the number of threads of the grid builder."""
@@ -337,6 +356,9 @@ class Contact:
         (``solve_bodies``); otherwise every pair acts per particle (``solve_pairs``).
         """
         f = self.flat
+        import os
+        if os.environ.get('SKIPOLD') and self.rigid[:len(f.bodies)].all():
+            return
         half = 0.5 * self.skin
         p = self.params
         grav = gravity is not None and bool(np.any(gravity != 0.0))
@@ -350,6 +372,9 @@ class Contact:
             spread2 = body_velocities(f.X, f.V, f.M, f.off, self.coupling, self._bw,
                                       self._vb, self._zlo, self._bc, self._bom, self._biv,
                                       self._xref, self.act, self._dbox)
+            # a stiff body rests on the ground with its particles' spheres, as the
+            # collider pass puts it (stiff_colliders.py)
+            self._zlo[0, :len(self.radii)] -= self.radii
         else:
             spread2 = moved_spread2(f.X, self._xref, f.off, self.act)
         # rebuilt once the displacements since the last build no longer fit in a ball of
@@ -361,7 +386,7 @@ class Contact:
         self.deepest[:] = 0.0
         if not carried:
             self._warm = False
-            self.found = solve_pairs(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
+            self.found = solve_pairs(f.X, f.V, f.W, f.R, f.B, *self._solved_pairs(),
                                      p.friction, p.restitution, thresh, float(h), p.iterations,
                                      f.touched, self.count, self.deepest, bool(has_col),
                                      ground, boxes, spheres, self._moved)
@@ -388,7 +413,7 @@ class Contact:
                 ncand = wall_candidates(f.X, f.off, self.coupling, self._bw, boxes,
                                         spheres, self.cell, self._cand, self._cptr,
                                         self.act, self._box, self._dbox)
-        self.found = solve_bodies(f.X, f.V, f.W, f.R, f.B, self._pi, self._pj, self.npairs,
+        self.found = solve_bodies(f.X, f.V, f.W, f.R, f.B, *self._solved_pairs(),
                                   p.friction, p.restitution, thresh, float(h),
                                   max(p.iterations, STACK_SWEEPS), f.touched, self.count,
                                   self.deepest, bool(has_col), ground,

@@ -16,6 +16,7 @@ from .flat import FlatState
 from .kernels.flags import SLEEP
 from .kinematic import Particles
 from .sleep import Sleep
+from .stiff_colliders import StiffPass
 from .world_colliders import WorldColliders
 
 
@@ -43,6 +44,7 @@ class World(WorldColliders):
         self._zeros = np.zeros(0, dtype=np.int32)
         self._one_touch = np.zeros(1, dtype=np.uint8)
         self._coupling_key = None
+        self._stiff = StiffPass()               # stiff bodies' contacts (stiff_colliders)
         self._flat_builds = 0                  # flat states built (keys what was made of one)
         self._flagged = False                  # see state_flagged
         self.time = 0.0
@@ -266,6 +268,7 @@ class World(WorldColliders):
                 cs.imp_time += h
             self.time += h
             return
+        self._stiff_pass(h, thresh)
         _, pack, records, slow, helpers, nrec = self._split_now(h)
         args = (h, self._gravity, self._has_col, self._ground_row, self._box_rows,
                 self._sphere_rows, thresh)
@@ -419,6 +422,21 @@ class World(WorldColliders):
         for k, b in enumerate(self._flat.bodies):
             c[k] = b._params.at_step(h).alpha >= COUPLE_ALPHA
         self._coupling_key = key
+
+    def _stiff_pass(self, h, thresh):
+        """The stiff bodies take their contacts as rigid bodies (``stiff_colliders.py``)
+        before their own step; the contact pass leaves their pairs alone."""
+        import os
+        if os.environ.get('NOSTIFF'):
+            return
+        stiff = [(b, self.contact_radius(name)) for name, b in self._bodies.items()
+                 if len(b._kin_idx) == 0 and b._params.at_step(h).alpha >= COUPLE_ALPHA]
+        c = self._contact
+        if c is not None:
+            rigid = {id(b) for b, _ in stiff}
+            c.set_rigid(np.array([id(b) in rigid for b in self._flat.bodies], dtype=np.bool_))
+        if stiff and any(not b.asleep for b, _ in stiff):
+            self._stiff.run(self, stiff, h, thresh)
 
     def _zero_bid(self, n):
         """Body index 0 for n particles (the per-body path of the collider pass)."""

@@ -1,0 +1,93 @@
+"""Stiff bodies take their contacts as rigid bodies (doc/contact.md).
+
+Before the bodies' own step, every stiff body (alpha at the step at least
+``contact.COUPLE_ALPHA``, no pinned or grabbed particle) takes its contacts with the
+colliders and with the other stiff bodies as one rigid body (``stiff_solve.stiff_step``):
+an impulse at a contact point changes the body's velocity and spin, so contact tips,
+rolls, holds and spins it; restitution acts on the approach speed at the point, and
+overlap is removed without adding speed.  Its particles are spheres of its contact
+radius, so it rests on its outline.  Those contacts are then left out of the
+per-particle contact pass, which softer bodies keep.
+"""
+
+import numpy as np
+from numba.typed import List as TypedList
+
+from .colliders import ColliderSet
+from .kinematic import C_E, C_MU, C_POS, ROW
+from .stiff_solve import StiffBodies, StiffScene, stiff_step
+
+#: Sequential-impulse sweeps over the contacts per step.
+ITERATIONS = 100
+
+
+class StiffPass:
+    """The pass of one world: its static collider rows and its bodies' typed lists."""
+
+    def __init__(self):
+        self._static_key = None
+        self._static = np.zeros((0, ROW))
+        self._lists_key = None
+        self._lists = None
+        self.keys = np.zeros(0, dtype=np.int64)      # the last step's contacts (sorted)
+        self.impulses = np.zeros((0, 3))            # and their impulses
+
+    def step_state(self) -> tuple:
+        """What a step changes and a later step reads (``snapshot``): the last step's
+        contacts and impulses, which warm-start the next."""
+        return ('keys', 'impulses')
+
+    def _rows(self, world):
+        """Row 0 the ground, then the simple boxes and spheres, then the collider set's
+        rows at this step's poses; and how many of them are the set's."""
+        key = (id(world.boxes), id(world.spheres))
+        if key != self._static_key:
+            simple = [c for c in tuple(world.boxes) + tuple(world.spheres) if c.simple]
+            self._static = (ColliderSet(simple).rows.copy() if simple
+                            else np.zeros((0, ROW)))
+            self._static_key = key
+        ground = np.zeros((1, ROW))
+        if world.ground is not None:
+            g = world._ground_row
+            ground[0, C_POS + 2], ground[0, C_MU], ground[0, C_E] = g[1], g[2], g[3]
+        cset = world._cset
+        moving = cset.rows if cset is not None else np.zeros((0, ROW))
+        return np.concatenate([ground, self._static, moving]), len(moving)
+
+    def _bodies(self, world, bodies):
+        """``StiffBodies`` of (body, radius) pairs; the typed lists are kept while the
+        bodies keep their arrays."""
+        key = tuple((id(b._x), id(b._v), id(b._m)) for b, _ in bodies)
+        if key != self._lists_key:
+            lists = TypedList(), TypedList(), TypedList()
+            for b, _ in bodies:
+                lists[0].append(b._x)
+                lists[1].append(b._v)
+                lists[2].append(b._m)
+            self._lists, self._lists_key = lists, key
+        radius = np.array([r for _, r in bodies])
+        awake = np.array([not b.asleep for b, _ in bodies], dtype=np.bool_)
+        on = world._contact_params.enabled
+        collide = np.array([on and world._contacts[b.name][0].collide for b, _ in bodies],
+                           dtype=np.bool_)
+        return StiffBodies(*self._lists, radius, awake, collide)
+
+    def run(self, world, bodies, h, thresh):
+        """The pass over ``bodies`` ((body, contact radius) pairs) before a step of ``h``
+        s; returns the number of contacts."""
+        rows, n_moving = self._rows(world)
+        p = world._contact_params
+        scene = StiffScene(rows, world.ground is not None, float(p.friction),
+                           float(p.restitution), world._gravity, float(h), float(thresh),
+                           ITERATIONS)
+        tally = np.zeros((len(rows) - 1, 6))
+        touched = np.zeros(len(bodies), dtype=np.int64)
+        self.keys, self.impulses = stiff_step(self._bodies(world, bodies), scene,
+                                              (self.keys, self.impulses), tally, touched)
+        total = len(self.keys)
+        for k in np.flatnonzero(touched):
+            bodies[k][0]._dirty = True
+        cset = world._cset
+        if cset is not None and total:
+            cset.imp[:] += tally[len(tally) - n_moving:]
+        return total

@@ -1,0 +1,400 @@
+"""Contact points of the stiff bodies (``stiff_colliders.py``): each body's rigid frame
+and the few points at which it touches a collider or another stiff body.
+
+A body's mass, centre, velocity, spin and inertia come from its particles
+(``body_frame``).  Its particles are spheres of its contact radius.  Against a collider,
+each particle's gap is the distance between its sphere and the collider's surface; against
+another body, the pair's particles closer than their radii (plus the step's reach) give one
+normal for the pair, and each particle pair's gap along it, so two flat faces meet as flat
+faces.  Of the particles in reach, a few are kept per collider or body pair: the deepest
+and the farthest along 8 directions of the contact plane, so a face keeps its outline
+(``SLOTS``).  A contact is a row of ``K_*`` columns (``stiff_solve.py`` solves them).
+"""
+
+import numpy as np
+from numba import njit
+
+from .kernels.jit import JIT
+from .kinematic import C_ANG, C_BOUND, C_DIM, C_E, C_KIND, C_MU, C_POS, C_ROT, C_VEL
+
+#: Contact points kept per collider or body pair: the deepest and the farthest along 8
+#: directions of the contact plane.
+SLOTS = 9
+#: Columns of a contact row: bodies a and b (b -1: a collider, ``K_COLL`` its row in the
+#: collider rows, -1 the ground, -2 a body pair), the gap (m, < 0: overlap), the normal
+#: pointing from b towards a, the contact point relative to a's and b's centres, the
+#: collider's surface velocity there, friction, the restitution (then the target normal
+#: speed), and its slot (``SLOTS``: which of the pair's or collider's points it is).
+K_A, K_B, K_COLL, K_GAP, K_N, K_RA, K_RB, K_SURF, K_MU, K_TARGET, K_WHO = (
+    0, 1, 2, 3, 4, 7, 10, 13, 16, 17, 18)
+K_ROW = 19
+#: Particle pairs of two bodies count towards their contact up to this many times the sum
+#: of their radii apart (plus the step's reach): two lattices' faces offset by half a
+#: spacing have their nearest particles 1.12 times it apart.
+PAIR_REACH = 1.25
+#: Columns of a body's frame: mass, inverse mass, centre (3), velocity (3), spin (3),
+#: reach (the largest distance of a particle from the centre), bounds lo (3), hi (3).
+F_MASS, F_INV, F_COM, F_VEL, F_SPIN, F_REACH, F_LO, F_HI = 0, 1, 2, 5, 8, 11, 12, 15
+F_ROW = 18
+
+
+@njit(**JIT)
+def body_frame(x, v, m, frame, inv_inertia):
+    """Fill ``frame`` (``F_*`` columns) and ``inv_inertia`` (3, 3) of a body: the rigid
+    motion that keeps its particles' momentum and angular momentum, and their bounds."""
+    n = x.shape[0]
+    mass = 0.0
+    com = np.zeros(3)
+    vel = np.zeros(3)
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for i in range(n):
+        mass += m[i]
+        for k in range(3):
+            com[k] += m[i] * x[i, k]
+            vel[k] += m[i] * v[i, k]
+            lo[k] = min(lo[k], x[i, k])
+            hi[k] = max(hi[k], x[i, k])
+    com /= mass
+    vel /= mass
+    inertia = np.zeros((3, 3))
+    ang = np.zeros(3)
+    reach = 0.0
+    for i in range(n):
+        rx, ry, rz = x[i, 0] - com[0], x[i, 1] - com[1], x[i, 2] - com[2]
+        ux, uy, uz = v[i, 0] - vel[0], v[i, 1] - vel[1], v[i, 2] - vel[2]
+        r2 = rx * rx + ry * ry + rz * rz
+        reach = max(reach, r2)
+        mi = m[i]
+        inertia[0, 0] += mi * (r2 - rx * rx)
+        inertia[1, 1] += mi * (r2 - ry * ry)
+        inertia[2, 2] += mi * (r2 - rz * rz)
+        inertia[0, 1] -= mi * rx * ry
+        inertia[0, 2] -= mi * rx * rz
+        inertia[1, 2] -= mi * ry * rz
+        ang[0] += mi * (ry * uz - rz * uy)
+        ang[1] += mi * (rz * ux - rx * uz)
+        ang[2] += mi * (rx * uy - ry * ux)
+    inertia[1, 0] = inertia[0, 1]
+    inertia[2, 0] = inertia[0, 2]
+    inertia[2, 1] = inertia[1, 2]
+    inv_inertia[:, :] = inverse3(inertia)
+    frame[F_MASS], frame[F_INV] = mass, 1.0 / mass
+    frame[F_COM:F_COM + 3] = com
+    frame[F_VEL:F_VEL + 3] = vel
+    frame[F_SPIN:F_SPIN + 3] = inv_inertia @ ang
+    frame[F_REACH] = np.sqrt(reach)
+    frame[F_LO:F_LO + 3] = lo
+    frame[F_HI:F_HI + 3] = hi
+
+
+@njit(**JIT)
+def inverse3(a):
+    """Inverse of a symmetric 3x3 matrix (zeros where it is singular: a body of one
+    particle or a line of them does not turn)."""
+    c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    c01 = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    c02 = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    det = a[0, 0] * c00 + a[0, 1] * c01 + a[0, 2] * c02
+    out = np.zeros((3, 3))
+    scale = a[0, 0] + a[1, 1] + a[2, 2]
+    if not abs(det) > 1e-12 * scale * scale * scale:
+        return out
+    out[0, 0] = c00 / det
+    out[1, 0] = c01 / det
+    out[2, 0] = c02 / det
+    out[0, 1] = (a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]) / det
+    out[1, 1] = (a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]) / det
+    out[2, 1] = (a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]) / det
+    out[0, 2] = (a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]) / det
+    out[1, 2] = (a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]) / det
+    out[2, 2] = (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]) / det
+    return out
+
+
+@njit(**JIT)
+def surface_gap(row, px, py, pz, radius):
+    """(gap, nx, ny, nz) of a sphere of ``radius`` at p against a collider row
+    (``kinematic`` columns): the distance between the two surfaces (< 0: overlap) and the
+    collider's outward normal there."""
+    kind = row[C_KIND]
+    cx, cy, cz = px - row[C_POS], py - row[C_POS + 1], pz - row[C_POS + 2]
+    if kind == 0.0:
+        d = np.sqrt(cx * cx + cy * cy + cz * cz)
+        if d > 0.0:
+            return d - row[C_DIM] - radius, cx / d, cy / d, cz / d
+        return -row[C_DIM] - radius, 0.0, 0.0, 1.0
+    r00, r01, r02 = row[C_ROT], row[C_ROT + 1], row[C_ROT + 2]
+    r10, r11, r12 = row[C_ROT + 3], row[C_ROT + 4], row[C_ROT + 5]
+    r20, r21, r22 = row[C_ROT + 6], row[C_ROT + 7], row[C_ROT + 8]
+    q0 = r00 * cx + r10 * cy + r20 * cz
+    q1 = r01 * cx + r11 * cy + r21 * cz
+    q2 = r02 * cx + r12 * cy + r22 * cz
+    if kind == 1.0:
+        h0, h1, h2 = row[C_DIM], row[C_DIM + 1], row[C_DIM + 2]
+        e0 = q0 - min(max(q0, -h0), h0)
+        e1 = q1 - min(max(q1, -h1), h1)
+        e2 = q2 - min(max(q2, -h2), h2)
+        d = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+        if d > 0.0:                     # outside: towards the nearest surface point
+            return (d - radius, (r00 * e0 + r01 * e1 + r02 * e2) / d,
+                    (r10 * e0 + r11 * e1 + r12 * e2) / d, (r20 * e0 + r21 * e1 + r22 * e2) / d)
+        d0, d1, d2 = h0 - abs(q0), h1 - abs(q1), h2 - abs(q2)
+        if d0 <= d1 and d0 <= d2:       # inside: out through the nearest face
+            s = 1.0 if q0 >= 0.0 else -1.0
+            return -d0 - radius, s * r00, s * r10, s * r20
+        if d1 <= d2:
+            s = 1.0 if q1 >= 0.0 else -1.0
+            return -d1 - radius, s * r01, s * r11, s * r21
+        s = 1.0 if q2 >= 0.0 else -1.0
+        return -d2 - radius, s * r02, s * r12, s * r22
+    hl = row[C_DIM + 1]                 # capsule: the segment [-hl, hl] along local z
+    z = min(max(q2, -hl), hl)
+    ex, ey, ez = cx - r02 * z, cy - r12 * z, cz - r22 * z
+    d = np.sqrt(ex * ex + ey * ey + ez * ez)
+    if d > 0.0:
+        return d - row[C_DIM] - radius, ex / d, ey / d, ez / d
+    return -row[C_DIM] - radius, r00, r10, r20
+
+
+@njit(**JIT)
+def _tangents(nx, ny, nz):
+    """Two unit vectors spanning the plane normal to n."""
+    if abs(nx) < 0.6:
+        ax, ay, az = 0.0, nz, -ny          # n x (1, 0, 0)
+    else:
+        ax, ay, az = -nz, 0.0, nx          # n x (0, 1, 0)
+    s = np.sqrt(ax * ax + ay * ay + az * az)
+    ax, ay, az = ax / s, ay / s, az / s
+    return ax, ay, az, ny * az - nz * ay, nz * ax - nx * az, nx * ay - ny * ax
+
+
+
+
+@njit(**JIT)
+def _collider_gap(rows, c, px, py, pz, radius):
+    """``surface_gap`` against collider row c of ``rows``; c -1 is the ground, whose
+    height is row 0's z."""
+    if c < 0:
+        return pz - rows[0, C_POS + 2] - radius, 0.0, 0.0, 1.0
+    return surface_gap(rows[c + 1], px, py, pz, radius)
+
+
+@njit(**JIT)
+def _slot(slots, best, gap, p, frame, tol, tangents, who):
+    """Offer point p to the slots: the deepest (slot 0) and the farthest along the 8
+    directions of the plane spanned by ``tangents`` (t1 then t2).  Of points within ``tol``
+    of the farthest, the one farthest from the body's centre (a face's corner), of those
+    within ``tol`` of the deepest, the nearest (a face's middle), not whichever rounding
+    favours: the points stay from step to step."""
+    dx, dy, dz = p[0] - frame[F_COM], p[1] - frame[F_COM + 1], p[2] - frame[F_COM + 2]
+    a = tangents[0] * dx + tangents[1] * dy + tangents[2] * dz
+    b = tangents[3] * dx + tangents[4] * dy + tangents[5] * dz
+    spread = dx * dx + dy * dy + dz * dz
+    if gap < best[0, 0] - tol or (gap < best[0, 0] + tol and spread < best[0, 1]):
+        best[0, 0], best[0, 1], slots[0] = min(gap, best[0, 0]), spread, who
+    for k in range(8):
+        s = (a, -a, b, -b, a + b, -a - b, a - b, b - a)[k]
+        if s > best[k + 1, 0] + tol or (s > best[k + 1, 0] - tol and spread > best[k + 1, 1]):
+            best[k + 1, 0], best[k + 1, 1], slots[k + 1] = max(s, best[k + 1, 0]), spread, who
+
+
+@njit(**JIT)
+def _fresh(slots, best):
+    slots[:] = -1
+    best[:, 0] = -np.inf
+    best[:, 1] = -1.0
+    best[0, 0], best[0, 1] = np.inf, np.inf
+
+
+@njit(**JIT)
+def _distinct(slots, k):
+    """Whether slot k holds a point no earlier slot holds."""
+    if slots[k] < 0:
+        return False
+    for j in range(k):
+        if slots[j] == slots[k]:
+            return False
+    return True
+
+
+@njit(**JIT)
+def collider_contacts(x, a, radius, frame, margin, rows, ground_on, out, count):
+    """Append to ``out`` (from ``count``) body a's contacts with the ground (when
+    ``ground_on``) and the collider rows 1.. of ``rows`` whose bounding spheres come within
+    ``margin`` of its own; returns the new count."""
+    slots = np.empty(SLOTS, dtype=np.int64)
+    best = np.empty((SLOTS, 2))
+    tangents = np.empty(6)
+    com = frame[F_COM:F_COM + 3]
+    reach = frame[F_REACH]
+    for c in range(-1 if ground_on else 0, rows.shape[0] - 1):
+        if c < 0:
+            if frame[F_LO + 2] - radius - rows[0, C_POS + 2] > margin:
+                continue
+            nx, ny, nz = 0.0, 0.0, 1.0
+        else:
+            row = rows[c + 1]
+            dx, dy, dz = com[0] - row[C_POS], com[1] - row[C_POS + 1], com[2] - row[C_POS + 2]
+            if np.sqrt(dx * dx + dy * dy + dz * dz) > row[C_BOUND] + reach + radius + margin:
+                continue
+            _, nx, ny, nz = surface_gap(row, com[0], com[1], com[2], 0.0)
+        tangents[:] = _tangents(nx, ny, nz)
+        _fresh(slots, best)
+        for i in range(x.shape[0]):
+            gap, _, _, _ = _collider_gap(rows, c, x[i, 0], x[i, 1], x[i, 2], radius)
+            if gap < margin:
+                _slot(slots, best, gap, x[i], frame, 0.25 * radius, tangents, i)
+        for k in range(SLOTS):
+            if _distinct(slots, k):
+                _collider_row(x, slots[k], a, c, radius, com, rows, out[count])
+                out[count, K_WHO] = k
+                count += 1
+    return count
+
+
+@njit(**JIT)
+def _collider_row(x, i, a, c, radius, com, rows, row):
+    """Fill a contact row for particle i of body a against collider c (-1: the ground)."""
+    gap, nx, ny, nz = _collider_gap(rows, c, x[i, 0], x[i, 1], x[i, 2], radius)
+    px, py, pz = x[i, 0] - radius * nx, x[i, 1] - radius * ny, x[i, 2] - radius * nz
+    row[:] = 0.0
+    row[K_A], row[K_B], row[K_COLL], row[K_GAP] = a, -1, c, gap
+    row[K_N], row[K_N + 1], row[K_N + 2] = nx, ny, nz
+    row[K_RA], row[K_RA + 1], row[K_RA + 2] = px - com[0], py - com[1], pz - com[2]
+    coll = rows[c + 1]
+    if c >= 0:                           # the collider's surface velocity at the point
+        ox, oy, oz = px - coll[C_POS], py - coll[C_POS + 1], pz - coll[C_POS + 2]
+        wx, wy, wz = coll[C_ANG], coll[C_ANG + 1], coll[C_ANG + 2]
+        row[K_SURF] = coll[C_VEL] + wy * oz - wz * oy
+        row[K_SURF + 1] = coll[C_VEL + 1] + wz * ox - wx * oz
+        row[K_SURF + 2] = coll[C_VEL + 2] + wx * oy - wy * ox
+    row[K_MU], row[K_TARGET] = coll[C_MU], coll[C_E]
+
+
+@njit(**JIT)
+def _near(x, lo, hi, grow, out):
+    """Indices of the particles of x inside the box lo..hi grown by ``grow``; the count."""
+    count = 0
+    for i in range(x.shape[0]):
+        if (x[i, 0] > lo[0] - grow and x[i, 0] < hi[0] + grow and x[i, 1] > lo[1] - grow
+                and x[i, 1] < hi[1] + grow and x[i, 2] > lo[2] - grow
+                and x[i, 2] < hi[2] + grow):
+            out[count] = i
+            count += 1
+    return count
+
+
+@njit(**JIT)
+def pair_contacts(xa, xb, a, b, ra, rb, fa, fb, margin, mu, e, out, count):
+    """Append to ``out`` (from ``count``) the contacts of stiff bodies a and b (frames
+    ``fa``, ``fb``); returns the new count.  The pair's normal is the mean direction from
+    b's particles to a's (``_pair_normal``)."""
+    reach = PAIR_REACH * (ra + rb) + margin
+    near_a = np.empty(xa.shape[0], dtype=np.int64)
+    near_b = np.empty(xb.shape[0], dtype=np.int64)
+    na = _near(xa, fb[F_LO:F_LO + 3], fb[F_HI:F_HI + 3], reach, near_a)
+    nb = _near(xb, fa[F_LO:F_LO + 3], fa[F_HI:F_HI + 3], reach, near_b)
+    if na == 0 or nb == 0:
+        return count
+    n = _pair_normal(xa, xb, near_a[:na], near_b[:nb], reach)
+    if not np.any(n != 0.0):
+        return count
+    tangents = np.empty(6)
+    tangents[:] = _tangents(n[0], n[1], n[2])
+    slots = np.empty(SLOTS, dtype=np.int64)
+    best = np.empty((SLOTS, 2))
+    mid = np.empty(3)
+    _fresh(slots, best)
+    for p in range(na):
+        i = near_a[p]
+        for q in range(nb):
+            j = near_b[q]
+            dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
+            if dx * dx + dy * dy + dz * dz >= reach * reach:
+                continue
+            gap = dx * n[0] + dy * n[1] + dz * n[2] - ra - rb
+            if gap < margin:
+                for k in range(3):
+                    mid[k] = 0.5 * (xa[i, k] + xb[j, k])
+                _slot(slots, best, gap, mid, fa, 0.25 * ra, tangents, i * xb.shape[0] + j)
+    for k in range(SLOTS):
+        if _distinct(slots, k):
+            i, j = slots[k] // xb.shape[0], slots[k] % xb.shape[0]
+            _pair_row(xa, xb, i, j, a, b, ra, rb, fa, fb, n, mu, e, out[count])
+            out[count, K_WHO] = k
+            count += 1
+    return count
+
+
+@njit(**JIT)
+def _pair_normal(xa, xb, near_a, near_b, reach):
+    """The normal of a body pair's contact, from b towards a (zeros: none in reach).
+
+    The midpoints of the particle pairs in reach, weighted by how far in, lie in one plane
+    when two flat faces touch: its normal is the contact's, whatever the faces' offset
+    (the pairs' own directions would tilt with it and push the faces further apart
+    sideways).  Points along a line (an edge) or at one spot leave the mean direction of
+    the pairs, less its part along the line."""
+    weight, mean, second, pull = 0.0, np.zeros(3), np.zeros((3, 3)), np.zeros(3)
+    mid = np.zeros(3)
+    for i in near_a:
+        for j in near_b:
+            for k in range(3):
+                mid[k] = xa[i, k] - xb[j, k]
+            d = np.sqrt(mid[0] ** 2 + mid[1] ** 2 + mid[2] ** 2)
+            if not (d < reach and d > 0.0):
+                continue
+            w = reach - d
+            pull += (w / d) * mid
+            for k in range(3):
+                mid[k] = 0.5 * (xa[i, k] + xb[j, k])
+            weight += w
+            mean += w * mid
+            second += w * np.outer(mid, mid)
+    size = np.sqrt(pull[0] ** 2 + pull[1] ** 2 + pull[2] ** 2)
+    if not size > 0.0:
+        return np.zeros(3)
+    pull /= size
+    mean /= weight
+    spread, axes = np.linalg.eigh(second / weight - np.outer(mean, mean))
+    if spread[0] < 0.05 * spread[1]:            # a plane: its normal, towards a
+        n = axes[:, 0].copy()
+        return n if n @ pull >= 0.0 else -n
+    if spread[1] < 0.05 * spread[2]:            # a line: the pull across it
+        line = axes[:, 2]
+        n = pull - (pull @ line) * line
+        size = np.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
+        return n / size if size > 0.0 else pull
+    return pull
+
+
+@njit(**JIT)
+def _pair_row(xa, xb, i, j, a, b, ra, rb, fa, fb, n, mu, e, row):
+    """Fill a contact row for particle i of body a against particle j of body b."""
+    row[:] = 0.0
+    row[K_A], row[K_B], row[K_COLL] = a, b, -2
+    row[K_GAP] = ((xa[i, 0] - xb[j, 0]) * n[0] + (xa[i, 1] - xb[j, 1]) * n[1]
+                  + (xa[i, 2] - xb[j, 2]) * n[2] - ra - rb)
+    for k in range(3):
+        p = 0.5 * (xa[i, k] + xb[j, k]) + 0.5 * (rb - ra) * n[k]
+        row[K_N + k] = n[k]
+        row[K_RA + k] = p - fa[F_COM + k]
+        row[K_RB + k] = p - fb[F_COM + k]
+    row[K_MU], row[K_TARGET] = mu, e
+
+
+@njit(**JIT)
+def drop_rigid_pairs(pi, pj, count, body, rigid, out_i, out_j):
+    """The particle pairs of ``pi``, ``pj`` (first ``count``) but those between two
+    bodies flagged ``rigid`` (their contact is the stiff pass's), into ``out_i``,
+    ``out_j``; returns how many."""
+    kept = 0
+    for k in range(count):
+        i, j = pi[k], pj[k]
+        bi, bj = body[i], body[j]
+        if rigid[bi] and rigid[bj] and bi != bj:
+            continue
+        out_i[kept], out_j[kept] = i, j
+        kept += 1
+    return kept

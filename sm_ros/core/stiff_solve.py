@@ -1,0 +1,406 @@
+"""Sequential impulses on the stiff bodies' contacts (``stiff_colliders.py``).
+
+Every stiff body is one rigid motion here (its frame, ``stiff_kernels.body_frame``); a
+contact's impulse changes the velocity and spin of the one or two bodies it touches.
+Impulses are accumulated over symmetric sweeps and clamped (Box2D, Bullet): the normal
+one never pulls, friction stays within mu times it (Coulomb), so static friction holds and
+kinetic friction is mu N.  A contact's target normal speed is restitution times its
+approach speed at the point, taken before the step's gravity, where the gap closes within
+the step (else whatever closes the gap): no contact gives back more speed than came in.
+Overlap is removed by a second, position-only solve (split impulse), which moves the
+bodies without giving them speed.  ``stiff_step`` runs the whole pass before the step.
+"""
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from .kernels.jit import JIT
+from .kinematic import C_ANG, C_BOUND, C_VEL
+from .stiff_kernels import (F_COM, F_HI, F_INV, F_LO, F_MASS, F_REACH, F_ROW, F_SPIN,
+                            F_VEL, K_A, K_B, K_COLL, K_GAP, K_MU, K_N, K_RA, K_RB, K_ROW,
+                            K_SURF, K_TARGET, K_WHO, SLOTS, _tangents, body_frame,
+                            collider_contacts, pair_contacts)
+
+#: Overlap left uncorrected (m) and the share of the rest the position solve removes in a
+#: step.
+SLOP = 1e-4
+BAUMGARTE = 0.5
+#: Sweeps stop once none changes a contact's speed by more than this share of the
+#: restitution threshold speed (2 |g| h).
+TOLERANCE = 0.001
+#: Share of a contact's last impulses it starts the step with (warm start).
+WARM = 0.9
+
+
+class StiffBodies(NamedTuple):
+    """The bodies of the pass: typed lists of their (N, 3) positions and velocities and
+    (N,) masses, their contact radii, whether each is awake (asleep: an obstacle of
+    infinite mass) and whether it collides with other bodies."""
+
+    x: object
+    v: object
+    m: object
+    radius: np.ndarray
+    awake: np.ndarray
+    collide: np.ndarray
+
+
+class StiffScene(NamedTuple):
+    """What the bodies meet: ``rows`` (row 0 the ground, rows 1.. the colliders in
+    ``kinematic`` columns), whether the ground is on, the body-body friction and
+    restitution, gravity, the step, the restitution threshold speed and the sweeps."""
+
+    rows: np.ndarray
+    ground_on: bool
+    pair_mu: float
+    pair_e: float
+    gravity: np.ndarray
+    h: float
+    thresh: float
+    iters: int
+
+
+@njit(**JIT)
+def _speed(frame):
+    """A bound on the speed of a body's particles (rigid part)."""
+    v = frame[F_VEL:F_VEL + 3]
+    w = frame[F_SPIN:F_SPIN + 3]
+    return np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2) + np.sqrt(
+        w[0] ** 2 + w[1] ** 2 + w[2] ** 2) * frame[F_REACH]
+
+
+@njit(**JIT)
+def _rows_speed(rows):
+    """The fastest surface speed of the collider rows 1.. (bounding sphere)."""
+    fastest = 0.0
+    for c in range(1, rows.shape[0]):
+        row = rows[c]
+        lin = np.sqrt(row[C_VEL] ** 2 + row[C_VEL + 1] ** 2 + row[C_VEL + 2] ** 2)
+        ang = np.sqrt(row[C_ANG] ** 2 + row[C_ANG + 1] ** 2 + row[C_ANG + 2] ** 2)
+        fastest = max(fastest, lin + ang * row[C_BOUND])
+    return fastest
+
+
+@njit(**JIT)
+def _pairs(frames, bodies, slack):
+    """Body pairs (a, b), a < b, at least one awake, whose bounds grown by their radii
+    and ``slack`` overlap: (count, 2) array."""
+    nb = frames.shape[0]
+    out = np.empty((16, 2), dtype=np.int64)
+    count = 0
+    for a in range(nb):
+        for b in range(a + 1, nb):
+            if not ((bodies.awake[a] or bodies.awake[b]) and bodies.collide[a]
+                    and bodies.collide[b]):
+                continue
+            grow = bodies.radius[a] + bodies.radius[b] + slack
+            apart = False
+            for k in range(3):
+                apart = apart or (frames[a, F_LO + k] > frames[b, F_HI + k] + grow
+                                  or frames[b, F_LO + k] > frames[a, F_HI + k] + grow)
+            if apart:
+                continue
+            if count == out.shape[0]:
+                grown = np.empty((2 * count, 2), dtype=np.int64)
+                grown[:count] = out
+                out = grown
+            out[count, 0], out[count, 1] = a, b
+            count += 1
+    return out[:count]
+
+
+@njit(**JIT)
+def _contacts(frames, bodies, scene):
+    """Every contact of the pass: each awake body's with the colliders, then each near
+    body pair's (``stiff_kernels``)."""
+    h, nb = scene.h, frames.shape[0]
+    g = np.sqrt(scene.gravity[0] ** 2 + scene.gravity[1] ** 2 + scene.gravity[2] ** 2)
+    fastest = 0.0
+    for b in range(nb):
+        fastest = max(fastest, _speed(frames[b]))
+    pairs = _pairs(frames, bodies, 2.0 * h * (fastest + g * h) + SLOP)
+    ncoll = scene.rows.shape[0]
+    out = np.empty((SLOTS * (nb * ncoll + len(pairs)), K_ROW))
+    count = 0
+    row_speed = _rows_speed(scene.rows)
+    for b in range(nb):
+        if bodies.awake[b]:
+            margin = h * (_speed(frames[b]) + g * h + row_speed) + SLOP
+            count = collider_contacts(bodies.x[b], b, bodies.radius[b], frames[b], margin,
+                                      scene.rows, scene.ground_on, out, count)
+    for p in range(len(pairs)):
+        a, b = pairs[p, 0], pairs[p, 1]
+        margin = h * (_speed(frames[a]) + _speed(frames[b]) + g * h) + SLOP
+        count = pair_contacts(bodies.x[a], bodies.x[b], a, b, bodies.radius[a],
+                              bodies.radius[b], frames[a], frames[b], margin, scene.pair_mu,
+                              scene.pair_e, out, count)
+    return out[:count]
+
+
+@njit(**JIT)
+def _velocity_at(frames, b, r, surf):
+    """The velocity of body b (or, for b < 0, ``surf``) at lever arm r."""
+    if b < 0:
+        return surf[0], surf[1], surf[2]
+    v = frames[b, F_VEL:F_VEL + 3]
+    w = frames[b, F_SPIN:F_SPIN + 3]
+    return (v[0] + w[1] * r[2] - w[2] * r[1], v[1] + w[2] * r[0] - w[0] * r[2],
+            v[2] + w[0] * r[1] - w[1] * r[0])
+
+
+@njit(**JIT)
+def _relative(frames, row, dx, dy, dz):
+    """The velocity of a's point relative to b's (or the collider's) along d."""
+    ax, ay, az = _velocity_at(frames, int(row[K_A]), row[K_RA:K_RA + 3], row[K_SURF:K_SURF + 3])
+    bx, by, bz = _velocity_at(frames, int(row[K_B]), row[K_RB:K_RB + 3],
+                              row[K_SURF:K_SURF + 3])
+    return (ax - bx) * dx + (ay - by) * dy + (az - bz) * dz
+
+
+@njit(**JIT)
+def _inv_eff(frames, inv_inertia, b, r, dx, dy, dz):
+    """Body b's share of a contact's inverse effective mass along d at lever arm r."""
+    if b < 0:
+        return 0.0
+    cx, cy, cz = r[1] * dz - r[2] * dy, r[2] * dx - r[0] * dz, r[0] * dy - r[1] * dx
+    k = frames[b, F_INV]
+    c = (cx, cy, cz)
+    for i in range(3):
+        for j in range(3):
+            k += c[i] * inv_inertia[b, i, j] * c[j]
+    return k
+
+
+@njit(**JIT)
+def _push(frames, inv_inertia, b, r, px, py, pz):
+    """Add the impulse p at lever arm r to body b's motion (nothing for b < 0)."""
+    if b < 0:
+        return
+    w = frames[b, F_INV]
+    frames[b, F_VEL] += w * px
+    frames[b, F_VEL + 1] += w * py
+    frames[b, F_VEL + 2] += w * pz
+    tx, ty, tz = r[1] * pz - r[2] * py, r[2] * px - r[0] * pz, r[0] * py - r[1] * px
+    for k in range(3):
+        frames[b, F_SPIN + k] += (inv_inertia[b, k, 0] * tx + inv_inertia[b, k, 1] * ty
+                                  + inv_inertia[b, k, 2] * tz)
+
+
+@njit(**JIT)
+def _impulse(frames, inv_inertia, row, lam, dx, dy, dz):
+    """Impulse ``lam`` along d: + on a, - on b."""
+    _push(frames, inv_inertia, int(row[K_A]), row[K_RA:K_RA + 3], lam * dx, lam * dy, lam * dz)
+    _push(frames, inv_inertia, int(row[K_B]), row[K_RB:K_RB + 3], -lam * dx, -lam * dy,
+          -lam * dz)
+
+
+@njit(**JIT)
+def _inv_mass_along(frames, inv_inertia, row, dx, dy, dz):
+    """The speed change along d per unit impulse along d at a contact."""
+    return (_inv_eff(frames, inv_inertia, int(row[K_A]), row[K_RA:K_RA + 3], dx, dy, dz)
+            + _inv_eff(frames, inv_inertia, int(row[K_B]), row[K_RB:K_RB + 3], dx, dy, dz))
+
+
+@njit(**JIT)
+def _mass_along(frames, inv_inertia, row, dx, dy, dz):
+    """A contact's effective mass along d (0 between two immovable sides)."""
+    k = _inv_mass_along(frames, inv_inertia, row, dx, dy, dz)
+    return 1.0 / k if k > 0.0 else 0.0
+
+
+@njit(**JIT)
+def contact_keys(rows, nb, ncoll):
+    """One integer per contact naming it from step to step: its bodies or collider, and
+    its particles."""
+    keys = np.empty(rows.shape[0], dtype=np.int64)
+    groups = nb + ncoll + 2
+    for k in range(rows.shape[0]):
+        row = rows[k]
+        other = int(row[K_COLL]) + 2 if row[K_B] < 0 else ncoll + 2 + int(row[K_B])
+        keys[k] = ((int(row[K_A]) * groups + other) << 40) + int(row[K_WHO])
+    return keys
+
+
+@njit(**JIT)
+def warm_start(frames, inv_inertia, rows, keys, old_keys, old_acc):
+    """Start each contact from ``WARM`` times its impulses of the last step (``old_keys``
+    sorted, ``old_acc`` in their order), applied to the bodies; returns the impulses."""
+    acc = np.zeros((rows.shape[0], 3))
+    if len(old_keys) == 0:
+        return acc
+    for k in range(rows.shape[0]):
+        at = np.searchsorted(old_keys, keys[k])
+        if at >= len(old_keys) or old_keys[at] != keys[k]:
+            continue
+        row = rows[k]
+        acc[k] = WARM * old_acc[at]
+        nx, ny, nz = row[K_N], row[K_N + 1], row[K_N + 2]
+        t1x, t1y, t1z, t2x, t2y, t2z = _tangents(nx, ny, nz)
+        a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]
+        _impulse(frames, inv_inertia, row, 1.0, a0 * nx + a1 * t1x + a2 * t2x,
+                 a0 * ny + a1 * t1y + a2 * t2y, a0 * nz + a1 * t1z + a2 * t2z)
+    return acc
+
+
+@njit(**JIT)
+def set_targets(frames, rows, h, thresh):
+    """Each contact's target normal speed (``K_TARGET``, which held its restitution e)."""
+    for k in range(rows.shape[0]):
+        row = rows[k]
+        vn = _relative(frames, row, row[K_N], row[K_N + 1], row[K_N + 2])
+        bounce = row[K_TARGET] * -vn if (-vn > thresh and row[K_GAP] < -vn * h) else 0.0
+        row[K_TARGET] = max(bounce, -max(row[K_GAP], 0.0) / h)
+
+
+@njit(**JIT)
+def _visit(frames, inv_inertia, row, acc):
+    """One visit of a contact: its normal impulse, then its friction within mu times the
+    normal impulse so far."""
+    nx, ny, nz = row[K_N], row[K_N + 1], row[K_N + 2]
+    lam = _mass_along(frames, inv_inertia, row, nx, ny, nz) * (
+        row[K_TARGET] - _relative(frames, row, nx, ny, nz))
+    mass_n = _mass_along(frames, inv_inertia, row, nx, ny, nz)
+    lam = max(acc[0] + lam, 0.0) - acc[0]
+    acc[0] += lam
+    _impulse(frames, inv_inertia, row, lam, nx, ny, nz)
+    t1x, t1y, t1z, t2x, t2y, t2z = _tangents(nx, ny, nz)
+    f1 = acc[1] - _mass_along(frames, inv_inertia, row, t1x, t1y, t1z) * _relative(
+        frames, row, t1x, t1y, t1z)
+    f2 = acc[2] - _mass_along(frames, inv_inertia, row, t2x, t2y, t2z) * _relative(
+        frames, row, t2x, t2y, t2z)
+    cap = row[K_MU] * acc[0]
+    size = np.sqrt(f1 * f1 + f2 * f2)
+    if size > cap:
+        f1, f2 = f1 * cap / size, f2 * cap / size
+    d1, d2 = f1 - acc[1], f2 - acc[2]
+    acc[1], acc[2] = f1, f2
+    _impulse(frames, inv_inertia, row, 1.0, d1 * t1x + d2 * t2x, d1 * t1y + d2 * t2y,
+             d1 * t1z + d2 * t2z)
+    change = abs(lam) + np.sqrt(d1 * d1 + d2 * d2)
+    return change / mass_n if mass_n > 0.0 else 0.0
+
+
+@njit(**JIT)
+def solve_velocities(frames, inv_inertia, rows, iters, tol, acc):
+    """Symmetric sweeps of ``_visit`` from the impulses ``acc`` (count, 3), at most
+    ``iters``, until none changes a contact's speed by more than ``tol``; returns the
+    sweeps."""
+    n = rows.shape[0]
+    for it in range(iters):
+        largest = 0.0
+        for s in range(n):
+            k = s if it % 2 == 0 else n - 1 - s
+            largest = max(largest, _visit(frames, inv_inertia, rows[k], acc[k]))
+        if largest <= tol:
+            return it + 1
+    return iters
+
+
+@njit(**JIT)
+def solve_positions(frames, inv_inertia, rows, h, iters, tol):
+    """The split impulse: frames' velocity and spin set to what, applied to positions for
+    one step, removes ``BAUMGARTE`` of each contact's overlap beyond ``SLOP`` (sweeps as
+    ``solve_velocities``)."""
+    n = rows.shape[0]
+    frames[:, F_VEL:F_VEL + 3] = 0.0
+    frames[:, F_SPIN:F_SPIN + 3] = 0.0
+    acc = np.zeros(n)
+    for it in range(iters):
+        largest = 0.0
+        for s in range(n):
+            k = s if it % 2 == 0 else n - 1 - s
+            row = rows[k]
+            depth = -row[K_GAP] - SLOP
+            if depth <= 0.0:
+                continue
+            nx, ny, nz = row[K_N], row[K_N + 1], row[K_N + 2]
+            lam = _mass_along(frames, inv_inertia, row, nx, ny, nz) * (
+                BAUMGARTE * depth / h - _relative(frames, row, nx, ny, nz))
+            lam = max(acc[k] + lam, 0.0) - acc[k]
+            acc[k] += lam
+            _impulse(frames, inv_inertia, row, lam, nx, ny, nz)
+            largest = max(largest, abs(lam) * _inv_mass_along(frames, inv_inertia, row,
+                                                              nx, ny, nz))
+        if largest <= tol:
+            return
+
+
+@njit(**JIT)
+def _add_motion(x, v, com, dvel, dspin, scale):
+    """Add the rigid motion (dvel, dspin about ``com``) times ``scale`` to v (x: where
+    v is x, positions)."""
+    for i in range(x.shape[0]):
+        rx, ry, rz = x[i, 0] - com[0], x[i, 1] - com[1], x[i, 2] - com[2]
+        v[i, 0] += scale * (dvel[0] + dspin[1] * rz - dspin[2] * ry)
+        v[i, 1] += scale * (dvel[1] + dspin[2] * rx - dspin[0] * rz)
+        v[i, 2] += scale * (dvel[2] + dspin[0] * ry - dspin[1] * rx)
+
+
+@njit(**JIT)
+def _tally(rows, acc, frames, colliders, tally):
+    """Each collider contact's impulse, with the opposite sign, on its collider: in
+    ``tally`` (C, 6), the impulse (N s) and its moment about the collider's centre."""
+    for k in range(rows.shape[0]):
+        row = rows[k]
+        c = int(row[K_COLL])
+        if c < 0:
+            continue
+        nx, ny, nz = row[K_N], row[K_N + 1], row[K_N + 2]
+        t1x, t1y, t1z, t2x, t2y, t2z = _tangents(nx, ny, nz)
+        p = -np.array([acc[k, 0] * nx + acc[k, 1] * t1x + acc[k, 2] * t2x,
+                       acc[k, 0] * ny + acc[k, 1] * t1y + acc[k, 2] * t2y,
+                       acc[k, 0] * nz + acc[k, 1] * t1z + acc[k, 2] * t2z])
+        a = int(row[K_A])
+        arm = frames[a, F_COM:F_COM + 3] + row[K_RA:K_RA + 3] - colliders[c + 1, 1:4]
+        tally[c, :3] += p
+        tally[c, 3:] += np.cross(arm, p)
+
+
+@njit(**JIT)
+def stiff_step(bodies, scene, memory, tally, touched):
+    """The pass before a step (module docstring): the awake bodies' particles get their
+    change of velocity and spin, overlapping ones a position push; ``touched[b]`` 1 for a
+    body whose velocities changed, 2 when its positions did too.  ``memory``: the last
+    step's contact keys (sorted) and impulses.  Returns this step's, sorted."""
+    nb = len(bodies.x)
+    frames = np.zeros((nb, F_ROW))
+    inv_inertia = np.zeros((nb, 3, 3))
+    for b in range(nb):
+        body_frame(bodies.x[b], bodies.v[b], bodies.m[b], frames[b], inv_inertia[b])
+        if not bodies.awake[b]:
+            frames[b, F_INV] = 0.0
+            frames[b, F_VEL:F_VEL + 6] = 0.0
+            inv_inertia[b] = 0.0
+    rows = _contacts(frames, bodies, scene)
+    keys = contact_keys(rows, nb, scene.rows.shape[0])
+    if rows.shape[0] == 0:
+        return keys, np.zeros((0, 3))
+    start = frames.copy()
+    h, gravity = scene.h, scene.gravity
+    set_targets(frames, rows, h, scene.thresh)
+    for b in range(nb):
+        if bodies.awake[b]:
+            frames[b, F_VEL:F_VEL + 3] += h * gravity
+    acc = warm_start(frames, inv_inertia, rows, keys, memory[0], memory[1])
+    tol = TOLERANCE * max(scene.thresh, 1e-3)
+    solve_velocities(frames, inv_inertia, rows, scene.iters, tol, acc)
+    _tally(rows, acc, frames, scene.rows, tally)
+    change = frames - start
+    solve_positions(frames, inv_inertia, rows, h, scene.iters, tol)
+    for b in range(nb):
+        if not bodies.awake[b]:
+            continue
+        com = start[b, F_COM:F_COM + 3]
+        dvel = change[b, F_VEL:F_VEL + 3] - h * gravity
+        dspin = change[b, F_SPIN:F_SPIN + 3]
+        if np.any(dvel != 0.0) or np.any(dspin != 0.0):
+            _add_motion(bodies.x[b], bodies.v[b], com, dvel, dspin, 1.0)
+            touched[b] = 1
+        pvel, pspin = frames[b, F_VEL:F_VEL + 3], frames[b, F_SPIN:F_SPIN + 3]
+        if np.any(pvel != 0.0) or np.any(pspin != 0.0):
+            _add_motion(bodies.x[b], bodies.x[b], com, pvel, pspin, h)
+            touched[b] = 2
+    order = np.argsort(keys)
+    return keys[order], acc[order]
