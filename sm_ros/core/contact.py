@@ -41,7 +41,7 @@ from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_pairs, wall_candidates)
 from .kernels.colliders import contact_velocity
 from .params import _finite
-from .stiff_kernels import drop_rigid_pairs
+from .kernels.stiff_contacts import drop_rigid_pairs
 
 #: Same-body pairs self-collide only when their rest distance exceeds this many times
 #: their contact distance ``r_i + r_j`` (lattice neighbours up to two spacings apart
@@ -244,7 +244,7 @@ class Contact:
         # solve_bodies: which bodies carry their contacts as a whole (set by World),
         # their inverse masses and moves, per-pair and per-particle impulses
         self.coupling = np.zeros(max(nb, 1), dtype=np.bool_)
-        # the bodies whose pairs the stiff pass takes (stiff_colliders.py; set by World)
+        # the bodies whose pairs the stiff pass takes (stiff_contact.py; set by World)
         self.rigid = np.zeros(max(nb, 1), dtype=np.bool_)
         self._bw = np.zeros(max(nb, 1))
         self._bw_version = -1                   # flat.w_version that _bw was computed at
@@ -373,7 +373,7 @@ class Contact:
                                       self._vb, self._zlo, self._bc, self._bom, self._biv,
                                       self._xref, self.act, self._dbox)
             # a stiff body rests on the ground with its particles' spheres, as the
-            # collider pass puts it (stiff_colliders.py)
+            # collider pass puts it (stiff_contact.py)
             self._zlo[0, :len(self.radii)] -= self.radii
         else:
             spread2 = moved_spread2(f.X, self._xref, f.off, self.act)

@@ -16,7 +16,7 @@ from .flat import FlatState
 from .kernels.flags import SLEEP
 from .kinematic import Particles
 from .sleep import Sleep
-from .stiff_colliders import StiffPass
+from .stiff_contact import StiffContact
 from .world_colliders import WorldColliders
 
 
@@ -44,7 +44,7 @@ class World(WorldColliders):
         self._zeros = np.zeros(0, dtype=np.int32)
         self._one_touch = np.zeros(1, dtype=np.uint8)
         self._coupling_key = None
-        self._stiff = StiffPass()               # stiff bodies' contacts (stiff_colliders)
+        self._stiff = StiffContact()            # stiff bodies' contacts (stiff_contact.py)
         self._flat_builds = 0                  # flat states built (keys what was made of one)
         self._flagged = False                  # see state_flagged
         self.time = 0.0
@@ -52,9 +52,10 @@ class World(WorldColliders):
 
     def step_state(self) -> tuple:
         """What a step changes and a later step reads (``snapshot``): the time, the bodies,
-        the flat state, contact, sleep, the collider pass and what the last step saw."""
+        the flat state, contact, sleep, the collider pass, the stiff bodies' pass and what
+        the last step saw."""
         return ('time', '_flagged', '_wake_key', '_coll_stats', '_bodies', '_flat',
-                '_contact', '_sleep', '_cset')
+                '_contact', '_sleep', '_cset', '_stiff')
 
     @property
     def gravity(self) -> np.ndarray:
@@ -424,7 +425,7 @@ class World(WorldColliders):
         self._coupling_key = key
 
     def _stiff_pass(self, h, thresh):
-        """The stiff bodies take their contacts as rigid bodies (``stiff_colliders.py``)
+        """The stiff bodies take their contacts as rigid bodies (``stiff_contact.py``)
         before their own step; the contact pass leaves their pairs alone."""
         import os
         if os.environ.get('NOSTIFF'):

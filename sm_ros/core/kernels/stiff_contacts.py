@@ -1,4 +1,4 @@
-"""Contact points of the stiff bodies (``stiff_colliders.py``): each body's rigid frame
+"""Contact points of the stiff bodies (``sm_ros/core/stiff_contact.py``): each body's rigid frame
 and the few points at which it touches a collider or another stiff body.
 
 A body's mass, centre, velocity, spin and inertia come from its particles
@@ -8,14 +8,14 @@ another body, the pair's particles closer than their radii (plus the step's reac
 normal for the pair, and each particle pair's gap along it, so two flat faces meet as flat
 faces.  Of the particles in reach, a few are kept per collider or body pair: the deepest
 and the farthest along 8 directions of the contact plane, so a face keeps its outline
-(``SLOTS``).  A contact is a row of ``K_*`` columns (``stiff_solve.py`` solves them).
+(``SLOTS``).  A contact is a row of ``K_*`` columns (``stiff_solve`` solves them).
 """
 
 import numpy as np
 from numba import njit
 
-from .kernels.jit import JIT
-from .kinematic import C_ANG, C_BOUND, C_DIM, C_E, C_KIND, C_MU, C_POS, C_ROT, C_VEL
+from .jit import JIT
+from ..kinematic import C_ANG, C_BOUND, C_DIM, C_E, C_KIND, C_MU, C_POS, C_ROT, C_VEL
 
 #: Contact points kept per collider or body pair: the deepest and the farthest along 8
 #: directions of the contact plane.
@@ -286,10 +286,12 @@ def _near(x, lo, hi, grow, out):
 
 
 @njit(**JIT)
-def pair_contacts(xa, xb, a, b, ra, rb, fa, fb, margin, mu, e, out, count):
-    """Append to ``out`` (from ``count``) the contacts of stiff bodies a and b (frames
-    ``fa``, ``fb``); returns the new count.  The pair's normal is the mean direction from
-    b's particles to a's (``_pair_normal``)."""
+def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
+    """Append to ``out`` (from ``count``) the contacts of stiff bodies a and b
+    (``stiff_solve.StiffBodies``, their frames); returns the new count.  The pair's normal
+    is ``_pair_normal``, each particle pair's gap is along it."""
+    xa, xb, ra, rb = bodies.x[a], bodies.x[b], bodies.radius[a], bodies.radius[b]
+    fa, fb = frames[a], frames[b]
     reach = PAIR_REACH * (ra + rb) + margin
     near_a = np.empty(xa.shape[0], dtype=np.int64)
     near_b = np.empty(xb.shape[0], dtype=np.int64)
@@ -320,8 +322,7 @@ def pair_contacts(xa, xb, a, b, ra, rb, fa, fb, margin, mu, e, out, count):
                 _slot(slots, best, gap, mid, fa, 0.25 * ra, tangents, i * xb.shape[0] + j)
     for k in range(SLOTS):
         if _distinct(slots, k):
-            i, j = slots[k] // xb.shape[0], slots[k] % xb.shape[0]
-            _pair_row(xa, xb, i, j, a, b, ra, rb, fa, fb, n, mu, e, out[count])
+            _pair_row(bodies, frames, (a, b), slots[k], n, scene, out[count])
             out[count, K_WHO] = k
             count += 1
     return count
@@ -370,8 +371,12 @@ def _pair_normal(xa, xb, near_a, near_b, reach):
 
 
 @njit(**JIT)
-def _pair_row(xa, xb, i, j, a, b, ra, rb, fa, fb, n, mu, e, row):
-    """Fill a contact row for particle i of body a against particle j of body b."""
+def _pair_row(bodies, frames, pair, who, n, scene, row):
+    """Fill a contact row for the particle pair ``who`` (a's index times b's count plus
+    b's) of the body pair (a, b), normal n."""
+    a, b = pair
+    xa, xb, ra, rb = bodies.x[a], bodies.x[b], bodies.radius[a], bodies.radius[b]
+    i, j = who // xb.shape[0], who % xb.shape[0]
     row[:] = 0.0
     row[K_A], row[K_B], row[K_COLL] = a, b, -2
     row[K_GAP] = ((xa[i, 0] - xb[j, 0]) * n[0] + (xa[i, 1] - xb[j, 1]) * n[1]
@@ -379,9 +384,9 @@ def _pair_row(xa, xb, i, j, a, b, ra, rb, fa, fb, n, mu, e, row):
     for k in range(3):
         p = 0.5 * (xa[i, k] + xb[j, k]) + 0.5 * (rb - ra) * n[k]
         row[K_N + k] = n[k]
-        row[K_RA + k] = p - fa[F_COM + k]
-        row[K_RB + k] = p - fb[F_COM + k]
-    row[K_MU], row[K_TARGET] = mu, e
+        row[K_RA + k] = p - frames[a, F_COM + k]
+        row[K_RB + k] = p - frames[b, F_COM + k]
+    row[K_MU], row[K_TARGET] = scene.pair_mu, scene.pair_e
 
 
 @njit(**JIT)

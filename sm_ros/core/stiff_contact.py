@@ -2,12 +2,13 @@
 
 Before the bodies' own step, every stiff body (alpha at the step at least
 ``contact.COUPLE_ALPHA``, no pinned or grabbed particle) takes its contacts with the
-colliders and with the other stiff bodies as one rigid body (``stiff_solve.stiff_step``):
-an impulse at a contact point changes the body's velocity and spin, so contact tips,
-rolls, holds and spins it; restitution acts on the approach speed at the point, and
-overlap is removed without adding speed.  Its particles are spheres of its contact
-radius, so it rests on its outline.  Those contacts are then left out of the
-per-particle contact pass, which softer bodies keep.
+colliders and with the other stiff bodies as one rigid body (``kernels/stiff_solve.py``
+solves the contacts ``kernels/stiff_contacts.py`` finds): an impulse at a contact point
+changes the body's velocity and spin, so contact tips, rolls, holds and spins it;
+restitution acts on the approach speed at the point, and overlap is removed without
+adding speed.  Its particles are spheres of its contact radius, so it rests on its
+outline.  Those contacts are then left out of the per-particle contact pass, which softer
+bodies keep.
 """
 
 import numpy as np
@@ -15,13 +16,13 @@ from numba.typed import List as TypedList
 
 from .colliders import ColliderSet
 from .kinematic import C_E, C_MU, C_POS, ROW
-from .stiff_solve import StiffBodies, StiffScene, stiff_step
+from .kernels.stiff_solve import StiffBodies, StiffScene, stiff_step
 
 #: Sequential-impulse sweeps over the contacts per step.
 ITERATIONS = 100
 
 
-class StiffPass:
+class StiffContact:
     """The pass of one world: its static collider rows and its bodies' typed lists."""
 
     def __init__(self):

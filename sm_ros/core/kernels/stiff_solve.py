@@ -1,6 +1,6 @@
-"""Sequential impulses on the stiff bodies' contacts (``stiff_colliders.py``).
+"""Sequential impulses on the stiff bodies' contacts (``sm_ros/core/stiff_contact.py``).
 
-Every stiff body is one rigid motion here (its frame, ``stiff_kernels.body_frame``); a
+Every stiff body is one rigid motion here (its frame, ``stiff_contacts.body_frame``); a
 contact's impulse changes the velocity and spin of the one or two bodies it touches.
 Impulses are accumulated over symmetric sweeps and clamped (Box2D, Bullet): the normal
 one never pulls, friction stays within mu times it (Coulomb), so static friction holds and
@@ -16,9 +16,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .kernels.jit import JIT
-from .kinematic import C_ANG, C_BOUND, C_VEL
-from .stiff_kernels import (F_COM, F_HI, F_INV, F_LO, F_MASS, F_REACH, F_ROW, F_SPIN,
+from .jit import JIT
+from ..kinematic import C_ANG, C_BOUND, C_VEL
+from .stiff_contacts import (F_COM, F_HI, F_INV, F_LO, F_REACH, F_ROW, F_SPIN,
                             F_VEL, K_A, K_B, K_COLL, K_GAP, K_MU, K_N, K_RA, K_RB, K_ROW,
                             K_SURF, K_TARGET, K_WHO, SLOTS, _tangents, body_frame,
                             collider_contacts, pair_contacts)
@@ -114,7 +114,7 @@ def _pairs(frames, bodies, slack):
 @njit(**JIT)
 def _contacts(frames, bodies, scene):
     """Every contact of the pass: each awake body's with the colliders, then each near
-    body pair's (``stiff_kernels``)."""
+    body pair's (``stiff_contacts``)."""
     h, nb = scene.h, frames.shape[0]
     g = np.sqrt(scene.gravity[0] ** 2 + scene.gravity[1] ** 2 + scene.gravity[2] ** 2)
     fastest = 0.0
@@ -133,9 +133,7 @@ def _contacts(frames, bodies, scene):
     for p in range(len(pairs)):
         a, b = pairs[p, 0], pairs[p, 1]
         margin = h * (_speed(frames[a]) + _speed(frames[b]) + g * h) + SLOP
-        count = pair_contacts(bodies.x[a], bodies.x[b], a, b, bodies.radius[a],
-                              bodies.radius[b], frames[a], frames[b], margin, scene.pair_mu,
-                              scene.pair_e, out, count)
+        count = pair_contacts(bodies, frames, a, b, margin, scene, out, count)
     return out[:count]
 
 
@@ -250,8 +248,10 @@ def set_targets(frames, rows, h, thresh):
     for k in range(rows.shape[0]):
         row = rows[k]
         vn = _relative(frames, row, row[K_N], row[K_N + 1], row[K_N + 2])
-        bounce = row[K_TARGET] * -vn if (-vn > thresh and row[K_GAP] < -vn * h) else 0.0
-        row[K_TARGET] = max(bounce, -max(row[K_GAP], 0.0) / h)
+        if -vn > thresh and row[K_GAP] < SLOP - vn * h and row[K_TARGET] > 0.0:
+            row[K_TARGET] *= -vn                 # it hits within the step: bounces
+        else:
+            row[K_TARGET] = -max(row[K_GAP], 0.0) / h     # may close the gap, no more
 
 
 @njit(**JIT)
