@@ -282,6 +282,16 @@ class Contact:
         """Mark the bodies whose pairs with one another the stiff pass takes."""
         self.rigid[:len(flags)] = flags
 
+    def add_counts(self, stiff_stats):
+        """Add the stiff pass's body-pair contacts and overlaps (``World._stiff_stats``)
+        to this pass's ``count``, ``deepest`` and ``found``."""
+        if stiff_stats is None or not stiff_stats[:, 2].any():
+            return
+        n = len(stiff_stats)
+        self.count[:n] += stiff_stats[:, 2].astype(np.int64)
+        np.maximum(self.deepest[:n], stiff_stats[:, 3], out=self.deepest[:n])
+        self.found += int(stiff_stats[:, 2].sum()) // 2
+
     def _solved_pairs(self):
         """(pi, pj, count) of the pairs this pass solves: the list without the pairs of
         two rigid bodies."""

@@ -1,7 +1,6 @@
 """Stiff bodies take their contacts as rigid bodies (doc/contact.md).
 
-Before the bodies' own step, every stiff body (alpha at the step at least
-``contact.COUPLE_ALPHA``, no pinned or grabbed particle) takes its contacts with the
+Before the bodies' own step, every stiff body (``is_stiff``) takes its contacts with the
 colliders and with the other stiff bodies as one rigid body (``kernels/stiff_solve.py``
 solves the contacts ``kernels/stiff_contacts.py`` finds): an impulse at a contact point
 changes the body's velocity and spin, so contact tips, rolls, holds and spins it;
@@ -39,8 +38,8 @@ class StiffContact:
         return ('keys', 'impulses')
 
     def _rows(self, world):
-        """Row 0 the ground, then the simple boxes and spheres, then the collider set's
-        rows at this step's poses; and how many of them are the set's."""
+        """Row 0 the ground, then the plain boxes and spheres, then the collider set's
+        rows at this step's poses; and how many of them are plain."""
         key = (id(world.boxes), id(world.spheres))
         if key != self._static_key:
             simple = [c for c in tuple(world.boxes) + tuple(world.spheres) if c.simple]
@@ -53,7 +52,7 @@ class StiffContact:
             ground[0, C_POS + 2], ground[0, C_MU], ground[0, C_E] = g[1], g[2], g[3]
         cset = world._cset
         moving = cset.rows if cset is not None else np.zeros((0, ROW))
-        return np.concatenate([ground, self._static, moving]), len(moving)
+        return np.concatenate([ground, self._static, moving]), len(self._static)
 
     def _bodies(self, world, bodies):
         """``StiffBodies`` of (body, radius) pairs; the typed lists are kept while the
@@ -75,20 +74,21 @@ class StiffContact:
 
     def run(self, world, bodies, h, thresh):
         """The pass over ``bodies`` ((body, contact radius) pairs) before a step of ``h``
-        s; returns the number of contacts."""
-        rows, n_moving = self._rows(world)
+        s; returns (B, 5) per body: its particles touching the plain colliders and the
+        others, its body-pair contacts, its deepest overlap (m), and 1 where its
+        velocities changed, 2 where its positions did too."""
+        rows, plain = self._rows(world)
         p = world._contact_params
-        scene = StiffScene(rows, world.ground is not None, float(p.friction),
+        scene = StiffScene(rows, plain, world.ground is not None, float(p.friction),
                            float(p.restitution), world._gravity, float(h), float(thresh),
                            ITERATIONS)
         tally = np.zeros((len(rows) - 1, 6))
-        touched = np.zeros(len(bodies), dtype=np.int64)
+        stats = np.zeros((len(bodies), 5))
         self.keys, self.impulses = stiff_step(self._bodies(world, bodies), scene,
-                                              (self.keys, self.impulses), tally, touched)
-        total = len(self.keys)
-        for k in np.flatnonzero(touched):
+                                              (self.keys, self.impulses), tally, stats)
+        for k in np.flatnonzero(stats[:, 4]):
             bodies[k][0]._dirty = True
         cset = world._cset
-        if cset is not None and total:
-            cset.imp[:] += tally[len(tally) - n_moving:]
-        return total
+        if cset is not None and len(self.keys):
+            cset.imp[:] += tally[plain:]
+        return stats

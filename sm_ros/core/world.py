@@ -16,7 +16,7 @@ from .flat import FlatState
 from .kernels.flags import SLEEP
 from .kinematic import Particles
 from .sleep import Sleep
-from .stiff_contact import StiffContact
+from .stiff_contact import StiffContact, is_stiff
 from .world_colliders import WorldColliders
 
 
@@ -45,6 +45,7 @@ class World(WorldColliders):
         self._one_touch = np.zeros(1, dtype=np.uint8)
         self._coupling_key = None
         self._stiff = StiffContact()            # stiff bodies' contacts (stiff_contact.py)
+        self._stiff_stats = None                # (bodies, 5) what that pass counted
         self._flat_builds = 0                  # flat states built (keys what was made of one)
         self._flagged = False                  # see state_flagged
         self.time = 0.0
@@ -54,8 +55,8 @@ class World(WorldColliders):
         """What a step changes and a later step reads (``snapshot``): the time, the bodies,
         the flat state, contact, sleep, the collider pass, the stiff bodies' pass and what
         the last step saw."""
-        return ('time', '_flagged', '_wake_key', '_coll_stats', '_bodies', '_flat',
-                '_contact', '_sleep', '_cset', '_stiff')
+        return ('time', '_flagged', '_wake_key', '_coll_stats', '_stiff_stats', '_bodies',
+                '_flat', '_contact', '_sleep', '_cset', '_stiff')
 
     @property
     def gravity(self) -> np.ndarray:
@@ -391,6 +392,7 @@ class World(WorldColliders):
             f.gather()
             c.run(h, thresh, self._has_col, self._ground_row, self._box_rows,
                   self._sphere_rows, self._gravity)
+            c.add_counts(self._stiff_stats)
             if cs is not None:
                 st[:] = 0.0
                 cs.collide(Particles(f.X, f.V, f.W, f.B), h, thresh, st, f.touched)
@@ -426,18 +428,23 @@ class World(WorldColliders):
 
     def _stiff_pass(self, h, thresh):
         """The stiff bodies take their contacts as rigid bodies (``stiff_contact.py``)
-        before their own step; the contact pass leaves their pairs alone."""
-        import os
-        if os.environ.get('NOSTIFF'):
-            return
-        stiff = [(b, self.contact_radius(name)) for name, b in self._bodies.items()
-                 if len(b._kin_idx) == 0 and b._params.at_step(h).alpha >= COUPLE_ALPHA]
+        before their own step; the contact pass leaves their pairs alone.  Their contact
+        figures wait in ``_stiff_stats`` (flat body order) for the diagnostics."""
+        bodies = self._flat.bodies
+        stiff = np.array([self._contact_params.stacking and is_stiff(b, h) for b in bodies],
+                         dtype=np.bool_)
         c = self._contact
         if c is not None:
-            rigid = {id(b) for b, _ in stiff}
-            c.set_rigid(np.array([id(b) in rigid for b in self._flat.bodies], dtype=np.bool_))
-        if stiff and any(not b.asleep for b, _ in stiff):
-            self._stiff.run(self, stiff, h, thresh)
+            c.set_rigid(stiff)
+        stats = self._stiff_stats
+        if stats is None or len(stats) != len(bodies):
+            stats = self._stiff_stats = np.zeros((len(bodies), 5))
+        stats[:] = 0.0
+        index = np.flatnonzero(stiff)
+        if any(not bodies[k].asleep for k in index):
+            stats[index] = self._stiff.run(
+                self, [(bodies[k], self.contact_radius(bodies[k].name)) for k in index], h,
+                thresh)
 
     def _zero_bid(self, n):
         """Body index 0 for n particles (the per-body path of the collider pass)."""

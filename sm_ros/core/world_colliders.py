@@ -104,9 +104,23 @@ class WorldColliders:
         """{body name: (contacts, deepest penetration in m)} with the pass colliders in the
         last step (one contact per particle and collider touched)."""
         st, f = self._coll_stats, self._flat
-        if st is None or f is None or len(st) != len(f.bodies):
+        if f is None:
             return dict.fromkeys(self._bodies, (0, 0.0))
-        return {b.name: (int(st[k, 0]), float(st[k, 1])) for k, b in enumerate(f.bodies)}
+        out = {}
+        for k, b in enumerate(f.bodies):
+            count, deepest = self._stiff_count(k, 1)
+            if st is not None and len(st) == len(f.bodies):
+                count, deepest = count + int(st[k, 0]), max(deepest, float(st[k, 1]))
+            out[b.name] = (count, deepest)
+        return out
+
+    def _stiff_count(self, k, column):
+        """(particles of flat body k the stiff pass found touching the plain colliders
+        (column 0) or the others (1), its deepest overlap) in the last step."""
+        stiff = self._stiff_stats
+        if stiff is None or k >= len(stiff):
+            return 0, 0.0
+        return int(stiff[k, column]), float(stiff[k, 3])
 
     #: A particle within this distance (m) of a static collider's surface, or inside it,
     #: touches it (the fused step puts a penetrating particle exactly on the surface).
@@ -122,10 +136,15 @@ class WorldColliders:
         is of the particles lying on (or within ``STATIC_TOUCH`` of, or inside) a surface
         now, and how deep they were before the projection is not known.  Computed when
         asked (NumPy over each body's positions; ``/diagnostics`` asks once a period).
+        A stiff body's particles are spheres (``stiff_contact.py``): the pass counted those
+        within ``stiff_contacts.TOUCH`` of a surface before the step.
         """
         out = dict.fromkeys(self._bodies, 0)
         if not self._has_col:
             return out
+        if self._flat is not None:       # the stiff bodies rest on their particles' spheres
+            for k, body in enumerate(self._flat.bodies):
+                out[body.name] = self._stiff_count(k, 0)[0]
         tol = self.STATIC_TOUCH
         g, boxes, spheres = self._ground_row, self._box_rows, self._sphere_rows
         for name, body in self._bodies.items():
@@ -139,5 +158,5 @@ class WorldColliders:
             for sp in spheres:
                 d = x - sp[:3]
                 n += int(np.count_nonzero(np.einsum('ij,ij->i', d, d) <= (sp[3] + tol) ** 2))
-            out[name] = n
+            out[name] += n
         return out

@@ -24,10 +24,14 @@ SLOTS = 9
 #: collider rows, -1 the ground, -2 a body pair), the gap (m, < 0: overlap), the normal
 #: pointing from b towards a, the contact point relative to a's and b's centres, the
 #: collider's surface velocity there, friction, the restitution (then the target normal
-#: speed), and its slot (``SLOTS``: which of the pair's or collider's points it is).
+#: speed), its slot (``SLOTS``: which of the pair's or collider's points it is), and
+#: the position solve's impulse on it, which grips like a normal impulse.
 K_A, K_B, K_COLL, K_GAP, K_N, K_RA, K_RB, K_SURF, K_MU, K_TARGET, K_WHO = (
     0, 1, 2, 3, 4, 7, 10, 13, 16, 17, 18)
-K_ROW = 19
+K_GRIP = 19
+K_ROW = 20
+#: A particle whose sphere is within this gap (m) of a collider touches it (counts).
+TOUCH = 1e-3
 #: Particle pairs of two bodies count towards their contact up to this many times the sum
 #: of their radii apart (plus the step's reach): two lattices' faces offset by half a
 #: spacing have their nearest particles 1.12 times it apart.
@@ -219,16 +223,18 @@ def _distinct(slots, k):
 
 
 @njit(**JIT)
-def collider_contacts(x, a, radius, frame, margin, rows, ground_on, out, count):
-    """Append to ``out`` (from ``count``) body a's contacts with the ground (when
-    ``ground_on``) and the collider rows 1.. of ``rows`` whose bounding spheres come within
-    ``margin`` of its own; returns the new count."""
+def collider_contacts(bodies, frames, a, margin, scene, out, count, touching):
+    """Append to ``out`` (from ``count``) body a's contacts with the ground (when on) and
+    the collider rows 1.. of ``scene.rows`` whose bounding spheres come within ``margin``
+    of its own; returns the new count.  ``touching`` (2,) counts a's particles within
+    ``TOUCH`` of the ground and the plain colliders (rows 1..``scene.plain``), then of the
+    others (one per particle and collider)."""
+    x, radius, frame, rows = bodies.x[a], bodies.radius[a], frames[a], scene.rows
     slots = np.empty(SLOTS, dtype=np.int64)
     best = np.empty((SLOTS, 2))
     tangents = np.empty(6)
     com = frame[F_COM:F_COM + 3]
-    reach = frame[F_REACH]
-    for c in range(-1 if ground_on else 0, rows.shape[0] - 1):
+    for c in range(-1 if scene.ground_on else 0, rows.shape[0] - 1):
         if c < 0:
             if frame[F_LO + 2] - radius - rows[0, C_POS + 2] > margin:
                 continue
@@ -236,7 +242,8 @@ def collider_contacts(x, a, radius, frame, margin, rows, ground_on, out, count):
         else:
             row = rows[c + 1]
             dx, dy, dz = com[0] - row[C_POS], com[1] - row[C_POS + 1], com[2] - row[C_POS + 2]
-            if np.sqrt(dx * dx + dy * dy + dz * dz) > row[C_BOUND] + reach + radius + margin:
+            if (np.sqrt(dx * dx + dy * dy + dz * dz)
+                    > row[C_BOUND] + frame[F_REACH] + radius + margin):
                 continue
             _, nx, ny, nz = surface_gap(row, com[0], com[1], com[2], 0.0)
         tangents[:] = _tangents(nx, ny, nz)
@@ -245,6 +252,8 @@ def collider_contacts(x, a, radius, frame, margin, rows, ground_on, out, count):
             gap, _, _, _ = _collider_gap(rows, c, x[i, 0], x[i, 1], x[i, 2], radius)
             if gap < margin:
                 _slot(slots, best, gap, x[i], frame, 0.25 * radius, tangents, i)
+                if gap < TOUCH:
+                    touching[0 if c < scene.plain else 1] += 1
         for k in range(SLOTS):
             if _distinct(slots, k):
                 _collider_row(x, slots[k], a, c, radius, com, rows, out[count])

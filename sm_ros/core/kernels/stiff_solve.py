@@ -20,7 +20,7 @@ from .jit import JIT
 from ..kinematic import C_ANG, C_BOUND, C_VEL
 from .stiff_contacts import (F_COM, F_HI, F_INV, F_LO, F_REACH, F_ROW, F_SPIN,
                             F_VEL, K_A, K_B, K_COLL, K_GAP, K_MU, K_N, K_RA, K_RB, K_ROW,
-                            K_SURF, K_TARGET, K_WHO, SLOTS, _tangents, body_frame,
+                            K_GRIP, K_SURF, K_TARGET, K_WHO, SLOTS, _tangents, body_frame,
                             collider_contacts, pair_contacts)
 
 #: Overlap left uncorrected (m) and the share of the rest the position solve removes in a
@@ -49,10 +49,12 @@ class StiffBodies(NamedTuple):
 
 class StiffScene(NamedTuple):
     """What the bodies meet: ``rows`` (row 0 the ground, rows 1.. the colliders in
-    ``kinematic`` columns), whether the ground is on, the body-body friction and
-    restitution, gravity, the step, the restitution threshold speed and the sweeps."""
+    ``kinematic`` columns, the first ``plain`` of them the world's plain boxes and
+    spheres), whether the ground is on, the body-body friction and restitution, gravity,
+    the step, the restitution threshold speed and the sweeps."""
 
     rows: np.ndarray
+    plain: int
     ground_on: bool
     pair_mu: float
     pair_e: float
@@ -112,9 +114,9 @@ def _pairs(frames, bodies, slack):
 
 
 @njit(**JIT)
-def _contacts(frames, bodies, scene):
-    """Every contact of the pass: each awake body's with the colliders, then each near
-    body pair's (``stiff_contacts``)."""
+def _contacts(frames, bodies, scene, stats):
+    """Every contact of the pass: each awake body's with the colliders (its touching
+    particles in ``stats[b, :2]``), then each near body pair's (``stiff_contacts``)."""
     h, nb = scene.h, frames.shape[0]
     g = np.sqrt(scene.gravity[0] ** 2 + scene.gravity[1] ** 2 + scene.gravity[2] ** 2)
     fastest = 0.0
@@ -128,8 +130,8 @@ def _contacts(frames, bodies, scene):
     for b in range(nb):
         if bodies.awake[b]:
             margin = h * (_speed(frames[b]) + g * h + row_speed) + SLOP
-            count = collider_contacts(bodies.x[b], b, bodies.radius[b], frames[b], margin,
-                                      scene.rows, scene.ground_on, out, count)
+            count = collider_contacts(bodies, frames, b, margin, scene, out, count,
+                                      stats[b, :2])
     for p in range(len(pairs)):
         a, b = pairs[p, 0], pairs[p, 1]
         margin = h * (_speed(frames[a]) + _speed(frames[b]) + g * h) + SLOP
@@ -146,6 +148,15 @@ def _velocity_at(frames, b, r, surf):
     w = frames[b, F_SPIN:F_SPIN + 3]
     return (v[0] + w[1] * r[2] - w[2] * r[1], v[1] + w[2] * r[0] - w[0] * r[2],
             v[2] + w[0] * r[1] - w[1] * r[0])
+
+
+@njit(**JIT)
+def _pushed(frames, row, dx, dy, dz):
+    """``_relative`` of the position solve: a collider is not pushed."""
+    zero = np.zeros(3)
+    ax, ay, az = _velocity_at(frames, int(row[K_A]), row[K_RA:K_RA + 3], zero)
+    bx, by, bz = _velocity_at(frames, int(row[K_B]), row[K_RB:K_RB + 3], zero)
+    return (ax - bx) * dx + (ay - by) * dy + (az - bz) * dz
 
 
 @njit(**JIT)
@@ -257,7 +268,8 @@ def set_targets(frames, rows, h, thresh):
 @njit(**JIT)
 def _visit(frames, inv_inertia, row, acc):
     """One visit of a contact: its normal impulse, then its friction within mu times the
-    normal impulse so far."""
+    normal impulse so far and the position solve's (``K_GRIP``: a finger pressed into a
+    body holds it by friction)."""
     nx, ny, nz = row[K_N], row[K_N + 1], row[K_N + 2]
     lam = _mass_along(frames, inv_inertia, row, nx, ny, nz) * (
         row[K_TARGET] - _relative(frames, row, nx, ny, nz))
@@ -270,7 +282,7 @@ def _visit(frames, inv_inertia, row, acc):
         frames, row, t1x, t1y, t1z)
     f2 = acc[2] - _mass_along(frames, inv_inertia, row, t2x, t2y, t2z) * _relative(
         frames, row, t2x, t2y, t2z)
-    cap = row[K_MU] * acc[0]
+    cap = row[K_MU] * (acc[0] + row[K_GRIP])
     size = np.sqrt(f1 * f1 + f2 * f2)
     if size > cap:
         f1, f2 = f1 * cap / size, f2 * cap / size
@@ -302,7 +314,7 @@ def solve_velocities(frames, inv_inertia, rows, iters, tol, acc):
 def solve_positions(frames, inv_inertia, rows, h, iters, tol):
     """The split impulse: frames' velocity and spin set to what, applied to positions for
     one step, removes ``BAUMGARTE`` of each contact's overlap beyond ``SLOP`` (sweeps as
-    ``solve_velocities``)."""
+    ``solve_velocities``); each contact's impulse in ``K_GRIP``."""
     n = rows.shape[0]
     frames[:, F_VEL:F_VEL + 3] = 0.0
     frames[:, F_SPIN:F_SPIN + 3] = 0.0
@@ -317,14 +329,15 @@ def solve_positions(frames, inv_inertia, rows, h, iters, tol):
                 continue
             nx, ny, nz = row[K_N], row[K_N + 1], row[K_N + 2]
             lam = _mass_along(frames, inv_inertia, row, nx, ny, nz) * (
-                BAUMGARTE * depth / h - _relative(frames, row, nx, ny, nz))
+                BAUMGARTE * depth / h - _pushed(frames, row, nx, ny, nz))
             lam = max(acc[k] + lam, 0.0) - acc[k]
             acc[k] += lam
             _impulse(frames, inv_inertia, row, lam, nx, ny, nz)
             largest = max(largest, abs(lam) * _inv_mass_along(frames, inv_inertia, row,
                                                               nx, ny, nz))
         if largest <= tol:
-            return
+            break
+    rows[:, K_GRIP] = acc
 
 
 @njit(**JIT)
@@ -359,11 +372,28 @@ def _tally(rows, acc, frames, colliders, tally):
 
 
 @njit(**JIT)
-def stiff_step(bodies, scene, memory, tally, touched):
+def _pair_stats(rows, stats):
+    """Per body: body-pair contacts (``stats[b, 2]``) and the deepest overlap of its
+    contacts (``stats[b, 3]``, m)."""
+    for k in range(rows.shape[0]):
+        row = rows[k]
+        for side in (K_A, K_B):
+            b = int(row[side])
+            if b < 0:
+                continue
+            if row[K_B] >= 0:
+                stats[b, 2] += 1
+            stats[b, 3] = max(stats[b, 3], -row[K_GAP])
+
+
+@njit(**JIT)
+def stiff_step(bodies, scene, memory, tally, stats):
     """The pass before a step (module docstring): the awake bodies' particles get their
-    change of velocity and spin, overlapping ones a position push; ``touched[b]`` 1 for a
-    body whose velocities changed, 2 when its positions did too.  ``memory``: the last
-    step's contact keys (sorted) and impulses.  Returns this step's, sorted."""
+    change of velocity and spin, overlapping ones a position push.  ``memory``: the last
+    step's contact keys (sorted) and impulses; ``stats`` (B, 5) per body: its particles
+    touching the plain colliders and the others, its body-pair contacts, its deepest
+    overlap, and 1 where its velocities changed, 2 where its positions did too.  Returns
+    this step's contact keys and impulses, sorted."""
     nb = len(bodies.x)
     frames = np.zeros((nb, F_ROW))
     inv_inertia = np.zeros((nb, 3, 3))
@@ -373,34 +403,41 @@ def stiff_step(bodies, scene, memory, tally, touched):
             frames[b, F_INV] = 0.0
             frames[b, F_VEL:F_VEL + 6] = 0.0
             inv_inertia[b] = 0.0
-    rows = _contacts(frames, bodies, scene)
+    rows = _contacts(frames, bodies, scene, stats)
     keys = contact_keys(rows, nb, scene.rows.shape[0])
     if rows.shape[0] == 0:
         return keys, np.zeros((0, 3))
-    start = frames.copy()
+    _pair_stats(rows, stats)
     h, gravity = scene.h, scene.gravity
+    tol = TOLERANCE * max(scene.thresh, 1e-3)
+    push = frames.copy()
+    solve_positions(push, inv_inertia, rows, h, scene.iters, tol)
+    start = frames.copy()
     set_targets(frames, rows, h, scene.thresh)
     for b in range(nb):
         if bodies.awake[b]:
             frames[b, F_VEL:F_VEL + 3] += h * gravity
     acc = warm_start(frames, inv_inertia, rows, keys, memory[0], memory[1])
-    tol = TOLERANCE * max(scene.thresh, 1e-3)
     solve_velocities(frames, inv_inertia, rows, scene.iters, tol, acc)
     _tally(rows, acc, frames, scene.rows, tally)
-    change = frames - start
-    solve_positions(frames, inv_inertia, rows, h, scene.iters, tol)
     for b in range(nb):
-        if not bodies.awake[b]:
-            continue
-        com = start[b, F_COM:F_COM + 3]
-        dvel = change[b, F_VEL:F_VEL + 3] - h * gravity
-        dspin = change[b, F_SPIN:F_SPIN + 3]
-        if np.any(dvel != 0.0) or np.any(dspin != 0.0):
-            _add_motion(bodies.x[b], bodies.v[b], com, dvel, dspin, 1.0)
-            touched[b] = 1
-        pvel, pspin = frames[b, F_VEL:F_VEL + 3], frames[b, F_SPIN:F_SPIN + 3]
-        if np.any(pvel != 0.0) or np.any(pspin != 0.0):
-            _add_motion(bodies.x[b], bodies.x[b], com, pvel, pspin, h)
-            touched[b] = 2
+        if bodies.awake[b]:
+            _move(bodies, b, start[b], frames[b] - start[b], push[b], scene, stats[b])
     order = np.argsort(keys)
     return keys[order], acc[order]
+
+
+@njit(**JIT)
+def _move(bodies, b, start, change, push, scene, stats):
+    """Body b's particles: the velocity change (``change``, less the step's gravity,
+    which the step adds) and the position push, about its centre at the start."""
+    com = start[F_COM:F_COM + 3]
+    dvel = change[F_VEL:F_VEL + 3] - scene.h * scene.gravity
+    dspin = change[F_SPIN:F_SPIN + 3]
+    if np.any(dvel != 0.0) or np.any(dspin != 0.0):
+        _add_motion(bodies.x[b], bodies.v[b], com, dvel, dspin, 1.0)
+        stats[4] = 1
+    pvel, pspin = push[F_VEL:F_VEL + 3], push[F_SPIN:F_SPIN + 3]
+    if np.any(pvel != 0.0) or np.any(pspin != 0.0):
+        _add_motion(bodies.x[b], bodies.x[b], com, pvel, pspin, scene.h)
+        stats[4] = 2
