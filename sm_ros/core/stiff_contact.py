@@ -17,8 +17,22 @@ from .colliders import ColliderSet
 from .kinematic import C_E, C_MU, C_POS, ROW
 from .kernels.stiff_solve import StiffBodies, StiffScene, stiff_step
 
-#: Sequential-impulse sweeps over the contacts per step.
+#: Sequential-impulse sweeps over the contacts per step, at most (they stop once settled).
 ITERATIONS = 100
+#: A body is stiff when the rigid share of its goal, alpha (1 - beta) (alpha in rigid
+#: mode) at the step, is at least this, with at most ``STIFF_CLUSTERS`` cluster cubes per
+#: axis (more bend between them, as a sheet does) and no pinned or grabbed particle.
+STIFF_SHARE = 0.6
+STIFF_CLUSTERS = 2
+
+
+def is_stiff(body, h) -> bool:
+    """Whether ``body`` takes its contacts as a rigid body at steps of ``h`` s."""
+    prm = body._params
+    p = prm.at_step(h)
+    share = p.alpha if prm.mode == 'rigid' else p.alpha * (1.0 - p.beta)
+    return (share >= STIFF_SHARE and prm.clusters <= STIFF_CLUSTERS
+            and len(body._kin_idx) == 0)
 
 
 class StiffContact:
