@@ -7,6 +7,7 @@ from sm_ros.core import BodyParams, Box, Ground, Sphere, World
 from sm_ros.core import kernels as K
 from sm_ros.core.reference import (ReferenceBody, cap_plastic, collide, proper_rotation,
                                    quadratic_terms, volume_preserving)
+from sm_ros.core.stiff_contact import is_stiff
 
 RNG = np.random.default_rng
 
@@ -200,10 +201,10 @@ CASES = [(mode, clusters, plastic)
          for plastic in (False, True)]
 
 
-def _twin(mode, clusters, plastic, lift):
+def _twin(mode, clusters, plastic, lift, alpha=0.4):
     x0 = lattice(6, 5, 4, 0.1, jitter=0.2, seed=clusters) + [0.0, 0.0, lift]
     m = RNG(2).uniform(0.5, 2.0, len(x0))
-    params = BodyParams(mode=mode, alpha=0.4, beta=0.6, clusters=clusters,
+    params = BodyParams(mode=mode, alpha=alpha, beta=0.6, clusters=clusters,
                         plastic_yield=0.01 if plastic else 0.0,
                         plastic_creep=5.0 if plastic else 0.0, plastic_max=0.3)
     world = World(gravity=(0.0, 0.0, -9.81))
@@ -244,8 +245,11 @@ def test_numba_matches_numpy_reference(mode, clusters, plastic):
 @pytest.mark.parametrize('mode,clusters', [('linear', 2), ('quadratic', 2), ('rigid', 1)])
 def test_numba_matches_numpy_reference_step_by_step_in_contact(mode, clusters):
     """Ground contact is non-smooth (friction, restitution threshold), so a trajectory
-    amplifies round-off; instead every step of a contact-rich run is compared."""
-    world, ground, body, ref = _twin(mode, clusters, True, lift=0.3)
+    amplifies round-off; instead every step of a contact-rich run is compared.  The body is
+    soft enough for per-particle contact (a stiff one takes its contacts as a rigid body:
+    test_stiff_contact.py)."""
+    world, ground, body, ref = _twin(mode, clusters, True, lift=0.3, alpha=0.2)
+    assert not is_stiff(body, 1.0 / 60.0)
     h = 1.0 / 60.0
     for step in range(40):
         ref.x, ref.v = body.x.copy(), body.v.copy()
@@ -447,13 +451,15 @@ def test_no_particle_below_ground_and_rest_on_ground():
     for _ in range(300):
         world.step(1.0 / 120.0)
         assert body.x[:, 2].min() >= 0.0
-    # a rigid body placed on the ground stays there (up to the g*h contact jitter)
+    # a rigid body placed with its particles' centres on the ground rises onto their
+    # spheres (its contact radius, half the spacing) and stays there
     rest = lattice(4, 4, 4, 0.05)
     rest[:, 2] -= rest[:, 2].min()
     w2 = World()
     w2.set_colliders(ground=Ground())
-    b2 = w2.add_body(rest, 0.01, BodyParams(mode='rigid', alpha=1.0))
-    com0 = b2.com()
+    b2 = w2.add_body(rest, 0.01, BodyParams(mode='rigid', alpha=1.0), name='rest')
+    assert w2.contact_radius('rest') == pytest.approx(0.025)
+    com0 = b2.com() + (0.0, 0.0, 0.025)
     h = 1.0 / 240.0
     for _ in range(480):
         w2.step(h)

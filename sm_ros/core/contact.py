@@ -384,7 +384,8 @@ class Contact:
                                       self._xref, self.act, self._dbox)
             # a stiff body rests on the ground with its particles' spheres, as the
             # collider pass puts it (stiff_contact.py)
-            self._zlo[0, :len(self.radii)] -= self.radii
+            n = len(self.radii)
+            self._zlo[0, :n] -= np.where(self.rigid[:n], self.radii, 0.0)
         else:
             spread2 = moved_spread2(f.X, self._xref, f.off, self.act)
         # rebuilt once the displacements since the last build no longer fit in a ball of

@@ -46,6 +46,12 @@ class StiffContact:
         self.keys = np.zeros(0, dtype=np.int64)      # the last step's contacts (sorted)
         self.impulses = np.zeros((0, 3))            # and their impulses
 
+    def __getstate__(self):
+        """Copies (pickle, deepcopy) leave out the typed lists; they are made again."""
+        state = dict(self.__dict__)
+        state['_lists'] = state['_lists_key'] = None
+        return state
+
     def step_state(self) -> tuple:
         """What a step changes and a later step reads (``snapshot``): the last step's
         contacts and impulses, which warm-start the next."""

@@ -23,13 +23,14 @@ SLOTS = 9
 #: Columns of a contact row: bodies a and b (b -1: a collider, ``K_COLL`` its row in the
 #: collider rows, -1 the ground, -2 a body pair), the gap (m, < 0: overlap), the normal
 #: pointing from b towards a, the contact point relative to a's and b's centres, the
-#: collider's surface velocity there, friction, the restitution (then the target normal
-#: speed), its slot (``SLOTS``: which of the pair's or collider's points it is), and
-#: the position solve's impulse on it, which grips like a normal impulse.
+#: collider's surface velocity there, friction, the target normal speed, its slot
+#: (``SLOTS``: which of the pair's or collider's points it is), the position solve's
+#: impulse on it (which grips like a normal impulse), the restitution, and 1 where it
+#: bounces this step.
 K_A, K_B, K_COLL, K_GAP, K_N, K_RA, K_RB, K_SURF, K_MU, K_TARGET, K_WHO = (
     0, 1, 2, 3, 4, 7, 10, 13, 16, 17, 18)
-K_GRIP = 19
-K_ROW = 20
+K_GRIP, K_E, K_BOUNCE = 19, 20, 21
+K_ROW = 22
 #: A particle whose sphere is within this gap (m) of a collider touches it (counts).
 TOUCH = 1e-3
 #: Particle pairs of two bodies count towards their contact up to this many times the sum
@@ -278,7 +279,7 @@ def _collider_row(x, i, a, c, radius, com, rows, row):
         row[K_SURF] = coll[C_VEL] + wy * oz - wz * oy
         row[K_SURF + 1] = coll[C_VEL + 1] + wz * ox - wx * oz
         row[K_SURF + 2] = coll[C_VEL + 2] + wx * oy - wy * ox
-    row[K_MU], row[K_TARGET] = coll[C_MU], coll[C_E]
+    row[K_MU], row[K_E] = coll[C_MU], coll[C_E]
 
 
 @njit(**JIT)
@@ -395,7 +396,7 @@ def _pair_row(bodies, frames, pair, who, n, scene, row):
         row[K_N + k] = n[k]
         row[K_RA + k] = p - frames[a, F_COM + k]
         row[K_RB + k] = p - frames[b, F_COM + k]
-    row[K_MU], row[K_TARGET] = scene.pair_mu, scene.pair_e
+    row[K_MU], row[K_E] = scene.pair_mu, scene.pair_e
 
 
 @njit(**JIT)

@@ -18,10 +18,10 @@ from numba import njit
 
 from .jit import JIT
 from ..kinematic import C_ANG, C_BOUND, C_VEL
-from .stiff_contacts import (F_COM, F_HI, F_INV, F_LO, F_REACH, F_ROW, F_SPIN,
-                            F_VEL, K_A, K_B, K_COLL, K_GAP, K_MU, K_N, K_RA, K_RB, K_ROW,
-                            K_GRIP, K_SURF, K_TARGET, K_WHO, SLOTS, _tangents, body_frame,
-                            collider_contacts, pair_contacts)
+from .stiff_contacts import (F_COM, F_HI, F_INV, F_LO, F_REACH, F_ROW, F_SPIN, F_VEL, K_A,
+                             K_B, K_BOUNCE, K_COLL, K_E, K_GAP, K_GRIP, K_MU, K_N, K_RA, K_RB,
+                             K_ROW, K_SURF, K_TARGET, K_WHO, SLOTS, _tangents, body_frame,
+                             collider_contacts, pair_contacts)
 
 #: Overlap left uncorrected (m) and the share of the rest the position solve removes in a
 #: step.
@@ -255,14 +255,29 @@ def warm_start(frames, inv_inertia, rows, keys, old_keys, old_acc):
 
 @njit(**JIT)
 def set_targets(frames, rows, h, thresh):
-    """Each contact's target normal speed (``K_TARGET``, which held its restitution e)."""
+    """Each contact's target normal speed (``K_TARGET``): 0 where it hits within the step
+    faster than ``thresh`` (``K_BOUNCE`` set: ``bounce`` adds its restitution after the
+    solve), else what closes its gap within the step, no more."""
     for k in range(rows.shape[0]):
         row = rows[k]
         vn = _relative(frames, row, row[K_N], row[K_N + 1], row[K_N + 2])
-        if -vn > thresh and row[K_GAP] < SLOP - vn * h and row[K_TARGET] > 0.0:
-            row[K_TARGET] *= -vn                 # it hits within the step: bounces
-        else:
-            row[K_TARGET] = -max(row[K_GAP], 0.0) / h     # may close the gap, no more
+        hits = -vn > thresh and row[K_GAP] < SLOP - vn * h
+        row[K_BOUNCE] = 1.0 if hits and row[K_E] > 0.0 else 0.0
+        row[K_TARGET] = 0.0 if hits else -max(row[K_GAP], 0.0) / h
+
+
+@njit(**JIT)
+def bounce(frames, inv_inertia, rows, acc):
+    """Restitution after the solve (Poisson): each bouncing contact takes e times the
+    normal impulse that stopped it once more.  On the stopped motion, where every contact
+    impulse does no work, that gives back e^2 of the kinetic energy the stop took, never
+    more."""
+    for k in range(rows.shape[0]):
+        row = rows[k]
+        if row[K_BOUNCE] > 0.0:
+            lam = row[K_E] * acc[k, 0]
+            acc[k, 0] += lam
+            _impulse(frames, inv_inertia, row, lam, row[K_N], row[K_N + 1], row[K_N + 2])
 
 
 @njit(**JIT)
@@ -419,6 +434,7 @@ def stiff_step(bodies, scene, memory, tally, stats):
             frames[b, F_VEL:F_VEL + 3] += h * gravity
     acc = warm_start(frames, inv_inertia, rows, keys, memory[0], memory[1])
     solve_velocities(frames, inv_inertia, rows, scene.iters, tol, acc)
+    bounce(frames, inv_inertia, rows, acc)
     _tally(rows, acc, frames, scene.rows, tally)
     for b in range(nb):
         if bodies.awake[b]:

@@ -1,0 +1,204 @@
+"""Stiff bodies take their contacts as rigid bodies (``sm_ros/core/stiff_contact.py``):
+the cases of ``sm_ros.bench.cases`` at the node's step against their physical outcomes, the
+invariants of the impulse solve (no energy from any contact, momenta kept), and the
+kernels against plain NumPy twins."""
+
+import math
+
+import numpy as np
+import pytest
+
+from sm_ros.bench import cases as C
+from sm_ros.core.kernels import stiff_contacts as SC
+from sm_ros.core.kernels import stiff_solve as SS
+from sm_ros.core.kinematic import C_BOUND, C_DIM, C_E, C_KIND, C_MU, C_POS, C_ROT, ROW
+
+
+def _run(name):
+    return C.run(C.case(name))
+
+
+@pytest.mark.parametrize('on', ['body', 'table'])
+def test_a_box_past_the_edge_topples_and_one_inside_stays(on):
+    """Centre of mass 5 cm past the edge: over 45 deg within 1.5 s; 5 cm inside: under
+    2 deg and 5 mm after 10 s."""
+    past = _run(f'topple_{on}_past')
+    inside = _run(f'topple_{on}_inside')
+    assert past['turn_1.5s_deg'] > 45.0
+    assert inside['turn_end_deg'] < 2.0 and inside['drift_mm'] < 5.0
+
+
+def test_static_friction_holds_a_box_on_a_slope_below_its_friction_angle():
+    """20 deg slope, mu 0.6 > tan 20 deg: the box moves less than 5 mm in 2 s."""
+    assert _run('incline_mu0.6')['slide_mm'] < 5.0
+
+
+def test_kinetic_friction_slides_a_box_at_g_sin_minus_mu_cos():
+    """20 deg slope, mu 0.2: the box slides at g (sin - mu cos) within 10 %, upright."""
+    out = _run('incline_mu0.2')
+    assert out['accel_ratio'] == pytest.approx(1.0, abs=0.1)
+    assert out['turn_end_deg'] < 2.0
+
+
+def test_a_finger_pushing_off_centre_yaws_a_box_and_a_low_one_slides_it():
+    """A capsule finger 2 cm thick, thinner than nothing the particles see: off the centre
+    line it turns the box about the vertical; 3 cm above the ground it slides it (the push
+    is 0.3 m) without tipping it."""
+    off = _run('push_offcentre')
+    low = _run('push_low')
+    assert off['yaw_deg'] > 10.0 and off['tilt_max_deg'] < 5.0
+    assert low['moved_mm'] > 250.0 and low['tilt_max_deg'] < 5.0 and low['yaw_deg'] < 2.0
+
+
+@pytest.mark.parametrize('e', [0.0, 0.5, 1.0])
+def test_a_dropped_ball_bounces_to_e_squared_of_its_drop_and_never_higher(e):
+    """Restitution e: the first bounce reaches e^2 of the drop height (within 10 %, or
+    0.05 of it for e = 0), never more than the drop."""
+    out = _run(f'drop_e{e:g}')
+    assert out['bounce_ratio'] == pytest.approx(e * e, rel=0.1, abs=0.05 if e == 0 else 0.0)
+    assert out['bounce_ratio'] <= 1.0 + 1e-3
+
+
+@pytest.mark.parametrize('name', ['pyramid', 'tower'])
+def test_a_pyramid_and_a_tower_of_boxes_stand(name):
+    """4-3-2-1 boxes and a tower of 10: every centre of mass within 5 mm over 10 s."""
+    out = _run(name)
+    assert out['moved_mm'] < 5.0 and out['turn_max_deg'] < 2.0
+
+
+def test_dominoes_fall_in_sequence_when_pushed_and_stand_when_not():
+    pushed = _run('dominoes_pushed')
+    still = _run('dominoes_still')
+    assert pushed['fallen'] == 6 and pushed['in_sequence']
+    assert still['fallen'] == 0 and still['standing_turn_max_deg'] < 2.0
+
+
+@pytest.mark.parametrize('e', [0.0, 0.5, 1.0])
+def test_an_off_centre_hit_keeps_momentum_spins_both_and_adds_no_energy(e):
+    """Zero gravity, no friction: momentum to round-off, both boxes spin, the kinetic
+    energy never rises; the more restitution, the faster they part."""
+    out = _run(f'hit_e{e:g}')
+    assert out['momentum_err'] < 1e-12
+    assert out['energy_ratio'] <= 1.0 + 1e-9
+    assert out['spin_a'] > 0.5 and out['spin_b'] > 0.5
+    if e > 0.0:
+        assert out['angmom_err'] < 1e-9
+        assert out['separation'] > _run('hit_e0')['separation'] + 0.1
+
+
+# --- the solve on its own ---------------------------------------------------------------
+
+def _box_row(centre, half, mu=0.5, e=0.0):
+    row = np.zeros(ROW)
+    row[C_KIND] = 1.0
+    row[C_POS:C_POS + 3] = centre
+    row[C_ROT:C_ROT + 9] = np.eye(3).ravel()
+    row[C_DIM:C_DIM + 3] = half
+    row[C_MU], row[C_E] = mu, e
+    row[C_BOUND] = np.linalg.norm(half)
+    return row
+
+
+def _bodies(rng, count, spread):
+    from numba.typed import List
+    xs, vs, ms = List(), List(), List()
+    for k in range(count):
+        x = np.asfortranarray(rng.normal(size=(27, 3)) * 0.05 + (spread * k, 0.0, 0.1))
+        v = np.asfortranarray(rng.normal(size=(1, 3)) + 0.3 * rng.normal(size=(27, 3)))
+        xs.append(x)
+        vs.append(v)
+        ms.append(rng.uniform(0.5, 2.0, 27))
+    return SS.StiffBodies(xs, vs, ms, np.full(count, 0.02), np.ones(count, np.bool_),
+                          np.ones(count, np.bool_))
+
+
+def _energy_momenta(bodies):
+    ke, mom, ang = 0.0, np.zeros(3), np.zeros(3)
+    for x, v, m in zip(bodies.x, bodies.v, bodies.m):
+        ke += 0.5 * float(m @ (v * v).sum(axis=1))
+        mom += m @ v
+        ang += np.cross(x, v * m[:, None]).sum(axis=0)
+    return ke, mom, ang
+
+
+@pytest.mark.parametrize('e', [0.0, 0.3, 0.7, 1.0])
+@pytest.mark.parametrize('seed', range(4))
+def test_no_contact_creates_energy_and_body_pairs_keep_both_momenta(e, seed):
+    """Random clumps thrown at one another without gravity or colliders: the pass never
+    raises the kinetic energy; without friction it keeps linear momentum to round-off and,
+    where no overlap needs pushing apart, angular momentum too."""
+    rng = np.random.default_rng(seed)
+    bodies = _bodies(rng, 4, 0.12)
+    rows = np.zeros((1, ROW))
+    scene = SS.StiffScene(rows, 0, False, 0.0, e, np.zeros(3), 1.0 / 120.0, 1e-3, 100)
+    before = _energy_momenta(bodies)
+    stats = np.zeros((4, 5))
+    SS.stiff_step(bodies, scene, (np.zeros(0, np.int64), np.zeros((0, 3))),
+                  np.zeros((0, 6)), stats)
+    after = _energy_momenta(bodies)
+    assert stats[:, 2].sum() > 0                       # they touch
+    assert after[0] <= before[0] * (1.0 + 1e-12)
+    np.testing.assert_allclose(after[1], before[1], atol=1e-12)
+
+
+@pytest.mark.parametrize('e', [0.0, 0.5, 1.0])
+def test_no_collider_contact_creates_energy(e):
+    """Clumps thrown against a box and the ground, with friction: the kinetic energy after
+    the pass is at most what it was."""
+    rng = np.random.default_rng(7)
+    bodies = _bodies(rng, 3, 0.2)
+    rows = np.stack([np.zeros(ROW), _box_row((0.2, 0.0, 0.0), (0.05, 0.3, 0.3), 0.8, e)])
+    rows[0, C_MU], rows[0, C_E] = 0.6, e
+    scene = SS.StiffScene(rows, 1, True, 0.5, e, np.zeros(3), 1.0 / 60.0, 1e-3, 100)
+    before = _energy_momenta(bodies)[0]
+    stats = np.zeros((3, 5))
+    SS.stiff_step(bodies, scene, (np.zeros(0, np.int64), np.zeros((0, 3))),
+                  np.zeros((1, 6)), stats)
+    assert stats[:, 0].sum() > 0
+    assert _energy_momenta(bodies)[0] <= before * (1.0 + 1e-12)
+
+
+def test_body_frame_matches_numpy():
+    rng = np.random.default_rng(3)
+    x, v, m = rng.normal(size=(50, 3)), rng.normal(size=(50, 3)), rng.uniform(0.1, 1, 50)
+    frame, inv = np.zeros(SC.F_ROW), np.zeros((3, 3))
+    SC.body_frame(np.asfortranarray(x), np.asfortranarray(v), m, frame, inv)
+    com = m @ x / m.sum()
+    r = x - com
+    inertia = (m * (r * r).sum(axis=1)).sum() * np.eye(3) - (r.T * m) @ r
+    spin = np.linalg.solve(inertia, np.cross(r, (v - m @ v / m.sum()) * m[:, None]).sum(0))
+    assert frame[SC.F_MASS] == pytest.approx(m.sum())
+    np.testing.assert_allclose(frame[SC.F_COM:SC.F_COM + 3], com, atol=1e-12)
+    np.testing.assert_allclose(inv, np.linalg.inv(inertia), rtol=1e-9)
+    np.testing.assert_allclose(frame[SC.F_SPIN:SC.F_SPIN + 3], spin, rtol=1e-9)
+    assert frame[SC.F_REACH] == pytest.approx(np.linalg.norm(r, axis=1).max())
+
+
+def _gap_numpy(kind, centre, rot, dims, p, radius):
+    """Distance between a sphere at p and the collider's surface, by brute force: the
+    nearest of many surface samples (outside) or of the faces (inside a box)."""
+    q = rot.T @ (p - centre)
+    if kind == 0:
+        return np.linalg.norm(p - centre) - dims[0] - radius
+    if kind == 1:
+        outside = np.linalg.norm(q - np.clip(q, -dims, dims))
+        inside = np.min(dims - np.abs(q))
+        return (outside if outside > 0 else -inside) - radius
+    z = np.clip(q[2], -dims[1], dims[1])
+    return np.linalg.norm(q - (0.0, 0.0, z)) - dims[0] - radius
+
+
+@pytest.mark.parametrize('kind', [0, 1, 2])
+def test_surface_gap_matches_numpy(kind):
+    rng = np.random.default_rng(kind)
+    angle = 0.7
+    rot = np.array([[math.cos(angle), -math.sin(angle), 0.0],
+                    [math.sin(angle), math.cos(angle), 0.0], [0.0, 0.0, 1.0]])
+    dims = np.array([0.2, 0.1, 0.3])
+    row = np.zeros(ROW)
+    row[C_KIND], row[C_POS:C_POS + 3] = kind, (0.1, -0.2, 0.3)
+    row[C_ROT:C_ROT + 9], row[C_DIM:C_DIM + 3] = rot.ravel(), dims
+    for p in rng.normal(size=(200, 3)) * 0.3 + (0.1, -0.2, 0.3):
+        gap, nx, ny, nz = SC.surface_gap(row, p[0], p[1], p[2], 0.01)
+        assert gap == pytest.approx(_gap_numpy(kind, row[1:4], rot, dims, p, 0.01), abs=1e-12)
+        assert math.isclose(nx * nx + ny * ny + nz * nz, 1.0, rel_tol=1e-12)
