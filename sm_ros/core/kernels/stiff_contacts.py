@@ -25,18 +25,25 @@ SLOTS = 9
 #: pointing from b towards a, the contact point relative to a's and b's centres, the
 #: collider's surface velocity there, friction, the target normal speed, its slot
 #: (``SLOTS``: which of the pair's or collider's points it is), the position solve's
-#: impulse on it (which grips like a normal impulse), the restitution, and 1 where it
-#: bounces this step.
+#: impulse on it (which grips like a normal impulse), the restitution, 1 where it
+#: bounces this step, its approach speed before and after the step's gravity, and the
+#: overlap it keeps (``SLOP_SHARE``).
 K_A, K_B, K_COLL, K_GAP, K_N, K_RA, K_RB, K_SURF, K_MU, K_TARGET, K_WHO = (
     0, 1, 2, 3, 4, 7, 10, 13, 16, 17, 18)
-K_GRIP, K_E, K_BOUNCE = 19, 20, 21
-K_ROW = 22
+K_GRIP, K_E, K_BOUNCE, K_APPROACH, K_FALL, K_SLOP = 19, 20, 21, 22, 23, 24
+K_ROW = 25
+#: Overlap a contact keeps without a position push, as a share of its radii: a push moves
+#: bodies without their momentum and so changes the angular momentum a little.
+SLOP_SHARE = 0.1
 #: A particle whose sphere is within this gap (m) of a collider touches it (counts).
 TOUCH = 1e-3
 #: Particle pairs of two bodies count towards their contact up to this many times the sum
 #: of their radii apart (plus the step's reach): two lattices' faces offset by half a
 #: spacing have their nearest particles 1.12 times it apart.
 PAIR_REACH = 1.25
+#: A side of a body pair's contact is a face when its points' spread across their plane
+#: is at most this share of their spread along it (``_pair_normal``).
+FLAT = 0.1
 #: Columns of a body's frame: mass, inverse mass, centre (3), velocity (3), spin (3),
 #: reach (the largest distance of a particle from the centre), bounds lo (3), hi (3).
 F_MASS, F_INV, F_COM, F_VEL, F_SPIN, F_REACH, F_LO, F_HI = 0, 1, 2, 5, 8, 11, 12, 15
@@ -279,7 +286,7 @@ def _collider_row(x, i, a, c, radius, com, rows, row):
         row[K_SURF] = coll[C_VEL] + wy * oz - wz * oy
         row[K_SURF + 1] = coll[C_VEL + 1] + wz * ox - wx * oz
         row[K_SURF + 2] = coll[C_VEL + 2] + wx * oy - wy * ox
-    row[K_MU], row[K_E] = coll[C_MU], coll[C_E]
+    row[K_MU], row[K_E], row[K_SLOP] = coll[C_MU], coll[C_E], SLOP_SHARE * radius
 
 
 @njit(**JIT)
@@ -342,42 +349,67 @@ def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
 def _pair_normal(xa, xb, near_a, near_b, reach):
     """The normal of a body pair's contact, from b towards a (zeros: none in reach).
 
-    The midpoints of the particle pairs in reach, weighted by how far in, lie in one plane
-    when two flat faces touch: its normal is the contact's, whatever the faces' offset
-    (the pairs' own directions would tilt with it and push the faces further apart
-    sideways).  Points along a line (an edge) or at one spot leave the mean direction of
-    the pairs, less its part along the line."""
-    weight, mean, second, pull = 0.0, np.zeros(3), np.zeros((3, 3)), np.zeros(3)
-    mid = np.zeros(3)
+    Each body's particles in reach of the other's lie in a plane where that body meets the
+    other with a face: of the two, the flatter face (the smaller share of its spread across
+    its plane) gives the normal, whatever the faces' offset or an edge resting on it (the
+    particle pairs' own directions would tilt with the offset and push the faces apart
+    sideways).  Where neither is flat (an edge on an edge, a corner), the mean direction of
+    the pairs in reach, weighted by how far in."""
+    pull = np.zeros(3)
+    side_a, side_b = np.zeros(10), np.zeros(10)     # weight, sum of w x (3), of w x x^T (6)
     for i in near_a:
         for j in near_b:
-            for k in range(3):
-                mid[k] = xa[i, k] - xb[j, k]
-            d = np.sqrt(mid[0] ** 2 + mid[1] ** 2 + mid[2] ** 2)
+            dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
+            d = np.sqrt(dx * dx + dy * dy + dz * dz)
             if not (d < reach and d > 0.0):
                 continue
             w = reach - d
-            pull += (w / d) * mid
-            for k in range(3):
-                mid[k] = 0.5 * (xa[i, k] + xb[j, k])
-            weight += w
-            mean += w * mid
-            second += w * np.outer(mid, mid)
+            pull[0] += w * dx / d
+            pull[1] += w * dy / d
+            pull[2] += w * dz / d
+            _add_point(side_a, xa[i], w)
+            _add_point(side_b, xb[j], w)
     size = np.sqrt(pull[0] ** 2 + pull[1] ** 2 + pull[2] ** 2)
     if not size > 0.0:
         return np.zeros(3)
     pull /= size
-    mean /= weight
-    spread, axes = np.linalg.eigh(second / weight - np.outer(mean, mean))
-    if spread[0] < 0.05 * spread[1]:            # a plane: its normal, towards a
-        n = axes[:, 0].copy()
-        return n if n @ pull >= 0.0 else -n
-    if spread[1] < 0.05 * spread[2]:            # a line: the pull across it
-        line = axes[:, 2]
-        n = pull - (pull @ line) * line
-        size = np.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
-        return n / size if size > 0.0 else pull
-    return pull
+    flat_a, normal_a = _flatness(side_a)
+    flat_b, normal_b = _flatness(side_b)
+    n = normal_a if flat_a < flat_b else normal_b
+    if min(flat_a, flat_b) > FLAT:
+        return pull
+    return n if n @ pull >= 0.0 else -n
+
+
+@njit(**JIT)
+def _add_point(side, p, w):
+    """Add point p with weight w to a side's sums (``_pair_normal``)."""
+    side[0] += w
+    side[1:4] += w * p
+    side[4] += w * p[0] * p[0]
+    side[5] += w * p[1] * p[1]
+    side[6] += w * p[2] * p[2]
+    side[7] += w * p[0] * p[1]
+    side[8] += w * p[0] * p[2]
+    side[9] += w * p[1] * p[2]
+
+
+@njit(**JIT)
+def _flatness(side):
+    """(the smallest over the middle spread of a side's points, the direction of the
+    smallest): 0 for points in a plane, 1 or more for points along a line or in a lump."""
+    mean = side[1:4] / side[0]
+    cov = np.empty((3, 3))
+    cov[0, 0] = side[4] / side[0] - mean[0] * mean[0]
+    cov[1, 1] = side[5] / side[0] - mean[1] * mean[1]
+    cov[2, 2] = side[6] / side[0] - mean[2] * mean[2]
+    cov[0, 1] = cov[1, 0] = side[7] / side[0] - mean[0] * mean[1]
+    cov[0, 2] = cov[2, 0] = side[8] / side[0] - mean[0] * mean[2]
+    cov[1, 2] = cov[2, 1] = side[9] / side[0] - mean[1] * mean[2]
+    spread, axes = np.linalg.eigh(cov)
+    if not spread[1] > 0.0:
+        return np.inf, axes[:, 0].copy()
+    return max(spread[0], 0.0) / spread[1], axes[:, 0].copy()
 
 
 @njit(**JIT)
@@ -396,7 +428,7 @@ def _pair_row(bodies, frames, pair, who, n, scene, row):
         row[K_N + k] = n[k]
         row[K_RA + k] = p - frames[a, F_COM + k]
         row[K_RB + k] = p - frames[b, F_COM + k]
-    row[K_MU], row[K_E] = scene.pair_mu, scene.pair_e
+    row[K_MU], row[K_E], row[K_SLOP] = scene.pair_mu, scene.pair_e, SLOP_SHARE * (ra + rb)
 
 
 @njit(**JIT)

@@ -18,10 +18,11 @@ from numba import njit
 
 from .jit import JIT
 from ..kinematic import C_ANG, C_BOUND, C_VEL
-from .stiff_contacts import (F_COM, F_HI, F_INV, F_LO, F_REACH, F_ROW, F_SPIN, F_VEL, K_A,
-                             K_B, K_BOUNCE, K_COLL, K_E, K_GAP, K_GRIP, K_MU, K_N, K_RA, K_RB,
-                             K_ROW, K_SURF, K_TARGET, K_WHO, SLOTS, _tangents, body_frame,
-                             collider_contacts, pair_contacts)
+from .stiff_contacts import (F_COM, F_HI, F_INV, F_LO, F_MASS, F_REACH, F_ROW, F_SPIN,
+                             F_VEL, K_A, K_APPROACH, K_B, K_BOUNCE, K_COLL, K_E, K_FALL,
+                             K_GAP, K_GRIP, K_MU, K_N, K_RA, K_RB, K_ROW, K_SLOP, K_SURF, K_TARGET,
+                             K_WHO, SLOTS, _tangents, body_frame, collider_contacts,
+                             inverse3, pair_contacts)
 
 #: Overlap left uncorrected (m) and the share of the rest the position solve removes in a
 #: step.
@@ -262,22 +263,71 @@ def set_targets(frames, rows, h, thresh):
         row = rows[k]
         vn = _relative(frames, row, row[K_N], row[K_N + 1], row[K_N + 2])
         hits = -vn > thresh and row[K_GAP] < SLOP - vn * h
+        row[K_APPROACH] = -vn
         row[K_BOUNCE] = 1.0 if hits and row[K_E] > 0.0 else 0.0
         row[K_TARGET] = 0.0 if hits else -max(row[K_GAP], 0.0) / h
 
 
 @njit(**JIT)
-def bounce(frames, inv_inertia, rows, acc):
-    """Restitution after the solve (Poisson): each bouncing contact takes e times the
-    normal impulse that stopped it once more.  On the stopped motion, where every contact
-    impulse does no work, that gives back e^2 of the kinetic energy the stop took, never
-    more."""
+def approach_after_gravity(frames, rows):
+    """Each contact's approach speed once the step's gravity is in (``K_FALL``)."""
     for k in range(rows.shape[0]):
         row = rows[k]
-        if row[K_BOUNCE] > 0.0:
-            lam = row[K_E] * acc[k, 0]
-            acc[k, 0] += lam
-            _impulse(frames, inv_inertia, row, lam, row[K_N], row[K_N + 1], row[K_N + 2])
+        row[K_FALL] = -_relative(frames, row, row[K_N], row[K_N + 1], row[K_N + 2])
+
+
+@njit(**JIT)
+def bounce(frames, inv_inertia, rows, acc):
+    """Restitution after the solve (Poisson): each bouncing contact takes e times the
+    normal impulse that stopped it once more, less the share that stopped the step's
+    gravity (so it leaves as fast as it came, times e).  On the stopped motion, where the
+    contact impulses do no work, that gives back at most e^2 of the kinetic energy the
+    stop took.  Returns the impulses added."""
+    added = np.zeros(rows.shape[0])
+    for k in range(rows.shape[0]):
+        row = rows[k]
+        if row[K_BOUNCE] > 0.0 and row[K_FALL] > 0.0:
+            added[k] = row[K_E] * acc[k, 0] * min(row[K_APPROACH] / row[K_FALL], 1.0)
+            _impulse(frames, inv_inertia, row, added[k], row[K_N], row[K_N + 1],
+                     row[K_N + 2])
+    return added
+
+
+@njit(**JIT)
+def energy_share(before, after, inv_inertia, awake, limit):
+    """The largest s in [0, 1] such that the motion ``before`` + s (``after`` -
+    ``before``) (frames) has at most ``limit`` kinetic energy (0 if even ``before`` has
+    more): the share of the restitution impulses that adds no energy."""
+    start, slope, curve = 0.0, 0.0, 0.0
+    for b in range(before.shape[0]):
+        if not awake[b]:
+            continue
+        inertia = inverse3(inv_inertia[b])
+        v0, w0 = before[b, F_VEL:F_VEL + 3], before[b, F_SPIN:F_SPIN + 3]
+        dv = after[b, F_VEL:F_VEL + 3] - v0
+        dw = after[b, F_SPIN:F_SPIN + 3] - w0
+        mass = before[b, F_MASS]
+        start += 0.5 * mass * (v0 @ v0) + 0.5 * (w0 @ (inertia @ w0))
+        slope += mass * (v0 @ dv) + w0 @ (inertia @ dw)
+        curve += 0.5 * mass * (dv @ dv) + 0.5 * (dw @ (inertia @ dw))
+    if start + slope + curve <= limit:
+        return 1.0
+    if curve <= 0.0 or start >= limit:
+        return 0.0
+    return max(0.0, (-slope + np.sqrt(slope * slope - 4.0 * curve * (start - limit)))
+               / (2.0 * curve))
+
+
+@njit(**JIT)
+def kinetic_energy(frames, inv_inertia, awake):
+    """The awake bodies' kinetic energy of translation and rotation."""
+    total = 0.0
+    for b in range(frames.shape[0]):
+        if awake[b]:
+            v, w = frames[b, F_VEL:F_VEL + 3], frames[b, F_SPIN:F_SPIN + 3]
+            total += 0.5 * frames[b, F_MASS] * (v @ v) + 0.5 * (
+                w @ (inverse3(inv_inertia[b]) @ w))
+    return total
 
 
 @njit(**JIT)
@@ -328,7 +378,7 @@ def solve_velocities(frames, inv_inertia, rows, iters, tol, acc):
 @njit(**JIT)
 def solve_positions(frames, inv_inertia, rows, h, iters, tol):
     """The split impulse: frames' velocity and spin set to what, applied to positions for
-    one step, removes ``BAUMGARTE`` of each contact's overlap beyond ``SLOP`` (sweeps as
+    one step, removes ``BAUMGARTE`` of each contact's overlap beyond ``K_SLOP`` (sweeps as
     ``solve_velocities``); each contact's impulse in ``K_GRIP``."""
     n = rows.shape[0]
     frames[:, F_VEL:F_VEL + 3] = 0.0
@@ -339,7 +389,7 @@ def solve_positions(frames, inv_inertia, rows, h, iters, tol):
         for s in range(n):
             k = s if it % 2 == 0 else n - 1 - s
             row = rows[k]
-            depth = -row[K_GAP] - SLOP
+            depth = -row[K_GAP] - row[K_SLOP]
             if depth <= 0.0:
                 continue
             nx, ny, nz = row[K_N], row[K_N + 1], row[K_N + 2]
@@ -432,9 +482,16 @@ def stiff_step(bodies, scene, memory, tally, stats):
     for b in range(nb):
         if bodies.awake[b]:
             frames[b, F_VEL:F_VEL + 3] += h * gravity
+    free = kinetic_energy(frames, inv_inertia, bodies.awake)
+    approach_after_gravity(frames, rows)
     acc = warm_start(frames, inv_inertia, rows, keys, memory[0], memory[1])
     solve_velocities(frames, inv_inertia, rows, scene.iters, tol, acc)
-    bounce(frames, inv_inertia, rows, acc)
+    stopped = frames.copy()
+    added = bounce(frames, inv_inertia, rows, acc)
+    share = energy_share(stopped, frames, inv_inertia, bodies.awake, free)
+    if share < 1.0:                                      # contacts never add energy
+        frames[:] = stopped + share * (frames - stopped)
+    acc[:, 0] += share * added
     _tally(rows, acc, frames, scene.rows, tally)
     for b in range(nb):
         if bodies.awake[b]:
