@@ -79,7 +79,7 @@ def contact_from(scene_contact: Optional[Mapping[str, Any]],
     return ContactParams(enabled=bool(c['enabled']), friction=float(c['friction']),
                          restitution=float(c['restitution']),
                          radius_scale=float(c['radius_scale']),
-                         stacking=c['stacking'], sleep=c['sleep'],
+                         stacking=c['stacking'], rigid=c['rigid'], sleep=c['sleep'],
                          sleep_speed=float(c['sleep_speed']),
                          sleep_time=float(c['sleep_time'])).validate()
 

@@ -21,7 +21,7 @@ from sm_ros.shapes import Surface
 
 #: Keys of a scene's top-level ``contact`` mapping (node parameters ``contact.<key>``).
 CONTACT_SCENE_KEYS = ('enabled', 'friction', 'restitution', 'radius_scale', 'stacking',
-                      'sleep', 'sleep_speed', 'sleep_time')
+                      'rigid', 'sleep', 'sleep_speed', 'sleep_time')
 
 
 class SceneError(ValueError):

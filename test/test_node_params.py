@@ -30,7 +30,8 @@ INTERFACE_PARAMS = ('mode', 'alpha', 'beta', 'plasticity.yield', 'plasticity.cre
                     'contact.radius_scale', 'max_speed', 'max_turn', 'error_estimate.rate')
 #: Parameters sm_ros adds to the interface (live view, recording, error estimate budget).
 EXTRA_PARAMS = ('foxglove.port', 'foxglove.host', 'record.path', 'record.split_s',
-                'contact.stacking', 'contact.sleep', 'contact.sleep_speed', 'contact.sleep_time')
+                'contact.stacking', 'contact.rigid', 'contact.sleep', 'contact.sleep_speed',
+                'contact.sleep_time')
 
 
 def set_param(node, name, value):

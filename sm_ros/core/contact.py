@@ -101,6 +101,8 @@ class ContactParams:
     (``COUPLE_ALPHA``, ``STACK_SWEEPS``, ``WARM_START``; doc/contact.md:
     stacks stand and heaps of such bodies come to rest at the node's step); False: every
     particle acts on its own (``solve_pairs``), as softer bodies always do.
+    ``rigid`` (on by default; ``contact.rigid``): stiff bodies take their contacts as rigid
+    bodies (``stiff_contact.py``); False: stacking carries them as a whole, as before.
     ``sleep`` (on by default): a body whose particles all moved slower than
     ``sleep_speed`` (m/s) for ``sleep_time`` seconds and that touches no moving body falls
     asleep and is not stepped until something wakes it (``sleep.py``, doc/sleeping.md).
@@ -112,6 +114,7 @@ class ContactParams:
     radius_scale: float = 1.0
     iterations: int = 1
     stacking: bool = True
+    rigid: bool = True
     sleep: bool = True
     sleep_speed: float = 0.01
     sleep_time: float = 0.5
@@ -130,6 +133,7 @@ class ContactParams:
                                  lo_open=True),
             iterations=int(it),
             stacking=_flag('contact.stacking', self.stacking),
+            rigid=_flag('contact.rigid', self.rigid),
             sleep=_flag('contact.sleep', self.sleep),
             sleep_speed=_finite('contact.sleep_speed', self.sleep_speed, 0.0, 10.0),
             sleep_time=_finite('contact.sleep_time', self.sleep_time, 0.0, 3600.0),

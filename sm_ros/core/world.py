@@ -431,7 +431,8 @@ class World(WorldColliders):
         before their own step; the contact pass leaves their pairs alone.  Their contact
         figures wait in ``_stiff_stats`` (flat body order) for the diagnostics."""
         bodies = self._flat.bodies
-        stiff = np.array([self._contact_params.stacking and is_stiff(b, h) for b in bodies],
+        cp = self._contact_params
+        stiff = np.array([cp.stacking and cp.rigid and is_stiff(b, h) for b in bodies],
                          dtype=np.bool_)
         c = self._contact
         if c is not None:

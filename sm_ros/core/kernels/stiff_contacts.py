@@ -316,7 +316,7 @@ def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
     nb = _near(xb, fa[F_LO:F_LO + 3], fa[F_HI:F_HI + 3], reach, near_b)
     if na == 0 or nb == 0:
         return count
-    n = _pair_normal(xa, xb, near_a[:na], near_b[:nb], reach)
+    n, face = _pair_normal(xa, xb, near_a[:na], near_b[:nb], reach)
     if not np.any(n != 0.0):
         return count
     tangents = np.empty(6)
@@ -332,14 +332,14 @@ def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
             dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
             if dx * dx + dy * dy + dz * dz >= reach * reach:
                 continue
-            gap = dx * n[0] + dy * n[1] + dz * n[2] - ra - rb
+            gap = _gap_of(dx, dy, dz, n, face) - ra - rb
             if gap < margin:
                 for k in range(3):
                     mid[k] = 0.5 * (xa[i, k] + xb[j, k])
                 _slot(slots, best, gap, mid, fa, 0.25 * ra, tangents, i * xb.shape[0] + j)
     for k in range(SLOTS):
         if _distinct(slots, k):
-            _pair_row(bodies, frames, (a, b), slots[k], n, scene, out[count])
+            _pair_row(bodies, frames, (a, b), slots[k], (n, face), scene, out[count])
             out[count, K_WHO] = k
             count += 1
     return count
@@ -347,14 +347,16 @@ def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
 
 @njit(**JIT)
 def _pair_normal(xa, xb, near_a, near_b, reach):
-    """The normal of a body pair's contact, from b towards a (zeros: none in reach).
+    """(the normal of a body pair's contact, from b towards a (zeros: none in reach),
+    whether a face gave it).
 
     Each body's particles in reach of the other's lie in a plane where that body meets the
     other with a face: of the two, the flatter face (the smaller share of its spread across
     its plane) gives the normal, whatever the faces' offset or an edge resting on it (the
     particle pairs' own directions would tilt with the offset and push the faces apart
     sideways).  Where neither is flat (an edge on an edge, a corner), the mean direction of
-    the pairs in reach, weighted by how far in."""
+    the pairs in reach, weighted by how far in: then a pair's gap is its own distance, not
+    its distance along the normal (``_gap_of``)."""
     pull = np.zeros(3)
     side_a, side_b = np.zeros(10), np.zeros(10)     # weight, sum of w x (3), of w x x^T (6)
     for i in near_a:
@@ -371,14 +373,22 @@ def _pair_normal(xa, xb, near_a, near_b, reach):
             _add_point(side_b, xb[j], w)
     size = np.sqrt(pull[0] ** 2 + pull[1] ** 2 + pull[2] ** 2)
     if not size > 0.0:
-        return np.zeros(3)
+        return np.zeros(3), False
     pull /= size
     flat_a, normal_a = _flatness(side_a)
     flat_b, normal_b = _flatness(side_b)
     n = normal_a if flat_a < flat_b else normal_b
     if min(flat_a, flat_b) > FLAT:
-        return pull
-    return n if n @ pull >= 0.0 else -n
+        return pull, False
+    return (n if n @ pull >= 0.0 else -n), True
+
+
+@njit(**JIT)
+def _gap_of(dx, dy, dz, n, face):
+    """A particle pair's distance d along the normal n of a face, else its length."""
+    if face:
+        return dx * n[0] + dy * n[1] + dz * n[2]
+    return np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
 @njit(**JIT)
@@ -413,16 +423,17 @@ def _flatness(side):
 
 
 @njit(**JIT)
-def _pair_row(bodies, frames, pair, who, n, scene, row):
+def _pair_row(bodies, frames, pair, who, normal, scene, row):
     """Fill a contact row for the particle pair ``who`` (a's index times b's count plus
-    b's) of the body pair (a, b), normal n."""
+    b's) of the body pair (a, b); ``normal``: ``_pair_normal``'s."""
     a, b = pair
+    n, face = normal
     xa, xb, ra, rb = bodies.x[a], bodies.x[b], bodies.radius[a], bodies.radius[b]
     i, j = who // xb.shape[0], who % xb.shape[0]
     row[:] = 0.0
     row[K_A], row[K_B], row[K_COLL] = a, b, -2
-    row[K_GAP] = ((xa[i, 0] - xb[j, 0]) * n[0] + (xa[i, 1] - xb[j, 1]) * n[1]
-                  + (xa[i, 2] - xb[j, 2]) * n[2] - ra - rb)
+    row[K_GAP] = _gap_of(xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2], n,
+                         face) - ra - rb
     for k in range(3):
         p = 0.5 * (xa[i, k] + xb[j, k]) + 0.5 * (rb - ra) * n[k]
         row[K_N + k] = n[k]
