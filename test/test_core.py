@@ -7,6 +7,7 @@ from sm_ros.core import BodyParams, Box, Ground, Sphere, World
 from sm_ros.core import kernels as K
 from sm_ros.core.reference import (ReferenceBody, cap_plastic, collide, proper_rotation,
                                    quadratic_terms, volume_preserving)
+from sm_ros.core.contact import ContactParams
 from sm_ros.core.stiff_contact import is_stiff
 
 RNG = np.random.default_rng
@@ -463,7 +464,8 @@ def test_no_particle_below_ground_and_rest_on_ground():
     h = 1.0 / 240.0
     for _ in range(480):
         w2.step(h)
-    assert np.linalg.norm(b2.com() - com0) < 2e-3
+    # an overlap up to a tenth of the radius is kept (stiff_contacts.SLOP_SHARE)
+    assert np.linalg.norm(b2.com() - com0) < 2e-3 + 0.1 * 0.025
     assert np.abs(b2.momentum()).max() / b2.total_mass < 3 * 9.81 * h
 
 
@@ -569,6 +571,9 @@ def _run_layout(monkeypatch, mode, clusters, **consts):
         monkeypatch.setattr(tuning, name, value)
     x0 = lattice(7, 6, 5, 0.05, jitter=0.2, seed=4) + [0.0, 0.0, 0.1]
     world = World()
+    # the kernels per particle: a stiff body's contact as a rigid body picks its contact
+    # points among ties in storage order
+    world.contact_params = ContactParams(rigid=False)
     world.set_colliders(ground=Ground(friction=0.4))
     body = world.add_body(x0, RNG(3).uniform(0.5, 2.0, len(x0)),
                           BodyParams(mode=mode, alpha=0.6, beta=0.5, clusters=clusters,
