@@ -18,14 +18,15 @@ from numba import njit
 
 from .jit import JIT
 from ..kinematic import C_ANG, C_BOUND, C_VEL
+from .stiff_rows import J_D, J_MASS, apply, jacobians, push_visit, speed_along, visit
 from .stiff_contacts import (F_COM, F_HI, F_INV, F_LO, F_MASS, F_REACH, F_ROW, F_SPIN,
                              F_VEL, K_A, K_APPROACH, K_B, K_BOUNCE, K_COLL, K_E, K_FALL,
-                             K_GAP, K_GRIP, K_MU, K_N, K_RA, K_RB, K_ROW, K_SLOP, K_SURF, K_TARGET,
-                             K_WHO, SLOTS, _tangents, body_frame, collider_contacts,
+                             K_GAP, K_GRIP, K_RA, K_ROW, K_SLOP, K_TARGET,
+                             K_WHO, SLOTS, body_frame, collider_contacts,
                              inverse3, pair_contacts)
 
-#: Overlap left uncorrected (m) and the share of the rest the position solve removes in a
-#: step.
+#: A gap (m) within which a contact counts as reached, and the share of an overlap beyond
+#: its slop (``stiff_contacts.SLOP_SHARE``) the position solve removes in a step.
 SLOP = 1e-4
 BAUMGARTE = 0.5
 #: Sweeps stop once none changes a contact's speed by more than this share of the
@@ -141,86 +142,6 @@ def _contacts(frames, bodies, scene, stats):
 
 
 @njit(**JIT)
-def _velocity_at(frames, b, r, surf):
-    """The velocity of body b (or, for b < 0, ``surf``) at lever arm r."""
-    if b < 0:
-        return surf[0], surf[1], surf[2]
-    v = frames[b, F_VEL:F_VEL + 3]
-    w = frames[b, F_SPIN:F_SPIN + 3]
-    return (v[0] + w[1] * r[2] - w[2] * r[1], v[1] + w[2] * r[0] - w[0] * r[2],
-            v[2] + w[0] * r[1] - w[1] * r[0])
-
-
-@njit(**JIT)
-def _pushed(frames, row, dx, dy, dz):
-    """``_relative`` of the position solve: a collider is not pushed."""
-    zero = np.zeros(3)
-    ax, ay, az = _velocity_at(frames, int(row[K_A]), row[K_RA:K_RA + 3], zero)
-    bx, by, bz = _velocity_at(frames, int(row[K_B]), row[K_RB:K_RB + 3], zero)
-    return (ax - bx) * dx + (ay - by) * dy + (az - bz) * dz
-
-
-@njit(**JIT)
-def _relative(frames, row, dx, dy, dz):
-    """The velocity of a's point relative to b's (or the collider's) along d."""
-    ax, ay, az = _velocity_at(frames, int(row[K_A]), row[K_RA:K_RA + 3], row[K_SURF:K_SURF + 3])
-    bx, by, bz = _velocity_at(frames, int(row[K_B]), row[K_RB:K_RB + 3],
-                              row[K_SURF:K_SURF + 3])
-    return (ax - bx) * dx + (ay - by) * dy + (az - bz) * dz
-
-
-@njit(**JIT)
-def _inv_eff(frames, inv_inertia, b, r, dx, dy, dz):
-    """Body b's share of a contact's inverse effective mass along d at lever arm r."""
-    if b < 0:
-        return 0.0
-    cx, cy, cz = r[1] * dz - r[2] * dy, r[2] * dx - r[0] * dz, r[0] * dy - r[1] * dx
-    k = frames[b, F_INV]
-    c = (cx, cy, cz)
-    for i in range(3):
-        for j in range(3):
-            k += c[i] * inv_inertia[b, i, j] * c[j]
-    return k
-
-
-@njit(**JIT)
-def _push(frames, inv_inertia, b, r, px, py, pz):
-    """Add the impulse p at lever arm r to body b's motion (nothing for b < 0)."""
-    if b < 0:
-        return
-    w = frames[b, F_INV]
-    frames[b, F_VEL] += w * px
-    frames[b, F_VEL + 1] += w * py
-    frames[b, F_VEL + 2] += w * pz
-    tx, ty, tz = r[1] * pz - r[2] * py, r[2] * px - r[0] * pz, r[0] * py - r[1] * px
-    for k in range(3):
-        frames[b, F_SPIN + k] += (inv_inertia[b, k, 0] * tx + inv_inertia[b, k, 1] * ty
-                                  + inv_inertia[b, k, 2] * tz)
-
-
-@njit(**JIT)
-def _impulse(frames, inv_inertia, row, lam, dx, dy, dz):
-    """Impulse ``lam`` along d: + on a, - on b."""
-    _push(frames, inv_inertia, int(row[K_A]), row[K_RA:K_RA + 3], lam * dx, lam * dy, lam * dz)
-    _push(frames, inv_inertia, int(row[K_B]), row[K_RB:K_RB + 3], -lam * dx, -lam * dy,
-          -lam * dz)
-
-
-@njit(**JIT)
-def _inv_mass_along(frames, inv_inertia, row, dx, dy, dz):
-    """The speed change along d per unit impulse along d at a contact."""
-    return (_inv_eff(frames, inv_inertia, int(row[K_A]), row[K_RA:K_RA + 3], dx, dy, dz)
-            + _inv_eff(frames, inv_inertia, int(row[K_B]), row[K_RB:K_RB + 3], dx, dy, dz))
-
-
-@njit(**JIT)
-def _mass_along(frames, inv_inertia, row, dx, dy, dz):
-    """A contact's effective mass along d (0 between two immovable sides)."""
-    k = _inv_mass_along(frames, inv_inertia, row, dx, dy, dz)
-    return 1.0 / k if k > 0.0 else 0.0
-
-
-@njit(**JIT)
 def contact_keys(rows, nb, ncoll):
     """One integer per contact naming it from step to step: its bodies or collider, and
     its particles."""
@@ -234,9 +155,10 @@ def contact_keys(rows, nb, ncoll):
 
 
 @njit(**JIT)
-def warm_start(frames, inv_inertia, rows, keys, old_keys, old_acc):
-    """Start each contact from ``WARM`` times its impulses of the last step (``old_keys``
-    sorted, ``old_acc`` in their order), applied to the bodies; returns the impulses."""
+def warm_start(frames, jac, rows, keys, memory):
+    """Start each contact from ``WARM`` times its impulses of the last step (``memory``:
+    keys sorted, impulses in their order), applied to the bodies; returns the impulses."""
+    old_keys, old_acc = memory
     acc = np.zeros((rows.shape[0], 3))
     if len(old_keys) == 0:
         return acc
@@ -244,24 +166,21 @@ def warm_start(frames, inv_inertia, rows, keys, old_keys, old_acc):
         at = np.searchsorted(old_keys, keys[k])
         if at >= len(old_keys) or old_keys[at] != keys[k]:
             continue
-        row = rows[k]
         acc[k] = WARM * old_acc[at]
-        nx, ny, nz = row[K_N], row[K_N + 1], row[K_N + 2]
-        t1x, t1y, t1z, t2x, t2y, t2z = _tangents(nx, ny, nz)
-        a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]
-        _impulse(frames, inv_inertia, row, 1.0, a0 * nx + a1 * t1x + a2 * t2x,
-                 a0 * ny + a1 * t1y + a2 * t2y, a0 * nz + a1 * t1z + a2 * t2z)
+        a, b = int(rows[k, K_A]), int(rows[k, K_B])
+        for e in range(3):
+            apply(frames, jac[k, e], a, b, acc[k, e])
     return acc
 
 
 @njit(**JIT)
-def set_targets(frames, rows, h, thresh):
+def set_targets(frames, jac, rows, h, thresh):
     """Each contact's target normal speed (``K_TARGET``): 0 where it hits within the step
     faster than ``thresh`` (``K_BOUNCE`` set: ``bounce`` adds its restitution after the
     solve), else what closes its gap within the step, no more."""
     for k in range(rows.shape[0]):
         row = rows[k]
-        vn = _relative(frames, row, row[K_N], row[K_N + 1], row[K_N + 2])
+        vn = speed_along(frames, jac[k, 0], int(row[K_A]), int(row[K_B]), True)
         hits = -vn > thresh and row[K_GAP] < SLOP - vn * h
         row[K_APPROACH] = -vn
         row[K_BOUNCE] = 1.0 if hits and row[K_E] > 0.0 else 0.0
@@ -269,15 +188,15 @@ def set_targets(frames, rows, h, thresh):
 
 
 @njit(**JIT)
-def approach_after_gravity(frames, rows):
+def approach_after_gravity(frames, jac, rows):
     """Each contact's approach speed once the step's gravity is in (``K_FALL``)."""
     for k in range(rows.shape[0]):
-        row = rows[k]
-        row[K_FALL] = -_relative(frames, row, row[K_N], row[K_N + 1], row[K_N + 2])
+        rows[k, K_FALL] = -speed_along(frames, jac[k, 0], int(rows[k, K_A]),
+                                       int(rows[k, K_B]), True)
 
 
 @njit(**JIT)
-def bounce(frames, inv_inertia, rows, acc):
+def bounce(frames, jac, rows, acc):
     """Restitution after the solve (Poisson): each bouncing contact takes e times the
     normal impulse that stopped it once more, less the share that stopped the step's
     gravity (so it leaves as fast as it came, times e).  On the stopped motion, where the
@@ -288,8 +207,7 @@ def bounce(frames, inv_inertia, rows, acc):
         row = rows[k]
         if row[K_BOUNCE] > 0.0 and row[K_FALL] > 0.0:
             added[k] = row[K_E] * acc[k, 0] * min(row[K_APPROACH] / row[K_FALL], 1.0)
-            _impulse(frames, inv_inertia, row, added[k], row[K_N], row[K_N + 1],
-                     row[K_N + 2])
+            apply(frames, jac[k, 0], int(row[K_A]), int(row[K_B]), added[k])
     return added
 
 
@@ -331,75 +249,40 @@ def kinetic_energy(frames, inv_inertia, awake):
 
 
 @njit(**JIT)
-def _visit(frames, inv_inertia, row, acc):
-    """One visit of a contact: its normal impulse, then its friction within mu times the
-    normal impulse so far and the position solve's (``K_GRIP``: a finger pressed into a
-    body holds it by friction)."""
-    nx, ny, nz = row[K_N], row[K_N + 1], row[K_N + 2]
-    lam = _mass_along(frames, inv_inertia, row, nx, ny, nz) * (
-        row[K_TARGET] - _relative(frames, row, nx, ny, nz))
-    mass_n = _mass_along(frames, inv_inertia, row, nx, ny, nz)
-    lam = max(acc[0] + lam, 0.0) - acc[0]
-    acc[0] += lam
-    _impulse(frames, inv_inertia, row, lam, nx, ny, nz)
-    t1x, t1y, t1z, t2x, t2y, t2z = _tangents(nx, ny, nz)
-    f1 = acc[1] - _mass_along(frames, inv_inertia, row, t1x, t1y, t1z) * _relative(
-        frames, row, t1x, t1y, t1z)
-    f2 = acc[2] - _mass_along(frames, inv_inertia, row, t2x, t2y, t2z) * _relative(
-        frames, row, t2x, t2y, t2z)
-    cap = row[K_MU] * (acc[0] + row[K_GRIP])
-    size = np.sqrt(f1 * f1 + f2 * f2)
-    if size > cap:
-        f1, f2 = f1 * cap / size, f2 * cap / size
-    d1, d2 = f1 - acc[1], f2 - acc[2]
-    acc[1], acc[2] = f1, f2
-    _impulse(frames, inv_inertia, row, 1.0, d1 * t1x + d2 * t2x, d1 * t1y + d2 * t2y,
-             d1 * t1z + d2 * t2z)
-    change = abs(lam) + np.sqrt(d1 * d1 + d2 * d2)
-    return change / mass_n if mass_n > 0.0 else 0.0
-
-
-@njit(**JIT)
-def solve_velocities(frames, inv_inertia, rows, iters, tol, acc):
-    """Symmetric sweeps of ``_visit`` from the impulses ``acc`` (count, 3), at most
-    ``iters``, until none changes a contact's speed by more than ``tol``; returns the
+def solve_velocities(frames, jac, rows, iters, tol, acc):
+    """Symmetric sweeps of ``stiff_rows.visit`` from the impulses ``acc`` (count, 3), at
+    most ``iters``, until none changes a contact's speed by more than ``tol``; returns the
     sweeps."""
     n = rows.shape[0]
     for it in range(iters):
         largest = 0.0
         for s in range(n):
             k = s if it % 2 == 0 else n - 1 - s
-            largest = max(largest, _visit(frames, inv_inertia, rows[k], acc[k]))
+            largest = max(largest, visit(frames, jac[k], rows[k], acc[k]))
         if largest <= tol:
             return it + 1
     return iters
 
 
 @njit(**JIT)
-def solve_positions(frames, inv_inertia, rows, h, iters, tol):
+def solve_positions(frames, jac, rows, h, iters, tol):
     """The split impulse: frames' velocity and spin set to what, applied to positions for
     one step, removes ``BAUMGARTE`` of each contact's overlap beyond ``K_SLOP`` (sweeps as
     ``solve_velocities``); each contact's impulse in ``K_GRIP``."""
     n = rows.shape[0]
-    frames[:, F_VEL:F_VEL + 3] = 0.0
-    frames[:, F_SPIN:F_SPIN + 3] = 0.0
+    frames[:, F_VEL:F_VEL + 6] = 0.0
     acc = np.zeros(n)
     for it in range(iters):
         largest = 0.0
         for s in range(n):
             k = s if it % 2 == 0 else n - 1 - s
-            row = rows[k]
-            depth = -row[K_GAP] - row[K_SLOP]
+            depth = -rows[k, K_GAP] - rows[k, K_SLOP]
             if depth <= 0.0:
                 continue
-            nx, ny, nz = row[K_N], row[K_N + 1], row[K_N + 2]
-            lam = _mass_along(frames, inv_inertia, row, nx, ny, nz) * (
-                BAUMGARTE * depth / h - _pushed(frames, row, nx, ny, nz))
-            lam = max(acc[k] + lam, 0.0) - acc[k]
+            lam = push_visit(frames, jac[k, 0], rows[k], acc[k], BAUMGARTE * depth / h)
             acc[k] += lam
-            _impulse(frames, inv_inertia, row, lam, nx, ny, nz)
-            largest = max(largest, abs(lam) * _inv_mass_along(frames, inv_inertia, row,
-                                                              nx, ny, nz))
+            if jac[k, 0, J_MASS] > 0.0:
+                largest = max(largest, abs(lam) / jac[k, 0, J_MASS])
         if largest <= tol:
             break
     rows[:, K_GRIP] = acc
@@ -417,7 +300,7 @@ def _add_motion(x, v, com, dvel, dspin, scale):
 
 
 @njit(**JIT)
-def _tally(rows, acc, frames, colliders, tally):
+def _tally(rows, jac, acc, frames, colliders, tally):
     """Each collider contact's impulse, with the opposite sign, on its collider: in
     ``tally`` (C, 6), the impulse (N s) and its moment about the collider's centre."""
     for k in range(rows.shape[0]):
@@ -425,11 +308,8 @@ def _tally(rows, acc, frames, colliders, tally):
         c = int(row[K_COLL])
         if c < 0:
             continue
-        nx, ny, nz = row[K_N], row[K_N + 1], row[K_N + 2]
-        t1x, t1y, t1z, t2x, t2y, t2z = _tangents(nx, ny, nz)
-        p = -np.array([acc[k, 0] * nx + acc[k, 1] * t1x + acc[k, 2] * t2x,
-                       acc[k, 0] * ny + acc[k, 1] * t1y + acc[k, 2] * t2y,
-                       acc[k, 0] * nz + acc[k, 1] * t1z + acc[k, 2] * t2z])
+        p = -(acc[k, 0] * jac[k, 0, J_D:J_D + 3] + acc[k, 1] * jac[k, 1, J_D:J_D + 3]
+              + acc[k, 2] * jac[k, 2, J_D:J_D + 3])
         a = int(row[K_A])
         arm = frames[a, F_COM:F_COM + 3] + row[K_RA:K_RA + 3] - colliders[c + 1, 1:4]
         tally[c, :3] += p
@@ -475,24 +355,25 @@ def stiff_step(bodies, scene, memory, tally, stats):
     _pair_stats(rows, stats)
     h, gravity = scene.h, scene.gravity
     tol = TOLERANCE * max(scene.thresh, 1e-3)
+    jac = jacobians(frames, inv_inertia, rows)
     push = frames.copy()
-    solve_positions(push, inv_inertia, rows, h, scene.iters, tol)
+    solve_positions(push, jac, rows, h, scene.iters, tol)
     start = frames.copy()
-    set_targets(frames, rows, h, scene.thresh)
+    set_targets(frames, jac, rows, h, scene.thresh)
     for b in range(nb):
         if bodies.awake[b]:
             frames[b, F_VEL:F_VEL + 3] += h * gravity
     free = kinetic_energy(frames, inv_inertia, bodies.awake)
-    approach_after_gravity(frames, rows)
-    acc = warm_start(frames, inv_inertia, rows, keys, memory[0], memory[1])
-    solve_velocities(frames, inv_inertia, rows, scene.iters, tol, acc)
+    approach_after_gravity(frames, jac, rows)
+    acc = warm_start(frames, jac, rows, keys, memory)
+    solve_velocities(frames, jac, rows, scene.iters, tol, acc)
     stopped = frames.copy()
-    added = bounce(frames, inv_inertia, rows, acc)
+    added = bounce(frames, jac, rows, acc)
     share = energy_share(stopped, frames, inv_inertia, bodies.awake, free)
     if share < 1.0:                                      # contacts never add energy
         frames[:] = stopped + share * (frames - stopped)
     acc[:, 0] += share * added
-    _tally(rows, acc, frames, scene.rows, tally)
+    _tally(rows, jac, acc, frames, scene.rows, tally)
     for b in range(nb):
         if bodies.awake[b]:
             _move(bodies, b, start[b], frames[b] - start[b], push[b], scene, stats[b])
