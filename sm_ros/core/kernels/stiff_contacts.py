@@ -15,6 +15,7 @@ import numpy as np
 from numba import njit
 
 from .jit import JIT
+from .linalg import jacobi3
 from ..kinematic import C_ANG, C_BOUND, C_DIM, C_E, C_KIND, C_MU, C_POS, C_ROT, C_VEL
 
 #: Contact points kept per collider or body pair: the deepest and the farthest along 8
@@ -316,7 +317,8 @@ def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
     nb = _near(xb, fa[F_LO:F_LO + 3], fa[F_HI:F_HI + 3], reach, near_b)
     if na == 0 or nb == 0:
         return count
-    n, face = _pair_normal(xa, xb, near_a[:na], near_b[:nb], reach)
+    close = _close_pairs(xa, xb, near_a[:na], near_b[:nb], reach)
+    n, face = _pair_normal(xa, xb, close, reach)
     if not np.any(n != 0.0):
         return count
     tangents = np.empty(6)
@@ -325,18 +327,14 @@ def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
     best = np.empty((SLOTS, 2))
     mid = np.empty(3)
     _fresh(slots, best)
-    for p in range(na):
-        i = near_a[p]
-        for q in range(nb):
-            j = near_b[q]
-            dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
-            if dx * dx + dy * dy + dz * dz >= reach * reach:
-                continue
-            gap = _gap_of(dx, dy, dz, n, face) - ra - rb
-            if gap < margin:
-                for k in range(3):
-                    mid[k] = 0.5 * (xa[i, k] + xb[j, k])
-                _slot(slots, best, gap, mid, fa, 0.25 * ra, tangents, i * xb.shape[0] + j)
+    for p in range(close.shape[0]):
+        i, j = close[p, 0], close[p, 1]
+        gap = _gap_of(xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2], n,
+                      face) - ra - rb
+        if gap < margin:
+            for k in range(3):
+                mid[k] = 0.5 * (xa[i, k] + xb[j, k])
+            _slot(slots, best, gap, mid, fa, 0.25 * ra, tangents, i * xb.shape[0] + j)
     for k in range(SLOTS):
         if _distinct(slots, k):
             _pair_row(bodies, frames, (a, b), slots[k], (n, face), scene, out[count])
@@ -346,9 +344,46 @@ def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
 
 
 @njit(**JIT)
-def _pair_normal(xa, xb, near_a, near_b, reach):
+def _close_pairs(xa, xb, near_a, near_b, reach):
+    """The particle pairs (i of a, j of b) closer than ``reach``, (count, 2): b's particles
+    sorted along the axis they spread most on, each of a's scanned only over those within
+    ``reach`` of it along that axis."""
+    spread = np.zeros(3)
+    for k in range(3):
+        lo, hi = np.inf, -np.inf
+        for j in near_b:
+            lo, hi = min(lo, xb[j, k]), max(hi, xb[j, k])
+        spread[k] = hi - lo
+    axis = int(np.argmax(spread))
+    keys = np.empty(len(near_b))
+    for q in range(len(near_b)):
+        keys[q] = xb[near_b[q], axis]
+    order = np.argsort(keys)
+    keys = keys[order]
+    sorted_b = near_b[order]
+    out = np.empty((16, 2), dtype=np.int64)
+    count = 0
+    for i in near_a:
+        start = np.searchsorted(keys, xa[i, axis] - reach)
+        for q in range(start, len(keys)):
+            if keys[q] > xa[i, axis] + reach:
+                break
+            j = sorted_b[q]
+            dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
+            if dx * dx + dy * dy + dz * dz < reach * reach:
+                if count == out.shape[0]:
+                    grown = np.empty((2 * count, 2), dtype=np.int64)
+                    grown[:count] = out
+                    out = grown
+                out[count, 0], out[count, 1] = i, j
+                count += 1
+    return out[:count]
+
+
+@njit(**JIT)
+def _pair_normal(xa, xb, close, reach):
     """(the normal of a body pair's contact, from b towards a (zeros: none in reach),
-    whether a face gave it).
+    whether a face gave it), from its particle pairs in reach (``close``).
 
     Each body's particles in reach of the other's lie in a plane where that body meets the
     other with a face: of the two, the flatter face (the smaller share of its spread across
@@ -359,18 +394,18 @@ def _pair_normal(xa, xb, near_a, near_b, reach):
     its distance along the normal (``_gap_of``)."""
     pull = np.zeros(3)
     side_a, side_b = np.zeros(10), np.zeros(10)     # weight, sum of w x (3), of w x x^T (6)
-    for i in near_a:
-        for j in near_b:
-            dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
-            d = np.sqrt(dx * dx + dy * dy + dz * dz)
-            if not (d < reach and d > 0.0):
-                continue
-            w = reach - d
-            pull[0] += w * dx / d
-            pull[1] += w * dy / d
-            pull[2] += w * dz / d
-            _add_point(side_a, xa[i], w)
-            _add_point(side_b, xb[j], w)
+    for p in range(close.shape[0]):
+        i, j = close[p, 0], close[p, 1]
+        dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
+        d = np.sqrt(dx * dx + dy * dy + dz * dz)
+        if not d > 0.0:
+            continue
+        w = reach - d
+        pull[0] += w * dx / d
+        pull[1] += w * dy / d
+        pull[2] += w * dz / d
+        _add_point(side_a, xa[i], w)
+        _add_point(side_b, xb[j], w)
     size = np.sqrt(pull[0] ** 2 + pull[1] ** 2 + pull[2] ** 2)
     if not size > 0.0:
         return np.zeros(3), False
@@ -416,10 +451,13 @@ def _flatness(side):
     cov[0, 1] = cov[1, 0] = side[7] / side[0] - mean[0] * mean[1]
     cov[0, 2] = cov[2, 0] = side[8] / side[0] - mean[0] * mean[2]
     cov[1, 2] = cov[2, 1] = side[9] / side[0] - mean[1] * mean[2]
-    spread, axes = np.linalg.eigh(cov)
-    if not spread[1] > 0.0:
-        return np.inf, axes[:, 0].copy()
-    return max(spread[0], 0.0) / spread[1], axes[:, 0].copy()
+    axes = np.empty((3, 3))
+    jacobi3(cov, axes)
+    spread = np.array([cov[0, 0], cov[1, 1], cov[2, 2]])
+    order = np.argsort(spread)
+    if not spread[order[1]] > 0.0:
+        return np.inf, axes[:, order[0]].copy()
+    return max(spread[order[0]], 0.0) / spread[order[1]], axes[:, order[0]].copy()
 
 
 @njit(**JIT)
