@@ -76,13 +76,14 @@ def test_dominoes_fall_in_sequence_when_pushed_and_stand_when_not():
 @pytest.mark.parametrize('e', [0.0, 0.5, 1.0])
 def test_an_off_centre_hit_keeps_momentum_spins_both_and_adds_no_energy(e):
     """Zero gravity, no friction: momentum to round-off, both boxes spin, the kinetic
-    energy never rises; the more restitution, the faster they part."""
+    energy never rises, the more restitution, the faster they part.  Angular momentum
+    moves only with the position pushes of an overlap (PyBullet: 0.06-0.17 here)."""
     out = _run(f'hit_e{e:g}')
     assert out['momentum_err'] < 1e-12
+    assert out['angmom_err'] < 1e-2
     assert out['energy_ratio'] <= 1.0 + 1e-9
     assert out['spin_a'] > 0.5 and out['spin_b'] > 0.5
     if e > 0.0:
-        assert out['angmom_err'] < 1e-9
         assert out['separation'] > _run('hit_e0')['separation'] + 0.1
 
 
@@ -130,7 +131,7 @@ def test_no_contact_creates_energy_and_body_pairs_keep_both_momenta(e, seed):
     rng = np.random.default_rng(seed)
     bodies = _bodies(rng, 4, 0.12)
     rows = np.zeros((1, ROW))
-    scene = SS.StiffScene(rows, 0, False, 0.0, e, np.zeros(3), 1.0 / 120.0, 1e-3, 100)
+    scene = SS.StiffScene(rows, 0, False, 0.0, e, np.zeros(3), 1.0 / 120.0, 1e-3, 100, 0.04)
     before = _energy_momenta(bodies)
     stats = np.zeros((4, 5))
     SS.stiff_step(bodies, scene, (np.zeros(0, np.int64), np.zeros((0, 3))),
@@ -149,7 +150,7 @@ def test_no_collider_contact_creates_energy(e):
     bodies = _bodies(rng, 3, 0.2)
     rows = np.stack([np.zeros(ROW), _box_row((0.2, 0.0, 0.0), (0.05, 0.3, 0.3), 0.8, e)])
     rows[0, C_MU], rows[0, C_E] = 0.6, e
-    scene = SS.StiffScene(rows, 1, True, 0.5, e, np.zeros(3), 1.0 / 60.0, 1e-3, 100)
+    scene = SS.StiffScene(rows, 1, True, 0.5, e, np.zeros(3), 1.0 / 60.0, 1e-3, 100, 0.04)
     before = _energy_momenta(bodies)[0]
     stats = np.zeros((3, 5))
     SS.stiff_step(bodies, scene, (np.zeros(0, np.int64), np.zeros((0, 3))),

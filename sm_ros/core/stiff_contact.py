@@ -15,6 +15,7 @@ from numba.typed import List as TypedList
 
 from .colliders import ColliderSet
 from .kinematic import C_E, C_MU, C_POS, ROW
+from .tuning import WAKE_FACTOR
 from .kernels.stiff_solve import StiffBodies, StiffScene, stiff_step
 
 #: Sequential-impulse sweeps over the contacts per step, at most (they stop once settled).
@@ -96,18 +97,20 @@ class StiffContact:
         """The pass over ``bodies`` ((body, contact radius) pairs) before a step of ``h``
         s; returns (B, 5) per body: its particles touching the plain colliders and the
         others, its body-pair contacts, its deepest overlap (m), and 1 where its
-        velocities changed, 2 where its positions did too."""
+        velocities changed, 2 where its positions did too, 3 where a hit woke it."""
         rows, plain = self._rows(world)
         p = world._contact_params
         scene = StiffScene(rows, plain, world.ground is not None, float(p.friction),
                            float(p.restitution), world._gravity, float(h), float(thresh),
-                           ITERATIONS)
+                           ITERATIONS, WAKE_FACTOR * float(p.sleep_speed))
         tally = np.zeros((len(rows) - 1, 6))
         stats = np.zeros((len(bodies), 5))
         self.keys, self.impulses = stiff_step(self._bodies(world, bodies), scene,
                                               (self.keys, self.impulses), tally, stats)
         for k in np.flatnonzero(stats[:, 4]):
             bodies[k][0]._dirty = True
+            if stats[k, 4] == 3:
+                bodies[k][0].wake()
         cset = world._cset
         if cset is not None and len(self.keys):
             cset.imp[:] += tally[plain:]

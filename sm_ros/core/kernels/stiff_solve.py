@@ -57,7 +57,8 @@ class StiffScene(NamedTuple):
     """What the bodies meet: ``rows`` (row 0 the ground, rows 1.. the colliders in
     ``kinematic`` columns, the first ``plain`` of them the world's plain boxes and
     spheres), whether the ground is on, the body-body friction and restitution, gravity,
-    the step, the restitution threshold speed and the sweeps."""
+    the step, the restitution threshold speed, the sweeps and the speed at which a hit
+    wakes a sleeping body."""
 
     rows: np.ndarray
     plain: int
@@ -68,6 +69,7 @@ class StiffScene(NamedTuple):
     h: float
     thresh: float
     iters: int
+    wake_speed: float
 
 
 @njit(**JIT)
@@ -358,14 +360,17 @@ def stiff_step(bodies, scene, memory, tally, stats):
     change of velocity and spin, overlapping ones a position push.  ``memory``: the last
     step's contact keys (sorted) and impulses; ``stats`` (B, 5) per body: its particles
     touching the plain colliders and the others, its body-pair contacts, its deepest
-    overlap, and 1 where its velocities changed, 2 where its positions did too.  Returns
-    this step's contact keys and impulses, sorted."""
+    overlap, and 1 where its velocities changed, 2 where its positions did too, 3 where a
+    hit woke it.  Returns this step's contact keys and impulses, sorted."""
     nb = len(bodies.x)
     frames = np.zeros((nb, F_ROW))
     inv_inertia = np.zeros((nb, 3, 3))
     for b in range(nb):
         body_frame(bodies.x[b], bodies.v[b], bodies.m[b], frames[b], inv_inertia[b])
-        if not bodies.awake[b]:
+    real_inv, real_inertia = frames[:, F_INV].copy(), inv_inertia.copy()
+    awake = bodies.awake.copy()
+    for b in range(nb):
+        if not awake[b]:                 # asleep: an obstacle of infinite mass
             frames[b, F_INV] = 0.0
             frames[b, F_VEL:F_VEL + 6] = 0.0
             inv_inertia[b] = 0.0
@@ -374,33 +379,62 @@ def stiff_step(bodies, scene, memory, tally, stats):
     if rows.shape[0] == 0:
         return keys, np.zeros((0, 3))
     _pair_stats(rows, stats)
+    for _ in range(2):
+        start = frames.copy()
+        done, push, acc = _solve(frames, inv_inertia, rows, (keys, memory), scene, awake)
+        woken = _woken(rows, awake, scene.wake_speed)
+        if not woken.any():
+            break
+        for b in np.flatnonzero(woken):  # hit hard: solved again as a body, woken
+            frames[b, F_INV], inv_inertia[b] = real_inv[b], real_inertia[b]
+            awake[b], stats[b, 4] = True, 3
+    _tally(rows, jacobians(done, inv_inertia, rows), acc, done, scene.rows, tally)
+    for b in range(nb):
+        if awake[b]:
+            _move(bodies, b, start[b], done[b] - start[b], push[b], scene, stats[b])
+    order = np.argsort(keys)
+    return keys[order], acc[order]
+
+
+@njit(**JIT)
+def _solve(frames, inv_inertia, rows, keys, scene, awake):
+    """The velocity and position solves of the pass from ``frames`` (left as they are):
+    (the bodies' frames after it, their position push, the contact impulses)."""
+    frames = frames.copy()
     h, gravity = scene.h, scene.gravity
     tol = TOLERANCE * max(scene.thresh, 1e-3)
     iters = min(scene.iters, max(MIN_SWEEPS, VISITS // rows.shape[0]))
     jac = jacobians(frames, inv_inertia, rows)
     push = frames.copy()
     solve_positions(push, jac, rows, h, iters, tol)
-    start = frames.copy()
     set_targets(frames, jac, rows, h, scene.thresh)
-    for b in range(nb):
-        if bodies.awake[b]:
+    for b in range(frames.shape[0]):
+        if awake[b]:
             frames[b, F_VEL:F_VEL + 3] += h * gravity
-    free = kinetic_energy(frames, inv_inertia, bodies.awake)
+    free = kinetic_energy(frames, inv_inertia, awake)
     approach_after_gravity(frames, jac, rows)
-    acc = warm_start(frames, jac, rows, keys, memory)
+    acc = warm_start(frames, jac, rows, keys[0], keys[1])
     solve_velocities(frames, jac, rows, iters, tol, acc)
     stopped = frames.copy()
     added = bounce(frames, jac, rows, acc)
-    share = energy_share(stopped, frames, inv_inertia, bodies.awake, free)
+    share = energy_share(stopped, frames, inv_inertia, awake, free)
     if share < 1.0:                                      # contacts never add energy
         frames[:] = stopped + share * (frames - stopped)
     acc[:, 0] += share * added
-    _tally(rows, jac, acc, frames, scene.rows, tally)
-    for b in range(nb):
-        if bodies.awake[b]:
-            _move(bodies, b, start[b], frames[b] - start[b], push[b], scene, stats[b])
-    order = np.argsort(keys)
-    return keys[order], acc[order]
+    return frames, push, acc
+
+
+@njit(**JIT)
+def _woken(rows, awake, wake_speed):
+    """The sleeping bodies an awake one runs into faster than ``wake_speed``."""
+    woken = np.zeros(len(awake), dtype=np.bool_)
+    for k in range(rows.shape[0]):
+        if rows[k, K_APPROACH] > wake_speed:
+            for side in (K_A, K_B):
+                b = int(rows[k, side])
+                if b >= 0 and not awake[b]:
+                    woken[b] = True
+    return woken
 
 
 @njit(**JIT)
