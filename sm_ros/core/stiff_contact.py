@@ -15,24 +15,20 @@ from numba.typed import List as TypedList
 
 from .colliders import ColliderSet
 from .kinematic import C_E, C_MU, C_POS, ROW
-from .tuning import WAKE_FACTOR
+from . import tuning
 from .kernels.stiff_solve import StiffBodies, StiffScene, stiff_step
 
 #: Sequential-impulse sweeps over the contacts per step, at most (they stop once settled).
 ITERATIONS = 100
-#: A body is stiff when the rigid share of its goal, alpha (1 - beta) (alpha in rigid
-#: mode) at the step, is at least this, with at most ``STIFF_CLUSTERS`` cluster cubes per
-#: axis (more bend between them, as a sheet does) and no pinned or grabbed particle.
-STIFF_SHARE = 0.6
-STIFF_CLUSTERS = 2
-
-
 def is_stiff(body, h) -> bool:
-    """Whether ``body`` takes its contacts as a rigid body at steps of ``h`` s."""
+    """Whether ``body`` takes its contacts as a rigid body at steps of ``h`` s: the rigid
+    share of its goal, alpha (1 - beta) (alpha in rigid mode) at the step, at least
+    ``tuning.STIFF_SHARE``, at most ``tuning.STIFF_CLUSTERS`` cluster cubes per axis, no
+    pinned or grabbed particle."""
     prm = body._params
     p = prm.at_step(h)
     share = p.alpha if prm.mode == 'rigid' else p.alpha * (1.0 - p.beta)
-    return (share >= STIFF_SHARE and prm.clusters <= STIFF_CLUSTERS
+    return (share >= tuning.STIFF_SHARE and prm.clusters <= tuning.STIFF_CLUSTERS
             and len(body._kin_idx) == 0)
 
 
@@ -102,7 +98,7 @@ class StiffContact:
         p = world._contact_params
         scene = StiffScene(rows, plain, world.ground is not None, float(p.friction),
                            float(p.restitution), world._gravity, float(h), float(thresh),
-                           ITERATIONS, WAKE_FACTOR * float(p.sleep_speed))
+                           ITERATIONS, tuning.WAKE_FACTOR * float(p.sleep_speed))
         tally = np.zeros((len(rows) - 1, 6))
         stats = np.zeros((len(bodies), 5))
         self.keys, self.impulses = stiff_step(self._bodies(world, bodies), scene,

@@ -28,3 +28,9 @@ RECORDS_PARALLEL_MIN_WORK = 16384
 DEFAULT_MARGIN = 0.5
 #: Clusters: particles two face-neighbouring cubes must share to count as joined.
 MIN_SHARED = 3
+
+#: Stiff bodies (contact as rigid bodies, ``stiff_contact.is_stiff``): the least rigid share
+#: of the goal, alpha (1 - beta) (alpha in rigid mode) at the step.
+STIFF_SHARE = 0.6
+#: Stiff bodies: the most cluster cubes per axis (more bend between them, as a sheet does).
+STIFF_CLUSTERS = 2
