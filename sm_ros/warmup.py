@@ -5,7 +5,9 @@ its scene needs (building the scene steps a throwaway copy of it) and then start
 :func:`start_background`: ``python -m sm_ros.warmup --background``, niced on one core,
 compiles the rest into the cache while the node runs, so that a later scene, contact or
 mode loads its kernels instead of compiling them.  ``python -m sm_ros.warmup`` (``ros2 run
-sm_ros warmup``) does all of it ahead of time; ``make test`` runs it.
+sm_ros warmup``) does all of it ahead of time; ``make test`` runs it.  The stiff bodies'
+contact pass (``stiff_contact.py``) is left out of that (``_stiff_bodies``): it compiles on
+first use or in the background warm-up.
 """
 
 import argparse
