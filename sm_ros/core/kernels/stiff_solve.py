@@ -199,7 +199,7 @@ def warm_start(frames, jac, rows, keys, memory):
 @njit(**JIT)
 def set_targets(frames, jac, rows, h, thresh):
     """Each contact's target normal speed (``K_TARGET``): 0 where it hits within the step
-    faster than ``thresh`` (``K_BOUNCE`` set: ``bounce`` adds its restitution after the
+    faster than ``thresh`` with restitution (``K_BOUNCE`` set: ``bounce`` adds it after the
     solve), else what closes its gap within the step, no more."""
     for k in range(rows.shape[0]):
         row = rows[k]
@@ -207,7 +207,7 @@ def set_targets(frames, jac, rows, h, thresh):
         hits = -vn > thresh and row[K_GAP] < SLOP - vn * h
         row[K_APPROACH] = -vn
         row[K_BOUNCE] = 1.0 if hits and row[K_E] > 0.0 else 0.0
-        row[K_TARGET] = 0.0 if hits else -max(row[K_GAP], 0.0) / h
+        row[K_TARGET] = 0.0 if row[K_BOUNCE] > 0.0 else -max(row[K_GAP], 0.0) / h
 
 
 @njit(**JIT)
