@@ -64,14 +64,10 @@ def _sources_stamp() -> dict:
 
 
 def cold_kernels() -> Optional[int]:
-    """
-    Return how many solver kernels the next start compiles: 0 when Numba's on-disk cache
-    was filled by a warm-up since the core's sources last changed, else the number of
-    cached kernels in ``sm_ros.core``; None when it cannot be told.
-
-    The warm-up leaves a stamp (the core's source files' times and sizes, Numba's version)
-    in Numba's cache folder; Numba recompiles exactly when these change.
-    """
+    """Return how many solver kernels the next start compiles: 0 when Numba's on-disk cache
+    was filled by a warm-up since the core's sources last changed (its stamp: their times
+    and sizes, Numba's version), else the number of cached kernels in ``sm_ros.core``;
+    None when it cannot be told."""
     try:
         import json
         kernels = _core_kernels()
@@ -128,9 +124,8 @@ def scene_start_note(scene: str) -> Optional[str]:
 
 def start_background():
     """Start ``python -m sm_ros.warmup --background`` (every kernel into the cache, niced,
-    on one core, with this process's Numba thread count, so that it compiles the same
-    variants); return ``(process, stderr file)``, or None when it cannot start.
-    :func:`stop_helpers` kills it."""
+    on one core, with this process's Numba thread count: the same variants); return
+    ``(process, stderr file)``, or None when it cannot start (:func:`stop_helpers`)."""
     import numba
     env = {'NUMBA_NUM_THREADS': str(numba.config.NUMBA_NUM_THREADS)}
     extra = _spawn(['--background'], env)
@@ -140,8 +135,8 @@ def start_background():
 
 
 def finish_background(extra) -> Optional[int]:
-    """Wait for the background warm-up; return its exit status (None if it was stopped
-    by :func:`stop_helpers`) and release its files."""
+    """Wait for the background warm-up and release its files: its exit status (None:
+    stopped by :func:`stop_helpers`)."""
     proc, err = extra
     code = proc.wait()
     if extra in _HELPERS:
@@ -151,8 +146,7 @@ def finish_background(extra) -> Optional[int]:
 
 
 def stop_background(extra) -> None:
-    """Kill a background warm-up (:func:`start_background`) if it still runs; the cache
-    keeps every kernel it finished."""
+    """Kill a background warm-up if it still runs (the cache keeps what it finished)."""
     proc = extra[0]
     if proc.poll() is None:
         proc.kill()
@@ -176,32 +170,27 @@ def _background() -> int:
 
 
 def _stiff_bodies() -> None:
-    """Stiff bodies taking their contacts as rigid bodies (``stiff_contact.py``): left out
-    of :func:`warm_up` (about 25 CPU s more), compiled on first use or by the node's
-    background warm-up."""
+    """Stiff bodies' contact (``stiff_contact.py``), left out of :func:`warm_up`."""
     from sm_ros.core import BodyParams, World
     world = World(gravity=(0.0, 0.0, -9.81))
     _colliders(world, 0.3)
     for i in range(2):
-        world.add_body(_cube() + (0.0, 0.0, 0.05 + 0.11 * i), masses=0.01,
-                       params=BodyParams(mode='rigid', alpha=0.9), name=f'stiff{i}')
+        world.add_body(_cube() + (0.0, 0.0, 0.05 + 0.11 * i), 0.01, BodyParams('rigid', 0.9))
     world.step(1.0 / 120.0)
 
 
 def warm_up(on_stage: Optional[Callable[[str], None]] = None, split: bool = True) -> float:
-    """
-    Compile the solver's Numba kernels on a throwaway world; return the seconds spent.
+    """Compile the solver's Numba kernels on a throwaway world; return the seconds spent.
 
     Covers every deformation mode, clusters, plasticity, colliders, wrenches and kinematic
-    particles, so the node's first tick does not pay for compilation. With Numba's on-disk
-    cache warm this takes a fraction of a second.
+    particles, so the node's first tick does not pay for compilation (a fraction of a
+    second from a warm cache).
 
     On a cold cache (and ``split``) a second process (``python -m sm_ros.warmup --extra``,
     :func:`warm_extra`) compiles ``EXTRA_STAGES`` on the second core while this one
     compiles ``MAIN_STAGES``; Numba's cache files are written whole (a temporary file, then
     renamed), so each process loads what the other has finished.  Without a second process
-    this one does both.
-    """
+    this one does both."""
     t0 = time.perf_counter()
     extra = _start_extra() if split and _cpus() > 1 and cold_kernels() else None
     if extra is not None:
@@ -394,15 +383,11 @@ def warm_extra() -> float:
 
 
 def _soft(stage) -> None:
-    """Run a stage with no body stiff (``tuning.STIFF_SHARE`` out of reach): the stiff
-    bodies' contact pass compiles on its own (``_stiff_bodies``)."""
+    """Run a stage with no body stiff: the stiff bodies' pass compiles on its own."""
+    from unittest import mock
     from sm_ros.core import tuning
-    share = tuning.STIFF_SHARE
-    tuning.STIFF_SHARE = float('inf')
-    try:
+    with mock.patch.object(tuning, 'STIFF_SHARE', float('inf')):
         stage()
-    finally:
-        tuning.STIFF_SHARE = share
 
 
 def _cpus() -> int:

@@ -371,13 +371,21 @@ def _close_pairs(xa, xb, near_a, near_b, reach):
             j = sorted_b[q]
             dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
             if dx * dx + dy * dy + dz * dz < reach * reach:
-                if count == out.shape[0]:
-                    grown = np.empty((2 * count, 2), dtype=np.int64)
-                    grown[:count] = out
-                    out = grown
-                out[count, 0], out[count, 1] = i, j
+                out = append_pair(out, count, i, j)
                 count += 1
     return out[:count]
+
+
+@njit(**JIT)
+def append_pair(out, count, i, j):
+    """``out`` (rows of index pairs, ``count`` used) with (i, j) as row ``count``, grown
+    to twice its size when full."""
+    if count == out.shape[0]:
+        grown = np.empty((2 * count, 2), dtype=np.int64)
+        grown[:count] = out
+        out = grown
+    out[count, 0], out[count, 1] = i, j
+    return out
 
 
 @njit(**JIT)

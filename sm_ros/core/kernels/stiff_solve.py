@@ -22,7 +22,7 @@ from .stiff_rows import J_D, J_MASS, apply, jacobians, push_visit, speed_along, 
 from .stiff_contacts import (F_COM, F_HI, F_INV, F_LO, F_MASS, F_REACH, F_ROW, F_SPIN,
                              F_VEL, K_A, K_APPROACH, K_B, K_BOUNCE, K_COLL, K_E, K_FALL,
                              K_GAP, K_GRIP, K_RA, K_ROW, K_SLOP, K_TARGET,
-                             K_WHO, SLOTS, body_frame, collider_contacts,
+                             K_WHO, SLOTS, append_pair, body_frame, collider_contacts,
                              inverse3, pair_contacts)
 
 #: A gap (m) within which a contact counts as reached, and the share of an overlap beyond
@@ -112,11 +112,7 @@ def _pairs(frames, bodies, slack):
                                   or frames[b, F_LO + k] > frames[a, F_HI + k] + grow)
             if apart:
                 continue
-            if count == out.shape[0]:
-                grown = np.empty((2 * count, 2), dtype=np.int64)
-                grown[:count] = out
-                out = grown
-            out[count, 0], out[count, 1] = a, b
+            out = append_pair(out, count, a, b)
             count += 1
     return out[:count]
 
@@ -224,7 +220,7 @@ def bounce(frames, jac, rows, acc):
     normal impulse that stopped it once more, less the share that stopped the step's
     gravity (so it leaves as fast as it came, times e).  On the stopped motion, where the
     contact impulses do no work, that gives back at most e^2 of the kinetic energy the
-    stop took.  Returns the impulses added."""
+    stop removed.  Returns the impulses added."""
     added = np.zeros(rows.shape[0])
     for k in range(rows.shape[0]):
         row = rows[k]
