@@ -41,7 +41,7 @@ from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_pairs, wall_candidates)
 from .kernels.colliders import contact_velocity
 from .params import _finite
-from .kernels.stiff_contacts import drop_rigid_pairs
+from .kernels.stiff_solve import drop_rigid_pairs
 
 #: Same-body pairs self-collide only when their rest distance exceeds this many times
 #: their contact distance ``r_i + r_j`` (lattice neighbours up to two spacings apart

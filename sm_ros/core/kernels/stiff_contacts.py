@@ -486,19 +486,3 @@ def _pair_row(bodies, frames, pair, who, normal, scene, row):
         row[K_RA + k] = p - frames[a, F_COM + k]
         row[K_RB + k] = p - frames[b, F_COM + k]
     row[K_MU], row[K_E], row[K_SLOP] = scene.pair_mu, scene.pair_e, SLOP_SHARE * (ra + rb)
-
-
-@njit(**JIT)
-def drop_rigid_pairs(pi, pj, count, body, rigid, out_i, out_j):
-    """The particle pairs of ``pi``, ``pj`` (first ``count``) but those between two
-    bodies flagged ``rigid`` (their contact is the stiff pass's), into ``out_i``,
-    ``out_j``; returns how many."""
-    kept = 0
-    for k in range(count):
-        i, j = pi[k], pj[k]
-        bi, bj = body[i], body[j]
-        if rigid[bi] and rigid[bj] and bi != bj:
-            continue
-        out_i[kept], out_j[kept] = i, j
-        kept += 1
-    return kept

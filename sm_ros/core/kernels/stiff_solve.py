@@ -447,3 +447,19 @@ def _move(bodies, b, start, change, push, scene, stats):
     if np.any(pvel != 0.0) or np.any(pspin != 0.0):
         _add_motion(bodies.x[b], bodies.x[b], com, pvel, pspin, scene.h)
         stats[4] = 2
+
+
+@njit(**JIT)
+def drop_rigid_pairs(pi, pj, count, body, rigid, out_i, out_j):
+    """The particle pairs of ``pi``, ``pj`` (first ``count``) but those between two
+    bodies flagged ``rigid`` (their contact is the stiff pass's), into ``out_i``,
+    ``out_j``; returns how many."""
+    kept = 0
+    for k in range(count):
+        i, j = pi[k], pj[k]
+        bi, bj = body[i], body[j]
+        if rigid[bi] and rigid[bj] and bi != bj:
+            continue
+        out_i[kept], out_j[kept] = i, j
+        kept += 1
+    return kept
