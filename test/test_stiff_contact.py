@@ -162,14 +162,15 @@ def test_no_collider_contact_creates_energy(e):
 def test_body_frame_matches_numpy():
     rng = np.random.default_rng(3)
     x, v, m = rng.normal(size=(50, 3)), rng.normal(size=(50, 3)), rng.uniform(0.1, 1, 50)
-    frame, inv = np.zeros(SC.F_ROW), np.zeros((3, 3))
-    SC.body_frame(np.asfortranarray(x), np.asfortranarray(v), m, frame, inv)
+    frame, inertia_out, inv = np.zeros(SC.F_ROW), np.zeros((3, 3)), np.zeros((3, 3))
+    SC.body_frame(np.asfortranarray(x), np.asfortranarray(v), m, frame, inertia_out, inv)
     com = m @ x / m.sum()
     r = x - com
     inertia = (m * (r * r).sum(axis=1)).sum() * np.eye(3) - (r.T * m) @ r
     spin = np.linalg.solve(inertia, np.cross(r, (v - m @ v / m.sum()) * m[:, None]).sum(0))
     assert frame[SC.F_MASS] == pytest.approx(m.sum())
     np.testing.assert_allclose(frame[SC.F_COM:SC.F_COM + 3], com, atol=1e-12)
+    np.testing.assert_allclose(inertia_out, inertia, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(inv, np.linalg.inv(inertia), rtol=1e-9)
     np.testing.assert_allclose(frame[SC.F_SPIN:SC.F_SPIN + 3], spin, rtol=1e-9)
     assert frame[SC.F_REACH] == pytest.approx(np.linalg.norm(r, axis=1).max())

@@ -15,7 +15,8 @@ fingers cannot hold a ball however large mu is.  The impulse the particle receiv
 opposite sign, is added to the collider's accumulator: force and torque about the
 collider's centre that the bodies exert on it.
 
-Each collider is one row of ``rows`` (``ROW`` floats, columns named below); the world
+Each collider is one row of ``rows`` (``ROW`` floats, columns named in
+``kernels/colliders.py``, where ``surface_gap`` measures a point against a row); the world
 writes the pose and velocities of the current substep into it (``colliders.py``).
 
 The contact law is ``kernels.colliders.contact_velocity``, shared with the static
@@ -30,20 +31,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .kernels.colliders import contact_velocity
+from .kernels.colliders import (C_ANG, C_BOUND, C_DIM, C_E, C_KIND, C_MU,  # noqa: F401
+                                C_POS, C_ROT, C_VEL, ROW, contact_velocity, surface_gap)
 from .kernels.jit import JIT
 
-# columns of a collider row
-C_KIND = 0          # 0 sphere, 1 box, 2 capsule (params.KIND_*)
-C_POS = 1           # centre (3)
-C_ROT = 4           # rotation local -> world, row-major (9)
-C_VEL = 13          # linear velocity of the centre (3)
-C_ANG = 16          # angular velocity, world frame (3)
-C_DIM = 19          # sphere: radius; box: half extents (3); capsule: radius, half length
-C_MU = 22           # Coulomb friction coefficient
-C_E = 23            # restitution
-C_BOUND = 24        # radius of a sphere about the centre holding the collider (broad phase)
-ROW = 25
 
 
 class Particles(NamedTuple):
@@ -68,58 +59,12 @@ class ColliderTally(NamedTuple):
 
 @njit(**JIT)
 def _closest_surface(row, px, py, pz):
-    """(depth, nx, ny, nz): depth > 0 when p is inside; n the outward normal there."""
-    kind = row[C_KIND]
-    cx, cy, cz = px - row[C_POS], py - row[C_POS + 1], pz - row[C_POS + 2]
-    if kind == 0.0:
-        d2 = cx * cx + cy * cy + cz * cz
-        r = row[C_DIM]
-        if d2 >= r * r:
-            return -1.0, 0.0, 0.0, 1.0
-        d = np.sqrt(d2)
-        if d > 0.0:
-            return r - d, cx / d, cy / d, cz / d
-        return r, 0.0, 0.0, 1.0
-    # local coordinates q = R^T (p - c)
-    r00, r01, r02 = row[C_ROT], row[C_ROT + 1], row[C_ROT + 2]
-    r10, r11, r12 = row[C_ROT + 3], row[C_ROT + 4], row[C_ROT + 5]
-    r20, r21, r22 = row[C_ROT + 6], row[C_ROT + 7], row[C_ROT + 8]
-    q0 = r00 * cx + r10 * cy + r20 * cz
-    q1 = r01 * cx + r11 * cy + r21 * cz
-    q2 = r02 * cx + r12 * cy + r22 * cz
-    if kind == 1.0:
-        d0 = row[C_DIM] - abs(q0)
-        d1 = row[C_DIM + 1] - abs(q1)
-        d2 = row[C_DIM + 2] - abs(q2)
-        if d0 <= 0.0 or d1 <= 0.0 or d2 <= 0.0:
-            return -1.0, 0.0, 0.0, 1.0
-        # the face nearest to p (ties: x before y before z)
-        if d0 <= d1 and d0 <= d2:
-            s = 1.0 if q0 >= 0.0 else -1.0
-            return d0, s * r00, s * r10, s * r20
-        if d1 <= d2:
-            s = 1.0 if q1 >= 0.0 else -1.0
-            return d1, s * r01, s * r11, s * r21
-        s = 1.0 if q2 >= 0.0 else -1.0
-        return d2, s * r02, s * r12, s * r22
-    # capsule: distance to the segment [-hl, hl] along local z
-    r = row[C_DIM]
-    hl = row[C_DIM + 1]
-    z = q2
-    if z > hl:
-        z = hl
-    elif z < -hl:
-        z = -hl
-    ex = cx - r02 * z
-    ey = cy - r12 * z
-    ez = cz - r22 * z
-    d2 = ex * ex + ey * ey + ez * ez
-    if d2 >= r * r:
-        return -1.0, 0.0, 0.0, 1.0
-    d = np.sqrt(d2)
-    if d > 0.0:
-        return r - d, ex / d, ey / d, ez / d
-    return r, r00, r10, r20          # on the axis: out along local x
+    """(depth, nx, ny, nz): depth > 0 when p is inside (the overlap of a point,
+    ``colliders.surface_gap``); n the outward normal there."""
+    gap, nx, ny, nz = surface_gap(row, px, py, pz, 0.0)
+    if gap < 0.0:
+        return -gap, nx, ny, nz
+    return -1.0, 0.0, 0.0, 1.0
 
 
 @njit(**JIT)

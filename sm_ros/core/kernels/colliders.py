@@ -1,4 +1,5 @@
-"""Static colliders: ground plane, solid axis-aligned boxes and spheres (no equation).
+"""Static colliders: ground plane, solid axis-aligned boxes and spheres (no equation);
+and the rows of the collider pass (``C_*`` columns), measured by ``surface_gap``.
 
 A particle inside a collider is projected onto its surface and its velocity corrected:
 restitution along the normal above a threshold speed (so resting contact stays put) and
@@ -9,6 +10,19 @@ import numpy as np
 from numba import njit
 
 from .jit import JIT
+
+#: Columns of a collider row of the collider pass (``sm_ros.core.kinematic``) and of the
+#: stiff bodies' contact (``stiff_contacts``).
+C_KIND = 0          # 0 sphere, 1 box, 2 capsule (params.KIND_*)
+C_POS = 1           # centre (3)
+C_ROT = 4           # rotation local -> world, row-major (9)
+C_VEL = 13          # linear velocity of the centre (3)
+C_ANG = 16          # angular velocity, world frame (3)
+C_DIM = 19          # sphere: radius; box: half extents (3); capsule: radius, half length
+C_MU = 22           # Coulomb friction coefficient
+C_E = 23            # restitution
+C_BOUND = 24        # radius of a sphere about the centre holding the collider (broad phase)
+ROW = 25
 
 
 @njit(**JIT)
@@ -238,3 +252,48 @@ def _collide_range(start, end, x, v, ground, boxes, spheres, thresh):
                                                                              spheres=spheres,
                                                                              thresh=thresh)
     return True
+
+
+@njit(**JIT)
+def surface_gap(row, px, py, pz, radius):
+    """(gap, nx, ny, nz) of a sphere of ``radius`` at p against a collider row
+    (``kinematic`` columns): the distance between the two surfaces (< 0: overlap) and the
+    collider's outward normal there."""
+    kind = row[C_KIND]
+    cx, cy, cz = px - row[C_POS], py - row[C_POS + 1], pz - row[C_POS + 2]
+    if kind == 0.0:
+        d = np.sqrt(cx * cx + cy * cy + cz * cz)
+        if d > 0.0:
+            return d - row[C_DIM] - radius, cx / d, cy / d, cz / d
+        return -row[C_DIM] - radius, 0.0, 0.0, 1.0
+    r00, r01, r02 = row[C_ROT], row[C_ROT + 1], row[C_ROT + 2]
+    r10, r11, r12 = row[C_ROT + 3], row[C_ROT + 4], row[C_ROT + 5]
+    r20, r21, r22 = row[C_ROT + 6], row[C_ROT + 7], row[C_ROT + 8]
+    q0 = r00 * cx + r10 * cy + r20 * cz
+    q1 = r01 * cx + r11 * cy + r21 * cz
+    q2 = r02 * cx + r12 * cy + r22 * cz
+    if kind == 1.0:
+        h0, h1, h2 = row[C_DIM], row[C_DIM + 1], row[C_DIM + 2]
+        e0 = q0 - min(max(q0, -h0), h0)
+        e1 = q1 - min(max(q1, -h1), h1)
+        e2 = q2 - min(max(q2, -h2), h2)
+        d = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+        if d > 0.0:                     # outside: towards the nearest surface point
+            return (d - radius, (r00 * e0 + r01 * e1 + r02 * e2) / d,
+                    (r10 * e0 + r11 * e1 + r12 * e2) / d, (r20 * e0 + r21 * e1 + r22 * e2) / d)
+        d0, d1, d2 = h0 - abs(q0), h1 - abs(q1), h2 - abs(q2)
+        if d0 <= d1 and d0 <= d2:       # inside: out through the nearest face
+            s = 1.0 if q0 >= 0.0 else -1.0
+            return -d0 - radius, s * r00, s * r10, s * r20
+        if d1 <= d2:
+            s = 1.0 if q1 >= 0.0 else -1.0
+            return -d1 - radius, s * r01, s * r11, s * r21
+        s = 1.0 if q2 >= 0.0 else -1.0
+        return -d2 - radius, s * r02, s * r12, s * r22
+    hl = row[C_DIM + 1]                 # capsule: the segment [-hl, hl] along local z
+    z = min(max(q2, -hl), hl)
+    ex, ey, ez = cx - r02 * z, cy - r12 * z, cz - r22 * z
+    d = np.sqrt(ex * ex + ey * ey + ez * ez)
+    if d > 0.0:
+        return d - row[C_DIM] - radius, ex / d, ey / d, ez / d
+    return -row[C_DIM] - radius, r00, r10, r20

@@ -16,7 +16,7 @@ from numba import njit
 
 from .jit import JIT
 from .linalg import jacobi3
-from ..kinematic import C_ANG, C_BOUND, C_DIM, C_E, C_KIND, C_MU, C_POS, C_ROT, C_VEL
+from .colliders import C_ANG, C_BOUND, C_E, C_MU, C_POS, C_VEL, surface_gap
 
 #: Contact points kept per collider or body pair: the deepest and the farthest along 8
 #: directions of the contact plane.
@@ -52,9 +52,10 @@ F_ROW = 18
 
 
 @njit(**JIT)
-def body_frame(x, v, m, frame, inv_inertia):
-    """Fill ``frame`` (``F_*`` columns) and ``inv_inertia`` (3, 3) of a body: the rigid
-    motion that keeps its particles' momentum and angular momentum, and their bounds."""
+def body_frame(x, v, m, frame, inertia_out, inv_inertia):
+    """Fill ``frame`` (``F_*`` columns), the inertia tensor ``inertia_out`` and its inverse
+    ``inv_inertia`` (3, 3) of a body: the rigid motion that keeps its particles' momentum
+    and angular momentum, and their bounds."""
     n = x.shape[0]
     mass = 0.0
     com = np.zeros(3)
@@ -91,6 +92,7 @@ def body_frame(x, v, m, frame, inv_inertia):
     inertia[1, 0] = inertia[0, 1]
     inertia[2, 0] = inertia[0, 2]
     inertia[2, 1] = inertia[1, 2]
+    inertia_out[:, :] = inertia
     inv_inertia[:, :] = inverse3(inertia)
     frame[F_MASS], frame[F_INV] = mass, 1.0 / mass
     frame[F_COM:F_COM + 3] = com
@@ -123,51 +125,6 @@ def inverse3(a):
     out[1, 2] = (a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]) / det
     out[2, 2] = (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]) / det
     return out
-
-
-@njit(**JIT)
-def surface_gap(row, px, py, pz, radius):
-    """(gap, nx, ny, nz) of a sphere of ``radius`` at p against a collider row
-    (``kinematic`` columns): the distance between the two surfaces (< 0: overlap) and the
-    collider's outward normal there."""
-    kind = row[C_KIND]
-    cx, cy, cz = px - row[C_POS], py - row[C_POS + 1], pz - row[C_POS + 2]
-    if kind == 0.0:
-        d = np.sqrt(cx * cx + cy * cy + cz * cz)
-        if d > 0.0:
-            return d - row[C_DIM] - radius, cx / d, cy / d, cz / d
-        return -row[C_DIM] - radius, 0.0, 0.0, 1.0
-    r00, r01, r02 = row[C_ROT], row[C_ROT + 1], row[C_ROT + 2]
-    r10, r11, r12 = row[C_ROT + 3], row[C_ROT + 4], row[C_ROT + 5]
-    r20, r21, r22 = row[C_ROT + 6], row[C_ROT + 7], row[C_ROT + 8]
-    q0 = r00 * cx + r10 * cy + r20 * cz
-    q1 = r01 * cx + r11 * cy + r21 * cz
-    q2 = r02 * cx + r12 * cy + r22 * cz
-    if kind == 1.0:
-        h0, h1, h2 = row[C_DIM], row[C_DIM + 1], row[C_DIM + 2]
-        e0 = q0 - min(max(q0, -h0), h0)
-        e1 = q1 - min(max(q1, -h1), h1)
-        e2 = q2 - min(max(q2, -h2), h2)
-        d = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
-        if d > 0.0:                     # outside: towards the nearest surface point
-            return (d - radius, (r00 * e0 + r01 * e1 + r02 * e2) / d,
-                    (r10 * e0 + r11 * e1 + r12 * e2) / d, (r20 * e0 + r21 * e1 + r22 * e2) / d)
-        d0, d1, d2 = h0 - abs(q0), h1 - abs(q1), h2 - abs(q2)
-        if d0 <= d1 and d0 <= d2:       # inside: out through the nearest face
-            s = 1.0 if q0 >= 0.0 else -1.0
-            return -d0 - radius, s * r00, s * r10, s * r20
-        if d1 <= d2:
-            s = 1.0 if q1 >= 0.0 else -1.0
-            return -d1 - radius, s * r01, s * r11, s * r21
-        s = 1.0 if q2 >= 0.0 else -1.0
-        return -d2 - radius, s * r02, s * r12, s * r22
-    hl = row[C_DIM + 1]                 # capsule: the segment [-hl, hl] along local z
-    z = min(max(q2, -hl), hl)
-    ex, ey, ez = cx - r02 * z, cy - r12 * z, cz - r22 * z
-    d = np.sqrt(ex * ex + ey * ey + ez * ez)
-    if d > 0.0:
-        return d - row[C_DIM] - radius, ex / d, ey / d, ez / d
-    return -row[C_DIM] - radius, r00, r10, r20
 
 
 @njit(**JIT)

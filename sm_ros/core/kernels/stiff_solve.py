@@ -17,13 +17,13 @@ import numpy as np
 from numba import njit
 
 from .jit import JIT
-from ..kinematic import C_ANG, C_BOUND, C_VEL
+from .colliders import C_ANG, C_BOUND, C_VEL
 from .stiff_rows import J_D, J_MASS, apply, jacobians, push_visit, speed_along, visit
 from .stiff_contacts import (F_COM, F_HI, F_INV, F_LO, F_MASS, F_REACH, F_ROW, F_SPIN,
                              F_VEL, K_A, K_APPROACH, K_B, K_BOUNCE, K_COLL, K_E, K_FALL,
                              K_GAP, K_GRIP, K_RA, K_ROW, K_SLOP, K_TARGET,
                              K_WHO, SLOTS, append_pair, body_frame, collider_contacts,
-                             inverse3, pair_contacts)
+                             pair_contacts)
 
 #: A gap (m) within which a contact counts as reached, and the share of an overlap beyond
 #: its slop (``stiff_contacts.SLOP_SHARE``) the position solve removes in a step.
@@ -231,7 +231,7 @@ def bounce(frames, jac, rows, acc):
 
 
 @njit(**JIT)
-def energy_share(before, after, inv_inertia, awake, limit):
+def energy_share(before, after, inertia, awake, limit):
     """The largest s in [0, 1] such that the motion ``before`` + s (``after`` -
     ``before``) (frames) has at most ``limit`` kinetic energy (0 if even ``before`` has
     more): the share of the restitution impulses that adds no energy."""
@@ -239,14 +239,13 @@ def energy_share(before, after, inv_inertia, awake, limit):
     for b in range(before.shape[0]):
         if not awake[b]:
             continue
-        inertia = inverse3(inv_inertia[b])
         v0, w0 = before[b, F_VEL:F_VEL + 3], before[b, F_SPIN:F_SPIN + 3]
         dv = after[b, F_VEL:F_VEL + 3] - v0
         dw = after[b, F_SPIN:F_SPIN + 3] - w0
         mass = before[b, F_MASS]
-        start += 0.5 * mass * (v0 @ v0) + 0.5 * (w0 @ (inertia @ w0))
-        slope += mass * (v0 @ dv) + w0 @ (inertia @ dw)
-        curve += 0.5 * mass * (dv @ dv) + 0.5 * (dw @ (inertia @ dw))
+        start += 0.5 * mass * (v0 @ v0) + 0.5 * (w0 @ (inertia[b] @ w0))
+        slope += mass * (v0 @ dv) + w0 @ (inertia[b] @ dw)
+        curve += 0.5 * mass * (dv @ dv) + 0.5 * (dw @ (inertia[b] @ dw))
     if start + slope + curve <= limit:
         return 1.0
     if curve <= 0.0 or start >= limit:
@@ -256,14 +255,13 @@ def energy_share(before, after, inv_inertia, awake, limit):
 
 
 @njit(**JIT)
-def kinetic_energy(frames, inv_inertia, awake):
+def kinetic_energy(frames, inertia, awake):
     """The awake bodies' kinetic energy of translation and rotation."""
     total = 0.0
     for b in range(frames.shape[0]):
         if awake[b]:
             v, w = frames[b, F_VEL:F_VEL + 3], frames[b, F_SPIN:F_SPIN + 3]
-            total += 0.5 * frames[b, F_MASS] * (v @ v) + 0.5 * (
-                w @ (inverse3(inv_inertia[b]) @ w))
+            total += 0.5 * frames[b, F_MASS] * (v @ v) + 0.5 * (w @ (inertia[b] @ w))
     return total
 
 
@@ -360,9 +358,10 @@ def stiff_step(bodies, scene, memory, tally, stats):
     hit woke it.  Returns this step's contact keys and impulses, sorted."""
     nb = len(bodies.x)
     frames = np.zeros((nb, F_ROW))
-    inv_inertia = np.zeros((nb, 3, 3))
+    inertia, inv_inertia = np.zeros((nb, 3, 3)), np.zeros((nb, 3, 3))
     for b in range(nb):
-        body_frame(bodies.x[b], bodies.v[b], bodies.m[b], frames[b], inv_inertia[b])
+        body_frame(bodies.x[b], bodies.v[b], bodies.m[b], frames[b], inertia[b],
+                   inv_inertia[b])
     real_inv, real_inertia = frames[:, F_INV].copy(), inv_inertia.copy()
     awake = bodies.awake.copy()
     for b in range(nb):
@@ -377,14 +376,15 @@ def stiff_step(bodies, scene, memory, tally, stats):
     _pair_stats(rows, stats)
     for _ in range(2):
         start = frames.copy()
-        done, push, acc = _solve(frames, inv_inertia, rows, (keys, memory), scene, awake)
+        done, push, acc, jac = _solve(frames, (inertia, inv_inertia), rows, (keys, memory),
+                                      scene, awake)
         woken = _woken(rows, awake, scene.wake_speed)
         if not woken.any():
             break
         for b in np.flatnonzero(woken):  # hit hard: solved again as a body, woken
             frames[b, F_INV], inv_inertia[b] = real_inv[b], real_inertia[b]
             awake[b], stats[b, 4] = True, 3
-    _tally(rows, jacobians(done, inv_inertia, rows), acc, done, scene.rows, tally)
+    _tally(rows, jac, acc, done, scene.rows, tally)
     for b in range(nb):
         if awake[b]:
             _move(bodies, b, start[b], done[b] - start[b], push[b], scene, stats[b])
@@ -393,9 +393,11 @@ def stiff_step(bodies, scene, memory, tally, stats):
 
 
 @njit(**JIT)
-def _solve(frames, inv_inertia, rows, keys, scene, awake):
-    """The velocity and position solves of the pass from ``frames`` (left as they are):
-    (the bodies' frames after it, their position push, the contact impulses)."""
+def _solve(frames, inertias, rows, keys, scene, awake):
+    """The velocity and position solves of the pass from ``frames`` (left as they are;
+    ``inertias``: the bodies' inertia tensors and their inverses): (the bodies' frames
+    after it, their position push, the contact impulses, the contacts' directions)."""
+    inertia, inv_inertia = inertias
     frames = frames.copy()
     h, gravity = scene.h, scene.gravity
     tol = TOLERANCE * max(scene.thresh, 1e-3)
@@ -407,17 +409,17 @@ def _solve(frames, inv_inertia, rows, keys, scene, awake):
     for b in range(frames.shape[0]):
         if awake[b]:
             frames[b, F_VEL:F_VEL + 3] += h * gravity
-    free = kinetic_energy(frames, inv_inertia, awake)
+    free = kinetic_energy(frames, inertia, awake)
     approach_after_gravity(frames, jac, rows)
     acc = warm_start(frames, jac, rows, keys[0], keys[1])
     solve_velocities(frames, jac, rows, iters, tol, acc)
     stopped = frames.copy()
     added = bounce(frames, jac, rows, acc)
-    share = energy_share(stopped, frames, inv_inertia, awake, free)
+    share = energy_share(stopped, frames, inertia, awake, free)
     if share < 1.0:                                      # contacts never add energy
         frames[:] = stopped + share * (frames - stopped)
     acc[:, 0] += share * added
-    return frames, push, acc
+    return frames, push, acc, jac
 
 
 @njit(**JIT)
