@@ -14,9 +14,10 @@ and the farthest along 8 directions of the contact plane, so a face keeps its ou
 import numpy as np
 from numba import njit
 
+from .colliders import C_ANG, C_BOUND, C_E, C_MU, C_POS, C_VEL, surface_gap
+from .grabs import inertia
 from .jit import JIT
 from .linalg import jacobi3
-from .colliders import C_ANG, C_BOUND, C_E, C_MU, C_POS, C_VEL, surface_gap
 
 #: Contact points kept per collider or body pair: the deepest and the farthest along 8
 #: directions of the contact plane.
@@ -71,29 +72,17 @@ def body_frame(x, v, m, frame, inertia_out, inv_inertia):
             hi[k] = max(hi[k], x[i, k])
     com /= mass
     vel /= mass
-    inertia = np.zeros((3, 3))
+    inertia(x, m, com, inertia_out)
     ang = np.zeros(3)
     reach = 0.0
     for i in range(n):
         rx, ry, rz = x[i, 0] - com[0], x[i, 1] - com[1], x[i, 2] - com[2]
         ux, uy, uz = v[i, 0] - vel[0], v[i, 1] - vel[1], v[i, 2] - vel[2]
-        r2 = rx * rx + ry * ry + rz * rz
-        reach = max(reach, r2)
-        mi = m[i]
-        inertia[0, 0] += mi * (r2 - rx * rx)
-        inertia[1, 1] += mi * (r2 - ry * ry)
-        inertia[2, 2] += mi * (r2 - rz * rz)
-        inertia[0, 1] -= mi * rx * ry
-        inertia[0, 2] -= mi * rx * rz
-        inertia[1, 2] -= mi * ry * rz
-        ang[0] += mi * (ry * uz - rz * uy)
-        ang[1] += mi * (rz * ux - rx * uz)
-        ang[2] += mi * (rx * uy - ry * ux)
-    inertia[1, 0] = inertia[0, 1]
-    inertia[2, 0] = inertia[0, 2]
-    inertia[2, 1] = inertia[1, 2]
-    inertia_out[:, :] = inertia
-    inv_inertia[:, :] = inverse3(inertia)
+        reach = max(reach, rx * rx + ry * ry + rz * rz)
+        ang[0] += m[i] * (ry * uz - rz * uy)
+        ang[1] += m[i] * (rz * ux - rx * uz)
+        ang[2] += m[i] * (rx * uy - ry * ux)
+    inv_inertia[:, :] = inverse3(inertia_out)
     frame[F_MASS], frame[F_INV] = mass, 1.0 / mass
     frame[F_COM:F_COM + 3] = com
     frame[F_VEL:F_VEL + 3] = vel
