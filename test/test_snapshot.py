@@ -30,7 +30,7 @@ SCRATCH = {
     'Sleep': {'state.step2', 'state.drift2', 'state.level', 'state.near'},
     'FlatState': {'touched'},
     'Pack': {'ptrs', 'scratch'},
-    'StiffContact': {'_lists', '_lists_key', '_static', '_static_key'},
+    'StiffContact': {'_lists', '_lists_key', '_round', '_static', '_static_key'},
 }
 _PLAIN = (type(None), bool, int, float, complex, str, bytes, np.generic)
 

@@ -50,6 +50,42 @@ def test_a_finger_pushing_off_centre_yaws_a_box_and_a_low_one_slides_it():
     assert low['moved_mm'] > 250.0 and low['tilt_max_deg'] < 5.0 and low['yaw_deg'] < 2.0
 
 
+def test_a_ball_rolls_down_a_slope_at_five_sevenths_without_slipping():
+    """A lattice ball meets the slope as one sphere (``is_round``), not as the polyhedron
+    of its outer particles: it rolls at (5/7) g sin 20 deg within 10 %, turned angle x r
+    over distance within 10 % of 1."""
+    out = _run('incline_ball')
+    assert out['accel_ratio'] == pytest.approx(1.0, abs=0.1)
+    assert out['slip'] == pytest.approx(1.0, abs=0.1)
+
+
+@pytest.mark.parametrize('lift_mm', [0.0, 5.0, 10.0, 15.0, 20.0, 24.0])
+def test_an_elastic_ball_never_bounces_higher_wherever_in_a_step_it_lands(lift_mm):
+    """Restitution 1 from heights spread over one step's fall at impact (26 mm): the
+    bounce reaches the drop height within 0.1 % and never more."""
+    import dataclasses
+    case = C.case('drop_e1')
+    ball = case.solids[0]
+    lifted = dataclasses.replace(ball, position=(0.0, 0.0, ball.position[2] + lift_mm / 1e3))
+    out = C.run(dataclasses.replace(case, solids=(lifted,)))
+    assert 0.999 <= out['bounce_ratio'] <= 1.001
+
+
+def test_only_a_body_that_fills_a_ball_is_round():
+    """A lattice ball (in any orientation) is round to within its particles' radius; a
+    cube, a cylinder as tall as wide and a 10 % flattened ball are not."""
+    from sm_ros.core.stiff_contact import is_round
+    from sm_ros.shapes import sphere_lattice
+    ball = sphere_lattice(0.09, 0.02)
+    turn = np.linalg.qr(np.random.default_rng(3).normal(size=(3, 3)))[0]
+    assert is_round(ball, 0.01) and is_round(ball @ turn.T, 0.01)
+    grid = np.arange(-0.09, 0.0901, 0.02)
+    cube = np.stack(np.meshgrid(grid, grid, grid, indexing='ij'), -1).reshape(-1, 3)
+    cylinder = cube[np.hypot(cube[:, 0], cube[:, 1]) <= 0.09]
+    assert not is_round(cube, 0.01) and not is_round(cylinder, 0.01)
+    assert not is_round(ball * (1.0, 1.0, 0.8), 0.01)
+
+
 @pytest.mark.parametrize('e', [0.0, 0.5, 1.0])
 def test_a_dropped_ball_bounces_to_e_squared_of_its_drop_and_never_higher(e):
     """Restitution e: the first bounce reaches e^2 of the drop height (within 10 %, or
@@ -64,6 +100,27 @@ def test_a_pyramid_and_a_tower_of_boxes_stand(name):
     """4-3-2-1 boxes and a tower of 10: every centre of mass within 5 mm over 10 s."""
     out = _run(name)
     assert out['moved_mm'] < 5.0 and out['turn_max_deg'] < 2.0
+
+
+@pytest.mark.parametrize('tilt_deg,falls', [(4.5, False), (6.5, True)])
+def test_a_slab_three_particles_thick_tips_over_past_its_balance_angle(tilt_deg, falls):
+    """A slab 0.06 x 0.2 x 0.44 m (3 particles thick, edges rounded by the particles'
+    radius 0.01 m) tilted about its bottom edge: its centre of mass 0.21 m above the
+    edge's particle centres passes over them at atan(0.02 / 0.21) = 5.4 deg.  Below, it
+    rocks back upright; past it, it falls flat."""
+    th = math.radians(tilt_deg)
+    turn = np.array([[math.cos(th), 0.0, math.sin(th)], [0.0, 1.0, 0.0],
+                     [-math.sin(th), 0.0, math.cos(th)]])
+    pivot = np.array([0.03, 0.0, 0.0])
+    centre = pivot + turn @ (np.array([0.0, 0.0, 0.22]) - pivot)
+    slab = C.Solid('slab0', 'box', (0.06, 0.2, 0.44), 0.5, tuple(centre),
+                   C.quat_about((0.0, 1.0, 0.0), th))
+    case = C.Case('slab', 'a tilted slab', '', (slab,), C.measure_dominoes, 3.0)
+    from_start = C.turned_deg(C.simulate(C.SmRos(case), case), 0)[-1]
+    if falls:
+        assert from_start > 80.0 - tilt_deg
+    else:
+        assert abs(from_start - tilt_deg) < 1.0             # upright again
 
 
 def test_dominoes_fall_in_sequence_when_pushed_and_stand_when_not():
@@ -100,7 +157,7 @@ def _box_row(centre, half, mu=0.5, e=0.0):
     return row
 
 
-def _bodies(rng, count, spread):
+def _bodies(rng, count, spread, ball=False):
     from numba.typed import List
     xs, vs, ms = List(), List(), List()
     for k in range(count):
@@ -110,7 +167,7 @@ def _bodies(rng, count, spread):
         vs.append(v)
         ms.append(rng.uniform(0.5, 2.0, 27))
     return SS.StiffBodies(xs, vs, ms, np.full(count, 0.02), np.ones(count, np.bool_),
-                          np.ones(count, np.bool_))
+                          np.ones(count, np.bool_), np.full(count, ball, np.bool_))
 
 
 def _energy_momenta(bodies):
@@ -142,12 +199,14 @@ def test_no_contact_creates_energy_and_body_pairs_keep_both_momenta(e, seed):
     np.testing.assert_allclose(after[1], before[1], atol=1e-12)
 
 
+@pytest.mark.parametrize('ball', [False, True])
 @pytest.mark.parametrize('e', [0.0, 0.5, 1.0])
-def test_no_collider_contact_creates_energy(e):
-    """Clumps thrown against a box and the ground, with friction: the kinetic energy after
-    the pass is at most what it was."""
+def test_no_collider_contact_creates_energy(e, ball):
+    """Clumps thrown against a box and the ground, with friction, as particles or as
+    round bodies (one sphere each): the kinetic energy after the pass is at most what it
+    was."""
     rng = np.random.default_rng(7)
-    bodies = _bodies(rng, 3, 0.2)
+    bodies = _bodies(rng, 3, 0.2, ball)
     rows = np.stack([np.zeros(ROW), _box_row((0.2, 0.0, 0.0), (0.05, 0.3, 0.3), 0.8, e)])
     rows[0, C_MU], rows[0, C_E] = 0.6, e
     scene = SS.StiffScene(rows, 1, True, 0.5, e, np.zeros(3), 1.0 / 60.0, 1e-3, 100, 0.04)

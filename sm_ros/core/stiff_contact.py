@@ -20,6 +20,33 @@ from .kernels.stiff_solve import StiffBodies, StiffScene, stiff_step
 
 #: Sequential-impulse sweeps over the contacts per step, at most (they stop once settled).
 ITERATIONS = 100
+
+
+def _directions() -> np.ndarray:
+    """The 26 lattice directions and 100 spread over the sphere (a Fibonacci spiral)."""
+    grid = np.stack(np.meshgrid(*[[-1.0, 0.0, 1.0]] * 3, indexing='ij'), -1).reshape(-1, 3)
+    grid = grid[np.abs(grid).sum(axis=1) > 0]
+    k = np.arange(100) + 0.5
+    z, phi = 1.0 - 2.0 * k / 100, np.pi * (3.0 - np.sqrt(5.0)) * k
+    ring = np.sqrt(1.0 - z * z)
+    spiral = np.stack([ring * np.cos(phi), ring * np.sin(phi), z], -1)
+    dirs = np.concatenate([grid, spiral])
+    return dirs / np.linalg.norm(dirs, axis=1)[:, None]
+
+
+DIRECTIONS = _directions()
+
+
+def is_round(rest, radius: float) -> bool:
+    """Whether rest positions (N, 3) about their mass centre fill a ball to within one
+    particle ``radius``: along every direction the body reaches to within ``radius`` of
+    its farthest particle, so its outline is the sphere through that particle's and such
+    a body meets colliders as that sphere (it rolls as a ball, not a polyhedron)."""
+    rest = np.asarray(rest, dtype=float)
+    reach = float(np.sqrt((rest * rest).sum(axis=1).max()))
+    return bool((rest @ DIRECTIONS.T).max(axis=0).min() >= reach - radius)
+
+
 def is_stiff(body, h) -> bool:
     """Whether ``body`` takes its contacts as a rigid body at steps of ``h`` s: the rigid
     share of its goal, alpha (1 - beta) (alpha in rigid mode) at the step, at least
@@ -40,6 +67,7 @@ class StiffContact:
         self._static = np.zeros((0, ROW))
         self._lists_key = None
         self._lists = None
+        self._round = {}                 # id of a body: (its rest shape, radius, round)
         self.keys = np.zeros(0, dtype=np.int64)      # the last step's contacts (sorted)
         self.impulses = np.zeros((0, 3))            # and their impulses
 
@@ -47,6 +75,7 @@ class StiffContact:
         """Copies (pickle, deepcopy) leave out the typed lists; they are made again."""
         state = dict(self.__dict__)
         state['_lists'] = state['_lists_key'] = None
+        state['_round'] = {}
         return state
 
     def step_state(self) -> tuple:
@@ -81,13 +110,21 @@ class StiffContact:
                 lists[0].append(b._x)
                 lists[1].append(b._v)
                 lists[2].append(b._m)
-            self._lists, self._lists_key = lists, key
+            self._lists, self._lists_key, self._round = lists, key, {}
         radius = np.array([r for _, r in bodies])
         awake = np.array([not b.asleep for b, _ in bodies], dtype=np.bool_)
         on = world._contact_params.enabled
         collide = np.array([on and world._contacts[b.name][0].collide for b, _ in bodies],
                            dtype=np.bool_)
-        return StiffBodies(*self._lists, radius, awake, collide)
+        ball = np.array([self._is_round(b, r) for b, r in bodies], dtype=np.bool_)
+        return StiffBodies(*self._lists, radius, awake, collide, ball)
+
+    def _is_round(self, body, radius) -> bool:
+        """``is_round`` of a body, kept while it keeps its rest shape and radius."""
+        rest, known = body._x0, self._round.get(id(body))
+        if known is None or known[0] is not rest or known[1] != radius:
+            known = self._round[id(body)] = (rest, radius, is_round(rest, radius))
+        return known[2]
 
     def run(self, world, bodies, h, thresh):
         """The pass over ``bodies`` ((body, contact radius) pairs) before a step of ``h``

@@ -183,24 +183,33 @@ def collider_contacts(bodies, frames, a, margin, scene, out, count, touching):
     the collider rows 1.. of ``scene.rows`` whose bounding spheres come within ``margin``
     of its own; returns the new count.  ``touching`` (2,) counts a's particles within
     ``TOUCH`` of the ground and the plain colliders (rows 1..``scene.plain``), then of the
-    others (one per particle and collider)."""
+    others (one per particle and collider).  A round body meets each collider as the
+    sphere about its centre through its outermost particles' outline: one point."""
     x, radius, frame, rows = bodies.x[a], bodies.radius[a], frames[a], scene.rows
     slots = np.empty(SLOTS, dtype=np.int64)
     best = np.empty((SLOTS, 2))
     tangents = np.empty(6)
     com = frame[F_COM:F_COM + 3]
+    ball = frame[F_REACH] + radius
+    lowest = com[2] - ball if bodies.round[a] else frame[F_LO + 2] - radius
     for c in range(-1 if scene.ground_on else 0, rows.shape[0] - 1):
         if c < 0:
-            if frame[F_LO + 2] - radius - rows[0, C_POS + 2] > margin:
+            if lowest - rows[0, C_POS + 2] > margin:
                 continue
             nx, ny, nz = 0.0, 0.0, 1.0
         else:
             row = rows[c + 1]
             dx, dy, dz = com[0] - row[C_POS], com[1] - row[C_POS + 1], com[2] - row[C_POS + 2]
-            if (np.sqrt(dx * dx + dy * dy + dz * dz)
-                    > row[C_BOUND] + frame[F_REACH] + radius + margin):
+            if np.sqrt(dx * dx + dy * dy + dz * dz) > row[C_BOUND] + ball + margin:
                 continue
             _, nx, ny, nz = surface_gap(row, com[0], com[1], com[2], 0.0)
+        if bodies.round[a]:
+            gap = _collider_row(com, a, c, ball, radius, com, rows, out[count])
+            if gap < margin:
+                if gap < TOUCH:
+                    touching[0 if c < scene.plain else 1] += 1
+                count += 1
+            continue
         tangents[:] = _tangents(nx, ny, nz)
         _fresh(slots, best)
         for i in range(x.shape[0]):
@@ -211,17 +220,19 @@ def collider_contacts(bodies, frames, a, margin, scene, out, count, touching):
                     touching[0 if c < scene.plain else 1] += 1
         for k in range(SLOTS):
             if _distinct(slots, k):
-                _collider_row(x, slots[k], a, c, radius, com, rows, out[count])
+                _collider_row(x[slots[k]], a, c, radius, radius, com, rows, out[count])
                 out[count, K_WHO] = k
                 count += 1
     return count
 
 
 @njit(**JIT)
-def _collider_row(x, i, a, c, radius, com, rows, row):
-    """Fill a contact row for particle i of body a against collider c (-1: the ground)."""
-    gap, nx, ny, nz = _collider_gap(rows, c, x[i, 0], x[i, 1], x[i, 2], radius)
-    px, py, pz = x[i, 0] - radius * nx, x[i, 1] - radius * ny, x[i, 2] - radius * nz
+def _collider_row(centre, a, c, radius, grain, com, rows, row):
+    """Fill a contact row of body a against collider c (-1: the ground) at its sphere of
+    ``radius`` about ``centre`` (a particle's, or a round body's); it keeps an overlap of
+    ``SLOP_SHARE`` of its particles' radius ``grain``.  Returns the gap."""
+    gap, nx, ny, nz = _collider_gap(rows, c, centre[0], centre[1], centre[2], radius)
+    px, py, pz = centre[0] - radius * nx, centre[1] - radius * ny, centre[2] - radius * nz
     row[:] = 0.0
     row[K_A], row[K_B], row[K_COLL], row[K_GAP] = a, -1, c, gap
     row[K_N], row[K_N + 1], row[K_N + 2] = nx, ny, nz
@@ -233,7 +244,8 @@ def _collider_row(x, i, a, c, radius, com, rows, row):
         row[K_SURF] = coll[C_VEL] + wy * oz - wz * oy
         row[K_SURF + 1] = coll[C_VEL + 1] + wz * ox - wx * oz
         row[K_SURF + 2] = coll[C_VEL + 2] + wx * oy - wy * ox
-    row[K_MU], row[K_E], row[K_SLOP] = coll[C_MU], coll[C_E], SLOP_SHARE * radius
+    row[K_MU], row[K_E], row[K_SLOP] = coll[C_MU], coll[C_E], SLOP_SHARE * grain
+    return gap
 
 
 @njit(**JIT)

@@ -43,7 +43,8 @@ WARM = 0.9
 class StiffBodies(NamedTuple):
     """The bodies of the pass: typed lists of their (N, 3) positions and velocities and
     (N,) masses, their contact radii, whether each is awake (asleep: an obstacle of
-    infinite mass) and whether it collides with other bodies."""
+    infinite mass), whether it collides with other bodies and whether it is round (meets
+    the colliders as one sphere, ``stiff_contacts.collider_contacts``)."""
 
     x: object
     v: object
@@ -51,6 +52,7 @@ class StiffBodies(NamedTuple):
     radius: np.ndarray
     awake: np.ndarray
     collide: np.ndarray
+    round: np.ndarray
 
 
 class StiffScene(NamedTuple):
