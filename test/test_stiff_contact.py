@@ -218,6 +218,43 @@ def test_no_collider_contact_creates_energy(e, ball):
     assert _energy_momenta(bodies)[0] <= before * (1.0 + 1e-12)
 
 
+@pytest.mark.parametrize('seed', range(3))
+def test_bodies_apart_at_any_angle_get_no_overlap(seed):
+    """Two 3x3x3 lattice cubes (radius 0.02, spacing 0.04), one turned at random, their
+    nearest particles 7.6 mm farther apart than touching: no contact row reports more
+    overlap than the slop a contact keeps without a push (a face's plane may reach a
+    little past its particles).  An edge or a corner in reach gives a handful of
+    particles, and any three lie in a plane: they make no face (``FACE_POINTS``), whose
+    normal would make gaps of centimetres out of particles that do not touch."""
+    from numba.typed import List
+    grid = np.arange(3) * 0.04 - 0.04
+    cube = np.stack(np.meshgrid(grid, grid, grid, indexing='ij'), -1).reshape(-1, 3)
+    scene = SS.StiffScene(np.zeros((1, ROW)), 0, False, 0.5, 0.0, np.zeros(3), 1.0 / 120.0,
+                          0.16, 100, 0.04)
+    rng = np.random.default_rng(seed)
+    for _ in range(40):
+        xb = cube @ np.linalg.qr(rng.normal(size=(3, 3)))[0].T
+        away = rng.normal(size=3)
+        away /= np.linalg.norm(away)
+        xa = cube + 0.3 * away
+        for _ in range(4):                  # nearest particles 0.0476 m apart
+            near = np.sqrt(((xa[:, None] - xb[None]) ** 2).sum(-1)).min()
+            xa -= (near - 0.0476) * away
+        xs, vs, ms = List(), List(), List()
+        for x in (xa, xb):
+            xs.append(np.asfortranarray(x))
+            vs.append(np.zeros((len(x), 3), order='F'))
+            ms.append(np.ones(len(x)))
+        bodies = SS.StiffBodies(xs, vs, ms, np.full(2, 0.02), np.ones(2, np.bool_),
+                                np.ones(2, np.bool_), np.zeros(2, np.bool_))
+        frames = np.zeros((2, SC.F_ROW))
+        for b in range(2):
+            SC.body_frame(xs[b], vs[b], ms[b], frames[b], np.zeros((3, 3)), np.zeros((3, 3)))
+        out = np.zeros((SC.SLOTS, SC.K_ROW))
+        count = SC.pair_contacts(bodies, frames, 0, 1, 0.002, scene, out, 0)
+        assert np.all(out[:count, SC.K_GAP] > -SC.SLOP_SHARE * 0.04)
+
+
 def test_body_frame_matches_numpy():
     rng = np.random.default_rng(3)
     x, v, m = rng.normal(size=(50, 3)), rng.normal(size=(50, 3)), rng.uniform(0.1, 1, 50)

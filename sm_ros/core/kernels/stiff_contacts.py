@@ -46,6 +46,10 @@ PAIR_REACH = 1.25
 #: A side of a body pair's contact is a face when its points' spread across their plane
 #: is at most this share of their spread along it (``_pair_normal``).
 FLAT = 0.1
+#: A face needs this many particles (any three lie in a plane), and its normal within
+#: acos of this of the pairs' mean direction (a lattice offset tilts them by 27 deg).
+FACE_POINTS = 4
+FACE_TILT = 0.7
 #: Columns of a body's frame: mass, inverse mass, centre (3), velocity (3), spin (3),
 #: reach (the largest distance of a particle from the centre), bounds lo (3), hi (3).
 F_MASS, F_INV, F_COM, F_VEL, F_SPIN, F_REACH, F_LO, F_HI = 0, 1, 2, 5, 8, 11, 12, 15
@@ -360,6 +364,9 @@ def _pair_normal(xa, xb, close, reach):
     its distance along the normal (``_gap_of``)."""
     pull = np.zeros(3)
     side_a, side_b = np.zeros(10), np.zeros(10)     # weight, sum of w x (3), of w x x^T (6)
+    seen_a = np.zeros(xa.shape[0], dtype=np.bool_)
+    seen_b = np.zeros(xb.shape[0], dtype=np.bool_)
+    count_a = count_b = 0
     for p in range(close.shape[0]):
         i, j = close[p, 0], close[p, 1]
         dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
@@ -372,14 +379,17 @@ def _pair_normal(xa, xb, close, reach):
         pull[2] += w * dz / d
         _add_point(side_a, xa[i], w)
         _add_point(side_b, xb[j], w)
+        count_a += not seen_a[i]
+        count_b += not seen_b[j]
+        seen_a[i] = seen_b[j] = True
     size = np.sqrt(pull[0] ** 2 + pull[1] ** 2 + pull[2] ** 2)
     if not size > 0.0:
         return np.zeros(3), False
     pull /= size
-    flat_a, normal_a = _flatness(side_a)
-    flat_b, normal_b = _flatness(side_b)
+    flat_a, normal_a = _flatness(side_a) if count_a >= FACE_POINTS else (np.inf, pull)
+    flat_b, normal_b = _flatness(side_b) if count_b >= FACE_POINTS else (np.inf, pull)
     n = normal_a if flat_a < flat_b else normal_b
-    if min(flat_a, flat_b) > FLAT:
+    if min(flat_a, flat_b) > FLAT or abs(n @ pull) < FACE_TILT:
         return pull, False
     return (n if n @ pull >= 0.0 else -n), True
 
