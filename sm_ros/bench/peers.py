@@ -217,9 +217,9 @@ def soft_sm_ros(seconds: float) -> Dict[str, Any]:
 
 NOTES = """\
 - The engines' solids are the cases' outlines.  sm_ros fills them with particles 2 cm
-  apart, of contact radius 1 cm, that touch one another as spheres; its colliders (ground,
-  table, slope, finger) still see the particles as points, so a solid put on one falls
-  1 cm before it rests and a thin finger reaches 1 cm further into a body.
+  apart, of contact radius 1 cm, that touch one another and the colliders as spheres (a
+  ball meets the colliders as one sphere), so its solids rest on their outlines; a box's
+  edges are rounded by that radius.
 - PyBullet's default damping (0.04, linear and angular) slows fast bodies: the rolling
   ball and the sliding box lose speed and the zero-g hit momentum.  Without it
   (`--engines pybullet --cases incline_ball,incline_mu0.2 --pybullet-damping 0`) the ball
@@ -245,7 +245,9 @@ def differences() -> str:
          '1/120 s (the node: 2 steps a tick at 60 Hz)'),
         ('contact solver', 'sequential impulses, 50 iterations, split impulse',
          'Newton, up to 100 iterations, pyramidal friction cones, soft constraints',
-         'particle pairs, 1 sweep; stiff bodies carried as a whole, up to 8 sweeps'),
+         'stiff bodies: sequential impulses on their rigid frames, up to 9 points a '
+         'pair, warm-started, split impulse, up to 100 sweeps (a ball: one sphere '
+         'against colliders); soft bodies: particle pairs, 1 sweep'),
         ('friction of a pair', 'product of the two (each object: sqrt(mu))',
          'the larger of the two (each geom: mu)', "the collider's, or contact.friction"),
         ('restitution', 'product of the two (each: sqrt(e))',

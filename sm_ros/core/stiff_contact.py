@@ -44,7 +44,7 @@ def is_round(rest, radius: float) -> bool:
     a body meets colliders as that sphere (it rolls as a ball, not a polyhedron)."""
     rest = np.asarray(rest, dtype=float)
     reach = float(np.sqrt((rest * rest).sum(axis=1).max()))
-    return bool((rest @ DIRECTIONS.T).max(axis=0).min() >= reach - radius)
+    return all(float((rest @ u).max()) >= reach - radius for u in DIRECTIONS)
 
 
 def is_stiff(body, h) -> bool:
