@@ -102,12 +102,12 @@ def test_a_pyramid_and_a_tower_of_boxes_stand(name):
     assert out['moved_mm'] < 5.0 and out['turn_max_deg'] < 2.0
 
 
-@pytest.mark.parametrize('tilt_deg,falls', [(4.5, False), (6.5, True)])
-def test_a_slab_three_particles_thick_tips_over_past_its_balance_angle(tilt_deg, falls):
-    """A slab 0.06 x 0.2 x 0.44 m (3 particles thick, edges rounded by the particles'
-    radius 0.01 m) tilted about its bottom edge: its centre of mass 0.21 m above the
-    edge's particle centres passes over them at atan(0.02 / 0.21) = 5.4 deg.  Below, it
-    rocks back upright; past it, it falls flat."""
+@pytest.mark.parametrize('tilt_deg,falls', [(6.0, False), (9.5, True)])
+def test_a_slab_three_particles_thick_tips_over_as_the_solid_slab(tilt_deg, falls):
+    """A slab 0.06 x 0.2 x 0.44 m (3 particles thick) tilted about its bottom edge: a
+    solid slab of that outline balances at atan(0.03 / 0.22) = 7.8 deg.  The lattice's
+    particles meet the ground with their cells, so it tips within 25 % of that: at
+    0.77 times it rocks back upright, at 1.22 times it falls flat."""
     th = math.radians(tilt_deg)
     turn = np.array([[math.cos(th), 0.0, math.sin(th)], [0.0, 1.0, 0.0],
                      [-math.sin(th), 0.0, math.cos(th)]])
@@ -167,7 +167,8 @@ def _bodies(rng, count, spread, ball=False):
         vs.append(v)
         ms.append(rng.uniform(0.5, 2.0, 27))
     return SS.StiffBodies(xs, vs, ms, np.full(count, 0.02), np.ones(count, np.bool_),
-                          np.ones(count, np.bool_), np.full(count, ball, np.bool_))
+                          np.ones(count, np.bool_), np.full(count, ball, np.bool_),
+                          np.zeros((count, 3, 3)))
 
 
 def _energy_momenta(bodies):
@@ -246,13 +247,54 @@ def test_bodies_apart_at_any_angle_get_no_overlap(seed):
             vs.append(np.zeros((len(x), 3), order='F'))
             ms.append(np.ones(len(x)))
         bodies = SS.StiffBodies(xs, vs, ms, np.full(2, 0.02), np.ones(2, np.bool_),
-                                np.ones(2, np.bool_), np.zeros(2, np.bool_))
+                                np.ones(2, np.bool_), np.zeros(2, np.bool_),
+                                np.zeros((2, 3, 3)))
         frames = np.zeros((2, SC.F_ROW))
         for b in range(2):
             SC.body_frame(xs[b], vs[b], ms[b], frames[b], np.zeros((3, 3)), np.zeros((3, 3)))
         out = np.zeros((SC.SLOTS, SC.K_ROW))
         count = SC.pair_contacts(bodies, frames, 0, 1, 0.002, scene, out, 0)
         assert np.all(out[:count, SC.K_GAP] > -SC.SLOP_SHARE * 0.04)
+
+
+def test_a_cell_meets_the_ground_with_its_lowest_corner():
+    """``_outline_gap`` of a particle's lattice cell, turned at random, against the ground:
+    the height of the lowest of its 8 corners (NumPy), and ``_outline_point`` at that
+    corner once the cell tilts; a zero cell is the particle's sphere."""
+    rows = np.zeros((1, ROW))
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        turn = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        cell = 0.01 * turn                       # half edges as columns
+        p = np.array([0.1, -0.2, 0.05])
+        corners = p + np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1)
+                                for sz in (-1, 1)]) @ cell.T
+        gap, _, _, nz = SC._outline_gap(rows, -1, p, 0.01, cell)
+        assert nz == 1.0 and gap == pytest.approx(corners[:, 2].min(), abs=1e-12)
+        point = np.array(SC._outline_point(p, 0.01, cell, 0.0, 0.0, 1.0))
+        if np.abs(cell[2]).min() > SC.CORNER_TILT * 0.01:
+            np.testing.assert_allclose(point, corners[np.argmin(corners[:, 2])], atol=1e-12)
+    assert SC._outline_gap(rows, -1, p, 0.01, np.zeros((3, 3)))[0] == pytest.approx(0.04)
+
+
+def test_lattice_axes_are_found_in_any_orientation_and_not_in_a_cloud():
+    """A box lattice turned at random gives its three axes; a random cloud and a lattice
+    with one particle moved off it give none (their particles meet colliders as spheres)."""
+    from sm_ros.core.stiff_contact import lattice_axes
+    grid = [np.arange(k) * 0.02 for k in (3, 10, 22)]
+    slab = np.stack(np.meshgrid(*grid, indexing='ij'), -1).reshape(-1, 3)
+    turn = np.linalg.qr(np.random.default_rng(1).normal(size=(3, 3)))[0]
+    axes = lattice_axes(slab @ turn.T)
+    along = np.abs(axes.T @ turn)              # each found axis along one lattice axis
+    np.testing.assert_allclose(np.sort(along, axis=1), [[0.0, 0.0, 1.0]] * 3, atol=1e-9)
+    np.testing.assert_allclose(along.sum(axis=0), 1.0, atol=1e-9)
+    assert lattice_axes(np.random.default_rng(2).random((300, 3))) is None
+    moved = slab.copy()
+    moved[0] += 0.004
+    assert lattice_axes(moved) is None
+    assert lattice_axes(np.zeros((20, 3))) is None      # coincident particles
+    moved[0] = np.nan
+    assert lattice_axes(moved) is None
 
 
 def test_body_frame_matches_numpy():

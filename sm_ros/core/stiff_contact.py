@@ -47,6 +47,47 @@ def is_round(rest, radius: float) -> bool:
     return all(float((rest @ u).max()) >= reach - radius for u in DIRECTIONS)
 
 
+def lattice_axes(rest, samples: int = 64):
+    """The unit axes (3, 3, as columns) of the cubic lattice that rest positions (N, 3)
+    lie on, or None: every sampled particle's nearest neighbours are one spacing away
+    (within 5 %) along them, as in a body built from a box, a lattice or a voxelised
+    mesh; a scanned cloud or a ball's jittered points have none."""
+    rest = np.asarray(rest, dtype=float)
+    if len(rest) < 8:
+        return None
+    offsets, nearest = [], []
+    for i in np.unique(np.linspace(0, len(rest) - 1, samples).astype(np.int64)):
+        apart = rest - rest[i]
+        dist = np.sqrt((apart * apart).sum(axis=1))
+        dist[i] = np.inf
+        nearest.append(dist.min())
+        offsets.append(apart[dist < 1.05 * dist.min()])
+    spacing = float(np.median(nearest))
+    if not (min(nearest) > 0.0 and np.isfinite(spacing)):   # coincident or not finite
+        return None
+    flat = np.concatenate(offsets) / spacing
+    first = flat[0] / np.linalg.norm(flat[0])
+    across = flat[np.abs(flat @ first) < 0.1 * np.linalg.norm(flat, axis=1)]
+    if not len(across):
+        return None
+    second = across[0] - (across[0] @ first) * first
+    second /= np.linalg.norm(second)
+    axes = np.stack([first, second, np.cross(first, second)], axis=1)
+    on_axis = np.abs(flat @ axes).max(axis=1) > 0.99 * np.linalg.norm(flat, axis=1)
+    even = np.abs(np.asarray(nearest) / spacing - 1.0) < 0.05
+    return axes if on_axis.all() and even.all() else None
+
+
+def _rotations(quats) -> np.ndarray:
+    """(B, 3, 3) rotation matrices of unit quaternions (B, 4) in (w, x, y, z) order."""
+    w, x, y, z = quats.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], axis=1)
+
+
 def is_stiff(body, h) -> bool:
     """Whether ``body`` takes its contacts as a rigid body at steps of ``h`` s: the rigid
     share of its goal, alpha (1 - beta) (alpha in rigid mode) at the step, at least
@@ -67,7 +108,7 @@ class StiffContact:
         self._static = np.zeros((0, ROW))
         self._lists_key = None
         self._lists = None
-        self._round = {}                 # id of a body: (its rest shape, radius, round)
+        self._round = {}     # id of a body: (its rest shape, radius, round, lattice axes)
         self.keys = np.zeros(0, dtype=np.int64)      # the last step's contacts (sorted)
         self.impulses = np.zeros((0, 3))            # and their impulses
 
@@ -116,15 +157,25 @@ class StiffContact:
         on = world._contact_params.enabled
         collide = np.array([on and world._contacts[b.name][0].collide for b, _ in bodies],
                            dtype=np.bool_)
-        ball = np.array([self._is_round(b, r) for b, r in bodies], dtype=np.bool_)
-        return StiffBodies(*self._lists, radius, awake, collide, ball)
+        shapes = [self._outline(b, r) for b, r in bodies]
+        ball = np.array([round_ for round_, _ in shapes], dtype=np.bool_)
+        cells = np.zeros((len(bodies), 3, 3))
+        boxy = [k for k, (_, axes) in enumerate(shapes) if axes is not None]
+        if boxy:           # the lattice axes turned as the body's shape match turns them
+            turns = _rotations(np.array([bodies[k][0]._quat[0] for k in boxy]))
+            rest = np.array([shapes[k][1] * radius[k] for k in boxy])
+            cells[boxy] = turns @ rest
+        return StiffBodies(*self._lists, radius, awake, collide, ball, cells)
 
-    def _is_round(self, body, radius) -> bool:
-        """``is_round`` of a body, kept while it keeps its rest shape and radius."""
+    def _outline(self, body, radius):
+        """(``is_round``, ``lattice_axes`` unless round) of a body, kept while it keeps
+        its rest shape and radius."""
         rest, known = body._x0, self._round.get(id(body))
         if known is None or known[0] is not rest or known[1] != radius:
-            known = self._round[id(body)] = (rest, radius, is_round(rest, radius))
-        return known[2]
+            ball = is_round(rest, radius)
+            known = (rest, radius, ball, None if ball else lattice_axes(rest))
+            self._round[id(body)] = known
+        return known[2], known[3]
 
     def run(self, world, bodies, h, thresh):
         """The pass over ``bodies`` ((body, contact radius) pairs) before a step of ``h``

@@ -46,6 +46,9 @@ PAIR_REACH = 1.25
 #: A side of a body pair's contact is a face when its points' spread across their plane
 #: is at most this share of their spread along it (``_pair_normal``).
 FLAT = 0.1
+#: A particle's cell meets a surface at its edge or corner once that edge tilts this
+#: share of its half length towards the surface (in proportion below: no jump at rest).
+CORNER_TILT = 0.05
 #: A face needs this many particles (any three lie in a plane), and its normal within
 #: acos of this of the pairs' mean direction (a lattice offset tilts them by 27 deg).
 FACE_POINTS = 4
@@ -188,14 +191,18 @@ def collider_contacts(bodies, frames, a, margin, scene, out, count, touching):
     of its own; returns the new count.  ``touching`` (2,) counts a's particles within
     ``TOUCH`` of the ground and the plain colliders (rows 1..``scene.plain``), then of the
     others (one per particle and collider).  A round body meets each collider as the
-    sphere about its centre through its outermost particles' outline: one point."""
+    sphere about its centre through its outermost particles' outline: one point.  A body
+    on a lattice meets it with its particles' cells (``bodies.cells``), so it rests and
+    tips on its outline's edges, not on spheres inside them."""
     x, radius, frame, rows = bodies.x[a], bodies.radius[a], frames[a], scene.rows
+    cell = bodies.cells[a]
     slots = np.empty(SLOTS, dtype=np.int64)
     best = np.empty((SLOTS, 2))
     tangents = np.empty(6)
     com = frame[F_COM:F_COM + 3]
     ball = frame[F_REACH] + radius
-    lowest = com[2] - ball if bodies.round[a] else frame[F_LO + 2] - radius
+    outer = radius * np.sqrt(3.0) if _boxy(cell) else radius
+    lowest = com[2] - ball if bodies.round[a] else frame[F_LO + 2] - outer
     for c in range(-1 if scene.ground_on else 0, rows.shape[0] - 1):
         if c < 0:
             if lowest - rows[0, C_POS + 2] > margin:
@@ -204,11 +211,12 @@ def collider_contacts(bodies, frames, a, margin, scene, out, count, touching):
         else:
             row = rows[c + 1]
             dx, dy, dz = com[0] - row[C_POS], com[1] - row[C_POS + 1], com[2] - row[C_POS + 2]
-            if np.sqrt(dx * dx + dy * dy + dz * dz) > row[C_BOUND] + ball + margin:
+            if (np.sqrt(dx * dx + dy * dy + dz * dz)
+                    > row[C_BOUND] + frame[F_REACH] + outer + margin):
                 continue
             _, nx, ny, nz = surface_gap(row, com[0], com[1], com[2], 0.0)
         if bodies.round[a]:
-            gap = _collider_row(com, a, c, ball, radius, com, rows, out[count])
+            gap = _collider_row(com, a, c, (ball, radius), cell[:, :0], com, rows, out[count])
             if gap < margin:
                 if gap < TOUCH:
                     touching[0 if c < scene.plain else 1] += 1
@@ -217,26 +225,69 @@ def collider_contacts(bodies, frames, a, margin, scene, out, count, touching):
         tangents[:] = _tangents(nx, ny, nz)
         _fresh(slots, best)
         for i in range(x.shape[0]):
-            gap, _, _, _ = _collider_gap(rows, c, x[i, 0], x[i, 1], x[i, 2], radius)
+            gap, _, _, _ = _outline_gap(rows, c, x[i], radius, cell)
             if gap < margin:
                 _slot(slots, best, gap, x[i], frame, 0.25 * radius, tangents, i)
                 if gap < TOUCH:
                     touching[0 if c < scene.plain else 1] += 1
         for k in range(SLOTS):
             if _distinct(slots, k):
-                _collider_row(x[slots[k]], a, c, radius, radius, com, rows, out[count])
+                _collider_row(x[slots[k]], a, c, (radius, radius), cell, com, rows,
+                              out[count])
                 out[count, K_WHO] = k
                 count += 1
     return count
 
 
 @njit(**JIT)
-def _collider_row(centre, a, c, radius, grain, com, rows, row):
-    """Fill a contact row of body a against collider c (-1: the ground) at its sphere of
-    ``radius`` about ``centre`` (a particle's, or a round body's); it keeps an overlap of
-    ``SLOP_SHARE`` of its particles' radius ``grain``.  Returns the gap."""
-    gap, nx, ny, nz = _collider_gap(rows, c, centre[0], centre[1], centre[2], radius)
-    px, py, pz = centre[0] - radius * nx, centre[1] - radius * ny, centre[2] - radius * nz
+def _boxy(cell):
+    """Whether ``cell`` holds a lattice cell's half edges (else zeros or none: a sphere)."""
+    total = 0.0
+    for j in range(cell.shape[1]):
+        for k in range(3):
+            total += abs(cell[k, j])
+    return total > 0.0
+
+
+@njit(**JIT)
+def _outline_gap(rows, c, p, radius, cell):
+    """(gap, normal) of particle p's outline against collider c: its lattice cell (``cell``
+    (3, 3), its half edges as columns), whose reach along the normal is the sum of
+    |n . edge|; or its sphere of ``radius``."""
+    gap, nx, ny, nz = _collider_gap(rows, c, p[0], p[1], p[2], 0.0)
+    if not _boxy(cell):
+        return gap - radius, nx, ny, nz
+    reach = 0.0
+    for k in range(3):
+        reach += abs(nx * cell[0, k] + ny * cell[1, k] + nz * cell[2, k])
+    return gap - reach, nx, ny, nz
+
+
+@njit(**JIT)
+def _outline_point(p, radius, cell, nx, ny, nz):
+    """The point of particle p's outline that meets a surface of normal n: its sphere's,
+    or its cell's face, edge or corner (each half edge taken in full once it tilts
+    ``CORNER_TILT`` of its length towards the surface, in proportion below)."""
+    if not _boxy(cell):
+        return p[0] - radius * nx, p[1] - radius * ny, p[2] - radius * nz
+    q = p.copy()
+    for k in range(3):
+        along = nx * cell[0, k] + ny * cell[1, k] + nz * cell[2, k]
+        share = min(max(along / (CORNER_TILT * radius), -1.0), 1.0)
+        for j in range(3):
+            q[j] -= share * cell[j, k]
+    return q[0], q[1], q[2]
+
+
+@njit(**JIT)
+def _collider_row(centre, a, c, radii, cell, com, rows, row):
+    """Fill a contact row of body a against collider c (-1: the ground) at the outline
+    about ``centre`` (a particle's, or a round body's): its cell, or its sphere of
+    ``radii[0]``; it keeps an overlap of ``SLOP_SHARE`` of its particles' radius
+    ``radii[1]``.  Returns the gap."""
+    radius, grain = radii
+    gap, nx, ny, nz = _outline_gap(rows, c, centre, radius, cell)
+    px, py, pz = _outline_point(centre, radius, cell, nx, ny, nz)
     row[:] = 0.0
     row[K_A], row[K_B], row[K_COLL], row[K_GAP] = a, -1, c, gap
     row[K_N], row[K_N + 1], row[K_N + 2] = nx, ny, nz

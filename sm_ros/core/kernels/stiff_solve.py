@@ -43,8 +43,10 @@ WARM = 0.9
 class StiffBodies(NamedTuple):
     """The bodies of the pass: typed lists of their (N, 3) positions and velocities and
     (N,) masses, their contact radii, whether each is awake (asleep: an obstacle of
-    infinite mass), whether it collides with other bodies and whether it is round (meets
-    the colliders as one sphere, ``stiff_contacts.collider_contacts``)."""
+    infinite mass), whether it collides with other bodies, whether it is round (meets
+    the colliders as one sphere, ``stiff_contacts.collider_contacts``) and (B, 3, 3) the
+    half edges of its particles' lattice cells, in world axes (zeros: no lattice, its
+    particles meet the colliders as spheres)."""
 
     x: object
     v: object
@@ -53,6 +55,7 @@ class StiffBodies(NamedTuple):
     awake: np.ndarray
     collide: np.ndarray
     round: np.ndarray
+    cells: np.ndarray
 
 
 class StiffScene(NamedTuple):
