@@ -2,13 +2,12 @@
 and the few points at which it touches a collider or another stiff body.
 
 A body's mass, centre, velocity, spin and inertia come from its particles
-(``body_frame``).  Its particles are spheres of its contact radius.  Against a collider,
-each particle's gap is the distance between its sphere and the collider's surface; against
-another body, the pair's particles closer than their radii (plus the step's reach) give one
-normal for the pair, and each particle pair's gap along it, so two flat faces meet as flat
-faces.  Of the particles in reach, a few are kept per collider or body pair: the deepest
-and the farthest along 8 directions of the contact plane, so a face keeps its outline
-(``SLOTS``).  A contact is a row of ``K_*`` columns (``stiff_solve`` solves them).
+(``body_frame``).  Against a collider, each particle's gap is the distance between its
+outline (its lattice cell, or its sphere of the contact radius) and the collider's
+surface; a round body meets it as one sphere.  Of the particles in reach, a few are kept
+per collider (and per body pair, ``stiff_pairs``): the deepest and the farthest along 8
+directions of the contact plane, so a face keeps its outline (``SLOTS``).  A contact is a
+row of ``K_*`` columns (``stiff_solve`` solves them).
 """
 
 import numpy as np
@@ -17,7 +16,6 @@ from numba import njit
 from .colliders import C_ANG, C_BOUND, C_E, C_MU, C_POS, C_VEL, surface_gap
 from .grabs import inertia
 from .jit import JIT
-from .linalg import jacobi3
 
 #: Contact points kept per collider or body pair: the deepest and the farthest along 8
 #: directions of the contact plane.
@@ -39,20 +37,9 @@ K_ROW = 25
 SLOP_SHARE = 0.1
 #: A particle whose sphere is within this gap (m) of a collider touches it (counts).
 TOUCH = 1e-3
-#: Particle pairs of two bodies count towards their contact up to this many times the sum
-#: of their radii apart (plus the step's reach): two lattices' faces offset by half a
-#: spacing have their nearest particles 1.12 times it apart.
-PAIR_REACH = 1.25
-#: A side of a body pair's contact is a face when its points' spread across their plane
-#: is at most this share of their spread along it (``_pair_normal``).
-FLAT = 0.1
 #: A particle's cell meets a surface at its edge or corner once that edge tilts this
 #: share of its half length towards the surface (in proportion below: no jump at rest).
 CORNER_TILT = 0.05
-#: A face needs this many particles (any three lie in a plane), and its normal within
-#: acos of this of the pairs' mean direction (a lattice offset tilts them by 27 deg).
-FACE_POINTS = 4
-FACE_TILT = 0.7
 #: Columns of a body's frame: mass, inverse mass, centre (3), velocity (3), spin (3),
 #: reach (the largest distance of a particle from the centre), bounds lo (3), hi (3).
 F_MASS, F_INV, F_COM, F_VEL, F_SPIN, F_REACH, F_LO, F_HI = 0, 1, 2, 5, 8, 11, 12, 15
@@ -301,207 +288,3 @@ def _collider_row(centre, a, c, radii, cell, com, rows, row):
         row[K_SURF + 2] = coll[C_VEL + 2] + wx * oy - wy * ox
     row[K_MU], row[K_E], row[K_SLOP] = coll[C_MU], coll[C_E], SLOP_SHARE * grain
     return gap
-
-
-@njit(**JIT)
-def _near(x, lo, hi, grow, out):
-    """Indices of the particles of x inside the box lo..hi grown by ``grow``; the count."""
-    count = 0
-    for i in range(x.shape[0]):
-        if (x[i, 0] > lo[0] - grow and x[i, 0] < hi[0] + grow and x[i, 1] > lo[1] - grow
-                and x[i, 1] < hi[1] + grow and x[i, 2] > lo[2] - grow
-                and x[i, 2] < hi[2] + grow):
-            out[count] = i
-            count += 1
-    return count
-
-
-@njit(**JIT)
-def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
-    """Append to ``out`` (from ``count``) the contacts of stiff bodies a and b
-    (``stiff_solve.StiffBodies``, their frames); returns the new count.  The pair's normal
-    is ``_pair_normal``, each particle pair's gap is along it."""
-    xa, xb, ra, rb = bodies.x[a], bodies.x[b], bodies.radius[a], bodies.radius[b]
-    fa, fb = frames[a], frames[b]
-    reach = PAIR_REACH * (ra + rb) + margin
-    near_a = np.empty(xa.shape[0], dtype=np.int64)
-    near_b = np.empty(xb.shape[0], dtype=np.int64)
-    na = _near(xa, fb[F_LO:F_LO + 3], fb[F_HI:F_HI + 3], reach, near_a)
-    nb = _near(xb, fa[F_LO:F_LO + 3], fa[F_HI:F_HI + 3], reach, near_b)
-    if na == 0 or nb == 0:
-        return count
-    close = _close_pairs(xa, xb, near_a[:na], near_b[:nb], reach)
-    n, face = _pair_normal(xa, xb, close, reach)
-    if not np.any(n != 0.0):
-        return count
-    tangents = np.empty(6)
-    tangents[:] = _tangents(n[0], n[1], n[2])
-    slots = np.empty(SLOTS, dtype=np.int64)
-    best = np.empty((SLOTS, 2))
-    mid = np.empty(3)
-    _fresh(slots, best)
-    for p in range(close.shape[0]):
-        i, j = close[p, 0], close[p, 1]
-        gap = _gap_of(xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2], n,
-                      face) - ra - rb
-        if gap < margin:
-            for k in range(3):
-                mid[k] = 0.5 * (xa[i, k] + xb[j, k])
-            _slot(slots, best, gap, mid, fa, 0.25 * ra, tangents, i * xb.shape[0] + j)
-    for k in range(SLOTS):
-        if _distinct(slots, k):
-            _pair_row(bodies, frames, (a, b), slots[k], (n, face), scene, out[count])
-            out[count, K_WHO] = k
-            count += 1
-    return count
-
-
-@njit(**JIT)
-def _close_pairs(xa, xb, near_a, near_b, reach):
-    """The particle pairs (i of a, j of b) closer than ``reach``, (count, 2): b's particles
-    sorted along the axis they spread most on, each of a's scanned only over those within
-    ``reach`` of it along that axis."""
-    spread = np.zeros(3)
-    for k in range(3):
-        lo, hi = np.inf, -np.inf
-        for j in near_b:
-            lo, hi = min(lo, xb[j, k]), max(hi, xb[j, k])
-        spread[k] = hi - lo
-    axis = int(np.argmax(spread))
-    keys = np.empty(len(near_b))
-    for q in range(len(near_b)):
-        keys[q] = xb[near_b[q], axis]
-    order = np.argsort(keys)
-    keys = keys[order]
-    sorted_b = near_b[order]
-    out = np.empty((16, 2), dtype=np.int64)
-    count = 0
-    for i in near_a:
-        start = np.searchsorted(keys, xa[i, axis] - reach)
-        for q in range(start, len(keys)):
-            if keys[q] > xa[i, axis] + reach:
-                break
-            j = sorted_b[q]
-            dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
-            if dx * dx + dy * dy + dz * dz < reach * reach:
-                out = append_pair(out, count, i, j)
-                count += 1
-    return out[:count]
-
-
-@njit(**JIT)
-def append_pair(out, count, i, j):
-    """``out`` (rows of index pairs, ``count`` used) with (i, j) as row ``count``, grown
-    to twice its size when full."""
-    if count == out.shape[0]:
-        grown = np.empty((2 * count, 2), dtype=np.int64)
-        grown[:count] = out
-        out = grown
-    out[count, 0], out[count, 1] = i, j
-    return out
-
-
-@njit(**JIT)
-def _pair_normal(xa, xb, close, reach):
-    """(the normal of a body pair's contact, from b towards a (zeros: none in reach),
-    whether a face gave it), from its particle pairs in reach (``close``).
-
-    Each body's particles in reach of the other's lie in a plane where that body meets the
-    other with a face: of the two, the flatter face (the smaller share of its spread across
-    its plane) gives the normal, whatever the faces' offset or an edge resting on it (the
-    particle pairs' own directions would tilt with the offset and push the faces apart
-    sideways).  Where neither is flat (an edge on an edge, a corner), the mean direction of
-    the pairs in reach, weighted by how far in: then a pair's gap is its own distance, not
-    its distance along the normal (``_gap_of``)."""
-    pull = np.zeros(3)
-    side_a, side_b = np.zeros(10), np.zeros(10)     # weight, sum of w x (3), of w x x^T (6)
-    seen_a = np.zeros(xa.shape[0], dtype=np.bool_)
-    seen_b = np.zeros(xb.shape[0], dtype=np.bool_)
-    count_a = count_b = 0
-    for p in range(close.shape[0]):
-        i, j = close[p, 0], close[p, 1]
-        dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
-        d = np.sqrt(dx * dx + dy * dy + dz * dz)
-        if not d > 0.0:
-            continue
-        w = reach - d
-        pull[0] += w * dx / d
-        pull[1] += w * dy / d
-        pull[2] += w * dz / d
-        _add_point(side_a, xa[i], w)
-        _add_point(side_b, xb[j], w)
-        count_a += not seen_a[i]
-        count_b += not seen_b[j]
-        seen_a[i] = seen_b[j] = True
-    size = np.sqrt(pull[0] ** 2 + pull[1] ** 2 + pull[2] ** 2)
-    if not size > 0.0:
-        return np.zeros(3), False
-    pull /= size
-    flat_a, normal_a = _flatness(side_a) if count_a >= FACE_POINTS else (np.inf, pull)
-    flat_b, normal_b = _flatness(side_b) if count_b >= FACE_POINTS else (np.inf, pull)
-    n = normal_a if flat_a < flat_b else normal_b
-    if min(flat_a, flat_b) > FLAT or abs(n @ pull) < FACE_TILT:
-        return pull, False
-    return (n if n @ pull >= 0.0 else -n), True
-
-
-@njit(**JIT)
-def _gap_of(dx, dy, dz, n, face):
-    """A particle pair's distance d along the normal n of a face, else its length."""
-    if face:
-        return dx * n[0] + dy * n[1] + dz * n[2]
-    return np.sqrt(dx * dx + dy * dy + dz * dz)
-
-
-@njit(**JIT)
-def _add_point(side, p, w):
-    """Add point p with weight w to a side's sums (``_pair_normal``)."""
-    side[0] += w
-    side[1:4] += w * p
-    side[4] += w * p[0] * p[0]
-    side[5] += w * p[1] * p[1]
-    side[6] += w * p[2] * p[2]
-    side[7] += w * p[0] * p[1]
-    side[8] += w * p[0] * p[2]
-    side[9] += w * p[1] * p[2]
-
-
-@njit(**JIT)
-def _flatness(side):
-    """(the smallest over the middle spread of a side's points, the direction of the
-    smallest): 0 for points in a plane, 1 or more for points along a line or in a lump."""
-    mean = side[1:4] / side[0]
-    cov = np.empty((3, 3))
-    cov[0, 0] = side[4] / side[0] - mean[0] * mean[0]
-    cov[1, 1] = side[5] / side[0] - mean[1] * mean[1]
-    cov[2, 2] = side[6] / side[0] - mean[2] * mean[2]
-    cov[0, 1] = cov[1, 0] = side[7] / side[0] - mean[0] * mean[1]
-    cov[0, 2] = cov[2, 0] = side[8] / side[0] - mean[0] * mean[2]
-    cov[1, 2] = cov[2, 1] = side[9] / side[0] - mean[1] * mean[2]
-    axes = np.empty((3, 3))
-    jacobi3(cov, axes)
-    spread = np.array([cov[0, 0], cov[1, 1], cov[2, 2]])
-    order = np.argsort(spread)
-    if not spread[order[1]] > 0.0:
-        return np.inf, axes[:, order[0]].copy()
-    return max(spread[order[0]], 0.0) / spread[order[1]], axes[:, order[0]].copy()
-
-
-@njit(**JIT)
-def _pair_row(bodies, frames, pair, who, normal, scene, row):
-    """Fill a contact row for the particle pair ``who`` (a's index times b's count plus
-    b's) of the body pair (a, b); ``normal``: ``_pair_normal``'s."""
-    a, b = pair
-    n, face = normal
-    xa, xb, ra, rb = bodies.x[a], bodies.x[b], bodies.radius[a], bodies.radius[b]
-    i, j = who // xb.shape[0], who % xb.shape[0]
-    row[:] = 0.0
-    row[K_A], row[K_B], row[K_COLL] = a, b, -2
-    row[K_GAP] = _gap_of(xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2], n,
-                         face) - ra - rb
-    for k in range(3):
-        p = 0.5 * (xa[i, k] + xb[j, k]) + 0.5 * (rb - ra) * n[k]
-        row[K_N + k] = n[k]
-        row[K_RA + k] = p - frames[a, F_COM + k]
-        row[K_RB + k] = p - frames[b, F_COM + k]
-    row[K_MU], row[K_E], row[K_SLOP] = scene.pair_mu, scene.pair_e, SLOP_SHARE * (ra + rb)

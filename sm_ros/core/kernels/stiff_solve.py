@@ -22,8 +22,8 @@ from .stiff_rows import J_D, J_MASS, apply, jacobians, push_visit, speed_along, 
 from .stiff_contacts import (F_COM, F_HI, F_INV, F_LO, F_MASS, F_REACH, F_ROW, F_SPIN,
                              F_VEL, K_A, K_APPROACH, K_B, K_BOUNCE, K_COLL, K_E, K_FALL,
                              K_GAP, K_GRIP, K_RA, K_ROW, K_SLOP, K_TARGET,
-                             K_WHO, SLOTS, append_pair, body_frame, collider_contacts,
-                             pair_contacts)
+                             K_WHO, SLOTS, body_frame, collider_contacts)
+from .stiff_pairs import append_pair, pair_contacts
 
 #: A gap (m) within which a contact counts as reached, and the share of an overlap beyond
 #: its slop (``stiff_contacts.SLOP_SHARE``) the position solve removes in a step.
@@ -102,7 +102,8 @@ def _rows_speed(rows):
 @njit(**JIT)
 def _pairs(frames, bodies, slack):
     """Body pairs (a, b), a < b, at least one awake, whose bounds grown by their radii
-    and ``slack`` overlap: (count, 2) array."""
+    and ``slack`` overlap (a round body's by half its reach more: its sphere reaches past
+    its particles' bounds): (count, 2) array."""
     nb = frames.shape[0]
     out = np.empty((16, 2), dtype=np.int64)
     count = 0
@@ -112,6 +113,9 @@ def _pairs(frames, bodies, slack):
                     and bodies.collide[b]):
                 continue
             grow = bodies.radius[a] + bodies.radius[b] + slack
+            for side in (a, b):
+                if bodies.round[side]:
+                    grow += 0.5 * frames[side, F_REACH]
             apart = False
             for k in range(3):
                 apart = apart or (frames[a, F_LO + k] > frames[b, F_HI + k] + grow

@@ -1,0 +1,345 @@
+"""Contacts between two stiff bodies (``sm_ros/core/stiff_contact.py``): the few particle
+pairs at which they touch and the normal they share (``pair_contacts``).
+
+The particle pairs of both bodies closer than their radii (plus the step's reach) give one
+normal for the pair: a face's where one side's particles lie in a plane, else their mean
+direction, and each pair's gap along it, so two flat faces meet as flat faces.  A round
+body meets the other's particles with its sphere.  Rows and slots as for the colliders
+(``stiff_contacts``).
+"""
+
+import numpy as np
+from numba import njit
+
+from .jit import JIT
+from .linalg import jacobi3
+from .stiff_contacts import (F_COM, F_HI, F_LO, F_REACH, K_A, K_B, K_COLL, K_E, K_GAP,
+                             K_MU, K_N, K_RA, K_RB, K_SLOP, K_WHO, SLOP_SHARE, SLOTS,
+                             _distinct, _fresh, _slot, _tangents)
+
+#: Particle pairs of two bodies count towards their contact up to this many times the sum
+#: of their radii apart (plus the step's reach): two lattices' faces offset by half a
+#: spacing have their nearest particles 1.12 times it apart.
+PAIR_REACH = 1.25
+#: A side of a body pair's contact is a face when its points' spread across their plane
+#: is at most this share of their spread along it (``_pair_normal``).
+FLAT = 0.1
+#: A face needs this many particles (any three lie in a plane), and its normal within
+#: acos of this of the pairs' mean direction (a lattice offset tilts them by 27 deg).
+FACE_POINTS = 4
+FACE_TILT = 0.7
+
+
+@njit(**JIT)
+def _near(x, lo, hi, grow, out):
+    """Indices of the particles of x inside the box lo..hi grown by ``grow``; the count."""
+    count = 0
+    for i in range(x.shape[0]):
+        if (x[i, 0] > lo[0] - grow and x[i, 0] < hi[0] + grow and x[i, 1] > lo[1] - grow
+                and x[i, 1] < hi[1] + grow and x[i, 2] > lo[2] - grow
+                and x[i, 2] < hi[2] + grow):
+            out[count] = i
+            count += 1
+    return count
+
+
+@njit(**JIT)
+def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
+    """Append to ``out`` (from ``count``) the contacts of stiff bodies a and b
+    (``stiff_solve.StiffBodies``, their frames); returns the new count.  The pair's normal
+    is ``_pair_normal``, each particle pair's gap is along it."""
+    if bodies.round[a] or bodies.round[b]:
+        return _ball_pair(bodies, frames, (a, b), margin, scene, out, count)
+    xa, xb, ra, rb = bodies.x[a], bodies.x[b], bodies.radius[a], bodies.radius[b]
+    fa, fb = frames[a], frames[b]
+    reach = PAIR_REACH * (ra + rb) + margin
+    near_a = np.empty(xa.shape[0], dtype=np.int64)
+    near_b = np.empty(xb.shape[0], dtype=np.int64)
+    na = _near(xa, fb[F_LO:F_LO + 3], fb[F_HI:F_HI + 3], reach, near_a)
+    nb = _near(xb, fa[F_LO:F_LO + 3], fa[F_HI:F_HI + 3], reach, near_b)
+    if na == 0 or nb == 0:
+        return count
+    close = _close_pairs(xa, xb, near_a[:na], near_b[:nb], reach)
+    n, face = _pair_normal(xa, xb, close, reach)
+    if not np.any(n != 0.0):
+        return count
+    tangents = np.empty(6)
+    tangents[:] = _tangents(n[0], n[1], n[2])
+    slots = np.empty(SLOTS, dtype=np.int64)
+    best = np.empty((SLOTS, 2))
+    mid = np.empty(3)
+    _fresh(slots, best)
+    for p in range(close.shape[0]):
+        i, j = close[p, 0], close[p, 1]
+        gap = _gap_of(xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2], n,
+                      face) - ra - rb
+        if gap < margin:
+            for k in range(3):
+                mid[k] = 0.5 * (xa[i, k] + xb[j, k])
+            _slot(slots, best, gap, mid, fa, 0.25 * ra, tangents, i * xb.shape[0] + j)
+    for k in range(SLOTS):
+        if _distinct(slots, k):
+            _pair_row(bodies, frames, (a, b), slots[k], (n, face), scene, out[count])
+            out[count, K_WHO] = k
+            count += 1
+    return count
+
+
+@njit(**JIT)
+def _ball_pair(bodies, frames, pair, margin, scene, out, count):
+    """Append the contacts of a body pair of which one is round: its sphere (``ball`` of
+    ``collider_contacts``) against the other's particles, each with its own normal, at
+    most ``SLOTS`` of them (the deepest and the farthest around), or against the other's
+    sphere at one point; returns the new count.  Normals point from b towards a."""
+    a, b = pair
+    ball, other = (a, b) if bodies.round[a] else (b, a)
+    sign = 1.0 if ball == a else -1.0
+    centre = frames[ball, F_COM:F_COM + 3]
+    big = frames[ball, F_REACH] + bodies.radius[ball]
+    slop = SLOP_SHARE * (bodies.radius[a] + bodies.radius[b])
+    if bodies.round[other]:
+        x = frames[other:other + 1, F_COM:F_COM + 3]
+        small = frames[other, F_REACH] + bodies.radius[other]
+    else:
+        x, small = bodies.x[other], bodies.radius[other]
+    n = np.empty(3)
+    if x.shape[0] == 1:
+        gap = _sphere_normal(centre, x[0], big + small, n)
+        if gap < margin:
+            _sphere_row(pair, gap, n * sign, x[0] + small * n, frames, (scene, slop),
+                        out[count])
+            count += 1
+        return count
+    gap = _ball_on_face(centre, x, (big, small), margin, n)
+    if gap < margin:                     # the other's particles in reach form a face
+        _sphere_row(pair, gap, n * sign, centre - big * n, frames, (scene, slop), out[count])
+        return count + 1
+    slots = np.empty(SLOTS, dtype=np.int64)
+    best = np.empty((SLOTS, 2))
+    tangents = np.empty(6)
+    _sphere_normal(centre, frames[other, F_COM:F_COM + 3], 0.0, n)
+    tangents[:] = _tangents(n[0], n[1], n[2])
+    _fresh(slots, best)
+    for j in range(x.shape[0]):
+        gap = _sphere_normal(centre, x[j], big + small, n)
+        if gap < margin:
+            _slot(slots, best, gap, x[j], frames[ball], 0.25 * small, tangents, j)
+    for k in range(SLOTS):
+        if _distinct(slots, k):
+            j = slots[k]
+            gap = _sphere_normal(centre, x[j], big + small, n)
+            _sphere_row(pair, gap, n * sign, x[j] + small * n, frames, (scene, slop),
+                        out[count])
+            out[count, K_WHO] = k
+            count += 1
+    return count
+
+
+@njit(**JIT)
+def _ball_on_face(centre, x, radii, margin, n):
+    """Where the particles x within reach of a ball (about ``centre``; ``radii``: the
+    ball's and the particles') form a face (``_pair_normal``'s rule), the ball's gap to
+    that face's plane, with ``n`` its normal towards the ball: it rolls on the face, not
+    over its particles; else inf."""
+    big, small = radii
+    side, pull = np.zeros(10), np.zeros(3)
+    count = 0
+    for j in range(x.shape[0]):
+        gap = _sphere_normal(centre, x[j], big + small, n)
+        if gap < margin + small:
+            _add_point(side, x[j], 1.0)
+            pull += n
+            count += 1
+    if count < FACE_POINTS:
+        return np.inf
+    size = np.sqrt(pull @ pull)
+    flat, normal = _flatness(side)
+    if not size > 0.0 or flat > FLAT or abs(normal @ pull) < FACE_TILT * size:
+        return np.inf
+    n[:] = normal if normal @ pull >= 0.0 else -normal
+    deepest, scratch = np.inf, np.empty(3)
+    for j in range(x.shape[0]):
+        if _sphere_normal(centre, x[j], big + small, scratch) < margin + small:
+            along = ((centre[0] - x[j, 0]) * n[0] + (centre[1] - x[j, 1]) * n[1]
+                     + (centre[2] - x[j, 2]) * n[2])
+            deepest = min(deepest, along - big - small)
+    return deepest
+
+
+@njit(**JIT)
+def _sphere_normal(centre, p, reach, n):
+    """The gap between a sphere about ``centre`` and one about p whose radii sum to
+    ``reach``; ``n`` the unit direction from p to the centre (up when they coincide)."""
+    d = centre - p
+    dist = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    if dist > 0.0:
+        n[:] = d / dist
+    else:
+        n[0], n[1], n[2] = 0.0, 0.0, 1.0
+    return dist - reach
+
+
+@njit(**JIT)
+def _sphere_row(pair, gap, n, point, frames, rules, row):
+    """Fill a body-pair contact row of ``gap``, normal n (from b towards a) at ``point``;
+    ``rules``: the scene (friction, restitution) and the overlap kept."""
+    a, b = pair
+    scene, slop = rules
+    row[:] = 0.0
+    row[K_A], row[K_B], row[K_COLL], row[K_GAP] = a, b, -2, gap
+    for k in range(3):
+        row[K_N + k] = n[k]
+        row[K_RA + k] = point[k] - frames[a, F_COM + k]
+        row[K_RB + k] = point[k] - frames[b, F_COM + k]
+    row[K_MU], row[K_E], row[K_SLOP] = scene.pair_mu, scene.pair_e, slop
+
+
+@njit(**JIT)
+def _close_pairs(xa, xb, near_a, near_b, reach):
+    """The particle pairs (i of a, j of b) closer than ``reach``, (count, 2): b's particles
+    sorted along the axis they spread most on, each of a's scanned only over those within
+    ``reach`` of it along that axis."""
+    spread = np.zeros(3)
+    for k in range(3):
+        lo, hi = np.inf, -np.inf
+        for j in near_b:
+            lo, hi = min(lo, xb[j, k]), max(hi, xb[j, k])
+        spread[k] = hi - lo
+    axis = int(np.argmax(spread))
+    keys = np.empty(len(near_b))
+    for q in range(len(near_b)):
+        keys[q] = xb[near_b[q], axis]
+    order = np.argsort(keys)
+    keys = keys[order]
+    sorted_b = near_b[order]
+    out = np.empty((16, 2), dtype=np.int64)
+    count = 0
+    for i in near_a:
+        start = np.searchsorted(keys, xa[i, axis] - reach)
+        for q in range(start, len(keys)):
+            if keys[q] > xa[i, axis] + reach:
+                break
+            j = sorted_b[q]
+            dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
+            if dx * dx + dy * dy + dz * dz < reach * reach:
+                out = append_pair(out, count, i, j)
+                count += 1
+    return out[:count]
+
+
+@njit(**JIT)
+def append_pair(out, count, i, j):
+    """``out`` (rows of index pairs, ``count`` used) with (i, j) as row ``count``, grown
+    to twice its size when full."""
+    if count == out.shape[0]:
+        grown = np.empty((2 * count, 2), dtype=np.int64)
+        grown[:count] = out
+        out = grown
+    out[count, 0], out[count, 1] = i, j
+    return out
+
+
+@njit(**JIT)
+def _pair_normal(xa, xb, close, reach):
+    """(the normal of a body pair's contact, from b towards a (zeros: none in reach),
+    whether a face gave it), from its particle pairs in reach (``close``).
+
+    Each body's particles in reach of the other's lie in a plane where that body meets the
+    other with a face: of the two, the flatter face (the smaller share of its spread across
+    its plane) gives the normal, whatever the faces' offset or an edge resting on it (the
+    particle pairs' own directions would tilt with the offset and push the faces apart
+    sideways).  Where neither is flat (an edge on an edge, a corner), the mean direction of
+    the pairs in reach, weighted by how far in: then a pair's gap is its own distance, not
+    its distance along the normal (``_gap_of``)."""
+    pull = np.zeros(3)
+    side_a, side_b = np.zeros(10), np.zeros(10)     # weight, sum of w x (3), of w x x^T (6)
+    seen_a = np.zeros(xa.shape[0], dtype=np.bool_)
+    seen_b = np.zeros(xb.shape[0], dtype=np.bool_)
+    count_a = count_b = 0
+    for p in range(close.shape[0]):
+        i, j = close[p, 0], close[p, 1]
+        dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
+        d = np.sqrt(dx * dx + dy * dy + dz * dz)
+        if not d > 0.0:
+            continue
+        w = reach - d
+        pull[0] += w * dx / d
+        pull[1] += w * dy / d
+        pull[2] += w * dz / d
+        _add_point(side_a, xa[i], w)
+        _add_point(side_b, xb[j], w)
+        count_a += not seen_a[i]
+        count_b += not seen_b[j]
+        seen_a[i] = seen_b[j] = True
+    size = np.sqrt(pull[0] ** 2 + pull[1] ** 2 + pull[2] ** 2)
+    if not size > 0.0:
+        return np.zeros(3), False
+    pull /= size
+    flat_a, normal_a = _flatness(side_a) if count_a >= FACE_POINTS else (np.inf, pull)
+    flat_b, normal_b = _flatness(side_b) if count_b >= FACE_POINTS else (np.inf, pull)
+    n = normal_a if flat_a < flat_b else normal_b
+    if min(flat_a, flat_b) > FLAT or abs(n @ pull) < FACE_TILT:
+        return pull, False
+    return (n if n @ pull >= 0.0 else -n), True
+
+
+@njit(**JIT)
+def _gap_of(dx, dy, dz, n, face):
+    """A particle pair's distance d along the normal n of a face, else its length."""
+    if face:
+        return dx * n[0] + dy * n[1] + dz * n[2]
+    return np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@njit(**JIT)
+def _add_point(side, p, w):
+    """Add point p with weight w to a side's sums (``_pair_normal``)."""
+    side[0] += w
+    side[1:4] += w * p
+    side[4] += w * p[0] * p[0]
+    side[5] += w * p[1] * p[1]
+    side[6] += w * p[2] * p[2]
+    side[7] += w * p[0] * p[1]
+    side[8] += w * p[0] * p[2]
+    side[9] += w * p[1] * p[2]
+
+
+@njit(**JIT)
+def _flatness(side):
+    """(the smallest over the middle spread of a side's points, the direction of the
+    smallest): 0 for points in a plane, 1 or more for points along a line or in a lump."""
+    mean = side[1:4] / side[0]
+    cov = np.empty((3, 3))
+    cov[0, 0] = side[4] / side[0] - mean[0] * mean[0]
+    cov[1, 1] = side[5] / side[0] - mean[1] * mean[1]
+    cov[2, 2] = side[6] / side[0] - mean[2] * mean[2]
+    cov[0, 1] = cov[1, 0] = side[7] / side[0] - mean[0] * mean[1]
+    cov[0, 2] = cov[2, 0] = side[8] / side[0] - mean[0] * mean[2]
+    cov[1, 2] = cov[2, 1] = side[9] / side[0] - mean[1] * mean[2]
+    axes = np.empty((3, 3))
+    jacobi3(cov, axes)
+    spread = np.array([cov[0, 0], cov[1, 1], cov[2, 2]])
+    order = np.argsort(spread)
+    if not spread[order[1]] > 0.0:
+        return np.inf, axes[:, order[0]].copy()
+    return max(spread[order[0]], 0.0) / spread[order[1]], axes[:, order[0]].copy()
+
+
+@njit(**JIT)
+def _pair_row(bodies, frames, pair, who, normal, scene, row):
+    """Fill a contact row for the particle pair ``who`` (a's index times b's count plus
+    b's) of the body pair (a, b); ``normal``: ``_pair_normal``'s."""
+    a, b = pair
+    n, face = normal
+    xa, xb, ra, rb = bodies.x[a], bodies.x[b], bodies.radius[a], bodies.radius[b]
+    i, j = who // xb.shape[0], who % xb.shape[0]
+    row[:] = 0.0
+    row[K_A], row[K_B], row[K_COLL] = a, b, -2
+    row[K_GAP] = _gap_of(xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2], n,
+                         face) - ra - rb
+    for k in range(3):
+        p = 0.5 * (xa[i, k] + xb[j, k]) + 0.5 * (rb - ra) * n[k]
+        row[K_N + k] = n[k]
+        row[K_RA + k] = p - frames[a, F_COM + k]
+        row[K_RB + k] = p - frames[b, F_COM + k]
+    row[K_MU], row[K_E], row[K_SLOP] = scene.pair_mu, scene.pair_e, SLOP_SHARE * (ra + rb)
