@@ -2,12 +2,13 @@
 
 Before the bodies' own step, every stiff body (``is_stiff``) takes its contacts with the
 colliders and with the other stiff bodies as one rigid body (``kernels/stiff_solve.py``
-solves the contacts ``kernels/stiff_contacts.py`` finds): an impulse at a contact point
-changes the body's velocity and spin, so contact tips, rolls, holds and spins it;
-restitution acts on the approach speed at the point, and overlap is removed without
-adding speed.  Its particles are spheres of its contact radius, so it rests on its
-outline.  Those contacts are then left out of the per-particle contact pass, which softer
-bodies keep.
+solves the contacts that ``kernels/stiff_contacts.py`` and ``kernels/stiff_pairs.py``
+find): an impulse at a contact point changes the body's velocity and spin, so contact
+tips, rolls, holds and spins it; restitution acts on the approach speed at the point, and
+overlap is removed without adding speed.  It meets colliders with its outline: its
+particles' lattice cells (``lattice_axes``), one sphere (``is_round``) or its particles'
+spheres.  Those contacts are then left out of the per-particle contact pass, which
+softer bodies keep.
 """
 
 import numpy as np
