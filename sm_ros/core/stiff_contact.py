@@ -152,7 +152,9 @@ class StiffContact:
                 lists[0].append(b._x)
                 lists[1].append(b._v)
                 lists[2].append(b._m)
-            self._lists, self._lists_key, self._round = lists, key, {}
+            self._lists, self._lists_key = lists, key
+            ids = {id(b) for b, _ in bodies}       # forget the bodies that left the pass
+            self._round = {k: v for k, v in self._round.items() if k in ids}
         radius = np.array([r for _, r in bodies])
         awake = np.array([not b.asleep for b, _ in bodies], dtype=np.bool_)
         on = world._contact_params.enabled
