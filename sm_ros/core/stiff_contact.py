@@ -17,6 +17,7 @@ from numba.typed import List as TypedList
 from .colliders import ColliderSet
 from .kinematic import C_E, C_MU, C_POS, ROW
 from . import tuning
+from .quaternion import quat_matrix
 from .kernels.stiff_solve import StiffBodies, StiffScene, stiff_step
 
 #: Sequential-impulse sweeps over the contacts per step, at most (they stop once settled).
@@ -77,16 +78,6 @@ def lattice_axes(rest, samples: int = 64):
     on_axis = np.abs(flat @ axes).max(axis=1) > 0.99 * np.linalg.norm(flat, axis=1)
     even = np.abs(np.asarray(nearest) / spacing - 1.0) < 0.05
     return axes if on_axis.all() and even.all() else None
-
-
-def _rotations(quats) -> np.ndarray:
-    """(B, 3, 3) rotation matrices of unit quaternions (B, 4) in (w, x, y, z) order."""
-    w, x, y, z = quats.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=1)
 
 
 def is_stiff(body, h) -> bool:
@@ -165,7 +156,8 @@ class StiffContact:
         cells = np.zeros((len(bodies), 3, 3))
         boxy = [k for k, (_, axes) in enumerate(shapes) if axes is not None]
         if boxy:           # the lattice axes turned as the body's shape match turns them
-            turns = _rotations(np.array([bodies[k][0]._quat[0] for k in boxy]))
+            wxyz = np.array([bodies[k][0]._quat[0] for k in boxy])
+            turns = quat_matrix(wxyz[:, [1, 2, 3, 0]])
             rest = np.array([shapes[k][1] * radius[k] for k in boxy])
             cells[boxy] = turns @ rest
         return StiffBodies(*self._lists, radius, awake, collide, ball, cells)

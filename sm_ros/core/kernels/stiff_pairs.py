@@ -106,13 +106,13 @@ def _ball_pair(bodies, frames, pair, margin, scene, out, count):
     if x.shape[0] == 1:
         gap = _sphere_normal(centre, x[0], big + small, n)
         if gap < margin:
-            _sphere_row(pair, gap, n * sign, x[0] + small * n, frames, (scene, slop),
+            _body_row(pair, gap, n * sign, x[0] + small * n, frames, (scene, slop),
                         out[count])
             count += 1
         return count
     gap = _ball_on_face(centre, x, (big, small), margin, n)
     if gap < margin:                     # the other's particles in reach form a face
-        _sphere_row(pair, gap, n * sign, centre - big * n, frames, (scene, slop), out[count])
+        _body_row(pair, gap, n * sign, centre - big * n, frames, (scene, slop), out[count])
         return count + 1
     slots = np.empty(SLOTS, dtype=np.int64)
     best = np.empty((SLOTS, 2))
@@ -128,7 +128,7 @@ def _ball_pair(bodies, frames, pair, margin, scene, out, count):
         if _distinct(slots, k):
             j = slots[k]
             gap = _sphere_normal(centre, x[j], big + small, n)
-            _sphere_row(pair, gap, n * sign, x[j] + small * n, frames, (scene, slop),
+            _body_row(pair, gap, n * sign, x[j] + small * n, frames, (scene, slop),
                         out[count])
             out[count, K_WHO] = k
             count += 1
@@ -150,13 +150,15 @@ def _ball_on_face(centre, x, radii, margin, n):
             _add_point(side, x[j], 1.0)
             pull += n
             count += 1
-    if count < FACE_POINTS:
-        return np.inf
     size = np.sqrt(pull @ pull)
-    flat, normal = _flatness(side)
-    if not size > 0.0 or flat > FLAT or abs(normal @ pull) < FACE_TILT * size:
+    if not size > 0.0:
         return np.inf
-    n[:] = normal if normal @ pull >= 0.0 else -normal
+    pull /= size
+    flat, normal = _side_flatness(side, count, pull)
+    face, normal = _face(flat, normal, pull)
+    if not face:
+        return np.inf
+    n[:] = normal
     deepest, scratch = np.inf, np.empty(3)
     for j in range(x.shape[0]):
         if _sphere_normal(centre, x[j], big + small, scratch) < margin + small:
@@ -180,7 +182,7 @@ def _sphere_normal(centre, p, reach, n):
 
 
 @njit(**JIT)
-def _sphere_row(pair, gap, n, point, frames, rules, row):
+def _body_row(pair, gap, n, point, frames, rules, row):
     """Fill a body-pair contact row of ``gap``, normal n (from b towards a) at ``point``;
     ``rules``: the scene (friction, restitution) and the overlap kept."""
     a, b = pair
@@ -275,12 +277,31 @@ def _pair_normal(xa, xb, close, reach):
     if not size > 0.0:
         return np.zeros(3), False
     pull /= size
-    flat_a, normal_a = _flatness(side_a) if count_a >= FACE_POINTS else (np.inf, pull)
-    flat_b, normal_b = _flatness(side_b) if count_b >= FACE_POINTS else (np.inf, pull)
-    n = normal_a if flat_a < flat_b else normal_b
-    if min(flat_a, flat_b) > FLAT or abs(n @ pull) < FACE_TILT:
-        return pull, False
-    return (n if n @ pull >= 0.0 else -n), True
+    flat_a, normal_a = _side_flatness(side_a, count_a, pull)
+    flat_b, normal_b = _side_flatness(side_b, count_b, pull)
+    if flat_a < flat_b:
+        face, n = _face(flat_a, normal_a, pull)
+    else:
+        face, n = _face(flat_b, normal_b, pull)
+    return (n if face else pull), face
+
+
+@njit(**JIT)
+def _side_flatness(side, count, pull):
+    """``_flatness`` of a side of ``count`` distinct particles; (inf, pull) below
+    ``FACE_POINTS`` of them (any three lie in a plane)."""
+    if count < FACE_POINTS:
+        return np.inf, pull.copy()
+    return _flatness(side)
+
+
+@njit(**JIT)
+def _face(flat, normal, pull):
+    """(whether a side of flatness ``flat`` and that ``normal`` is a face against the
+    mean direction ``pull`` (unit): flat enough, its normal within acos ``FACE_TILT`` of
+    ``pull``; the normal turned along ``pull``)."""
+    along = normal @ pull
+    return flat <= FLAT and abs(along) >= FACE_TILT, (normal if along >= 0.0 else -normal)
 
 
 @njit(**JIT)
@@ -333,13 +354,7 @@ def _pair_row(bodies, frames, pair, who, normal, scene, row):
     n, face = normal
     xa, xb, ra, rb = bodies.x[a], bodies.x[b], bodies.radius[a], bodies.radius[b]
     i, j = who // xb.shape[0], who % xb.shape[0]
-    row[:] = 0.0
-    row[K_A], row[K_B], row[K_COLL] = a, b, -2
-    row[K_GAP] = _gap_of(xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2], n,
-                         face) - ra - rb
-    for k in range(3):
-        p = 0.5 * (xa[i, k] + xb[j, k]) + 0.5 * (rb - ra) * n[k]
-        row[K_N + k] = n[k]
-        row[K_RA + k] = p - frames[a, F_COM + k]
-        row[K_RB + k] = p - frames[b, F_COM + k]
-    row[K_MU], row[K_E], row[K_SLOP] = scene.pair_mu, scene.pair_e, SLOP_SHARE * (ra + rb)
+    gap = _gap_of(xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2], n,
+                  face) - ra - rb
+    point = 0.5 * (xa[i] + xb[j]) + 0.5 * (rb - ra) * n
+    _body_row(pair, gap, n, point, frames, (scene, SLOP_SHARE * (ra + rb)), row)
