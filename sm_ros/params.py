@@ -247,8 +247,9 @@ TABLE: Tuple[Param, ...] = (
           'rad', 0.0, 3.0, scene_override=True, core_field='max_turn'),
     Param('error_estimate.rate', 0.2, 'Rate of the live error estimate in /diagnostics '
           '(error_estimate_m: from the state of the moment, one step of dt against two of '
-          'dt/2 on the running world, which is then put back bit for bit; the local error '
-          'per second times 2 s, doc/error_estimate.md). Its three steps run in what the '
+          'dt/2, two against four with a rigid-mode body, on the running world, which is '
+          'then put back bit for bit; the local error per second times 2 s, '
+          'doc/error_estimate.md). Its steps run in what the '
           'ticks leave of their period, all at once when the next estimate is due, so the '
           'last one is never older than 2 / rate (Hz; 0 disables)', 'Hz', 0.0, 10.0),
 )
