@@ -222,12 +222,12 @@ def test_far_apart_bodies_fall_back_to_hashed_cells():
         c = w.contact
         c.invalidate()
         c._build()
-        pairs = set(zip(c._pi[:c.npairs].tolist(), c._pj[:c.npairs].tolist()))
+        pairs = set(zip(c._pair_i[:c.npairs].tolist(), c._pair_j[:c.npairs].tolist()))
         return c, pairs
     near, near_pairs = world(False)
     far, far_pairs = world(True)
-    assert far._cb.shape[0] < 1e3 / far.cell           # the grid cannot span the box
-    assert near._cb.shape[0] > 1.0 / near.cell         # ... and could without the far body
+    assert far._cell_body.shape[0] < 1e3 / far.cell           # the grid cannot span the box
+    assert near._cell_body.shape[0] > 1.0 / near.cell         # ... and could without the far body
     assert near.npairs > 0 and far_pairs == near_pairs
 
 
@@ -697,7 +697,7 @@ def test_which_bodies_carry_their_contacts_as_a_whole():
     w.step(1 / 120)
     assert w.contact.coupling[:4].tolist() == [True, False, True, True]
     # a pinned particle makes the body per particle in the kernel (infinite mass)
-    assert w.contact._bw[3] == 0.0 and w.contact._bw[0] > 0.0
+    assert w.contact._body_inv_mass[3] == 0.0 and w.contact._body_inv_mass[0] > 0.0
 
 
 def test_resting_pair_is_pushed_apart_without_speed():
@@ -870,7 +870,7 @@ def test_broad_phase_keeps_every_pair_of_a_pour():
             w.step(1 / 120)
         c, f = w.contact, w._flat
         c._build()
-        got = set(zip(c._pi[:c.npairs].tolist(), c._pj[:c.npairs].tolist()))
+        got = set(zip(c._pair_i[:c.npairs].tolist(), c._pair_j[:c.npairs].tolist()))
         m, pi, pj = build_with('grid', f.X, f.R, f.B, c.act, c.selfc, f.X0, c.cell, c.skin,
                                4 * f.n)
         C.sort_pairs(pi, pj, m, f.n, np.zeros(f.n + 1, np.int64), np.zeros_like(pi),
@@ -933,7 +933,7 @@ def test_pair_list_kept_for_a_common_motion_and_always_complete():
     for _ in range(240):
         w.step(1 / 120)
         touching = brute_pairs(f.X.T, f.R, f.B, c.act, c.selfc, f.X0.T, 0.0)
-        listed = set(zip(c._pi[:c.npairs].tolist(), c._pj[:c.npairs].tolist()))
+        listed = set(zip(c._pair_i[:c.npairs].tolist(), c._pair_j[:c.npairs].tolist()))
         assert touching <= listed
         met += len(touching)
     assert met > 0 and c.builds > builds + 2

@@ -161,7 +161,7 @@ def contact_parts(world) -> Dict[str, float]:
     tr = bc.time_calls(restore, min_time=0.2, min_reps=10, max_reps=200)
     # overlapping pairs of the squeezed state, counted directly (with stacking the
     # solver's own count misses the pairs an earlier one in the sweep already freed)
-    pi, pj = c._pi[:c.npairs], c._pj[:c.npairs]
+    pi, pj = c._pair_i[:c.npairs], c._pair_j[:c.npairs]
     rr = f.R[pi] + f.R[pj]
     over = int((((Xs[:, pi] - Xs[:, pj]) ** 2).sum(axis=0) < rr * rr).sum())
     return {'rebuild_ms': _median_ms(tb),
@@ -215,8 +215,8 @@ def builders(world, build_threads: int, rounds: int = 5) -> Dict[str, Any]:
     sort = []
 
     def grid_sort():
-        grid_sort_kernel(f.X, f.R, f.B, c.act, c.cell, c._hb, c._cnt, c._srt, c._P, c._sb,
-                         c._cb, dims)
+        grid_sort_kernel(f.X, f.R, f.B, c.act, c.cell, c._particle_cell, c._cnt, c._srt,
+                         c._sorted_points, c._sorted_body, c._cell_body, dims)
     from sm_ros.core.contact_build import grid_sort as grid_sort_kernel
     dims = np.zeros(3, dtype=np.int64)
     old = c.parallel_build

@@ -218,23 +218,23 @@ class Contact:
         self.needed = nb > 0 and rmax > 0.0 and (int(self.act[:nb].sum()) >= 2
                                                   or bool(self.selfc[:nb].any()))
         tsize = 1 << max(4, int(math.ceil(math.log2(max(4 * n, 2)))))
-        self._hb = np.zeros(n, dtype=np.int64)
+        self._particle_cell = np.zeros(n, dtype=np.int64)
         self._cnt = np.zeros(tsize + 1, dtype=np.int64)
         self._srt = np.zeros(n, dtype=np.int64)
         self._skey = np.zeros(n, dtype=np.int64)
         self._sco = np.zeros((5, n))
-        self._P = np.zeros((n, 4))
-        self._sb = np.zeros(n, dtype=np.int32)
-        self._cb = np.zeros(tsize, dtype=np.int32)
+        self._sorted_points = np.zeros((n, 4))
+        self._sorted_body = np.zeros(n, dtype=np.int32)
+        self._cell_body = np.zeros(tsize, dtype=np.int32)
         #: None: the serial builder, or the parallel one from ``PARALLEL_BUILD_MIN``
         #: particles when more than one Numba thread is set; True / False: always / never
         #: the parallel one; 'cells': the previous builder (the benchmark's reference).
         self.parallel_build = None
         cap = max(1024, 2 * n)
-        self._pi = np.zeros(cap, dtype=np.int32)
-        self._pj = np.zeros(cap, dtype=np.int32)
-        self._ti = np.zeros(cap, dtype=np.int32)
-        self._tj = np.zeros(cap, dtype=np.int32)
+        self._pair_i = np.zeros(cap, dtype=np.int32)
+        self._pair_j = np.zeros(cap, dtype=np.int32)
+        self._sorted_i = np.zeros(cap, dtype=np.int32)
+        self._sorted_j = np.zeros(cap, dtype=np.int32)
         self._pcnt = np.zeros(n + 1, dtype=np.int64)
         self._xref = np.zeros((3, n))
         self._moved = np.zeros(n, dtype=np.uint8)
@@ -250,20 +250,20 @@ class Contact:
         self.coupling = np.zeros(max(nb, 1), dtype=np.bool_)
         # the bodies whose pairs the stiff pass takes (stiff_contact.py; set by World)
         self.rigid = np.zeros(max(nb, 1), dtype=np.bool_)
-        self._bw = np.zeros(max(nb, 1))
-        self._bw_version = -1                   # flat.w_version that _bw was computed at
-        self._dv = np.zeros((max(nb, 1), 7))     # velocity, position changes; held
+        self._body_inv_mass = np.zeros(max(nb, 1))
+        self._body_inv_mass_version = -1        # flat.w_version it was computed at
+        self._body_change = np.zeros((max(nb, 1), 7))     # velocity, position changes; held
         self._pend = np.zeros(max(nb, 1), dtype=np.uint8)
         self._active = np.zeros(0, dtype=np.int64)
         self._acc = np.zeros((2, 0))
-        self._tg = np.zeros(0)
+        self._pair_target = np.zeros(0)
         self._cbuf = np.zeros((7, 0))
         self._ibuf = np.zeros((5, 0), dtype=np.int32)
-        self._vb = np.zeros((max(nb, 1), 3))
+        self._body_velocity = np.zeros((max(nb, 1), 3))
         self._zlo = np.zeros((2, max(nb, 1)))   # lowest particle per body: z, its v_z
-        self._bc = np.zeros((max(nb, 1), 3))            # centre of mass
-        self._bom = np.zeros((max(nb, 1), 3))           # spin
-        self._biv = np.zeros((max(nb, 1), 9))           # inverse inertia tensor
+        self._body_centre = np.zeros((max(nb, 1), 3))            # centre of mass
+        self._body_spin = np.zeros((max(nb, 1), 3))           # spin
+        self._body_inv_inertia = np.zeros((max(nb, 1), 9))           # inverse inertia tensor
         self._dbox = np.zeros(6)        # displacements since the last build: their box
         self._accg = np.zeros((2, max(nb, 1)))          # ground impulses per body
         self._warm = False              # acc, accg hold the last step's impulses (list kept)
@@ -275,8 +275,9 @@ class Contact:
         """What a step changes and a later step reads (``snapshot``): the pair list and
         what its build measured (boxes, positions, displacements since), the impulses that
         warm-start the next step, the body masses and the last step's counts."""
-        return ('npairs', 'valid', 'builds', 'found', '_warm', '_pi', '_pj', '_xref', '_box',
-                '_dbox', '_acc', '_accg', '_bw', '_bw_version', 'count', 'deepest')
+        return ('npairs', 'valid', 'builds', 'found', '_warm', '_pair_i', '_pair_j', '_xref',
+                '_box', '_dbox', '_acc', '_accg', '_body_inv_mass', '_body_inv_mass_version',
+                'count', 'deepest')
 
     def invalidate(self):
         """Force a rebuild of the pair list at the next step."""
@@ -300,13 +301,13 @@ class Contact:
         """(pi, pj, count) of the pairs this pass solves: the list without the pairs of
         two rigid bodies."""
         if not self.rigid.any():
-            return self._pi, self._pj, self.npairs
-        if len(self._ti) < len(self._pi):
-            self._ti = np.zeros(len(self._pi), dtype=np.int32)
-            self._tj = np.zeros(len(self._pi), dtype=np.int32)
-        kept = drop_rigid_pairs(self._pi, self._pj, self.npairs, self.flat.B, self.rigid,
-                                self._ti, self._tj)
-        return self._ti, self._tj, kept
+            return self._pair_i, self._pair_j, self.npairs
+        if len(self._sorted_i) < len(self._pair_i):
+            self._sorted_i = np.zeros(len(self._pair_i), dtype=np.int32)
+            self._sorted_j = np.zeros(len(self._pair_i), dtype=np.int32)
+        kept = drop_rigid_pairs(self._pair_i, self._pair_j, self.npairs, self.flat.B, self.rigid,
+                                self._sorted_i, self._sorted_j)
+        return self._sorted_i, self._sorted_j, kept
 
     def _grid_builder(self):
         """'cells' (the previous builder), or the number of threads of the grid builder."""
@@ -327,32 +328,27 @@ class Contact:
         body_overlaps(f.X, f.off, self.act, self.selfc, self._grow, self._box, self._order,
                       act)
         while True:
+            grid = (f.X, f.R, f.B, act, self.selfc, f.X0, self.cell, self.skin,
+                    SELF_REST_FACTOR, self._particle_cell, self._cnt, self._srt)
+            dense = (self._sorted_points, self._sorted_body, self._cell_body, self._pair_i,
+                     self._pair_j)
             if nt == 'cells':
-                m = build_pairs_cells(f.X, f.R, f.B, act, self.selfc, f.X0, self.cell,
-                                      self.skin, SELF_REST_FACTOR, self._hb, self._cnt,
-                                      self._srt, self._sco, self._pi, self._pj)
+                m = build_pairs_cells(*grid, self._sco, self._pair_i, self._pair_j)
             elif nt == 1:
-                m = build_pairs_grid(f.X, f.R, f.B, act, self.selfc, f.X0, self.cell,
-                                     self.skin, SELF_REST_FACTOR, self._hb, self._cnt,
-                                     self._srt, self._P, self._sb, self._cb, self._pi,
-                                     self._pj)
+                m = build_pairs_grid(*grid, *dense)
             else:
-                m = build_pairs_grid_par(f.X, f.R, f.B, act, self.selfc, f.X0, self.cell,
-                                         self.skin, SELF_REST_FACTOR, self._hb, self._cnt,
-                                         self._srt, self._P, self._sb, self._cb, self._pi,
-                                         self._pj, nt)
+                m = build_pairs_grid_par(*grid, *dense, nt)
             if m < 0:                           # sparse world: hashed cells
-                m = build_pairs(f.X, f.R, f.B, act, self.selfc, f.X0, self.cell,
-                                self.skin, SELF_REST_FACTOR, self._hb, self._cnt, self._srt,
-                                self._skey, self._sco, self._pi, self._pj)
-            if m <= len(self._pi):
+                m = build_pairs(*grid, self._skey, self._sco, self._pair_i, self._pair_j)
+            if m <= len(self._pair_i):
                 break
             cap = int(m * 1.5) + 1024           # grows rarely (a rebuild, not a step)
-            self._pi = np.zeros(cap, dtype=np.int32)
-            self._pj = np.zeros(cap, dtype=np.int32)
-            self._ti = np.zeros(cap, dtype=np.int32)
-            self._tj = np.zeros(cap, dtype=np.int32)
-        sort_pairs(self._pi, self._pj, m, f.n, self._pcnt, self._ti, self._tj)
+            self._pair_i = np.zeros(cap, dtype=np.int32)
+            self._pair_j = np.zeros(cap, dtype=np.int32)
+            self._sorted_i = np.zeros(cap, dtype=np.int32)
+            self._sorted_j = np.zeros(cap, dtype=np.int32)
+        sort_pairs(self._pair_i, self._pair_j, m, f.n, self._pcnt, self._sorted_i,
+                   self._sorted_j)
         self._warm = False                      # the impulses were of the old list's pairs
         self.npairs = m
         self._xref[:] = f.X
@@ -375,14 +371,16 @@ class Contact:
         grav = gravity is not None and bool(np.any(gravity != 0.0))
         carried = p.stacking and grav and self.coupling.any()
         if carried:
-            if self._bw_version != f.w_version:    # the bodies' masses, from W if changed
-                body_inverse_masses(f.W, f.off, self._bw)
-                self._bw_version = f.w_version
+            if self._body_inv_mass_version != f.w_version:    # masses from W if changed
+                body_inverse_masses(f.W, f.off, self._body_inv_mass)
+                self._body_inv_mass_version = f.w_version
             # the carried bodies' velocities, boxes and the displacements since the last
             # build in one pass over the positions
-            spread2 = body_velocities(f.X, f.V, f.M, f.off, self.coupling, self._bw,
-                                      self._vb, self._zlo, self._bc, self._bom, self._biv,
-                                      self._xref, self.act, self._dbox)
+            spread2 = body_velocities(f.X, f.V, f.M, f.off, self.coupling,
+                                      self._body_inv_mass, self._body_velocity, self._zlo,
+                                      self._body_centre, self._body_spin,
+                                      self._body_inv_inertia, self._xref, self.act,
+                                      self._dbox)
             # a stiff body rests on the ground with its particles' spheres, as the
             # collider pass puts it (stiff_contact.py)
             n = len(self.radii)
@@ -404,9 +402,9 @@ class Contact:
                                      ground, boxes, spheres, self._moved)
             return
         if self._acc.shape[1] < self.npairs:
-            m = len(self._pi)                  # grows with the pair list's capacity
+            m = len(self._pair_i)                  # grows with the pair list's capacity
             self._acc = np.zeros((2, m))
-            self._tg = np.zeros(m)
+            self._pair_target = np.zeros(m)
             self._active = np.zeros(m, dtype=np.int64)
             self._cbuf = np.zeros((7, m))        # solve_bodies' compact rows
             self._ibuf = np.zeros((5, m), dtype=np.int32)
@@ -417,24 +415,26 @@ class Contact:
         margin = np.inf
         if has_col and (len(boxes) or len(spheres)):
             margin = self.cell
-            ncand = wall_candidates(f.X, f.off, self.coupling, self._bw, boxes, spheres,
-                                    self.cell, self._cand, self._cptr, self.act,
+            ncand = wall_candidates(f.X, f.off, self.coupling, self._body_inv_mass, boxes,
+                                    spheres, self.cell, self._cand, self._cptr, self.act,
                                     self._box, self._dbox)
             if ncand > len(self._cand):         # a particle near two of them: grow
                 self._cand = np.zeros(ncand, dtype=np.int64)
-                ncand = wall_candidates(f.X, f.off, self.coupling, self._bw, boxes,
+                ncand = wall_candidates(f.X, f.off, self.coupling, self._body_inv_mass, boxes,
                                         spheres, self.cell, self._cand, self._cptr,
                                         self.act, self._box, self._dbox)
         self.found = solve_bodies(f.X, f.V, f.W, f.R, f.B, *self._solved_pairs(),
                                   p.friction, p.restitution, thresh, float(h),
                                   max(p.iterations, STACK_SWEEPS), f.touched, self.count,
                                   self.deepest, bool(has_col), ground,
-                                  boxes, spheres, self._moved, f.off, self._bw, self.coupling,
-                                  self._dv, self._pend, self._active, self._acc, self._tg,
-                                  SWEEP_TOL * thresh, self._vb, self._noground,
-                                  self._cand[:ncand], self._cptr, self._zlo, self._accg,
-                                  WARM_START if self._warm else 0.0, self._bc, self._bom,
-                                  self._biv, margin, self._cbuf, self._ibuf)
+                                  boxes, spheres, self._moved, f.off, self._body_inv_mass,
+                                  self.coupling, self._body_change, self._pend, self._active,
+                                  self._acc, self._pair_target, SWEEP_TOL * thresh,
+                                  self._body_velocity, self._noground, self._cand[:ncand],
+                                  self._cptr, self._zlo, self._accg,
+                                  WARM_START if self._warm else 0.0, self._body_centre,
+                                  self._body_spin, self._body_inv_inertia, margin, self._cbuf,
+                                  self._ibuf)
         self._warm = True
 
     def fast_particles(self, h):

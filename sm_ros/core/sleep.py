@@ -324,7 +324,7 @@ class Sleep:
                             radius=flat.R, body=flat.B, offset=flat.off, touched=flat.touched)
         rule = SleepRule(up=up, h=float(h), speed=float(params.sleep_speed),
                          t_sleep=float(params.sleep_time), allow=bool(params.sleep))
-        pairs = Pairs(contact._pi, contact._pj, contact.npairs)
+        pairs = Pairs(contact._pair_i, contact._pair_j, contact.npairs)
         if sleep_update(arrays, flat._xs, flat.flag_list(), self.state, pairs, rule):
             flat.w_version += 1
 
