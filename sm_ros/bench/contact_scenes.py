@@ -13,8 +13,8 @@ BLOCK = (6, 6, 4)
 
 def ball_pile(stacking: bool, clusters: int = 1, sleep: bool = True):
     """(World, bodies): 27 stiff balls (81 particles each, spacing 2 cm) above a 0.4 m x
-    0.4 m bin, to be poured by stepping (the ball pile; ``test/test_contact.py`` and
-    ``tools/stacking_figures.py`` step it).  ``clusters`` > 1: linear balls of that many
+    0.4 m bin, to be poured by stepping (the ball pile; ``test/test_contact.py`` steps
+    it).  ``clusters`` > 1: linear balls of that many
     clusters per axis (``paper_384``'s stiff many-cluster bodies) instead of rigid ones.
     ``sleep``: ``ContactParams.sleep`` (the default: on)."""
     from sm_ros import shapes

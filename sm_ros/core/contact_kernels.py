@@ -220,7 +220,7 @@ def body_velocities(X, V, M, off, cpl, bw, vb, zlo, bc, bom, biv, Xref, act, dbo
     (6,) (lo x y z, hi x y z; for ``wall_candidates``): body by body, the displacements
     (``kernels.spread.moved_box``) and then the sums over the same particles, in cache,
     so the contact pass reads its positions from memory once for both (a loop of its
-    own each: within 2 % of one fused loop, ``tools/contact_pieces.py``).  The sums
+    own each, simpler than one fused loop).  The sums
     about the first particle, for round-off; then a search for the first particle at
     the lowest height."""
     a = np.zeros(9)
