@@ -91,18 +91,14 @@ class FlatState:
         self.R = np.zeros(n)
         self.X0 = np.zeros((3, n))
         self.touched = np.zeros(max(nb, 1), dtype=np.uint8)
-        self._xs = List()
-        self._vs = List()
-        for b in self.bodies:
-            self._xs.append(b._x.T)          # the (3, n) blocks (Body stores x per component)
-            self._vs.append(b._v.T)
+        self._blocks()
         for k, b in enumerate(self.bodies):
             self.X0[:, self.off[k]:self.off[k + 1]] = b._x_init.T
         self._kin_seen = [None] * nb
         self._mass_gen = None
         self.w_version = 0
         self._flags_seen = None
-        self._fl = None
+        self._flag_list = None
         self.refresh_masses()
 
     def step_state(self) -> tuple:
@@ -112,20 +108,24 @@ class FlatState:
 
     def __getstate__(self):
         state = self.__dict__.copy()           # the typed lists do not pickle: rebuilt
-        del state['_xs'], state['_vs'], state['_fl']
+        del state['_x_blocks'], state['_v_blocks'], state['_flag_list']
         state['_flags_seen'] = None
         return state
 
     def __setstate__(self, state):
         self.__dict__.update(state)
         self._mass_gen = None                # a copy's bodies: refresh once
-        self._fl = None
+        self._flag_list = None
         self._flags_seen = None
-        self._xs = List()
-        self._vs = List()
+        self._blocks()
+
+    def _blocks(self):
+        """The typed lists of the bodies' (3, n) position and velocity blocks (``Body``
+        stores x and v per component)."""
+        self._x_blocks, self._v_blocks = List(), List()
         for b in self.bodies:
-            self._xs.append(b._x.T)          # the (3, n) blocks (Body stores x per component)
-            self._vs.append(b._v.T)
+            self._x_blocks.append(b._x.T)
+            self._v_blocks.append(b._v.T)
 
     def refresh_masses(self):
         """W from the bodies' masses; 0 for pinned/grabbed particles (cheap if unchanged).
@@ -157,7 +157,7 @@ class FlatState:
         """Copy every awake body's positions and velocities into X, V (a sleeping body's
         are there already: nothing moves it); clear ``touched``."""
         self.refresh_masses()
-        gather_state(self._xs, self._vs, self.off, self.X, self.V, self.flag_list())
+        gather_state(self._x_blocks, self._v_blocks, self.off, self.X, self.V, self.flag_list())
         self.touched[:] = 0
 
     def flag_list(self):
@@ -169,13 +169,13 @@ class FlatState:
         flags = [b._flags for b in self.bodies]
         seen = self._flags_seen
         if seen is None or any(map(operator.is_not, flags, seen)):
-            self._fl = List(flags)
+            self._flag_list = List(flags)
             self._flags_seen = flags
-        return self._fl
+        return self._flag_list
 
     def scatter(self):
         """Copy the touched bodies back and flag them for a fresh accumulation."""
         if not self.touched.any():
             return
-        scatter_state(self._xs, self._vs, self.off, self.X, self.V, self.touched,
+        scatter_state(self._x_blocks, self._v_blocks, self.off, self.X, self.V, self.touched,
                       self.flag_list())

@@ -325,7 +325,7 @@ class Sleep:
         rule = SleepRule(up=up, h=float(h), speed=float(params.sleep_speed),
                          t_sleep=float(params.sleep_time), allow=bool(params.sleep))
         pairs = Pairs(contact._pair_i, contact._pair_j, contact.npairs)
-        if sleep_update(arrays, flat._xs, flat.flag_list(), self.state, pairs, rule):
+        if sleep_update(arrays, flat._x_blocks, flat.flag_list(), self.state, pairs, rule):
             flat.w_version += 1
 
     def wake_all(self):
