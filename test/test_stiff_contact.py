@@ -359,3 +359,21 @@ def test_surface_gap_matches_numpy(kind):
         gap, nx, ny, nz = SC.surface_gap(row, p[0], p[1], p[2], 0.01)
         assert gap == pytest.approx(_gap_numpy(kind, row[1:4], rot, dims, p, 0.01), abs=1e-12)
         assert math.isclose(nx * nx + ny * ny + nz * nz, 1.0, rel_tol=1e-12)
+
+
+def test_a_one_particle_body_takes_the_same_compiled_pass():
+    """A body of one particle (its positions C- and F-contiguous at once) is stepped by the
+    pass compiled for bodies of many: stepping it compiles no second variant."""
+    from sm_ros.core import BodyParams, Ground, World
+    lattice = np.stack(np.meshgrid(*[np.arange(3) * 0.02] * 3), -1).reshape(-1, 3)
+    shapes = (lattice + (0.0, 0.0, 0.05), np.array([[0.3, 0.0, 0.05]]))
+    worlds = []
+    for points in shapes:
+        world = World(gravity=(0.0, 0.0, -9.81))
+        world.set_colliders(ground=Ground(height=0.0))
+        world.add_body(points, 0.01, BodyParams('rigid', 0.9))
+        worlds.append(world)
+    worlds[0].step(1.0 / 120.0)
+    compiled = len(SS.stiff_step.signatures)
+    worlds[1].step(1.0 / 120.0)
+    assert len(SS.stiff_step.signatures) == compiled

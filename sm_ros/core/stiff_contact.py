@@ -12,6 +12,7 @@ softer bodies keep.
 """
 
 import numpy as np
+from numba import types
 from numba.typed import List as TypedList
 
 from .colliders import ColliderSet
@@ -92,6 +93,10 @@ def is_stiff(body, h) -> bool:
             and len(body._kin_idx) == 0)
 
 
+#: The type of a body's (N, 3) positions or velocities in the pass: any layout, so that a
+#: body of one particle (C- and F-contiguous at once) does not compile the pass again.
+_BLOCK = types.Array(types.float64, 2, 'A')
+
 class StiffContact:
     """The pass of one world: its static collider rows and its bodies' typed lists."""
 
@@ -138,7 +143,8 @@ class StiffContact:
         bodies keep their arrays."""
         key = tuple((id(b._x), id(b._v), id(b._m)) for b, _ in bodies)
         if key != self._lists_key:
-            lists = TypedList(), TypedList(), TypedList()
+            lists = (TypedList.empty_list(_BLOCK), TypedList.empty_list(_BLOCK),
+                     TypedList())
             for b, _ in bodies:
                 lists[0].append(b._x)
                 lists[1].append(b._v)
