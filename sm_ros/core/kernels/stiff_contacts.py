@@ -37,8 +37,6 @@ K_ROW = 25
 SLOP_SHARE = 0.1
 #: A particle whose sphere is within this gap (m) of a collider touches it (counts).
 TOUCH = 1e-3
-#: The cell of an outline that is a sphere (``_boxy``: none).
-NO_CELL = np.zeros((3, 3))
 #: A particle's cell meets a surface at its edge or corner once that edge tilts this
 #: share of its half length towards the surface (in proportion below: no jump at rest).
 CORNER_TILT = 0.05
@@ -205,7 +203,7 @@ def collider_contacts(bodies, frames, a, margin, scene, out, count, touching):
                 continue
             _, nx, ny, nz = surface_gap(row, com[0], com[1], com[2], 0.0)
         if bodies.round[a]:
-            gap = _collider_row(com, a, c, (ball, radius), NO_CELL, com, rows, out[count])
+            gap = _collider_row(com, a, c, (ball, radius), cell, com, rows, out[count])
             if gap < margin:
                 if gap < TOUCH:
                     touching[0 if c < scene.plain else 1] += 1

@@ -33,7 +33,7 @@ FACE_TILT = 0.7
 @njit(**JIT)
 def _near(x, lo, hi, grow, out):
     """Indices of the particles of x inside the box lo..hi grown by ``grow``; the count."""
-    count = 0
+    count = np.int64(0)
     for i in range(x.shape[0]):
         if (x[i, 0] > lo[0] - grow and x[i, 0] < hi[0] + grow and x[i, 1] > lo[1] - grow
                 and x[i, 1] < hi[1] + grow and x[i, 2] > lo[2] - grow
@@ -143,7 +143,7 @@ def _ball_on_face(centre, x, radii, margin, n):
     over its particles; else inf."""
     big, small = radii
     side, pull = np.zeros(10), np.zeros(3)
-    count = 0
+    count = np.int64(0)
     for j in range(x.shape[0]):
         gap = _sphere_normal(centre, x[j], big + small, n)
         if gap < margin + small:
@@ -215,7 +215,7 @@ def _close_pairs(xa, xb, near_a, near_b, reach):
     keys = keys[order]
     sorted_b = near_b[order]
     out = np.empty((16, 2), dtype=np.int64)
-    count = 0
+    count = np.int64(0)
     for i in near_a:
         start = np.searchsorted(keys, xa[i, axis] - reach)
         for q in range(start, len(keys)):
@@ -257,7 +257,7 @@ def _pair_normal(xa, xb, close, reach):
     side_a, side_b = np.zeros(10), np.zeros(10)     # weight, sum of w x (3), of w x x^T (6)
     seen_a = np.zeros(xa.shape[0], dtype=np.bool_)
     seen_b = np.zeros(xb.shape[0], dtype=np.bool_)
-    count_a = count_b = 0
+    count_a = count_b = np.int64(0)
     for p in range(close.shape[0]):
         i, j = close[p, 0], close[p, 1]
         dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]

@@ -106,7 +106,7 @@ def _pairs(frames, bodies, slack):
     its particles' bounds): (count, 2) array."""
     nb = frames.shape[0]
     out = np.empty((16, 2), dtype=np.int64)
-    count = 0
+    count = np.int64(0)
     for a in range(nb):
         for b in range(a + 1, nb):
             if not ((bodies.awake[a] or bodies.awake[b]) and bodies.collide[a]
@@ -139,7 +139,7 @@ def _contacts(frames, bodies, scene, stats):
     pairs = _pairs(frames, bodies, 2.0 * h * (fastest + g * h) + SLOP)
     ncoll = scene.rows.shape[0]
     out = np.empty((SLOTS * (nb * ncoll + len(pairs)), K_ROW))
-    count = 0
+    count = np.int64(0)
     row_speed = _rows_speed(scene.rows)
     for b in range(nb):
         if bodies.awake[b]:
