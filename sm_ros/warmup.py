@@ -126,17 +126,12 @@ def start_background():
     """Start ``python -m sm_ros.warmup --background`` (every kernel into the cache, niced,
     on one core, with this process's Numba thread count: the same variants); return
     ``(process, stderr file)``, or None when it cannot start (:func:`stop_helpers`)."""
-    extra = spawn_background()
+    import numba
+    env = {'NUMBA_NUM_THREADS': str(numba.config.NUMBA_NUM_THREADS)}
+    extra = _spawn(['--background'], env)
     if extra is not None:
         _HELPERS.append(extra)
     return extra
-
-
-def spawn_background():
-    """:func:`start_background` without listing the process for :func:`stop_helpers`
-    (the test suite's own, which outlives a test's helpers)."""
-    import numba
-    return _spawn(['--background'], {'NUMBA_NUM_THREADS': str(numba.config.NUMBA_NUM_THREADS)})
 
 
 def finish_background(extra) -> Optional[int]:

@@ -250,31 +250,6 @@ def pytest_configure(config):
     config.addinivalue_line('markers', 'slow: a slow end-to-end test (still run by make test)')
 
 
-_background = []
-
-
-def pytest_sessionstart(session):
-    """With a second core: the background warm-up (lowest priority, one core) compiles the
-    stiff bodies' contact pass, which ``make test``'s warm-up leaves out, while the first
-    tests run, so the test that first steps a stiff body loads it instead."""
-    try:
-        from sm_ros import warmup
-    except ImportError:
-        return
-    cpus = (os.sched_getaffinity(0) if hasattr(os, 'sched_getaffinity')
-            else range(os.cpu_count() or 1))
-    if len(cpus) > 1:
-        _background.append(warmup.spawn_background())
-
-
-def pytest_sessionfinish(session, exitstatus):
-    """Stop the background warm-up if it still runs (the cache keeps what it finished)."""
-    for extra in filter(None, _background):
-        from sm_ros import warmup
-        warmup.stop_background(extra)
-        extra[1].close()
-
-
 @pytest.fixture(autouse=True)
 def _numba_threads_restored():
     """Give every test the session's Numba thread count back (a benchmark driver that sets
