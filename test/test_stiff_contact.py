@@ -174,14 +174,13 @@ def _box_row(centre, half, mu=0.5, e=0.0):
 
 
 def _bodies(rng, count, spread, ball=False):
-    from numba.typed import List
-    xs, vs, ms = List(), List(), List()
+    from sm_ros.core.stiff_contact import body_lists
+    xs, vs, ms = [], [], []
     for k in range(count):
-        x = np.asfortranarray(rng.normal(size=(27, 3)) * 0.05 + (spread * k, 0.0, 0.1))
-        v = np.asfortranarray(rng.normal(size=(1, 3)) + 0.3 * rng.normal(size=(27, 3)))
-        xs.append(x)
-        vs.append(v)
+        xs.append(np.asfortranarray(rng.normal(size=(27, 3)) * 0.05 + (spread * k, 0.0, 0.1)))
+        vs.append(np.asfortranarray(rng.normal(size=(1, 3)) + 0.3 * rng.normal(size=(27, 3))))
         ms.append(rng.uniform(0.5, 2.0, 27))
+    xs, vs, ms = body_lists(xs, vs, ms)
     return SS.StiffBodies(xs, vs, ms, np.full(count, 0.02), np.ones(count, np.bool_),
                           np.ones(count, np.bool_), np.full(count, ball, np.bool_),
                           np.zeros((count, 3, 3)))
@@ -244,7 +243,7 @@ def test_bodies_apart_at_any_angle_get_no_overlap(seed):
     little past its particles).  An edge or a corner in reach gives a handful of
     particles, and any three lie in a plane: they make no face (``FACE_POINTS``), whose
     normal would make gaps of centimetres out of particles that do not touch."""
-    from numba.typed import List
+    from sm_ros.core.stiff_contact import body_lists
     grid = np.arange(3) * 0.04 - 0.04
     cube = np.stack(np.meshgrid(grid, grid, grid, indexing='ij'), -1).reshape(-1, 3)
     scene = SS.StiffScene(np.zeros((1, ROW)), 0, False, 0.5, 0.0, np.zeros(3), 1.0 / 120.0,
@@ -258,11 +257,9 @@ def test_bodies_apart_at_any_angle_get_no_overlap(seed):
         for _ in range(4):                  # nearest particles 0.0476 m apart
             near = np.sqrt(((xa[:, None] - xb[None]) ** 2).sum(-1)).min()
             xa -= (near - 0.0476) * away
-        xs, vs, ms = List(), List(), List()
-        for x in (xa, xb):
-            xs.append(np.asfortranarray(x))
-            vs.append(np.zeros((len(x), 3), order='F'))
-            ms.append(np.ones(len(x)))
+        xs, vs, ms = body_lists([np.asfortranarray(x) for x in (xa, xb)],
+                                [np.zeros((len(x), 3), order='F') for x in (xa, xb)],
+                                [np.ones(len(x)) for x in (xa, xb)])
         bodies = SS.StiffBodies(xs, vs, ms, np.full(2, 0.02), np.ones(2, np.bool_),
                                 np.ones(2, np.bool_), np.zeros(2, np.bool_),
                                 np.zeros((2, 3, 3)))

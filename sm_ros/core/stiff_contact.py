@@ -93,9 +93,24 @@ def is_stiff(body, h) -> bool:
             and len(body._kin_idx) == 0)
 
 
-#: The type of a body's (N, 3) positions or velocities in the pass: any layout, so that a
-#: body of one particle (C- and F-contiguous at once) does not compile the pass again.
+#: The types of a body's arrays in the pass: (N, 3) positions and velocities of any layout
+#: (a body of one particle is C- and F-contiguous at once) and read-only masses, so that
+#: every caller shares one compiled pass.
 _BLOCK = types.Array(types.float64, 2, 'A')
+_MASSES = types.Array(types.float64, 1, 'C', readonly=True)
+
+
+def body_lists(xs, vs, ms):
+    """The typed lists of the bodies' positions, velocities and masses that
+    ``stiff_solve.StiffBodies`` holds."""
+    lists = (TypedList.empty_list(_BLOCK), TypedList.empty_list(_BLOCK),
+             TypedList.empty_list(_MASSES))
+    for x, v, m in zip(xs, vs, ms):
+        lists[0].append(x)
+        lists[1].append(v)
+        lists[2].append(m)
+    return lists
+
 
 class StiffContact:
     """The pass of one world: its static collider rows and its bodies' typed lists."""
@@ -143,13 +158,8 @@ class StiffContact:
         bodies keep their arrays."""
         key = tuple((id(b._x), id(b._v), id(b._m)) for b, _ in bodies)
         if key != self._lists_key:
-            lists = (TypedList.empty_list(_BLOCK), TypedList.empty_list(_BLOCK),
-                     TypedList())
-            for b, _ in bodies:
-                lists[0].append(b._x)
-                lists[1].append(b._v)
-                lists[2].append(b._m)
-            self._lists, self._lists_key = lists, key
+            self._lists = body_lists(*zip(*((b._x, b._v, b._m) for b, _ in bodies)))
+            self._lists_key = key
             ids = {id(b) for b, _ in bodies}       # forget the bodies that left the pass
             self._round = {k: v for k, v in self._round.items() if k in ids}
         radius = np.array([r for _, r in bodies])
