@@ -158,7 +158,8 @@ class StiffContact:
         bodies keep their arrays."""
         key = tuple((id(b._x), id(b._v), id(b._m)) for b, _ in bodies)
         if key != self._lists_key:
-            self._lists = body_lists(*zip(*((b._x, b._v, b._m) for b, _ in bodies)))
+            self._lists = body_lists([b._x for b, _ in bodies], [b._v for b, _ in bodies],
+                                     [b._m for b, _ in bodies])
             self._lists_key = key
             ids = {id(b) for b, _ in bodies}       # forget the bodies that left the pass
             self._round = {k: v for k, v in self._round.items() if k in ids}
