@@ -167,12 +167,11 @@ def test_contact_subcommand_smoke(tmp_path):
     assert (sl['scene'], sl['ticks'], sl['bodies'], sl['asleep_end']) == ('many', 6, 64, 0)
     assert sl['all_asleep_s'] is None
     b = res['builders']                 # the builders side by side list the same pairs
-    assert b['cells']['pairs_listed'] == b['serial']['pairs_listed'] == \
-        b['parallel']['pairs_listed'] > 0
+    assert b['serial']['pairs_listed'] == b['parallel']['pairs_listed'] > 0
     text = (out / 'contact.md').read_text()
     assert 'pair-list rebuild alone' in text and 'cKDTree' in text
     assert 'sleeping bodies on / off' in text
-    assert 'build_pairs_cells' in text and 'per step while moving' in text
+    assert 'build_pairs_grid_par' in text and 'per step while moving' in text
 
 
 def test_contact_block_bin_starts_touching_on_the_ground():

@@ -56,8 +56,6 @@ def build_with(kernel, X, R, B, act, selfc, X0, cell, skin, cap):
     args = (X, R, B, act, selfc, X0, cell, skin, C.SELF_REST_FACTOR, hb, cnt, srt)
     if kernel == 'hash':
         m = C.build_pairs(*args, np.zeros(n, np.int64), sco, pi, pj)
-    elif kernel == 'cells':
-        m = C.build_pairs_cells(*args, sco, pi, pj)
     else:
         scratch = (np.zeros((n, 4)), np.zeros(n, np.int32), np.zeros(len(cnt) - 1, np.int32))
         if kernel == 'grid':
@@ -67,7 +65,7 @@ def build_with(kernel, X, R, B, act, selfc, X0, cell, skin, cap):
     return m, pi, pj
 
 
-BUILDERS = ['grid', 'grid_par', 'cells', 'hash']
+BUILDERS = ['grid', 'grid_par', 'hash']
 
 
 @pytest.mark.parametrize('kernel', BUILDERS)
@@ -186,8 +184,8 @@ def test_serial_and_parallel_builds_step_bit_identically():
 
 
 def test_builder_choice(monkeypatch):
-    """Serial below ``PARALLEL_BUILD_MIN`` particles or on one thread; all threads above it;
-    'cells' keeps the previous builder callable (the benchmark's reference)."""
+    """Serial below ``PARALLEL_BUILD_MIN`` particles or on one thread; all threads above
+    it."""
     w = falling_blocks(None)
     c = w.contact
     nt = numba.get_num_threads()
@@ -196,15 +194,6 @@ def test_builder_choice(monkeypatch):
     assert c._grid_builder() == (nt if nt > 1 else 1)
     c.parallel_build = False
     assert c._grid_builder() == 1
-    c.parallel_build = 'cells'
-    assert c._grid_builder() == 'cells'
-    for _ in range(30):
-        w.step(1 / 120)
-    c._build()
-    n_cells = c.npairs
-    c.parallel_build = False
-    c._build()
-    assert c.npairs == n_cells > 0
 
 
 def test_far_apart_bodies_fall_back_to_hashed_cells():
@@ -239,7 +228,6 @@ def test_grid_refuses_a_box_larger_than_its_table():
     args = (X, R, B, act, ~act, X, 0.03, 0.01, 2.0, np.zeros(2, np.int64),
             np.zeros(17, np.int64), np.zeros(2, np.int64))
     out = (np.zeros(4, np.int32), np.zeros(4, np.int32))
-    assert C.build_pairs_cells(*args, np.zeros((5, 2)), *out) == -1
     scratch = (np.zeros((2, 4)), np.zeros(2, np.int32), np.zeros(16, np.int32))
     assert C.build_pairs_grid(*args, *scratch, *out) == -1
     assert C.build_pairs_grid_par(*args, *scratch, *out, 2) == -1

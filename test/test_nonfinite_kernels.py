@@ -74,7 +74,7 @@ def test_plastic_update_leaves_the_plastic_state_of_a_non_finite_match(bad):
         np.testing.assert_array_equal(sp[0], np.eye(3))
 
 
-@pytest.mark.parametrize('kind', ['hash', 'cells', 'grid', 'grid_par'])
+@pytest.mark.parametrize('kind', ['hash', 'grid', 'grid_par'])
 @pytest.mark.parametrize('bad', BAD)
 def test_contact_pairs_skip_non_finite_particles(bad, kind):
     n = 4
@@ -88,9 +88,7 @@ def test_contact_pairs_skip_non_finite_particles(bad, kind):
     args = (x, np.full(n, 0.01), np.zeros(n, dtype=np.int32), np.ones(1, dtype=np.bool_),
             np.ones(1, dtype=np.bool_), x0, 0.02, 0.0, 0.0, hb, np.zeros(65, dtype=np.int64),
             np.zeros(n, dtype=np.int64))
-    if kind == 'cells':
-        m = contact.build_pairs_cells(*args, np.zeros((5, n)), pi, pj)
-    elif kind == 'hash':
+    if kind == 'hash':
         m = contact.build_pairs(*args, np.zeros(n, dtype=np.int64), np.zeros((5, n)), pi, pj)
     else:
         scratch = (np.zeros((n, 4)), np.zeros(n, dtype=np.int32), np.zeros(64, dtype=np.int32))

@@ -12,10 +12,9 @@ written to ``--out``:
   rebuild alone and the per-step part alone; the flat-state copies (gather/scatter) that
   the World needs until it owns the flat arrays; the bodies' own step (shape matching)
   of the same scene;
-- the pair-list builders side by side (round-robin, same state): the cell-list builder
-  (``build_pairs_cells``, "cells"), the grid builder on one thread and on
-  ``--build-threads``: the rebuild alone and a step that rebuilds (bodies moving), on the
-  resting bin and on ``paper_384`` while it pours;
+- the pair-list builder side by side with itself (round-robin, same state): the grid
+  builder on one thread and on ``--build-threads``: the rebuild alone and a step that
+  rebuilds (bodies moving), on the resting bin and on ``paper_384`` while it pours;
 - one body without self-collision: world step with contact on and off;
 - scaling: the contact pass on 1x, 2x, 4x, 10x the blocks (log-log slope in N);
 - ``paper_384``: the node's tick (``Simulation.tick``: 2 substeps, no ROS publishing) once
@@ -171,7 +170,7 @@ def contact_parts(world) -> Dict[str, float]:
 
 #: The pair-list builders timed side by side: (name, ``Contact.parallel_build``, threads;
 #: None: ``--build-threads``).
-BUILDERS = (('cells', 'cells', 1), ('serial', False, 1), ('parallel', True, None))
+BUILDERS = (('serial', False, 1), ('parallel', True, None))
 
 
 class _Threads:
@@ -326,7 +325,7 @@ def paper_tick(seconds: float, ticks: int, build_threads: int = 2) -> Optional[D
         for k in range(ticks):
             name, mode, nt = BUILDERS[k % len(BUILDERS)]
             threads = _Threads(build_threads if nt is None else nt)
-            choice = 'cells' if mode == 'cells' else (threads.count if mode else 1)
+            choice = threads.count if mode else 1
             Contact._grid_builder = lambda self, choice=choice: choice
             with threads:
                 del runs[:], builds[:]

@@ -36,7 +36,7 @@ import numpy as np
 from .contact_bodies import solve_bodies
 from .contact_build import (body_overlaps, build_pairs_grid, build_pairs_grid_par,
                             moved_spread2, sort_pairs)
-from .contact_cells import build_pairs, build_pairs_cells
+from .contact_cells import build_pairs
 from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_pairs, wall_candidates)
 from .kernels.colliders import contact_velocity
@@ -228,7 +228,7 @@ class Contact:
         self._cell_body = np.zeros(tsize, dtype=np.int32)
         #: None: the serial builder, or the parallel one from ``PARALLEL_BUILD_MIN``
         #: particles when more than one Numba thread is set; True / False: always / never
-        #: the parallel one; 'cells': the previous builder (the benchmark's reference).
+        #: the parallel one.
         self.parallel_build = None
         cap = max(1024, 2 * n)
         self._pair_i = np.zeros(cap, dtype=np.int32)
@@ -310,10 +310,8 @@ class Contact:
         return self._sorted_i, self._sorted_j, kept
 
     def _grid_builder(self):
-        """'cells' (the previous builder), or the number of threads of the grid builder."""
+        """The number of threads of the grid builder."""
         mode = self.parallel_build
-        if mode == 'cells':
-            return mode
         nt = numba.get_num_threads()
         if mode is None:
             mode = self.flat.n >= PARALLEL_BUILD_MIN and nt > 1
@@ -332,9 +330,7 @@ class Contact:
                     SELF_REST_FACTOR, self._particle_cell, self._cnt, self._srt)
             dense = (self._sorted_points, self._sorted_body, self._cell_body, self._pair_i,
                      self._pair_j)
-            if nt == 'cells':
-                m = build_pairs_cells(*grid, self._sco, self._pair_i, self._pair_j)
-            elif nt == 1:
+            if nt == 1:
                 m = build_pairs_grid(*grid, *dense)
             else:
                 m = build_pairs_grid_par(*grid, *dense, nt)
@@ -448,7 +444,7 @@ class Contact:
 __all__ = ['ContactParams', 'BodyContact', 'Contact', 'default_radius', 'SELF_REST_FACTOR',
            'COUPLE_ALPHA', 'STACK_SWEEPS', 'PARALLEL_BUILD_MIN', 'body_inverse_masses',
            'body_overlaps',
-           'body_velocities', 'build_pairs', 'build_pairs_cells', 'build_pairs_grid',
+           'body_velocities', 'build_pairs', 'build_pairs_grid',
            'build_pairs_grid_par', 'contact_velocity', 'count_fast', 'inverse_sym3',
            'moved_spread2',
            'median_nn_distance', 'solve_bodies', 'solve_pairs', 'sort_pairs',

@@ -19,8 +19,6 @@ adjacent).  Each cell also records its body when it holds only one (``cb``); a r
 cells hold only the body of a one-body cell (without self-collision) is skipped without
 touching its particles: in a heap of small bodies most of the stencil lies within one
 body, and a visit of a cell of about two particles costs more than its tests.
-``python -m sm_ros.bench contact`` times it against the cell-by-cell builder
-(``contact_cells.build_pairs_cells``) side by side.
 ``build_pairs_grid_par`` runs the pair walk on the Numba threads (cells split into
 contiguous chunks; each chunk writes its own segment, then the segments are closed up in
 order), so its list is the serial one.

@@ -1,8 +1,6 @@
-"""The two earlier builders of the contact pass's pair list, kept for sparse worlds and
-as references (tests, ``python -m sm_ros.bench contact``): a hashed cell grid
-(``build_pairs``: a world whose box holds too many cells for the dense grid of
-``contact_build.build_pairs_grid``) and a counting sort into dense cells
-(``build_pairs_cells``).  The same pairs, by the rules of ``contact_build``'s docstring.
+"""The pair-list builder for sparse worlds: a hashed cell grid (``build_pairs``: a world
+whose box holds too many cells for the dense grid of ``contact_build.build_pairs_grid``).
+The same pairs, by the rules of ``contact_build``'s docstring.
 """
 
 import math
@@ -11,7 +9,7 @@ import numpy as np
 from numba import njit
 
 from .kernels.jit import JIT
-from .kernels.pair_grid import grid_box, kept_pair
+from .kernels.pair_grid import kept_pair
 
 
 @njit(**JIT)
@@ -111,86 +109,6 @@ def build_pairs(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt, srt, ske
                 for t in range(t0, t1):
                     if skey[t] != k:
                         continue
-                    if not kept_pair(sco, a, t, selfc, X0, srt, skin, self_fac):
-                        continue
-                    if m < cap:
-                        pi[m] = srt[a]
-                        pj[m] = srt[t]
-                    m += 1
-        a0 = a1
-    return m
-
-
-@njit(**JIT)
-def build_pairs_cells(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt, srt, sco,
-                      pi, pj):
-    """``build_pairs`` on a dense cell grid: the builder before ``build_pairs_grid`` (kept as
-    the reference that ``python -m sm_ros.bench contact`` times side by side with it).
-
-    Cells are numbered x fastest, so particles sorted by cell are sorted in space and the
-    half-stencil reads five nearby rows of the sorted arrays (the hashed grid jumps at
-    random: ~4x slower at 55k particles).  Returns -1, doing nothing else, when the box
-    holds more cells than ``cnt`` has slots (far-apart bodies: use ``build_pairs``).
-    """
-    n = X.shape[1]
-    tsize = cnt.shape[0] - 1
-    inv = 1.0 / cell
-    lo0, lo1, lo2, nx, ny, nz = grid_box(X, B, act, hb, inv, tsize)
-    if nx <= 0:
-        return nx
-    nxy = nx * ny
-    cnt[:] = 0
-    for i in range(n):
-        if hb[i] < 0:
-            continue
-        cx = min(np.int64((X[0, i] - lo0) * inv), nx - 1)
-        cy = min(np.int64((X[1, i] - lo1) * inv), ny - 1)
-        cz = min(np.int64((X[2, i] - lo2) * inv), nz - 1)
-        c = cx + nx * cy + nxy * cz
-        hb[i] = c
-        cnt[c + 1] += 1
-    for c in range(tsize):
-        cnt[c + 1] += cnt[c]
-    for i in range(n):
-        c = hb[i]
-        if c >= 0:
-            a = cnt[c]
-            srt[a] = i
-            cnt[c] = a + 1
-    for c in range(tsize, 0, -1):
-        cnt[c] = cnt[c - 1]
-    cnt[0] = 0
-    nact = cnt[tsize]
-    for a in range(nact):
-        i = srt[a]
-        sco[0, a] = X[0, i]
-        sco[1, a] = X[1, i]
-        sco[2, a] = X[2, i]
-        sco[3, a] = R[i]
-        sco[4, a] = B[i]
-    cap = pi.shape[0]
-    m = 0
-    a0 = 0
-    while a0 < nact:
-        c = hb[srt[a0]]
-        a1 = cnt[c + 1]
-        cz = c // nxy
-        cy = (c - cz * nxy) // nx
-        cx = c - cz * nxy - cy * nx
-        for q in range(14):
-            r = q + 13                     # q = 0: own cell; then the forward half-stencil
-            ox = r // 9 - 1
-            oy = (r // 3) % 3 - 1
-            oz = r % 3 - 1
-            # offsets ordered (z, y, x) like the cell numbers: (oz, oy, ox) > (0, 0, 0)
-            qx, qy, qz = cx + oz, cy + oy, cz + ox
-            if qx < 0 or qx >= nx or qy < 0 or qy >= ny or qz >= nz:
-                continue
-            c2 = qx + nx * qy + nxy * qz
-            t1 = cnt[c2 + 1]
-            for a in range(a0, a1):
-                t0 = a + 1 if q == 0 else cnt[c2]
-                for t in range(t0, t1):
                     if not kept_pair(sco, a, t, selfc, X0, srt, skin, self_fac):
                         continue
                     if m < cap:
