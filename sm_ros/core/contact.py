@@ -404,21 +404,7 @@ class Contact:
             self._active = np.zeros(m, dtype=np.int64)
             self._cbuf = np.zeros((7, m))        # solve_bodies' compact rows
             self._ibuf = np.zeros((5, m), dtype=np.int32)
-        ncand = 0
-        # the end of solve_bodies puts a carried body's particles through the boxes and
-        # spheres only where one can be inside (its particles near them, ``cand``, or one
-        # moved by this margin or more); with none, only the ground is left (no margin)
-        margin = np.inf
-        if has_col and (len(boxes) or len(spheres)):
-            margin = self.cell
-            ncand = wall_candidates(f.X, f.off, self.coupling, self._body_inv_mass, boxes,
-                                    spheres, self.cell, self._cand, self._cptr, self.act,
-                                    self._box, self._dbox)
-            if ncand > len(self._cand):         # a particle near two of them: grow
-                self._cand = np.zeros(ncand, dtype=np.int64)
-                ncand = wall_candidates(f.X, f.off, self.coupling, self._body_inv_mass, boxes,
-                                        spheres, self.cell, self._cand, self._cptr,
-                                        self.act, self._box, self._dbox)
+        ncand, margin = self._near_walls(has_col, boxes, spheres)
         self.found = solve_bodies(f.X, f.V, f.W, f.R, f.B, *self._solved_pairs(),
                                   p.friction, p.restitution, thresh, float(h),
                                   max(p.iterations, STACK_SWEEPS), f.touched, self.count,
@@ -432,6 +418,23 @@ class Contact:
                                   self._body_spin, self._body_inv_inertia, margin, self._cbuf,
                                   self._ibuf)
         self._warm = True
+
+    def _near_walls(self, has_col, boxes, spheres):
+        """(count, margin): the end of solve_bodies puts a carried body's particles through
+        the boxes and spheres only where one can be inside (its particles near them,
+        ``_cand[:count]``, or one moved by ``margin`` or more); with none, only the ground
+        is left (no margin)."""
+        if not (has_col and (len(boxes) or len(spheres))):
+            return 0, np.inf
+        f = self.flat
+        args = (f.X, f.off, self.coupling, self._body_inv_mass, boxes, spheres, self.cell)
+        ncand = wall_candidates(*args, self._cand, self._cptr, self.act, self._box,
+                                self._dbox)
+        if ncand > len(self._cand):             # a particle near two of them: grow
+            self._cand = np.zeros(ncand, dtype=np.int64)
+            ncand = wall_candidates(*args, self._cand, self._cptr, self.act, self._box,
+                                    self._dbox)
+        return ncand, self.cell
 
     def fast_particles(self, h):
         """Per body, the particles that moved more than their contact radius in the last
