@@ -28,7 +28,7 @@ SCRATCH = {
                 '_body_inv_inertia', '_body_spin', '_body_velocity', '_zlo', '_cnt',
                 '_particle_cell', '_srt', '_skey', '_sco', '_sorted_points', '_sorted_body',
                 '_cell_body', '_moved', '_body_change', '_pend', '_cand', '_cptr', '_order',
-                '_act_eff', 'fast', '_sorted_i', '_sorted_j', '_pcnt'},
+                '_act_eff', 'fast', '_scratch_i', '_scratch_j', '_pcnt'},
     'Sleep': {'state.step2', 'state.drift2', 'state.level', 'state.near'},
     'FlatState': {'touched'},
     'Pack': {'ptrs', 'scratch'},

@@ -233,8 +233,8 @@ class Contact:
         cap = max(1024, 2 * n)
         self._pair_i = np.zeros(cap, dtype=np.int32)
         self._pair_j = np.zeros(cap, dtype=np.int32)
-        self._sorted_i = np.zeros(cap, dtype=np.int32)
-        self._sorted_j = np.zeros(cap, dtype=np.int32)
+        self._scratch_i = np.zeros(cap, dtype=np.int32)
+        self._scratch_j = np.zeros(cap, dtype=np.int32)
         self._pcnt = np.zeros(n + 1, dtype=np.int64)
         self._xref = np.zeros((3, n))
         self._moved = np.zeros(n, dtype=np.uint8)
@@ -252,7 +252,7 @@ class Contact:
         self.rigid = np.zeros(max(nb, 1), dtype=np.bool_)
         self._body_inv_mass = np.zeros(max(nb, 1))
         self._body_inv_mass_version = -1        # flat.w_version it was computed at
-        self._body_change = np.zeros((max(nb, 1), 7))     # velocity, position changes; held
+        self._body_change = np.zeros((max(nb, 1), 7))   # velocity, position changes; held
         self._pend = np.zeros(max(nb, 1), dtype=np.uint8)
         self._active = np.zeros(0, dtype=np.int64)
         self._acc = np.zeros((2, 0))
@@ -261,9 +261,9 @@ class Contact:
         self._ibuf = np.zeros((5, 0), dtype=np.int32)
         self._body_velocity = np.zeros((max(nb, 1), 3))
         self._zlo = np.zeros((2, max(nb, 1)))   # lowest particle per body: z, its v_z
-        self._body_centre = np.zeros((max(nb, 1), 3))            # centre of mass
-        self._body_spin = np.zeros((max(nb, 1), 3))           # spin
-        self._body_inv_inertia = np.zeros((max(nb, 1), 9))           # inverse inertia tensor
+        self._body_centre = np.zeros((max(nb, 1), 3))   # centre of mass
+        self._body_spin = np.zeros((max(nb, 1), 3))
+        self._body_inv_inertia = np.zeros((max(nb, 1), 9))
         self._dbox = np.zeros(6)        # displacements since the last build: their box
         self._accg = np.zeros((2, max(nb, 1)))          # ground impulses per body
         self._warm = False              # acc, accg hold the last step's impulses (list kept)
@@ -302,12 +302,12 @@ class Contact:
         two rigid bodies."""
         if not self.rigid.any():
             return self._pair_i, self._pair_j, self.npairs
-        if len(self._sorted_i) < len(self._pair_i):
-            self._sorted_i = np.zeros(len(self._pair_i), dtype=np.int32)
-            self._sorted_j = np.zeros(len(self._pair_i), dtype=np.int32)
+        if len(self._scratch_i) < len(self._pair_i):
+            self._scratch_i = np.zeros(len(self._pair_i), dtype=np.int32)
+            self._scratch_j = np.zeros(len(self._pair_i), dtype=np.int32)
         kept = drop_rigid_pairs(self._pair_i, self._pair_j, self.npairs, self.flat.B, self.rigid,
-                                self._sorted_i, self._sorted_j)
-        return self._sorted_i, self._sorted_j, kept
+                                self._scratch_i, self._scratch_j)
+        return self._scratch_i, self._scratch_j, kept
 
     def _grid_builder(self):
         """The number of threads of the grid builder."""
@@ -341,10 +341,10 @@ class Contact:
             cap = int(m * 1.5) + 1024           # grows rarely (a rebuild, not a step)
             self._pair_i = np.zeros(cap, dtype=np.int32)
             self._pair_j = np.zeros(cap, dtype=np.int32)
-            self._sorted_i = np.zeros(cap, dtype=np.int32)
-            self._sorted_j = np.zeros(cap, dtype=np.int32)
-        sort_pairs(self._pair_i, self._pair_j, m, f.n, self._pcnt, self._sorted_i,
-                   self._sorted_j)
+            self._scratch_i = np.zeros(cap, dtype=np.int32)
+            self._scratch_j = np.zeros(cap, dtype=np.int32)
+        sort_pairs(self._pair_i, self._pair_j, m, f.n, self._pcnt, self._scratch_i,
+                   self._scratch_j)
         self._warm = False                      # the impulses were of the old list's pairs
         self.npairs = m
         self._xref[:] = f.X
@@ -398,7 +398,7 @@ class Contact:
                                      ground, boxes, spheres, self._moved)
             return
         if self._acc.shape[1] < self.npairs:
-            m = len(self._pair_i)                  # grows with the pair list's capacity
+            m = len(self._pair_i)               # grows with the pair list's capacity
             self._acc = np.zeros((2, m))
             self._pair_target = np.zeros(m)
             self._active = np.zeros(m, dtype=np.int64)
