@@ -33,14 +33,16 @@ def _quat(axis, angle):
     return tuple(np.append(axis * math.sin(angle / 2), math.cos(angle / 2)))
 
 
-def _collide(X, V, w, rows, h, thresh, imp=None, nbodies=1, bid=None):
-    """Run the kernel over every particle; returns (stats (nbodies, 2), touched)."""
+def _collide(X, V, w, rows, h, thresh, imp=None, nbodies=1, bid=None, radius=None):
+    """Run the kernel over every particle (spheres of ``radius`` per body, default 0);
+    returns (stats (nbodies, 2), touched)."""
     n = X.shape[1]
     bid = np.zeros(n, dtype=np.int32) if bid is None else bid
+    radius = np.zeros(nbodies) if radius is None else radius
     stats = np.zeros((nbodies, 2))
     touched = np.zeros(nbodies, dtype=np.uint8)
     imp = np.zeros((rows.shape[0], 6)) if imp is None else imp
-    KC.collide_range(KC.Particles(X, V, w, bid), 0, n, rows, h, thresh,
+    KC.collide_range(KC.Particles(X, V, w, bid, radius), 0, n, rows, h, thresh,
                      KC.ColliderTally(imp, stats, touched))
     return stats, touched
 
@@ -62,9 +64,10 @@ def test_kernel_matches_numpy_twin():
     X2, V2 = X.copy(), V.copy()
     imp, imp2 = np.zeros((3, 6)), np.zeros((3, 6))
     bid = (np.arange(n) % 3).astype(np.int32)          # three bodies interleaved
-    st, touched = _collide(X, V, w, cs.rows, 0.01, 0.05, imp, 3, bid)
+    radius = np.array([0.0, 0.01, 0.04])               # points, and spheres of two sizes
+    st, touched = _collide(X, V, w, cs.rows, 0.01, 0.05, imp, 3, bid, radius)
     st2, touched2 = np.zeros((3, 2)), np.zeros(3, dtype=np.uint8)
-    KC.collide_numpy(KC.Particles(X2, V2, w, bid), cs.rows, 0.01, 0.05,
+    KC.collide_numpy(KC.Particles(X2, V2, w, bid, radius), cs.rows, 0.01, 0.05,
                      KC.ColliderTally(imp2, st2, touched2))
     assert st[:, 0].sum() > 400                        # the test exercises many contacts
     np.testing.assert_array_equal(st[:, 0], st2[:, 0])
@@ -289,7 +292,7 @@ def _plate_run(accel, mu=0.5, dt=1 / 240, substeps=2):
     plate = Box(lo=(-6.0, -0.5, -0.05), hi=(6.0, 0.5, 0.0), friction=mu, name='plate',
                 kinematic=True)
     world.set_colliders(boxes=[plate])
-    body = _block(world, (0.0, 0.0, 0.05 + 1e-4), alpha=0.5, damping=0.1)
+    body = _block(world, (0.0, 0.0, 0.0625 + 1e-4), alpha=0.5, damping=0.1)   # on its spheres
     for _ in range(60):                                # settle on the plate
         world.step(dt)
     tick = substeps * dt
@@ -446,3 +449,67 @@ def test_changing_the_ground_keeps_moving_colliders_where_they_are():
     np.testing.assert_allclose(world.collider_pose('f')[0], (1.0, 0.0, 0.0), atol=1e-12)
     world.set_colliders(ground=Ground(), capsules=[Capsule(name='f', kinematic=True)])
     np.testing.assert_array_equal(world.collider_pose('f')[0], (0.0, 0.0, 0.0))   # new ones
+
+
+@pytest.mark.parametrize('surface', ['ground', 'box', 'sphere'])
+def test_a_soft_body_rests_on_its_particles_spheres(surface):
+    """A soft block settles with its nearest particles one contact radius off the ground,
+    a static box's top or a static sphere (as a stiff body rests, and as bodies rest on
+    one another), not with their centres on the surface."""
+    world = World()
+    top = {'ground': 0.0, 'box': 0.2, 'sphere': 0.3}[surface]
+    if surface == 'ground':
+        world.set_colliders(ground=Ground(friction=0.8))
+    elif surface == 'box':
+        world.set_colliders(boxes=[Box(lo=(-0.5, -0.5, 0.0), hi=(0.5, 0.5, top), friction=0.8)])
+    else:
+        world.set_colliders(spheres=[Sphere(center=(0.0, 0.0, top - 2.0), radius=2.0,
+                                            friction=0.8)])
+    body = _block(world, (0.0, 0.0, top + 0.07), alpha=0.5, damping=0.1)
+    for _ in range(120):
+        world.step(1 / 120)
+    r = world.contact_radius(body.name)
+    assert r == pytest.approx(0.0125)                  # half the spacing
+    if surface == 'sphere':
+        gap = np.linalg.norm(body.x - (0.0, 0.0, top - 2.0), axis=1).min() - 2.0
+    else:
+        gap = body.x[:, 2].min() - top
+    assert abs(gap - r) < 1e-3
+
+
+def _sweep(shape, gravity):
+    """A soft block (spacing 2.5 cm) swept 0.25 m in +x in 1 s by a kinematic collider
+    thinner than its particle spacing, centred on a layer of its particles: a plate 4 mm
+    thick or a rod of radius 3 mm across it; returns how far the block's centre moved."""
+    world = World(gravity=(0.0, 0.0, -G * gravity))
+    z, turn = 0.0625, _quat((1, 0, 0), math.pi / 2)
+    if shape == 'plate':
+        plate = Box(lo=(-0.102, -0.15, z - 0.0375), hi=(-0.098, 0.15, z + 0.0375), name='c',
+                    kinematic=True)
+        world.set_colliders(ground=Ground(friction=0.3), boxes=[plate])
+    else:
+        rod = Capsule(center=(-0.1, 0.0, z), radius=0.003, length=0.3, orientation=turn,
+                      name='c', kinematic=True)
+        world.set_colliders(capsules=[rod])
+    body = _block(world, (0.0, 0.0, 0.0625), alpha=0.5, damping=0.1)
+    for _ in range(30):
+        world.step(1 / 120)
+    x0 = body.com()[0]
+    world.move_collider('c', (0.15, 0.0, z), (0, 0, 0, 1) if shape == 'plate' else turn,
+                        duration=1.0)
+    for _ in range(120):
+        world.step(1 / 120)
+    return body.com()[0] - x0
+
+
+def test_a_plate_thinner_than_the_particle_spacing_pushes_a_soft_block():
+    """A plate 4 mm thick pushes a soft block across the ground (friction 0.3) with it
+    instead of cutting through it: it meets the particles' spheres (a point model lets it
+    slice between them: the block moved 1.4 cm)."""
+    assert _sweep('plate', gravity=1.0) > 0.18
+
+
+def test_a_rod_thinner_than_the_particle_spacing_carries_a_floating_soft_block():
+    """Without gravity, a rod of radius 3 mm sweeping through a layer of a soft block's
+    particles carries the block along (a point model let it pass through: 0 mm)."""
+    assert _sweep('rod', gravity=0.0) > 0.25

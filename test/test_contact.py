@@ -9,9 +9,11 @@ import pytest
 from sm_ros.core import BodyParams, Ground, World
 from sm_ros.core import contact as C
 from sm_ros.core.contact import BodyContact, ContactParams
+from sm_ros.core.kernels.colliders import Colliders
 
 S = 0.02                                           # lattice spacing of the test bodies
-NO_COLLIDERS = (False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)))
+NO_COLLIDERS = Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), 0.0,
+                         np.zeros(8))
 
 
 def lattice(nx, ny, nz, s=S, center=(0.0, 0.0, 0.0)):
@@ -246,7 +248,7 @@ def test_pair_response_conserves_momentum_and_separates():
     touched = np.zeros(2, np.uint8)
     found = C.solve_pairs(X, V, W, R, B, np.array([0], np.int32), np.array([1], np.int32),
                           1, 0.0, 0.0, 0.0, 1e-3, 1, touched, np.zeros(2, np.int64),
-                          np.zeros(2), *NO_COLLIDERS, np.zeros(2, np.uint8))
+                          np.zeros(2), NO_COLLIDERS, np.zeros(2, np.uint8))
     assert found == 1 and touched.all()
     assert np.linalg.norm(X[:, 0] - X[:, 1]) >= 0.02 - 1e-12
     np.testing.assert_allclose(V @ (1.0 / W), p0, atol=1e-14)
@@ -262,7 +264,7 @@ def test_pinned_particles_are_infinite_mass():
     before = X[:, 0].copy()
     C.solve_pairs(X, V, W, np.full(2, 0.01), np.array([0, 1], np.int32),
                   np.array([0], np.int32), np.array([1], np.int32), 1, 0.5, 0.0, 0.0, 0.01, 1,
-                  np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2), *NO_COLLIDERS,
+                  np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2), NO_COLLIDERS,
                   np.zeros(2, np.uint8))
     np.testing.assert_array_equal(X[:, 0], before)
     assert X[0, 1] == pytest.approx(0.02)
@@ -702,7 +704,7 @@ def test_resting_pair_is_pushed_apart_without_speed():
     x0 = X.copy()
     C.solve_bodies(X, V, W, np.full(2, 0.01), B, np.array([0], np.int32),
                    np.array([1], np.int32), 1, 0.5, 0.0, 0.1, 1 / 120, 8,
-                   np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2), *NO_COLLIDERS,
+                   np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2), NO_COLLIDERS,
                    np.zeros(2, np.uint8), off, bw, np.ones(2, np.bool_), np.zeros((2, 7)),
                    np.zeros(2, np.uint8), np.zeros(1, np.int64), acc, np.zeros(1), 1e-3,
                    np.zeros((2, 3)), np.zeros(4), np.zeros(0, np.int64), np.zeros(3, np.int64),

@@ -30,12 +30,13 @@ def test_resting_bodies_count_their_touching_layer_per_collider():
     assert counts['table'] == 16
     xb = w.body('ball').x
     assert xb[:, 2].min() > 0.15                       # still on the sphere, wrapping it
-    on = np.abs(np.linalg.norm(xb - (2.0, 0.0, 0.1), axis=1) - 0.1) < 1e-9
+    r = w.contact_radius('ball')                       # its particles' spheres touch
+    on = np.abs(np.linalg.norm(xb - (2.0, 0.0, 0.1), axis=1) - 0.1 - r) < 1e-9
     assert counts['ball'] == on.sum() == 16           # its bottom layer, draped
     assert counts['air'] == 0
     # the same bodies by hand: on the surface to 1e-9 m
     x = w.body('floor').x
-    assert counts['floor'] == int((x[:, 2] <= 1e-9).sum())
+    assert counts['floor'] == int((x[:, 2] <= w.contact_radius('floor') + 1e-9).sum())
     stats = w.contact_stats()
     assert stats['floor'] == (16, 0.0) and stats['table'] == (16, 0.0)
     assert 'air' in stats and stats['air'][0] == 0

@@ -14,9 +14,12 @@ before the second sweep), checked against a NumPy twin.
 import numpy as np
 
 from sm_ros.core import contact as C
+from sm_ros.core.kernels.colliders import Colliders
 
 H = 1 / 120
 THRESH = 2 * 9.81 * H
+NO_COLLIDERS = Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), THRESH,
+                         np.zeros(8))
 WALL = np.array([[0.05, -1.0, -1.0, 0.2, 1.0, 1.0, 0.5, 0.0]])   # box x in [0.05, 0.2]
 
 
@@ -67,7 +70,8 @@ def _solve(X, V, W, B, off, boxes, ground, cand_margin, margin):
                           np.ones(nb, np.bool_), box, np.zeros(6))
     found = C.solve_bodies(
         X, V, W, R, B, pi, pj, 1, 0.5, 0.0, THRESH, H, 8, np.zeros(nb, np.uint8),
-        np.zeros(nb, np.int64), np.zeros(nb), True, ground, boxes, np.zeros((0, 6)),
+        np.zeros(nb, np.int64), np.zeros(nb),
+        Colliders(True, ground, boxes, np.zeros((0, 6)), THRESH, np.zeros(nb)),
         np.zeros(X.shape[1], np.uint8), off, bw, cpl, np.zeros((nb, 7)),
         np.zeros(nb, np.uint8), np.zeros(1, np.int64), np.zeros((2, 1)), np.zeros(1),
         0.01 * THRESH, vb, np.zeros(4), cand[:m], cptr, zlo, np.zeros((2, nb)), 0.0, bc,
@@ -144,8 +148,8 @@ def test_compact_rows_match_numpy():
     x0, v0 = X.copy(), V.copy()
     C.solve_bodies(
         X, V, W, R, B, pi, pj, npairs, 0.5, 0.0, THRESH, H, 2, np.zeros(nb, np.uint8),
-        np.zeros(nb, np.int64), np.zeros(nb), False, np.zeros(4), np.zeros((0, 8)),
-        np.zeros((0, 6)), np.zeros(n, np.uint8), off, bw, cpl, np.zeros((nb, 7)),
+        np.zeros(nb, np.int64), np.zeros(nb), NO_COLLIDERS, np.zeros(n, np.uint8), off, bw,
+        cpl, np.zeros((nb, 7)),
         np.zeros(nb, np.uint8), active, np.zeros((2, npairs)), np.full(npairs, 2.0),
         0.01 * THRESH, vb, np.zeros(4), np.zeros(0, np.int64), np.zeros(nb + 1, np.int64),
         zlo, np.zeros((2, nb)), 0.0, bc, bom, biv, np.inf, cf, cij)
@@ -204,7 +208,7 @@ def _solve_chain(X, iters, cbuf=None, ibuf=None):
     C.solve_bodies(
         X, V, W, np.full(3, 0.01), B, np.array([0, 1], np.int32), np.array([1, 2], np.int32),
         2, 0.5, 0.0, THRESH, H, iters, np.zeros(nb, np.uint8), np.zeros(nb, np.int64),
-        np.zeros(nb), False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)),
+        np.zeros(nb), NO_COLLIDERS,
         np.zeros(3, np.uint8), off, bw, cpl, np.zeros((nb, 7)), np.zeros(nb, np.uint8),
         np.zeros(2, np.int64), np.zeros((2, 2)), np.zeros(2), 0.01 * THRESH, vb,
         np.zeros(4), np.zeros(0, np.int64), np.zeros(nb + 1, np.int64), zlo,
@@ -261,8 +265,8 @@ def _solve_chain_acc(self_pair):
     acc = np.zeros((2, m))
     C.solve_bodies(
         X, V, W, np.full(4, 0.01), B, pi, pj, m, 0.5, 0.0, THRESH, H, 8,
-        np.zeros(nb, np.uint8), np.zeros(nb, np.int64), np.zeros(nb), False, np.zeros(4),
-        np.zeros((0, 8)), np.zeros((0, 6)), np.zeros(4, np.uint8), off, bw, cpl,
+        np.zeros(nb, np.uint8), np.zeros(nb, np.int64), np.zeros(nb), NO_COLLIDERS,
+        np.zeros(4, np.uint8), off, bw, cpl,
         np.zeros((nb, 7)), np.zeros(nb, np.uint8), np.zeros(m, np.int64), acc, np.zeros(m),
         0.01 * THRESH, vb, np.zeros(4), np.zeros(0, np.int64), np.zeros(nb + 1, np.int64),
         zlo, np.zeros((2, nb)), 0.0, bc, bom, biv, np.inf, np.zeros((7, m)),

@@ -179,19 +179,26 @@ def test_cap_plastic_keeps_det_and_cap():
         np.testing.assert_allclose(ours, cap_plastic(sp, c_max), atol=1e-9)
 
 
-def test_collide_point_matches_reference():
+@pytest.mark.parametrize('radius', [0.0, 0.04])
+def test_collide_point_matches_reference(radius):
+    """A particle, a sphere of ``radius``, against the grown colliders: the kernel gives
+    the NumPy reference's position and velocity."""
     rng = RNG(9)
     ground = Ground(height=0.1, friction=0.4, restitution=0.5)
     boxes = [Box(lo=(-0.5, -0.5, 0.0), hi=(0.0, 0.5, 0.4), friction=0.2, restitution=0.3)]
     spheres = [Sphere(center=(0.5, 0.0, 0.3), radius=0.25, friction=0.7, restitution=0.0)]
     w = World()
     w.set_colliders(ground, boxes, spheres)
+    col = K.Colliders(True, w._ground_row, w._box_rows, w._sphere_rows, 0.05, radius)
+    moved = 0
     for _ in range(500):
         x = rng.uniform(-0.8, 0.8, 3)
         v = rng.normal(size=3)
-        got = K.collide_point(*x, *v, w._ground_row, w._box_rows, w._sphere_rows, 0.05)
-        rx, rv = collide(x, v, ground, boxes, spheres, 0.05)
+        got = K.collide_point(*x, *v, col)
+        rx, rv = collide(x, v, ground, boxes, spheres, 0.05, radius)
         np.testing.assert_allclose(got, np.concatenate([rx, rv]), atol=1e-12)
+        moved += not np.array_equal(rx, x)
+    assert moved > 100
 
 
 # ---------------------------------------------------------------- Numba vs NumPy reference
@@ -234,7 +241,7 @@ def test_numba_matches_numpy_reference(mode, clusters, plastic):
             body.set_kinematic(idx, tgt)
             ref.set_kinematic(idx, tgt)
         world.step(h)
-        ref.step(h, world.gravity, ground)
+        ref.step(h, world.gravity, ground, radius=body._collider_radius)
         err = np.abs(body.x - ref.x).max()
         assert err < 1e-9, (step, err)
         assert np.abs(body.v - ref.v).max() < 1e-9 / h
@@ -258,9 +265,9 @@ def test_numba_matches_numpy_reference_step_by_step_in_contact(mode, clusters):
             ref.sp = list(body.plastic_state)
             ref._rest()
         world.step(h)
-        ref.step(h, world.gravity, ground)
+        ref.step(h, world.gravity, ground, radius=body._collider_radius)
         assert np.abs(body.x - ref.x).max() < 1e-10, step
-    assert body.x[:, 2].min() == 0.0   # it was in contact
+    assert body.x[:, 2].min() == body._collider_radius > 0.0   # it was in contact
 
 
 # ---------------------------------------------------------------- invariants

@@ -16,11 +16,11 @@ from sm_ros.core.kernels.linalg import sym3_solve
 RNG = np.random.default_rng
 
 
-def _collide_each(x, v, ground, boxes, spheres, thresh):
+def _collide_each(x, v, col):
     """``collide_point`` on every particle (what ``_collide_range`` must give)."""
     x, v = x.copy(), v.copy()
     for i in range(len(x)):
-        out = K.collide_point(*x[i], *v[i], ground, boxes, spheres, thresh)
+        out = K.collide_point(*x[i], *v[i], col)
         x[i], v[i] = out[:3], out[3:]
     return x, v
 
@@ -54,11 +54,13 @@ def test_collide_range_equals_collide_point_on_every_particle(nbox, nsph):
             x[3] = np.nan
         if trial % 5 == 0:
             ground[0] = 0.0
-        reach = _range_reach(0, len(x), x, ground, boxes, spheres)
+        radius = rng.choice([0.0, 0.03])      # particles as points and as spheres
+        col = K.Colliders(True, ground, boxes, spheres, 0.05, radius)
+        reach = _range_reach(0, len(x), x, col)
         seen.add(reach)
-        want_x, want_v = _collide_each(x, v, ground, boxes, spheres, 0.05)
+        want_x, want_v = _collide_each(x, v, col)
         got_x, got_v = x.copy(), v.copy()
-        K._collide_range(0, len(x), got_x, got_v, ground, boxes, spheres, 0.05)
+        K._collide_range(0, len(x), got_x, got_v, col)
         np.testing.assert_array_equal(got_x, want_x)
         np.testing.assert_array_equal(got_v, want_v)
     # the trials took every path: skipped, ground only, full
@@ -70,12 +72,13 @@ def test_collide_range_equals_collide_point_on_every_particle(nbox, nsph):
 def test_collide_range_culls_a_body_in_the_air():
     ground = np.array([1.0, 0.0, 0.5, 0.0])
     boxes = np.array([[-1.35, -1.35, 0.0, -1.25, 1.35, 1.5, 0.6, 0.0]])
+    col = K.Colliders(True, ground, boxes, np.zeros((0, 6)), 0.05, 0.02)
     x = np.array([[0.0, 0.0, 0.5], [0.1, 0.0, 0.6]])
-    assert _range_reach(0, 2, x, ground, boxes, np.zeros((0, 6))) == (False, False)
-    x[0, 2] = -0.01                         # below the ground: the ground only
-    assert _range_reach(0, 2, x, ground, boxes, np.zeros((0, 6))) == (True, False)
-    x[1, 0] = -1.3                          # inside the wall's extent
-    assert _range_reach(0, 2, x, ground, boxes, np.zeros((0, 6))) == (True, True)
+    assert _range_reach(0, 2, x, col) == (False, False)
+    x[0, 2] = 0.015                         # within its radius of the ground: the ground only
+    assert _range_reach(0, 2, x, col) == (True, False)
+    x[1, 0] = -1.24                         # within its radius of the wall
+    assert _range_reach(0, 2, x, col) == (True, True)
 
 
 def test_sym3_solve_equals_the_pseudo_inverse():

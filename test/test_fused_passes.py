@@ -134,8 +134,8 @@ def test_fused_set_pass_matches_its_numpy_twin(damping, cap):
         start=0, end=body.n, x=body._x, v=body._v, y0=st.y0, mass=body._m, wuni=wuni,
         sid=st.sid, runs=st.runs, gm=st.gm, sref=st.ref, alpha_h=0.6 / H, h=H,
         hx=H * acc[0], hy=H * acc[1], hz=H * acc[2], damp=damping > 0.0, k_damp=damping,
-        dmp=dmp, v_max=cap, sums=sums, dsums=dsums, has_col=False, ground=np.zeros(4),
-        boxes=np.zeros((0, 8)), spheres=np.zeros((0, 6)), thresh=1e-3, gz=-np.inf)
+        dmp=dmp, v_max=cap, sums=sums, dsums=dsums,
+        col=K.Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), 1e-3, 0.0))
     tx, tv, tsums, tds, terr, tcapped = _twin(
         x0, v0, np.asarray(st.y0), body._m, wuni, st.sid, st.runs, st.gm, st.ref, 0.6, H, acc,
         damping > 0.0, damping, dmp, cap, nsets)
@@ -163,7 +163,8 @@ def test_fused_set_pass_steps_as_the_two_loop_pass(masses, damping, ground):
         a_world.step(H)
         b_world.step(H)
     if ground:
-        assert a.x[:, 2].min() == pytest.approx(0.5, abs=0.02)   # on the ground
+        # on the ground, on its particles' spheres
+        assert a.x[:, 2].min() == pytest.approx(0.5 + a._collider_radius, abs=0.02)
         assert a._fast_ok()                # stepped by the world step's records
     np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-10)
     np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-8)
@@ -239,10 +240,10 @@ def test_one_cluster_body_landing_on_the_ground_matches_the_numpy_twin(mode):
     assert x0[FUSED_BLOCK:, 2].min() > x0[:FUSED_BLOCK, 2].min() + 0.4
     for _ in range(60):
         world.step(H)
-        ref.step(H, world.gravity, ground)
+        ref.step(H, world.gravity, ground, radius=body._collider_radius)
     assert np.abs(body.x - ref.x).max() < 1e-9
     assert np.abs(body.v - ref.v).max() < 1e-9 / H
-    assert body.x[:, 2].min() == pytest.approx(0.0, abs=1e-12)   # resting on it
+    assert body.x[:, 2].min() == pytest.approx(body._collider_radius, abs=1e-12)   # on it
     assert body.x[FUSED_BLOCK:, 2].min() > 0.3                   # the upper block above it
 
 
@@ -279,7 +280,7 @@ def test_ground_projection_corrects_the_sums_it_changes(damp):
     ``ground_range`` does and returns what that changed in the sums the one-loop pass took
     before it: sums before + its deltas = the sums of the projected state (NumPy), and
     nothing for the damping sums without ``damp``."""
-    from sm_ros.core.kernels.colliders import ground_range, ground_range_sums
+    from sm_ros.core.kernels.colliders import Colliders, ground_range, ground_range_sums
     rng = np.random.default_rng(11)
     n = 300
     x = np.asfortranarray(rng.uniform(-0.5, 0.5, (n, 3)) + (3.0, -2.0, 0.4))
@@ -288,12 +289,13 @@ def test_ground_projection_corrects_the_sums_it_changes(damp):
     w = np.full(n, 1.5)
     ground = np.array([1.0, 0.35, 0.4, 0.3])             # on, height, friction, restitution
     k = np.array([3.1, -1.9, 0.5])
-    below = x[:, 2] < ground[1]
+    col = Colliders(True, ground, np.zeros((0, 8)), np.zeros((0, 6)), 1e-3, 0.02)
+    below = x[:, 2] < ground[1] + 0.02                  # the particles' spheres of 2 cm
     assert 20 < below.sum() < n - 20
     shape0, damp0 = _sums_about(x, v, x0, w, k)
     xr, vr = np.asfortranarray(x.copy()), np.asfortranarray(v.copy())
-    ground_range(0, n, xr, vr, ground, 1e-3)
-    g = np.array(ground_range_sums(0, n, x, v, x0, 1.5, ground, 1e-3, k[0], k[1], k[2], damp))
+    ground_range(0, n, xr, vr, col)
+    g = np.array(ground_range_sums(0, n, x, v, x0, 1.5, col, k[0], k[1], k[2], damp))
     assert np.array_equal(x, xr) and np.array_equal(v, vr)   # the same projection
     shape1, damp1 = _sums_about(x, v, x0, w, k)
     want = shape1 - shape0
@@ -335,7 +337,7 @@ def test_sums_stay_those_of_the_state_on_the_ground(layout):
     for _ in range(12):
         world.step(H)
         assert body.limit_counts[0] == 0
-        on = int((body.x[:, 2] == 0.0).sum())
+        on = int((body.x[:, 2] == body._collider_radius).sum())
         projected += on
         if layout == 'packed':
             shape = np.zeros((1, 12))

@@ -36,6 +36,7 @@ def test_world_of_one_packed_body_steps_as_the_body_does(monkeypatch):
     pack, records, slow, helpers = world._split_bodies(0.01)
     assert len(pack) == 1 and not len(records) and not slow and helpers is False
     ref = _world(0.05, True, 2.0)
+    ref._collider_radii(0.01)              # what the world gives the body it steps
     for _ in range(10):
         world.step(0.01)
         ref.bodies[0]._step(0.01, ref._gravity, ref._has_col, ref._ground_row,

@@ -150,8 +150,7 @@ def contact_parts(world) -> Dict[str, float]:
     def per_step():
         f.X[:] = Xs
         f.V[:] = Vs
-        c.run(1.0 / 120.0, 0.16, world._has_col, world._ground_row, world._box_rows,
-              world._sphere_rows, world._gravity)
+        c.run(1.0 / 120.0, 0.16, world._contact_colliders(0.16), world._gravity)
 
     def restore():
         f.X[:] = Xs
@@ -206,8 +205,7 @@ def builders(world, build_threads: int, rounds: int = 5) -> Dict[str, Any]:
     def moving():
         restore()
         c.invalidate()
-        c.run(1.0 / 120.0, 0.16, world._has_col, world._ground_row, world._box_rows,
-              world._sphere_rows, world._gravity)
+        c.run(1.0 / 120.0, 0.16, world._contact_colliders(0.16), world._gravity)
     samples = {name: {'rebuild': [], 'moving': []} for name, _, _ in BUILDERS}
     pairs = {}
     tr = bc.time_calls(restore, min_time=0.1, min_reps=10, max_reps=100)

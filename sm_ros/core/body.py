@@ -77,6 +77,9 @@ class Body:
         #: the particles' one mass where all are equal, else 0 (the damping sums of such a
         #: body are taken unweighted: ``kernels.damping.damp_sums_range``)
         self._wuni = uniform_mass(m)
+        #: the radius of the spheres its particles meet the static colliders with (m); the
+        #: world sets it (``World._collider_radii``)
+        self._collider_radius = 0.0
         self._x_init = x.copy()
         self._x_init.flags.writeable = False
         self._v_init = v.copy()
@@ -202,9 +205,9 @@ class Body:
                                          and not self._has_torque)))
 
     def _one_pack(self, h):
-        """A ``packed.Pack`` of this body alone, kept until a body changes, h does or the
-        body was packed elsewhere."""
-        key = (_GENERATION[0], h)
+        """A ``packed.Pack`` of this body alone, kept until a body changes, h or its collider
+        radius does or the body was packed elsewhere."""
+        key = (_GENERATION[0], h, self._collider_radius)
         one = getattr(self, '_one', None)
         if (one is None or one[0] != key or not isinstance(one[1], Pack)
                 or getattr(self, '_pack_owner', None) is not one[1]):

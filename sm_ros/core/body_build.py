@@ -432,7 +432,7 @@ def fast_record(body, h):
     rebuild)."""
     if getattr(body, '_arena', None) is None:
         compact(body)
-    body._fstate = np.zeros(12)
+    body._fstate = np.zeros(13)
     retime_record(body, body._fstate, h)
     sptr, scl, scnt = body._dsets if body._dsets else (
         np.zeros(2, dtype=np.int64), np.zeros(1, dtype=np.int32), np.ones(1))
@@ -455,18 +455,20 @@ def fast_record(body, h):
 
 def retime_record(body, fstate, h):
     """Write the numbers of a record for steps of ``h`` (``fast_record``'s ``_fstate``:
-    the material's coefficients at the step, the turn limit's rate) into ``fstate``."""
+    the material's coefficients at the step, the turn limit's rate, the collider radius)
+    into ``fstate``."""
     p = body._params.at_step(h)
     body._at_step = (h, body._params, p)
     fstate[:] = (p.alpha, p.beta, p.damping, body._params.max_speed, body._params.max_turn,
                  1.0 / body.total_mass, body._mode, 1.0 if body._damp_fused else 0.0,
                  1.0 if body._quad else 0.0, 1.0 if body._sets is not None else 0.0,
-                 body._params.max_turn / h, body._wuni)
+                 body._params.max_turn / h, body._wuni, body._collider_radius)
 
 
 def one_record(body, h):
-    """A typed list holding ``fast_record(body, h)``, kept until a body changes or h does."""
-    key = (_GENERATION[0], h)
+    """A typed list holding ``fast_record(body, h)``, kept until a body changes or h or its
+    collider radius does."""
+    key = (_GENERATION[0], h, body._collider_radius)
     one = getattr(body, '_one', None)
     if one is None or one[0] != key or not isinstance(one[1], TypedList):
         one = body._one = (key, TypedList([fast_record(body, h)]))

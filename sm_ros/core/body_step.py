@@ -13,6 +13,7 @@ import numpy as np
 
 from . import kernels as K
 from .step_threads import HELPERS
+from .kernels.colliders import Colliders
 from .kernels.flags import DAMP_SUMS
 
 #: The set ids of a one-cluster body's fused damping: none, every particle in set 0.
@@ -48,7 +49,9 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     kin = len(body._kin_idx) > 0
     if kin:
         K.gather_rows(body._x, body._kin_idx, body._kin_prev)
-    capped = _integrate(body, p, h, fused, (has_col, ground, boxes, spheres, thresh))
+    colliders = Colliders(bool(has_col), ground, boxes, spheres, float(thresh),
+                          body._collider_radius)
+    capped = _integrate(body, p, h, fused, colliders)
     if kin:
         _grabbed(body, fused, h)
     body._shape_err = None                 # computed from body._err when asked
@@ -183,10 +186,8 @@ def _set_ids(body):
 
 
 def _integrate(body, p, h, fused, colliders) -> int:
-    """Eq. 13-14 with the static colliders (``colliders``: has_col, ground, boxes,
-    spheres, thresh) and the speed cap, the next step's sums taken in the same pass;
-    returns the capped speeds."""
-    has_col, ground, boxes, spheres, thresh = colliders
+    """Eq. 13-14 with the static colliders (``colliders.Colliders``) and the speed cap,
+    the next step's sums taken in the same pass; returns the capped speeds."""
     sets = body._sets
     v_max = body._params.max_speed
     if sets is not None:
@@ -196,8 +197,8 @@ def _integrate(body, p, h, fused, colliders) -> int:
                 x=body._x, v=body._v, y0=sets.y0, mass=body._m, wuni=body._wuni,
                 sid=sets.sid, runs=sets.runs, gm=sets.gm, sref=sets.ref, alpha=p.alpha, h=h,
                 acc=body._acc, ang=body._ang, com=body._com, part=sets.part, err=body._err,
-                has_col=has_col, ground=ground, boxes=boxes, spheres=spheres, thresh=thresh,
-                damp=fused, k_damp=p.damping, dmp=body._dmp, dpart=body._dpart, v_max=v_max)
+                col=colliders, damp=fused, k_damp=p.damping, dmp=body._dmp, dpart=body._dpart,
+                v_max=v_max)
         K._fused_refs(body._quad, body._wuni, body._ang, sets.runs, fused, sets.ref, body._dpart)
         capped = int(chunk_capped.sum())
         body._limit_counts[0] += capped
@@ -206,8 +207,8 @@ def _integrate(body, p, h, fused, colliders) -> int:
             mass=body._m, ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
             rest_off=body._rest_off, trans=body._trans, goal_lin=body._goal_lin,
             goal_off=body._goal_off, ref=body._ref, alpha=p.alpha, h=h, acc=body._acc,
-            ang=body._ang, com=body._com, part=body._part, err=body._err, has_col=has_col,
-            ground=ground, boxes=boxes, spheres=spheres, thresh=thresh, damp=fused,
+            ang=body._ang, com=body._com, part=body._part, err=body._err, col=colliders,
+            damp=fused,
             k_damp=p.damping, dmp=body._dmp, dpart=body._dpart)
     if v_max <= 0.0:
         return 0
@@ -274,7 +275,7 @@ def goals(body) -> np.ndarray:
                        rest_off=body._rest_off, trans=trans, goal_lin=goal_lin,
                        goal_off=goal_off, ref=ref, alpha=1.0, h=1.0, acc=np.zeros(3),
                        ang=np.zeros(3), com=np.zeros(3), part=part, err=np.zeros(1),
-                       has_col=False, ground=np.zeros(4), boxes=np.zeros((0, 8)),
-                       spheres=np.zeros((0, 6)), thresh=0.0, damp=False, k_damp=0.0,
+                       col=Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)),
+                                     0.0, 0.0), damp=False, k_damp=0.0,
                        dmp=np.zeros((1, 6)), dpart=np.zeros((1, 1, K.NDAMP)))
     return g

@@ -39,7 +39,7 @@ from .contact_build import (body_overlaps, build_pairs_grid, build_pairs_grid_pa
 from .contact_cells import build_pairs
 from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_pairs, wall_candidates)
-from .kernels.colliders import contact_velocity
+from .kernels.colliders import Colliders, contact_velocity
 from .params import _finite
 from .kernels.stiff_solve import drop_rigid_pairs
 
@@ -351,12 +351,11 @@ class Contact:
         self.valid = True
         self.builds += 1
 
-    def run(self, h, thresh, has_col=False, ground=_NO_GROUND, boxes=_NO_ROWS8,
-            spheres=_NO_ROWS6, gravity=None):
+    def run(self, h, thresh, col=None, gravity=None):
         """Detect and resolve contacts on ``flat.X``/``flat.V`` (already gathered).
 
-        ``has_col``, ``ground``, ``boxes``, ``spheres``: the World's static colliders (rows
-        as in ``kernels.colliders.collide_point``), re-applied to every particle contact
+        ``col``: the World's static colliders (``kernels.colliders.Colliders``, its radius
+        one per body in flat order; None: none), re-applied to every particle contact
         moved.  ``gravity`` (3,): with a nonzero one, ``params.stacking`` and a body
         marked in ``coupling``, the bodies so marked carry their contacts as a whole
         (``solve_bodies``); otherwise every pair acts per particle (``solve_pairs``).
@@ -364,6 +363,9 @@ class Contact:
         f = self.flat
         half = 0.5 * self.skin
         p = self.params
+        if col is None:
+            col = Colliders(False, _NO_GROUND, _NO_ROWS8, _NO_ROWS6, float(thresh),
+                            np.zeros(len(f.bodies)))
         grav = gravity is not None and bool(np.any(gravity != 0.0))
         carried = p.stacking and grav and self.coupling.any()
         if carried:
@@ -377,10 +379,10 @@ class Contact:
                                       self._body_centre, self._body_spin,
                                       self._body_inv_inertia, self._xref, self.act,
                                       self._dbox)
-            # a stiff body rests on the ground with its particles' spheres, as the
-            # collider pass puts it (stiff_contact.py)
+            # a body rests on the ground with its particles' spheres: a stiff one as the
+            # stiff pass puts it (stiff_contact.py), the others as their own pass does
             n = len(self.radii)
-            self._zlo[0, :n] -= np.where(self.rigid[:n], self.radii, 0.0)
+            self._zlo[0, :n] -= np.where(self.rigid[:n], self.radii, col.radius[:n])
         else:
             spread2 = moved_spread2(f.X, self._xref, f.off, self.act)
         # rebuilt once the displacements since the last build no longer fit in a ball of
@@ -394,8 +396,7 @@ class Contact:
             self._warm = False
             self.found = solve_pairs(f.X, f.V, f.W, f.R, f.B, *self._solved_pairs(),
                                      p.friction, p.restitution, thresh, float(h), p.iterations,
-                                     f.touched, self.count, self.deepest, bool(has_col),
-                                     ground, boxes, spheres, self._moved)
+                                     f.touched, self.count, self.deepest, col, self._moved)
             return
         if self._acc.shape[1] < self.npairs:
             m = len(self._pair_i)               # grows with the pair list's capacity
@@ -404,12 +405,11 @@ class Contact:
             self._active = np.zeros(m, dtype=np.int64)
             self._cbuf = np.zeros((7, m))        # solve_bodies' compact rows
             self._ibuf = np.zeros((5, m), dtype=np.int32)
-        ncand, margin = self._near_walls(has_col, boxes, spheres)
+        ncand, margin = self._near_walls(col)
         self.found = solve_bodies(f.X, f.V, f.W, f.R, f.B, *self._solved_pairs(),
                                   p.friction, p.restitution, thresh, float(h),
                                   max(p.iterations, STACK_SWEEPS), f.touched, self.count,
-                                  self.deepest, bool(has_col), ground,
-                                  boxes, spheres, self._moved, f.off, self._body_inv_mass,
+                                  self.deepest, col, self._moved, f.off, self._body_inv_mass,
                                   self.coupling, self._body_change, self._pend, self._active,
                                   self._acc, self._pair_target, SWEEP_TOL * thresh,
                                   self._body_velocity, self._noground, self._cand[:ncand],
@@ -419,15 +419,16 @@ class Contact:
                                   self._ibuf)
         self._warm = True
 
-    def _near_walls(self, has_col, boxes, spheres):
+    def _near_walls(self, col):
         """(count, margin): the end of solve_bodies puts a carried body's particles through
-        the boxes and spheres only where one can be inside (its particles near them,
-        ``_cand[:count]``, or one moved by ``margin`` or more); with none, only the ground
-        is left (no margin)."""
-        if not (has_col and (len(boxes) or len(spheres))):
+        the boxes and spheres only where one can be inside (its particles near them, grown
+        by the particles' radius, ``_cand[:count]``, or one moved by ``margin`` or more);
+        with none, only the ground is left (no margin)."""
+        if not (col.on and (len(col.boxes) or len(col.spheres))):
             return 0, np.inf
         f = self.flat
-        args = (f.X, f.off, self.coupling, self._body_inv_mass, boxes, spheres, self.cell)
+        reach = self.cell + float(col.radius.max(initial=0.0))
+        args = (f.X, f.off, self.coupling, self._body_inv_mass, col.boxes, col.spheres, reach)
         ncand = wall_candidates(*args, self._cand, self._cptr, self.act, self._box,
                                 self._dbox)
         if ncand > len(self._cand):             # a particle near two of them: grow

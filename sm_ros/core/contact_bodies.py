@@ -6,16 +6,16 @@ per-particle solve are in ``kernels/pair_contact.py``.
 import numpy as np
 from numba import njit
 
-from .kernels.colliders import collide_point
+from .kernels.colliders import Colliders, collide_point, ground_height
 from .kernels.jit import JIT
 from .kernels.pair_contact import (_body_move, _carried_velocity, _collide_moved,
                                    _compact_row, _own, _pair_impulse, _pair_normal,
-                                   _warm_start)
+                                   _warm_start, body_colliders)
 
 
 @njit(**JIT)
 def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched, count,
-                 deepest, has_col, ground, boxes, spheres, moved, off, bw, cpl, dv, pend,
+                 deepest, col, moved, off, bw, cpl, dv, pend,
                  active, acc, tg, tol, vb, noground, cand, cptr, zlo, accg, warm, bc, bom,
                  biv, margin=0.0, cbuf=None, ibuf=None):
     """Body-body contact under gravity, the stiff bodies carrying their contacts as a
@@ -87,6 +87,7 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
         cf = np.empty((7, npairs))
         cij = np.empty((5, npairs), dtype=np.int32)
     cm = cij[4]
+    has_col, ground = col.on, col.ground
     _warm_start(X, V, W, B, R, pi, pj, npairs, mu, h, ground, off, bw, cpl, dv, pend, acc,
                 vb, accg, warm, has_col and ground[0] > 0.5)
     for it in range(iters):
@@ -343,8 +344,9 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
                     x0 = X[0, p] + h * dv[b, 0] + dv[b, 3]
                     x1 = X[1, p] + h * dv[b, 1] + dv[b, 4]
                     x2 = X[2, p] + h * dv[b, 2] + dv[b, 5]
-                    y0, y1, y2, _, _, _ = collide_point(x0, x1, x2, 0.0, 0.0, 0.0, noground,
-                                                        boxes, spheres, thresh)
+                    walls = Colliders(True, noground, col.boxes, col.spheres, thresh,
+                                      col.radius[b])
+                    y0, y1, y2, _, _, _ = collide_point(x0, x1, x2, 0.0, 0.0, 0.0, walls)
                     if y0 != x0 or y1 != x1 or y2 != x2:
                         dv[b, 3] += y0 - x0
                         dv[b, 4] += y1 - x1
@@ -379,8 +381,8 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
         # only below the ground, moved by a pair, or moved by margin or more (a particle
         # not in ``cand`` was at least margin out of every box and sphere)
         near = cptr[b + 1] > cptr[b] if cand.shape[0] > 0 else False
-        gon = ground[0] > 0.5
-        gh = ground[1]
+        own = body_colliders(col, b)
+        gh = ground_height(own)
         m2 = margin * margin
         for p in range(off[b], off[b + 1]):
             # the translation, and the spin stopped: dw x (x - centre)
@@ -401,10 +403,9 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
             V[2, p] += g2
             mp = moved[p]
             moved[p] = 0
-            if has_col and (near or mp or (gon and X[2, p] < gh)
+            if has_col and (near or mp or X[2, p] < gh
                             or not d0 * d0 + d1 * d1 + d2 * d2 < m2):
                 X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p] = collide_point(
-                    X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p], ground, boxes,
-                    spheres, thresh)
-    _collide_moved(X, V, W, pi, pj, npairs, moved, has_col, ground, boxes, spheres, thresh)
+                    X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p], own)
+    _collide_moved(X, V, W, B, pi, pj, npairs, moved, col)
     return found

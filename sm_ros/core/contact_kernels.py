@@ -41,7 +41,7 @@ def body_inverse_masses(W, off, bw):
 
 @njit(**JIT)
 def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched, count,
-                deepest, has_col, ground, boxes, spheres, moved):
+                deepest, col, moved):
     """Project the overlapping pairs apart and apply the contact law (Gauss-Seidel).
 
     Pair (i, j) overlaps when |x_i - x_j| < r_i + r_j.  Its normal n is the direction of
@@ -56,8 +56,9 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched,
     velocity, written out here because its normal change also counts the projection's
     lam / h in the friction budget.  Every velocity change also moves the particle by h
     times it, so x - h v stays the start of the step for the pairs that follow.
-    With ``has_col``, every particle moved (flagged in ``moved`` (N,) uint8, zero on entry
-    and on return) is then projected out of the static colliders, once, after the sweeps
+    With colliders on (``col``: ``kernels.colliders.Colliders`` with one radius per body),
+    every particle moved (flagged in ``moved`` (N,) uint8, zero on entry and on return) is
+    then projected out of the static colliders, once, after the sweeps
     (``kernels.colliders.collide_point``: ground, boxes, spheres), so contact never leaves
     a particle inside one (a body pressed into the ground by another would otherwise be
     pushed back out by the next step's collider pass, and the two would pump energy).
@@ -143,7 +144,7 @@ def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched,
                     deepest[bi] = pen
                 if pen > deepest[bj]:
                     deepest[bj] = pen
-    _collide_moved(X, V, W, pi, pj, npairs, moved, has_col, ground, boxes, spheres, thresh)
+    _collide_moved(X, V, W, B, pi, pj, npairs, moved, col)
     return found
 
 

@@ -39,12 +39,14 @@ from .kernels.jit import JIT
 
 class Particles(NamedTuple):
     """The particles the pass acts on: (3, N) positions and velocities, inverse masses
-    (0: left alone) and the body index of each particle."""
+    (0: left alone), the body index of each particle and per body the radius of the
+    spheres its particles meet the colliders with."""
 
     x: np.ndarray
     v: np.ndarray
     inv_mass: np.ndarray
     body: np.ndarray
+    radius: np.ndarray
 
 
 class ColliderTally(NamedTuple):
@@ -58,10 +60,10 @@ class ColliderTally(NamedTuple):
 
 
 @njit(**JIT)
-def _closest_surface(row, px, py, pz):
-    """(depth, nx, ny, nz): depth > 0 when p is inside (the overlap of a point,
-    ``colliders.surface_gap``); n the outward normal there."""
-    gap, nx, ny, nz = surface_gap(row, px, py, pz, 0.0)
+def _closest_surface(row, px, py, pz, radius):
+    """(depth, nx, ny, nz): depth > 0 when the sphere of ``radius`` at p overlaps the
+    collider (``colliders.surface_gap``); n the outward normal there."""
+    gap, nx, ny, nz = surface_gap(row, px, py, pz, radius)
     if gap < 0.0:
         return -gap, nx, ny, nz
     return -1.0, 0.0, 0.0, 1.0
@@ -84,14 +86,15 @@ def collide_range(particles, start, end, rows, h, thresh, tally):
         if w[i] <= 0.0:
             continue
         px, py, pz = X[0, i], X[1, i], X[2, i]
+        rad = particles.radius[bid[i]]
         hit = False
         for c in range(nc):
             row = rows[c]
             cx, cy, cz = px - row[C_POS], py - row[C_POS + 1], pz - row[C_POS + 2]
-            b = row[C_BOUND]
+            b = row[C_BOUND] + rad
             if cx * cx + cy * cy + cz * cz >= b * b:
                 continue
-            depth, nx, ny, nz = _closest_surface(row, px, py, pz)
+            depth, nx, ny, nz = _closest_surface(row, px, py, pz, rad)
             if depth <= 0.0:
                 continue
             hit = True
@@ -148,6 +151,7 @@ def collide_numpy(particles, rows, h, thresh, tally):
     X = np.asarray(X)
     V = np.asarray(V)
     free = w > 0.0
+    rad = np.asarray(particles.radius)[np.asarray(bid)][free]
     for c, row in enumerate(rows):
         p = X[:, free]
         rel = p - row[C_POS:C_POS + 3, None]
@@ -156,22 +160,25 @@ def collide_numpy(particles, rows, h, thresh, tally):
         n = np.zeros_like(p)
         if kind == 0:
             d = np.linalg.norm(rel, axis=0)
-            depth = row[C_DIM] - d
+            depth = row[C_DIM] + rad - d
             safe = np.where(d > 0, d, 1.0)
             n = np.where(d > 0, rel / safe, np.array([[0.0], [0.0], [1.0]]))
         elif kind == 1:
             q = rot.T @ rel
-            dd = row[C_DIM:C_DIM + 3, None] - np.abs(q)
-            depth = np.where(np.all(dd > 0, axis=0), dd.min(axis=0), -1.0)
+            half = row[C_DIM:C_DIM + 3, None]
+            e = q - np.clip(q, -half, half)     # outside: towards the nearest surface point
+            out = np.linalg.norm(e, axis=0)
+            dd = half - np.abs(q)
             ax = np.argmin(dd, axis=0)          # first minimum: x before y before z
             s = np.where(q[ax, np.arange(q.shape[1])] >= 0, 1.0, -1.0)
-            n = rot[:, ax] * s
+            depth = np.where(out > 0, rad - out, dd.min(axis=0) + rad)
+            n = np.where(out > 0, rot @ (e / np.where(out > 0, out, 1.0)), rot[:, ax] * s)
         else:
             q = rot.T @ rel
             z = np.clip(q[2], -row[C_DIM + 1], row[C_DIM + 1])
             e = rel - rot[:, 2:3] * z
             d = np.linalg.norm(e, axis=0)
-            depth = row[C_DIM] - d
+            depth = row[C_DIM] + rad - d
             safe = np.where(d > 0, d, 1.0)
             n = np.where(d > 0, e / safe, rot[:, 0:1])
         hit = depth > 0

@@ -36,7 +36,7 @@ from numba.typed import List as TypedList
 from .kernels import (JIT, NDAMP, STRETCH_LIMIT, _collide_range, damp_acc_range, det3,
                       extract_rotation, limit_turn, unit_det_match_warm)
 from .kernels.fused import damp_sums_uniform
-from .kernels.colliders import ground_range, ground_range_sums
+from .kernels.colliders import Colliders, ground_height, ground_range, ground_range_sums
 from .kernels.integrate import _acc_single, _add_rest_sums, _int_single_fused
 from .kernels.flags import DAMP_SUMS, DIRTY, ERR_STALE, SLEEP
 from .kernels.jit import finite
@@ -51,8 +51,9 @@ FUSED_BLOCK = 4096
 # Row layout: parameters (written at each pack build), then the body state the rows hold
 # (attribute, shape); each attribute becomes a view of its columns.
 # C_WUNI: the particles' one mass where all are equal (masses are read-only), else 0
-C_ALPHA, C_BETA, C_DAMP, C_VMAX, C_TURN, C_WMAX, C_MODE, C_WUNI = range(8)
-NPARAM = 8
+# C_RADIUS: the radius its particles meet the colliders with (``Body._collider_radius``)
+C_ALPHA, C_BETA, C_DAMP, C_VMAX, C_TURN, C_WMAX, C_MODE, C_WUNI, C_RADIUS = range(9)
+NPARAM = 9
 STATE = (('_flags', (4,)), ('_facc', (3,)), ('_ref', (1, 3)), ('_quat', (1, 4)),
          ('_rest_lin', (1, 3, 3)), ('_rest_off', (1, 3)), ('_sum_q', (1, 9)),
          ('_wsum', (1,)), ('_scale', (1,)), ('_cdet', (1,)), ('_aqq3', (1, 3, 3)),
@@ -138,7 +139,8 @@ class Pack:
             p = prm.at_step(h)
             body._at_step = (h, prm, p)
             self.P[b, :NPARAM] = (p.alpha, p.beta, p.damping, prm.max_speed, prm.max_turn,
-                                  prm.max_turn / h, body._mode, body._wuni)
+                                  prm.max_turn / h, body._mode, body._wuni,
+                                  body._collider_radius)
 
     def __len__(self):
         return len(self.bodies)
@@ -267,8 +269,8 @@ def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, 
         for j in range(3):
             dp[15 + j] = pnt[0, j]
         dp[18] = 1.0
-        err2, capped = _pass(0, n, x, v, x0, mass, row, h, work, has_col, ground, boxes,
-                             spheres, thresh)
+        col = Colliders(has_col, ground, boxes, spheres, thresh, row[C_RADIUS])
+        err2, capped = _pass(0, n, x, v, x0, mass, row, h, work, col)
         counts[b, 0] += capped
         _store(row, err2, damp, work)
     return len(arrays)
@@ -435,11 +437,11 @@ def _store(row, err2, damp, work):
 
 
 @njit(inline='always', **JIT)
-def _pass(lo, hi, x, v, x0, mass, row, h, work, has_col, ground, boxes, spheres, thresh):
+def _pass(lo, hi, x, v, x0, mass, row, h, work, col):
     """Particles lo..hi of a one-cluster body (see ``step_packed``; its parameters from
-    ``row``); the next step's sums are added to ``work.part`` (12) and, damped,
-    ``work.dpart`` (its point set by the caller).  Returns (shape-error sum, capped
-    speeds).
+    ``row``, its colliders ``col``, a ``colliders.Colliders``); the next step's sums are
+    added to ``work.part`` (12) and, damped, ``work.dpart`` (its point set by the caller).
+    Returns (shape-error sum, capped speeds).
 
     One loop does it all (``_int_single_fused``, ``FUSED_BLOCK`` particles a call), the
     damped body's damping sums included (12 of the 20 sums of ``damp_acc_range``: the
@@ -459,9 +461,8 @@ def _pass(lo, hi, x, v, x0, mass, row, h, work, has_col, ground, boxes, spheres,
     err2 = 0.0
     capped = 0
     k0, k1, k2 = pnt[0, 0], pnt[0, 1], pnt[0, 2]
-    boxed = has_col and (boxes.shape[0] > 0 or spheres.shape[0] > 0)
-    # without a ground no height is below -inf
-    gz = ground[1] if has_col and ground[0] > 0.5 else -np.inf
+    boxed = col.on and (col.boxes.shape[0] > 0 or col.spheres.shape[0] > 0)
+    gz = ground_height(col)                # without a ground no height is below -inf
     step = FUSED_BLOCK
     for bs in range(lo, hi, step):
         be = min(bs + step, hi)
@@ -471,8 +472,7 @@ def _pass(lo, hi, x, v, x0, mass, row, h, work, has_col, ground, boxes, spheres,
         err2 += e
         if low and not (over or boxed):
             # the loop added its sums: the ground's projection, and what it changed in them
-            g = ground_range_sums(bs, be, x, v, x0, wuni, ground, thresh, k0, k1, k2,
-                                  damp)
+            g = ground_range_sums(bs, be, x, v, x0, wuni, col, k0, k1, k2, damp)
             _add_rest_sums(rest_lin, rest_off, sums[0], 0.0, 0.0, g[0], 0.0, 0.0, 0.0, 0.0,
                            0.0, 0.0, g[1], g[2], g[3])
             if damp:
@@ -481,10 +481,9 @@ def _pass(lo, hi, x, v, x0, mass, row, h, work, has_col, ground, boxes, spheres,
         elif over or low or boxed:
             # the loop did not add the sums: colliders, cap, then the sums of what they left
             if boxed:
-                _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes,
-                               spheres=spheres, thresh=thresh)
+                _collide_range(bs, be, x, v, col)
             elif low:
-                ground_range(bs, be, x, v, ground, thresh)
+                ground_range(bs, be, x, v, col)
             # the speeds were counted before the colliders, which never speed a particle up
             # (``colliders.contact_velocity``)
             if over:

@@ -282,8 +282,10 @@ class ReferenceBody:
         self.sp[k] = cap_plastic(_unit_det(sp), p.plastic_max)
         return True
 
-    def step(self, h, gravity=(0.0, 0.0, 0.0), ground=None, boxes=(), spheres=()):
-        """Eq. 13-14, then colliders, then kinematic particles."""
+    def step(self, h, gravity=(0.0, 0.0, 0.0), ground=None, boxes=(), spheres=(),
+             radius=0.0):
+        """Eq. 13-14, then colliders (met by spheres of ``radius``), then kinematic
+        particles."""
         p = self.params.at_step(h)             # the material's coefficients at this step
         goals, changed = self.goals(h)
         m = self.m
@@ -305,7 +307,7 @@ class ReferenceBody:
         thresh = max(1e-3, 2.0 * np.linalg.norm(gravity) * h)
         for i in range(len(self.x)):
             self.x[i], self.v[i] = collide(self.x[i], self.v[i], ground, boxes, spheres,
-                                           thresh)
+                                           thresh, radius)
         self.x[kin] = tgt
         self.v[kin] = (tgt - x_prev) / h
         if changed:
@@ -324,15 +326,17 @@ def _contact(v, n, friction, restitution, thresh):
     return vt + vn_new * n
 
 
-def collide(x, v, ground, boxes, spheres, thresh):
-    """Project one particle out of the colliders and correct its velocity."""
+def collide(x, v, ground, boxes, spheres, thresh, radius=0.0):
+    """Project one particle, a sphere of ``radius``, out of the colliders (each grown by
+    the radius; a box keeps its square edges) and correct its velocity."""
     x, v = x.copy(), v.copy()
-    if ground is not None and x[2] < ground.height:
-        x[2] = ground.height
+    if ground is not None and x[2] < ground.height + radius:
+        x[2] = ground.height + radius
         v = _contact(v, np.array([0.0, 0.0, 1.0]), ground.friction, ground.restitution,
                      thresh)
     for b in boxes:
-        lo, hi = np.asarray(b.lo, dtype=float), np.asarray(b.hi, dtype=float)
+        lo = np.asarray(b.lo, dtype=float) - radius
+        hi = np.asarray(b.hi, dtype=float) + radius
         if np.all(x > lo) and np.all(x < hi):
             depth = np.concatenate([x - lo, hi - x])   # -x, +x faces interleaved below
             order = [0, 3, 1, 4, 2, 5]
@@ -346,9 +350,9 @@ def collide(x, v, ground, boxes, spheres, thresh):
         c = np.asarray(s.center, dtype=float)
         d = x - c
         dist = np.linalg.norm(d)
-        if dist < s.radius:
+        if dist < s.radius + radius:
             n = d / dist if dist > 0 else np.array([0.0, 0.0, 1.0])
-            x = c + s.radius * n
+            x = c + (s.radius + radius) * n
             v = _contact(v, n, s.friction, s.restitution, thresh)
     return x, v
 

@@ -14,6 +14,7 @@ from .packed import Pack
 from .contact import COUPLE_ALPHA, BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
 from .kernels.flags import SLEEP
+from .kernels.colliders import Colliders
 from .kinematic import Particles
 from .sleep import Sleep
 from .stiff_contact import StiffContact, is_stiff
@@ -46,6 +47,8 @@ class World(WorldColliders):
         self._coupling_key = None
         self._stiff = StiffContact()            # stiff bodies' contacts (stiff_contact.py)
         self._stiff_stats = None                # (bodies, 5) what that pass counted
+        self._collider_radius = np.zeros(0)     # per body (flat order): _collider_radii
+        self._radii_key = None
         self._flat_builds = 0                  # flat states built (keys what was made of one)
         self._flagged = False                  # see state_flagged
         self.time = 0.0
@@ -338,16 +341,14 @@ class World(WorldColliders):
         ``tuning.RECORDS_PARALLEL_MIN_WORK`` particles in records (``step_bodies_parallel``
         never waits for a helper that has not started).  The record count is kept: a typed
         list's ``len`` is a compiled call."""
+        self._collider_radii(h)                # their radii before their records take them
         key = (body_mod._GENERATION[0], h, self._layout, self.compiled_step)
         split = self._split
         fresh = split is not None and not (split[1] is not None and split[1].stale)
         if fresh and split[0] != key and split[0][:1] + split[0][2:] == key[:1] + key[2:]:
             # only the step changed (the live error estimate's half steps): the numbers
             # that depend on it, in place
-            if split[1] is not None:
-                split[1].retime(h)
-            for body, fstate in self._split_fstates:
-                body_build.retime_record(body, fstate, h)
+            self._retime_split(h)
             split = self._split = (key,) + split[1:]
         if split is None or split[0] != key or (split[1] is not None and split[1].stale):
             records, packed, slow, rec_work = TypedList(), [], [], 0
@@ -366,6 +367,15 @@ class World(WorldColliders):
                        and rec_work >= tuning.RECORDS_PARALLEL_MIN_WORK)
             split = self._split = (key, pack, records, slow, helpers, len(records))
         return split
+
+    def _retime_split(self, h):
+        """Write the numbers of the split's pack rows and records for steps of ``h`` in
+        place (``Pack.retime``, ``body_build.retime_record``)."""
+        pack = self._split[1]
+        if pack is not None:
+            pack.retime(h)
+        for body, fstate in self._split_fstates:
+            body_build.retime_record(body, fstate, h)
 
     def _world_passes(self, h, thresh):
         """Passes over the world's flat state after the bodies' step (flat.py), called by
@@ -390,12 +400,12 @@ class World(WorldColliders):
             if sl is not None:
                 sl.sync()                      # bodies woken from outside: masses back
             f.gather()
-            c.run(h, thresh, self._has_col, self._ground_row, self._box_rows,
-                  self._sphere_rows, self._gravity)
+            c.run(h, thresh, self._contact_colliders(thresh), self._gravity)
             c.add_counts(self._stiff_stats)
             if cs is not None:
                 st[:] = 0.0
-                cs.collide(Particles(f.X, f.V, f.W, f.B), h, thresh, st, f.touched)
+                cs.collide(Particles(f.X, f.V, f.W, f.B, self._collider_radius), h, thresh,
+                           st, f.touched)
             # bodies sleep only under gravity: without it nothing rests on anything, and
             # freezing a slow drift would take momentum out of a conservative world
             if sl is not None and cs is None and self._contact_params.sleep and self._gnorm:
@@ -407,8 +417,9 @@ class World(WorldColliders):
             o0, o1 = f.off[k], f.off[k + 1]
             sk = st[k:k + 1]
             sk[:] = 0.0
-            cs.collide(Particles(body._x.T, body._v.T, f.W[o0:o1], self._zero_bid(body.n)),
-                       h, thresh, sk, self._one_touch)
+            cs.collide(Particles(body._x.T, body._v.T, f.W[o0:o1], self._zero_bid(body.n),
+                                 self._collider_radius[k:k + 1]), h, thresh, sk,
+                       self._one_touch)
             if sk[0, 0] > 0.0:
                 body._dirty = True            # moved particles: re-accumulate the next step
 
@@ -431,9 +442,8 @@ class World(WorldColliders):
         before their own step; the contact pass leaves their pairs alone.  Their contact
         figures wait in ``_stiff_stats`` (flat body order) for the diagnostics."""
         bodies = self._flat.bodies
-        cp = self._contact_params
-        stiff = np.array([cp.stacking and cp.rigid and is_stiff(b, h) for b in bodies],
-                         dtype=np.bool_)
+        stiff = self._stiff_flags(h)
+        self._collider_radii(h)
         c = self._contact
         if c is not None:
             c.set_rigid(stiff)
@@ -446,6 +456,40 @@ class World(WorldColliders):
             stats[index] = self._stiff.run(
                 self, [(bodies[k], self.contact_radius(bodies[k].name)) for k in index], h,
                 thresh)
+
+    def _contact_colliders(self, thresh):
+        """The static colliders as the contact pass meets them (``Colliders`` with one
+        radius per body, flat order)."""
+        return Colliders(bool(self._has_col), self._ground_row, self._box_rows,
+                         self._sphere_rows, float(thresh), self._collider_radius)
+
+    def _stiff_flags(self, h):
+        """Per body (flat order) whether it takes its contacts in the stiff pass."""
+        cp = self._contact_params
+        return np.array([cp.stacking and cp.rigid and is_stiff(b, h) for b in self._flat.bodies],
+                        dtype=np.bool_)
+
+    def _collider_radii(self, h):
+        """Every body meets the colliders with its particles' spheres of its contact
+        radius, as it meets other bodies (``Body._collider_radius``, ``_collider_radius``
+        per body); a stiff body meets them in the stiff pass, so its own pass and the
+        collider pass only keep its particles' centres out of them (radius 0).  Set again
+        when a body, its parameters, the step or the contact settings change."""
+        self._ensure_flat()
+        cp = self._contact_params
+        key = (body_mod._GENERATION[0], h, self._flat_builds, cp.stacking, cp.rigid)
+        if key == self._radii_key:
+            return
+        bodies, stiff = self._flat.bodies, self._stiff_flags(h)
+        radii = np.array([0.0 if stiff[k] else self.contact_radius(b.name)
+                          for k, b in enumerate(bodies)])
+        changed = any(b._collider_radius != r for b, r in zip(bodies, radii))
+        for b, r in zip(bodies, radii):
+            b._collider_radius = float(r)
+        if changed and self._split is not None:
+            self._retime_split(self._split[0][1])   # the pack rows and records take them
+        self._collider_radius = radii
+        self._radii_key = key
 
     def _zero_bid(self, n):
         """Body index 0 for n particles (the per-body path of the collider pass)."""

@@ -133,9 +133,10 @@ class WorldColliders:
 
         These colliders are resolved inside each body's fused step, which projects a
         penetrating particle exactly onto the surface and keeps no record of it: the count
-        is of the particles lying on (or within ``STATIC_TOUCH`` of, or inside) a surface
-        now, and how deep they were before the projection is not known.  Computed when
-        asked (NumPy over each body's positions; ``/diagnostics`` asks once a period).
+        is of the particles whose spheres (``Body._collider_radius``) lie on (or within
+        ``STATIC_TOUCH`` of, or inside) a surface now, and how deep they were before the
+        projection is not known.  Computed when asked (NumPy over each body's positions;
+        ``/diagnostics`` asks once a period).
         A stiff body's particles are spheres (``stiff_contact.py``): the pass counted those
         within ``stiff_contacts.TOUCH`` of a surface before the step.
         """
@@ -149,14 +150,16 @@ class WorldColliders:
         g, boxes, spheres = self._ground_row, self._box_rows, self._sphere_rows
         for name, body in self._bodies.items():
             x = body._x
+            reach = tol + body._collider_radius      # its particles meet them as spheres
             n = 0
             if g[0] > 0.5:
-                n += int(np.count_nonzero(x[:, 2] <= g[1] + tol))
+                n += int(np.count_nonzero(x[:, 2] <= g[1] + reach))
             for b in boxes:
-                n += int(np.count_nonzero(np.all((x >= b[:3] - tol) & (x <= b[3:6] + tol),
+                n += int(np.count_nonzero(np.all((x >= b[:3] - reach) & (x <= b[3:6] + reach),
                                                  axis=1)))
             for sp in spheres:
                 d = x - sp[:3]
-                n += int(np.count_nonzero(np.einsum('ij,ij->i', d, d) <= (sp[3] + tol) ** 2))
+                n += int(np.count_nonzero(np.einsum('ij,ij->i', d, d)
+                                          <= (sp[3] + reach) ** 2))
             out[name] += n
         return out

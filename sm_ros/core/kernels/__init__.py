@@ -33,7 +33,7 @@ cluster's plastic, scaled rest offsets; ``trans`` the goal transform T (3 x 3 or
 rigid/linear modes.  Everything is re-exported here: ``from sm_ros.core import kernels``.
 """
 
-from .colliders import _collide_range, collide_point, contact_velocity
+from .colliders import Colliders, _collide_range, collide_point, contact_velocity
 from .damping import (NDAMP, damp_acc_range, damp_accumulate, damp_kinematic, damp_rigid,
                       damp_velocity, damping_fields, damping_targets)
 from .goals import (_goal_quad, _qhat, invert_moments, moments, quad_features, solve_clusters,
@@ -54,7 +54,8 @@ from .unit_det import (STRETCH_LIMIT, _logprod, _logx, _stretch_ok, _unit_det_su
                        unit_det_match_warm, volume_preserving)
 from .world_step import StepRecord, step_single_bodies
 
-__all__ = ['_collide_range', 'contact_velocity', 'collide_point', 'NDAMP', 'damp_acc_range',
+__all__ = ['Colliders', '_collide_range', 'contact_velocity', 'collide_point', 'NDAMP',
+           'damp_acc_range',
            'damp_accumulate', 'damp_kinematic', 'damp_rigid', 'damp_velocity', 'damping_fields',
            'damping_targets', 'STRETCH_LIMIT', '_goal_quad', '_logprod', '_logx', '_qhat',
            '_stretch_ok', '_unit_det_sum', 'invert_moments', 'moments', 'nearest_unit_det',

@@ -1,15 +1,25 @@
 """Static colliders: ground plane, solid axis-aligned boxes and spheres (no equation);
 and the rows of the collider pass (``C_*`` columns), measured by ``surface_gap``.
 
-A particle inside a collider is projected onto its surface and its velocity corrected:
+A particle is a sphere of its body's contact radius: every collider is grown by it.  A
+particle inside a grown collider is projected onto its surface and its velocity corrected:
 restitution along the normal above a threshold speed (so resting contact stays put) and
 Coulomb friction along the surface.  Runs right after Eq. 13-14 inside the fused pass.
 """
+
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
 
 from .jit import JIT
+
+#: What a particle pass meets: whether any static collider is on, the ground row
+#: [enabled, height, friction, restitution] (plane z = height, normal +z), the box rows
+#: [lo(3), hi(3), friction, restitution] (axis-aligned, solid), the sphere rows [centre(3),
+#: radius, friction, restitution] (solid), the speed (m/s) above which restitution acts,
+#: and the particles' radius (m), by which every collider is grown.
+Colliders = namedtuple('Colliders', 'on ground boxes spheres thresh radius')
 
 #: Columns of a collider row of the collider pass (``sm_ros.core.kinematic``) and of the
 #: stiff bodies' contact (``stiff_contacts``).
@@ -57,55 +67,56 @@ def contact_velocity(vx, vy, vz, nx, ny, nz, friction, restitution, thresh):
 
 
 @njit(**JIT)
-def collide_point(px, py, pz, vx, vy, vz, ground, boxes, spheres, thresh):
-    """Project a particle out of the static colliders and correct its velocity.
-
-    ``ground`` = [enabled, height, friction, restitution] (plane z = height, normal +z);
-    ``boxes`` rows = [lo(3), hi(3), friction, restitution] (axis-aligned, solid);
-    ``spheres`` rows = [centre(3), radius, friction, restitution] (solid).
-    """
-    if ground[0] > 0.5 and pz < ground[1]:
-        pz = ground[1]
+def collide_point(px, py, pz, vx, vy, vz, col):
+    """Project a particle, a sphere of radius ``col.radius``, out of the static colliders
+    of ``col`` (``Colliders``) and correct its velocity.  A box grown by the radius keeps
+    its square edges: near an edge a particle is pushed out slightly early."""
+    ground, boxes, spheres, r = col.ground, col.boxes, col.spheres, col.radius
+    gz = ground[1] + r
+    if ground[0] > 0.5 and pz < gz:
+        pz = gz
         vx, vy, vz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=0.0, ny=0.0, nz=1.0,
-                                      friction=ground[2], restitution=ground[3], thresh=thresh)
+                                      friction=ground[2], restitution=ground[3],
+                                      thresh=col.thresh)
     for b in range(boxes.shape[0]):
-        if (px > boxes[b, 0] and px < boxes[b, 3] and py > boxes[b, 1] and py < boxes[b, 4]
-                and pz > boxes[b, 2] and pz < boxes[b, 5]):
-            best = px - boxes[b, 0]
+        lo0, lo1, lo2 = boxes[b, 0] - r, boxes[b, 1] - r, boxes[b, 2] - r
+        hi0, hi1, hi2 = boxes[b, 3] + r, boxes[b, 4] + r, boxes[b, 5] + r
+        if px > lo0 and px < hi0 and py > lo1 and py < hi1 and pz > lo2 and pz < hi2:
+            best = px - lo0
             axis = 0
             sgn = -1.0
-            d = boxes[b, 3] - px
+            d = hi0 - px
             if d < best:
                 best, axis, sgn = d, 0, 1.0
-            d = py - boxes[b, 1]
+            d = py - lo1
             if d < best:
                 best, axis, sgn = d, 1, -1.0
-            d = boxes[b, 4] - py
+            d = hi1 - py
             if d < best:
                 best, axis, sgn = d, 1, 1.0
-            d = pz - boxes[b, 2]
+            d = pz - lo2
             if d < best:
                 best, axis, sgn = d, 2, -1.0
-            d = boxes[b, 5] - pz
+            d = hi2 - pz
             if d < best:
                 best, axis, sgn = d, 2, 1.0
             nx = sgn if axis == 0 else 0.0
             ny = sgn if axis == 1 else 0.0
             nz = sgn if axis == 2 else 0.0
             if axis == 0:
-                px = boxes[b, 3] if sgn > 0.0 else boxes[b, 0]
+                px = hi0 if sgn > 0.0 else lo0
             elif axis == 1:
-                py = boxes[b, 4] if sgn > 0.0 else boxes[b, 1]
+                py = hi1 if sgn > 0.0 else lo1
             else:
-                pz = boxes[b, 5] if sgn > 0.0 else boxes[b, 2]
+                pz = hi2 if sgn > 0.0 else lo2
             vx, vy, vz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
                                           friction=boxes[b, 6], restitution=boxes[b, 7],
-                                          thresh=thresh)
+                                          thresh=col.thresh)
     for s in range(spheres.shape[0]):
         dx = px - spheres[s, 0]
         dy = py - spheres[s, 1]
         dz = pz - spheres[s, 2]
-        rad = spheres[s, 3]
+        rad = spheres[s, 3] + r
         d2 = dx * dx + dy * dy + dz * dz
         if d2 < rad * rad:
             d = np.sqrt(d2)
@@ -118,13 +129,14 @@ def collide_point(px, py, pz, vx, vy, vz, ground, boxes, spheres, thresh):
             pz = spheres[s, 2] + rad * nz
             vx, vy, vz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
                                           friction=spheres[s, 4], restitution=spheres[s, 5],
-                                          thresh=thresh)
+                                          thresh=col.thresh)
     return px, py, pz, vx, vy, vz
 
 
 @njit(**JIT)
-def _range_reach(start, end, x, ground, boxes, spheres):
-    """Which colliders particles start..end can be inside: (ground, any box or sphere).
+def _range_reach(start, end, x, col):
+    """Which colliders of ``col`` particles start..end can be inside: (ground, any box or
+    sphere), each grown by the particles' radius.
 
     From the bounds of the range: a box whose extent the bounds do not overlap, a sphere
     whose bounding cube they do not, cannot hold any of its particles (the tests below use
@@ -142,16 +154,19 @@ def _range_reach(start, end, x, ground, boxes, spheres):
         hi1 = p1 if p1 > hi1 else hi1
         lo2 = p2 if p2 < lo2 else lo2
         hi2 = p2 if p2 > hi2 else hi2
-    on_ground = ground[0] > 0.5 and lo2 < ground[1]
+    ground, boxes, spheres, r = col.ground, col.boxes, col.spheres, col.radius
+    gz = ground[1] + r
+    on_ground = ground[0] > 0.5 and lo2 < gz
     if on_ground:
-        hi2 = ground[1] if ground[1] > hi2 else hi2
+        hi2 = gz if gz > hi2 else hi2
     for b in range(boxes.shape[0]):
-        if (hi0 > boxes[b, 0] and lo0 < boxes[b, 3] and hi1 > boxes[b, 1]
-                and lo1 < boxes[b, 4] and hi2 > boxes[b, 2] and lo2 < boxes[b, 5]):
+        if (hi0 > boxes[b, 0] - r and lo0 < boxes[b, 3] + r and hi1 > boxes[b, 1] - r
+                and lo1 < boxes[b, 4] + r and hi2 > boxes[b, 2] - r
+                and lo2 < boxes[b, 5] + r):
             return on_ground, True
     for s in range(spheres.shape[0]):
-        c0, c1, c2, rad = spheres[s, 0], spheres[s, 1], spheres[s, 2], spheres[s, 3]
-        # |p_a - c_a| > r on one axis gives d^2 >= r^2 after rounding: not inside
+        c0, c1, c2, rad = spheres[s, 0], spheres[s, 1], spheres[s, 2], spheres[s, 3] + r
+        # |p_a - c_a| > rad on one axis gives d^2 >= rad^2 after rounding: not inside
         if not (lo0 - c0 > rad or c0 - hi0 > rad or lo1 - c1 > rad or c1 - hi1 > rad
                 or lo2 - c2 > rad or c2 - hi2 > rad):
             return on_ground, True
@@ -159,35 +174,44 @@ def _range_reach(start, end, x, ground, boxes, spheres):
 
 
 @njit(inline='always', **JIT)
-def ground_range(start, end, x, v, ground, thresh):
+def ground_height(col):
+    """The height below which a particle's centre is inside the ground of ``col``: the
+    ground's plus the particles' radius; -inf without colliders or ground."""
+    if col.on and col.ground[0] > 0.5:
+        return col.ground[1] + col.radius
+    return -np.inf
+
+
+@njit(inline='always', **JIT)
+def ground_range(start, end, x, v, col):
     """``collide_point`` for the ground alone on particles start..end (a resting body has a
     whole layer of particles in contact every step: the call, not the test, is what costs).
     ``_collide_range`` and the one-loop passes, which know from their own count that a
-    particle is below the ground, call it."""
-    gz, mu, e = ground[1], ground[2], ground[3]
+    particle is below the ground (``ground_height``), call it."""
+    gz, mu, e = ground_height(col), col.ground[2], col.ground[3]
     for i in range(start, end):
         if x[i, 2] < gz:
             x[i, 2] = gz
             v[i, 0], v[i, 1], v[i, 2] = contact_velocity(vx=v[i, 0], vy=v[i, 1], vz=v[i, 2],
                                                          nx=0.0, ny=0.0, nz=1.0, friction=mu,
-                                                         restitution=e, thresh=thresh)
+                                                         restitution=e, thresh=col.thresh)
 
 
 @njit(inline='always', **JIT)
-def ground_range_sums(start, end, x, v, x0, wuni, ground, thresh, k0, k1, k2, damp):
+def ground_range_sums(start, end, x, v, x0, wuni, col, k0, k1, k2, damp):
     """``ground_range`` for a range whose sums the one-loop pass has just taken about the
     point k: returns what the projection changed in them, so that the sums stay those of
     the final state without a second pass over the range (a body resting on the ground has
     a layer of particles in contact in every block it is stored in).
 
-    A projected particle only moves up (z -> the ground's height, dz) and changes its
+    A projected particle only moves up (z -> ``ground_height``, dz) and changes its
     velocity v -> v', so with w = ``wuni`` its weight (the one-loop passes serve bodies of
     one mass), d = x - k and a = x0[i]: (delta sum w d_z, delta sum w d_z a^T (3), then
     the 12 damping sums' deltas in ``damping.damp_sums_range``'s order: sum w v, sum w d x v,
     sum w d d^T as xx, yy, zz, xy, yz, zx, of which xx, yy and xy do not change; zeros
     without ``damp``), 16 numbers.  The other shape sums do not change.
     """
-    gz, mu, e = ground[1], ground[2], ground[3]
+    gz, mu, e, thresh = ground_height(col), col.ground[2], col.ground[3], col.thresh
     w = wuni
     s2 = c20 = c21 = c22 = 0.0
     b0 = b1 = b2 = a0 = a1 = a2 = e22 = e12 = e20 = 0.0
@@ -221,8 +245,8 @@ def ground_range_sums(start, end, x, v, x0, wuni, ground, thresh, k0, k1, k2, da
 
 
 @njit(**JIT)
-def _collide_range(start, end, x, v, ground, boxes, spheres, thresh):
-    """Colliders for particles start..end.
+def _collide_range(start, end, x, v, col):
+    """The colliders of ``col`` (``Colliders``) for particles start..end.
 
     Colliders the range cannot reach are skipped (``_range_reach``: a body in the air, or
     away from the walls, pays one bounds pass).  The ground alone is tested inline: the
@@ -233,24 +257,15 @@ def _collide_range(start, end, x, v, ground, boxes, spheres, thresh):
     """
     if end <= start:
         return False
-    on_ground, others = _range_reach(start=start, end=end, x=x, ground=ground, boxes=boxes,
-                                     spheres=spheres)
+    on_ground, others = _range_reach(start, end, x, col)
     if not others:
         if not on_ground:
             return False
-        ground_range(start, end, x, v, ground, thresh)
+        ground_range(start, end, x, v, col)
         return True
     for i in range(start, end):
-        x[i, 0], x[i, 1], x[i, 2], v[i, 0], v[i, 1], v[i, 2] = collide_point(px=x[i, 0],
-                                                                             py=x[i, 1],
-                                                                             pz=x[i, 2],
-                                                                             vx=v[i, 0],
-                                                                             vy=v[i, 1],
-                                                                             vz=v[i, 2],
-                                                                             ground=ground,
-                                                                             boxes=boxes,
-                                                                             spheres=spheres,
-                                                                             thresh=thresh)
+        x[i, 0], x[i, 1], x[i, 2], v[i, 0], v[i, 1], v[i, 2] = collide_point(
+            x[i, 0], x[i, 1], x[i, 2], v[i, 0], v[i, 1], v[i, 2], col)
     return True
 
 

@@ -421,10 +421,10 @@ def _int_range(start, end, quad, x, v, x0, ptr, cl, rest_lin, rest_off, trans, g
 
 @njit(inline='always', **JIT)
 def _int_chunk(chunk, nchunks, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, goal_lin,
-               goal_off, ref, alpha, h, acc, ang, com, part, err, has_col, ground, boxes, spheres,
-               thresh, damp, k_damp, dmp, dpart):
-    """Integrate a chunk block by block; collide and accumulate each block for the next
-    step while it is still in L1 (one pass over memory, short loops without spills).
+               goal_off, ref, alpha, h, acc, ang, com, part, err, col, damp, k_damp, dmp, dpart):
+    """Integrate a chunk block by block; collide (``col``: ``colliders.Colliders``) and
+    accumulate each block for the next step while it is still in L1 (one pass over
+    memory, short loops without spills).
     ``damp``: damp in the same pass and accumulate the damping sums into ``dpart``."""
     n = x.shape[0]
     start = (chunk * n) // nchunks
@@ -447,9 +447,8 @@ def _int_chunk(chunk, nchunks, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off
                            rest_lin=rest_lin, rest_off=rest_off, trans=trans, goal_lin=goal_lin,
                            goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
                            damp=damp, k_damp=k_damp, dmp=dmp, ref=ref)
-        if has_col:
-            _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes, spheres=spheres,
-                           thresh=thresh)
+        if col.on:
+            _collide_range(bs, be, x, v, col)
         _acc_range(start=bs, end=be, quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
                    rest_lin=rest_lin, rest_off=rest_off, ref=ref, sums=sums)
         if damp:
@@ -460,8 +459,8 @@ def _int_chunk(chunk, nchunks, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off
 
 @njit(**JIT)
 def integrate_chunks(claim, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, goal_lin,
-                     goal_off, ref, alpha, h, acc, ang, com, part, err, has_col, ground, boxes,
-                     spheres, thresh, damp, k_damp, dmp, dpart):
+                     goal_off, ref, alpha, h, acc, ang, com, part, err, col, damp, k_damp, dmp,
+                     dpart):
     """Integration pass over the chunks this call claims (as ``accumulate_chunks``)."""
     nchunks = part.shape[0]
     while True:
@@ -471,7 +470,6 @@ def integrate_chunks(claim, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, t
         _int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v, x0=x0, mass=mass, ptr=ptr,
                    cl=cl, rest_lin=rest_lin, rest_off=rest_off, trans=trans, goal_lin=goal_lin,
                    goal_off=goal_off, ref=ref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
-                   part=part, err=err, has_col=has_col, ground=ground, boxes=boxes,
-                   spheres=spheres, thresh=thresh, damp=damp, k_damp=k_damp, dmp=dmp,
+                   part=part, err=err, col=col, damp=damp, k_damp=k_damp, dmp=dmp,
                    dpart=dpart)
 

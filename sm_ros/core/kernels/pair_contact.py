@@ -9,22 +9,30 @@ with them (``jit.py``).
 import numpy as np
 from numba import njit
 
-from .colliders import collide_point
+from .colliders import Colliders, collide_point
 from .jit import JIT
 
 
 @njit(inline='always', **JIT)
-def _collide_moved(X, V, W, pi, pj, npairs, moved, has_col, ground, boxes, spheres, thresh):
-    """The static colliders, once per particle the solve moved (``moved``, cleared), in
-    pair order (deterministic); kinematic particles (W = 0) stay where they were put."""
+def body_colliders(col, b):
+    """The colliders of the contact pass (``col.radius``: one radius per body) as the
+    particles of body ``b`` meet them: grown by its radius."""
+    return Colliders(col.on, col.ground, col.boxes, col.spheres, col.thresh, col.radius[b])
+
+
+@njit(inline='always', **JIT)
+def _collide_moved(X, V, W, B, pi, pj, npairs, moved, col):
+    """The static colliders of ``col`` (radius per body), once per particle the solve
+    moved (``moved``, cleared), in pair order (deterministic); kinematic particles (W = 0)
+    stay where they were put."""
     for k in range(npairs):
         for p in (pi[k], pj[k]):
             if moved[p]:
                 moved[p] = 0
-                if has_col and W[p] > 0.0:
+                if col.on and W[p] > 0.0:
                     X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p] = collide_point(
-                        X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p], ground, boxes,
-                        spheres, thresh)
+                        X[0, p], X[1, p], X[2, p], V[0, p], V[1, p], V[2, p],
+                        body_colliders(col, B[p]))
 
 
 @njit(inline='always', **JIT)

@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit
 
 from .jit import JIT, U, claim_next
-from .colliders import _collide_range, ground_range_sums
+from .colliders import _collide_range, ground_height, ground_range_sums
 from .damping import damp_acc_range, damp_towards
 from .fused import _fused_range, damp_constants, damp_sums_uniform
 from .integrate import BLOCK, _rest_sums, advance
@@ -187,8 +187,7 @@ FUSED_SETS_BLOCK = 4096
 
 @njit(**JIT)
 def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha_h, h, hx,
-                    hy, hz, damp, k_damp, dmp, v_max, sums, dsums, has_col, ground, boxes,
-                    spheres, thresh, gz):
+                    hy, hz, damp, k_damp, dmp, v_max, sums, dsums, col):
     """The whole pass of particles start..end of a rigid/linear set-layout body without
     torque, run by run (``fused._fused_range``: one loop reads and writes each particle
     once): the damping towards the set's field, Eq. 13-14 with the set's map, the count of
@@ -201,7 +200,7 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     the final state and the step
     leaves them valid.  Damped, the loop also takes the run's 12 damping sums and W (a run
     that was moved: ``fused.damp_sums_uniform``, while it is in cache).  Returns (sum of
-    |g - x|^2, capped speeds).  ``gz``: the ground's height, -inf without a ground.
+    |g - x|^2, capped speeds).  ``col``: the colliders (``colliders.Colliders``).
 
     The sums of a set are taken about one point P_s, its shape sums and damping sums alike
     (so the damping row's sum w d and W are the shape sums' own: 12 damping accumulators,
@@ -213,7 +212,8 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     ``runs`` rather than being found particle by particle.
     """
     lim2 = v_max * v_max if v_max > 0.0 else np.inf
-    ground_only = boxes.shape[0] == 0 and spheres.shape[0] == 0
+    ground_only = col.boxes.shape[0] == 0 and col.spheres.shape[0] == 0
+    gz = ground_height(col)                  # -inf without a ground: nothing below
     err2 = 0.0
     capped = 0
     r = first_run(runs, start)
@@ -241,12 +241,10 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
         # them): projected without the bounds pass, its sums corrected for what the
         # projection moved (``ground_range_sums``); the others skip the colliders
         moved = False
-        if has_col and not ground_only:
-            moved = _collide_range(start=i, end=j, x=x, v=v, ground=ground, boxes=boxes,
-                                   spheres=spheres, thresh=thresh)
+        if col.on and not ground_only:
+            moved = _collide_range(i, j, x, v, col)
         elif t[14] > 0:
-            g = ground_range_sums(i, j, x, v, y0, wuni, ground, thresh, r0, r1, r2,
-                                  damp)
+            g = ground_range_sums(i, j, x, v, y0, wuni, col, r0, r1, r2, damp)
             ss = (ss[0], ss[1], ss[2] + g[0], ss[3], ss[4], ss[5], ss[6], ss[7], ss[8],
                   ss[9] + g[1], ss[10] + g[2], ss[11] + g[3])
             dsum = (dsum[0] + g[4], dsum[1] + g[5], dsum[2] + g[6], dsum[3] + g[7],
@@ -284,8 +282,7 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
 
 @njit(inline='always', **JIT)
 def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha, h,
-                    acc, ang, com, part, err, has_col, ground, boxes, spheres, thresh, damp,
-                    k_damp, dmp, dpart, v_max):
+                    acc, ang, com, part, err, col, damp, k_damp, dmp, dpart, v_max):
     """Damp, integrate, collide, cap the speeds and accumulate a chunk block by block (one
     pass over memory); ``dpart[chunk]`` receives the damping sums of the next step.
     Returns the capped speeds: the block's speeds are capped (``limits.limit_speed_range``)
@@ -306,15 +303,13 @@ def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, wuni, sid, runs, gm, s
     err2 = 0.0
     capped = 0
     fused = _fused_pass(quad, wuni, ang, runs)
-    gz = ground[1] if has_col and ground[0] > 0.5 else -np.inf    # no ground: nothing below
     step = FUSED_SETS_BLOCK if fused else BLOCK
     for bs in range(start, end, step):
         be = min(bs + step, end)
         if fused:
             e, c = _sets_fused_lin(bs, be, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha / h,
                                    h, h * acc[0], h * acc[1], h * acc[2], damp, k_damp, dmp,
-                                   v_max, sums, dpart[chunk], has_col, ground, boxes, spheres,
-                                   thresh, gz)
+                                   v_max, sums, dpart[chunk], col)
             err2 += e
             capped += c
             continue
@@ -322,9 +317,8 @@ def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, wuni, sid, runs, gm, s
                                 gm=gm,
                                 alpha=alpha, h=h, acc=acc, ang=ang, com=com, damp=damp,
                                 k_damp=k_damp, dmp=dmp, sref=sref)
-        if has_col:
-            _collide_range(start=bs, end=be, x=x, v=v, ground=ground, boxes=boxes, spheres=spheres,
-                           thresh=thresh)
+        if col.on:
+            _collide_range(bs, be, x, v, col)
         if v_max > 0.0:
             capped += limit_speed_range(bs, be, x, v, h, v_max)
         if damp and not quad:
@@ -374,8 +368,7 @@ def _fused_refs(quad, wuni, ang, runs, damp, sref, dpart):
 
 @njit(**JIT)
 def sets_integrate_chunks(claim, capped, quad, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha,
-                          h, acc, ang, com, part, err, has_col, ground, boxes, spheres, thresh,
-                          damp, k_damp, dmp, dpart, v_max):
+                          h, acc, ang, com, part, err, col, damp, k_damp, dmp, dpart, v_max):
     """Fused step pass of a set-layout body over the chunks this call claims (``claim``, as
     ``integrate.accumulate_chunks``); ``capped[chunk]``: the speeds it capped there.  Once
     every chunk is done, ``_fused_refs`` completes the pass."""
@@ -387,8 +380,7 @@ def sets_integrate_chunks(claim, capped, quad, x, v, y0, mass, wuni, sid, runs, 
         capped[chunk] = _sets_int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v,
                                         y0=y0, mass=mass, wuni=wuni, sid=sid, runs=runs, gm=gm,
                                         sref=sref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
-                                        part=part, err=err, has_col=has_col, ground=ground,
-                                        boxes=boxes, spheres=spheres, thresh=thresh, damp=damp,
+                                        part=part, err=err, col=col, damp=damp,
                                         k_damp=k_damp, dmp=dmp, dpart=dpart, v_max=v_max)
 
 

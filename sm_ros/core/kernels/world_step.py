@@ -13,13 +13,13 @@ record.
 
 A record (``Body._fast_record``) is a ``StepRecord``, a named tuple of the body's own buffers
 (x, v, x0, y0 as their (3, N) blocks, transposed back to (N, 3) views of layout F here);
-``state`` holds
-[alpha, beta, damping (per step), max_speed, max_turn, 1 / total mass, mode, fused
-damping, quadratic, set layout, max_turn / h, the particles' one mass or 0
-(``Body._wuni``)], ``force`` the force over the total mass (both divided in Python, as
-``Body._step`` does: fast math would round them otherwise), ``flags`` the body's flags
-(``kernels.flags``: a sleeping record is not stepped),
-``counts`` the limit counters; the set-layout buffers (``s_*``) are empty for one-cluster bodies.
+``state`` holds [alpha, beta, damping (per step), max_speed, max_turn, 1 / total mass,
+mode, fused damping, quadratic, set layout, max_turn / h, the particles' one mass or 0
+(``Body._wuni``), the radius it meets the colliders with (``Body._collider_radius``)],
+``force`` the force over the total mass (both divided in Python, as ``Body._step`` does:
+fast math would round them otherwise), ``flags`` the body's flags (``kernels.flags``: a
+sleeping record is not stepped), ``counts`` the limit counters; the set-layout buffers
+(``s_*``) are empty for one-cluster bodies.
 """
 
 from collections import namedtuple
@@ -30,6 +30,7 @@ from numba import njit
 
 from ..step_threads import HELPERS
 from .flags import DIRTY, ERR_STALE, SLEEP
+from .colliders import Colliders
 from .damping import damp_accumulate, damp_rigid, damping_fields, damping_targets
 from .goals import solve_clusters_warm
 from .integrate import accumulate_chunks, integrate_chunks
@@ -47,6 +48,9 @@ StepRecord = namedtuple('StepRecord', (
     'dmp dref dacc lin w3 sptr scl scnt quat_prev flagged lim_lin lim_w force state flags '
     'counts y0t sid gm sref s_part s_ptr s_cl s_cnt s_phi s_org wk pm s_tp s_ck s_runs '
     'udv').split())
+
+#: Where ``StepRecord.state`` holds the radius the body meets the colliders with.
+RADIUS = 12
 
 
 @njit(**JIT)
@@ -67,7 +71,9 @@ def step_bodies_claimed(bodies, claim, h, gravity, has_col, ground, boxes, spher
         b = claim_next(claim)
         if b >= n:
             return stepped
-        _step_record(bodies[b], h, gravity, (has_col, ground, boxes, spheres, thresh))
+        rec = bodies[b]
+        _step_record(rec, h, gravity, Colliders(has_col, ground, boxes, spheres, thresh,
+                                                rec.state[RADIUS]))
         stepped += 1
 
 
@@ -107,7 +113,7 @@ def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, th
 def _step_record(rec, h, gravity, colliders):
     """``Body._step`` for one record (inlined into ``step_bodies_claimed`` by Numba: one
     compiled function, not a second one linked and optimised again into it); ``colliders``:
-    (has_col, ground, boxes, spheres, thresh)."""
+    ``colliders.Colliders`` with the body's radius."""
     if rec.flags[SLEEP] > 0.0:                 # asleep (``sm_ros.core.sleep``): not stepped
         return
     state = rec.state
@@ -216,7 +222,6 @@ def _record_damping(rec, fused, sets, stale):
 def _record_integrate_sets(rec, h, colliders, fused):
     """Eq. 13-14 with the static colliders and the speed cap, set by set: the speeds are
     capped block by block before the sums are taken, so the sums stay valid."""
-    has_col, ground, boxes, spheres, thresh = colliders
     state = rec.state
     quad = state[8] > 0.0
     chunk_capped = np.zeros(rec.s_part.shape[0], dtype=np.int64)
@@ -224,8 +229,7 @@ def _record_integrate_sets(rec, h, colliders, fused):
                           x=rec.xt.T, v=rec.vt.T, y0=rec.y0t.T, mass=rec.mass, wuni=state[11],
                           sid=rec.sid, runs=rec.s_runs, gm=rec.gm, sref=rec.sref,
                           alpha=state[0], h=h, acc=rec.acc, ang=rec.ang, com=rec.com,
-                          part=rec.s_part, err=rec.err, has_col=has_col, ground=ground,
-                          boxes=boxes, spheres=spheres, thresh=thresh, damp=fused,
+                          part=rec.s_part, err=rec.err, col=colliders, damp=fused,
                           k_damp=state[2], dmp=rec.dmp, dpart=rec.dpart, v_max=state[3])
     _fused_refs(quad, state[11], rec.ang, rec.s_runs, fused, rec.sref, rec.dpart)
     rec.counts[0] += chunk_capped.sum()
@@ -236,7 +240,6 @@ def _record_integrate_sets(rec, h, colliders, fused):
 def _record_integrate(rec, h, colliders, fused):
     """Eq. 13-14 with the static colliders, then the speed cap (capped positions leave
     the sums stale: ``DIRTY``)."""
-    has_col, ground, boxes, spheres, thresh = colliders
     state = rec.state
     x, v = rec.xt.T, rec.vt.T
     integrate_chunks(claim=np.zeros(1, dtype=np.int64), quad=state[8] > 0.0, x=x, v=v,
@@ -244,8 +247,7 @@ def _record_integrate(rec, h, colliders, fused):
                      rest_lin=rec.rest_lin, rest_off=rec.rest_off, trans=rec.trans,
                      goal_lin=rec.goal_lin, goal_off=rec.goal_off, ref=rec.ref,
                      alpha=state[0], h=h, acc=rec.acc, ang=rec.ang, com=rec.com,
-                     part=rec.part, err=rec.err, has_col=has_col, ground=ground, boxes=boxes,
-                     spheres=spheres, thresh=thresh, damp=fused, k_damp=state[2],
+                     part=rec.part, err=rec.err, col=colliders, damp=fused, k_damp=state[2],
                      dmp=rec.dmp, dpart=rec.dpart)
     capped = 0
     if state[3] > 0.0:
