@@ -201,7 +201,11 @@ def collider_contacts(bodies, frames, a, margin, scene, out, count, touching):
             if (np.sqrt(dx * dx + dy * dy + dz * dz)
                     > row[C_BOUND] + frame[F_REACH] + outer + margin):
                 continue
-            _, nx, ny, nz = surface_gap(row, com[0], com[1], com[2], 0.0)
+            # every particle's outline lies within reach + outer of the centre: a collider
+            # that far from it (a long wall whose bounding sphere holds the body) is not met
+            centre_gap, nx, ny, nz = surface_gap(row, com[0], com[1], com[2], 0.0)
+            if centre_gap > frame[F_REACH] + outer + margin:
+                continue
         if bodies.round[a]:
             gap = _collider_row(com, a, c, (ball, radius), cell, com, rows, out[count])
             if gap < margin:
