@@ -14,10 +14,9 @@ from .packed import Pack
 from .contact import COUPLE_ALPHA, BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
 from .kernels.flags import SLEEP
-from .kernels.colliders import Colliders
 from .kinematic import Particles
 from .sleep import Sleep
-from .stiff_contact import StiffContact, is_stiff
+from .stiff_contact import StiffContact
 from .world_colliders import WorldColliders
 
 
@@ -456,40 +455,6 @@ class World(WorldColliders):
             stats[index] = self._stiff.run(
                 self, [(bodies[k], self.contact_radius(bodies[k].name)) for k in index], h,
                 thresh)
-
-    def _contact_colliders(self, thresh):
-        """The static colliders as the contact pass meets them (``Colliders`` with one
-        radius per body, flat order)."""
-        return Colliders(bool(self._has_col), self._ground_row, self._box_rows,
-                         self._sphere_rows, float(thresh), self._collider_radius)
-
-    def _stiff_flags(self, h):
-        """Per body (flat order) whether it takes its contacts in the stiff pass."""
-        cp = self._contact_params
-        return np.array([cp.stacking and cp.rigid and is_stiff(b, h) for b in self._flat.bodies],
-                        dtype=np.bool_)
-
-    def _collider_radii(self, h):
-        """Every body meets the colliders with its particles' spheres of its contact
-        radius, as it meets other bodies (``Body._collider_radius``, ``_collider_radius``
-        per body); a stiff body meets them in the stiff pass, so its own pass and the
-        collider pass only keep its particles' centres out of them (radius 0).  Set again
-        when a body, its parameters, the step or the contact settings change."""
-        self._ensure_flat()
-        cp = self._contact_params
-        key = (body_mod._GENERATION[0], h, self._flat_builds, cp.stacking, cp.rigid)
-        if key == self._radii_key:
-            return
-        bodies, stiff = self._flat.bodies, self._stiff_flags(h)
-        radii = np.array([0.0 if stiff[k] else self.contact_radius(b.name)
-                          for k, b in enumerate(bodies)])
-        changed = any(b._collider_radius != r for b, r in zip(bodies, radii))
-        for b, r in zip(bodies, radii):
-            b._collider_radius = float(r)
-        if changed and self._split is not None:
-            self._retime_split(self._split[0][1])   # the pack rows and records take them
-        self._collider_radius = radii
-        self._radii_key = key
 
     def _zero_bid(self, n):
         """Body index 0 for n particles (the per-body path of the collider pass)."""

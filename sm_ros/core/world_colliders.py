@@ -1,7 +1,8 @@
 """The collider side of ``World``: static, named, oriented and kinematic colliders.
 
 A mixin of ``World`` (``world.py``), split off so that each file answers one question:
-what collides with the bodies and how a user moves it and reads its wrench.  Unnamed
+what collides with the bodies, how a user moves it and reads its wrench, and the radius
+each body's particles meet the colliders with (``_collider_radii``).  Unnamed
 axis-aligned boxes and spheres and the ground run inside each body's fused step
 (``kernels/colliders.py``); everything else goes through the collider pass
 (``kinematic.py``, ``ColliderSet``) after the bodies' step.
@@ -9,8 +10,11 @@ axis-aligned boxes and spheres and the ground run inside each body's fused step
 
 import numpy as np
 
+from . import body_build
 from .colliders import ColliderSet
+from .kernels.colliders import Colliders
 from .params import Box, Capsule, Ground, Sphere
+from .stiff_contact import is_stiff
 
 
 class WorldColliders:
@@ -163,3 +167,37 @@ class WorldColliders:
                                           <= (sp[3] + reach) ** 2))
             out[name] += n
         return out
+
+    def _contact_colliders(self, thresh):
+        """The static colliders as the contact pass meets them (``Colliders`` with one
+        radius per body, flat order)."""
+        return Colliders(bool(self._has_col), self._ground_row, self._box_rows,
+                         self._sphere_rows, float(thresh), self._collider_radius)
+
+    def _stiff_flags(self, h):
+        """Per body (flat order) whether it takes its contacts in the stiff pass."""
+        cp = self._contact_params
+        return np.array([cp.stacking and cp.rigid and is_stiff(b, h) for b in self._flat.bodies],
+                        dtype=np.bool_)
+
+    def _collider_radii(self, h):
+        """Every body meets the colliders with its particles' spheres of its contact
+        radius, as it meets other bodies (``Body._collider_radius``, ``_collider_radius``
+        per body); a stiff body meets them in the stiff pass, so its own pass and the
+        collider pass only keep its particles' centres out of them (radius 0).  Set again
+        when a body, its parameters, the step or the contact settings change."""
+        self._ensure_flat()
+        cp = self._contact_params
+        key = (body_build._GENERATION[0], h, self._flat_builds, cp.stacking, cp.rigid)
+        if key == self._radii_key:
+            return
+        bodies, stiff = self._flat.bodies, self._stiff_flags(h)
+        radii = np.array([0.0 if stiff[k] else self.contact_radius(b.name)
+                          for k, b in enumerate(bodies)])
+        changed = any(b._collider_radius != r for b, r in zip(bodies, radii))
+        for b, r in zip(bodies, radii):
+            b._collider_radius = float(r)
+        if changed and self._split is not None:
+            self._retime_split(self._split[0][1])   # the pack rows and records take them
+        self._collider_radius = radii
+        self._radii_key = key
