@@ -55,15 +55,15 @@ def build_with(kernel, X, R, B, act, selfc, X0, cell, skin, cap):
     pi = np.zeros(cap, np.int32)
     pj = np.zeros(cap, np.int32)
     cnt = np.zeros((1 << max(4, int(np.ceil(np.log2(4 * n))))) + 1, np.int64)
-    args = (X, R, B, act, selfc, X0, cell, skin, C.SELF_REST_FACTOR, hb, cnt, srt)
+    src = C.PairSource(X, R, B, act, selfc, X0, cell, skin, C.SELF_REST_FACTOR)
+    grid = C.GridScratch(hb, cnt, srt, np.zeros((n, 4)), np.zeros(n, np.int32),
+                         np.zeros(len(cnt) - 1, np.int32))
     if kernel == 'hash':
-        m = C.build_pairs(*args, np.zeros(n, np.int64), sco, pi, pj)
+        m = C.build_pairs(src, grid, np.zeros(n, np.int64), sco, pi, pj)
+    elif kernel == 'grid':
+        m = C.build_pairs_grid(src, grid, pi, pj)
     else:
-        scratch = (np.zeros((n, 4)), np.zeros(n, np.int32), np.zeros(len(cnt) - 1, np.int32))
-        if kernel == 'grid':
-            m = C.build_pairs_grid(*args, *scratch, pi, pj)
-        else:
-            m = C.build_pairs_grid_par(*args, *scratch, pi, pj, numba.get_num_threads())
+        m = C.build_pairs_grid_par(src, grid, pi, pj, numba.get_num_threads())
     return m, pi, pj
 
 
@@ -227,12 +227,12 @@ def test_grid_refuses_a_box_larger_than_its_table():
     R = np.full(2, 0.01)
     B = np.array([0, 1], np.int32)
     act = np.ones(2, bool)
-    args = (X, R, B, act, ~act, X, 0.03, 0.01, 2.0, np.zeros(2, np.int64),
-            np.zeros(17, np.int64), np.zeros(2, np.int64))
+    src = C.PairSource(X, R, B, act, ~act, X, 0.03, 0.01, 2.0)
+    grid = C.GridScratch(np.zeros(2, np.int64), np.zeros(17, np.int64), np.zeros(2, np.int64),
+                         np.zeros((2, 4)), np.zeros(2, np.int32), np.zeros(16, np.int32))
     out = (np.zeros(4, np.int32), np.zeros(4, np.int32))
-    scratch = (np.zeros((2, 4)), np.zeros(2, np.int32), np.zeros(16, np.int32))
-    assert C.build_pairs_grid(*args, *scratch, *out) == -1
-    assert C.build_pairs_grid_par(*args, *scratch, *out, 2) == -1
+    assert C.build_pairs_grid(src, grid, *out) == -1
+    assert C.build_pairs_grid_par(src, grid, *out, 2) == -1
 
 
 def test_pair_response_conserves_momentum_and_separates():

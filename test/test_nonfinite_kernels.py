@@ -85,16 +85,17 @@ def test_contact_pairs_skip_non_finite_particles(bad, kind):
     x0[0] = [0.0, 1.0, 2.0, 3.0]                       # far apart at rest: self-contact
     hb = np.zeros(n, dtype=np.int64)
     pi, pj = np.zeros(16, dtype=np.int32), np.zeros(16, dtype=np.int32)
-    args = (x, np.full(n, 0.01), np.zeros(n, dtype=np.int32), np.ones(1, dtype=np.bool_),
-            np.ones(1, dtype=np.bool_), x0, 0.02, 0.0, 0.0, hb, np.zeros(65, dtype=np.int64),
-            np.zeros(n, dtype=np.int64))
+    src = contact.PairSource(x, np.full(n, 0.01), np.zeros(n, dtype=np.int32),
+                             np.ones(1, dtype=np.bool_), np.ones(1, dtype=np.bool_), x0, 0.02,
+                             0.0, 0.0)
+    grid = contact.GridScratch(hb, np.zeros(65, dtype=np.int64), np.zeros(n, dtype=np.int64),
+                               np.zeros((n, 4)), np.zeros(n, dtype=np.int32),
+                               np.zeros(64, dtype=np.int32))
     if kind == 'hash':
-        m = contact.build_pairs(*args, np.zeros(n, dtype=np.int64), np.zeros((5, n)), pi, pj)
+        m = contact.build_pairs(src, grid, np.zeros(n, dtype=np.int64), np.zeros((5, n)), pi, pj)
+    elif kind == 'grid':
+        m = contact.build_pairs_grid(src, grid, pi, pj)
     else:
-        scratch = (np.zeros((n, 4)), np.zeros(n, dtype=np.int32), np.zeros(64, dtype=np.int32))
-        if kind == 'grid':
-            m = contact.build_pairs_grid(*args, *scratch, pi, pj)
-        else:
-            m = contact.build_pairs_grid_par(*args, *scratch, pi, pj, 2)
+        m = contact.build_pairs_grid_par(src, grid, pi, pj, 2)
     assert m == 1 and (pi[0], pj[0]) == (0, 1)
     assert hb[2] == -1 and hb[3] == -1

@@ -212,8 +212,11 @@ def builders(world, build_threads: int, rounds: int = 5) -> Dict[str, Any]:
     sort = []
 
     def grid_sort():
-        grid_sort_kernel(f.X, f.R, f.B, c.act, c.cell, c._particle_cell, c._cnt, c._srt,
-                         c._sorted_points, c._sorted_body, c._cell_body, dims)
+        src = PairSource(f.X, f.R, f.B, c.act, c.selfc, f.X0, c.cell, c.skin, 0.0)
+        grid = GridScratch(c._particle_cell, c._cnt, c._srt, c._sorted_points,
+                           c._sorted_body, c._cell_body)
+        grid_sort_kernel(src, grid, dims)
+    from sm_ros.core.contact_build import GridScratch, PairSource
     from sm_ros.core.contact_build import grid_sort as grid_sort_kernel
     dims = np.zeros(3, dtype=np.int64)
     old = c.parallel_build

@@ -34,8 +34,8 @@ import numba
 import numpy as np
 
 from .contact_bodies import solve_bodies
-from .contact_build import (body_overlaps, build_pairs_grid, build_pairs_grid_par,
-                            moved_spread2, sort_pairs)
+from .contact_build import (GridScratch, PairSource, body_overlaps, build_pairs_grid,
+                            build_pairs_grid_par, moved_spread2, sort_pairs)
 from .contact_cells import build_pairs
 from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_pairs, wall_candidates)
@@ -325,17 +325,18 @@ class Contact:
         act = self._act_eff
         body_overlaps(f.X, f.off, self.act, self.selfc, self._grow, self._box, self._order,
                       act)
+        src = PairSource(f.X, f.R, f.B, act, self.selfc, f.X0, self.cell, self.skin,
+                         SELF_REST_FACTOR)
+        grid = GridScratch(self._particle_cell, self._cnt, self._srt, self._sorted_points,
+                           self._sorted_body, self._cell_body)
         while True:
-            grid = (f.X, f.R, f.B, act, self.selfc, f.X0, self.cell, self.skin,
-                    SELF_REST_FACTOR, self._particle_cell, self._cnt, self._srt)
-            dense = (self._sorted_points, self._sorted_body, self._cell_body, self._pair_i,
-                     self._pair_j)
+            pairs = (self._pair_i, self._pair_j)
             if nt == 1:
-                m = build_pairs_grid(*grid, *dense)
+                m = build_pairs_grid(src, grid, *pairs)
             else:
-                m = build_pairs_grid_par(*grid, *dense, nt)
+                m = build_pairs_grid_par(src, grid, *pairs, nt)
             if m < 0:                           # sparse world: hashed cells
-                m = build_pairs(*grid, self._skey, self._sco, self._pair_i, self._pair_j)
+                m = build_pairs(src, grid, self._skey, self._sco, *pairs)
             if m <= len(self._pair_i):
                 break
             cap = int(m * 1.5) + 1024           # grows rarely (a rebuild, not a step)
@@ -445,7 +446,8 @@ class Contact:
         return self.fast[:len(f.bodies)].copy()
 
 
-__all__ = ['ContactParams', 'BodyContact', 'Contact', 'default_radius', 'SELF_REST_FACTOR',
+__all__ = ['ContactParams', 'BodyContact', 'Contact', 'GridScratch', 'PairSource',
+           'default_radius', 'SELF_REST_FACTOR',
            'COUPLE_ALPHA', 'STACK_SWEEPS', 'PARALLEL_BUILD_MIN', 'body_inverse_masses',
            'body_overlaps',
            'body_velocities', 'build_pairs', 'build_pairs_grid',

@@ -31,6 +31,7 @@ thread count; the other builders list the same pairs, a particle's partners mayb
 another order.
 """
 
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, prange
@@ -41,6 +42,18 @@ from .kernels.spread import moved_box, spread_of
 
 #: ``cb`` of a cell without particles (``grid_sort``).
 EMPTY = -2
+
+#: What a pair-list build reads (``Contact._build``): positions (3, N), contact radii (N,),
+#: the body of each particle (N,), per body whether it collides and whether it
+#: self-collides, rest positions (3, N), the cell size, the skin, and the factor on the
+#: contact distance beyond which two particles of one self-colliding body may pair at rest.
+PairSource = namedtuple('PairSource', 'x radius body active self_collide rest cell skin '
+                                      'self_factor')
+#: A build's scratch: each particle's cell (N,) int64, each cell's start in the sorted
+#: order (T + 1,) int64, the particle at each sorted place (N,) int64; the dense grid's
+#: sorted x, y, z, r (N, 4), their bodies (N,) int32 and each cell's one body (T,) int32.
+GridScratch = namedtuple('GridScratch', 'particle_cell cell_start order points point_body '
+                                        'cell_body')
 
 
 @njit(**JIT)
@@ -125,8 +138,10 @@ def moved_spread2(X, Xref, off, act):
 
 
 @njit(**JIT)
-def grid_sort(X, R, B, act, cell, hb, cnt, srt, P, sb, cb, dims):
-    """Counting sort of the colliding particles into a dense grid of cells of side ``cell``.
+def grid_sort(src, grid, dims):
+    """Counting sort of the colliding particles of ``src`` (``PairSource``) into a dense
+    grid of cells of side ``src.cell``, in ``grid`` (``GridScratch``: hb, cnt, srt, P, sb,
+    cb below).
 
     Returns the number of particles sorted (0: none collide; -1, doing nothing else, when the
     bounding box holds more cells than ``cnt`` (T + 1,) has slots).  Out: ``hb[i]`` the cell
@@ -136,8 +151,11 @@ def grid_sort(X, R, B, act, cell, hb, cnt, srt, P, sb, cb, dims):
     ``cb[c]`` (T,) the body of every particle of cell c, -1 when it holds several,
     ``EMPTY`` when none (every cell of the box written).
     """
+    X, R, B, act = src.x, src.radius, src.body, src.active
+    hb, cnt, srt = grid.particle_cell, grid.cell_start, grid.order
+    P, sb, cb = grid.points, grid.point_body, grid.cell_body
     n = X.shape[1]
-    inv = 1.0 / cell
+    inv = 1.0 / src.cell
     lo0, lo1, lo2, nx, ny, nz = grid_box(X, B, act, hb, inv, cnt.shape[0] - 1)
     if nx <= 0:
         return nx
@@ -191,8 +209,7 @@ def grid_sort(X, R, B, act, cell, hb, cnt, srt, P, sb, cb, dims):
 
 
 @njit(**JIT)
-def _cell_pairs(a_lo, a_hi, nx, ny, nz, hb, cnt, srt, P, sb, cb, R, selfc, X0, skin,
-                self_fac, pi, pj, m0, cap):
+def _cell_pairs(a_lo, a_hi, dims, src, grid, pi, pj, m0, cap):
     """The pairs of the particles at sorted places [a_lo, a_hi) (whole cells, ``grid_sort``)
     with the later particles of their own cell and the 13 cells of the forward half-stencil,
     written to pi, pj from m0 while below ``cap``; returns m0 + their number.
@@ -204,6 +221,11 @@ def _cell_pairs(a_lo, a_hi, nx, ny, nz, hb, cnt, srt, P, sb, cb, R, selfc, X0, s
     nothing is skipped whole (three loads of ``cb``), and otherwise such cells at its ends
     are left out of it.
     """
+    R, selfc, X0, skin, self_fac = (src.radius, src.self_collide, src.rest, src.skin,
+                                    src.self_factor)
+    hb, cnt, srt = grid.particle_cell, grid.cell_start, grid.order
+    P, sb, cb = grid.points, grid.point_body, grid.cell_body
+    nx, ny, nz = dims[0], dims[1], dims[2]
     nxy = nx * ny
     m = m0
     a0 = a_lo
@@ -287,30 +309,26 @@ def _cell_pairs(a_lo, a_hi, nx, ny, nz, hb, cnt, srt, P, sb, cb, R, selfc, X0, s
 
 
 @njit(**JIT)
-def build_pairs_grid(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt, srt, P, sb, cb,
-                     pi, pj):
-    """Candidate pairs closer than r_i + r_j + skin into pi, pj (one thread); returns their
+def build_pairs_grid(src, grid, pi, pj):
+    """Candidate pairs of ``src`` (``PairSource``) closer than r_i + r_j + skin into pi,
+    pj (one thread; scratch ``grid``, a ``GridScratch``); returns their
     number, or -1 when the bounding box holds more cells than ``cnt`` has slots (far-apart
     bodies: use ``build_pairs``).
 
-    ``act[b]`` says body b collides, ``selfc[b]`` that it self-collides; same-body pairs are
-    listed only then, and only when farther apart at rest (``X0``) than ``self_fac`` times
-    their contact distance.  Scratch: ``hb``, ``srt`` (N,) int64, ``cnt`` (T + 1,) int64,
-    ``P`` (N, 4) float64, ``sb`` (N,) int32, ``cb`` (T,) int32 (``grid_sort``).  When more
-    pairs exist than ``pi`` holds, the count is still returned (the caller grows the arrays
-    and calls again).
+    Pairs of one body are listed only when it self-collides, and only when farther apart
+    at rest than ``self_factor`` times their contact distance.  When more pairs exist than
+    ``pi`` holds, the count is still returned (the caller grows the arrays and calls
+    again).
     """
     dims = np.zeros(3, dtype=np.int64)
-    nact = grid_sort(X, R, B, act, cell, hb, cnt, srt, P, sb, cb, dims)
+    nact = grid_sort(src, grid, dims)
     if nact <= 0:
         return nact
-    return _cell_pairs(0, nact, dims[0], dims[1], dims[2], hb, cnt, srt, P, sb, cb, R, selfc,
-                       X0, skin, self_fac, pi, pj, 0, pi.shape[0])
+    return _cell_pairs(0, nact, dims, src, grid, pi, pj, 0, pi.shape[0])
 
 
 @njit(parallel=True, **JIT)
-def build_pairs_grid_par(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt, srt, P, sb,
-                         cb, pi, pj, nt):
+def build_pairs_grid_par(src, grid, pi, pj, nt):
     """``build_pairs_grid`` with the pair walk on the Numba threads; the same list in the
     same order.
 
@@ -322,9 +340,10 @@ def build_pairs_grid_par(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt,
     for every share (the caller grows the arrays and calls again).
     """
     dims = np.zeros(3, dtype=np.int64)
-    nact = grid_sort(X, R, B, act, cell, hb, cnt, srt, P, sb, cb, dims)
+    nact = grid_sort(src, grid, dims)
     if nact <= 0:
         return nact
+    hb, cnt, srt = grid.particle_cell, grid.cell_start, grid.order
     nt = max(1, nt)
     cap = pi.shape[0]
     seg = cap // nt
@@ -334,10 +353,9 @@ def build_pairs_grid_par(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt,
         start[k] = max(start[k - 1], cnt[hb[srt[a]]])  # back to the start of its cell
     start[nt] = nact
     got = np.zeros(nt, dtype=np.int64)
-    nx, ny, nz = dims[0], dims[1], dims[2]
     for k in prange(nt):
-        got[k] = _cell_pairs(start[k], start[k + 1], nx, ny, nz, hb, cnt, srt, P, sb, cb, R,
-                             selfc, X0, skin, self_fac, pi, pj, k * seg, (k + 1) * seg) - k * seg
+        got[k] = _cell_pairs(start[k], start[k + 1], dims, src, grid, pi, pj, k * seg,
+                             (k + 1) * seg) - k * seg
     most = 0
     total = 0
     for k in range(nt):

@@ -32,17 +32,21 @@ def _bucket(key, mask):
 
 
 @njit(**JIT)
-def build_pairs(X, R, B, act, selfc, X0, cell, skin, self_fac, hb, cnt, srt, skey, sco,
-                pi, pj):
-    """Candidate pairs closer than r_i + r_j + skin into pi, pj; returns their number.
+def build_pairs(src, grid, skey, sco, pi, pj):
+    """Candidate pairs of ``src`` (``contact_build.PairSource``) closer than r_i + r_j +
+    skin into pi, pj; returns their number.
 
-    ``act[b]`` says body b collides, ``selfc[b]`` that it self-collides.  Scratch: ``hb``
-    (N,) int64, ``cnt`` (T + 1,) int64 with T a power of two, ``srt`` (N,) int64 (the
-    particles sorted by hash slot), ``skey`` (N,) int64 and ``sco`` (5, N) float64 (their
+    Scratch: of ``grid`` (``contact_build.GridScratch``) ``particle_cell`` (hb, N),
+    ``cell_start`` (cnt, T + 1 with T a power of two), ``order`` (srt, N: the particles
+    sorted by hash slot); ``skey`` (N,) int64 and ``sco`` (5, N) float64 (their
     cell keys and x, y, z, r, body copied in slot order, so the neighbour loops read
     contiguous memory).  When more pairs exist than ``pi`` holds, the count is still
     returned (the caller grows the arrays and calls again).
     """
+    X, R, B, act, selfc, X0 = (src.x, src.radius, src.body, src.active, src.self_collide,
+                               src.rest)
+    cell, skin, self_fac = src.cell, src.skin, src.self_factor
+    hb, cnt, srt = grid.particle_cell, grid.cell_start, grid.order
     n = X.shape[1]
     tsize = cnt.shape[0] - 1
     mask = tsize - 1
