@@ -154,22 +154,17 @@ class StiffContact:
         return np.concatenate([ground, self._static, moving]), len(self._static)
 
     def _bodies(self, world, bodies):
-        """``StiffBodies`` of (body, radius) pairs; the typed lists are kept while the
-        bodies keep their arrays."""
-        key = tuple((id(b._x), id(b._v), id(b._m)) for b, _ in bodies)
-        if key != self._lists_key:
-            self._lists = body_lists([b._x for b, _ in bodies], [b._v for b, _ in bodies],
-                                     [b._m for b, _ in bodies])
-            self._lists_key = key
-            ids = {id(b) for b, _ in bodies}       # forget the bodies that left the pass
-            self._round = {k: v for k, v in self._round.items() if k in ids}
-        radius = np.array([r for _, r in bodies])
+        """``StiffBodies`` of (body, radius) pairs.  What does not change from step to
+        step (the typed lists, radii, collide flags, outlines) is kept while the world
+        passes the same list (``World._stiff_members``: the same bodies and settings) and
+        the bodies keep their rest shapes."""
+        known = self._lists_key
+        if (known is None or known[0] is not bodies
+                or any(b._x0 is not rest for (b, _), rest in zip(bodies, known[1]))):
+            self._lists = self._body_constants(world, bodies)
+            self._lists_key = (bodies, [b._x0 for b, _ in bodies])
+        lists, radius, collide, shapes, ball = self._lists
         awake = np.array([not b.asleep for b, _ in bodies], dtype=np.bool_)
-        on = world._contact_params.enabled
-        collide = np.array([on and world._contacts[b.name][0].collide for b, _ in bodies],
-                           dtype=np.bool_)
-        shapes = [self._outline(b, r) for b, r in bodies]
-        ball = np.array([round_ for round_, _ in shapes], dtype=np.bool_)
         cells = np.zeros((len(bodies), 3, 3))
         boxy = [k for k, (_, axes) in enumerate(shapes) if axes is not None]
         if boxy:           # the lattice axes turned as the body's shape match turns them
@@ -177,7 +172,21 @@ class StiffContact:
             turns = quat_matrix(wxyz[:, [1, 2, 3, 0]])
             rest = np.array([shapes[k][1] * radius[k] for k in boxy])
             cells[boxy] = turns @ rest
-        return StiffBodies(*self._lists, radius, awake, collide, ball, cells)
+        return StiffBodies(*lists, radius, awake, collide, ball, cells)
+
+    def _body_constants(self, world, bodies):
+        """(typed lists, radii, collide flags, outlines, round flags) of the pass's bodies."""
+        lists = body_lists([b._x for b, _ in bodies], [b._v for b, _ in bodies],
+                           [b._m for b, _ in bodies])
+        ids = {id(b) for b, _ in bodies}           # forget the bodies that left the pass
+        self._round = {k: v for k, v in self._round.items() if k in ids}
+        radius = np.array([r for _, r in bodies])
+        on = world._contact_params.enabled
+        collide = np.array([on and world._contacts[b.name][0].collide for b, _ in bodies],
+                           dtype=np.bool_)
+        shapes = [self._outline(b, r) for b, r in bodies]
+        ball = np.array([round_ for round_, _ in shapes], dtype=np.bool_)
+        return lists, radius, collide, shapes, ball
 
     def _outline(self, body, radius):
         """(``is_round``, ``lattice_axes`` unless round) of a body, kept while it keeps

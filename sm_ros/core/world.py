@@ -48,6 +48,7 @@ class World(WorldColliders):
         self._stiff_stats = None                # (bodies, 5) what that pass counted
         self._collider_radius = np.zeros(0)     # per body (flat order): _collider_radii
         self._radii_key = None
+        self._stiff_key = self._stiff_cache = None      # _stiff_members
         self._flat_builds = 0                  # flat states built (keys what was made of one)
         self._flagged = False                  # see state_flagged
         self.time = 0.0
@@ -441,7 +442,7 @@ class World(WorldColliders):
         before their own step; the contact pass leaves their pairs alone.  Their contact
         figures wait in ``_stiff_stats`` (flat body order) for the diagnostics."""
         bodies = self._flat.bodies
-        stiff = self._stiff_flags(h)
+        stiff, index, members = self._stiff_members(h)
         self._collider_radii(h)
         c = self._contact
         if c is not None:
@@ -450,11 +451,8 @@ class World(WorldColliders):
         if stats is None or len(stats) != len(bodies):
             stats = self._stiff_stats = np.zeros((len(bodies), 5))
         stats[:] = 0.0
-        index = np.flatnonzero(stiff)
-        if any(not bodies[k].asleep for k in index):
-            stats[index] = self._stiff.run(
-                self, [(bodies[k], self.contact_radius(bodies[k].name)) for k in index], h,
-                thresh)
+        if any(not body.asleep for body, _ in members):
+            stats[index] = self._stiff.run(self, members, h, thresh)
 
     def _zero_bid(self, n):
         """Body index 0 for n particles (the per-body path of the collider pass)."""

@@ -174,11 +174,20 @@ class WorldColliders:
         return Colliders(bool(self._has_col), self._ground_row, self._box_rows,
                          self._sphere_rows, float(thresh), self._collider_radius)
 
-    def _stiff_flags(self, h):
-        """Per body (flat order) whether it takes its contacts in the stiff pass."""
+    def _stiff_members(self, h):
+        """(per body, flat order, whether it takes its contacts in the stiff pass; the
+        indices of those that do; their (body, contact radius) pairs), kept while no body,
+        its parameters, the step or the contact settings change."""
         cp = self._contact_params
-        return np.array([cp.stacking and cp.rigid and is_stiff(b, h) for b in self._flat.bodies],
-                        dtype=np.bool_)
+        key = (body_build._GENERATION[0], h, self._flat_builds, cp.stacking, cp.rigid)
+        if key != self._stiff_key:
+            bodies = self._flat.bodies
+            stiff = np.array([cp.stacking and cp.rigid and is_stiff(b, h) for b in bodies],
+                             dtype=np.bool_)
+            index = np.flatnonzero(stiff)
+            members = [(bodies[k], self.contact_radius(bodies[k].name)) for k in index]
+            self._stiff_cache, self._stiff_key = (stiff, index, members), key
+        return self._stiff_cache
 
     def _collider_radii(self, h):
         """Every body meets the colliders with its particles' spheres of its contact
@@ -191,7 +200,7 @@ class WorldColliders:
         key = (body_build._GENERATION[0], h, self._flat_builds, cp.stacking, cp.rigid)
         if key == self._radii_key:
             return
-        bodies, stiff = self._flat.bodies, self._stiff_flags(h)
+        bodies, stiff = self._flat.bodies, self._stiff_members(h)[0]
         radii = np.array([0.0 if stiff[k] else self.contact_radius(b.name)
                           for k, b in enumerate(bodies)])
         changed = any(b._collider_radius != r for b, r in zip(bodies, radii))
