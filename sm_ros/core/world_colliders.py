@@ -186,6 +186,9 @@ class WorldColliders:
                              dtype=np.bool_)
             index = np.flatnonzero(stiff)
             members = [(bodies[k], self.contact_radius(bodies[k].name)) for k in index]
+            old = self._stiff_cache
+            if old is not None and old[2] == members:
+                members = old[2]        # the same list: the stiff pass keeps what it built
             self._stiff_cache, self._stiff_key = (stiff, index, members), key
         return self._stiff_cache
 
