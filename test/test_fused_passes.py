@@ -132,13 +132,13 @@ def test_fused_set_pass_matches_its_numpy_twin(damping, cap):
     assert wuni == 1.5
     err2, capped = KS._sets_fused_lin(
         start=0, end=body.n, x=body._x, v=body._v, y0=st.y0, mass=body._m, wuni=wuni,
-        sid=st.sid, runs=st.runs, gm=st.gm, sref=st.ref, alpha_h=0.6 / H, h=H,
+        sid=st.sid, runs=st.runs, gm=st.goal_maps, sref=st.ref, alpha_h=0.6 / H, h=H,
         hx=H * acc[0], hy=H * acc[1], hz=H * acc[2], damp=damping > 0.0, k_damp=damping,
         dmp=dmp, v_max=cap, sums=sums, dsums=dsums,
         col=K.Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), 1e-3, 0.0))
     tx, tv, tsums, tds, terr, tcapped = _twin(
-        x0, v0, np.asarray(st.y0), body._m, wuni, st.sid, st.runs, st.gm, st.ref, 0.6, H, acc,
-        damping > 0.0, damping, dmp, cap, nsets)
+        x0, v0, np.asarray(st.y0), body._m, wuni, st.sid, st.runs, st.goal_maps, st.ref, 0.6, H,
+        acc, damping > 0.0, damping, dmp, cap, nsets)
     assert capped == tcapped and (capped > 0) == (cap < 100.0)
     np.testing.assert_allclose(body._x, tx, rtol=0, atol=1e-13)
     np.testing.assert_allclose(body._v, tv, rtol=0, atol=1e-11)

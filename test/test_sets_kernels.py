@@ -51,8 +51,8 @@ def test_sets_reduce_matches_the_per_particle_sums(monkeypatch, mode):
     ref = body._ref + np.array([0.01, -0.02, 0.015])      # any reference point
     out = np.zeros_like(body._part)
     K.sets_reduce(part=st.part, sptr=st.ptr, scl=st.cl, scnt=st.cnt, sphi=st.phi, sref=st.ref,
-                  stp=st.tp, rest_lin=body._rest_lin, ref=ref, quad=quad, out=out, wk=st.wk,
-                  pm=st.pm)
+                  stp=st.pair_offsets, rest_lin=body._rest_lin, ref=ref, quad=quad, out=out,
+                  wk=st.work, pm=st.quad_map)
     twin = reference.cluster_sums(np.asarray(x), np.asarray(body._x0), body._m, body._ptr,
                                   body._cl, body._rest_lin, body._rest_off, ref, quad)
     scale = np.abs(twin).max(axis=0)
@@ -67,11 +67,11 @@ def test_sets_maps_give_the_mean_of_the_clusters_goals(monkeypatch, mode):
     body = _body(monkeypatch, mode, 3)
     st, quad = body._sets, body._quad
     sref = np.zeros_like(st.ref)
-    gm = np.zeros_like(st.gm)
-    K.sets_maps(sptr=st.ptr, scl=st.cl, scnt=st.cnt, sorg=st.org, stp=st.tp,
+    gm = np.zeros_like(st.goal_maps)
+    K.sets_maps(sptr=st.ptr, scl=st.cl, scnt=st.cnt, sorg=st.org, stp=st.pair_offsets,
                 rest_lin=body._rest_lin, trans=body._trans, goal_lin=body._goal_lin,
-                goal_off=body._goal_off, ref=body._ref, quad=quad, gm=gm, sref=sref, pm=st.pm,
-                ck=st.ck)
+                goal_off=body._goal_off, ref=body._ref, quad=quad, gm=gm, sref=sref,
+                pm=st.quad_map, ck=st.cluster_maps)
     y = np.asarray(st.y0)
     phi = np.stack([np.ones(len(y)), y[:, 0], y[:, 1], y[:, 2], y[:, 0] ** 2, y[:, 1] ** 2,
                     y[:, 2] ** 2, y[:, 0] * y[:, 1], y[:, 1] * y[:, 2], y[:, 2] * y[:, 0]], 1)
@@ -181,7 +181,7 @@ def test_record_buffers_are_views_of_one_block_shared_by_every_record(monkeypatc
         arr = getattr(a, name)
         if isinstance(arr, np.ndarray) and arr.size:
             assert np.shares_memory(arr, a._arena), name
-    for arr in a._sets.gm, a._sets.part, a._s3[0]:
+    for arr in a._sets.goal_maps, a._sets.part, a._s3[0]:
         assert np.shares_memory(arr, a._arena)
     again = a._fast_record(H)
     for r0, r1 in zip(rec, again):

@@ -23,7 +23,7 @@ SCRATCH = {
              '_goal_lin', '_goal_off', '_lin', '_w3', '_m39', '_n4', '_v4', '_quat_prev',
              '_s3', '_trans', '_kin_prev', '_lim_lin', '_lim_w', '_flagged', '_changed',
              '_q4', '_i3', '_i3inv', '_w9', '_f9', '_mom3', '_mom9', '_arena'},
-    '_SetLayout': {'gm', 'wk', 'pm', 'ck'},
+    '_SetLayout': {'goal_maps', 'work', 'quad_map', 'cluster_maps'},
     'Contact': {'_active', '_cbuf', '_ibuf', '_pair_target', '_body_centre',
                 '_body_inv_inertia', '_body_spin', '_body_velocity', '_zlo', '_cnt',
                 '_particle_cell', '_srt', '_skey', '_sco', '_sorted_points', '_sorted_body',

@@ -115,10 +115,12 @@ class _SetLayout:
     ``sid`` (N,) set of each particle, ``ptr``/``cl`` the clusters of each set (CSR),
     ``cnt`` their number, ``org`` (S, 3) a rest-space origin per set, ``y0`` (N, 3) the
     rest offsets from it, ``phi`` (S, 10) sum m phi(y), ``ref`` (S, 3) the reference point
-    of the per-set sums, ``gm`` (S, 3, 10) the goal maps; ``tp`` (pairs, 3) the offset
+    of the per-set sums, ``goal_maps`` (S, 3, 10); ``pair_offsets`` (pairs, 3) the offset
     org[s] - cm0[k] of each set-cluster pair (``cl`` order) from the cluster's rest centre
-    ``cm0``; scratch ``wk``, ``pm``, ``ck`` (clusters, 3, 10); ``runs`` (R + 1,) the first
-    particle of each run of consecutive particles of one set, then N (``sets._sets_fused_lin``
+    ``cm0``; scratch: ``work`` (2, 3, 10), ``quad_map`` (9, 10: a cluster's quadratic rest
+    map) and ``cluster_maps`` (clusters, 3, 10: each cluster's goal map in those terms);
+    ``runs`` (R + 1,) the first particle of each run of consecutive particles of one set,
+    then N (``sets._sets_fused_lin``
     steps run by run without looking for the ends).
     """
 
@@ -147,12 +149,12 @@ class _SetLayout:
                              for j in range(10)], axis=1)
         self.ref = self.org + c0
         # goal maps: 4 coefficients a row (rigid/linear) or 10 (quadratic)
-        self.gm = np.zeros((ns, 3, 10 if quad else 4))
-        self.tp = np.ascontiguousarray(np.repeat(self.org, valid.sum(axis=1), axis=0)
+        self.goal_maps = np.zeros((ns, 3, 10 if quad else 4))
+        self.pair_offsets = np.ascontiguousarray(np.repeat(self.org, valid.sum(axis=1), axis=0)
                                        - cm0[self.cl])
-        self.ck = np.zeros((len(cm0) if quad else 0, 3, 10))
-        self.wk = np.zeros((2, 3, 10))
-        self.pm = np.zeros((9, 10))
+        self.cluster_maps = np.zeros((len(cm0) if quad else 0, 3, 10))
+        self.work = np.zeros((2, 3, 10))
+        self.quad_map = np.zeros((9, 10))
         self.pairs = len(self.cl)
         self.part = None
 
@@ -369,8 +371,8 @@ _ARENA_ATTRS = ('_rest_lin', '_rest_off', '_part', '_wsum', '_sum_q', '_ref', '_
                 '_err', '_dpart', '_dmp', '_dref', '_dacc', '_lin', '_w3', '_quat_prev',
                 '_flagged', '_lim_lin', '_lim_w', '_facc', '_flags', '_limit_counts', '_udv',
                 '_ptr', '_cl')
-_ARENA_SETS = ('sid', 'gm', 'ref', 'part', 'ptr', 'cl', 'cnt', 'phi', 'org', 'wk', 'pm', 'tp',
-               'ck')
+_ARENA_SETS = ('sid', 'goal_maps', 'ref', 'part', 'ptr', 'cl', 'cnt', 'phi', 'org', 'work',
+               'quad_map', 'pair_offsets', 'cluster_maps')
 #: Alignment (bytes) of each buffer in the block: a cache line.
 _ARENA_ALIGN = 64
 
@@ -479,8 +481,8 @@ def fast_sets(body):
     """The set-layout buffers of a record (empty ones for a one-cluster body)."""
     st = body._sets
     if st is not None:
-        return (st.y0.T, st.sid, st.gm, st.ref, st.part, st.ptr, st.cl, st.cnt, st.phi,
-                st.org, st.wk, st.pm, st.tp, st.ck, st.runs)
+        return (st.y0.T, st.sid, st.goal_maps, st.ref, st.part, st.ptr, st.cl, st.cnt, st.phi,
+                st.org, st.work, st.quad_map, st.pair_offsets, st.cluster_maps, st.runs)
     na = 30 if body._quad else 12
     return (np.zeros((3, 0)), _EMPTY_I32, np.zeros((0, 3, 10)), np.zeros((0, 3)),
             np.zeros((1, 0, na)), np.zeros(1, dtype=np.int64), _EMPTY_I32, np.zeros(0),

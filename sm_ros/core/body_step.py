@@ -76,8 +76,8 @@ def _take_sums(body) -> None:
             _chunks(body, K.sets_accumulate_chunks, quad=body._quad, x=body._x, y0=sets.y0,
                     mass=body._m, sid=sets.sid, runs=sets.runs, sref=sets.ref, part=sets.part)
         K.sets_reduce(part=sets.part, sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sphi=sets.phi,
-                      sref=sets.ref, stp=sets.tp, rest_lin=body._rest_lin, ref=body._ref,
-                      quad=body._quad, out=body._part, wk=sets.wk, pm=sets.pm)
+                      sref=sets.ref, stp=sets.pair_offsets, rest_lin=body._rest_lin, ref=body._ref,
+                      quad=body._quad, out=body._part, wk=sets.work, pm=sets.quad_map)
     elif body._dirty:
         _chunks(body, K.accumulate_chunks, quad=body._quad, x=body._x, x0=body._x0,
                 mass=body._m, ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
@@ -128,10 +128,11 @@ def _plastic_flow(body, p, h) -> int:
                                     v4=body._v4)
     sets = body._sets
     if sets is not None:
-        K.sets_maps(sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sorg=sets.org, stp=sets.tp,
+        K.sets_maps(sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sorg=sets.org,
+                    stp=sets.pair_offsets,
                     rest_lin=body._rest_lin, trans=body._trans, goal_lin=body._goal_lin,
-                    goal_off=body._goal_off, ref=body._ref, quad=body._quad, gm=sets.gm,
-                    sref=sets.ref, pm=sets.pm, ck=sets.ck)
+                    goal_off=body._goal_off, ref=body._ref, quad=body._quad, gm=sets.goal_maps,
+                    sref=sets.ref, pm=sets.quad_map, ck=sets.cluster_maps)
     return nchanged
 
 
@@ -195,7 +196,7 @@ def _integrate(body, p, h, fused, colliders) -> int:
         chunk_capped = np.zeros(len(sets.part), dtype=np.int64)
         _chunks(body, K.sets_integrate_chunks, capped=chunk_capped, quad=body._quad,
                 x=body._x, v=body._v, y0=sets.y0, mass=body._m, wuni=body._wuni,
-                sid=sets.sid, runs=sets.runs, gm=sets.gm, sref=sets.ref, alpha=p.alpha, h=h,
+                sid=sets.sid, runs=sets.runs, gm=sets.goal_maps, sref=sets.ref, alpha=p.alpha, h=h,
                 acc=body._acc, ang=body._ang, com=body._com, part=sets.part, err=body._err,
                 col=colliders, damp=fused, k_damp=p.damping, dmp=body._dmp, dpart=body._dpart,
                 v_max=v_max)

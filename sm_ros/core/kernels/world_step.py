@@ -46,7 +46,8 @@ StepRecord = namedtuple('StepRecord', (
     'xt vt x0t mass ptr cl rest_lin rest_off part wsum sum_q ref quat aqq3 aqq9 scale trans '
     'goal_lin goal_off apq accbuf m3a m3b m3c m3d m39 n4 v4 nmat cdet acc ang com err dpart '
     'dmp dref dacc lin w3 sptr scl scnt quat_prev flagged lim_lin lim_w force state flags '
-    'counts y0t sid gm sref s_part s_ptr s_cl s_cnt s_phi s_org wk pm s_tp s_ck s_runs '
+    'counts y0t sid goal_maps sref s_part s_ptr s_cl s_cnt s_phi s_org work quad_map '
+    's_pair_offsets s_cluster_maps s_runs '
     'udv').split())
 
 #: Where ``StepRecord.state`` holds the radius the body meets the colliders with.
@@ -123,10 +124,11 @@ def _step_record(rec, h, gravity, colliders):
     _record_sums(rec, sets, dirty)
     turned = _record_match(rec)
     if sets:
-        sets_maps(sptr=rec.s_ptr, scl=rec.s_cl, scnt=rec.s_cnt, sorg=rec.s_org, stp=rec.s_tp,
+        sets_maps(sptr=rec.s_ptr, scl=rec.s_cl, scnt=rec.s_cnt, sorg=rec.s_org,
+                  stp=rec.s_pair_offsets,
                   rest_lin=rec.rest_lin, trans=rec.trans, goal_lin=rec.goal_lin,
-                  goal_off=rec.goal_off, ref=rec.ref, quad=state[8] > 0.0, gm=rec.gm,
-                  sref=rec.sref, pm=rec.pm, ck=rec.s_ck)
+                  goal_off=rec.goal_off, ref=rec.ref, quad=state[8] > 0.0, gm=rec.goal_maps,
+                  sref=rec.sref, pm=rec.quad_map, ck=rec.s_cluster_maps)
     for i in range(3):
         rec.acc[i] = rec.force[i] + gravity[i]
         rec.ang[i] = 0.0
@@ -149,8 +151,8 @@ def _record_sums(rec, sets, dirty):
                                    y0=rec.y0t.T, mass=rec.mass, sid=rec.sid, runs=rec.s_runs,
                                    sref=rec.sref, part=rec.s_part)
         sets_reduce(part=rec.s_part, sptr=rec.s_ptr, scl=rec.s_cl, scnt=rec.s_cnt,
-                    sphi=rec.s_phi, sref=rec.sref, stp=rec.s_tp, rest_lin=rec.rest_lin,
-                    ref=rec.ref, quad=quad, out=rec.part, wk=rec.wk, pm=rec.pm)
+                    sphi=rec.s_phi, sref=rec.sref, stp=rec.s_pair_offsets, rest_lin=rec.rest_lin,
+                    ref=rec.ref, quad=quad, out=rec.part, wk=rec.work, pm=rec.quad_map)
     elif dirty:
         accumulate_chunks(claim=np.zeros(1, dtype=np.int64), quad=quad, x=rec.xt.T,
                           x0=rec.x0t.T, mass=rec.mass, ptr=rec.ptr, cl=rec.cl,
@@ -227,7 +229,7 @@ def _record_integrate_sets(rec, h, colliders, fused):
     chunk_capped = np.zeros(rec.s_part.shape[0], dtype=np.int64)
     sets_integrate_chunks(claim=np.zeros(1, dtype=np.int64), capped=chunk_capped, quad=quad,
                           x=rec.xt.T, v=rec.vt.T, y0=rec.y0t.T, mass=rec.mass, wuni=state[11],
-                          sid=rec.sid, runs=rec.s_runs, gm=rec.gm, sref=rec.sref,
+                          sid=rec.sid, runs=rec.s_runs, gm=rec.goal_maps, sref=rec.sref,
                           alpha=state[0], h=h, acc=rec.acc, ang=rec.ang, com=rec.com,
                           part=rec.s_part, err=rec.err, col=colliders, damp=fused,
                           k_damp=state[2], dmp=rec.dmp, dpart=rec.dpart, v_max=state[3])
