@@ -443,7 +443,6 @@ class World(WorldColliders):
         figures wait in ``_stiff_stats`` (flat body order) for the diagnostics."""
         bodies = self._flat.bodies
         stiff, index, members = self._stiff_members(h)
-        self._collider_radii(h)
         c = self._contact
         if c is not None:
             c.set_rigid(stiff)
