@@ -147,8 +147,9 @@ class ContactParams:
 
 @dataclass(frozen=True)
 class BodyContact:
-    """Per-body contact settings: ``collide`` with other bodies, ``radius`` (m; None =
-    the default rule), ``self_collision`` (opt-in)."""
+    """Per-body contact settings: ``collide`` with other bodies, ``radius`` (m, of the
+    spheres its particles meet other bodies and the colliders with; None = the default
+    rule), ``self_collision`` (opt-in)."""
 
     collide: bool = True
     radius: Optional[float] = None
