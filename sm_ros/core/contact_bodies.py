@@ -339,13 +339,13 @@ def solve_bodies(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched
             for b in range(pend.shape[0]):
                 if not pend[b]:
                     continue
+                walls = Colliders(True, noground, col.boxes, col.spheres, thresh,
+                                  col.radius[b])
                 for t in range(cptr[b], cptr[b + 1]):
                     p = cand[t]
                     x0 = X[0, p] + h * dv[b, 0] + dv[b, 3]
                     x1 = X[1, p] + h * dv[b, 1] + dv[b, 4]
                     x2 = X[2, p] + h * dv[b, 2] + dv[b, 5]
-                    walls = Colliders(True, noground, col.boxes, col.spheres, thresh,
-                                      col.radius[b])
                     y0, y1, y2, _, _, _ = collide_point(x0, x1, x2, 0.0, 0.0, 0.0, walls)
                     if y0 != x0 or y1 != x1 or y2 != x2:
                         dv[b, 3] += y0 - x0

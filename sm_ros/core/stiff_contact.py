@@ -156,13 +156,11 @@ class StiffContact:
     def _bodies(self, world, bodies):
         """``StiffBodies`` of (body, radius) pairs.  What does not change from step to
         step (the typed lists, radii, collide flags, outlines) is kept while the world
-        passes the same list (``World._stiff_members``: the same bodies and settings) and
-        the bodies keep their rest shapes."""
-        known = self._lists_key
-        if (known is None or known[0] is not bodies
-                or any(b._x0 is not rest for (b, _), rest in zip(bodies, known[1]))):
+        passes the same list (``World._stiff_members``: the same bodies and settings; a
+        body's arrays, rest shape included, are its own for its lifetime)."""
+        if self._lists_key is not bodies:
             self._lists = self._body_constants(world, bodies)
-            self._lists_key = (bodies, [b._x0 for b, _ in bodies])
+            self._lists_key = bodies
         lists, radius, collide, shapes, ball = self._lists
         awake = np.array([not b.asleep for b, _ in bodies], dtype=np.bool_)
         cells = np.zeros((len(bodies), 3, 3))
