@@ -9,6 +9,8 @@ import pytest
 from sm_ros.core import BodyParams, Ground, World
 from sm_ros.core import contact as C
 from sm_ros.core.contact import BodyContact, ContactParams
+from sm_ros.core.contact_state import (NO_WALLS, ContactLaw, ContactParticles, PairList,
+                                      carried_bodies_for, pair_sweep_for, report_for)
 from sm_ros.core.kernels.colliders import Colliders
 
 S = 0.02                                           # lattice spacing of the test bodies
@@ -245,11 +247,11 @@ def test_pair_response_conserves_momentum_and_separates():
     p0 = V @ (1.0 / W)
     lever = X - 1e-3 * V                                  # positions at the step's start
     l0 = np.cross(lever.T, V.T * (1.0 / W)[:, None]).sum(axis=0)
-    touched = np.zeros(2, np.uint8)
-    found = C.solve_pairs(X, V, W, R, B, np.array([0], np.int32), np.array([1], np.int32),
-                          1, 0.0, 0.0, 0.0, 1e-3, 1, touched, np.zeros(2, np.int64),
-                          np.zeros(2), NO_COLLIDERS, np.zeros(2, np.uint8))
-    assert found == 1 and touched.all()
+    report = report_for(2)
+    found = C.solve_pairs(ContactParticles(X, V, W, R, B, np.zeros(2, np.uint8)),
+                          PairList(np.array([0], np.int32), np.array([1], np.int32), 1),
+                          ContactLaw(0.0, 0.0, 0.0, 1e-3, 1, 0.0, 0.0), report, NO_COLLIDERS)
+    assert found == 1 and report.touched.all()
     assert np.linalg.norm(X[:, 0] - X[:, 1]) >= 0.02 - 1e-12
     np.testing.assert_allclose(V @ (1.0 / W), p0, atol=1e-14)
     l1 = np.cross((X - 1e-3 * V).T, V.T * (1.0 / W)[:, None]).sum(axis=0)
@@ -262,10 +264,10 @@ def test_pinned_particles_are_infinite_mass():
     V = np.zeros((3, 2))
     W = np.array([0.0, 2.0])
     before = X[:, 0].copy()
-    C.solve_pairs(X, V, W, np.full(2, 0.01), np.array([0, 1], np.int32),
-                  np.array([0], np.int32), np.array([1], np.int32), 1, 0.5, 0.0, 0.0, 0.01, 1,
-                  np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2), NO_COLLIDERS,
-                  np.zeros(2, np.uint8))
+    C.solve_pairs(ContactParticles(X, V, W, np.full(2, 0.01), np.array([0, 1], np.int32),
+                                   np.zeros(2, np.uint8)),
+                  PairList(np.array([0], np.int32), np.array([1], np.int32), 1),
+                  ContactLaw(0.5, 0.0, 0.0, 0.01, 1, 0.0, 0.0), report_for(2), NO_COLLIDERS)
     np.testing.assert_array_equal(X[:, 0], before)
     assert X[0, 1] == pytest.approx(0.02)
 
@@ -700,16 +702,13 @@ def test_resting_pair_is_pushed_apart_without_speed():
     B = np.array([0, 1], np.int32)
     off = np.array([0, 1, 2])
     bw = np.array([5.0, 1 / 0.6])
-    acc = np.zeros((2, 1))
     x0 = X.copy()
-    C.solve_bodies(X, V, W, np.full(2, 0.01), B, np.array([0], np.int32),
-                   np.array([1], np.int32), 1, 0.5, 0.0, 0.1, 1 / 120, 8,
-                   np.zeros(2, np.uint8), np.zeros(2, np.int64), np.zeros(2), NO_COLLIDERS,
-                   np.zeros(2, np.uint8), off, bw, np.ones(2, np.bool_), np.zeros((2, 7)),
-                   np.zeros(2, np.uint8), np.zeros(1, np.int64), acc, np.zeros(1), 1e-3,
-                   np.zeros((2, 3)), np.zeros(4), np.zeros(0, np.int64), np.zeros(3, np.int64),
-                   np.zeros((2, 2)), np.zeros((2, 2)), 0.0, X.T.copy(), np.zeros((2, 3)),
-                   np.zeros((2, 9)), np.inf, np.zeros((12, 1)), np.zeros((5, 1), np.int32))
+    bodies = carried_bodies_for(off, bw, np.ones(2, np.bool_))
+    bodies.centre[:] = X.T
+    C.solve_bodies(ContactParticles(X, V, W, np.full(2, 0.01), B, np.zeros(2, np.uint8)),
+                   PairList(np.array([0], np.int32), np.array([1], np.int32), 1),
+                   pair_sweep_for(1), bodies, ContactLaw(0.5, 0.0, 0.1, 1 / 120, 8, 1e-3, 0.0),
+                   NO_COLLIDERS, NO_WALLS, report_for(2))
     assert X[2, 1] - X[2, 0] == pytest.approx(0.02)
     np.testing.assert_array_equal(V, 0.0)
     moves = (X - x0) / W                                  # mass x move: equal, opposite
@@ -763,13 +762,13 @@ def test_body_velocities_match_numpy():
     X[2, 3] = X[2, 5] = X[2, :7].min() - 1.0     # two lowest: the first one's velocity
     cpl = np.array([True, True, False])
     bw = np.array([1 / (1 / W[off[b]:off[b + 1]]).sum() for b in range(3)])
-    vb, zlo, bc, bom, biv = (np.zeros((3, 3)), np.zeros((2, 3)), np.zeros((3, 3)),
-                             np.zeros((3, 3)), np.zeros((3, 9)))
+    bodies = carried_bodies_for(off, bw, cpl)
     Xref = X + rng.normal(scale=0.01, size=X.shape)
     act = np.array([True, False, True])
     dbox = np.zeros(6)
-    spread2 = C.body_velocities(X, V, 1.0 / W, off, cpl, bw, vb, zlo, bc, bom, biv, Xref,
-                                act, dbox)
+    spread2 = C.body_velocities(X, V, 1.0 / W, bodies, Xref, act, dbox)
+    vb, zlo, bc, bom, biv = (bodies.velocity, bodies.lowest, bodies.centre, bodies.spin,
+                             bodies.inv_inertia)
     # the colliding bodies' displacements (body 1 does not collide), as moved_spread2
     assert spread2 == C.moved_spread2(X, Xref, off.astype(np.int64), act)
     keep = np.repeat(act, n)

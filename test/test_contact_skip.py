@@ -7,13 +7,16 @@ moved by a pair, below the ground, or moved by ``margin`` or more); these tests 
 it with the full pass (``margin`` 0: every particle) in scenes where a body is pushed
 into a wall, and show that skipping without the rule would leave a particle inside.
 The later sweeps visit pairs of two carried bodies from compact rows
-(``_compact_row``, written by the first sweep once it changed something, the others
+(``compact_row``, written by the first sweep once it changed something, the others
 before the second sweep), checked against a NumPy twin.
 """
 
 import numpy as np
 
 from sm_ros.core import contact as C
+from sm_ros.core.contact_state import (NO_WALLS, ContactLaw, ContactParticles, PairList,
+                                      WallCandidates, carried_bodies_for, pair_sweep_for,
+                                      report_for)
 from sm_ros.core.kernels.colliders import Colliders
 
 H = 1 / 120
@@ -37,21 +40,24 @@ def _scene():
 
 
 def _body_rows(X, V, W, off, cpl=None):
-    """The per-body rows ``Contact.run`` gives ``solve_bodies`` (every body carried
-    unless ``cpl`` says otherwise): cpl, bw, vb, zlo, bc, bom, biv, and the bodies'
-    bounding boxes (``wall_candidates``)."""
+    """The carried bodies ``Contact.run`` gives ``solve_bodies`` (every body carried
+    unless ``cpl`` says otherwise) and the bodies' bounding boxes
+    (``wall_candidates``)."""
     nb = len(off) - 1
     cpl = np.ones(nb, np.bool_) if cpl is None else cpl
     bw = np.zeros(nb)
     C.body_inverse_masses(W, off, bw)
-    vb, zlo, bc = np.zeros((nb, 3)), np.zeros((2, nb)), np.zeros((nb, 3))
-    bom, biv = np.zeros((nb, 3)), np.zeros((nb, 9))
-    C.body_velocities(X, V, 1.0 / W, off, cpl, bw, vb, zlo, bc, bom, biv, X.copy(),
-                      np.ones(nb, np.bool_), np.zeros(6))
+    bodies = carried_bodies_for(off, bw, cpl)
+    C.body_velocities(X, V, 1.0 / W, bodies, X.copy(), np.ones(nb, np.bool_), np.zeros(6))
     # the boxes of the bodies at a pair-list build just now (``body_overlaps``)
     box = np.array([np.concatenate([X[:, off[b]:off[b + 1]].min(axis=1),
                                     X[:, off[b]:off[b + 1]].max(axis=1)]) for b in range(nb)])
-    return cpl, bw, vb, zlo, bc, bom, biv, box
+    return bodies, box
+
+
+def _law(sweeps):
+    """The law ``Contact.run`` gives ``solve_bodies`` at ``H`` (no warm start)."""
+    return ContactLaw(0.5, 0.0, THRESH, H, sweeps, 0.01 * THRESH, 0.0)
 
 
 def _solve(X, V, W, B, off, boxes, ground, cand_margin, margin):
@@ -60,22 +66,16 @@ def _solve(X, V, W, B, off, boxes, ground, cand_margin, margin):
     X = X.copy()
     V = V.copy()
     nb = len(off) - 1
-    R = np.full(X.shape[1], 0.01)
-    pi = np.array([0], np.int32)
-    pj = np.array([2], np.int32)
-    cpl, bw, vb, zlo, bc, bom, biv, box = _body_rows(X, V, W, off)
-    cand = np.zeros(X.shape[1], np.int64)
-    cptr = np.zeros(nb + 1, np.int64)
-    m = C.wall_candidates(X, off, cpl, bw, boxes, np.zeros((0, 6)), cand_margin, cand, cptr,
-                          np.ones(nb, np.bool_), box, np.zeros(6))
+    n = X.shape[1]
+    bodies, box = _body_rows(X, V, W, off)
+    col = Colliders(True, ground, boxes, np.zeros((0, 6)), THRESH, np.zeros(nb))
+    walls = WallCandidates(np.zeros(n, np.int64), np.zeros(nb + 1, np.int64), margin)
+    m = C.wall_candidates(X, bodies, col, cand_margin, walls, np.ones(nb, np.bool_), box,
+                          np.zeros(6))
     found = C.solve_bodies(
-        X, V, W, R, B, pi, pj, 1, 0.5, 0.0, THRESH, H, 8, np.zeros(nb, np.uint8),
-        np.zeros(nb, np.int64), np.zeros(nb),
-        Colliders(True, ground, boxes, np.zeros((0, 6)), THRESH, np.zeros(nb)),
-        np.zeros(X.shape[1], np.uint8), off, bw, cpl, np.zeros((nb, 7)),
-        np.zeros(nb, np.uint8), np.zeros(1, np.int64), np.zeros((2, 1)), np.zeros(1),
-        0.01 * THRESH, vb, np.zeros(4), cand[:m], cptr, zlo, np.zeros((2, nb)), 0.0, bc,
-        bom, biv, margin, np.zeros((12, 1)), np.zeros((5, 1), np.int32))
+        ContactParticles(X, V, W, np.full(n, 0.01), B, np.zeros(n, np.uint8)),
+        PairList(np.array([0], np.int32), np.array([2], np.int32), 1), pair_sweep_for(1),
+        bodies, _law(8), col, walls._replace(particles=walls.particles[:m]), report_for(nb))
     return X, V, found
 
 
@@ -139,20 +139,18 @@ def test_compact_rows_match_numpy():
     R = np.full(n, 0.01)
     pi = np.array([8, 0, 2, 4, 6, 1, 3, 5, 7, 0], np.int32)
     pj = np.array([10, 2, 4, 6, 8, 3, 5, 7, 9, 8], np.int32)   # (0, 8): 84 mm
-    cpl, bw, vb, zlo, bc, bom, biv, _ = _body_rows(
-        X, V, W, off, np.array([True, True, True, False, True, True]))
+    bodies, _ = _body_rows(X, V, W, off, np.array([True, True, True, False, True, True]))
+    cpl, bw = bodies.carried, bodies.inv_mass
     npairs = len(pi)
-    active = np.zeros(npairs, np.int64)
-    cf = np.full((7, npairs), np.nan)
-    cij = np.full((5, npairs), -1, np.int32)
+    sweep = pair_sweep_for(npairs)
+    sweep.target[:] = 2.0
+    sweep.rows[:] = np.nan
+    sweep.row_index[:] = -1
+    active, cf, cij = sweep.active, sweep.rows, sweep.row_index
     x0, v0 = X.copy(), V.copy()
-    C.solve_bodies(
-        X, V, W, R, B, pi, pj, npairs, 0.5, 0.0, THRESH, H, 2, np.zeros(nb, np.uint8),
-        np.zeros(nb, np.int64), np.zeros(nb), NO_COLLIDERS, np.zeros(n, np.uint8), off, bw,
-        cpl, np.zeros((nb, 7)),
-        np.zeros(nb, np.uint8), active, np.zeros((2, npairs)), np.full(npairs, 2.0),
-        0.01 * THRESH, vb, np.zeros(4), np.zeros(0, np.int64), np.zeros(nb + 1, np.int64),
-        zlo, np.zeros((2, nb)), 0.0, bc, bom, biv, np.inf, cf, cij)
+    C.solve_bodies(ContactParticles(X, V, W, R, B, np.zeros(n, np.uint8)),
+                   PairList(pi, pj, npairs), sweep, bodies, _law(2), NO_COLLIDERS, NO_WALLS,
+                   report_for(nb))
     assert not np.array_equal(X[:, 10], x0[:, 10])      # the overlap was pushed apart
     # the twin: active pairs (a carried side, closer than 1.25 (r_i + r_j)), in order
     i, j = pi.astype(int), pj.astype(int)
@@ -179,40 +177,27 @@ def test_a_first_sweep_that_changes_nothing_writes_no_compact_rows():
     # a resting heap time every step for nothing)
     X = np.zeros((3, 3))
     X[0] = [0.0, 0.0205, 0.041]
-    cf = np.full((12, 2), np.nan)
-    cij = np.full((5, 2), -1, np.int32)
-    X1, _ = _solve_chain(X, 8, cf, cij)
+    sweep = pair_sweep_for(2)
+    sweep.rows[:] = np.nan
+    sweep.row_index[:] = -1
+    X1, _ = _solve_chain(X, 8, sweep)
     np.testing.assert_array_equal(X1, X)
-    assert np.isnan(cf).all() and (cij == -1).all()
+    assert np.isnan(sweep.rows).all() and (sweep.row_index == -1).all()
 
 
-def _solve_chain(X, iters, cbuf=None, ibuf=None):
+def _solve_chain(X, iters, sweep=None):
     """Three one-particle bodies carried as a whole on a line (C, B, A: particles 0, 1,
     2; pairs (0, 1), (1, 2) in that order), at rest, no colliders; ``solve_bodies``
     with at most ``iters`` sweeps.  Returns X, V after it."""
-    # every argument of the type Contact.run passes (one compiled specialisation)
-    cbuf = np.zeros((12, 2)) if cbuf is None else cbuf
-    ibuf = np.zeros((5, 2), np.int32) if ibuf is None else ibuf
     X = np.ascontiguousarray(X.copy())
     V = np.zeros((3, 3))
     W = np.full(3, 10.0)
     B = np.arange(3, dtype=np.int32)
-    off = np.arange(4)
-    nb = 3
-    cpl = np.ones(nb, np.bool_)
-    bw = W.copy()
-    vb, zlo, bc = np.zeros((nb, 3)), np.zeros((2, nb)), np.zeros((nb, 3))
-    bom, biv = np.zeros((nb, 3)), np.zeros((nb, 9))
-    C.body_velocities(X, V, 1.0 / W, off, cpl, bw, vb, zlo, bc, bom, biv, X.copy(),
-                      np.ones(nb, np.bool_), np.zeros(6))
-    C.solve_bodies(
-        X, V, W, np.full(3, 0.01), B, np.array([0, 1], np.int32), np.array([1, 2], np.int32),
-        2, 0.5, 0.0, THRESH, H, iters, np.zeros(nb, np.uint8), np.zeros(nb, np.int64),
-        np.zeros(nb), NO_COLLIDERS,
-        np.zeros(3, np.uint8), off, bw, cpl, np.zeros((nb, 7)), np.zeros(nb, np.uint8),
-        np.zeros(2, np.int64), np.zeros((2, 2)), np.zeros(2), 0.01 * THRESH, vb,
-        np.zeros(4), np.zeros(0, np.int64), np.zeros(nb + 1, np.int64), zlo,
-        np.zeros((2, nb)), 0.0, bc, bom, biv, np.inf, cbuf, ibuf)
+    bodies, _ = _body_rows(X, V, W, np.arange(4))
+    C.solve_bodies(ContactParticles(X, V, W, np.full(3, 0.01), B, np.zeros(3, np.uint8)),
+                   PairList(np.array([0, 1], np.int32), np.array([1, 2], np.int32), 2),
+                   pair_sweep_for(2) if sweep is None else sweep, bodies, _law(iters),
+                   NO_COLLIDERS, NO_WALLS, report_for(3))
     return X, V
 
 
@@ -258,20 +243,15 @@ def _solve_chain_acc(self_pair):
     B = np.array([0, 1, 2, 2], np.int32)
     off = np.array([0, 1, 2, 4])
     nb = 3
-    cpl, bw, vb, zlo, bc, bom, biv, _ = _body_rows(X, V, W, off)
+    bodies, _ = _body_rows(X, V, W, off)
     pi = np.array([0, 1, 2] if self_pair else [0, 1], np.int32)
     pj = np.array([1, 2, 3] if self_pair else [1, 2], np.int32)
     m = len(pi)
-    acc = np.zeros((2, m))
-    C.solve_bodies(
-        X, V, W, np.full(4, 0.01), B, pi, pj, m, 0.5, 0.0, THRESH, H, 8,
-        np.zeros(nb, np.uint8), np.zeros(nb, np.int64), np.zeros(nb), NO_COLLIDERS,
-        np.zeros(4, np.uint8), off, bw, cpl,
-        np.zeros((nb, 7)), np.zeros(nb, np.uint8), np.zeros(m, np.int64), acc, np.zeros(m),
-        0.01 * THRESH, vb, np.zeros(4), np.zeros(0, np.int64), np.zeros(nb + 1, np.int64),
-        zlo, np.zeros((2, nb)), 0.0, bc, bom, biv, np.inf, np.zeros((7, m)),
-        np.zeros((5, m), np.int32))
-    return X, V, acc
+    sweep = pair_sweep_for(m)
+    C.solve_bodies(ContactParticles(X, V, W, np.full(4, 0.01), B, np.zeros(4, np.uint8)),
+                   PairList(pi, pj, m), sweep, bodies, _law(8), NO_COLLIDERS, NO_WALLS,
+                   report_for(nb))
+    return X, V, sweep.impulse
 
 
 def test_compact_rows_with_and_without_rows_of_one_body():

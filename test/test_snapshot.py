@@ -19,16 +19,17 @@ from sm_ros.core.snapshot import Snapshot
 #: addresses, not values (``ptrs``, ``_arena``: the addresses of a world's own arrays and a
 #: block whose alignment is its own).
 SCRATCH = {
-    'Body': {'_accbuf', '_apq', '_acc', '_ang', '_com', '_dacc', '_dmp', '_dref',
+    'Body': {'_accbuf', '_apq', '_pair_impulse', '_ang', '_com', '_dacc', '_dmp', '_dref',
              '_goal_lin', '_goal_off', '_lin', '_w3', '_m39', '_n4', '_v4', '_quat_prev',
              '_s3', '_trans', '_kin_prev', '_lim_lin', '_lim_w', '_flagged', '_changed',
              '_q4', '_i3', '_i3inv', '_w9', '_f9', '_mom3', '_mom9', '_arena'},
     '_SetLayout': {'goal_maps', 'work', 'quad_map', 'cluster_maps'},
-    'Contact': {'_active', '_cbuf', '_ibuf', '_pair_target', '_body_centre',
-                '_body_inv_inertia', '_body_spin', '_body_velocity', '_zlo', '_cnt',
-                '_particle_cell', '_srt', '_skey', '_sco', '_sorted_points', '_sorted_body',
-                '_cell_body', '_moved', '_body_change', '_pend', '_cand', '_cptr', '_order',
-                '_act_eff', 'fast', '_scratch_i', '_scratch_j', '_pcnt'},
+    'Contact': {'_active_pairs', '_pair_rows', '_pair_row_index', '_pair_target',
+                '_body_centre', '_body_inv_inertia', '_body_spin', '_body_velocity',
+                '_lowest', '_cnt', '_particle_cell', '_srt', '_skey', '_sco',
+                '_sorted_points', '_sorted_body', '_cell_body', '_moved', '_body_change',
+                '_pending', '_wall_particles', '_wall_start', '_order', '_act_eff', 'fast',
+                '_scratch_i', '_scratch_j', '_pcnt'},
     'Sleep': {'state.step2', 'state.drift2', 'state.level', 'state.near'},
     'FlatState': {'touched'},
     'Pack': {'ptrs', 'scratch'},

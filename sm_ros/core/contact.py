@@ -39,6 +39,8 @@ from .contact_build import (GridScratch, PairSource, body_overlaps, build_pairs_
 from .contact_cells import build_pairs
 from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_pairs, wall_candidates)
+from .contact_state import (NO_WALLS, CarriedBodies, ContactLaw, ContactParticles,
+                            ContactReport, PairList, PairSweep, WallCandidates)
 from .kernels.colliders import Colliders, contact_velocity
 from .params import _finite
 from .kernels.stiff_solve import drop_rigid_pairs
@@ -68,7 +70,7 @@ STACK_SWEEPS = 8
 SWEEP_TOL = 0.01
 #: ``solve_bodies`` starts each step from this fraction of the velocity impulses its
 #: pairs of carried bodies (and their ground contacts) ended the last step with, while the
-#: pair list is unchanged (``kernels.pair_contact._warm_start``): without it the 8 sweeps did
+#: pair list is unchanged (``kernels.pair_contact.warm_start``): without it the 8 sweeps did
 #: not carry the load of ``paper_384``'s heap (up to ten bodies high) to the ground, its
 #: top bodies kept about 2 g h of downward speed that the position impulses cancelled
 #: every step (1.3 J left); with 1.0 five stacked boxes sank 14 mm in 10 s.
@@ -254,31 +256,30 @@ class Contact:
         self._body_inv_mass = np.zeros(max(nb, 1))
         self._body_inv_mass_version = -1        # flat.w_version it was computed at
         self._body_change = np.zeros((max(nb, 1), 7))   # velocity, position changes; held
-        self._pend = np.zeros(max(nb, 1), dtype=np.uint8)
-        self._active = np.zeros(0, dtype=np.int64)
-        self._acc = np.zeros((2, 0))
+        self._pending = np.zeros(max(nb, 1), dtype=np.uint8)
+        self._active_pairs = np.zeros(0, dtype=np.int64)
+        self._pair_impulse = np.zeros((2, 0))
         self._pair_target = np.zeros(0)
-        self._cbuf = np.zeros((7, 0))
-        self._ibuf = np.zeros((5, 0), dtype=np.int32)
+        self._pair_rows = np.zeros((7, 0))
+        self._pair_row_index = np.zeros((5, 0), dtype=np.int32)
         self._body_velocity = np.zeros((max(nb, 1), 3))
-        self._zlo = np.zeros((2, max(nb, 1)))   # lowest particle per body: z, its v_z
+        self._lowest = np.zeros((2, max(nb, 1)))     # lowest particle: z, its v_z
         self._body_centre = np.zeros((max(nb, 1), 3))   # centre of mass
         self._body_spin = np.zeros((max(nb, 1), 3))
         self._body_inv_inertia = np.zeros((max(nb, 1), 9))
         self._dbox = np.zeros(6)        # displacements since the last build: their box
-        self._accg = np.zeros((2, max(nb, 1)))          # ground impulses per body
-        self._warm = False              # acc, accg hold the last step's impulses (list kept)
-        self._noground = np.zeros(4)
-        self._cand = np.zeros(n, dtype=np.int64)        # particles near boxes, spheres
-        self._cptr = np.zeros(max(nb, 1) + 1, dtype=np.int64)
+        self._ground_impulse = np.zeros((2, max(nb, 1)))
+        self._warm = False              # the impulses are the last step's (list kept)
+        self._wall_particles = np.zeros(n, dtype=np.int64)   # near boxes and spheres
+        self._wall_start = np.zeros(max(nb, 1) + 1, dtype=np.int64)
 
     def step_state(self) -> tuple:
         """What a step changes and a later step reads (``snapshot``): the pair list and
         what its build measured (boxes, positions, displacements since), the impulses that
         warm-start the next step, the body masses and the last step's counts."""
         return ('npairs', 'valid', 'builds', 'found', '_warm', '_pair_i', '_pair_j', '_xref',
-                '_box', '_dbox', '_acc', '_accg', '_body_inv_mass', '_body_inv_mass_version',
-                'count', 'deepest')
+                '_box', '_dbox', '_pair_impulse', '_ground_impulse', '_body_inv_mass',
+                '_body_inv_mass_version', 'count', 'deepest')
 
     def invalidate(self):
         """Force a rebuild of the pair list at the next step."""
@@ -374,17 +375,14 @@ class Contact:
             if self._body_inv_mass_version != f.w_version:    # masses from W if changed
                 body_inverse_masses(f.W, f.off, self._body_inv_mass)
                 self._body_inv_mass_version = f.w_version
-            # the carried bodies' velocities, boxes and the displacements since the last
+            # the carried bodies' frames, boxes and the displacements since the last
             # build in one pass over the positions
-            spread2 = body_velocities(f.X, f.V, f.M, f.off, self.coupling,
-                                      self._body_inv_mass, self._body_velocity, self._zlo,
-                                      self._body_centre, self._body_spin,
-                                      self._body_inv_inertia, self._xref, self.act,
-                                      self._dbox)
+            spread2 = body_velocities(f.X, f.V, f.M, self._carried_bodies(), self._xref,
+                                      self.act, self._dbox)
             # a body rests on the ground with its particles' spheres: a stiff one as the
             # stiff pass puts it (stiff_contact.py), the others as their own pass does
             n = len(self.radii)
-            self._zlo[0, :n] -= np.where(self.rigid[:n], self.radii, col.radius[:n])
+            self._lowest[0, :n] -= np.where(self.rigid[:n], self.radii, col.radius[:n])
         else:
             spread2 = moved_spread2(f.X, self._xref, f.off, self.act)
         # rebuilt once the displacements since the last build no longer fit in a ball of
@@ -394,50 +392,54 @@ class Contact:
             self._dbox[:] = 0.0                # nothing moved since this build
         self.count[:] = 0
         self.deepest[:] = 0.0
+        parts = ContactParticles(f.X, f.V, f.W, f.R, f.B, self._moved)
+        pairs = PairList(*self._solved_pairs())
+        report = ContactReport(f.touched, self.count, self.deepest)
         if not carried:
             self._warm = False
-            self.found = solve_pairs(f.X, f.V, f.W, f.R, f.B, *self._solved_pairs(),
-                                     p.friction, p.restitution, thresh, float(h), p.iterations,
-                                     f.touched, self.count, self.deepest, col, self._moved)
+            law = ContactLaw(float(p.friction), float(p.restitution), float(thresh), float(h),
+                             int(p.iterations), 0.0, 0.0)
+            self.found = solve_pairs(parts, pairs, law, report, col)
             return
-        if self._acc.shape[1] < self.npairs:
+        if self._pair_impulse.shape[1] < self.npairs:
             m = len(self._pair_i)               # grows with the pair list's capacity
-            self._acc = np.zeros((2, m))
+            self._pair_impulse = np.zeros((2, m))
             self._pair_target = np.zeros(m)
-            self._active = np.zeros(m, dtype=np.int64)
-            self._cbuf = np.zeros((7, m))        # solve_bodies' compact rows
-            self._ibuf = np.zeros((5, m), dtype=np.int32)
-        ncand, margin = self._near_walls(col)
-        self.found = solve_bodies(f.X, f.V, f.W, f.R, f.B, *self._solved_pairs(),
-                                  p.friction, p.restitution, thresh, float(h),
-                                  max(p.iterations, STACK_SWEEPS), f.touched, self.count,
-                                  self.deepest, col, self._moved, f.off, self._body_inv_mass,
-                                  self.coupling, self._body_change, self._pend, self._active,
-                                  self._acc, self._pair_target, SWEEP_TOL * thresh,
-                                  self._body_velocity, self._noground, self._cand[:ncand],
-                                  self._cptr, self._zlo, self._accg,
-                                  WARM_START if self._warm else 0.0, self._body_centre,
-                                  self._body_spin, self._body_inv_inertia, margin, self._cbuf,
-                                  self._ibuf)
+            self._active_pairs = np.zeros(m, dtype=np.int64)
+            self._pair_rows = np.zeros((7, m))       # solve_bodies' compact rows
+            self._pair_row_index = np.zeros((5, m), dtype=np.int32)
+        law = ContactLaw(float(p.friction), float(p.restitution), float(thresh), float(h),
+                         max(int(p.iterations), STACK_SWEEPS), SWEEP_TOL * float(thresh),
+                         WARM_START if self._warm else 0.0)
+        sweep = PairSweep(self._active_pairs, self._pair_impulse, self._pair_target,
+                          self._pair_rows, self._pair_row_index)
+        self.found = solve_bodies(parts, pairs, sweep, self._carried_bodies(), law, col,
+                                  self._near_walls(col), report)
         self._warm = True
 
-    def _near_walls(self, col):
-        """(count, margin): the end of solve_bodies puts a carried body's particles through
-        the boxes and spheres only where one can be inside (its particles near them, grown
-        by the particles' radius, ``_cand[:count]``, or one moved by ``margin`` or more);
-        with none, only the ground is left (no margin)."""
+    def _carried_bodies(self) -> CarriedBodies:
+        """The carried bodies' state, over this pass's buffers."""
+        return CarriedBodies(self.flat.off, self._body_inv_mass, self.coupling,
+                             self._body_velocity, self._lowest, self._body_centre,
+                             self._body_inv_inertia, self._body_spin, self._body_change,
+                             self._pending, self._ground_impulse)
+
+    def _near_walls(self, col) -> WallCandidates:
+        """The carried bodies' particles near the boxes and spheres (grown by the
+        particles' radius and the cell size, the margin a particle may move before it
+        must go through them again: the end of ``solve_bodies`` puts the others through
+        them only once they moved that far); with none, only the ground is left."""
         if not (col.on and (len(col.boxes) or len(col.spheres))):
-            return 0, np.inf
+            return NO_WALLS
         f = self.flat
         reach = self.cell + float(col.radius.max(initial=0.0))
-        args = (f.X, f.off, self.coupling, self._body_inv_mass, col.boxes, col.spheres, reach)
-        ncand = wall_candidates(*args, self._cand, self._cptr, self.act, self._box,
-                                self._dbox)
-        if ncand > len(self._cand):             # a particle near two of them: grow
-            self._cand = np.zeros(ncand, dtype=np.int64)
-            ncand = wall_candidates(*args, self._cand, self._cptr, self.act, self._box,
-                                    self._dbox)
-        return ncand, self.cell
+        while True:
+            walls = WallCandidates(self._wall_particles, self._wall_start, self.cell)
+            ncand = wall_candidates(f.X, self._carried_bodies(), col, reach, walls, self.act,
+                                    self._box, self._dbox)
+            if ncand <= len(self._wall_particles):
+                return walls._replace(particles=self._wall_particles[:ncand])
+            self._wall_particles = np.zeros(ncand, dtype=np.int64)   # some near two
 
     def fast_particles(self, h):
         """Per body, the particles that moved more than their contact radius in the last

@@ -21,8 +21,8 @@ moving faster than that.
 import numpy as np
 from numba import njit
 
-from .kernels.jit import JIT, U
-from .kernels.pair_contact import _collide_moved, _pair_normal
+from .kernels.jit import JIT, JIT_NO_REFCOUNT, U
+from .kernels.pair_contact import collide_moved, is_carried, pair_normal, report_touch
 from .kernels.spread import moved_box, spread_of
 
 
@@ -39,113 +39,87 @@ def body_inverse_masses(W, off, bw):
         bw[b] = 1.0 / m if m > 0.0 else 0.0
 
 
-@njit(**JIT)
-def solve_pairs(X, V, W, R, B, pi, pj, npairs, mu, e, thresh, h, iters, touched, count,
-                deepest, col, moved):
-    """Project the overlapping pairs apart and apply the contact law (Gauss-Seidel).
+@njit(**JIT_NO_REFCOUNT)
+def solve_pairs(parts, pairs, law, report, col):
+    """Project the overlapping pairs apart and apply the contact law (Gauss-Seidel,
+    ``law.sweeps`` sweeps over the pair list in build order).
 
     Pair (i, j) overlaps when |x_i - x_j| < r_i + r_j.  Its normal n is the direction of
     x_i - x_j at the start of the step, x - h v (exact for the bodies' symplectic Euler
-    step), so a pair that crossed within the step is pushed back to the side it came from,
-    and the impulses, all along n or across it at the two particles, keep angular
-    momentum when there is no friction.  The pair moves apart along n by the least lam
-    that restores the distance, split by inverse mass, and the velocities by lam / h;
-    the approaching normal speed left is removed (reversed times ``e`` above ``thresh``)
-    and the relative tangential speed reduced by at most ``mu`` times the whole normal
-    change: the law of ``kernels.colliders.contact_velocity`` applied to the relative
-    velocity, written out here because its normal change also counts the projection's
-    lam / h in the friction budget.  Every velocity change also moves the particle by h
-    times it, so x - h v stays the start of the step for the pairs that follow.
-    With colliders on (``col``: ``kernels.colliders.Colliders`` with one radius per body),
-    every particle moved (flagged in ``moved`` (N,) uint8, zero on entry and on return) is
-    then projected out of the static colliders, once, after the sweeps
-    (``kernels.colliders.collide_point``: ground, boxes, spheres), so contact never leaves
-    a particle inside one (a body pressed into the ground by another would otherwise be
-    pushed back out by the next step's collider pass, and the two would pump energy).
-    Returns the overlapping pairs met in the first sweep; ``count[b]``, ``deepest[b]`` get
-    each body's contacts and deepest penetration (m) of that sweep.
+    step), so a pair that crossed within the step is pushed back to the side it came
+    from.  The pair moves apart along n by the least lam that restores the distance,
+    split by inverse mass, and the velocities by lam / h; the approaching normal speed
+    left is removed (reversed times the restitution above ``law.thresh``) and the
+    relative tangential speed reduced by at most the friction times the whole normal
+    change (the law of ``kernels.colliders.contact_velocity`` on the relative velocity,
+    its normal change counting lam / h too).  Every velocity change also moves the
+    particle by h times it, so x - h v stays the start of the step for the later pairs
+    and, without friction, angular momentum is kept.  Every particle moved is then put
+    out of the static colliders ``col`` once (``collide_moved``), so contact never leaves
+    a particle inside one.  Returns the overlapping pairs of the first sweep; ``report``
+    gets each body's contacts and deepest penetration of that sweep.
     """
-    # one sweep over the pair list in build order (spatially sorted): per pair ~20 loads,
-    # two square roots and a few dozen multiply-adds; a pair apart costs one distance
     found = 0
-    ih = 1.0 / h
-    for it in range(iters):
-        for k in range(npairs):
-            i = pi[k]
-            j = pj[k]
-            wi = W[i]
-            wj = W[j]
-            ws = wi + wj
-            if ws <= 0.0:
-                continue
-            dx = X[0, i] - X[0, j]
-            dy = X[1, i] - X[1, j]
-            dz = X[2, i] - X[2, j]
-            d2 = dx * dx + dy * dy + dz * dz
-            rr = R[i] + R[j]
-            if not d2 < rr * rr:       # apart, or NaN (a body that blew up: left alone)
-                continue
-            rx = V[0, i] - V[0, j]
-            ry = V[1, i] - V[1, j]
-            rz = V[2, i] - V[2, j]
-            sx = dx - h * rx           # separation at the start of the step
-            sy = dy - h * ry
-            sz = dz - h * rz
-            nx, ny, nz = _pair_normal(sx, sy, sz, dx, dy, dz, d2, rr)
-            dn = dx * nx + dy * ny + dz * nz
-            lam = -dn + np.sqrt(dn * dn - d2 + rr * rr)
-            ai = wi / ws
-            aj = wj / ws
-            # normal speed before, the target after (restitution above the threshold)
-            vn0 = rx * nx + ry * ny + rz * nz
-            target = -e * vn0 if -vn0 > thresh else 0.0
-            vn = vn0 + lam * ih
-            dvn = target - vn if vn < target else 0.0
-            # tangential: Coulomb, budget mu * (whole normal change)
-            tx = rx - vn0 * nx
-            ty = ry - vn0 * ny
-            tz = rz - vn0 * nz
-            tl = np.sqrt(tx * tx + ty * ty + tz * tz)
-            f = 0.0
-            if tl > 0.0:
-                f = mu * (lam * ih + dvn) / tl
-                if f > 1.0:
-                    f = 1.0
-            gn = lam * ih + dvn        # relative velocity change: gn n - f t
-            qx = gn * nx - f * tx
-            qy = gn * ny - f * ty
-            qz = gn * nz - f * tz
-            # every velocity change moves the particles by h times it, so x - h v stays
-            # the start of the step for the later pairs (and angular momentum exact)
-            X[0, i] += ai * h * qx
-            X[1, i] += ai * h * qy
-            X[2, i] += ai * h * qz
-            X[0, j] -= aj * h * qx
-            X[1, j] -= aj * h * qy
-            X[2, j] -= aj * h * qz
-            V[0, i] += ai * qx
-            V[1, i] += ai * qy
-            V[2, i] += ai * qz
-            V[0, j] -= aj * qx
-            V[1, j] -= aj * qy
-            V[2, j] -= aj * qz
-            moved[i] = 1
-            moved[j] = 1
-            if it == 0:
+    for it in range(law.sweeps):
+        for k in range(pairs.count):
+            if _push_pair(parts, law, pairs.first[k], pairs.second[k], report, it == 0):
                 found += 1
-                bi = B[i]
-                bj = B[j]
-                touched[bi] = 1
-                touched[bj] = 1
-                count[bi] += 1
-                count[bj] += 1
-                pen = rr - np.sqrt(d2)
-                if pen > deepest[bi]:
-                    deepest[bi] = pen
-                if pen > deepest[bj]:
-                    deepest[bj] = pen
-    _collide_moved(X, V, W, B, pi, pj, npairs, moved, col)
+    collide_moved(parts, pairs, col)
     return found
+
+
+@njit(inline='always', **JIT)
+def _push_pair(parts, law, i, j, report, first):
+    """One visit of pair (i, j) in ``solve_pairs``; whether it overlapped."""
+    X, V, W, R, h = parts.x, parts.v, parts.inv_mass, parts.radius, law.h
+    wi = W[i]
+    wj = W[j]
+    ws = wi + wj
+    if ws <= 0.0:
+        return False
+    dx = X[0, i] - X[0, j]
+    dy = X[1, i] - X[1, j]
+    dz = X[2, i] - X[2, j]
+    d2 = dx * dx + dy * dy + dz * dz
+    rr = R[i] + R[j]
+    if not d2 < rr * rr:       # apart, or NaN (a body that blew up: left alone)
+        return False
+    ih = 1.0 / h
+    rx = V[0, i] - V[0, j]
+    ry = V[1, i] - V[1, j]
+    rz = V[2, i] - V[2, j]
+    nx, ny, nz = pair_normal(dx - h * rx, dy - h * ry, dz - h * rz, dx, dy, dz, d2, rr)
+    dn = dx * nx + dy * ny + dz * nz
+    lam = -dn + np.sqrt(dn * dn - d2 + rr * rr)
+    ai = wi / ws
+    aj = wj / ws
+    # normal speed before, the target after (restitution above the threshold)
+    vn0 = rx * nx + ry * ny + rz * nz
+    target = -law.restitution * vn0 if -vn0 > law.thresh else 0.0
+    vn = vn0 + lam * ih
+    dvn = target - vn if vn < target else 0.0
+    # tangential: Coulomb, budget friction * (whole normal change)
+    tx = rx - vn0 * nx
+    ty = ry - vn0 * ny
+    tz = rz - vn0 * nz
+    tl = np.sqrt(tx * tx + ty * ty + tz * tz)
+    f = 0.0
+    if tl > 0.0:
+        f = law.friction * (lam * ih + dvn) / tl
+        if f > 1.0:
+            f = 1.0
+    gn = lam * ih + dvn        # relative velocity change: gn n - f t
+    q = (gn * nx - f * tx, gn * ny - f * ty, gn * nz - f * tz)
+    for c in range(3):
+        X[c, i] += ai * h * q[c]
+        X[c, j] -= aj * h * q[c]
+        V[c, i] += ai * q[c]
+        V[c, j] -= aj * q[c]
+    parts.moved[i] = 1
+    parts.moved[j] = 1
+    if first:
+        report_touch(report, parts.body[i], parts.body[j], rr - np.sqrt(d2))
+    return True
 
 
 @njit(**JIT)
@@ -210,122 +184,135 @@ def inverse_sym3(a, out):
 
 
 @njit(**JIT)
-def body_velocities(X, V, M, off, cpl, bw, vb, zlo, bc, bom, biv, Xref, act, dbox):
-    """For the bodies ``solve_bodies`` carries as a whole (``cpl[b]``, ``bw[b]`` > 0):
-    vb[b] the velocity of the centre of mass (momentum / mass), zlo[:, b] the lowest
-    particle's height and vertical velocity, bc[b] the centre of mass, biv[b] (9,) the
-    inverse of the inertia tensor about it, bom[b] its spin (angular momentum about it
-    times that) from the particles' masses ``M`` (a carried body has no pinned or grabbed
-    particle).  Returns what ``contact_build.moved_spread2`` returns for the colliding
-    bodies (``act``) and ``Xref``, and writes the displacements' bounding box to ``dbox``
-    (6,) (lo x y z, hi x y z; for ``wall_candidates``): body by body, the displacements
-    (``kernels.spread.moved_box``) and then the sums over the same particles, in cache,
-    so the contact pass reads its positions from memory once for both (a loop of its
-    own each, simpler than one fused loop).  The sums
-    about the first particle, for round-off; then a search for the first particle at
-    the lowest height."""
+def body_velocities(X, V, M, bodies, Xref, act, dbox):
+    """The frames of the carried bodies (``is_carried``) at the pass's start, from the
+    particles' masses ``M`` (a carried body has no pinned or grabbed particle): the
+    velocity of the centre of mass, the lowest particle's height and vertical velocity,
+    the centre, the inverse inertia about it and the spin (``CarriedBodies``).  Returns
+    what ``contact_build.moved_spread2`` returns for the colliding bodies (``act``) and
+    ``Xref``, and writes the displacements' bounding box to ``dbox`` (6,) (lo x y z, hi
+    x y z; for ``wall_candidates``): body by body, so the pass reads the positions from
+    memory once for both."""
     a = np.zeros(9)
     dlo = np.full(3, np.inf)
     dhi = np.full(3, -np.inf)
     nan = 0.0
+    off = bodies.offsets
     for b in range(off.shape[0] - 1):
-        vb[b, 0] = vb[b, 1] = vb[b, 2] = 0.0
-        bom[b, 0] = bom[b, 1] = bom[b, 2] = 0.0
-        o = off[b]
+        for c in range(3):
+            bodies.velocity[b, c] = 0.0
+            bodies.spin[b, c] = 0.0
         if act[b]:
-            # the displacements since Xref; the sums below then find the body's particles
-            # in cache (one pass over memory for both)
-            nan += moved_box(X, Xref, o, off[b + 1], dlo, dhi)
-        if not cpl[b] or not bw[b] > 0.0:
-            continue
-        q0, q1, q2 = X[0, o], X[1, o], X[2, o]
-        p0 = p1 = p2 = 0.0             # momentum
-        s0 = s1 = s2 = 0.0             # first moment about q
-        l0 = l1 = l2 = 0.0             # angular momentum about q
-        xx = yy = zz = xy = yz = zx = 0.0   # second moments about q
-        lo = np.inf                    # the lowest height
-        for k in range(U(o), U(off[b + 1])):
-            x0, x1, x2 = X[0, k], X[1, k], X[2, k]
-            lo = min(lo, x2)
-            m = M[k]
-            y0 = x0 - q0
-            y1 = x1 - q1
-            y2 = x2 - q2
-            u0 = m * V[0, k]
-            u1 = m * V[1, k]
-            u2 = m * V[2, k]
-            p0 += u0
-            p1 += u1
-            p2 += u2
-            s0 += m * y0
-            s1 += m * y1
-            s2 += m * y2
-            l0 += y1 * u2 - y2 * u1
-            l1 += y2 * u0 - y0 * u2
-            l2 += y0 * u1 - y1 * u0
-            xx += m * y0 * y0
-            yy += m * y1 * y1
-            zz += m * y2 * y2
-            xy += m * y0 * y1
-            yz += m * y1 * y2
-            zx += m * y2 * y0
-        klo = o
-        while klo < off[b + 1] - 1 and not X[2, klo] == lo:
-            klo += 1
-        iw = bw[b]
-        vb[b, 0] = p0 * iw
-        vb[b, 1] = p1 * iw
-        vb[b, 2] = p2 * iw
-        zlo[0, b] = lo
-        zlo[1, b] = V[2, klo]
-        g0 = s0 * iw                   # centre of mass, relative to q
-        g1 = s1 * iw
-        g2 = s2 * iw
-        bc[b, 0] = q0 + g0
-        bc[b, 1] = q1 + g1
-        bc[b, 2] = q2 + g2
-        # moments about the centre: shift by the total mass M = 1 / iw
-        mm = 1.0 / iw
-        xx -= mm * g0 * g0
-        yy -= mm * g1 * g1
-        zz -= mm * g2 * g2
-        xy -= mm * g0 * g1
-        yz -= mm * g1 * g2
-        zx -= mm * g2 * g0
-        l0 -= g1 * p2 - g2 * p1
-        l1 -= g2 * p0 - g0 * p2
-        l2 -= g0 * p1 - g1 * p0
-        a[0] = yy + zz
-        a[4] = zz + xx
-        a[8] = xx + yy
-        a[1] = a[3] = -xy
-        a[5] = a[7] = -yz
-        a[2] = a[6] = -zx
-        inverse_sym3(a, biv[b])
-        bom[b, 0] = biv[b, 0] * l0 + biv[b, 1] * l1 + biv[b, 2] * l2
-        bom[b, 1] = biv[b, 3] * l0 + biv[b, 4] * l1 + biv[b, 5] * l2
-        bom[b, 2] = biv[b, 6] * l0 + biv[b, 7] * l1 + biv[b, 8] * l2
+            nan += moved_box(X, Xref, off[b], off[b + 1], dlo, dhi)
+        if is_carried(bodies, b):
+            _body_frame(X, V, M, bodies, b, a)
     for r in range(3):
         dbox[r] = dlo[r] if dlo[0] <= dhi[0] else 0.0    # empty: nothing colliding
         dbox[3 + r] = dhi[r] if dlo[0] <= dhi[0] else 0.0
     return spread_of(dlo, dhi, nan)
 
 
-@njit(**JIT)
-def wall_candidates(X, off, cpl, bw, boxes, spheres, margin, cand, cptr, act, bbox, dbox):
-    """The particles of the bodies ``solve_bodies`` carries as a whole (``cpl[b]``,
-    ``bw[b]`` > 0) that are within ``margin`` of a box or a sphere, body by body:
-    ``cand[cptr[b]:cptr[b + 1]]``; returns their number.  A body's bounding box is
-    tested first, so a body far from them costs nothing more: for a colliding body
-    (``act``) its box at the last pair-list build (``bbox[b]``, ``body_overlaps``: the
-    box grown by its radius and half the skin) widened by the bounding box of every
-    colliding particle's displacement since then (``dbox``, ``body_velocities``), which
-    holds each of its particles now without a pass over them; for another, a pass over
-    its particles."""
+@njit(inline='always', **JIT)
+def _moments(X, V, M, start, end):
+    """Momentum, first moment, angular momentum and second moments (xx yy zz xy yz zx)
+    of particles start..end about the first one (for round-off), and their lowest
+    height."""
+    q0, q1, q2 = X[0, start], X[1, start], X[2, start]
+    p0 = p1 = p2 = 0.0
+    s0 = s1 = s2 = 0.0
+    l0 = l1 = l2 = 0.0
+    xx = yy = zz = xy = yz = zx = 0.0
+    lo = np.inf
+    for k in range(U(start), U(end)):
+        x0, x1, x2 = X[0, k], X[1, k], X[2, k]
+        lo = min(lo, x2)
+        m = M[k]
+        y0 = x0 - q0
+        y1 = x1 - q1
+        y2 = x2 - q2
+        u0 = m * V[0, k]
+        u1 = m * V[1, k]
+        u2 = m * V[2, k]
+        p0 += u0
+        p1 += u1
+        p2 += u2
+        s0 += m * y0
+        s1 += m * y1
+        s2 += m * y2
+        l0 += y1 * u2 - y2 * u1
+        l1 += y2 * u0 - y0 * u2
+        l2 += y0 * u1 - y1 * u0
+        xx += m * y0 * y0
+        yy += m * y1 * y1
+        zz += m * y2 * y2
+        xy += m * y0 * y1
+        yz += m * y1 * y2
+        zx += m * y2 * y0
+    return (p0, p1, p2), (s0, s1, s2), (l0, l1, l2), (xx, yy, zz, xy, yz, zx), lo
+
+
+@njit(inline='always', **JIT)
+def _body_frame(X, V, M, bodies, b, a):
+    """Body b's frame (``body_velocities``); ``a`` (9,) scratch for its inertia."""
+    o = bodies.offsets[b]
+    end = bodies.offsets[b + 1]
+    (p0, p1, p2), (s0, s1, s2), (l0, l1, l2), sec, lo = _moments(X, V, M, o, end)
+    xx, yy, zz, xy, yz, zx = sec
+    klo = o                    # the first particle at the lowest height
+    while klo < end - 1 and not X[2, klo] == lo:
+        klo += 1
+    iw = bodies.inv_mass[b]
+    vb, bc, biv, bom = bodies.velocity, bodies.centre, bodies.inv_inertia, bodies.spin
+    vb[b, 0] = p0 * iw
+    vb[b, 1] = p1 * iw
+    vb[b, 2] = p2 * iw
+    bodies.lowest[0, b] = lo
+    bodies.lowest[1, b] = V[2, klo]
+    g0 = s0 * iw               # centre of mass, relative to the first particle
+    g1 = s1 * iw
+    g2 = s2 * iw
+    bc[b, 0] = X[0, o] + g0
+    bc[b, 1] = X[1, o] + g1
+    bc[b, 2] = X[2, o] + g2
+    # moments about the centre: shift by the total mass 1 / iw
+    mm = 1.0 / iw
+    xx -= mm * g0 * g0
+    yy -= mm * g1 * g1
+    zz -= mm * g2 * g2
+    xy -= mm * g0 * g1
+    yz -= mm * g1 * g2
+    zx -= mm * g2 * g0
+    l0 -= g1 * p2 - g2 * p1
+    l1 -= g2 * p0 - g0 * p2
+    l2 -= g0 * p1 - g1 * p0
+    a[0] = yy + zz
+    a[4] = zz + xx
+    a[8] = xx + yy
+    a[1] = a[3] = -xy
+    a[5] = a[7] = -yz
+    a[2] = a[6] = -zx
+    inverse_sym3(a, biv[b])
+    bom[b, 0] = biv[b, 0] * l0 + biv[b, 1] * l1 + biv[b, 2] * l2
+    bom[b, 1] = biv[b, 3] * l0 + biv[b, 4] * l1 + biv[b, 5] * l2
+    bom[b, 2] = biv[b, 6] * l0 + biv[b, 7] * l1 + biv[b, 8] * l2
+
+
+@njit(**JIT_NO_REFCOUNT)
+def wall_candidates(X, bodies, col, reach, walls, act, bbox, dbox):
+    """The particles of the carried bodies (``is_carried``) within ``reach`` of a box or a
+    sphere of ``col``, body by body: ``walls.particles[walls.start[b]:walls.start[b +
+    1]]``; returns their number (more than the buffer holds: call again with a larger
+    one).  A body's bounding box is tested first, so a body far from them costs nothing
+    more: for a colliding body (``act``) its box at the last pair-list build
+    (``bbox[b]``, ``body_overlaps``) widened by the bounding box of every colliding
+    particle's displacement since then (``dbox``, ``body_velocities``); for another, a
+    pass over its particles."""
+    off, cand, cptr, margin = bodies.offsets, walls.particles, walls.start, reach
+    boxes, spheres = col.boxes, col.spheres
     m = 0
     for b in range(off.shape[0] - 1):
         cptr[b] = m
-        if not cpl[b] or not bw[b] > 0.0:
+        if not is_carried(bodies, b):
             continue
         if act[b]:
             lo0, lo1, lo2 = bbox[b, 0] + dbox[0], bbox[b, 1] + dbox[1], bbox[b, 2] + dbox[2]
