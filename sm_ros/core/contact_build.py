@@ -208,18 +208,21 @@ def grid_sort(src, grid, dims):
     return nact
 
 
+@njit(inline='always', **JIT)
+def _only(cb, cell, b):
+    """Whether grid cell ``cell`` holds body b only, or nothing (``grid_sort``'s ``cb``)."""
+    e = cb[cell]
+    return (e == b) | (e == EMPTY)
+
+
 @njit(**JIT)
 def _cell_pairs(a_lo, a_hi, dims, src, grid, pi, pj, m0, cap):
     """The pairs of the particles at sorted places [a_lo, a_hi) (whole cells, ``grid_sort``)
-    with the later particles of their own cell and the 13 cells of the forward half-stencil,
-    written to pi, pj from m0 while below ``cap``; returns m0 + their number.
-
-    Cells are numbered x fastest, so three cells side by side in x are one run of the
-    sorted particles: the stencil is five runs, the own cell with the next one in x, and
-    the rows of three cells at (dy, dz) = (1, 0), (-1, 1), (0, 1), (1, 1).  When the cell
-    holds one body (without self-collision), a run whose cells hold only that body or
-    nothing is skipped whole (three loads of ``cb``), and otherwise such cells at its ends
-    are left out of it.
+    with the later particles of their own cell and the 13 cells of the forward half-stencil
+    (five runs of the sorted particles, cells being numbered x fastest: the own cell with
+    the next in x, and the rows of three at (dy, dz) = (1, 0), (-1, 1), (0, 1), (1, 1)),
+    written to pi, pj from m0 while below ``cap``; returns m0 + their number.  From a cell
+    of one body (not self-colliding), cells of that body alone or empty are left out.
     """
     R, selfc, X0, skin, self_fac = (src.radius, src.self_collide, src.rest, src.skin,
                                     src.self_factor)
@@ -227,8 +230,7 @@ def _cell_pairs(a_lo, a_hi, dims, src, grid, pi, pj, m0, cap):
     P, sb, cb = grid.points, grid.point_body, grid.cell_body
     nx, ny, nz = dims[0], dims[1], dims[2]
     nxy = nx * ny
-    m = m0
-    a0 = a_lo
+    m, a0 = m0, a_lo
     while a0 < a_hi:
         c = hb[srt[a0]]
         a1 = cnt[c + 1]
@@ -241,32 +243,21 @@ def _cell_pairs(a_lo, a_hi, dims, src, grid, pi, pj, m0, cap):
         xh = 1 if cx < nx - 1 else 0
         for q in range(5):
             if q == 0:                      # own cell (later particles) and the next in x
-                if one:
-                    if xh == 0:
-                        continue
-                    e = cb[c + 1]
-                    if e == b or e == EMPTY:
-                        continue
-                    t0b = cnt[c + 1]        # own cell: one body, nothing to test
-                else:
-                    t0b = -1
+                if one and (xh == 0 or _only(cb, c + 1, b)):
+                    continue
+                t0b = cnt[c + 1] if one else -1     # one body: nothing to test in its cell
                 t1 = cnt[c + 1 + xh]
             else:                           # a row of up to three cells
                 dy = 1 if q == 1 else q - 3
                 dz = 0 if q == 1 else 1
-                qy = cy + dy
-                if qy < 0 or qy >= ny or cz + dz >= nz:
+                if cy + dy < 0 or cy + dy >= ny or cz + dz >= nz:
                     continue
                 base = c + dy * nx + dz * nxy
-                first = xl
-                last = xh
+                first, last = xl, xh
                 if one:
-                    e0 = cb[base + xl]
-                    e1 = cb[base]
-                    e2 = cb[base + xh]
-                    k0 = (e0 == b) | (e0 == EMPTY)
-                    k1 = (e1 == b) | (e1 == EMPTY)
-                    k2 = (e2 == b) | (e2 == EMPTY)
+                    k0 = _only(cb, base + xl, b)
+                    k1 = _only(cb, base, b)
+                    k2 = _only(cb, base + xh, b)
                     if k0 & k1 & k2:
                         continue            # the row holds this body only: nothing to test
                     # leave out end cells that hold this body only
@@ -291,8 +282,7 @@ def _cell_pairs(a_lo, a_hi, dims, src, grid, pi, pj, m0, cap):
                     lim = ri + P[t, 3] + skin
                     # one rarely taken branch: in range, and two bodies or self-colliding
                     if (d2 < lim * lim) & ((sb[t] != bi) | si):
-                        i = srt[a]
-                        j = srt[t]
+                        i, j = srt[a], srt[t]
                         if sb[t] == bi:
                             ex = X0[0, j] - X0[0, i]
                             ey = X0[1, j] - X0[1, i]

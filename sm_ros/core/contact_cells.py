@@ -26,33 +26,18 @@ def _bucket(key, mask):
     return np.int64(h >> np.uint64(32)) & mask
 
 
-# The builders share their inner pair test (distance with skin, same body only with
-# self-collision and beyond the rest distance).  It is written out in each on purpose: as
-# a shared helper (also with inline='always') the rebuild was several times slower.
-
-
 @njit(**JIT)
-def build_pairs(src, grid, skey, sco, pi, pj):
-    """Candidate pairs of ``src`` (``contact_build.PairSource``) closer than r_i + r_j +
-    skin into pi, pj; returns their number.
-
-    Scratch: of ``grid`` (``contact_build.GridScratch``) ``particle_cell`` (hb, N),
-    ``cell_start`` (cnt, T + 1 with T a power of two), ``order`` (srt, N: the particles
-    sorted by hash slot); ``skey`` (N,) int64 and ``sco`` (5, N) float64 (their
-    cell keys and x, y, z, r, body copied in slot order, so the neighbour loops read
-    contiguous memory).  When more pairs exist than ``pi`` holds, the count is still
-    returned (the caller grows the arrays and calls again).
-    """
-    X, R, B, act, selfc, X0 = (src.x, src.radius, src.body, src.active, src.self_collide,
-                               src.rest)
-    cell, skin, self_fac = src.cell, src.skin, src.self_factor
+def _hash_sort(src, grid, skey, sco):
+    """``build_pairs``' sort: the hashed cell of every colliding particle, a counting sort
+    by slot, and the sorted particles' keys and x, y, z, r, body copied in slot order.
+    Returns how many were sorted."""
+    X, R, B, act = src.x, src.radius, src.body, src.active
     hb, cnt, srt = grid.particle_cell, grid.cell_start, grid.order
     n = X.shape[1]
     tsize = cnt.shape[0] - 1
     mask = tsize - 1
-    inv = 1.0 / cell
+    inv = 1.0 / src.cell
     cnt[:] = 0
-    # 1. hashed cell of every colliding particle; counting sort by slot
     for i in range(n):
         hb[i] = -1
         if not act[B[i]]:
@@ -87,7 +72,33 @@ def build_pairs(src, grid, skey, sco, pi, pj):
         skey[a] = _cell_key(np.int64(math.floor(X[0, i] * inv)),
                             np.int64(math.floor(X[1, i] * inv)),
                             np.int64(math.floor(X[2, i] * inv)))
-    # 2. pairs, cell by cell (a run of equal keys in slot order; a slot may also hold
+    return nact
+
+
+# The builders share their inner pair test (distance with skin, same body only with
+# self-collision and beyond the rest distance).  It is written out in each on purpose: as
+# a shared helper (also with inline='always') the rebuild was several times slower.
+
+
+@njit(**JIT)
+def build_pairs(src, grid, skey, sco, pi, pj):
+    """Candidate pairs of ``src`` (``contact_build.PairSource``) closer than r_i + r_j +
+    skin into pi, pj; returns their number.
+
+    Scratch: of ``grid`` (``contact_build.GridScratch``) ``particle_cell`` (hb, N),
+    ``cell_start`` (cnt, T + 1 with T a power of two), ``order`` (srt, N: the particles
+    sorted by hash slot); ``skey`` (N,) int64 and ``sco`` (5, N) float64 (their
+    cell keys and x, y, z, r, body copied in slot order, so the neighbour loops read
+    contiguous memory).  When more pairs exist than ``pi`` holds, the count is still
+    returned (the caller grows the arrays and calls again).
+    """
+    selfc, X0 = src.self_collide, src.rest
+    skin, self_fac = src.skin, src.self_factor
+    cnt, srt = grid.cell_start, grid.order
+    mask = cnt.shape[0] - 2
+    inv = 1.0 / src.cell
+    nact = _hash_sort(src, grid, skey, sco)
+    # pairs, cell by cell (a run of equal keys in slot order; a slot may also hold
     # other cells, hash collisions, so exact keys are compared): a particle against the
     # later ones of its run, and the run against the 13 cells of the forward half-stencil,
     # so each pair is met once
