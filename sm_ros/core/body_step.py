@@ -66,6 +66,16 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
         body._dirty = body._dirty or sets is None
 
 
+def _particles(body):
+    """The body's particles as the passes of ``kernels/integrate.py`` read them."""
+    return K.BodyParticles(body._x, body._v, body._x0, body._m)
+
+
+def _rest(body):
+    """The body's clusters as the passes of ``kernels/integrate.py`` read them."""
+    return K.ClusterRest(body._ptr, body._cl, body._rest_lin, body._rest_off, body._ref)
+
+
 def _take_sums(body) -> None:
     """The clusters' sums of the current state (Eq. 7-11): taken afresh where the state
     changed since the last pass summed it (``body._dirty``); the set layout reduces its
@@ -79,9 +89,8 @@ def _take_sums(body) -> None:
                       sref=sets.ref, stp=sets.pair_offsets, rest_lin=body._rest_lin, ref=body._ref,
                       quad=body._quad, out=body._part, wk=sets.work, pm=sets.quad_map)
     elif body._dirty:
-        _chunks(body, K.accumulate_chunks, quad=body._quad, x=body._x, x0=body._x0,
-                mass=body._m, ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
-                rest_off=body._rest_off, ref=body._ref, part=body._part)
+        _chunks(body, K.accumulate_chunks, quad=body._quad, particles=_particles(body),
+                rest=_rest(body), part=body._part)
 
 
 def _match(body, p, h) -> int:
@@ -204,13 +213,11 @@ def _integrate(body, p, h, fused, colliders) -> int:
         capped = int(chunk_capped.sum())
         body._limit_counts[0] += capped
         return capped
-    _chunks(body, K.integrate_chunks, quad=body._quad, x=body._x, v=body._v, x0=body._x0,
-            mass=body._m, ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
-            rest_off=body._rest_off, trans=body._trans, goal_lin=body._goal_lin,
-            goal_off=body._goal_off, ref=body._ref, alpha=p.alpha, h=h, acc=body._acc,
-            ang=body._ang, com=body._com, part=body._part, err=body._err, col=colliders,
-            damp=fused,
-            k_damp=p.damping, dmp=body._dmp, dpart=body._dpart)
+    goals = K.StepGoals(body._goal_lin, body._goal_off, body._trans, p.alpha, h, body._acc,
+                        body._ang, body._com)
+    _chunks(body, K.integrate_chunks, quad=body._quad, particles=_particles(body),
+            rest=_rest(body), goals=goals, part=body._part, err=body._err, col=colliders,
+            damping=K.FusedDamping(fused, p.damping, body._dmp, body._dpart))
     if v_max <= 0.0:
         return 0
     capped = K.limit_speed(x=body._x, v=body._v, h=h, v_max=v_max)
@@ -258,9 +265,8 @@ def goals(body) -> np.ndarray:
     ref, quat = body._ref.copy(), body._quat.copy()
     trans, goal_lin = np.zeros_like(body._trans), np.zeros_like(body._goal_lin)
     goal_off = np.zeros_like(body._goal_off)
-    K.accumulate_chunks(claim=np.zeros(1, dtype=np.int64), quad=body._quad, x=body._x,
-                        x0=body._x0, mass=body._m, ptr=body._ptr, cl=body._cl,
-                        rest_lin=body._rest_lin, rest_off=body._rest_off, ref=ref, part=part)
+    K.accumulate_chunks(np.zeros(1, dtype=np.int64), body._quad, _particles(body),
+                        _rest(body)._replace(ref=ref), part)
     s3 = [np.zeros((3, 3)) for _ in range(3)]
     K.solve_clusters(part=part, wsum=body._wsum, sum_q=body._sum_q, ref=ref, quat=quat,
                      aqq3=body._aqq3, aqq9=body._aqq9, rest_lin=body._rest_lin,
@@ -270,13 +276,11 @@ def goals(body) -> np.ndarray:
                      m3c=s3[2], m39=np.zeros((3, 9)), n4=np.zeros((4, 4)), v4=np.zeros((4, 4)),
                      nmat=body._nmat, cdet=body._cdet)
     g = body._x.copy(order='K')            # the layout of x: the kernels' own specialisation
-    K.integrate_chunks(claim=np.zeros(1, dtype=np.int64), quad=body._quad, x=g,
-                       v=np.zeros_like(g), x0=body._x0, mass=body._m,
-                       ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
-                       rest_off=body._rest_off, trans=trans, goal_lin=goal_lin,
-                       goal_off=goal_off, ref=ref, alpha=1.0, h=1.0, acc=np.zeros(3),
-                       ang=np.zeros(3), com=np.zeros(3), part=part, err=np.zeros(1),
-                       col=Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)),
-                                     0.0, 0.0), damp=False, k_damp=0.0,
-                       dmp=np.zeros((1, 6)), dpart=np.zeros((1, 1, K.NDAMP)))
+    goals = K.StepGoals(goal_lin, goal_off, trans, 1.0, 1.0, np.zeros(3), np.zeros(3),
+                        np.zeros(3))
+    no_colliders = Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), 0.0, 0.0)
+    K.integrate_chunks(np.zeros(1, dtype=np.int64), body._quad,
+                       K.BodyParticles(g, np.zeros_like(g), body._x0, body._m),
+                       _rest(body)._replace(ref=ref), goals, part, np.zeros(1), no_colliders,
+                       K.FusedDamping(False, 0.0, np.zeros((1, 6)), np.zeros((1, 1, K.NDAMP))))
     return g

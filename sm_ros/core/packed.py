@@ -452,10 +452,8 @@ def _pass(lo, hi, x, v, x0, mass, row, h, work, col):
     spheres, is projected onto the colliders (the ground alone: ``ground_range``, no bounds
     pass), capped and summed again (``_acc_single``, ``damp_sums_uniform``, vectorised).
     """
-    sums, ref, pnt, rest_lin, rest_off = (work.part, work.ref, work.pnt, work.rest_lin,
-                                          work.rest_off)
-    goal_lin, goal_off, dmp, acc, dsums = (work.goal_lin, work.goal_off, work.dmp, work.acc,
-                                           work.dpart)
+    sums, pnt, rest_lin, rest_off, dsums = (work.part, work.pnt, work.rest_lin, work.rest_off,
+                                            work.dpart)
     alpha, k_damp, v_max, wuni = row[C_ALPHA], row[C_DAMP], row[C_VMAX], row[C_WUNI]
     damp = k_damp > 0.0
     err2 = 0.0
@@ -466,15 +464,14 @@ def _pass(lo, hi, x, v, x0, mass, row, h, work, col):
     step = FUSED_BLOCK
     for bs in range(lo, hi, step):
         be = min(bs + step, hi)
-        e, over, low = _int_single_fused(bs, be, x, v, x0, wuni, goal_lin, goal_off,
-                                         alpha, h, acc, damp, k_damp, dmp, ref, pnt, rest_lin,
-                                         rest_off, v_max, gz, boxed, sums, dsums)
+        e, over, low = _int_single_fused(bs, be, (x, v, x0), wuni, work,
+                                         (alpha, h, damp, k_damp, v_max), gz, boxed)
         err2 += e
         if low and not (over or boxed):
             # the loop added its sums: the ground's projection, and what it changed in them
             g = ground_range_sums(bs, be, x, v, x0, wuni, col, k0, k1, k2, damp)
-            _add_rest_sums(rest_lin, rest_off, sums[0], 0.0, 0.0, g[0], 0.0, 0.0, 0.0, 0.0,
-                           0.0, 0.0, g[1], g[2], g[3])
+            _add_rest_sums(rest_lin, rest_off, sums[0], (0.0, 0.0, g[0], 0.0, 0.0, 0.0, 0.0,
+                                                         0.0, 0.0, g[1], g[2], g[3]))
             if damp:
                 for j in range(12):                # rows 3-14, damp_sums_range's order
                     dsums[0, 3 + j] += g[4 + j]

@@ -39,7 +39,8 @@ from .damping import (NDAMP, damp_acc_range, damp_accumulate, damp_kinematic, da
 from .goals import (_goal_quad, _qhat, invert_moments, moments, quad_features, solve_clusters,
                     solve_clusters_warm)
 from .grabs import apply_kinematic, gather_rows, inertia
-from .integrate import BLOCK, accumulate_chunks, advance, integrate_chunks
+from .integrate import (BLOCK, BodyParticles, ClusterRest, FusedDamping, StepGoals,
+                        accumulate_chunks, advance, integrate_chunks)
 from .jit import FASTMATH, JIT
 from .limits import limit_speed, limit_turn
 from .linalg import det3, jacobi3, jacobi3_warm, jacobi_eigh, matmul, norm2, pinv_sym
@@ -61,7 +62,8 @@ __all__ = ['Colliders', '_collide_range', 'contact_velocity', 'collide_point', '
            '_stretch_ok', '_unit_det_sum', 'invert_moments', 'moments', 'nearest_unit_det',
            'nearest_unit_det_warm', 'quad_features', 'solve_clusters', 'solve_clusters_warm',
            'unit_det_frames', 'unit_det_match', 'unit_det_match_warm',
-           'volume_preserving', 'BLOCK', 'accumulate_chunks', 'advance',
+           'volume_preserving', 'BLOCK', 'BodyParticles', 'ClusterRest', 'FusedDamping',
+           'StepGoals', 'accumulate_chunks', 'advance',
            'apply_kinematic', 'gather_rows', 'inertia', 'integrate_chunks',
            'FASTMATH', 'JIT', 'limit_speed', 'limit_turn', 'det3', 'jacobi3', 'jacobi3_warm',
            'jacobi_eigh', 'matmul',

@@ -213,14 +213,18 @@ NDAMP = 20
 def damp_velocity(v, i, r0, r1, r2, dmp, s, k_damp):
     """v_i moves the fraction ``k_damp`` towards its set's field c_s + omega_s x r (r = x -
     r_s, before the step): the damping of ``damp_rigid``, inlined into the particle pass."""
-    damp_towards(v=v, i=i, r0=r0, r1=r1, r2=r2, c0=dmp[s, 0], c1=dmp[s, 1], c2=dmp[s, 2],
-                 o0=dmp[s, 3], o1=dmp[s, 4], o2=dmp[s, 5], k_damp=k_damp)
+    damp_towards(v=v, i=i, r=(r0, r1, r2),
+                 field=(dmp[s, 0], dmp[s, 1], dmp[s, 2], dmp[s, 3], dmp[s, 4], dmp[s, 5]),
+                 k_damp=k_damp)
 
 
 @njit(inline='always', **JIT)
-def damp_towards(v, i, r0, r1, r2, c0, c1, c2, o0, o1, o2, k_damp):
-    """``damp_velocity`` with the field c + omega x r in scalars (held in registers by the
-    loops that vectorise: an array read in the loop may alias v and costs a memory check)."""
+def damp_towards(v, i, r, field, k_damp):
+    """``damp_velocity`` with the field c + omega x r in scalars (``field``: c0 c1 c2 o0 o1
+    o2, held in registers by the loops that vectorise: an array read in the loop may alias
+    v and costs a memory check)."""
+    r0, r1, r2 = r
+    c0, c1, c2, o0, o1, o2 = field
     v[i, 0] += k_damp * (c0 + o1 * r2 - o2 * r1 - v[i, 0])
     v[i, 1] += k_damp * (c1 + o2 * r0 - o0 * r2 - v[i, 1])
     v[i, 2] += k_damp * (c2 + o0 * r1 - o1 * r0 - v[i, 2])

@@ -22,6 +22,8 @@ outside the loops.  The membership loops (several clusters a particle, gathered 
 stay scalar; multi-cluster bodies mostly take the set layout (``sets.py``).
 """
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
@@ -31,6 +33,20 @@ from .damping import damp_acc_range, damp_towards
 from .goals import _goal_quad, _qhat
 from .fused import _fused_range, damp_constants
 
+#: A body's particles as the passes read them: positions, velocities and rest positions
+#: (N, 3; the transposes of its (3, N) blocks, typed F) and masses (N,).
+BodyParticles = namedtuple('BodyParticles', 'x v x0 mass')
+#: Its clusters: the membership (``ptr`` (N + 1,) into ``cl``, the clusters of each
+#: particle; empty for one cluster), each cluster's rest map (``rest_lin``, ``rest_off``)
+#: and the point its sums are taken about (``ref``, the last centre of mass).
+ClusterRest = namedtuple('ClusterRest', 'ptr cl rest_lin rest_off ref')
+#: The step's goals and forces: each cluster's goal map (``goal_lin``, ``goal_off``;
+#: ``trans`` when quadratic), alpha, h, the acceleration ``acc`` and the angular one
+#: ``ang`` about ``com``.
+StepGoals = namedtuple('StepGoals', 'goal_lin goal_off trans alpha h acc ang com')
+#: Damping fused into the pass: whether it is on, its rate, its field (``dmp``: a row
+#: per set) and the per-chunk damping sums.
+FusedDamping = namedtuple('FusedDamping', 'on rate field part')
 
 @njit(inline='always', **JIT)
 def _acc_lin(row, w, d0, d1, d2, q0, q1, q2):
@@ -114,8 +130,7 @@ def _acc_single(start, end, quad, x, x0, mass, rest_lin, rest_off, ref, sums):
     # sum w d q^T = (sum w d x0^T) G^T + (sum w d) h^T: accumulate in rest coordinates
     # (9 multiply-adds per particle less) and map once per block
     t = _rest_sums(start, end, x, x0, mass, r0, r1, r2)
-    _add_rest_sums(rest_lin, rest_off, sums[0], t[0], t[1], t[2], t[3], t[4], t[5], t[6], t[7],
-                   t[8], t[9], t[10], t[11])
+    _add_rest_sums(rest_lin, rest_off, sums[0], t)
 
 
 @njit(inline='always', **JIT)
@@ -149,10 +164,11 @@ def _rest_sums(start, end, x, x0, mass, r0, r1, r2):
 
 
 @njit(inline='always', **JIT)
-def _add_rest_sums(rest_lin, rest_off, row, s0, s1, s2, c00, c01, c02, c10, c11, c12, c20,
-                   c21, c22):
-    """row += the 12 one-cluster sums from sum w d (s) and sum w d x0^T (c, rest
-    coordinates): sum w d q^T = c G^T + s h^T (G, h: the rest map)."""
+def _add_rest_sums(rest_lin, rest_off, row, rest_sums):
+    """row += the 12 one-cluster sums from ``rest_sums`` = (sum w d (s, 3), sum w d x0^T
+    (c, 9, row by row)) in rest coordinates: sum w d q^T = c G^T + s h^T (G, h: the rest
+    map)."""
+    s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22 = rest_sums
     g00, g01, g02 = rest_lin[0, 0, 0], rest_lin[0, 0, 1], rest_lin[0, 0, 2]
     g10, g11, g12 = rest_lin[0, 1, 0], rest_lin[0, 1, 1], rest_lin[0, 1, 2]
     g20, g21, g22 = rest_lin[0, 2, 0], rest_lin[0, 2, 1], rest_lin[0, 2, 2]
@@ -172,17 +188,20 @@ def _add_rest_sums(rest_lin, rest_off, row, s0, s1, s2, c00, c01, c02, c10, c11,
 
 
 @njit(inline='always', **JIT)
-def advance(x, v, i, p0, p1, p2, g0, g1, g2, alpha_h, h, dv0, dv1, dv2):
+def advance(x, v, i, p, g, alpha_h, h, dv):
     """Eq. 13-14 for particle ``i`` at ``p`` (= x[i]) towards its goal g; returns |g - p|^2
     (not finite when p or the new velocity is not; when both are, so is x = p + h v).
 
     v <- v + (alpha / h) (g - p) + dv, then x <- p + h v, where dv is h times the external
     acceleration.  Every integration loop calls this; it is inlined into them by Numba
     (``inline='always'``): left to LLVM the call stays a call, and a loop with a call
-    does not vectorise.  The caller
-    loads ``p`` where the loop needs it first, so that the fast-math reassociation sees
-    the same expressions whatever the loop (the results stay bit-identical).
+    does not vectorise.  The caller loads ``p`` where the loop needs it first, so that the
+    fast-math reassociation sees the same expressions whatever the loop (the results stay
+    bit-identical).
     """
+    p0, p1, p2 = p
+    g0, g1, g2 = g
+    dv0, dv1, dv2 = dv
     e0 = g0 - p0
     e1 = g1 - p1
     e2 = g2 - p2
@@ -204,18 +223,22 @@ def advance(x, v, i, p0, p1, p2, g0, g1, g2, alpha_h, h, dv0, dv1, dv2):
 
 
 @njit(**JIT)
-def _int_single_lin(start, end, x, v, x0, goal_lin, goal_off, alpha, h, acc, ang, com, damp,
-                    k_damp, dmp, ref):
+def _int_single_lin(start, end, particles, rest, goals, damping):
     """Eq. 13-14 for a one-cluster rigid/linear body, its goal map held in registers; with
-    ``damp`` the velocities are first damped towards the field ``dmp[0]`` about ``ref[0]``.
+    ``damping.on`` the velocities are first damped towards its field about ``rest.ref``.
 
     Vectorises across particles (``inspect_asm``: 8 particles a ``zmm`` instruction on
     AVX-512, 4 a ``ymm`` on AVX2): unit-stride columns of the F-ordered x, v, x0, an
     unsigned index (``jit.U``), every constant (map, field, reference) in a local so that
     the loop reads only x, v, x0 (each array read in it may alias v and costs runtime
-    overlap checks: with ``dmp``/``ref`` read in the loop LLVM gave up, "too many memory
-    checks needed"), and the damping and torque branches hoisted out of the loops.
+    overlap checks: LLVM gives up with "too many memory checks needed"), and the damping
+    and torque branches hoisted out of the loops.
     """
+    x, v, x0 = particles.x, particles.v, particles.x0
+    goal_lin, goal_off, acc, ang, com = (goals.goal_lin, goals.goal_off, goals.acc, goals.ang,
+                                         goals.com)
+    alpha, h, ref = goals.alpha, goals.h, rest.ref
+    damp, k_damp, dmp = damping.on, damping.rate, damping.field
     l00, l01, l02 = goal_lin[0, 0, 0], goal_lin[0, 0, 1], goal_lin[0, 0, 2]
     l10, l11, l12 = goal_lin[0, 1, 0], goal_lin[0, 1, 1], goal_lin[0, 1, 2]
     l20, l21, l22 = goal_lin[0, 2, 0], goal_lin[0, 2, 1], goal_lin[0, 2, 2]
@@ -229,6 +252,7 @@ def _int_single_lin(start, end, x, v, x0, goal_lin, goal_off, alpha, h, acc, ang
     r0c, r1c, r2c = ref[0, 0], ref[0, 1], ref[0, 2]
     c0, c1, c2 = dmp[0, 0], dmp[0, 1], dmp[0, 2]
     o0, o1, o2 = dmp[0, 3], dmp[0, 4], dmp[0, 5]
+    field = (c0, c1, c2, o0, o1, o2)
     torque = not (w0 == 0.0 and w1 == 0.0 and w2 == 0.0)
     # no torque: a uniform acceleration (6 multiply-adds per particle less)
     hx, hy, hz = h * ax, h * ay, h * az
@@ -237,58 +261,62 @@ def _int_single_lin(start, end, x, v, x0, goal_lin, goal_off, alpha, h, acc, ang
         for i in range(U(start), U(end)):
             a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
             p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
-            damp_towards(v=v, i=i, r0=p0 - r0c, r1=p1 - r1c, r2=p2 - r2c, c0=c0, c1=c1,
-                         c2=c2, o0=o0, o1=o1, o2=o2, k_damp=k_damp)
-            err2 += advance(x=x, v=v, i=i, p0=p0, p1=p1, p2=p2,
-                            g0=l00 * a0 + l01 * a1 + l02 * a2 + b0,
-                            g1=l10 * a0 + l11 * a1 + l12 * a2 + b1,
-                            g2=l20 * a0 + l21 * a1 + l22 * a2 + b2,
-                            alpha_h=alpha_h, h=h, dv0=hx, dv1=hy, dv2=hz)
+            damp_towards(v=v, i=i, r=(p0 - r0c, p1 - r1c, p2 - r2c), field=field, k_damp=k_damp)
+            err2 += advance(x=x, v=v, i=i, p=(p0, p1, p2),
+                            g=(l00 * a0 + l01 * a1 + l02 * a2 + b0,
+                               l10 * a0 + l11 * a1 + l12 * a2 + b1,
+                               l20 * a0 + l21 * a1 + l22 * a2 + b2),
+                            alpha_h=alpha_h, h=h, dv=(hx, hy, hz))
     elif not torque:
         for i in range(U(start), U(end)):
             a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
             p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
-            err2 += advance(x=x, v=v, i=i, p0=p0, p1=p1, p2=p2,
-                            g0=l00 * a0 + l01 * a1 + l02 * a2 + b0,
-                            g1=l10 * a0 + l11 * a1 + l12 * a2 + b1,
-                            g2=l20 * a0 + l21 * a1 + l22 * a2 + b2,
-                            alpha_h=alpha_h, h=h, dv0=hx, dv1=hy, dv2=hz)
+            err2 += advance(x=x, v=v, i=i, p=(p0, p1, p2),
+                            g=(l00 * a0 + l01 * a1 + l02 * a2 + b0,
+                               l10 * a0 + l11 * a1 + l12 * a2 + b1,
+                               l20 * a0 + l21 * a1 + l22 * a2 + b2),
+                            alpha_h=alpha_h, h=h, dv=(hx, hy, hz))
     else:
         for i in range(U(start), U(end)):
             a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
             p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
             if damp:
-                damp_towards(v=v, i=i, r0=p0 - r0c, r1=p1 - r1c, r2=p2 - r2c, c0=c0, c1=c1,
-                             c2=c2, o0=o0, o1=o1, o2=o2, k_damp=k_damp)
-            err2 += advance(x=x, v=v, i=i, p0=p0, p1=p1, p2=p2,
-                            g0=l00 * a0 + l01 * a1 + l02 * a2 + b0,
-                            g1=l10 * a0 + l11 * a1 + l12 * a2 + b1,
-                            g2=l20 * a0 + l21 * a1 + l22 * a2 + b2,
-                            alpha_h=alpha_h, h=h, dv0=h * (ax + w1 * p2 - w2 * p1),
-                            dv1=h * (ay + w2 * p0 - w0 * p2), dv2=h * (az + w0 * p1 - w1 * p0))
+                damp_towards(v=v, i=i, r=(p0 - r0c, p1 - r1c, p2 - r2c),
+                             field=field, k_damp=k_damp)
+            err2 += advance(x=x, v=v, i=i, p=(p0, p1, p2),
+                            g=(l00 * a0 + l01 * a1 + l02 * a2 + b0,
+                               l10 * a0 + l11 * a1 + l12 * a2 + b1,
+                               l20 * a0 + l21 * a1 + l22 * a2 + b2),
+                            alpha_h=alpha_h, h=h,
+                            dv=(h * (ax + w1 * p2 - w2 * p1),
+                                h * (ay + w2 * p0 - w0 * p2),
+                                h * (az + w0 * p1 - w1 * p0)))
     return err2
 
 
 @njit(**JIT)
-def _int_single_fused(start, end, x, v, x0, wuni, goal_lin, goal_off, alpha, h, acc,
-                      damp, k_damp, dmp, ref, pnt, rest_lin, rest_off, v_max, gz, boxed, sums,
-                      dsums):
-    """The one-cluster pass over particles start..end in one loop (no torque): the damping
-    towards ``dmp[0]`` about ``ref[0]`` (with ``damp``), Eq. 13-14, the count of speeds
-    above ``v_max`` (0: no cap) and of new heights below ``gz`` (the ground's height; -inf
-    without a ground), and the shape match's 12 sums of the new state
-    about the point ``pnt[0]`` (``_acc_single``) into ``sums[0]`` (``_fused_range``, the
-    loop), and with ``damp`` its 12 damping sums about the same point into ``dsums[0, 3:15]``
-    (``damp_acc_range``'s rows; W and sum w d are the caller's).
+def _int_single_fused(start, end, particles, wuni, work, step, gz, boxed):
+    """The one-cluster pass over ``particles`` = (x, v, x0) start..end in one loop (no
+    torque), with ``work`` a packed body's rows (``packed.Work``) and ``step`` =
+    (alpha, h, damp, k_damp, v_max): the damping towards ``work.dmp[0]`` about
+    ``work.ref[0]`` (with ``damp``), Eq. 13-14, the count of speeds above ``v_max`` (0: no
+    cap) and of new heights below ``gz`` (the ground's height; -inf without a ground),
+    and the shape match's 12 sums of the new state about ``work.pnt[0]`` (``_acc_single``)
+    into ``work.part[0]`` (``_fused_range``, the loop), and with ``damp`` its 12 damping
+    sums about the same point into ``work.dpart[0, 3:15]`` (``damp_acc_range``'s rows; W
+    and sum w d are the caller's).
 
     Returns (sum of |g - p|^2 as ``advance``, speeds over the cap, heights below the
     ground).  The sums are added only when no speed is over the cap and no box or sphere is
     in the world (``boxed``): otherwise the caller projects the range onto the colliders,
-    caps it and takes its sums again (``_acc_single``, ``damping.damp_sums_range``), so a
-    moved particle is summed where it ends.  With heights below the ground (and neither),
-    the caller projects them and adds what that changed in the sums
-    (``colliders.ground_range_sums``).
+    caps it and takes its sums again, so a moved particle is summed where it ends.  With
+    heights below the ground (and neither), the caller projects them and adds what that
+    changed in the sums (``colliders.ground_range_sums``).
     """
+    x, v, x0 = particles
+    alpha, h, damp, k_damp, v_max = step
+    goal_lin, goal_off, dmp, ref, pnt = work.goal_lin, work.goal_off, work.dmp, work.ref, work.pnt
+    acc, sums, dsums = work.acc, work.part, work.dpart
     gmap = (goal_lin[0, 0, 0], goal_lin[0, 0, 1], goal_lin[0, 0, 2], goal_lin[0, 1, 0],
             goal_lin[0, 1, 1], goal_lin[0, 1, 2], goal_lin[0, 2, 0], goal_lin[0, 2, 1],
             goal_lin[0, 2, 2], goal_off[0, 0], goal_off[0, 1], goal_off[0, 2])
@@ -300,8 +328,7 @@ def _int_single_fused(start, end, x, v, x0, wuni, goal_lin, goal_off, alpha, h, 
                        lim2, gz)
     err2, over, low = out[0], out[1], out[14]
     if over == 0 and not boxed:
-        _add_rest_sums(rest_lin, rest_off, sums[0], out[2], out[3], out[4], out[5], out[6],
-                       out[7], out[8], out[9], out[10], out[11], out[12], out[13])
+        _add_rest_sums(work.rest_lin, work.rest_off, sums[0], out[2:14])
         if damp:
             d = out[15:27]
             for j in range(12):
@@ -312,8 +339,11 @@ def _int_single_fused(start, end, x, v, x0, wuni, goal_lin, goal_off, alpha, h, 
 
 
 @njit(**JIT)
-def _acc_range(start, end, quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, sums):
-    """Add particles start..end to the accumulators ``pc`` (clusters, 12 or 30)."""
+def _acc_range(start, end, quad, particles, rest, sums):
+    """Add particles start..end to the sums of their clusters (``sums``: clusters, 12 or
+    30)."""
+    x, x0, mass = particles.x, particles.x0, particles.mass
+    ptr, cl, rest_lin, rest_off, ref = rest.ptr, rest.cl, rest.rest_lin, rest.rest_off, rest.ref
     if ptr.shape[0] == 0:
         _acc_single(start=start, end=end, quad=quad, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
                     rest_off=rest_off, ref=ref, sums=sums)
@@ -335,29 +365,29 @@ def _acc_range(start, end, quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, 
 
 
 @njit(inline='always', **JIT)
-def _acc_chunk(chunk, nchunks, quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, part):
-    n = x.shape[0]
+def _zero_chunk(part, chunk):
+    """Clear chunk ``chunk``'s slot of the per-chunk sums ``part``; returns it."""
     sums = part[chunk]
     for k in range(sums.shape[0]):
         for j in range(sums.shape[1]):
             sums[k, j] = 0.0
-    _acc_range(start=(chunk * n) // nchunks, end=((chunk + 1) * n) // nchunks, quad=quad, x=x,
-               x0=x0, mass=mass, ptr=ptr, cl=cl, rest_lin=rest_lin, rest_off=rest_off, ref=ref,
-               sums=sums)
+    return sums
 
 
 @njit(**JIT)
-def accumulate_chunks(claim, quad, x, x0, mass, ptr, cl, rest_lin, rest_off, ref, part):
+def accumulate_chunks(claim, quad, particles, rest, part):
     """Accumulation pass over the chunks this call claims (``claim``, counted up
     atomically): called once it does every chunk; called on several threads with one
-    ``claim`` (a body built for threads) each chunk once."""
+    ``claim`` (a body built for threads) each chunk once.  ``part`` (chunks, clusters,
+    12 or 30): each chunk's sums."""
     nchunks = part.shape[0]
+    n = particles.x.shape[0]
     while True:
         chunk = claim_next(claim)
         if chunk >= nchunks:
             return
-        _acc_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
-                   rest_lin=rest_lin, rest_off=rest_off, ref=ref, part=part)
+        _acc_range(start=(chunk * n) // nchunks, end=((chunk + 1) * n) // nchunks, quad=quad,
+                   particles=particles, rest=rest, sums=_zero_chunk(part, chunk))
 
 
 #: Particles per block of the fused pass: integrated, then accumulated while in cache
@@ -366,16 +396,18 @@ BLOCK = 1024
 
 
 @njit(**JIT)
-def _int_range(start, end, quad, x, v, x0, ptr, cl, rest_lin, rest_off, trans, goal_lin, goal_off,
-               alpha, h, acc, ang, com, damp, k_damp, dmp, ref):
+def _int_range(start, end, quad, particles, rest, goals, damping):
     """Eq. 13-14 for particles start..end; returns sum |g - x|^2.  Fused damping
-    (``damp``) only on the one-cluster rigid/linear path (else ``damping.damp_rigid``)."""
-    single = ptr.shape[0] == 0
+    (``damping.on``) only on the one-cluster rigid/linear path (else
+    ``damping.damp_rigid``)."""
+    single = rest.ptr.shape[0] == 0
     if single and not quad:
-        return _int_single_lin(start=start, end=end, x=x, v=v, x0=x0, goal_lin=goal_lin,
-                               goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
-                               damp=damp, k_damp=k_damp, dmp=dmp, ref=ref)
-    alpha_h = alpha / h
+        return _int_single_lin(start, end, particles, rest, goals, damping)
+    x, v, x0 = particles.x, particles.v, particles.x0
+    ptr, cl, rest_lin, rest_off = rest.ptr, rest.cl, rest.rest_lin, rest.rest_off
+    trans, goal_lin, goal_off = goals.trans, goals.goal_lin, goals.goal_off
+    acc, ang, com, h = goals.acc, goals.ang, goals.com, goals.h
+    alpha_h = goals.alpha / h
     err2 = 0.0
     for i in range(start, end):
         a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
@@ -411,65 +443,50 @@ def _int_range(start, end, quad, x, v, x0, ptr, cl, rest_lin, rest_off, trans, g
         r0 = p0 - com[0]
         r1 = p1 - com[1]
         r2 = p2 - com[2]
-        err2 += advance(x=x, v=v, i=i, p0=p0, p1=p1, p2=p2, g0=g0, g1=g1, g2=g2,
-                        alpha_h=alpha_h, h=h,
-                        dv0=h * (acc[0] + ang[1] * r2 - ang[2] * r1),
-                        dv1=h * (acc[1] + ang[2] * r0 - ang[0] * r2),
-                        dv2=h * (acc[2] + ang[0] * r1 - ang[1] * r0))
+        err2 += advance(x=x, v=v, i=i, p=(p0, p1, p2), g=(g0, g1, g2), alpha_h=alpha_h, h=h,
+                        dv=(h * (acc[0] + ang[1] * r2 - ang[2] * r1),
+                            h * (acc[1] + ang[2] * r0 - ang[0] * r2),
+                            h * (acc[2] + ang[0] * r1 - ang[1] * r0)))
     return err2
 
 
 @njit(inline='always', **JIT)
-def _int_chunk(chunk, nchunks, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, goal_lin,
-               goal_off, ref, alpha, h, acc, ang, com, part, err, col, damp, k_damp, dmp, dpart):
+def _int_chunk(chunk, quad, particles, rest, goals, part, err, col, damping):
     """Integrate a chunk block by block; collide (``col``: ``colliders.Colliders``) and
     accumulate each block for the next step while it is still in L1 (one pass over
-    memory, short loops without spills).
-    ``damp``: damp in the same pass and accumulate the damping sums into ``dpart``."""
+    memory, short loops without spills); with ``damping.on`` damp in the same pass and
+    accumulate the damping sums into ``damping.part``."""
+    nchunks = part.shape[0]
+    x, v, mass = particles.x, particles.v, particles.mass
     n = x.shape[0]
     start = (chunk * n) // nchunks
     end = ((chunk + 1) * n) // nchunks
-    sums = part[chunk]
-    for k in range(sums.shape[0]):
-        for j in range(sums.shape[1]):
-            sums[k, j] = 0.0
-    if damp:
-        dsums = dpart[chunk]
-        for k in range(dsums.shape[0]):
-            for j in range(dsums.shape[1]):
-                dsums[k, j] = 0.0
+    sums = _zero_chunk(part, chunk)
+    if damping.on:
+        _zero_chunk(damping.part, chunk)
     # fused damping without the set layout: one cluster, all particles in set 0 (no ids)
     one_set = np.zeros(0, dtype=np.int32)
     err2 = 0.0
     for bs in range(start, end, BLOCK):
         be = min(bs + BLOCK, end)
-        err2 += _int_range(start=bs, end=be, quad=quad, x=x, v=v, x0=x0, ptr=ptr, cl=cl,
-                           rest_lin=rest_lin, rest_off=rest_off, trans=trans, goal_lin=goal_lin,
-                           goal_off=goal_off, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
-                           damp=damp, k_damp=k_damp, dmp=dmp, ref=ref)
+        err2 += _int_range(bs, be, quad, particles, rest, goals, damping)
         if col.on:
             _collide_range(bs, be, x, v, col)
-        _acc_range(start=bs, end=be, quad=quad, x=x, x0=x0, mass=mass, ptr=ptr, cl=cl,
-                   rest_lin=rest_lin, rest_off=rest_off, ref=ref, sums=sums)
-        if damp:
+        _acc_range(start=bs, end=be, quad=quad, particles=particles, rest=rest, sums=sums)
+        if damping.on:
             damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass, sid=one_set,
-                           dsums=dpart[chunk])
+                           dsums=damping.part[chunk])
     err[chunk] = err2
 
 
 @njit(**JIT)
-def integrate_chunks(claim, quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, trans, goal_lin,
-                     goal_off, ref, alpha, h, acc, ang, com, part, err, col, damp, k_damp, dmp,
-                     dpart):
-    """Integration pass over the chunks this call claims (as ``accumulate_chunks``)."""
+def integrate_chunks(claim, quad, particles, rest, goals, part, err, col, damping):
+    """Integration pass over the chunks this call claims (as ``accumulate_chunks``): Eq.
+    13-14 towards ``goals``, the colliders ``col``, the sums of the new state into
+    ``part`` and each chunk's shape error into ``err``."""
     nchunks = part.shape[0]
     while True:
         chunk = claim_next(claim)
         if chunk >= nchunks:
             return
-        _int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v, x0=x0, mass=mass, ptr=ptr,
-                   cl=cl, rest_lin=rest_lin, rest_off=rest_off, trans=trans, goal_lin=goal_lin,
-                   goal_off=goal_off, ref=ref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
-                   part=part, err=err, col=col, damp=damp, k_damp=k_damp, dmp=dmp,
-                   dpart=dpart)
-
+        _int_chunk(chunk, quad, particles, rest, goals, part, err, col, damping)

@@ -62,42 +62,44 @@ def _sets_int_lin(start, end, x, v, y0, sid, runs, gm, alpha_h, h, ax, ay, az, w
         s_d = s if damp else 0
         c0, c1, c2 = dmp[s_d, 0], dmp[s_d, 1], dmp[s_d, 2]
         o0, o1, o2 = dmp[s_d, 3], dmp[s_d, 4], dmp[s_d, 5]
+        field = (c0, c1, c2, o0, o1, o2)
         r += 1
         j = min(runs[r], end)                  # the run's end (``_SetLayout.runs``)
         if damp and not torque:
             for k in range(U(i), U(j)):
                 y_0, y_1, y_2 = y0[k, 0], y0[k, 1], y0[k, 2]
                 p0, p1, p2 = x[k, 0], x[k, 1], x[k, 2]
-                damp_towards(v=v, i=k, r0=p0 - r0c, r1=p1 - r1c, r2=p2 - r2c, c0=c0, c1=c1,
-                             c2=c2, o0=o0, o1=o1, o2=o2, k_damp=k_damp)
-                err2 += advance(x=x, v=v, i=k, p0=p0, p1=p1, p2=p2,
-                                g0=m00 + m01 * y_0 + m02 * y_1 + m03 * y_2,
-                                g1=m10 + m11 * y_0 + m12 * y_1 + m13 * y_2,
-                                g2=m20 + m21 * y_0 + m22 * y_1 + m23 * y_2, alpha_h=alpha_h,
-                                h=h, dv0=hx, dv1=hy, dv2=hz)
+                damp_towards(v=v, i=k, r=(p0 - r0c, p1 - r1c, p2 - r2c),
+                             field=field, k_damp=k_damp)
+                err2 += advance(x=x, v=v, i=k, p=(p0, p1, p2),
+                                g=(m00 + m01 * y_0 + m02 * y_1 + m03 * y_2,
+                                   m10 + m11 * y_0 + m12 * y_1 + m13 * y_2,
+                                   m20 + m21 * y_0 + m22 * y_1 + m23 * y_2),
+                                alpha_h=alpha_h, h=h, dv=(hx, hy, hz))
         elif not torque:
             for k in range(U(i), U(j)):
                 y_0, y_1, y_2 = y0[k, 0], y0[k, 1], y0[k, 2]
                 p0, p1, p2 = x[k, 0], x[k, 1], x[k, 2]
-                err2 += advance(x=x, v=v, i=k, p0=p0, p1=p1, p2=p2,
-                                g0=m00 + m01 * y_0 + m02 * y_1 + m03 * y_2,
-                                g1=m10 + m11 * y_0 + m12 * y_1 + m13 * y_2,
-                                g2=m20 + m21 * y_0 + m22 * y_1 + m23 * y_2, alpha_h=alpha_h,
-                                h=h, dv0=hx, dv1=hy, dv2=hz)
+                err2 += advance(x=x, v=v, i=k, p=(p0, p1, p2),
+                                g=(m00 + m01 * y_0 + m02 * y_1 + m03 * y_2,
+                                   m10 + m11 * y_0 + m12 * y_1 + m13 * y_2,
+                                   m20 + m21 * y_0 + m22 * y_1 + m23 * y_2),
+                                alpha_h=alpha_h, h=h, dv=(hx, hy, hz))
         else:
             for k in range(U(i), U(j)):
                 y_0, y_1, y_2 = y0[k, 0], y0[k, 1], y0[k, 2]
                 p0, p1, p2 = x[k, 0], x[k, 1], x[k, 2]
                 if damp:
-                    damp_towards(v=v, i=k, r0=p0 - r0c, r1=p1 - r1c, r2=p2 - r2c, c0=c0,
-                                 c1=c1, c2=c2, o0=o0, o1=o1, o2=o2, k_damp=k_damp)
-                err2 += advance(x=x, v=v, i=k, p0=p0, p1=p1, p2=p2,
-                                g0=m00 + m01 * y_0 + m02 * y_1 + m03 * y_2,
-                                g1=m10 + m11 * y_0 + m12 * y_1 + m13 * y_2,
-                                g2=m20 + m21 * y_0 + m22 * y_1 + m23 * y_2, alpha_h=alpha_h,
-                                h=h, dv0=h * (ax + w1 * p2 - w2 * p1),
-                                dv1=h * (ay + w2 * p0 - w0 * p2),
-                                dv2=h * (az + w0 * p1 - w1 * p0))
+                    damp_towards(v=v, i=k, r=(p0 - r0c, p1 - r1c, p2 - r2c), field=field,
+                                 k_damp=k_damp)
+                err2 += advance(x=x, v=v, i=k, p=(p0, p1, p2),
+                                g=(m00 + m01 * y_0 + m02 * y_1 + m03 * y_2,
+                                   m10 + m11 * y_0 + m12 * y_1 + m13 * y_2,
+                                   m20 + m21 * y_0 + m22 * y_1 + m23 * y_2),
+                                alpha_h=alpha_h, h=h,
+                                dv=(h * (ax + w1 * p2 - w2 * p1),
+                                    h * (ay + w2 * p0 - w0 * p2),
+                                    h * (az + w0 * p1 - w1 * p0)))
         i = j
     return err2
 
@@ -127,6 +129,7 @@ def _sets_int_quad(start, end, x, v, y0, sid, runs, gm, alpha_h, h, ax, ay, az, 
         s_d = s if damp else 0
         c0, c1, c2 = dmp[s_d, 0], dmp[s_d, 1], dmp[s_d, 2]
         o0, o1, o2 = dmp[s_d, 3], dmp[s_d, 4], dmp[s_d, 5]
+        field = (c0, c1, c2, o0, o1, o2)
         r += 1
         j = min(runs[r], end)                  # the run's end (``_SetLayout.runs``)
         for k in range(U(i), U(j)):
@@ -145,11 +148,12 @@ def _sets_int_quad(start, end, x, v, y0, sid, runs, gm, alpha_h, h, ax, ay, az, 
                   + m27 * f7 + m28 * f8 + m29 * f9)
             p0, p1, p2 = x[k, 0], x[k, 1], x[k, 2]
             if damp:
-                damp_towards(v=v, i=k, r0=p0 - r0c, r1=p1 - r1c, r2=p2 - r2c, c0=c0, c1=c1,
-                             c2=c2, o0=o0, o1=o1, o2=o2, k_damp=k_damp)
-            err2 += advance(x=x, v=v, i=k, p0=p0, p1=p1, p2=p2, g0=g0, g1=g1, g2=g2,
-                            alpha_h=alpha_h, h=h, dv0=h * (ax + w1 * p2 - w2 * p1),
-                            dv1=h * (ay + w2 * p0 - w0 * p2), dv2=h * (az + w0 * p1 - w1 * p0))
+                damp_towards(v=v, i=k, r=(p0 - r0c, p1 - r1c, p2 - r2c),
+                             field=field, k_damp=k_damp)
+            err2 += advance(x=x, v=v, i=k, p=(p0, p1, p2), g=(g0, g1, g2), alpha_h=alpha_h, h=h,
+                            dv=(h * (ax + w1 * p2 - w2 * p1),
+                                h * (ay + w2 * p0 - w0 * p2),
+                                h * (az + w0 * p1 - w1 * p0)))
         i = j
     return err2
 

@@ -33,7 +33,8 @@ from .flags import DIRTY, ERR_STALE, SLEEP
 from .colliders import Colliders
 from .damping import damp_accumulate, damp_rigid, damping_fields, damping_targets
 from .goals import solve_clusters_warm
-from .integrate import accumulate_chunks, integrate_chunks
+from .integrate import (BodyParticles, ClusterRest, FusedDamping, StepGoals, accumulate_chunks,
+                        integrate_chunks)
 from .jit import JIT, claim_next
 from .limits import limit_speed, limit_turn
 from .sets import _fused_refs, sets_integrate_chunks
@@ -141,6 +142,18 @@ def _step_record(rec, h, gravity, colliders):
 
 
 @njit(inline='always', **JIT)
+def _record_particles(rec):
+    """A record's particles as the passes of ``integrate.py`` read them."""
+    return BodyParticles(rec.xt.T, rec.vt.T, rec.x0t.T, rec.mass)
+
+
+@njit(inline='always', **JIT)
+def _record_rest(rec):
+    """A record's clusters as the passes of ``integrate.py`` read them."""
+    return ClusterRest(rec.ptr, rec.cl, rec.rest_lin, rec.rest_off, rec.ref)
+
+
+@njit(inline='always', **JIT)
 def _record_sums(rec, sets, dirty):
     """The clusters' sums of the current state: taken afresh where the state changed since
     the last pass summed it (``dirty``); the set layout reduces its per-set sums."""
@@ -154,10 +167,8 @@ def _record_sums(rec, sets, dirty):
                     sphi=rec.s_phi, sref=rec.sref, stp=rec.s_pair_offsets, rest_lin=rec.rest_lin,
                     ref=rec.ref, quad=quad, out=rec.part, wk=rec.work, pm=rec.quad_map)
     elif dirty:
-        accumulate_chunks(claim=np.zeros(1, dtype=np.int64), quad=quad, x=rec.xt.T,
-                          x0=rec.x0t.T, mass=rec.mass, ptr=rec.ptr, cl=rec.cl,
-                          rest_lin=rec.rest_lin, rest_off=rec.rest_off, ref=rec.ref,
-                          part=rec.part)
+        accumulate_chunks(np.zeros(1, dtype=np.int64), quad, _record_particles(rec),
+                          _record_rest(rec), rec.part)
 
 
 @njit(inline='always', **JIT)
@@ -244,13 +255,11 @@ def _record_integrate(rec, h, colliders, fused):
     the sums stale: ``DIRTY``)."""
     state = rec.state
     x, v = rec.xt.T, rec.vt.T
-    integrate_chunks(claim=np.zeros(1, dtype=np.int64), quad=state[8] > 0.0, x=x, v=v,
-                     x0=rec.x0t.T, mass=rec.mass, ptr=rec.ptr, cl=rec.cl,
-                     rest_lin=rec.rest_lin, rest_off=rec.rest_off, trans=rec.trans,
-                     goal_lin=rec.goal_lin, goal_off=rec.goal_off, ref=rec.ref,
-                     alpha=state[0], h=h, acc=rec.acc, ang=rec.ang, com=rec.com,
-                     part=rec.part, err=rec.err, col=colliders, damp=fused, k_damp=state[2],
-                     dmp=rec.dmp, dpart=rec.dpart)
+    goals = StepGoals(rec.goal_lin, rec.goal_off, rec.trans, state[0], h, rec.acc, rec.ang,
+                      rec.com)
+    integrate_chunks(np.zeros(1, dtype=np.int64), state[8] > 0.0, _record_particles(rec),
+                     _record_rest(rec), goals, rec.part, rec.err, colliders,
+                     FusedDamping(fused, state[2], rec.dmp, rec.dpart))
     capped = 0
     if state[3] > 0.0:
         capped = limit_speed(x=x, v=v, h=h, v_max=state[3])
