@@ -131,11 +131,11 @@ def test_fused_set_pass_matches_its_numpy_twin(damping, cap):
     wuni = body._wuni
     assert wuni == 1.5
     err2, capped = KS._sets_fused_lin(
-        start=0, end=body.n, x=body._x, v=body._v, y0=st.y0, mass=body._m, wuni=wuni,
-        sid=st.sid, runs=st.runs, gm=st.goal_maps, sref=st.ref, alpha_h=0.6 / H, h=H,
-        hx=H * acc[0], hy=H * acc[1], hz=H * acc[2], damp=damping > 0.0, k_damp=damping,
-        dmp=dmp, v_max=cap, sums=sums, dsums=dsums,
-        col=K.Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), 1e-3, 0.0))
+        0, body.n, K.BodyParticles(body._x, body._v, st.y0, body._m),
+        K.Sets(st.sid, st.runs, st.goal_maps, st.ref, wuni),
+        K.SetMotion(0.6, H, acc, np.zeros(3), np.zeros(3), cap),
+        K.FusedDamping(damping > 0.0, damping, dmp, dsums[None]), sums, dsums,
+        K.Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), 1e-3, 0.0))
     tx, tv, tsums, tds, terr, tcapped = _twin(
         x0, v0, np.asarray(st.y0), body._m, wuni, st.sid, st.runs, st.goal_maps, st.ref, 0.6, H,
         acc, damping > 0.0, damping, dmp, cap, nsets)

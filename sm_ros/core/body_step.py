@@ -76,6 +76,17 @@ def _rest(body):
     return K.ClusterRest(body._ptr, body._cl, body._rest_lin, body._rest_off, body._ref)
 
 
+def _set_particles(body):
+    """The particles of a set-layout body as its passes read them (y0 for x0)."""
+    return K.BodyParticles(body._x, body._v, body._sets.y0, body._m)
+
+
+def _sets(body):
+    """A set-layout body's sets as its passes read them."""
+    sets = body._sets
+    return K.Sets(sets.sid, sets.runs, sets.goal_maps, sets.ref, body._wuni)
+
+
 def _take_sums(body) -> None:
     """The clusters' sums of the current state (Eq. 7-11): taken afresh where the state
     changed since the last pass summed it (``body._dirty``); the set layout reduces its
@@ -203,12 +214,11 @@ def _integrate(body, p, h, fused, colliders) -> int:
     if sets is not None:
         # the speeds capped block by block before the sums are taken: the sums stay valid
         chunk_capped = np.zeros(len(sets.part), dtype=np.int64)
+        motion = K.SetMotion(p.alpha, h, body._acc, body._ang, body._com, v_max)
         _chunks(body, K.sets_integrate_chunks, capped=chunk_capped, quad=body._quad,
-                x=body._x, v=body._v, y0=sets.y0, mass=body._m, wuni=body._wuni,
-                sid=sets.sid, runs=sets.runs, gm=sets.goal_maps, sref=sets.ref, alpha=p.alpha, h=h,
-                acc=body._acc, ang=body._ang, com=body._com, part=sets.part, err=body._err,
-                col=colliders, damp=fused, k_damp=p.damping, dmp=body._dmp, dpart=body._dpart,
-                v_max=v_max)
+                particles=_set_particles(body), sets=_sets(body), motion=motion,
+                part=sets.part, err=body._err, col=colliders,
+                damping=K.FusedDamping(fused, p.damping, body._dmp, body._dpart))
         K._fused_refs(body._quad, body._wuni, body._ang, sets.runs, fused, sets.ref, body._dpart)
         capped = int(chunk_capped.sum())
         body._limit_counts[0] += capped
@@ -229,18 +239,14 @@ def _grabbed(body, fused, h) -> None:
     """The grabbed and pinned particles to their targets (their sums, and with fused
     damping their damping sums, follow them)."""
     sets = body._sets
+    targets = (body._kin_idx, body._kin_tgt, body._kin_prev)
     if fused:
         K.damp_kinematic(x=body._x, v=body._v, mass=body._m, sid=_set_ids(body),
                          dpart=body._dpart, idx=body._kin_idx, sign=-1.0)
     if sets is not None:
-        K.sets_kinematic(quad=body._quad, x=body._x, v=body._v, y0=sets.y0, mass=body._m,
-                         sid=sets.sid, sref=sets.ref, part=sets.part, idx=body._kin_idx,
-                         tgt=body._kin_tgt, prev=body._kin_prev, h=h)
+        K.sets_kinematic(body._quad, _set_particles(body), _sets(body), sets.part, targets, h)
     else:
-        K.apply_kinematic(quad=body._quad, x=body._x, v=body._v, x0=body._x0, mass=body._m,
-                          ptr=body._ptr, cl=body._cl, rest_lin=body._rest_lin,
-                          rest_off=body._rest_off, ref=body._ref, part=body._part,
-                          idx=body._kin_idx, tgt=body._kin_tgt, prev=body._kin_prev, h=h)
+        K.apply_kinematic(body._quad, _particles(body), _rest(body), body._part, targets, h)
     if fused:
         K.damp_kinematic(x=body._x, v=body._v, mass=body._m, sid=_set_ids(body),
                          dpart=body._dpart, idx=body._kin_idx, sign=1.0)

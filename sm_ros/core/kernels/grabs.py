@@ -18,13 +18,17 @@ def gather_rows(src, idx, out):
 
 
 @njit(**JIT)
-def apply_kinematic(quad, x, v, x0, mass, ptr, cl, rest_lin, rest_off, ref, part, idx, tgt, prev,
-                    h):
-    """Kinematic particles land exactly on their targets with velocity (target - prev)/h.
+def apply_kinematic(quad, particles, rest, part, targets, h):
+    """Kinematic particles land exactly on their targets with velocity (target - prev)/h
+    (``targets``: the particles, their targets and their positions before the step;
+    ``particles``, ``rest``: ``integrate.BodyParticles``, ``integrate.ClusterRest``).
 
     The accumulators for the next step already hold these particles' integrated
     positions: their contribution is swapped for the one at the target.
     """
+    x, v, x0, mass = particles.x, particles.v, particles.x0, particles.mass
+    ptr, cl, rest_lin, rest_off = rest.ptr, rest.cl, rest.rest_lin, rest.rest_off
+    idx, tgt, prev = targets
     single = ptr.shape[0] == 0
     for p in range(idx.shape[0]):
         i = idx[p]

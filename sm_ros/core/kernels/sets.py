@@ -26,6 +26,8 @@ Every pass takes the runs' ends from ``runs`` (precomputed at build, ``first_run
 caps the speeds block by block before it sums the block, so the sums stay valid.
 """
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
@@ -33,21 +35,35 @@ from .jit import JIT, U, claim_next
 from .colliders import _collide_range, ground_height, ground_range_sums
 from .damping import damp_acc_range, damp_towards
 from .fused import _fused_range, damp_constants, damp_sums_uniform
-from .integrate import BLOCK, _rest_sums, advance
+from .integrate import BLOCK, _rest_sums, _zero_chunk, advance
 from .limits import limit_speed_range
 from .sets_sums import _add_lin_sums, _sets_acc_damp_lin, _sets_acc_range, first_run
 
+#: A set-layout body's sets: each particle's set (``sid``), the ends of its runs of one set
+#: (``runs``), each set's goal map (3 x 4 or 3 x 10, ``goal_maps``) and the point its sums
+#: are taken about (``ref``), and the mass of every particle when all are alike
+#: (``uniform_mass``; 0 when not: the one-loop pass sums unweighted).  The particles come
+#: as ``integrate.BodyParticles`` with the set offsets y in place of x0.
+Sets = namedtuple('Sets', 'sid runs goal_maps ref uniform_mass')
+#: The step's motion: alpha, h, the acceleration ``acc`` and the angular one ``ang`` about
+#: ``com``, and the speed cap ``v_max`` (0: none).
+SetMotion = namedtuple('SetMotion', 'alpha h acc ang com v_max')
+
 
 @njit(**JIT)
-def _sets_int_lin(start, end, x, v, y0, sid, runs, gm, alpha_h, h, ax, ay, az, w0, w1, w2, damp,
-                  k_damp, dmp, sref):
+def _sets_int_lin(start, end, particles, sets, alpha_h, h, accel, spin, damping):
     """Rigid/linear goals: each run of one set with its 3 x 4 map in registers.
 
-    ``ax, ay, az`` is the uniform acceleration (acc - ang x com), ``w`` the angular one;
-    with ``damp`` the velocities are first damped towards ``dmp`` (``damp_velocity``).
+    ``accel`` is the uniform acceleration (acc - ang x com), ``spin`` the angular one;
+    with ``damping.on`` the velocities are first damped towards its field
+    (``damp_velocity``).
     The loop over a run vectorises (module docstring): the set's map, reference and
     damping field in locals, the torque and damping branches outside it.
     """
+    x, v, y0, sid, runs, gm, sref = _unpack(particles, sets)
+    damp, k_damp, dmp = damping.on, damping.rate, damping.field
+    ax, ay, az = accel
+    w0, w1, w2 = spin
     torque = w0 != 0.0 or w1 != 0.0 or w2 != 0.0
     hx, hy, hz = h * ax, h * ay, h * az
     err2 = 0.0
@@ -105,8 +121,7 @@ def _sets_int_lin(start, end, x, v, y0, sid, runs, gm, alpha_h, h, ax, ay, az, w
 
 
 @njit(**JIT)
-def _sets_int_quad(start, end, x, v, y0, sid, runs, gm, alpha_h, h, ax, ay, az, w0, w1, w2, damp,
-                   k_damp, dmp, sref):
+def _sets_int_quad(start, end, particles, sets, alpha_h, h, accel, spin, damping):
     """Quadratic goals: gm[s] (3 x 10) times phi(y); damping as in ``_sets_int_lin``.
 
     Run by run like ``_sets_int_lin``: the set's map, reference and damping field are read
@@ -114,6 +129,10 @@ def _sets_int_quad(start, end, x, v, y0, sid, runs, gm, alpha_h, h, ax, ay, az, 
     from ``gm`` in the loop, every store to v could alias it: the damped loop reloaded the
     30 coefficients after each store and cost three times the undamped one).
     """
+    x, v, y0, sid, runs, gm, sref = _unpack(particles, sets)
+    damp, k_damp, dmp = damping.on, damping.rate, damping.field
+    ax, ay, az = accel
+    w0, w1, w2 = spin
     err2 = 0.0
     r = first_run(runs, start)
     i = start
@@ -158,23 +177,27 @@ def _sets_int_quad(start, end, x, v, y0, sid, runs, gm, alpha_h, h, ax, ay, az, 
     return err2
 
 
+@njit(inline='always', **JIT)
+def _unpack(particles, sets):
+    """The arrays the set passes read: x, v, y0, sid, runs, goal maps, references."""
+    return (particles.x, particles.v, particles.x0, sets.sid, sets.runs, sets.goal_maps,
+            sets.ref)
+
+
 @njit(**JIT)
-def _sets_int_range(start, end, quad, x, v, y0, sid, runs, gm, alpha, h, acc, ang, com, damp,
-                    k_damp, dmp, sref):
+def _sets_int_range(start, end, quad, particles, sets, motion, damping):
     """Eq. 13-14 for particles start..end with the set goal maps; returns sum |g - x|^2."""
+    acc, ang, com, h = motion.acc, motion.ang, motion.com, motion.h
     w0, w1, w2 = ang[0], ang[1], ang[2]
     # acc + ang x (p - com) = (acc - ang x com) + ang x p
     ax = acc[0] - (w1 * com[2] - w2 * com[1])
     ay = acc[1] - (w2 * com[0] - w0 * com[2])
     az = acc[2] - (w0 * com[1] - w1 * com[0])
     if quad:
-        return _sets_int_quad(start=start, end=end, x=x, v=v, y0=y0, sid=sid, runs=runs, gm=gm,
-                              alpha_h=alpha / h, h=h, ax=ax, ay=ay, az=az, w0=w0, w1=w1, w2=w2,
-                              damp=damp, k_damp=k_damp, dmp=dmp, sref=sref)
-    return _sets_int_lin(start=start, end=end, x=x, v=v, y0=y0, sid=sid, runs=runs, gm=gm,
-                         alpha_h=alpha / h,
-                         h=h, ax=ax, ay=ay, az=az, w0=w0, w1=w1, w2=w2, damp=damp,
-                         k_damp=k_damp, dmp=dmp, sref=sref)
+        return _sets_int_quad(start, end, particles, sets, motion.alpha / h, h, (ax, ay, az),
+                              (w0, w1, w2), damping)
+    return _sets_int_lin(start, end, particles, sets, motion.alpha / h, h, (ax, ay, az),
+                         (w0, w1, w2), damping)
 
 
 #: Particles a run of one set must hold on average for a body's pass to take
@@ -190,8 +213,7 @@ FUSED_SETS_BLOCK = 4096
 
 
 @njit(**JIT)
-def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha_h, h, hx,
-                    hy, hz, damp, k_damp, dmp, v_max, sums, dsums, col):
+def _sets_fused_lin(start, end, particles, sets, motion, damping, sums, dsums, col):
     """The whole pass of particles start..end of a rigid/linear set-layout body without
     torque, run by run (``fused._fused_range``: one loop reads and writes each particle
     once): the damping towards the set's field, Eq. 13-14 with the set's map, the count of
@@ -204,7 +226,8 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     the final state and the step
     leaves them valid.  Damped, the loop also takes the run's 12 damping sums and W (a run
     that was moved: ``fused.damp_sums_uniform``, while it is in cache).  Returns (sum of
-    |g - x|^2, capped speeds).  ``col``: the colliders (``colliders.Colliders``).
+    |g - x|^2, capped speeds).  ``col``: the colliders (``colliders.Colliders``); ``sums``,
+    ``dsums``: the chunk's set sums and damping sums.
 
     The sums of a set are taken about one point P_s, its shape sums and damping sums alike
     (so the damping row's sum w d and W are the shape sums' own: 12 damping accumulators,
@@ -215,6 +238,11 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
     set's reference for the next step's ``sets_reduce``.  The runs' ends come from
     ``runs`` rather than being found particle by particle.
     """
+    x, v, y0, sid, runs, gm, sref = _unpack(particles, sets)
+    mass, wuni, v_max, h = particles.mass, sets.uniform_mass, motion.v_max, motion.h
+    damp, k_damp, dmp = damping.on, damping.rate, damping.field
+    alpha_h = motion.alpha / h
+    hx, hy, hz = h * motion.acc[0], h * motion.acc[1], h * motion.acc[2]
     lim2 = v_max * v_max if v_max > 0.0 else np.inf
     ground_only = col.boxes.shape[0] == 0 and col.spheres.shape[0] == 0
     gz = ground_height(col)                  # -inf without a ground: nothing below
@@ -285,55 +313,44 @@ def _sets_fused_lin(start, end, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha
 
 
 @njit(inline='always', **JIT)
-def _sets_int_chunk(chunk, nchunks, quad, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha, h,
-                    acc, ang, com, part, err, col, damp, k_damp, dmp, dpart, v_max):
+def _sets_int_chunk(chunk, quad, particles, sets, motion, part, err, col, damping):
     """Damp, integrate, collide, cap the speeds and accumulate a chunk block by block (one
-    pass over memory); ``dpart[chunk]`` receives the damping sums of the next step.
+    pass over memory); ``damping.part[chunk]`` receives the damping sums of the next step.
     Returns the capped speeds: the block's speeds are capped (``limits.limit_speed_range``)
     before its sums are taken, so the sums stay valid.  Rigid/linear without torque, long
     runs: ``_sets_fused_lin``."""
+    x, v, y0, sid, runs, _, sref = _unpack(particles, sets)
+    mass, h, v_max, damp = particles.mass, motion.h, motion.v_max, damping.on
+    nchunks = part.shape[0]
     n = x.shape[0]
     start = (chunk * n) // nchunks
     end = ((chunk + 1) * n) // nchunks
-    sums = part[chunk]
-    for s in range(sums.shape[0]):
-        for j in range(sums.shape[1]):
-            sums[s, j] = 0.0
-    if damp:
-        dsums = dpart[chunk]
-        for s in range(dsums.shape[0]):
-            for j in range(dsums.shape[1]):
-                dsums[s, j] = 0.0
+    sums = _zero_chunk(part, chunk)
+    dsums = _zero_chunk(damping.part, chunk) if damp else damping.part[chunk]
     err2 = 0.0
     capped = 0
-    fused = _fused_pass(quad, wuni, ang, runs)
+    fused = _fused_pass(quad, sets.uniform_mass, motion.ang, runs)
     step = FUSED_SETS_BLOCK if fused else BLOCK
     for bs in range(start, end, step):
         be = min(bs + step, end)
         if fused:
-            e, c = _sets_fused_lin(bs, be, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha / h,
-                                   h, h * acc[0], h * acc[1], h * acc[2], damp, k_damp, dmp,
-                                   v_max, sums, dpart[chunk], col)
+            e, c = _sets_fused_lin(bs, be, particles, sets, motion, damping, sums, dsums, col)
             err2 += e
             capped += c
             continue
-        err2 += _sets_int_range(start=bs, end=be, quad=quad, x=x, v=v, y0=y0, sid=sid, runs=runs,
-                                gm=gm,
-                                alpha=alpha, h=h, acc=acc, ang=ang, com=com, damp=damp,
-                                k_damp=k_damp, dmp=dmp, sref=sref)
+        err2 += _sets_int_range(bs, be, quad, particles, sets, motion, damping)
         if col.on:
             _collide_range(bs, be, x, v, col)
         if v_max > 0.0:
             capped += limit_speed_range(bs, be, x, v, h, v_max)
         if damp and not quad:
             _sets_acc_damp_lin(start=bs, end=be, x=x, v=v, y0=y0, mass=mass, sid=sid, runs=runs,
-                               sref=sref, sums=sums, dsums=dpart[chunk])
+                               sref=sref, sums=sums, dsums=dsums)
             continue
         _sets_acc_range(start=bs, end=be, quad=quad, x=x, y0=y0, mass=mass, sid=sid, runs=runs,
-                        sref=sref,
-                        sums=sums)
+                        sref=sref, sums=sums)
         if damp:
-            damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass, sid=sid, dsums=dpart[chunk])
+            damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass, sid=sid, dsums=dsums)
     err[chunk] = err2
     return capped
 
@@ -371,8 +388,8 @@ def _fused_refs(quad, wuni, ang, runs, damp, sref, dpart):
 
 
 @njit(**JIT)
-def sets_integrate_chunks(claim, capped, quad, x, v, y0, mass, wuni, sid, runs, gm, sref, alpha,
-                          h, acc, ang, com, part, err, col, damp, k_damp, dmp, dpart, v_max):
+def sets_integrate_chunks(claim, capped, quad, particles, sets, motion, part, err, col,
+                          damping):
     """Fused step pass of a set-layout body over the chunks this call claims (``claim``, as
     ``integrate.accumulate_chunks``); ``capped[chunk]``: the speeds it capped there.  Once
     every chunk is done, ``_fused_refs`` completes the pass."""
@@ -381,16 +398,17 @@ def sets_integrate_chunks(claim, capped, quad, x, v, y0, mass, wuni, sid, runs, 
         chunk = claim_next(claim)
         if chunk >= nchunks:
             return
-        capped[chunk] = _sets_int_chunk(chunk=chunk, nchunks=nchunks, quad=quad, x=x, v=v,
-                                        y0=y0, mass=mass, wuni=wuni, sid=sid, runs=runs, gm=gm,
-                                        sref=sref, alpha=alpha, h=h, acc=acc, ang=ang, com=com,
-                                        part=part, err=err, col=col, damp=damp,
-                                        k_damp=k_damp, dmp=dmp, dpart=dpart, v_max=v_max)
+        capped[chunk] = _sets_int_chunk(chunk, quad, particles, sets, motion, part, err, col,
+                                        damping)
 
 
 @njit(**JIT)
-def sets_kinematic(quad, x, v, y0, mass, sid, sref, part, idx, tgt, prev, h):
-    """Kinematic particles onto their targets; their per-set sums moved to the target."""
+def sets_kinematic(quad, particles, sets, part, targets, h):
+    """Kinematic particles onto their targets (``targets``: the particles, their targets and
+    their positions before the step); their per-set sums moved to the target."""
+    x, v, y0, sid, _, _, _ = _unpack(particles, sets)
+    mass = particles.mass
+    idx, tgt, prev = targets
     sums = part[0]
     for p in range(idx.shape[0]):
         i = idx[p]

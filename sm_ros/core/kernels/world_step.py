@@ -37,7 +37,7 @@ from .integrate import (BodyParticles, ClusterRest, FusedDamping, StepGoals, acc
                         integrate_chunks)
 from .jit import JIT, claim_next
 from .limits import limit_speed, limit_turn
-from .sets import _fused_refs, sets_integrate_chunks
+from .sets import SetMotion, Sets, _fused_refs, sets_integrate_chunks
 from .set_maps import sets_maps, sets_reduce
 from .sets_sums import sets_accumulate_chunks
 
@@ -238,12 +238,12 @@ def _record_integrate_sets(rec, h, colliders, fused):
     state = rec.state
     quad = state[8] > 0.0
     chunk_capped = np.zeros(rec.s_part.shape[0], dtype=np.int64)
-    sets_integrate_chunks(claim=np.zeros(1, dtype=np.int64), capped=chunk_capped, quad=quad,
-                          x=rec.xt.T, v=rec.vt.T, y0=rec.y0t.T, mass=rec.mass, wuni=state[11],
-                          sid=rec.sid, runs=rec.s_runs, gm=rec.goal_maps, sref=rec.sref,
-                          alpha=state[0], h=h, acc=rec.acc, ang=rec.ang, com=rec.com,
-                          part=rec.s_part, err=rec.err, col=colliders, damp=fused,
-                          k_damp=state[2], dmp=rec.dmp, dpart=rec.dpart, v_max=state[3])
+    particles = BodyParticles(rec.xt.T, rec.vt.T, rec.y0t.T, rec.mass)
+    sets = Sets(rec.sid, rec.s_runs, rec.goal_maps, rec.sref, state[11])
+    motion = SetMotion(state[0], h, rec.acc, rec.ang, rec.com, state[3])
+    sets_integrate_chunks(np.zeros(1, dtype=np.int64), chunk_capped, quad, particles, sets,
+                          motion, rec.s_part, rec.err, colliders,
+                          FusedDamping(fused, state[2], rec.dmp, rec.dpart))
     _fused_refs(quad, state[11], rec.ang, rec.s_runs, fused, rec.sref, rec.dpart)
     rec.counts[0] += chunk_capped.sum()
     rec.flags[DIRTY] = 0.0
