@@ -222,10 +222,9 @@ def _sets_fused_lin(start, end, particles, sets, motion, damping, sums, dsums, c
     one bounds pass) and the speed cap (``limits.limit_speed_range``, only where a speed
     was over it), in the order of the two-loop pass; the ground alone corrects the run's
     sums for the particles it projected (``colliders.ground_range_sums``), a run the cap
-    or a box or sphere moved is summed again (``integrate._rest_sums``), so the sums are of
-    the final state and the step
-    leaves them valid.  Damped, the loop also takes the run's 12 damping sums and W (a run
-    that was moved: ``fused.damp_sums_uniform``, while it is in cache).  Returns (sum of
+    or a box or sphere moved is summed again (``integrate._rest_sums``), so the step leaves
+    sums of the final state.  Damped, the loop also takes the run's 12 damping sums and W
+    (a moved run: ``fused.damp_sums_uniform``, while it is in cache).  Returns (sum of
     |g - x|^2, capped speeds).  ``col``: the colliders (``colliders.Colliders``); ``sums``,
     ``dsums``: the chunk's set sums and damping sums.
 
@@ -235,8 +234,7 @@ def _sets_fused_lin(start, end, particles, sets, motion, damping, sums, dsums, c
     h (c_s + h acc) with c_s the damping field's velocity at sref, so that the second
     moments of a body far out at huge speed do not lose it to rounding (as ``packed``).
     The damping row holds P_s (its entries 15-17); ``sets_integrate_*`` makes it the
-    set's reference for the next step's ``sets_reduce``.  The runs' ends come from
-    ``runs`` rather than being found particle by particle.
+    set's reference for the next step's ``sets_reduce``.
     """
     x, v, y0, sid, runs, gm, sref = _unpack(particles, sets)
     mass, wuni, v_max, h = particles.mass, sets.uniform_mass, motion.v_max, motion.h
@@ -276,13 +274,8 @@ def _sets_fused_lin(start, end, particles, sets, motion, damping, sums, dsums, c
         if col.on and not ground_only:
             moved = _collide_range(i, j, x, v, col)
         elif t[14] > 0:
-            g = ground_range_sums(i, j, x, v, y0, wuni, col, r0, r1, r2, damp)
-            ss = (ss[0], ss[1], ss[2] + g[0], ss[3], ss[4], ss[5], ss[6], ss[7], ss[8],
-                  ss[9] + g[1], ss[10] + g[2], ss[11] + g[3])
-            dsum = (dsum[0] + g[4], dsum[1] + g[5], dsum[2] + g[6], dsum[3] + g[7],
-                    dsum[4] + g[8], dsum[5] + g[9], dsum[6] + g[10], dsum[7] + g[11],
-                    dsum[8] + g[12], dsum[9] + g[13], dsum[10] + g[14], dsum[11] + g[15],
-                    dsum[12])
+            ss, dsum = _with_ground(ss, dsum,
+                                    ground_range_sums(i, j, x, v, y0, wuni, col, r0, r1, r2, damp))
         # the loop counted the speeds before the colliders: a static collider never speeds
         # a particle up (``colliders.contact_velocity``: restitution <= 1, friction only
         # slows), so a run with none over the cap has none after them either
@@ -297,19 +290,34 @@ def _sets_fused_lin(start, end, particles, sets, motion, damping, sums, dsums, c
         _add_lin_sums(sums, s, ss[0], ss[3], ss[4], ss[5], ss[1], ss[6], ss[7], ss[8], ss[2],
                       ss[9], ss[10], ss[11])
         if damp:
-            row = dsums[s]
-            row[15] = r0
-            row[16] = r1
-            row[17] = r2
-            row[18] = 1.0
-            row[0] += ss[0]
-            row[1] += ss[1]
-            row[2] += ss[2]
-            for k in range(12):
-                row[3 + k] += dsum[k]
-            row[19] += dsum[12]
+            _add_damp_row(dsums[s], (r0, r1, r2), ss, dsum)
         i = j
     return err2, capped
+
+
+@njit(inline='always', **JIT)
+def _with_ground(ss, dsum, g):
+    """A run's shape sums ``ss`` and damping sums ``dsum`` with what the ground's projection
+    changed in them (``colliders.ground_range_sums``' ``g``)."""
+    return ((ss[0], ss[1], ss[2] + g[0], ss[3], ss[4], ss[5], ss[6], ss[7], ss[8],
+             ss[9] + g[1], ss[10] + g[2], ss[11] + g[3]),
+            (dsum[0] + g[4], dsum[1] + g[5], dsum[2] + g[6], dsum[3] + g[7], dsum[4] + g[8],
+             dsum[5] + g[9], dsum[6] + g[10], dsum[7] + g[11], dsum[8] + g[12],
+             dsum[9] + g[13], dsum[10] + g[14], dsum[11] + g[15], dsum[12]))
+
+
+@njit(inline='always', **JIT)
+def _add_damp_row(row, point, ss, dsum):
+    """A run's damping sums into its set's damping row (``damping.NDAMP``): the point they
+    were taken about, sum w d (the shape sums' ``ss``), the 12 sums and W of ``dsum``."""
+    row[15], row[16], row[17] = point
+    row[18] = 1.0
+    row[0] += ss[0]
+    row[1] += ss[1]
+    row[2] += ss[2]
+    for k in range(12):
+        row[3 + k] += dsum[k]
+    row[19] += dsum[12]
 
 
 @njit(inline='always', **JIT)
