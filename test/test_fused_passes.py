@@ -295,7 +295,7 @@ def test_ground_projection_corrects_the_sums_it_changes(damp):
     shape0, damp0 = _sums_about(x, v, x0, w, k)
     xr, vr = np.asfortranarray(x.copy()), np.asfortranarray(v.copy())
     ground_range(0, n, xr, vr, col)
-    g = np.array(ground_range_sums(0, n, x, v, x0, 1.5, col, k[0], k[1], k[2], damp))
+    g = np.array(ground_range_sums(0, n, x, v, x0, 1.5, col, (k[0], k[1], k[2]), damp))
     assert np.array_equal(x, xr) and np.array_equal(v, vr)   # the same projection
     shape1, damp1 = _sums_about(x, v, x0, w, k)
     want = shape1 - shape0

@@ -64,12 +64,11 @@ def test_plastic_update_leaves_the_plastic_state_of_a_non_finite_match(bad):
     for a in (np.diag([bad, 1.0, 1.0]), np.diag([1e200, 1.0, 1.0])):   # the norm overflows
         sp = np.eye(3)[None].copy()
         changed = np.ones(1, dtype=np.bool_)
-        n = plasticity.plastic_update(
-            apq=a[None].copy(), aqq3=np.eye(3)[None].copy(), scale=np.ones(1),
-            quat=np.array([[1.0, 0.0, 0.0, 0.0]]), s_plastic=sp, c_yield=0.05, c_creep=2.0,
-            c_max=0.3, h=1.0 / 120.0, changed=changed, q4=np.zeros(4), m3a=np.zeros((3, 3)),
-            m3b=np.zeros((3, 3)), m3c=np.zeros((3, 3)), n4=np.zeros((4, 4)),
-            v4=np.zeros((4, 4)))
+        clusters = (np.eye(3)[None].copy(), np.ones(1), np.array([[1.0, 0.0, 0.0, 0.0]]))
+        scratch = (np.zeros(4), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3)),
+                   np.zeros((4, 4)), np.zeros((4, 4)))
+        n = plasticity.plastic_update(a[None].copy(), clusters, sp, (0.05, 2.0, 0.3, 1.0 / 120.0),
+                                      changed, scratch)
         assert n == 0 and not changed[0]
         np.testing.assert_array_equal(sp[0], np.eye(3))
 

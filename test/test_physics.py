@@ -124,8 +124,9 @@ def test_unit_det_match_kernel_matches_reference(seed):
                       np.zeros((3, 3)), 1e-10)
     assert cdet[0] == pytest.approx(c, rel=1e-12)
     out = np.zeros((3, 3))
-    ok = K.unit_det_match(apq, nmat[0], cdet[0], r, out, np.zeros((3, 3)), np.zeros((3, 3)),
-                          np.zeros((3, 3)), np.zeros((3, 3)), 2.0)
+    ok = K.unit_det_match(apq, nmat[0], cdet[0], r, out,
+                          (np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3)),
+                           np.zeros((3, 3))), 2.0)
     assert ok
     np.testing.assert_allclose(out, ref, atol=1e-9)
     sv = np.linalg.svd(out, compute_uv=False)
@@ -304,9 +305,8 @@ def test_limit_turn_caps_the_spin_and_keeps_the_momentum(clusters):
         ptr, cl, nk = build_memberships(x - c, clusters)
     v_new = v.copy()
     z3 = [np.zeros((3, 3)) for _ in range(4)]
-    count = K.limit_turn(x=x, v=v_new, mass=m, ptr=ptr, cl=cl, flagged=np.ones(nk, np.bool_),
-                         w_max=10.0, lin=np.zeros((nk, 13)), w3=np.zeros((nk, 6)), m3a=z3[0],
-                         m3b=z3[1], m3c=z3[2], m3d=z3[3])
+    scratch = (np.zeros((nk, 13)), np.zeros((nk, 6)), z3[0], z3[1], z3[2], z3[3])
+    count = K.limit_turn(x, v_new, m, (ptr, cl), np.ones(nk, np.bool_), 10.0, scratch)
     assert count == nk
     np.testing.assert_allclose(m @ v_new, m @ v, atol=1e-12 * np.abs(m @ v).max())
     members = ([np.arange(len(x))] if clusters == 1 else
@@ -325,9 +325,7 @@ def test_limit_turn_caps_the_spin_and_keeps_the_momentum(clusters):
                 assert np.linalg.norm(omega) < 0.7 * 50.0   # measured 31 rad/s
     # unflagged clusters are not touched
     v_same = v.copy()
-    assert K.limit_turn(x=x, v=v_same, mass=m, ptr=ptr, cl=cl, flagged=np.zeros(nk, np.bool_),
-                        w_max=10.0, lin=np.zeros((nk, 13)), w3=np.zeros((nk, 6)), m3a=z3[0],
-                        m3b=z3[1], m3c=z3[2], m3d=z3[3]) == 0
+    assert K.limit_turn(x, v_same, m, (ptr, cl), np.zeros(nk, np.bool_), 10.0, scratch) == 0
     np.testing.assert_array_equal(v_same, v)
 
 

@@ -50,9 +50,8 @@ def test_sets_reduce_matches_the_per_particle_sums(monkeypatch, mode):
                              sref=st.ref, part=st.part)
     ref = body._ref + np.array([0.01, -0.02, 0.015])      # any reference point
     out = np.zeros_like(body._part)
-    K.sets_reduce(part=st.part, sptr=st.ptr, scl=st.cl, scnt=st.cnt, sphi=st.phi, sref=st.ref,
-                  stp=st.pair_offsets, rest_lin=body._rest_lin, ref=ref, quad=quad, out=out,
-                  wk=st.work, pm=st.quad_map)
+    pairs = K.SetClusters(st.ptr, st.cl, st.cnt, st.phi, st.pair_offsets, st.org)
+    K.sets_reduce(st.part, pairs, st.ref, body._rest_lin, ref, quad, out, (st.work, st.quad_map))
     twin = reference.cluster_sums(np.asarray(x), np.asarray(body._x0), body._m, body._ptr,
                                   body._cl, body._rest_lin, body._rest_off, ref, quad)
     scale = np.abs(twin).max(axis=0)
@@ -68,10 +67,9 @@ def test_sets_maps_give_the_mean_of_the_clusters_goals(monkeypatch, mode):
     st, quad = body._sets, body._quad
     sref = np.zeros_like(st.ref)
     gm = np.zeros_like(st.goal_maps)
-    K.sets_maps(sptr=st.ptr, scl=st.cl, scnt=st.cnt, sorg=st.org, stp=st.pair_offsets,
-                rest_lin=body._rest_lin, trans=body._trans, goal_lin=body._goal_lin,
-                goal_off=body._goal_off, ref=body._ref, quad=quad, gm=gm, sref=sref,
-                pm=st.quad_map, ck=st.cluster_maps)
+    pairs = K.SetClusters(st.ptr, st.cl, st.cnt, st.phi, st.pair_offsets, st.org)
+    K.sets_maps(pairs, body._rest_lin, (body._trans, body._goal_lin, body._goal_off), body._ref,
+                quad, (gm, sref), (st.quad_map, st.cluster_maps))
     y = np.asarray(st.y0)
     phi = np.stack([np.ones(len(y)), y[:, 0], y[:, 1], y[:, 2], y[:, 0] ** 2, y[:, 1] ** 2,
                     y[:, 2] ** 2, y[:, 0] * y[:, 1], y[:, 1] * y[:, 2], y[:, 2] * y[:, 0]], 1)

@@ -327,6 +327,7 @@ def refresh_rest(body, which):
     Quadratic features need moments up to degree 4: one pass over the particles.
     """
     idx = np.nonzero(which)[0]
+    needs = (body._need3, body._need9)
     body._rest_lin[idx] = body._s_plastic[idx] / body._scale[idx, None, None]
     body._rest_off[idx] = -np.einsum('kij,kj->ki', body._rest_lin[idx], body._cm0[idx])
     if not body._need9:
@@ -339,13 +340,10 @@ def refresh_rest(body, which):
                    - sq[:, :, None] * sq[:, None, :] / body._wsum[idx, None, None])
             body._mom3[idx] = 0.5 * (mom + mom.transpose(0, 2, 1))
     else:
-        K.moments(x0=body._x0, mass=body._m, ptr=body._ptr, cl=body._cl,
-                  rest_lin=body._rest_lin, rest_off=body._rest_off, wsum=body._wsum,
-                  which=which, need3=body._need3, need9=body._need9, sum_q=body._sum_q,
-                  mom3=body._mom3, mom9=body._mom9, f9=body._f9)
-    K.invert_moments(which=which, need3=body._need3, need9=body._need9, mom3=body._mom3,
-                     mom9=body._mom9, aqq3=body._aqq3, aqq9=body._aqq9, w3a=body._s3[0],
-                     w3b=body._s3[1], w9a=body._w9[0], w9b=body._w9[1], rcond=RCOND)
+        K.moments(body._x0, body._m, (body._ptr, body._cl), (body._rest_lin, body._rest_off),
+                  body._wsum, which, needs, (body._sum_q, body._mom3, body._mom9), body._f9)
+    K.invert_moments(which, needs, (body._mom3, body._mom9), (body._aqq3, body._aqq9),
+                     (body._s3[0], body._s3[1], body._w9[0], body._w9[1]), RCOND)
     if body._mode == 1:
         K.unit_det_frames(which=which, mom3=body._mom3, nmat=body._nmat, cdet=body._cdet,
                           wa=body._s3[0], wv=body._s3[1], rcond=RCOND)

@@ -87,6 +87,17 @@ def _sets(body):
     return K.Sets(sets.sid, sets.runs, sets.goal_maps, sets.ref, body._wuni)
 
 
+def _shape(body):
+    """The body's clusters' rest-shape constants as the shape match reads them."""
+    return K.ClusterShape(body._wsum, body._sum_q, body._aqq3, body._aqq9, body._scale,
+                          body._nmat, body._cdet)
+
+
+def _set_clusters(sets):
+    """A set layout's set-cluster pairs as its kernels read them."""
+    return K.SetClusters(sets.ptr, sets.cl, sets.cnt, sets.phi, sets.pair_offsets, sets.org)
+
+
 def _take_sums(body) -> None:
     """The clusters' sums of the current state (Eq. 7-11): taken afresh where the state
     changed since the last pass summed it (``body._dirty``); the set layout reduces its
@@ -96,9 +107,8 @@ def _take_sums(body) -> None:
         if body._dirty:
             _chunks(body, K.sets_accumulate_chunks, quad=body._quad, x=body._x, y0=sets.y0,
                     mass=body._m, sid=sets.sid, runs=sets.runs, sref=sets.ref, part=sets.part)
-        K.sets_reduce(part=sets.part, sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sphi=sets.phi,
-                      sref=sets.ref, stp=sets.pair_offsets, rest_lin=body._rest_lin, ref=body._ref,
-                      quad=body._quad, out=body._part, wk=sets.work, pm=sets.quad_map)
+        K.sets_reduce(sets.part, _set_clusters(sets), sets.ref, body._rest_lin, body._ref,
+                      body._quad, body._part, (sets.work, sets.quad_map))
     elif body._dirty:
         _chunks(body, K.accumulate_chunks, quad=body._quad, particles=_particles(body),
                 rest=_rest(body), part=body._part)
@@ -111,14 +121,11 @@ def _match(body, p, h) -> int:
     turn = body._params.max_turn
     if turn > 0.0:
         np.copyto(body._quat_prev, body._quat)
-    K.solve_clusters_warm(part=body._part, wsum=body._wsum, sum_q=body._sum_q, ref=body._ref,
-                          quat=body._quat, aqq3=body._aqq3, aqq9=body._aqq9,
-                          rest_lin=body._rest_lin, rest_off=body._rest_off, scale=body._scale,
-                          trans=body._trans, goal_lin=body._goal_lin, goal_off=body._goal_off,
-                          mode=body._mode, beta=p.beta, apq=body._apq, acc=body._accbuf,
-                          m3a=s3[0], m3b=s3[1], m3c=s3[2], m39=body._m39, n4=body._n4,
-                          v4=body._v4, nmat=body._nmat, cdet=body._cdet, udv=body._udv,
-                          warm=True)
+    match = K.ClusterMatch(body._quat, body._trans, body._goal_lin, body._goal_off, body._apq,
+                           body._udv)
+    scratch = K.MatchScratch(body._accbuf, s3[0], s3[1], s3[2], body._m39, body._n4, body._v4)
+    K.solve_clusters_warm(body._part, _rest(body), _shape(body), match, scratch, body._mode,
+                          p.beta, True)
     if turn <= 0.0:
         return 0
     # |q_prev . q| = cos(angle / 2): clusters whose rotation turned more than max_turn in
@@ -127,9 +134,8 @@ def _match(body, p, h) -> int:
             np.cos(0.5 * turn), out=body._flagged)
     if not body._flagged.any():
         return 0
-    turned = K.limit_turn(x=body._x, v=body._v, mass=body._m, ptr=body._ptr, cl=body._cl,
-                          flagged=body._flagged, w_max=turn / h, lin=body._lim_lin,
-                          w3=body._lim_w, m3a=s3[0], m3b=s3[1], m3c=s3[2], m3d=s3[3])
+    turned = K.limit_turn(body._x, body._v, body._m, (body._ptr, body._cl), body._flagged,
+                          turn / h, (body._lim_lin, body._lim_w, s3[0], s3[1], s3[2], s3[3]))
     body._limit_counts[1] += turned
     return turned
 
@@ -140,19 +146,15 @@ def _plastic_flow(body, p, h) -> int:
     s3 = body._s3
     nchanged = 0
     if body._params.plastic:
-        nchanged = K.plastic_update(apq=body._apq, aqq3=body._aqq3, scale=body._scale,
-                                    quat=body._quat, s_plastic=body._s_plastic,
-                                    c_yield=body._params.plastic_yield, c_creep=p.creep,
-                                    c_max=body._params.plastic_max, h=h, changed=body._changed,
-                                    q4=body._q4, m3a=s3[0], m3b=s3[1], m3c=s3[2], n4=body._n4,
-                                    v4=body._v4)
+        law = (body._params.plastic_yield, p.creep, body._params.plastic_max, h)
+        nchanged = K.plastic_update(body._apq, (body._aqq3, body._scale, body._quat),
+                                    body._s_plastic, law, body._changed,
+                                    (body._q4, s3[0], s3[1], s3[2], body._n4, body._v4))
     sets = body._sets
     if sets is not None:
-        K.sets_maps(sptr=sets.ptr, scl=sets.cl, scnt=sets.cnt, sorg=sets.org,
-                    stp=sets.pair_offsets,
-                    rest_lin=body._rest_lin, trans=body._trans, goal_lin=body._goal_lin,
-                    goal_off=body._goal_off, ref=body._ref, quad=body._quad, gm=sets.goal_maps,
-                    sref=sets.ref, pm=sets.quad_map, ck=sets.cluster_maps)
+        K.sets_maps(_set_clusters(sets), body._rest_lin,
+                    (body._trans, body._goal_lin, body._goal_off), body._ref, body._quad,
+                    (sets.goal_maps, sets.ref), (sets.quad_map, sets.cluster_maps))
     return nchanged
 
 
@@ -189,16 +191,14 @@ def _damping(body, p, fused, turned) -> None:
         if body._dirty or turned:
             K.damp_accumulate(x=body._x, v=body._v, mass=body._m, sid=_set_ids(body),
                               dpart=body._dpart)
-        K.damping_fields(dpart=body._dpart, sptr=sptr, scl=scl, scnt=scnt, lin=body._lin,
-                         w3=body._w3, dref=body._dref, acc=body._dacc, m3a=s3[0], m3b=s3[1],
-                         m3c=s3[2], m3d=s3[3])
+        K.damping_fields(body._dpart, (sptr, scl, scnt), body._dref, body._dacc,
+                         (body._lin, body._w3, s3[0], s3[1], s3[2], s3[3]))
         K.damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=body._lin, w3=body._w3,
                           dref=body._dref, sref=sets.ref if sets is not None else body._ref,
                           dmp=body._dmp)
     elif p.damping > 0.0:
-        K.damp_rigid(x=body._x, v=body._v, mass=body._m, ptr=body._ptr, cl=body._cl,
-                     ref=body._ref, k_damp=p.damping, lin=body._lin, w3=body._w3, m3a=s3[0],
-                     m3b=s3[1], m3c=s3[2], m3d=s3[3])
+        K.damp_rigid(body._x, body._v, body._m, (body._ptr, body._cl), body._ref, p.damping,
+                     (body._lin, body._w3, s3[0], s3[1], s3[2], s3[3]))
 
 
 def _set_ids(body):
@@ -273,14 +273,12 @@ def goals(body) -> np.ndarray:
     goal_off = np.zeros_like(body._goal_off)
     K.accumulate_chunks(np.zeros(1, dtype=np.int64), body._quad, _particles(body),
                         _rest(body)._replace(ref=ref), part)
-    s3 = [np.zeros((3, 3)) for _ in range(3)]
-    K.solve_clusters(part=part, wsum=body._wsum, sum_q=body._sum_q, ref=ref, quat=quat,
-                     aqq3=body._aqq3, aqq9=body._aqq9, rest_lin=body._rest_lin,
-                     rest_off=body._rest_off, scale=body._scale, trans=trans,
-                     goal_lin=goal_lin, goal_off=goal_off, mode=body._mode, beta=p.beta,
-                     apq=np.zeros_like(body._apq), acc=np.zeros(32), m3a=s3[0], m3b=s3[1],
-                     m3c=s3[2], m39=np.zeros((3, 9)), n4=np.zeros((4, 4)), v4=np.zeros((4, 4)),
-                     nmat=body._nmat, cdet=body._cdet)
+    match = K.ClusterMatch(quat, trans, goal_lin, goal_off, np.zeros_like(body._apq),
+                           body._nmat)
+    scratch = K.MatchScratch(np.zeros(32), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3)),
+                             np.zeros((3, 9)), np.zeros((4, 4)), np.zeros((4, 4)))
+    K.solve_clusters_warm(part, _rest(body)._replace(ref=ref), _shape(body), match, scratch,
+                          body._mode, p.beta, np.bool_(False))     # a cold start
     g = body._x.copy(order='K')            # the layout of x: the kernels' own specialisation
     goals = K.StepGoals(goal_lin, goal_off, trans, 1.0, 1.0, np.zeros(3), np.zeros(3),
                         np.zeros(3))

@@ -158,8 +158,8 @@ class Pack:
             call = self._entry = self._resolve(gravity, ground, boxes, spheres)
         first, turned, nb = 0, -1, len(self.bodies)   # the body to step from, its turn
         while first < nb:
-            first = call[0](self.P, self.counts, self.arrays, float(h), gravity,
-                            bool(has_col), ground, boxes, spheres, float(thresh), first,
+            col = Colliders(bool(has_col), ground, boxes, spheres, float(thresh), 0.0)
+            first = call[0](self.P, self.counts, self.arrays, float(h), gravity, col, first,
                             turned)
             turned = self._limit_turn(first) if first < nb else -1
 
@@ -168,11 +168,10 @@ class Pack:
         number of clusters it limited: compiled apart, when a body first spins that fast."""
         xt, vt, _, mass = self.arrays[b]
         m3 = np.zeros((4, 3, 3))
-        turned = int(limit_turn(x=xt.T, v=vt.T, mass=mass, ptr=np.zeros(0, dtype=np.int64),
-                                cl=np.zeros(0, dtype=np.int32),
-                                flagged=np.ones(1, dtype=np.bool_), w_max=self.P[b, C_WMAX],
-                                lin=np.zeros((1, 13)), w3=np.zeros((1, 6)), m3a=m3[0],
-                                m3b=m3[1], m3c=m3[2], m3d=m3[3]))
+        one_cluster = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int32))
+        scratch = (np.zeros((1, 13)), np.zeros((1, 6)), m3[0], m3[1], m3[2], m3[3])
+        turned = int(limit_turn(xt.T, vt.T, mass, one_cluster, np.ones(1, dtype=np.bool_),
+                                self.P[b, C_WMAX], scratch))
         self.counts[b, 1] += turned
         return turned
 
@@ -186,8 +185,8 @@ class Pack:
         entry = fn
         overloads = getattr(fn, 'overloads', None)
         if overloads is not None:
-            args = (self.P, self.counts, self.arrays, 0.0, gravity, False, ground, boxes,
-                    spheres, 0.0, 0, 0)
+            args = (self.P, self.counts, self.arrays, 0.0, gravity,
+                    Colliders(False, ground, boxes, spheres, 0.0, 0.0), 0, 0)
             sig = tuple(fn.typeof_pyval(a) for a in args)
             if sig not in overloads:
                 fn.compile(sig)
@@ -196,9 +195,9 @@ class Pack:
 
 
 @njit(**JIT)
-def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, thresh,
-                first, turned_first):
-    """The bodies ``first``, ... of a pack, on the calling thread (``arrays``: ``Pack.arrays``).
+def step_packed(P, counts, arrays, h, gravity, colliders, first, turned_first):
+    """The bodies ``first``, ... of a pack, on the calling thread (``arrays``: ``Pack.arrays``;
+    ``colliders``: the static colliders, each body meeting them with its own radius).
     Returns their number, or the first body whose cluster turned past its ``max_turn``, its
     row unchanged: ``Pack._limit_turn`` (a large kernel, rarely needed) limits its spin,
     then this call resumes at it with ``turned_first`` the clusters limited (-1: none yet;
@@ -269,7 +268,8 @@ def step_packed(P, counts, arrays, h, gravity, has_col, ground, boxes, spheres, 
         for j in range(3):
             dp[15 + j] = pnt[0, j]
         dp[18] = 1.0
-        col = Colliders(has_col, ground, boxes, spheres, thresh, row[C_RADIUS])
+        col = Colliders(colliders.on, colliders.ground, colliders.boxes, colliders.spheres,
+                        colliders.thresh, row[C_RADIUS])
         err2, capped = _pass(0, n, x, v, x0, mass, row, h, work, col)
         counts[b, 0] += capped
         _store(row, err2, damp, work)
@@ -356,8 +356,8 @@ def _goal_map(row, work):
                 nmat0[i // 3, i % 3] = row[C_NMAT + i]
                 udv0[i // 3, i % 3] = row[C_UDV + i]
             lin_b = unit_det_match_warm(apq=ma, nmat=nmat0, c_s=s_k * c_det, rot=mb,
-                                        out=mc, w1=w1, w2=w2, wa=wa, wv=wv,
-                                        limit=STRETCH_LIMIT, vw=udv0, warm=np.bool_(True))
+                                        out=mc, work=(w1, w2, wa, wv), limit=STRETCH_LIMIT,
+                                        vw=udv0, warm=np.bool_(True))
             matched = True
     # T = s (beta B + (1 - beta) R) or s R, then the goal map
     for i in range(3):
@@ -469,7 +469,7 @@ def _pass(lo, hi, x, v, x0, mass, row, h, work, col):
         err2 += e
         if low and not (over or boxed):
             # the loop added its sums: the ground's projection, and what it changed in them
-            g = ground_range_sums(bs, be, x, v, x0, wuni, col, k0, k1, k2, damp)
+            g = ground_range_sums(bs, be, x, v, x0, wuni, col, (k0, k1, k2), damp)
             _add_rest_sums(rest_lin, rest_off, sums[0], (0.0, 0.0, g[0], 0.0, 0.0, 0.0, 0.0,
                                                          0.0, 0.0, g[1], g[2], g[3]))
             if damp:

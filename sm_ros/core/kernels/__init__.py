@@ -36,8 +36,8 @@ rigid/linear modes.  Everything is re-exported here: ``from sm_ros.core import k
 from .colliders import Colliders, _collide_range, collide_point, contact_velocity
 from .damping import (NDAMP, damp_acc_range, damp_accumulate, damp_kinematic, damp_rigid,
                       damp_velocity, damping_fields, damping_targets)
-from .goals import (_goal_quad, _qhat, invert_moments, moments, quad_features, solve_clusters,
-                    solve_clusters_warm)
+from .goals import (ClusterMatch, ClusterShape, MatchScratch, _goal_quad, _qhat,
+                    invert_moments, moments, quad_features, solve_clusters_warm)
 from .grabs import apply_kinematic, gather_rows, inertia
 from .integrate import (BLOCK, BodyParticles, ClusterRest, FusedDamping, StepGoals,
                         accumulate_chunks, advance, integrate_chunks)
@@ -47,7 +47,7 @@ from .linalg import det3, jacobi3, jacobi3_warm, jacobi_eigh, matmul, norm2, pin
 from .plasticity import _add_null_projector, _cap_plastic, plastic_update
 from .rotation import extract_rotation, quat_to_mat
 from .sets import SetMotion, Sets, _fused_refs, sets_integrate_chunks, sets_kinematic
-from .set_maps import sets_maps, sets_reduce
+from .set_maps import SetClusters, sets_maps, sets_reduce
 from .sets_sums import sets_accumulate_chunks
 from .spread import moved_box, spread_of
 from .unit_det import (STRETCH_LIMIT, _logprod, _logx, _stretch_ok, _unit_det_sum,
@@ -60,7 +60,8 @@ __all__ = ['Colliders', '_collide_range', 'contact_velocity', 'collide_point', '
            'damp_accumulate', 'damp_kinematic', 'damp_rigid', 'damp_velocity', 'damping_fields',
            'damping_targets', 'STRETCH_LIMIT', '_goal_quad', '_logprod', '_logx', '_qhat',
            '_stretch_ok', '_unit_det_sum', 'invert_moments', 'moments', 'nearest_unit_det',
-           'nearest_unit_det_warm', 'quad_features', 'solve_clusters', 'solve_clusters_warm',
+           'nearest_unit_det_warm', 'quad_features', 'solve_clusters_warm', 'ClusterMatch',
+           'ClusterShape', 'MatchScratch',
            'unit_det_frames', 'unit_det_match', 'unit_det_match_warm',
            'volume_preserving', 'BLOCK', 'BodyParticles', 'ClusterRest', 'FusedDamping',
            'StepGoals', 'accumulate_chunks', 'advance',
@@ -71,4 +72,4 @@ __all__ = ['Colliders', '_collide_range', 'contact_velocity', 'collide_point', '
            'extract_rotation', 'quat_to_mat', 'moved_box', 'spread_of', 'step_single_bodies',
            'StepRecord',
            'sets_accumulate_chunks', '_fused_refs', 'sets_integrate_chunks',
-           'sets_kinematic', 'sets_maps', 'sets_reduce', 'SetMotion', 'Sets']
+           'sets_kinematic', 'sets_maps', 'sets_reduce', 'SetMotion', 'Sets', 'SetClusters']

@@ -198,11 +198,11 @@ def ground_range(start, end, x, v, col):
 
 
 @njit(inline='always', **JIT)
-def ground_range_sums(start, end, x, v, x0, wuni, col, k0, k1, k2, damp):
+def ground_range_sums(start, end, x, v, x0, wuni, col, point, damp):
     """``ground_range`` for a range whose sums the one-loop pass has just taken about the
-    point k: returns what the projection changed in them, so that the sums stay those of
-    the final state without a second pass over the range (a body resting on the ground has
-    a layer of particles in contact in every block it is stored in).
+    point k (``point``): returns what the projection changed in them, so that the sums
+    stay those of the final state without a second pass over the range (a body resting on
+    the ground has a layer of particles in contact in every block it is stored in).
 
     A projected particle only moves up (z -> ``ground_height``, dz) and changes its
     velocity v -> v', so with w = ``wuni`` its weight (the one-loop passes serve bodies of
@@ -212,6 +212,7 @@ def ground_range_sums(start, end, x, v, x0, wuni, col, k0, k1, k2, damp):
     without ``damp``), 16 numbers.  The other shape sums do not change.
     """
     gz, mu, e, thresh = ground_height(col), col.ground[2], col.ground[3], col.thresh
+    k0, k1, k2 = point
     w = wuni
     s2 = c20 = c21 = c22 = 0.0
     b0 = b1 = b2 = a0 = a1 = a2 = e22 = e12 = e20 = 0.0

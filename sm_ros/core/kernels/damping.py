@@ -13,13 +13,15 @@ from .linalg import sym3_solve
 
 
 @njit(**JIT)
-def _rigid_fields(lin, w3, m3a, m3b, m3c, m3d):
-    """Each cluster's rigid velocity field from its sums about a reference point ref_k.
+def _rigid_fields(scratch):
+    """Each cluster's rigid velocity field from its sums about a reference point ref_k
+    (``scratch`` = (lin, w3, four 3 x 3)).
 
     In: ``lin[k]`` = [W, sum w v (3), sum w r x v (3), sum w (|r|^2 - r_a^2) (3),
     -sum w r_0 r_1, -sum w r_1 r_2, -sum w r_2 r_0] and ``w3[k]`` = sum w r, r = x - ref_k.
     Out: ``lin[k, 1:4]`` = c_k and ``w3[k]`` = omega_k with the field c_k + omega_k x r.
     """
+    lin, w3, m3a, m3b, m3c, m3d = scratch
     nk = lin.shape[0]
     for k in range(nk):
         wk = lin[k, 0]
@@ -51,7 +53,7 @@ def _rigid_fields(lin, w3, m3a, m3b, m3c, m3d):
 
 
 @njit(**JIT)
-def _damp_rigid_single(x, v, mass, ref, k_damp, lin, w3, m3a, m3b, m3c, m3d):
+def _damp_rigid_single(x, v, mass, ref, k_damp, scratch):
     """``damp_rigid`` of a one-cluster body: the same sums and the same per-particle
     update, accumulated in 16 local scalars (registers) instead of ``lin``/``w3`` rows.
 
@@ -61,6 +63,7 @@ def _damp_rigid_single(x, v, mass, ref, k_damp, lin, w3, m3a, m3b, m3c, m3d):
     loops are pure scalar streams over x, v (the first a reduction, the second a map that
     vectorises); sums in the same order, rounding as other reductions under fast math.
     """
+    lin, w3 = scratch[0], scratch[1]
     r0c, r1c, r2c = ref[0, 0], ref[0, 1], ref[0, 2]
     sw = sv0 = sv1 = sv2 = 0.0
     sr0 = sr1 = sr2 = 0.0
@@ -106,7 +109,7 @@ def _damp_rigid_single(x, v, mass, ref, k_damp, lin, w3, m3a, m3b, m3c, m3d):
     w3[0, 0] = sr0
     w3[0, 1] = sr1
     w3[0, 2] = sr2
-    _rigid_fields(lin=lin, w3=w3, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
+    _rigid_fields(scratch)
     c0, c1, c2 = lin[0, 1], lin[0, 2], lin[0, 3]
     o0, o1, o2 = w3[0, 0], w3[0, 1], w3[0, 2]
     # one cluster a particle: the mean of its clusters' fields is the field itself
@@ -120,22 +123,24 @@ def _damp_rigid_single(x, v, mass, ref, k_damp, lin, w3, m3a, m3b, m3c, m3d):
 
 
 @njit(**JIT)
-def damp_rigid(x, v, mass, ptr, cl, ref, k_damp, lin, w3, m3a, m3b, m3c, m3d):
+def damp_rigid(x, v, mass, members, ref, k_damp, scratch):
     """Damp velocities towards each cluster's rigid motion (v_cm + w x r), never the motion.
 
     Per cluster: v_cm = sum w v / W, L = sum w r x v, I = sum w (|r|^2 - r r^T),
     omega = I^+ L; each particle moves a fraction ``k_damp`` towards the mean of its
     clusters' rigid velocities.  Linear and angular momentum of every cluster are kept.
-    ``lin`` (K, 13) and ``w3`` (K, 3) are scratch buffers.
+    ``members`` = (ptr, cl), the clusters of each particle (empty: one cluster);
+    ``scratch`` = (lin (K, 13), w3 (K, 3), four 3 x 3).
 
     r = x - ref is taken about the centre of mass d = sum w r / W that ``ref`` holds only
     up to rounding: L and I are corrected to d (L - W d x v_cm, parallel axes).  Without
     that, a body flying at 1e10 m/s far from the origin got ``(sum w r) x v`` of rounding
     noise as angular momentum, and the damping spun it apart.
     """
+    ptr, cl = members
+    lin, w3 = scratch[0], scratch[1]
     if ptr.shape[0] == 0:
-        _damp_rigid_single(x=x, v=v, mass=mass, ref=ref, k_damp=k_damp, lin=lin, w3=w3,
-                           m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
+        _damp_rigid_single(x, v, mass, ref, k_damp, scratch)
         return
     nk = ref.shape[0]
     for k in range(nk):
@@ -170,7 +175,7 @@ def damp_rigid(x, v, mass, ptr, cl, ref, k_damp, lin, w3, m3a, m3b, m3c, m3d):
             lin[k, 10] -= w * r0 * r1
             lin[k, 11] -= w * r1 * r2
             lin[k, 12] -= w * r2 * r0
-    _rigid_fields(lin=lin, w3=w3, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
+    _rigid_fields(scratch)
     for i in range(n):
         j0, j1 = ptr[i], ptr[i + 1]
         t0 = 0.0
@@ -378,14 +383,18 @@ def _shift(acc, row, t0, t1, t2):
 
 
 @njit(**JIT)
-def damping_fields(dpart, sptr, scl, scnt, lin, w3, dref, acc, m3a, m3b, m3c, m3d):
-    """Every cluster's rigid field (``lin[k, 1:4]`` = c_k, ``w3[k]`` = omega_k) about a
-    point ``dref[k]`` inside it, from the damping rows of the last pass.
+def damping_fields(dpart, set_clusters, dref, acc, scratch):
+    """Every cluster's rigid field (``lin[k, 1:4]`` = c_k, ``w3[k]`` = omega_k, ``scratch``
+    = (lin, w3, four 3 x 3)) about a point ``dref[k]`` inside it, from the damping rows of
+    the last pass.
 
     The chunks' rows of a set are moved to one reference p_s; cluster k weighs a particle
-    of set s by m / n_s (n_s = ``scnt[s]`` clusters) and takes its sums about the
-    reference of its first set.  ``acc`` (NDAMP,) is scratch.
+    of set s by m / n_s (``set_clusters`` = (sptr, scl, scnt): the clusters of each set,
+    n_s = ``scnt[s]`` of them) and takes its sums about the reference of its first set.
+    ``acc`` (NDAMP,) is scratch.
     """
+    sptr, scl, scnt = set_clusters
+    lin, w3 = scratch[0], scratch[1]
     nk = lin.shape[0]
     for k in range(nk):
         for j in range(13):
@@ -443,7 +452,7 @@ def damping_fields(dpart, sptr, scl, scnt, lin, w3, dref, acc, m3a, m3b, m3c, m3
             lin[k, 10] -= inv_n * r01
             lin[k, 11] -= inv_n * r12
             lin[k, 12] -= inv_n * r20
-    _rigid_fields(lin=lin, w3=w3, m3a=m3a, m3b=m3b, m3c=m3c, m3d=m3d)
+    _rigid_fields(scratch)
 
 
 @njit(**JIT)

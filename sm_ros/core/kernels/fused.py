@@ -21,10 +21,13 @@ def below_ground(y, gz):
 
 
 @njit(inline='always', **JIT)
-def damp_constants(damp, k_damp, c0, c1, c2, o0, o1, o2, r0, r1, r2):
-    """The damping v += k (c + o x (p - r) - v) of a field (c, o) about r, folded into
-    v <- km v + f + o' x p: returns (km, f0, f1, f2, o'0, o'1, o'2), the identity map
-    (1, 0, ..., 0) without ``damp`` (``_fused_range``: 3 multiply-adds a component)."""
+def damp_constants(damp, k_damp, field, ref):
+    """The damping v += k (c + o x (p - r) - v) of a field (c, o) about r (``field`` = c0
+    c1 c2 o0 o1 o2, ``ref`` = r), folded into v <- km v + f + o' x p: returns (km, f0, f1,
+    f2, o'0, o'1, o'2), the identity map (1, 0, ..., 0) without ``damp``
+    (``_fused_range``: 3 multiply-adds a component)."""
+    c0, c1, c2, o0, o1, o2 = field
+    r0, r1, r2 = ref
     kd = k_damp if damp else 0.0
     q0, q1, q2 = kd * o0, kd * o1, kd * o2
     return (1.0 - kd, kd * c0 - (q1 * r2 - q2 * r1), kd * c1 - (q2 * r0 - q0 * r2),
@@ -32,11 +35,12 @@ def damp_constants(damp, k_damp, c0, c1, c2, o0, o1, o2, r0, r1, r2):
 
 
 @njit(inline='always', **JIT)
-def _fused_range(start, end, x, v, x0, wuni, gmap, damp, field, alpha_h, h, hx, hy, hz,
-                 k0, k1, k2, lim2, gz):
-    """One loop over particles start..end: the damping (``field``, ``damp_constants``;
-    with ``damp``), Eq. 13-14 towards the goal G x0 + b (``gmap``: G row by row, then b),
-    and the 12 sums of the new state about the point k (``_rest_sums``'s).  Returns (sum of
+def _fused_range(start, end, particles, wuni, gmap, damp, field, motion, point, limits):
+    """One loop over particles start..end of ``particles`` = (x, v, x0): the damping
+    (``field``, ``damp_constants``; with ``damp``), Eq. 13-14 towards the goal G x0 + b
+    (``gmap``: G row by row, then b; ``motion`` = (alpha / h, h, h times the acceleration
+    (3))), and the 12 sums of the new state about ``point`` k (``_rest_sums``'s);
+    ``limits`` = (lim2, gz).  Returns (sum of
     |g - p|^2 as ``advance``, speeds over sqrt(lim2), the 12 sums, new heights below gz:
     the ground's test, so that a run the ground cannot reach skips its collider pass; gz
     is -inf without a ground), then,
@@ -46,8 +50,7 @@ def _fused_range(start, end, x, v, x0, wuni, gmap, damp, field, alpha_h, h, hx, 
 
     Every particle weighs ``wuni``: the loop sums unweighted and scales the sums once.
     """
-    t = _fused_loop(start, end, x, v, x0, gmap, damp, field, alpha_h, h, hx, hy, hz, k0, k1,
-                    k2, lim2, gz)
+    t = _fused_loop(start, end, particles, gmap, damp, field, motion, point, limits)
     return (t[0], t[1], wuni * t[2], wuni * t[3], wuni * t[4], wuni * t[5], wuni * t[6],
             wuni * t[7], wuni * t[8], wuni * t[9], wuni * t[10], wuni * t[11], wuni * t[12],
             wuni * t[13], t[14], wuni * t[15], wuni * t[16], wuni * t[17], wuni * t[18],
@@ -56,8 +59,7 @@ def _fused_range(start, end, x, v, x0, wuni, gmap, damp, field, alpha_h, h, hx, 
 
 
 @njit(inline='always', **JIT)
-def _fused_loop(start, end, x, v, x0, gmap, damp, field, alpha_h, h, hx, hy, hz,
-                k0, k1, k2, lim2, gz):
+def _fused_loop(start, end, particles, gmap, damp, field, motion, point, limits):
     """``_fused_range``'s loop, its sums unweighted.
 
     Vectorises across particles (unit-stride columns, unsigned index, every constant in a
@@ -68,6 +70,72 @@ def _fused_loop(start, end, x, v, x0, gmap, damp, field, alpha_h, h, hx, hy, hz,
     Damped, the loop also takes the damping sums of the new state (13 accumulators more, 28
     in all), so a damped block is read once instead of twice.
     """
+    if damp:
+        return _fused_damped(start, end, particles, gmap, field, motion, point, limits)
+    return _fused_plain(start, end, particles, gmap, motion, point, limits) + (
+        0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@njit(inline='always', **JIT)
+def _fused_plain(start, end, particles, gmap, motion, point, limits):
+    """``_fused_loop`` without damping: (err2, over, the 12 sums, low)."""
+    x, v, x0 = particles
+    alpha_h, h, hx, hy, hz = motion
+    k0, k1, k2 = point
+    lim2, gz = limits
+    l00, l01, l02, l10, l11, l12, l20, l21, l22, b0, b1, b2 = gmap
+    err2 = 0.0
+    over = 0
+    low = 0
+    s0 = s1 = s2 = 0.0
+    c00 = c01 = c02 = c10 = c11 = c12 = c20 = c21 = c22 = 0.0
+    for i in range(U(start), U(end)):
+        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+        p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
+        e0 = l00 * a0 + l01 * a1 + l02 * a2 + b0 - p0
+        e1 = l10 * a0 + l11 * a1 + l12 * a2 + b1 - p1
+        e2 = l20 * a0 + l21 * a1 + l22 * a2 + b2 - p2
+        v0 = v[i, 0] + alpha_h * e0 + hx
+        v1 = v[i, 1] + alpha_h * e1 + hy
+        v2 = v[i, 2] + alpha_h * e2 + hz
+        y0 = p0 + h * v0
+        y1 = p1 + h * v1
+        y2 = p2 + h * v2
+        x[i, 0] = y0
+        x[i, 1] = y1
+        x[i, 2] = y2
+        v[i, 0] = v0
+        v[i, 1] = v1
+        v[i, 2] = v2
+        err2 += e0 * e0 + e1 * e1 + e2 * e2
+        over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
+        low += below_ground(y2, gz)
+        wd0 = y0 - k0
+        wd1 = y1 - k1
+        wd2 = y2 - k2
+        s0 += wd0
+        s1 += wd1
+        s2 += wd2
+        c00 += wd0 * a0
+        c01 += wd0 * a1
+        c02 += wd0 * a2
+        c10 += wd1 * a0
+        c11 += wd1 * a1
+        c12 += wd1 * a2
+        c20 += wd2 * a0
+        c21 += wd2 * a1
+        c22 += wd2 * a2
+    err2 += 0.0 * (s0 + s1 + s2)
+    return (err2, over, s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22, low)
+
+
+@njit(inline='always', **JIT)
+def _fused_damped(start, end, particles, gmap, field, motion, point, limits):
+    """``_fused_loop`` with damping: its 27 values."""
+    x, v, x0 = particles
+    alpha_h, h, hx, hy, hz = motion
+    k0, k1, k2 = point
+    lim2, gz = limits
     l00, l01, l02, l10, l11, l12, l20, l21, l22, b0, b1, b2 = gmap
     km, f0, f1, f2, o0, o1, o2 = field
     err2 = 0.0
@@ -78,100 +146,62 @@ def _fused_loop(start, end, x, v, x0, gmap, damp, field, alpha_h, h, hx, hy, hz,
     # the damping sums: momentum, angular momentum about k, second moments of d, mass
     pm0 = pm1 = pm2 = am0 = am1 = am2 = 0.0
     e00 = e11 = e22 = e01 = e12 = e20 = 0.0
-    if damp:
-        for i in range(U(start), U(end)):
-            a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
-            p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
-            # damp_towards, its constants folded (damp_constants)
-            u0 = km * v[i, 0] + f0 + o1 * p2 - o2 * p1
-            u1 = km * v[i, 1] + f1 + o2 * p0 - o0 * p2
-            u2 = km * v[i, 2] + f2 + o0 * p1 - o1 * p0
-            # advance (Eq. 13-14), its expressions
-            e0 = l00 * a0 + l01 * a1 + l02 * a2 + b0 - p0
-            e1 = l10 * a0 + l11 * a1 + l12 * a2 + b1 - p1
-            e2 = l20 * a0 + l21 * a1 + l22 * a2 + b2 - p2
-            v0 = u0 + alpha_h * e0 + hx
-            v1 = u1 + alpha_h * e1 + hy
-            v2 = u2 + alpha_h * e2 + hz
-            y0 = p0 + h * v0
-            y1 = p1 + h * v1
-            y2 = p2 + h * v2
-            x[i, 0] = y0
-            x[i, 1] = y1
-            x[i, 2] = y2
-            v[i, 0] = v0
-            v[i, 1] = v1
-            v[i, 2] = v2
-            err2 += e0 * e0 + e1 * e1 + e2 * e2
-            over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
-            low += below_ground(y2, gz)
-            # the next step's shape-match sums of the new state
-            wd0 = y0 - k0
-            wd1 = y1 - k1
-            wd2 = y2 - k2
-            s0 += wd0
-            s1 += wd1
-            s2 += wd2
-            c00 += wd0 * a0
-            c01 += wd0 * a1
-            c02 += wd0 * a2
-            c10 += wd1 * a0
-            c11 += wd1 * a1
-            c12 += wd1 * a2
-            c20 += wd2 * a0
-            c21 += wd2 * a1
-            c22 += wd2 * a2
-            # the next step's damping sums of the new state (``damp_sums_range``'s)
-            d0, d1, d2 = y0 - k0, y1 - k1, y2 - k2
-            pm0 += v0
-            pm1 += v1
-            pm2 += v2
-            am0 += wd1 * v2 - wd2 * v1
-            am1 += wd2 * v0 - wd0 * v2
-            am2 += wd0 * v1 - wd1 * v0
-            e00 += wd0 * d0
-            e11 += wd1 * d1
-            e22 += wd2 * d2
-            e01 += wd0 * d1
-            e12 += wd1 * d2
-            e20 += wd2 * d0
-    else:
-        for i in range(U(start), U(end)):
-            a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
-            p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
-            e0 = l00 * a0 + l01 * a1 + l02 * a2 + b0 - p0
-            e1 = l10 * a0 + l11 * a1 + l12 * a2 + b1 - p1
-            e2 = l20 * a0 + l21 * a1 + l22 * a2 + b2 - p2
-            v0 = v[i, 0] + alpha_h * e0 + hx
-            v1 = v[i, 1] + alpha_h * e1 + hy
-            v2 = v[i, 2] + alpha_h * e2 + hz
-            y0 = p0 + h * v0
-            y1 = p1 + h * v1
-            y2 = p2 + h * v2
-            x[i, 0] = y0
-            x[i, 1] = y1
-            x[i, 2] = y2
-            v[i, 0] = v0
-            v[i, 1] = v1
-            v[i, 2] = v2
-            err2 += e0 * e0 + e1 * e1 + e2 * e2
-            over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
-            low += below_ground(y2, gz)
-            wd0 = y0 - k0
-            wd1 = y1 - k1
-            wd2 = y2 - k2
-            s0 += wd0
-            s1 += wd1
-            s2 += wd2
-            c00 += wd0 * a0
-            c01 += wd0 * a1
-            c02 += wd0 * a2
-            c10 += wd1 * a0
-            c11 += wd1 * a1
-            c12 += wd1 * a2
-            c20 += wd2 * a0
-            c21 += wd2 * a1
-            c22 += wd2 * a2
+    for i in range(U(start), U(end)):
+        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
+        p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
+        # damp_towards, its constants folded (damp_constants)
+        u0 = km * v[i, 0] + f0 + o1 * p2 - o2 * p1
+        u1 = km * v[i, 1] + f1 + o2 * p0 - o0 * p2
+        u2 = km * v[i, 2] + f2 + o0 * p1 - o1 * p0
+        # advance (Eq. 13-14), its expressions
+        e0 = l00 * a0 + l01 * a1 + l02 * a2 + b0 - p0
+        e1 = l10 * a0 + l11 * a1 + l12 * a2 + b1 - p1
+        e2 = l20 * a0 + l21 * a1 + l22 * a2 + b2 - p2
+        v0 = u0 + alpha_h * e0 + hx
+        v1 = u1 + alpha_h * e1 + hy
+        v2 = u2 + alpha_h * e2 + hz
+        y0 = p0 + h * v0
+        y1 = p1 + h * v1
+        y2 = p2 + h * v2
+        x[i, 0] = y0
+        x[i, 1] = y1
+        x[i, 2] = y2
+        v[i, 0] = v0
+        v[i, 1] = v1
+        v[i, 2] = v2
+        err2 += e0 * e0 + e1 * e1 + e2 * e2
+        over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
+        low += below_ground(y2, gz)
+        # the next step's shape-match sums of the new state
+        wd0 = y0 - k0
+        wd1 = y1 - k1
+        wd2 = y2 - k2
+        s0 += wd0
+        s1 += wd1
+        s2 += wd2
+        c00 += wd0 * a0
+        c01 += wd0 * a1
+        c02 += wd0 * a2
+        c10 += wd1 * a0
+        c11 += wd1 * a1
+        c12 += wd1 * a2
+        c20 += wd2 * a0
+        c21 += wd2 * a1
+        c22 += wd2 * a2
+        # the next step's damping sums of the new state (``damp_sums_range``'s)
+        d0, d1, d2 = y0 - k0, y1 - k1, y2 - k2
+        pm0 += v0
+        pm1 += v1
+        pm2 += v2
+        am0 += wd1 * v2 - wd2 * v1
+        am1 += wd2 * v0 - wd0 * v2
+        am2 += wd0 * v1 - wd1 * v0
+        e00 += wd0 * d0
+        e11 += wd1 * d1
+        e22 += wd2 * d2
+        e01 += wd0 * d1
+        e12 += wd1 * d2
+        e20 += wd2 * d0
     # A non-finite speed makes its new position, hence a sum of the positions, non-finite:
     # err2 takes it once a call, not per particle (4 operations a particle of ~46), so that
     # ``Body._err`` still flags the state the pass wrote (``World.state_flagged``).

@@ -1,6 +1,6 @@
 """Per-cluster shape matching: sums -> x_cm, A_pq, A and the goal transform (Eq. 7-12, 18-22).
 
-``solve_clusters`` reduces the per-cluster sums that the particle passes accumulated
+``solve_clusters_warm`` reduces the per-cluster sums that the particle passes accumulated
 (Eq. 7-9: x_cm and A_pq = sum m (x - x_cm) q^T, taken about the previous centre of mass so
 large coordinates do not cancel) and builds each cluster's goal transform: rigid R
 (Eq. 12), linear beta A' + (1 - beta) R with the volume-preserving A' (Eq. 18, see
@@ -10,6 +10,8 @@ moments A_qq = (sum m q q^T)^+ (Eq. 10) and A~_qq (Eq. 21) at build time and whe
 plastic state changes; ``_qhat`` is a particle's plastic, scaled rest offset q-hat.
 """
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
@@ -17,6 +19,19 @@ from .jit import JIT, finite
 from .linalg import det3, matmul, pinv_sym
 from .rotation import extract_rotation
 from .unit_det import STRETCH_LIMIT, unit_det_match_warm
+
+#: Each cluster's constants of its rest shape: its mass (``wsum``), sum m q~ (``sum_q``),
+#: A_qq (``aqq3``; ``aqq9`` quadratic), its volume scale and the frames of the
+#: unit-determinant match (``nmat``, ``cdet``; ``unit_det.unit_det_frames``).
+ClusterShape = namedtuple('ClusterShape', 'wsum sum_q aqq3 aqq9 scale nmat cdet')
+#: What the match writes per cluster: its rotation (``quat``), goal transform (``trans``,
+#: 3 x 9: the linear modes use the 3 x 3 block) and affine goal map (``goal_lin``,
+#: ``goal_off``), A_pq-hat (``apq``, for ``plastic_update``) and the linear mode's
+#: eigenvectors (``udv``, the warm start of its next match).
+ClusterMatch = namedtuple('ClusterMatch', 'quat trans goal_lin goal_off apq udv')
+#: The match's scratch: a cluster's reduced sums (``sums``), three 3 x 3, a 3 x 9 and two
+#: 4 x 4 matrices.
+MatchScratch = namedtuple('MatchScratch', 'sums m3a m3b m3c m39 n4 v4')
 
 
 @njit(inline='always', **JIT)
@@ -67,118 +82,132 @@ def _goal_quad(trans, k, q0, q1, q2):
 
 
 @njit(**JIT)
-def solve_clusters(part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin, rest_off, scale, trans,
-                   goal_lin, goal_off, mode, beta, apq, acc, m3a, m3b, m3c, m39, n4, v4, nmat,
-                   cdet):
-    """``solve_clusters_warm`` with the linear mode's eigen-solves started cold."""
-    solve_clusters_warm(part=part, wsum=wsum, sum_q=sum_q, ref=ref, quat=quat, aqq3=aqq3,
-                        aqq9=aqq9, rest_lin=rest_lin, rest_off=rest_off, scale=scale,
-                        trans=trans, goal_lin=goal_lin, goal_off=goal_off, mode=mode,
-                        beta=beta, apq=apq, acc=acc, m3a=m3a, m3b=m3b, m3c=m3c, m39=m39,
-                        n4=n4, v4=v4, nmat=nmat, cdet=cdet, udv=nmat,
-                        warm=np.bool_(False))      # bool, not a literal: one compiled copy
+def solve_clusters_warm(part, rest, shape, match, scratch, mode, beta, warm):
+    """Reduce the per-chunk sums ``part`` and build every cluster's goal transform.
 
-
-@njit(**JIT)
-def solve_clusters_warm(part, wsum, sum_q, ref, quat, aqq3, aqq9, rest_lin, rest_off, scale,
-                        trans, goal_lin, goal_off, mode, beta, apq, acc, m3a, m3b, m3c, m39, n4,
-                        v4, nmat, cdet, udv, warm):
-    """Reduce the accumulators and build every cluster's goal transform.
-
-    ``mode``: 0 rigid, 1 linear, 2 quadratic.  Outputs: ``ref`` <- centre of mass x_cm,
-    ``quat`` <- rotation of A_pq, ``t`` (3x9; linear modes use the 3x3 block) and, for the
-    rigid/linear modes, the affine goal map ``lm x0 + lb``; ``apq`` (clusters, 3, 3)
-    <- A_pq-hat for ``plastic_update``; ``nmat``/``cdet``: ``unit_det_frames`` (linear).
-    Plasticity is a kernel of its own, so a scene without it neither runs nor compiles it.
-    ``udv`` (clusters, 3, 3), with ``warm``: each linear cluster's eigenvectors of its last
-    unit-determinant match, the warm start of the next (``nearest_unit_det_warm``).
+    ``mode``: 0 rigid, 1 linear, 2 quadratic.  ``rest`` (``integrate.ClusterRest``): its
+    ``ref`` becomes each cluster's centre of mass x_cm; ``match`` (``ClusterMatch``) gets
+    the rotation of A_pq, the transform and, for the rigid/linear modes, the affine goal
+    map ``goal_lin x0 + goal_off``.  Plasticity is a kernel of its own, so a scene without
+    it neither runs nor compiles it.  With ``warm`` each linear cluster's match starts
+    from the eigenvectors of its last (``match.udv``; ``nearest_unit_det_warm``).
     """
-    nchunks = part.shape[0]
-    nk = part.shape[1]
-    na = part.shape[2]
     nq = 9 if mode == 2 else 3
-    # the linear mode's 3x3 scratch, made once (not once a cluster); wa, wv C-contiguous
-    # like the packed step's, so both callers share one compiled eigen solver
-    w1, w2, wa, wv = m39[:, 3:6], m39[:, 6:9], np.empty((3, 3)), np.empty((3, 3))
-    for k in range(nk):
-        for a in range(na):
-            s = 0.0
-            for chunk in range(nchunks):
-                s += part[chunk, k, a]
-            acc[a] = s
-        inv_w = 1.0 / wsum[k]
-        d0 = acc[0] * inv_w
-        d1 = acc[1] * inv_w
-        d2 = acc[2] * inv_w
-        # A_pq-hat (3 x nq) = sum w (x - cm) q^T, stored in m39
-        for i in range(3):
-            di = d0 if i == 0 else (d1 if i == 1 else d2)
-            for j in range(nq):
-                m39[i, j] = acc[3 + i * nq + j] - di * sum_q[k, j]
-        ref[k, 0] += d0
-        ref[k, 1] += d1
-        ref[k, 2] += d2
-        for i in range(3):
-            for j in range(3):
-                m3a[i, j] = m39[i, j]
-                apq[k, i, j] = m39[i, j]
-        extract_rotation(mat=m3a, quat=quat[k], rot=m3b, n4=n4, v4=v4)   # m3b = R
-        s_k = scale[k]
+    m39 = scratch.m39
+    # the linear mode's 3x3 scratch, made once (not once a cluster); C-contiguous like the
+    # packed step's, so both callers share one compiled eigen solver
+    work = (m39[:, 3:6], m39[:, 6:9], np.empty((3, 3)), np.empty((3, 3)))
+    for k in range(part.shape[1]):
+        inv_w = _reduce_cluster(part, k, rest.ref, shape, match.apq, scratch, nq)
+        extract_rotation(mat=scratch.m3a, quat=match.quat[k], rot=scratch.m3b, n4=scratch.n4,
+                         v4=scratch.v4)                     # m3b = R
         if mode == 2:
-            for i in range(3):
-                for j in range(9):
-                    s = 0.0
-                    for u in range(9):
-                        s += m39[i, u] * aqq9[k, u, j]
-                    rt = s_k * m3b[i, j] if j < 3 else 0.0
-                    trans[k, i, j] = beta * s + (1.0 - beta) * rt
-            # centred features: goal = T (q~ - mean q~) + cm, so lb = cm - T mean q~
-            for i in range(3):
-                s = ref[k, i]
-                for j in range(9):
-                    s -= trans[k, i, j] * sum_q[k, j] * inv_w
-                goal_off[k, i] = s
+            _quadratic_goal(k, rest.ref, shape, match, scratch, beta, inv_w)
         else:
-            if mode == 1:
-                matmul(m3a, aqq3[k], m3c)             # A * s = A_pq-hat A_qq-hat
-                det = det3(m3c) / (s_k * s_k * s_k)
-                # B = the unit-determinant minimiser (Eq. 18, see unit_det_match), written
-                # into t's 3x3 block; inverted, flat or line-like (det A <= 0): R
-                if (det > 1e-9 and finite(det) and cdet[k] > 0.0
-                        and unit_det_match_warm(apq=m3a, nmat=nmat[k], c_s=s_k * cdet[k],
-                                                rot=m3b, out=m3c, w1=w1, w2=w2, wa=wa,
-                                                wv=wv, limit=STRETCH_LIMIT,
-                                                vw=udv[k if warm else 0], warm=warm)):
-                    for i in range(3):
-                        for j in range(3):
-                            trans[k, i, j] = s_k * (beta * m3c[i, j] + (1.0 - beta) * m3b[i, j])
-                else:
-                    for i in range(3):
-                        for j in range(3):
-                            trans[k, i, j] = s_k * m3b[i, j]
-            else:
-                for i in range(3):
-                    for j in range(3):
-                        trans[k, i, j] = s_k * m3b[i, j]
-            # affine goal map in rest coordinates: goal = T (G x0 + h) + cm
+            _linear_transform(k, shape, match, scratch, mode == 1, beta, work, warm)
+            _affine_goal(k, rest, match)
+
+
+@njit(inline='always', **JIT)
+def _reduce_cluster(part, k, ref, shape, apq, scratch, nq):
+    """Cluster k's sums over the chunks: moves ``ref[k]`` to its centre of mass, writes
+    A_pq-hat (3 x nq) = sum w (x - cm) q^T to ``scratch.m39``, its 3 x 3 block to
+    ``scratch.m3a`` and ``apq[k]``; returns 1 / its mass."""
+    acc, m39, m3a = scratch.sums, scratch.m39, scratch.m3a
+    for a in range(part.shape[2]):
+        s = 0.0
+        for chunk in range(part.shape[0]):
+            s += part[chunk, k, a]
+        acc[a] = s
+    inv_w = 1.0 / shape.wsum[k]
+    d0 = acc[0] * inv_w
+    d1 = acc[1] * inv_w
+    d2 = acc[2] * inv_w
+    for i in range(3):
+        di = d0 if i == 0 else (d1 if i == 1 else d2)
+        for j in range(nq):
+            m39[i, j] = acc[3 + i * nq + j] - di * shape.sum_q[k, j]
+    ref[k, 0] += d0
+    ref[k, 1] += d1
+    ref[k, 2] += d2
+    for i in range(3):
+        for j in range(3):
+            m3a[i, j] = m39[i, j]
+            apq[k, i, j] = m39[i, j]
+    return inv_w
+
+
+@njit(inline='always', **JIT)
+def _quadratic_goal(k, ref, shape, match, scratch, beta, inv_w):
+    """Cluster k's quadratic transform beta A~ + (1 - beta) R~ (Eq. 22) and its offset on
+    the centred features: goal = T (q~ - mean q~) + cm."""
+    m39, m3b, aqq9, trans = scratch.m39, scratch.m3b, shape.aqq9, match.trans
+    s_k = shape.scale[k]
+    for i in range(3):
+        for j in range(9):
+            s = 0.0
+            for u in range(9):
+                s += m39[i, u] * aqq9[k, u, j]
+            rt = s_k * m3b[i, j] if j < 3 else 0.0
+            trans[k, i, j] = beta * s + (1.0 - beta) * rt
+    for i in range(3):
+        s = ref[k, i]
+        for j in range(9):
+            s -= trans[k, i, j] * shape.sum_q[k, j] * inv_w
+        match.goal_off[k, i] = s
+
+
+@njit(inline='always', **JIT)
+def _linear_transform(k, shape, match, scratch, linear, beta, work, warm):
+    """Cluster k's rigid transform s R (Eq. 12), or linear s (beta B + (1 - beta) R) with
+    B the unit-determinant minimiser (Eq. 18, see ``unit_det_match``); R when A is
+    inverted, flat or line-like (det A <= 0).  ``work``: the match's 3 x 3 scratch."""
+    m3a, m3b, m3c, trans = scratch.m3a, scratch.m3b, scratch.m3c, match.trans
+    s_k = shape.scale[k]
+    if linear:
+        matmul(m3a, shape.aqq3[k], m3c)             # A * s = A_pq-hat A_qq-hat
+        det = det3(m3c) / (s_k * s_k * s_k)
+        if (det > 1e-9 and finite(det) and shape.cdet[k] > 0.0
+                and unit_det_match_warm(apq=m3a, nmat=shape.nmat[k], c_s=s_k * shape.cdet[k],
+                                        rot=m3b, out=m3c, work=work, limit=STRETCH_LIMIT,
+                                        vw=match.udv[k if warm else 0], warm=warm)):
             for i in range(3):
                 for j in range(3):
-                    goal_lin[k, i, j] = (trans[k, i, 0] * rest_lin[k, 0, j]
-                                         + trans[k, i, 1] * rest_lin[k, 1, j]
-                                         + trans[k, i, 2] * rest_lin[k, 2, j])
-                goal_off[k, i] = (trans[k, i, 0] * rest_off[k, 0] + trans[k, i, 1] * rest_off[k, 1]
-                            + trans[k, i, 2] * rest_off[k, 2] + ref[k, i])
+                    trans[k, i, j] = s_k * (beta * m3c[i, j] + (1.0 - beta) * m3b[i, j])
+            return
+    for i in range(3):
+        for j in range(3):
+            trans[k, i, j] = s_k * m3b[i, j]
+
+
+@njit(inline='always', **JIT)
+def _affine_goal(k, rest, match):
+    """Cluster k's affine goal map in rest coordinates: goal = T (G x0 + h) + cm."""
+    trans, rest_lin, rest_off, ref = match.trans, rest.rest_lin, rest.rest_off, rest.ref
+    for i in range(3):
+        for j in range(3):
+            match.goal_lin[k, i, j] = (trans[k, i, 0] * rest_lin[k, 0, j]
+                                       + trans[k, i, 1] * rest_lin[k, 1, j]
+                                       + trans[k, i, 2] * rest_lin[k, 2, j])
+        match.goal_off[k, i] = (trans[k, i, 0] * rest_off[k, 0] + trans[k, i, 1] * rest_off[k, 1]
+                                + trans[k, i, 2] * rest_off[k, 2] + ref[k, i])
 
 
 @njit(**JIT)
-def moments(x0, mass, ptr, cl, rest_lin, rest_off, wsum, which, need3, need9, sum_q, mom3, mom9,
-            f9):
-    """sum w q~ and the centred moments sum w (q - mean)(q - mean)^T for ``which``.
+def moments(x0, mass, members, rest_map, wsum, which, needs, out, f9):
+    """sum w q~ and the centred moments sum w (q - mean)(q - mean)^T of the clusters marked
+    in ``which`` (``members`` = (ptr, cl), the clusters of each particle, empty for one;
+    ``rest_map`` = (rest_lin, rest_off); ``needs`` = (need3, need9): which moments; ``out``
+    = (sum_q, mom3, mom9); ``f9`` scratch).
 
     The quadratic features q~ are centred per cluster (their squares have a non-zero
     mean): the goals then share the cluster's centre of mass, which keeps linear momentum,
     and an exactly quadratic deformation is reproduced.
     """
+    ptr, cl = members
+    rest_lin, rest_off = rest_map
+    need3, need9 = needs
+    sum_q, mom3, mom9 = out
     nk = rest_lin.shape[0]
     for k in range(nk):
         if which[k]:
@@ -236,8 +265,14 @@ def moments(x0, mass, ptr, cl, rest_lin, rest_off, wsum, which, need3, need9, su
 
 
 @njit(**JIT)
-def invert_moments(which, need3, need9, mom3, mom9, aqq3, aqq9, w3a, w3b, w9a, w9b, rcond):
-    """A_qq = (sum w q q^T)^+ and A~_qq = (sum w q~ q~^T)^+ (robust pseudo-inverses)."""
+def invert_moments(which, needs, moments, inverses, work, rcond):
+    """A_qq = (sum w q q^T)^+ and A~_qq = (sum w q~ q~^T)^+ (robust pseudo-inverses) of
+    the clusters marked in ``which``: ``needs`` = (need3, need9), ``moments`` = (mom3,
+    mom9), ``inverses`` = (aqq3, aqq9), ``work`` two 3 x 3 and two 9 x 9 scratch."""
+    need3, need9 = needs
+    mom3, mom9 = moments
+    aqq3, aqq9 = inverses
+    w3a, w3b, w9a, w9b = work
     for k in range(which.shape[0]):
         if which[k]:
             if need3:

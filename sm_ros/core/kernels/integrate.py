@@ -320,12 +320,13 @@ def _int_single_fused(start, end, particles, wuni, work, step, gz, boxed):
     gmap = (goal_lin[0, 0, 0], goal_lin[0, 0, 1], goal_lin[0, 0, 2], goal_lin[0, 1, 0],
             goal_lin[0, 1, 1], goal_lin[0, 1, 2], goal_lin[0, 2, 0], goal_lin[0, 2, 1],
             goal_lin[0, 2, 2], goal_off[0, 0], goal_off[0, 1], goal_off[0, 2])
-    field = damp_constants(damp, k_damp, dmp[0, 0], dmp[0, 1], dmp[0, 2], dmp[0, 3],
-                           dmp[0, 4], dmp[0, 5], ref[0, 0], ref[0, 1], ref[0, 2])
+    field = damp_constants(damp, k_damp,
+                           (dmp[0, 0], dmp[0, 1], dmp[0, 2], dmp[0, 3], dmp[0, 4], dmp[0, 5]),
+                           (ref[0, 0], ref[0, 1], ref[0, 2]))
     lim2 = v_max * v_max if v_max > 0.0 else np.inf
-    out = _fused_range(start, end, x, v, x0, wuni, gmap, damp, field, alpha / h, h,
-                       h * acc[0], h * acc[1], h * acc[2], pnt[0, 0], pnt[0, 1], pnt[0, 2],
-                       lim2, gz)
+    out = _fused_range(start, end, (x, v, x0), wuni, gmap, damp, field,
+                       (alpha / h, h, h * acc[0], h * acc[1], h * acc[2]),
+                       (pnt[0, 0], pnt[0, 1], pnt[0, 2]), (lim2, gz))
     err2, over, low = out[0], out[1], out[14]
     if over == 0 and not boxed:
         _add_rest_sums(work.rest_lin, work.rest_off, sums[0], out[2:14])

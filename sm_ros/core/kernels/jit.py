@@ -22,10 +22,10 @@ from numba.extending import intrinsic
 FASTMATH = {'nsz', 'arcp', 'contract', 'afn', 'reassoc'}
 #: Options of every kernel: cached on disk, fast math as above, the GIL released.
 JIT = dict(cache=True, fastmath=FASTMATH, nogil=True)
-#: Options of the contact solves, which take their arrays in named tuples and allocate
-#: nothing: without Numba's reference counting (its ``_nrt`` option), which would count
-#: a reference at every read of a tuple's array inside their loops (about three times
-#: the pass's time in ``paper_384``'s heap; ``contact_state.py``).
+#: Options of the kernels that read arrays from tuples inside their loops (the contact
+#: solves' pair visits, the set layout's runs) and allocate nothing: without Numba's
+#: reference counting (its ``_nrt`` option), which would count a reference at every such
+#: read (about three times the contact pass's time in ``paper_384``'s heap).
 JIT_NO_REFCOUNT = dict(JIT, _nrt=False)
 
 _KERNEL_DIR = os.path.dirname(os.path.abspath(__file__))

@@ -73,14 +73,18 @@ def limit_speed_range(start, end, x, v, h, v_max):
 
 
 @njit(**JIT)
-def limit_turn(x, v, mass, ptr, cl, flagged, w_max, lin, w3, m3a, m3b, m3c, m3d):
+def limit_turn(x, v, mass, members, flagged, w_max, scratch):
     """Take from every flagged cluster the angular velocity above ``w_max``; return the count.
 
-    Per flagged cluster k: W, v_cm, d (centre), L and I about d from its members (weights
+    Per flagged cluster k: W, v_cm, d (centre), L and I about d from its members
+    (``members`` = (ptr, cl), the clusters of each particle, empty for one; weights
     m_i / clusters of i, like the goals), omega = I^+ L; if |omega| > w_max the excess
     e_k = omega (1 - w_max / |omega|) is removed from each member's velocity as the mean
-    over its clusters of e_k x (x_i - c_k).  ``lin`` (K, 13), ``w3`` (K, 6) are scratch.
+    over its clusters of e_k x (x_i - c_k).  ``scratch`` = (lin (K, 13), w3 (K, 6), four
+    3 x 3).
     """
+    ptr, cl = members
+    lin, w3, m3a, m3b, m3c, m3d = scratch
     lin[:, :] = 0.0
     w3[:, :] = 0.0
     _turn_centres(x, v, mass, ptr, cl, flagged, lin, w3)

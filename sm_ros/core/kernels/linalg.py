@@ -160,6 +160,36 @@ def jacobi3_warm(mat, vecs, warm, work):
     # on scalar locals throughout (the same operations as through ``work``, ``warm``,
     # ``vecs`` and ``jacobi3``: every store into one of those could alias the next loads,
     # and each rotation of a sweep waited on its stores)
+    w00, w01, w02, w10, w11, w12, w20, w21, w22 = _orthonormal_start(warm)
+    a = _similar_upper(mat, (w00, w01, w02, w10, w11, w12, w20, w21, w22))
+    a00, a01, a02, a11, a12, a22, v00, v01, v02, v10, v11, v12, v20, v21, v22 = _sweeps(a)
+    mat[0, 0], mat[1, 1], mat[2, 2] = a00, a11, a22
+    mat[0, 1] = mat[1, 0] = a01
+    mat[0, 2] = mat[2, 0] = a02
+    mat[1, 2] = mat[2, 1] = a12
+    # W V: the eigenvectors of ``mat``, and the next call's warm start
+    e00 = w00 * v00 + w01 * v10 + w02 * v20
+    e01 = w00 * v01 + w01 * v11 + w02 * v21
+    e02 = w00 * v02 + w01 * v12 + w02 * v22
+    e10 = w10 * v00 + w11 * v10 + w12 * v20
+    e11 = w10 * v01 + w11 * v11 + w12 * v21
+    e12 = w10 * v02 + w11 * v12 + w12 * v22
+    e20 = w20 * v00 + w21 * v10 + w22 * v20
+    e21 = w20 * v01 + w21 * v11 + w22 * v21
+    e22 = w20 * v02 + w21 * v12 + w22 * v22
+    vecs[0, 0], vecs[0, 1], vecs[0, 2] = e00, e01, e02
+    vecs[1, 0], vecs[1, 1], vecs[1, 2] = e10, e11, e12
+    vecs[2, 0], vecs[2, 1], vecs[2, 2] = e20, e21, e22
+    warm[0, 0], warm[0, 1], warm[0, 2] = e00, e01, e02
+    warm[1, 0], warm[1, 1], warm[1, 2] = e10, e11, e12
+    warm[2, 0], warm[2, 1], warm[2, 2] = e20, e21, e22
+
+
+@njit(inline='always', **JIT)
+def _orthonormal_start(warm):
+    """``jacobi3_warm``'s start W from ``warm`` (9 values, row by row): one Newton-Schulz
+    step W (I - (W^T W - I) / 2), or the identity when ``warm`` is not finite or not
+    orthonormal within 1e-6."""
     w00, w01, w02 = warm[0, 0], warm[0, 1], warm[0, 2]
     w10, w11, w12 = warm[1, 0], warm[1, 1], warm[1, 2]
     w20, w21, w22 = warm[2, 0], warm[2, 1], warm[2, 2]
@@ -190,7 +220,13 @@ def jacobi3_warm(mat, vecs, warm, work):
                          w10 * h02 + w11 * h12 + w12 * h22)
         w20, w21, w22 = (w20 * h00 + w21 * h10 + w22 * h20, w20 * h01 + w21 * h11 + w22 * h21,
                          w20 * h02 + w21 * h12 + w22 * h22)
-    # M W, then the upper triangle of W^T M W
+    return w00, w01, w02, w10, w11, w12, w20, w21, w22
+
+
+@njit(inline='always', **JIT)
+def _similar_upper(mat, w):
+    """The upper triangle (a00 a01 a02 a11 a12 a22) of W^T mat W (``w``: W row by row)."""
+    w00, w01, w02, w10, w11, w12, w20, w21, w22 = w
     m00, m01, m02 = mat[0, 0], mat[0, 1], mat[0, 2]
     m10, m11, m12 = mat[1, 0], mat[1, 1], mat[1, 2]
     m20, m21, m22 = mat[2, 0], mat[2, 1], mat[2, 2]
@@ -209,7 +245,14 @@ def jacobi3_warm(mat, vecs, warm, work):
     a11 = w01 * k01 + w11 * k11 + w21 * k21
     a12 = w01 * k02 + w11 * k12 + w21 * k22
     a22 = w02 * k02 + w12 * k12 + w22 * k22
-    # jacobi3 on the six entries, its eigenvectors V in v00..v22
+    return a00, a01, a02, a11, a12, a22
+
+
+@njit(inline='always', **JIT)
+def _sweeps(a):
+    """``jacobi3``'s sweeps on the upper triangle ``a`` (a00 a01 a02 a11 a12 a22): the
+    triangle after them and the eigenvectors V (9 values, row by row)."""
+    a00, a01, a02, a11, a12, a22 = a
     v00, v01, v02 = 1.0, 0.0, 0.0
     v10, v11, v12 = 0.0, 1.0, 0.0
     v20, v21, v22 = 0.0, 0.0, 1.0
@@ -239,26 +282,7 @@ def jacobi3_warm(mat, vecs, warm, work):
             v01, v02 = c * v01 - sn * v02, sn * v01 + c * v02
             v11, v12 = c * v11 - sn * v12, sn * v11 + c * v12
             v21, v22 = c * v21 - sn * v22, sn * v21 + c * v22
-    mat[0, 0], mat[1, 1], mat[2, 2] = a00, a11, a22
-    mat[0, 1] = mat[1, 0] = a01
-    mat[0, 2] = mat[2, 0] = a02
-    mat[1, 2] = mat[2, 1] = a12
-    # W V: the eigenvectors of ``mat``, and the next call's warm start
-    e00 = w00 * v00 + w01 * v10 + w02 * v20
-    e01 = w00 * v01 + w01 * v11 + w02 * v21
-    e02 = w00 * v02 + w01 * v12 + w02 * v22
-    e10 = w10 * v00 + w11 * v10 + w12 * v20
-    e11 = w10 * v01 + w11 * v11 + w12 * v21
-    e12 = w10 * v02 + w11 * v12 + w12 * v22
-    e20 = w20 * v00 + w21 * v10 + w22 * v20
-    e21 = w20 * v01 + w21 * v11 + w22 * v21
-    e22 = w20 * v02 + w21 * v12 + w22 * v22
-    vecs[0, 0], vecs[0, 1], vecs[0, 2] = e00, e01, e02
-    vecs[1, 0], vecs[1, 1], vecs[1, 2] = e10, e11, e12
-    vecs[2, 0], vecs[2, 1], vecs[2, 2] = e20, e21, e22
-    warm[0, 0], warm[0, 1], warm[0, 2] = e00, e01, e02
-    warm[1, 0], warm[1, 1], warm[1, 2] = e10, e11, e12
-    warm[2, 0], warm[2, 1], warm[2, 2] = e20, e21, e22
+    return a00, a01, a02, a11, a12, a22, v00, v01, v02, v10, v11, v12, v20, v21, v22
 
 
 @njit(**JIT)

@@ -72,13 +72,17 @@ def _add_null_projector(aqq, out, wa, wv):
 
 
 @njit(**JIT)
-def plastic_update(apq, aqq3, scale, quat, s_plastic, c_yield, c_creep, c_max, h, changed, q4, m3a,
-                   m3b, m3c, n4, v4):
-    """Plasticity (Eq. 24-27) of every cluster from this step's A_pq-hat (``apq``).
+def plastic_update(apq, clusters, s_plastic, law, changed, scratch):
+    """Plasticity (Eq. 24-27) of every cluster from this step's A_pq-hat (``apq``);
+    ``clusters`` = (A_qq (``aqq3``), scale, rotation quaternion), ``law`` = (yield, creep,
+    max, h), ``scratch`` = (a 4-vector, three 3 x 3, two 4 x 4).
 
-    Updates the plastic state ``sp``; ``changed`` marks the clusters whose rest shape
-    must be refreshed.  Returns the number of changed clusters.
+    Updates the plastic state ``s_plastic``; ``changed`` marks the clusters whose rest
+    shape must be refreshed.  Returns the number of changed clusters.
     """
+    aqq3, scale, quat = clusters
+    c_yield, c_creep, c_max, h = law
+    q4, m3a, m3b, m3c, n4, v4 = scratch
     nchanged = 0
     wa, wv = np.empty((3, 3)), np.empty((3, 3))     # C-contiguous: one eigen solver for all
     for k in range(apq.shape[0]):

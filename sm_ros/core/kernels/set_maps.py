@@ -3,9 +3,16 @@
 map a set from its clusters' goals (``sets_maps``).
 """
 
+from collections import namedtuple
+
 from numba import njit
 
 from .jit import JIT
+
+#: The set layout's set-cluster pairs: each set's clusters (``ptr`` into ``cl``) and their
+#: number (``cnt``), the set's sum of phi(y) (``phi``), each pair's offset t_ks from the
+#: cluster's rest centre (``pair_offsets``) and each set's origin o_s (``org``).
+SetClusters = namedtuple('SetClusters', 'ptr cl cnt phi pair_offsets org')
 
 
 @njit(**JIT)
@@ -32,7 +39,7 @@ def _quad_map(rest_lin, k, pm):
 
 
 @njit(**JIT)
-def sets_reduce(part, sptr, scl, scnt, sphi, sref, stp, rest_lin, ref, quad, out, wk, pm):
+def sets_reduce(part, pairs, sref, rest_lin, ref, quad, out, work):
     """Per-cluster accumulators ``out`` (1, clusters, 12 or 30) from the per-set sums.
 
     Set s contributes sum_{i in s} w (x - ref_k) phi(y)^T = (U_s + (r_s - ref_k) Phi_s^T) /
@@ -41,16 +48,17 @@ def sets_reduce(part, sptr, scl, scnt, sphi, sref, stp, rest_lin, ref, quad, out
     per set-cluster pair): 12 (30) multiply-adds a pair, summed per cluster in ``out``
     itself (3 x 4 or 3 x 10, the size of the final row).  Only then is each cluster's sum
     mapped once to its features q-hat = G_k z (and q~ = P_k phi(z)): the map, 9 x 10 in
-    the quadratic mode, costs per cluster instead of per pair.  ``wk`` (2, 3, 10) and
-    ``pm`` (9, 10) scratch.
+    the quadratic mode, costs per cluster instead of per pair.  ``pairs``:
+    ``SetClusters``; ``work`` = ((2, 3, 10), (9, 10)) scratch.
     """
+    wk, pm = work
     out[0, :, :] = 0.0
     u = wk[0]
     if quad:
-        _expand_quad(part, sptr, scl, scnt, sphi, sref, stp, ref, out, u)
+        _expand_quad(part, pairs, sref, ref, out, u)
         _map_quad(rest_lin, out, u, pm)
     else:
-        _expand_lin(part, sptr, scl, scnt, sphi, sref, stp, ref, out, u)
+        _expand_lin(part, pairs, sref, ref, out, u)
         _map_lin(rest_lin, out, u)
 
 
@@ -66,8 +74,9 @@ def _set_sums(part, s, width, u):
 
 
 @njit(inline='always', **JIT)
-def _expand_quad(part, sptr, scl, scnt, sphi, sref, stp, ref, out, u):
+def _expand_quad(part, pairs, sref, ref, out, u):
     """``sets_reduce``'s sums of every set-cluster pair about the cluster (quadratic)."""
+    sptr, scl, scnt, sphi, stp = pairs.ptr, pairs.cl, pairs.cnt, pairs.phi, pairs.pair_offsets
     for s in range(part.shape[1]):
         _set_sums(part, s, 10, u)
         inv_n = 1.0 / scnt[s]
@@ -123,8 +132,9 @@ def _map_quad(rest_lin, out, u, pm):
 
 
 @njit(inline='always', **JIT)
-def _expand_lin(part, sptr, scl, scnt, sphi, sref, stp, ref, out, u):
+def _expand_lin(part, pairs, sref, ref, out, u):
     """``sets_reduce``'s sums of every set-cluster pair about the cluster (rigid/linear)."""
+    sptr, scl, scnt, sphi, stp = pairs.ptr, pairs.cl, pairs.cnt, pairs.phi, pairs.pair_offsets
     for s in range(part.shape[1]):
         _set_sums(part, s, 4, u)
         inv_n = 1.0 / scnt[s]
@@ -158,16 +168,21 @@ def _map_lin(rest_lin, out, u):
 
 
 @njit(**JIT)
-def sets_maps(sptr, scl, scnt, sorg, stp, rest_lin, trans, goal_lin, goal_off, ref, quad, gm,
-              sref, pm, ck):
+def sets_maps(pairs, rest_lin, match, ref, quad, out, work):
     """Goal maps ``gm`` (sets, 3, 10): mean over the set's clusters of each goal polynomial.
 
     Also ``sref`` <- mean of the set's cluster centres (the reference point of the per-set
     sums of the next step).  Rigid/linear: goal_k = goal_lin_k (y + o_s) + goal_off_k.
     Quadratic: each cluster's goal T_k q~ + goal_off_k as a polynomial of z = x0 - cm0_k,
     ``ck`` (clusters, 3, 10), once per cluster; per set-cluster pair only its re-expansion
-    about the set's origin (z = y + t_ks, ``stp``: 20 multiply-adds a row).
+    about the set's origin (z = y + t_ks, ``stp``: 20 multiply-adds a row).  ``pairs``:
+    ``SetClusters``; ``match`` = (trans, goal_lin, goal_off) of the clusters; ``out`` =
+    (gm, sref); ``work`` = (pm (9, 10), ck) scratch.
     """
+    sptr, scl, scnt, sorg, stp = pairs.ptr, pairs.cl, pairs.cnt, pairs.org, pairs.pair_offsets
+    trans, goal_lin, goal_off = match
+    gm, sref = out
+    pm, ck = work
     ns = gm.shape[0]
     nphi = 10 if quad else 4
     if quad:

@@ -31,13 +31,13 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from .jit import JIT, U, claim_next
+from .jit import JIT, JIT_NO_REFCOUNT, U, claim_next
 from .colliders import _collide_range, ground_height, ground_range_sums
 from .damping import damp_acc_range, damp_towards
 from .fused import _fused_range, damp_constants, damp_sums_uniform
 from .integrate import BLOCK, _rest_sums, _zero_chunk, advance
 from .limits import limit_speed_range
-from .sets_sums import _add_lin_sums, _sets_acc_damp_lin, _sets_acc_range, first_run
+from .sets_sums import _add_row, _sets_acc_damp_lin, _sets_acc_range, first_run
 
 #: A set-layout body's sets: each particle's set (``sid``), the ends of its runs of one set
 #: (``runs``), each set's goal map (3 x 4 or 3 x 10, ``goal_maps``) and the point its sums
@@ -212,7 +212,7 @@ FUSED_MIN_RUN = 32
 FUSED_SETS_BLOCK = 4096
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _sets_fused_lin(start, end, particles, sets, motion, damping, sums, dsums, col):
     """The whole pass of particles start..end of a rigid/linear set-layout body without
     torque, run by run (``fused._fused_range``: one loop reads and writes each particle
@@ -244,8 +244,7 @@ def _sets_fused_lin(start, end, particles, sets, motion, damping, sums, dsums, c
     lim2 = v_max * v_max if v_max > 0.0 else np.inf
     ground_only = col.boxes.shape[0] == 0 and col.spheres.shape[0] == 0
     gz = ground_height(col)                  # -inf without a ground: nothing below
-    err2 = 0.0
-    capped = 0
+    err2, capped = 0.0, 0
     r = first_run(runs, start)
     i = start
     while i < end:
@@ -256,14 +255,15 @@ def _sets_fused_lin(start, end, particles, sets, motion, damping, sums, dsums, c
                 gm[s, 2, 1], gm[s, 2, 2], gm[s, 2, 3], gm[s, 0, 0], gm[s, 1, 0], gm[s, 2, 0])
         r0, r1, r2 = sref[s, 0], sref[s, 1], sref[s, 2]
         s_d = s if damp else 0
-        field = damp_constants(damp, k_damp, dmp[s_d, 0], dmp[s_d, 1], dmp[s_d, 2],
-                               dmp[s_d, 3], dmp[s_d, 4], dmp[s_d, 5], r0, r1, r2)
+        field = damp_constants(damp, k_damp, (dmp[s_d, 0], dmp[s_d, 1], dmp[s_d, 2],
+                                              dmp[s_d, 3], dmp[s_d, 4], dmp[s_d, 5]),
+                               (r0, r1, r2))
         if damp:
             r0 += h * (dmp[s, 0] + hx)
             r1 += h * (dmp[s, 1] + hy)
             r2 += h * (dmp[s, 2] + hz)
-        t = _fused_range(i, j, x, v, y0, wuni, gmap, damp, field, alpha_h, h, hx, hy, hz, r0,
-                         r1, r2, lim2, gz)
+        t = _fused_range(i, j, (x, v, y0), wuni, gmap, damp, field, (alpha_h, h, hx, hy, hz),
+                         (r0, r1, r2), (lim2, gz))
         err2 += t[0]
         ss = t[2:14]                   # the run's 12 shape sums: sum w d, sum w d y0^T
         dsum = t[15:]                  # and damping sums (damped)
@@ -274,8 +274,8 @@ def _sets_fused_lin(start, end, particles, sets, motion, damping, sums, dsums, c
         if col.on and not ground_only:
             moved = _collide_range(i, j, x, v, col)
         elif t[14] > 0:
-            ss, dsum = _with_ground(ss, dsum,
-                                    ground_range_sums(i, j, x, v, y0, wuni, col, r0, r1, r2, damp))
+            g = ground_range_sums(i, j, x, v, y0, wuni, col, (r0, r1, r2), damp)
+            ss, dsum = _with_ground(ss, dsum, g)
         # the loop counted the speeds before the colliders: a static collider never speeds
         # a particle up (``colliders.contact_velocity``: restitution <= 1, friction only
         # slows), so a run with none over the cap has none after them either
@@ -287,8 +287,8 @@ def _sets_fused_lin(start, end, particles, sets, motion, damping, sums, dsums, c
             if damp:
                 dsum = damp_sums_uniform(i, j, x, v, wuni, r0, r1, r2)
         # the set sums' layout: per row of d, [sum w d, sum w d y^T]
-        _add_lin_sums(sums, s, ss[0], ss[3], ss[4], ss[5], ss[1], ss[6], ss[7], ss[8], ss[2],
-                      ss[9], ss[10], ss[11])
+        _add_row(sums, s, (ss[0], ss[3], ss[4], ss[5], ss[1], ss[6], ss[7], ss[8], ss[2],
+                           ss[9], ss[10], ss[11]))
         if damp:
             _add_damp_row(dsums[s], (r0, r1, r2), ss, dsum)
         i = j
@@ -352,8 +352,7 @@ def _sets_int_chunk(chunk, quad, particles, sets, motion, part, err, col, dampin
         if v_max > 0.0:
             capped += limit_speed_range(bs, be, x, v, h, v_max)
         if damp and not quad:
-            _sets_acc_damp_lin(start=bs, end=be, x=x, v=v, y0=y0, mass=mass, sid=sid, runs=runs,
-                               sref=sref, sums=sums, dsums=dsums)
+            _sets_acc_damp_lin(bs, be, particles, sets, sums, dsums)
             continue
         _sets_acc_range(start=bs, end=be, quad=quad, x=x, y0=y0, mass=mass, sid=sid, runs=runs,
                         sref=sref, sums=sums)

@@ -3,7 +3,7 @@ outside a step, ``sets_accumulate_chunks``, and inside the passes run by run);
 ``set_maps.py`` turns them into per-cluster sums and makes the per-set goal maps.
 
 A run's 12 rigid/linear sums (sum w d and sum w d y0^T about the set's reference point
-``sref``) stay in registers until the run ends (``_add_lin_sums``); quadratic sets take
+``sref``) stay in registers until the run ends (then ``_add_row``); quadratic sets take
 the 30 sums of the nine features.  A body built for threads splits its particles in one
 chunk per thread (``part`` holds a slot per chunk).
 """
@@ -23,21 +23,77 @@ def first_run(runs, start):
 
 
 @njit(inline='always', **JIT)
-def _add_lin_sums(sums, s, a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23):
-    """Add a run's 12 rigid/linear set sums (sum w d and sum w d y0^T, rows d0..d2) to
-    set ``s``'s row (the run loops keep them in registers until the run ends)."""
-    sums[s, 0] += a00
-    sums[s, 1] += a01
-    sums[s, 2] += a02
-    sums[s, 3] += a03
-    sums[s, 4] += a10
-    sums[s, 5] += a11
-    sums[s, 6] += a12
-    sums[s, 7] += a13
-    sums[s, 8] += a20
-    sums[s, 9] += a21
-    sums[s, 10] += a22
-    sums[s, 11] += a23
+def _add_row(sums, s, values):
+    """sums[s, 0:12] += the 12 values of a run's rigid/linear sums (kept in registers by the
+    run loops until the run ends; written out: each value a register, no tuple indexed at
+    run time)."""
+    sums[s, 0] += values[0]
+    sums[s, 1] += values[1]
+    sums[s, 2] += values[2]
+    sums[s, 3] += values[3]
+    sums[s, 4] += values[4]
+    sums[s, 5] += values[5]
+    sums[s, 6] += values[6]
+    sums[s, 7] += values[7]
+    sums[s, 8] += values[8]
+    sums[s, 9] += values[9]
+    sums[s, 10] += values[10]
+    sums[s, 11] += values[11]
+
+
+@njit(inline='always', **JIT)
+def _add_damping_sums(row, values):
+    """row[0:15] += a run's 15 damping sums (``_add_row``'s rule)."""
+    row[0] += values[0]
+    row[1] += values[1]
+    row[2] += values[2]
+    row[3] += values[3]
+    row[4] += values[4]
+    row[5] += values[5]
+    row[6] += values[6]
+    row[7] += values[7]
+    row[8] += values[8]
+    row[9] += values[9]
+    row[10] += values[10]
+    row[11] += values[11]
+    row[12] += values[12]
+    row[13] += values[13]
+    row[14] += values[14]
+
+
+@njit(inline='always', **JIT)
+def _add_quad_row(sums, s, values):
+    """sums[s, 0:30] += a run's 30 quadratic sums (``_add_row``'s rule)."""
+    sums[s, 0] += values[0]
+    sums[s, 1] += values[1]
+    sums[s, 2] += values[2]
+    sums[s, 3] += values[3]
+    sums[s, 4] += values[4]
+    sums[s, 5] += values[5]
+    sums[s, 6] += values[6]
+    sums[s, 7] += values[7]
+    sums[s, 8] += values[8]
+    sums[s, 9] += values[9]
+    sums[s, 10] += values[10]
+    sums[s, 11] += values[11]
+    sums[s, 12] += values[12]
+    sums[s, 13] += values[13]
+    sums[s, 14] += values[14]
+    sums[s, 15] += values[15]
+    sums[s, 16] += values[16]
+    sums[s, 17] += values[17]
+    sums[s, 18] += values[18]
+    sums[s, 19] += values[19]
+    sums[s, 20] += values[20]
+    sums[s, 21] += values[21]
+    sums[s, 22] += values[22]
+    sums[s, 23] += values[23]
+    sums[s, 24] += values[24]
+    sums[s, 25] += values[25]
+    sums[s, 26] += values[26]
+    sums[s, 27] += values[27]
+    sums[s, 28] += values[28]
+    sums[s, 29] += values[29]
 
 
 @njit(**JIT)
@@ -73,17 +129,21 @@ def _sets_acc_lin(start, end, x, y0, mass, sid, runs, sref, sums):
             a22 += d2 * y_1
             a23 += d2 * y_2
         i = j
-        _add_lin_sums(sums, s, a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23)
+        _add_row(sums, s, (a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23))
 
 
 @njit(**JIT)
-def _sets_acc_damp_lin(start, end, x, v, y0, mass, sid, runs, sref, sums, dsums):
+def _sets_acc_damp_lin(start, end, particles, sets, sums, dsums):
     """``_sets_acc_lin`` and ``damping.damp_acc_range`` in one loop over the runs: each run
     (particles of one set) is found once and read once, with its 12 set sums and 16
     damping sums (row layout of ``damping.NDAMP``; the reference p_s is the set's first
     particle met, as there) in registers.  Bodies of a few hundred particles have runs of
     1-3 particles, where finding the run and writing its sums cost more than its
-    particles: one loop instead of two.  Vectorises across a long run like both."""
+    particles: one loop instead of two.  Vectorises across a long run like both.
+    ``particles``, ``sets``: ``integrate.BodyParticles`` (x0 the set offsets y),
+    ``sets.Sets``."""
+    x, v, y0, mass = particles.x, particles.v, particles.x0, particles.mass
+    sid, runs, sref = sets.sid, sets.runs, sets.ref
     r = first_run(runs, start)
     i = start
     while i < end:
@@ -149,22 +209,8 @@ def _sets_acc_damp_lin(start, end, x, v, y0, mass, sid, runs, sref, sums, dsums)
             e12 += wf1 * f2
             e20 += wf2 * f0
         i = j
-        _add_lin_sums(sums, s, a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23)
-        row[0] += e0
-        row[1] += e1
-        row[2] += e2
-        row[3] += b0
-        row[4] += b1
-        row[5] += b2
-        row[6] += c0
-        row[7] += c1
-        row[8] += c2
-        row[9] += e00
-        row[10] += e11
-        row[11] += e22
-        row[12] += e01
-        row[13] += e12
-        row[14] += e20
+        _add_row(sums, s, (a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23))
+        _add_damping_sums(row, (e0, e1, e2, b0, b1, b2, c0, c1, c2, e00, e11, e22, e01, e12, e20))
         row[19] += ms
 
 
@@ -221,36 +267,9 @@ def _sets_acc_quad(start, end, x, y0, mass, sid, sref, sums):
             a28 += d2 * f8
             a29 += d2 * f9
             i += 1
-        sums[s, 0] += a00
-        sums[s, 1] += a01
-        sums[s, 2] += a02
-        sums[s, 3] += a03
-        sums[s, 4] += a04
-        sums[s, 5] += a05
-        sums[s, 6] += a06
-        sums[s, 7] += a07
-        sums[s, 8] += a08
-        sums[s, 9] += a09
-        sums[s, 10] += a10
-        sums[s, 11] += a11
-        sums[s, 12] += a12
-        sums[s, 13] += a13
-        sums[s, 14] += a14
-        sums[s, 15] += a15
-        sums[s, 16] += a16
-        sums[s, 17] += a17
-        sums[s, 18] += a18
-        sums[s, 19] += a19
-        sums[s, 20] += a20
-        sums[s, 21] += a21
-        sums[s, 22] += a22
-        sums[s, 23] += a23
-        sums[s, 24] += a24
-        sums[s, 25] += a25
-        sums[s, 26] += a26
-        sums[s, 27] += a27
-        sums[s, 28] += a28
-        sums[s, 29] += a29
+        _add_quad_row(sums, s, (a00, a01, a02, a03, a04, a05, a06, a07, a08, a09,
+                                 a10, a11, a12, a13, a14, a15, a16, a17, a18, a19,
+                                 a20, a21, a22, a23, a24, a25, a26, a27, a28, a29))
 
 
 @njit(**JIT)

@@ -261,14 +261,14 @@ def _stretch_ok(b, rot, blend, work, wa, wv, limit):
 
 
 @njit(**JIT)
-def unit_det_match(apq, nmat, c_s, rot, out, w1, w2, wa, wv, limit):
+def unit_det_match(apq, nmat, c_s, rot, out, work, limit):
     """``unit_det_match_warm`` from a cold start."""
-    return unit_det_match_warm(apq=apq, nmat=nmat, c_s=c_s, rot=rot, out=out, w1=w1, w2=w2,
-                               wa=wa, wv=wv, limit=limit, vw=wv, warm=np.bool_(False))
+    return unit_det_match_warm(apq=apq, nmat=nmat, c_s=c_s, rot=rot, out=out, work=work,
+                               limit=limit, vw=work[3], warm=np.bool_(False))
 
 
 @njit(**JIT)
-def unit_det_match_warm(apq, nmat, c_s, rot, out, w1, w2, wa, wv, limit, vw, warm):
+def unit_det_match_warm(apq, nmat, c_s, rot, out, work, limit, vw, warm):
     """The linear mode's B = argmin sum w ||p - B q||^2 over det B = 1, into ``out``.
 
     ``apq`` = A_pq-hat (q in units of the cluster scale s), ``nmat`` = det(M)^(1/3) M^-1
@@ -278,8 +278,10 @@ def unit_det_match_warm(apq, nmat, c_s, rot, out, w1, w2, wa, wv, limit, vw, war
     Stationarity makes A_pq B^T symmetric: no torque, and the goals derive from an energy.
     Stretches beyond [1 / limit, limit] are pulled back to R + t (B - R), which keeps
     A_pq B^T symmetric.  Returns False (use R) if det F <= 0.  ``vw``, ``warm``: the warm
-    start of ``nearest_unit_det_warm``.  Twin: ``reference.unit_det_match``.
+    start of ``nearest_unit_det_warm``; ``work``: four 3 x 3 scratch matrices (the first
+    two may be views).  Twin: ``reference.unit_det_match``.
     """
+    w1, w2, wa, wv = work
     inv = 1.0 / c_s
     for i in range(3):
         for j in range(3):

@@ -32,13 +32,13 @@ from ..step_threads import HELPERS
 from .flags import DIRTY, ERR_STALE, SLEEP
 from .colliders import Colliders
 from .damping import damp_accumulate, damp_rigid, damping_fields, damping_targets
-from .goals import solve_clusters_warm
+from .goals import ClusterMatch, ClusterShape, MatchScratch, solve_clusters_warm
 from .integrate import (BodyParticles, ClusterRest, FusedDamping, StepGoals, accumulate_chunks,
                         integrate_chunks)
 from .jit import JIT, claim_next
 from .limits import limit_speed, limit_turn
 from .sets import SetMotion, Sets, _fused_refs, sets_integrate_chunks
-from .set_maps import sets_maps, sets_reduce
+from .set_maps import SetClusters, sets_maps, sets_reduce
 from .sets_sums import sets_accumulate_chunks
 
 #: The buffers of one body that ``step_bodies_claimed`` steps (``body_build.fast_record``):
@@ -125,11 +125,9 @@ def _step_record(rec, h, gravity, colliders):
     _record_sums(rec, sets, dirty)
     turned = _record_match(rec)
     if sets:
-        sets_maps(sptr=rec.s_ptr, scl=rec.s_cl, scnt=rec.s_cnt, sorg=rec.s_org,
-                  stp=rec.s_pair_offsets,
-                  rest_lin=rec.rest_lin, trans=rec.trans, goal_lin=rec.goal_lin,
-                  goal_off=rec.goal_off, ref=rec.ref, quad=state[8] > 0.0, gm=rec.goal_maps,
-                  sref=rec.sref, pm=rec.quad_map, ck=rec.s_cluster_maps)
+        sets_maps(_set_clusters(rec), rec.rest_lin, (rec.trans, rec.goal_lin, rec.goal_off),
+                  rec.ref, state[8] > 0.0, (rec.goal_maps, rec.sref),
+                  (rec.quad_map, rec.s_cluster_maps))
     for i in range(3):
         rec.acc[i] = rec.force[i] + gravity[i]
         rec.ang[i] = 0.0
@@ -154,6 +152,13 @@ def _record_rest(rec):
 
 
 @njit(inline='always', **JIT)
+def _set_clusters(rec):
+    """A set-layout record's set-cluster pairs."""
+    return SetClusters(rec.s_ptr, rec.s_cl, rec.s_cnt, rec.s_phi, rec.s_pair_offsets,
+                       rec.s_org)
+
+
+@njit(inline='always', **JIT)
 def _record_sums(rec, sets, dirty):
     """The clusters' sums of the current state: taken afresh where the state changed since
     the last pass summed it (``dirty``); the set layout reduces its per-set sums."""
@@ -163,9 +168,8 @@ def _record_sums(rec, sets, dirty):
             sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64), quad=quad, x=rec.xt.T,
                                    y0=rec.y0t.T, mass=rec.mass, sid=rec.sid, runs=rec.s_runs,
                                    sref=rec.sref, part=rec.s_part)
-        sets_reduce(part=rec.s_part, sptr=rec.s_ptr, scl=rec.s_cl, scnt=rec.s_cnt,
-                    sphi=rec.s_phi, sref=rec.sref, stp=rec.s_pair_offsets, rest_lin=rec.rest_lin,
-                    ref=rec.ref, quad=quad, out=rec.part, wk=rec.work, pm=rec.quad_map)
+        sets_reduce(rec.s_part, _set_clusters(rec), rec.sref, rec.rest_lin, rec.ref, quad,
+                    rec.part, (rec.work, rec.quad_map))
     elif dirty:
         accumulate_chunks(np.zeros(1, dtype=np.int64), quad, _record_particles(rec),
                           _record_rest(rec), rec.part)
@@ -180,14 +184,11 @@ def _record_match(rec):
     quat, quat_prev, flagged = rec.quat, rec.quat_prev, rec.flagged
     if turn > 0.0:
         quat_prev[:, :] = quat
-    solve_clusters_warm(part=rec.part, wsum=rec.wsum, sum_q=rec.sum_q, ref=rec.ref, quat=quat,
-                        aqq3=rec.aqq3, aqq9=rec.aqq9, rest_lin=rec.rest_lin,
-                        rest_off=rec.rest_off, scale=rec.scale, trans=rec.trans,
-                        goal_lin=rec.goal_lin, goal_off=rec.goal_off, mode=int(state[6]),
-                        beta=state[1], apq=rec.apq, acc=rec.accbuf, m3a=rec.m3a, m3b=rec.m3b,
-                        m3c=rec.m3c, m39=rec.m39, n4=rec.n4, v4=rec.v4, nmat=rec.nmat,
-                        cdet=rec.cdet, udv=rec.udv,
-                        warm=np.bool_(True))       # bool, not a literal: Body._step's copy
+    shape = ClusterShape(rec.wsum, rec.sum_q, rec.aqq3, rec.aqq9, rec.scale, rec.nmat, rec.cdet)
+    match = ClusterMatch(quat, rec.trans, rec.goal_lin, rec.goal_off, rec.apq, rec.udv)
+    scratch = MatchScratch(rec.accbuf, rec.m3a, rec.m3b, rec.m3c, rec.m39, rec.n4, rec.v4)
+    solve_clusters_warm(rec.part, _record_rest(rec), shape, match, scratch, int(state[6]),
+                        state[1], np.bool_(True))      # bool, not a literal: Body._step's copy
     if turn <= 0.0:
         return 0
     # |q_prev . q| = cos(angle / 2), as Body._step
@@ -200,9 +201,8 @@ def _record_match(rec):
         any_flagged = any_flagged or flagged[k]
     if not any_flagged:
         return 0
-    turned = limit_turn(x=rec.xt.T, v=rec.vt.T, mass=rec.mass, ptr=rec.ptr, cl=rec.cl,
-                        flagged=flagged, w_max=state[10], lin=rec.lim_lin, w3=rec.lim_w,
-                        m3a=rec.m3a, m3b=rec.m3b, m3c=rec.m3c, m3d=rec.m3d)
+    turned = limit_turn(rec.xt.T, rec.vt.T, rec.mass, (rec.ptr, rec.cl), flagged, state[10],
+                        (rec.lim_lin, rec.lim_w, rec.m3a, rec.m3b, rec.m3c, rec.m3d))
     rec.counts[1] += turned
     return turned
 
@@ -220,15 +220,19 @@ def _record_damping(rec, fused, sets, stale):
             else:
                 damp_accumulate(x=x, v=v, mass=rec.mass, sid=np.zeros(0, dtype=np.int32),
                                 dpart=rec.dpart)
-        damping_fields(dpart=rec.dpart, sptr=rec.sptr, scl=rec.scl, scnt=rec.scnt, lin=rec.lin,
-                       w3=rec.w3, dref=rec.dref, acc=rec.dacc, m3a=rec.m3a, m3b=rec.m3b,
-                       m3c=rec.m3c, m3d=rec.m3d)
+        damping_fields(rec.dpart, (rec.sptr, rec.scl, rec.scnt), rec.dref, rec.dacc,
+                       _damping_scratch(rec))
         damping_targets(sptr=rec.sptr, scl=rec.scl, scnt=rec.scnt, lin=rec.lin, w3=rec.w3,
                         dref=rec.dref, sref=rec.sref if sets else rec.ref, dmp=rec.dmp)
     elif rec.state[2] > 0.0:
-        damp_rigid(x=x, v=v, mass=rec.mass, ptr=rec.ptr, cl=rec.cl, ref=rec.ref,
-                   k_damp=rec.state[2], lin=rec.lin, w3=rec.w3, m3a=rec.m3a, m3b=rec.m3b,
-                   m3c=rec.m3c, m3d=rec.m3d)
+        damp_rigid(x, v, rec.mass, (rec.ptr, rec.cl), rec.ref, rec.state[2],
+                   _damping_scratch(rec))
+
+
+@njit(inline='always', **JIT)
+def _damping_scratch(rec):
+    """A record's scratch of the damping towards the clusters' rigid motion."""
+    return (rec.lin, rec.w3, rec.m3a, rec.m3b, rec.m3c, rec.m3d)
 
 
 @njit(inline='always', **JIT)
