@@ -15,7 +15,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from .jit import JIT, finite
+from .jit import JIT, JIT_NO_REFCOUNT, finite
 from .linalg import det3, matmul, pinv_sym
 from .rotation import extract_rotation
 from .unit_det import STRETCH_LIMIT, unit_det_match_warm
@@ -92,11 +92,18 @@ def solve_clusters_warm(part, rest, shape, match, scratch, mode, beta, warm):
     it neither runs nor compiles it.  With ``warm`` each linear cluster's match starts
     from the eigenvectors of its last (``match.udv``; ``nearest_unit_det_warm``).
     """
-    nq = 9 if mode == 2 else 3
     m39 = scratch.m39
     # the linear mode's 3x3 scratch, made once (not once a cluster); C-contiguous like the
     # packed step's, so both callers share one compiled eigen solver
     work = (m39[:, 3:6], m39[:, 6:9], np.empty((3, 3)), np.empty((3, 3)))
+    _match_clusters(part, rest, shape, match, scratch, mode, beta, warm, work)
+
+
+@njit(**JIT_NO_REFCOUNT)
+def _match_clusters(part, rest, shape, match, scratch, mode, beta, warm, work):
+    """``solve_clusters_warm``'s loop over the clusters (it allocates nothing, and reads
+    its tuples' arrays in the loop: no reference counting)."""
+    nq = 9 if mode == 2 else 3
     for k in range(part.shape[1]):
         inv_w = _reduce_cluster(part, k, rest.ref, shape, match.apq, scratch, nq)
         extract_rotation(mat=scratch.m3a, quat=match.quat[k], rot=scratch.m3b, n4=scratch.n4,
