@@ -11,8 +11,8 @@ from .kernels.colliders import Colliders, collide_point, ground_height
 from .kernels.jit import JIT_NO_REFCOUNT
 from .kernels.pair_contact import (body_colliders, carried_velocity, collide_moved,
                                    compact_row, is_carried, move_body, move_particle,
-                                   pair_impulse, pair_normal, report_touch, warm_start,
-                                   with_body_moves)
+                                   pair_impulse, pair_normal, report_touch, separation,
+                                   warm_start, with_body_moves)
 
 #: A pair of a carried body closer than 1.25 times its contact distance at its first
 #: visit is visited again by the later sweeps (``PairSweep.active``); the square of it.
@@ -198,21 +198,14 @@ def _visit_pair(parts, pairs, sweep, bodies, law, report, k, first):
     ci = bi != bj and is_carried(bodies, bi) and wi > 0.0
     cj = bi != bj and is_carried(bodies, bj) and wj > 0.0
     self_row = bi == bj and is_carried(bodies, bi)
-    xi0, xi1, xi2, vi0, vi1, vi2 = with_body_moves(parts, bodies, bi, ci, i, h)
-    xj0, xj1, xj2, vj0, vj1, vj2 = with_body_moves(parts, bodies, bj, cj, j, h)
-    dx = xi0 - xj0
-    dy = xi1 - xj1
-    dz = xi2 - xj2
-    d2 = dx * dx + dy * dy + dz * dz
+    own_i = with_body_moves(parts, bodies, bi, ci, i, h)
+    own_j = with_body_moves(parts, bodies, bj, cj, j, h)
+    # separation now and at the start of the step (the particles' own velocities)
+    dx, dy, dz, d2, sx, sy, sz = separation(own_i, own_j, h)
     rr = R[i] + R[j]
-    # separation at the start of the step (the particles' own velocities)
-    sx = dx - h * (vi0 - vj0)
-    sy = dy - h * (vi1 - vj1)
-    sz = dz - h * (vi2 - vj2)
-    if ci:
-        vi0, vi1, vi2 = carried_velocity(bodies, bi)
-    if cj:
-        vj0, vj1, vj2 = carried_velocity(bodies, bj)
+    # the law acts on a carried body's own velocity
+    vi0, vi1, vi2 = carried_velocity(bodies, bi) if ci else own_i[3:]
+    vj0, vj1, vj2 = carried_velocity(bodies, bj) if cj else own_j[3:]
     if not d2 == d2:
         return 0.0, 0, 0, self_row        # NaN (a body that blew up): left alone
     over = d2 < rr * rr

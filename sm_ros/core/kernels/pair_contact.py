@@ -180,6 +180,19 @@ def with_body_moves(parts, bodies, b, c, i, h):
     return x0, x1, x2, v0, v1, v2
 
 
+@njit(inline='always', **JIT)
+def separation(own_i, own_j, h):
+    """A pair's separation x_i - x_j (3), its square, and its separation at the start of
+    the step x_i - x_j - h (v_i - v_j) (3), from each side's (x, v) (``with_body_moves``)."""
+    xi0, xi1, xi2, vi0, vi1, vi2 = own_i
+    xj0, xj1, xj2, vj0, vj1, vj2 = own_j
+    dx = xi0 - xj0
+    dy = xi1 - xj1
+    dz = xi2 - xj2
+    return (dx, dy, dz, dx * dx + dy * dy + dz * dz, dx - h * (vi0 - vj0),
+            dy - h * (vi1 - vj1), dz - h * (vi2 - vj2))
+
+
 @njit(**JIT_NO_REFCOUNT)
 def warm_start(parts, pairs, sweep, bodies, law, col):
     """Warm start of ``solve_bodies``: the velocity impulses its pairs of carried bodies
@@ -234,21 +247,14 @@ def _warm_pair(parts, pairs, sweep, bodies, law, k, p):
     cj = bi != bj and is_carried(bodies, bj) and wj > 0.0
     if not (ci or cj) or wi + wj <= 0.0:
         return
-    xi0, xi1, xi2, vi0, vi1, vi2 = with_body_moves(parts, bodies, bi, ci, i, h)
-    xj0, xj1, xj2, vj0, vj1, vj2 = with_body_moves(parts, bodies, bj, cj, j, h)
-    dx = xi0 - xj0
-    dy = xi1 - xj1
-    dz = xi2 - xj2
-    d2 = dx * dx + dy * dy + dz * dz
+    own_i = with_body_moves(parts, bodies, bi, ci, i, h)
+    own_j = with_body_moves(parts, bodies, bj, cj, j, h)
+    dx, dy, dz, d2, sx, sy, sz = separation(own_i, own_j, h)
     if not d2 == d2:
         return
-    nx, ny, nz = pair_normal(dx - h * (vi0 - vj0), dy - h * (vi1 - vj1),
-                             dz - h * (vi2 - vj2), dx, dy, dz, d2,
-                             parts.radius[i] + parts.radius[j])
-    if ci:
-        vi0, vi1, vi2 = carried_velocity(bodies, bi)
-    if cj:
-        vj0, vj1, vj2 = carried_velocity(bodies, bj)
+    nx, ny, nz = pair_normal(sx, sy, sz, dx, dy, dz, d2, parts.radius[i] + parts.radius[j])
+    vi0, vi1, vi2 = carried_velocity(bodies, bi) if ci else own_i[3:]
+    vj0, vj1, vj2 = carried_velocity(bodies, bj) if cj else own_j[3:]
     rx = vi0 - vj0
     ry = vi1 - vj1
     rz = vi2 - vj2

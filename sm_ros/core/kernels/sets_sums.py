@@ -64,18 +64,7 @@ def _add_damping_sums(row, values):
 @njit(inline='always', **JIT)
 def _add_quad_row(sums, s, values):
     """sums[s, 0:30] += a run's 30 quadratic sums (``_add_row``'s rule)."""
-    sums[s, 0] += values[0]
-    sums[s, 1] += values[1]
-    sums[s, 2] += values[2]
-    sums[s, 3] += values[3]
-    sums[s, 4] += values[4]
-    sums[s, 5] += values[5]
-    sums[s, 6] += values[6]
-    sums[s, 7] += values[7]
-    sums[s, 8] += values[8]
-    sums[s, 9] += values[9]
-    sums[s, 10] += values[10]
-    sums[s, 11] += values[11]
+    _add_row(sums, s, values[:12])
     sums[s, 12] += values[12]
     sums[s, 13] += values[13]
     sums[s, 14] += values[14]
