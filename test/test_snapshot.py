@@ -19,7 +19,7 @@ from sm_ros.core.snapshot import Snapshot
 #: addresses, not values (``ptrs``, ``_arena``: the addresses of a world's own arrays and a
 #: block whose alignment is its own).
 SCRATCH = {
-    'Body': {'_accbuf', '_apq', '_pair_impulse', '_ang', '_com', '_dacc', '_dmp', '_dref',
+    'Body': {'_accbuf', '_apq', '_acc', '_ang', '_com', '_dacc', '_dmp', '_dref',
              '_goal_lin', '_goal_off', '_lin', '_w3', '_m39', '_n4', '_v4', '_quat_prev',
              '_s3', '_trans', '_kin_prev', '_lim_lin', '_lim_w', '_flagged', '_changed',
              '_q4', '_i3', '_i3inv', '_w9', '_f9', '_mom3', '_mom9', '_arena'},
