@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from .jit import JIT, JIT_NO_REFCOUNT, finite
+from .limits import _span
 from .linalg import det3, matmul, pinv_sym
 from .rotation import extract_rotation
 from .unit_det import STRETCH_LIMIT, unit_det_match_warm
@@ -231,11 +232,7 @@ def moments(x0, mass, members, rest_map, wsum, which, needs, out, f9):
     n = x0.shape[0]
     for i in range(n):
         a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
-        if single:
-            j0, j1, w = 0, 1, mass[i]
-        else:
-            j0, j1 = ptr[i], ptr[i + 1]
-            w = mass[i] / (j1 - j0)
+        j0, j1, w = _span(i, single, ptr, mass)
         for j in range(j0, j1):
             k = 0 if single else cl[j]
             if not which[k]:

@@ -7,6 +7,7 @@ from numba import njit
 from .goals import _qhat
 from .integrate import _acc_lin, _acc_quad
 from .jit import JIT
+from .limits import _span
 
 
 @njit(**JIT)
@@ -33,11 +34,7 @@ def apply_kinematic(quad, particles, rest, part, targets, h):
     for p in range(idx.shape[0]):
         i = idx[p]
         a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
-        if single:
-            j0, j1, w = 0, 1, mass[i]
-        else:
-            j0, j1 = ptr[i], ptr[i + 1]
-            w = mass[i] / (j1 - j0)
+        j0, j1, w = _span(i, single, ptr, mass)
         for j in range(j0, j1):
             k = 0 if single else cl[j]
             q0, q1, q2 = _qhat(rest_lin=rest_lin, rest_off=rest_off, k=k, a0=a0, a1=a1, a2=a2)
