@@ -179,7 +179,7 @@ def test_record_buffers_are_views_of_one_block_shared_by_every_record(monkeypatc
         arr = getattr(a, name)
         if isinstance(arr, np.ndarray) and arr.size:
             assert np.shares_memory(arr, a._arena), name
-    for arr in a._sets.goal_maps, a._sets.part, a._s3[0]:
+    for arr in a._sets.goal_maps, a._sets.part, a._mat3[0]:
         assert np.shares_memory(arr, a._arena)
     again = a._fast_record(H)
     for r0, r1 in zip(rec, again):

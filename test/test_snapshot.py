@@ -20,9 +20,10 @@ from sm_ros.core.snapshot import Snapshot
 #: block whose alignment is its own).
 SCRATCH = {
     'Body': {'_accbuf', '_apq', '_acc', '_ang', '_com', '_dacc', '_dmp', '_dref',
-             '_goal_lin', '_goal_off', '_lin', '_w3', '_m39', '_n4', '_v4', '_quat_prev',
-             '_s3', '_trans', '_kin_prev', '_lim_lin', '_lim_w', '_flagged', '_changed',
-             '_q4', '_i3', '_i3inv', '_w9', '_f9', '_mom3', '_mom9', '_arena'},
+             '_goal_lin', '_goal_off', '_lin', '_damp_spin', '_mat39', '_quat_n', '_quat_v',
+             '_quat_prev', '_mat3', '_trans', '_kin_prev', '_lim_lin', '_lim_w', '_flagged',
+             '_changed', '_quat_scratch', '_inertia', '_inertia_inv', '_mat9', '_features9',
+             '_mom3', '_mom9', '_arena'},
     '_SetLayout': {'goal_maps', 'work', 'quad_map', 'cluster_maps'},
     'Contact': {'_active_pairs', '_pair_rows', '_pair_row_index', '_pair_target',
                 '_body_centre', '_body_inv_inertia', '_body_spin', '_body_velocity',

@@ -99,14 +99,14 @@ class Body:
         self._acc = np.zeros(3)
         self._ang = np.zeros(3)
         self._com = np.zeros(3)
-        self._i3 = np.zeros((3, 3))
-        self._i3inv = np.zeros((3, 3))
-        self._s3 = [np.zeros((3, 3)) for _ in range(4)]
-        self._m39 = np.zeros((3, 9))
-        self._n4 = np.zeros((4, 4))
-        self._v4 = np.zeros((4, 4))
-        self._w9 = [np.zeros((9, 9)) for _ in range(2)]
-        self._f9 = np.zeros(9)
+        self._inertia = np.zeros((3, 3))
+        self._inertia_inv = np.zeros((3, 3))
+        self._mat3 = [np.zeros((3, 3)) for _ in range(4)]
+        self._mat39 = np.zeros((3, 9))
+        self._quat_n = np.zeros((4, 4))
+        self._quat_v = np.zeros((4, 4))
+        self._mat9 = [np.zeros((9, 9)) for _ in range(2)]
+        self._features9 = np.zeros(9)
         self._accbuf = np.zeros(32)
         self._shape_err = 0.0
         # body-level match for poses of multi-cluster bodies
@@ -418,7 +418,7 @@ class Body:
             return r
         com = self.com()
         apq = np.einsum('i,ij,ik->jk', self._m, self._x - com, self._x0)
-        K.extract_rotation(mat=apq, quat=self._quat_body, rot=r, n4=self._n4, v4=self._v4)
+        K.extract_rotation(mat=apq, quat=self._quat_body, rot=r, n4=self._quat_n, v4=self._quat_v)
         return r
 
     def goals(self) -> np.ndarray:

@@ -242,7 +242,7 @@ def _cluster_state(body) -> None:
     body._rest_off = np.zeros((nk, 3))
     body._quat = np.tile([1.0, 0.0, 0.0, 0.0], (nk, 1))
     body._apq = np.zeros((nk, 3, 3))
-    body._q4 = np.zeros(4)
+    body._quat_scratch = np.zeros(4)
     body._sum_q = np.zeros((nk, 9))
     body._mom3 = np.zeros((nk if body._need3 else 1, 3, 3))
     body._mom9 = np.zeros((nk if body._need9 else 1, 9, 9))
@@ -299,7 +299,7 @@ def _damping_buffers(body, fused_damping_min, fused_damping_min_sets) -> None:
     cluster; kernels/damping.py): where the pass it saves costs more than the fused one."""
     p, n, nk, sets = body._params, body.n, body.num_clusters, body._sets
     body._lin = np.zeros((nk, 13)) if p.damping > 0 else None
-    body._w3 = np.zeros((nk, 3)) if p.damping > 0 else None
+    body._damp_spin = np.zeros((nk, 3)) if p.damping > 0 else None
     body._damp_fused = p.damping > 0 and (
         (sets is not None and n >= min(fused_damping_min, fused_damping_min_sets))
         or (sets is None and p.clusters == 1 and n >= fused_damping_min))
@@ -341,12 +341,12 @@ def refresh_rest(body, which):
             body._mom3[idx] = 0.5 * (mom + mom.transpose(0, 2, 1))
     else:
         K.moments(body._x0, body._m, (body._ptr, body._cl), (body._rest_lin, body._rest_off),
-                  body._wsum, which, needs, (body._sum_q, body._mom3, body._mom9), body._f9)
+                  body._wsum, which, needs, (body._sum_q, body._mom3, body._mom9), body._features9)
     K.invert_moments(which, needs, (body._mom3, body._mom9), (body._aqq3, body._aqq9),
-                     (body._s3[0], body._s3[1], body._w9[0], body._w9[1]), RCOND)
+                     (body._mat3[0], body._mat3[1], body._mat9[0], body._mat9[1]), RCOND)
     if body._mode == 1:
         K.unit_det_frames(which=which, mom3=body._mom3, nmat=body._nmat, cdet=body._cdet,
-                          wa=body._s3[0], wv=body._s3[1], rcond=RCOND)
+                          wa=body._mat3[0], wv=body._mat3[1], rcond=RCOND)
 
 
 def merge_kinematic(body):
@@ -365,10 +365,10 @@ def merge_kinematic(body):
 #: Per-body buffers of a compiled-step record that ``compact`` moves into one block.
 _ARENA_ATTRS = ('_rest_lin', '_rest_off', '_part', '_wsum', '_sum_q', '_ref', '_quat',
                 '_aqq3', '_aqq9', '_scale', '_trans', '_goal_lin', '_goal_off', '_apq',
-                '_accbuf', '_m39', '_n4', '_v4', '_nmat', '_cdet', '_acc', '_ang', '_com',
-                '_err', '_dpart', '_dmp', '_dref', '_dacc', '_lin', '_w3', '_quat_prev',
-                '_flagged', '_lim_lin', '_lim_w', '_facc', '_flags', '_limit_counts', '_udv',
-                '_ptr', '_cl')
+                '_accbuf', '_mat39', '_quat_n', '_quat_v', '_nmat', '_cdet', '_acc', '_ang',
+                '_com', '_err', '_dpart', '_dmp', '_dref', '_dacc', '_lin', '_damp_spin',
+                '_quat_prev', '_flagged', '_lim_lin', '_lim_w', '_facc', '_flags',
+                '_limit_counts', '_udv', '_ptr', '_cl')
 _ARENA_SETS = ('sid', 'goal_maps', 'ref', 'part', 'ptr', 'cl', 'cnt', 'phi', 'org', 'work',
                'quad_map', 'pair_offsets', 'cluster_maps')
 #: Alignment (bytes) of each buffer in the block: a cache line.
@@ -390,8 +390,8 @@ def compact(body):
     items = []
     for name in _ARENA_ATTRS:
         items.append((body, name, None))
-    for i in range(len(body._s3)):
-        items.append((body._s3, i, None))
+    for i in range(len(body._mat3)):
+        items.append((body._mat3, i, None))
     if body._sets is not None:
         for name in _ARENA_SETS:
             items.append((body._sets, name, None))
@@ -437,16 +437,16 @@ def fast_record(body, h):
     sptr, scl, scnt = body._dsets if body._dsets else (
         np.zeros(2, dtype=np.int64), np.zeros(1, dtype=np.int32), np.ones(1))
     lin = body._lin if body._lin is not None else np.zeros((body.num_clusters, 13))
-    w3 = body._w3 if body._w3 is not None else np.zeros((body.num_clusters, 3))
-    s3 = body._s3
+    w3 = body._damp_spin if body._damp_spin is not None else np.zeros((body.num_clusters, 3))
+    s3 = body._mat3
     # x, v, x0 (and the set layout's y0) as their (3, N) C-contiguous blocks: a typed list
     # fixes the element type from its first record, and a one-particle body's (1, 3) view
     # is typed C (both orders at once); the world step transposes them back (layout F)
     own = (body._x.T, body._v.T, body._x0.T, body._m, body._ptr, body._cl, body._rest_lin,
            body._rest_off, body._part, body._wsum, body._sum_q, body._ref, body._quat,
            body._aqq3, body._aqq9, body._scale, body._trans, body._goal_lin, body._goal_off,
-           body._apq, body._accbuf, s3[0], s3[1], s3[2], s3[3], body._m39, body._n4,
-           body._v4, body._nmat, body._cdet, body._acc, body._ang, body._com, body._err,
+           body._apq, body._accbuf, s3[0], s3[1], s3[2], s3[3], body._mat39, body._quat_n,
+           body._quat_v, body._nmat, body._cdet, body._acc, body._ang, body._com, body._err,
            body._dpart, body._dmp, body._dref, body._dacc, lin, w3, sptr, scl, scnt,
            body._quat_prev, body._flagged, body._lim_lin, body._lim_w, body._facc,
            body._fstate, body._flags, body._limit_counts)

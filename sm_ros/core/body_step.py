@@ -117,13 +117,14 @@ def _take_sums(body) -> None:
 def _match(body, p, h) -> int:
     """The shape match of every cluster (Eq. 7-12, 18-22), then the turn limit; returns
     the clusters whose spin was capped."""
-    s3 = body._s3
+    s3 = body._mat3
     turn = body._params.max_turn
     if turn > 0.0:
         np.copyto(body._quat_prev, body._quat)
     match = K.ClusterMatch(body._quat, body._trans, body._goal_lin, body._goal_off, body._apq,
                            body._udv)
-    scratch = K.MatchScratch(body._accbuf, s3[0], s3[1], s3[2], body._m39, body._n4, body._v4)
+    scratch = K.MatchScratch(body._accbuf, s3[0], s3[1], s3[2], body._mat39, body._quat_n,
+                             body._quat_v)
     K.solve_clusters_warm(body._part, _rest(body), _shape(body), match, scratch, body._mode,
                           p.beta, True)
     if turn <= 0.0:
@@ -143,13 +144,14 @@ def _match(body, p, h) -> int:
 def _plastic_flow(body, p, h) -> int:
     """Plasticity (Eq. 24-27) and the set layout's goal maps; returns the clusters whose
     rest shape changed."""
-    s3 = body._s3
+    s3 = body._mat3
     nchanged = 0
     if body._params.plastic:
         law = (body._params.plastic_yield, p.creep, body._params.plastic_max, h)
         nchanged = K.plastic_update(body._apq, (body._aqq3, body._scale, body._quat),
                                     body._s_plastic, law, body._changed,
-                                    (body._q4, s3[0], s3[1], s3[2], body._n4, body._v4))
+                                    (body._quat_scratch, s3[0], s3[1], s3[2], body._quat_n,
+                                     body._quat_v))
     sets = body._sets
     if sets is not None:
         K.sets_maps(_set_clusters(sets), body._rest_lin,
@@ -166,12 +168,12 @@ def _forces(body, gravity, h) -> None:
     if not body._has_torque:
         body._ang[:] = 0.0
         return
-    s3 = body._s3
+    s3 = body._mat3
     np.dot(body._wsum, body._ref, out=body._com)
     body._com /= body._wsum.sum()
-    K.inertia(body._x, body._m, body._com, body._i3)
-    K.pinv_sym(mat=body._i3, out=body._i3inv, wa=s3[0], wv=s3[1], rcond=1e-12)
-    np.dot(body._i3inv, body._torque, out=body._ang)
+    K.inertia(body._x, body._m, body._com, body._inertia)
+    K.pinv_sym(mat=body._inertia, out=body._inertia_inv, wa=s3[0], wv=s3[1], rcond=1e-12)
+    np.dot(body._inertia_inv, body._torque, out=body._ang)
     turn = body._params.max_turn
     if turn > 0.0:
         a_norm = float(np.sqrt(body._ang @ body._ang))
@@ -184,7 +186,7 @@ def _damping(body, p, fused, turned) -> None:
     """Damping towards each cluster's rigid motion: fused into the particle pass (the rigid
     fields from the sums of the last pass, taken again if the state changed since: set by
     hand, contact, turn limit) or a pass of its own."""
-    s3 = body._s3
+    s3 = body._mat3
     if fused:
         sets = body._sets
         sptr, scl, scnt = body._dsets
@@ -192,13 +194,13 @@ def _damping(body, p, fused, turned) -> None:
             K.damp_accumulate(x=body._x, v=body._v, mass=body._m, sid=_set_ids(body),
                               dpart=body._dpart)
         K.damping_fields(body._dpart, (sptr, scl, scnt), body._dref, body._dacc,
-                         (body._lin, body._w3, s3[0], s3[1], s3[2], s3[3]))
-        K.damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=body._lin, w3=body._w3,
+                         (body._lin, body._damp_spin, s3[0], s3[1], s3[2], s3[3]))
+        K.damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=body._lin, w3=body._damp_spin,
                           dref=body._dref, sref=sets.ref if sets is not None else body._ref,
                           dmp=body._dmp)
     elif p.damping > 0.0:
         K.damp_rigid(body._x, body._v, body._m, (body._ptr, body._cl), body._ref, p.damping,
-                     (body._lin, body._w3, s3[0], s3[1], s3[2], s3[3]))
+                     (body._lin, body._damp_spin, s3[0], s3[1], s3[2], s3[3]))
 
 
 def _set_ids(body):

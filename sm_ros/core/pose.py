@@ -69,8 +69,8 @@ class BodyPose:
         self._com = np.zeros(3)
         self._apq = np.zeros((3, 3))
         self._r = np.zeros((3, 3))
-        self._n4 = np.zeros((4, 4))
-        self._v4 = np.zeros((4, 4))
+        self._quat_n = np.zeros((4, 4))
+        self._quat_v = np.zeros((4, 4))
 
     def pose(self, body) -> Tuple[np.ndarray, np.ndarray]:
         """Return (centre of mass (3,), rotation (3, 3)) of ``body``'s current state."""
@@ -85,7 +85,7 @@ class BodyPose:
             self._state[id(body)] = entry
         _, x0, quat = entry
         com_apq(body._x, body._m, x0, self._com, self._apq)
-        extract_rotation(self._apq, quat, self._r, self._n4, self._v4)
+        extract_rotation(self._apq, quat, self._r, self._quat_n, self._quat_v)
         return self._com.copy(), self._r.copy()
 
     def forget(self, keep=()) -> None:
