@@ -127,7 +127,7 @@ def test_packed_damping_of_bodies_of_one_mass_matches_the_kernel_by_kernel_step(
     got = _run(build(), 4, events=False)
     pack = got._split_bodies(1.0 / 240.0)[0]
     assert [b.name for b in pack.bodies] == ['u0', 'u1']
-    assert [row[packed.C_WUNI] for row in pack.P] == [0.01, 0.01]
+    assert [row[packed.C_WUNI] for row in pack.rows] == [0.01, 0.01]
     monkeypatch.setattr(body_mod.Body, '_fast_ok', lambda self: False)
     want = _run(build(), 4, events=False)
     assert want._split_bodies(1.0 / 240.0)[0] is None
@@ -149,7 +149,7 @@ def test_packed_bodies_read_their_state_from_the_pack(copy_world):
     world = _run(_world(True), 2, events=False)
     body = world.body('b1')
     pack = world._split_bodies(1.0 / 240.0)[0]
-    assert np.shares_memory(body._quat, pack.P) and np.shares_memory(body._part, pack.P)
+    assert np.shares_memory(body._quat, pack.rows) and np.shares_memory(body._part, pack.rows)
     r = body.cluster_rotations[0]
     assert np.allclose(r @ r.T, np.eye(3), atol=1e-12) and not np.allclose(r, np.eye(3))
     # copy_world, not copy.deepcopy: a deep copy's arrays are all writeable, so the copies
@@ -162,7 +162,7 @@ def test_packed_bodies_read_their_state_from_the_pack(copy_world):
     gargs = (world._gravity, world._has_col, world._ground_row, world._box_rows,
              world._sphere_rows, 1e-3)
     body._step(1.0 / 240.0, *gargs)
-    assert not np.shares_memory(body._quat, pack.P)
+    assert not np.shares_memory(body._quat, pack.rows)
     twin.body('b1')._step(1.0 / 240.0, *gargs)
     _run(world, 2, events=False)
     _run(twin, 2, events=False)
@@ -197,7 +197,7 @@ def test_packed_linear_bodies_keep_the_minimisers_warm_start_in_their_rows():
         warm.step(h)
     pack = warm._split_bodies(h)[0]
     lin = warm.body('u0')
-    assert np.shares_memory(lin._udv, pack.P)
+    assert np.shares_memory(lin._udv, pack.rows)
     v = lin._udv[0]
     assert np.allclose(v.T @ v, np.eye(3), atol=1e-9) and not np.allclose(np.abs(v), np.eye(3))
     assert np.array_equal(warm.body('u1')._udv[0], np.eye(3))      # rigid: never used

@@ -4,10 +4,10 @@
 in a typed list, which costs about as much per body as a small body's shape match.  Here
 the bodies the ``many`` scenes are made of (one cluster, rigid or linear, no plasticity,
 grabs or torque: ``Body._packed_ok``) keep their per-body scalars and per-cluster state
-in one row each of a world-level array ``Pack.P`` (nb, NCOL): the body's own attributes
+in one row each of a world-level array ``Pack.rows`` (nb, NCOL): the body's own attributes
 (``_ref``, ``_quat``, ``_part``, ...) become views of its row, so every reader of the body
 sees the state the packed step writes, and the compiled loop reads a body's state from
-``P[b]`` with no array fetched but the four particle arrays (x, v, x0, m), viewed from
+``rows[b]`` with no array fetched but the four particle arrays (x, v, x0, m), viewed from
 the pack's typed list (``Pack.arrays``).  Scratch (3x3, 4x4, ...) is allocated once per
 call, not per body.
 
@@ -84,7 +84,7 @@ class Pack:
     def __init__(self, bodies, h):
         nb = len(bodies)
         self.bodies = list(bodies)
-        self.P = np.zeros((max(nb, 1), NCOL))
+        self.rows = np.zeros((max(nb, 1), NCOL))
         self.counts = np.zeros((max(nb, 1), 2), dtype=np.int64)
         #: per body its particle arrays (x, v, x0 as (3, N) blocks, the masses read-only)
         self.arrays = TypedList()
@@ -94,7 +94,7 @@ class Pack:
         self._entry = None
         self.retime(h)
         for b, body in enumerate(self.bodies):
-            row = self.P[b]
+            row = self.rows[b]
             rebuild = False
             for name, (off, size, shape) in COLS.items():
                 src = np.asarray(getattr(body, name))
@@ -138,7 +138,7 @@ class Pack:
             prm = body._params
             p = prm.at_step(h)
             body._at_step = (h, prm, p)
-            self.P[b, :NPARAM] = (p.alpha, p.beta, p.damping, prm.max_speed, prm.max_turn,
+            self.rows[b, :NPARAM] = (p.alpha, p.beta, p.damping, prm.max_speed, prm.max_turn,
                                   prm.max_turn / h, body._mode, body._wuni,
                                   body._collider_radius)
 
@@ -159,7 +159,7 @@ class Pack:
         first, turned, nb = 0, -1, len(self.bodies)   # the body to step from, its turn
         while first < nb:
             col = Colliders(bool(has_col), ground, boxes, spheres, float(thresh), 0.0)
-            first = call[0](self.P, self.counts, self.arrays, float(h), gravity, col, first,
+            first = call[0](self.rows, self.counts, self.arrays, float(h), gravity, col, first,
                             turned)
             turned = self._limit_turn(first) if first < nb else -1
 
@@ -171,7 +171,7 @@ class Pack:
         one_cluster = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int32))
         scratch = (np.zeros((1, 13)), np.zeros((1, 6)), m3[0], m3[1], m3[2], m3[3])
         turned = int(limit_turn(xt.T, vt.T, mass, one_cluster, np.ones(1, dtype=np.bool_),
-                                self.P[b, C_WMAX], scratch))
+                                self.rows[b, C_WMAX], scratch))
         self.counts[b, 1] += turned
         return turned
 
@@ -185,7 +185,7 @@ class Pack:
         entry = fn
         overloads = getattr(fn, 'overloads', None)
         if overloads is not None:
-            args = (self.P, self.counts, self.arrays, 0.0, gravity,
+            args = (self.rows, self.counts, self.arrays, 0.0, gravity,
                     Colliders(False, ground, boxes, spheres, 0.0, 0.0), 0, 0)
             sig = tuple(fn.typeof_pyval(a) for a in args)
             if sig not in overloads:
@@ -195,7 +195,7 @@ class Pack:
 
 
 @njit(**JIT)
-def step_packed(P, counts, arrays, h, gravity, colliders, first, turned_first):
+def step_packed(rows, counts, arrays, h, gravity, colliders, first, turned_first):
     """The bodies ``first``, ... of a pack, on the calling thread (``arrays``: ``Pack.arrays``;
     ``colliders``: the static colliders, each body meeting them with its own radius).
     Returns their number, or the first body whose cluster turned past its ``max_turn``, its
@@ -210,7 +210,7 @@ def step_packed(P, counts, arrays, h, gravity, colliders, first, turned_first):
     rest_off, acc, dpart0, dmp, udv0 = work.rest_off, work.acc, work.dpart, work.dmp, work.udv
     dp = dpart0[0]
     for b in range(first, len(arrays)):
-        row = P[b]
+        row = rows[b]
         if row[C_FLAGS + SLEEP] > 0.0:         # asleep (``sm_ros.core.sleep``): not stepped
             continue
         xt, vt, x0t, mass = arrays[b]
