@@ -15,7 +15,7 @@ from numba import njit
 
 from .colliders import C_ANG, C_BOUND, C_E, C_MU, C_POS, C_VEL, surface_gap
 from .grabs import inertia
-from .jit import JIT
+from .jit import JIT, JIT_NO_REFCOUNT
 
 #: Contact points kept per collider or body pair: the deepest and the farthest along 8
 #: directions of the contact plane.
@@ -124,7 +124,7 @@ def _tangents(nx, ny, nz):
 
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _collider_gap(rows, c, px, py, pz, radius):
     """``surface_gap`` against collider row c of ``rows``; c -1 is the ground, whose
     height is row 0's z."""
@@ -133,7 +133,7 @@ def _collider_gap(rows, c, px, py, pz, radius):
     return surface_gap(rows[c + 1], px, py, pz, radius)
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _slot(slots, best, gap, p, frame, tol, tangents, who):
     """Offer point p to the slots: the deepest (slot 0) and the farthest along the 8
     directions of the plane spanned by ``tangents`` (t1 then t2).  Of points within ``tol``
@@ -146,13 +146,24 @@ def _slot(slots, best, gap, p, frame, tol, tangents, who):
     spread = dx * dx + dy * dy + dz * dz
     if gap < best[0, 0] - tol or (gap < best[0, 0] + tol and spread < best[0, 1]):
         best[0, 0], best[0, 1], slots[0] = min(gap, best[0, 0]), spread, who
-    for k in range(8):
-        s = (a, -a, b, -b, a + b, -a - b, a - b, b - a)[k]
-        if s > best[k + 1, 0] + tol or (s > best[k + 1, 0] - tol and spread > best[k + 1, 1]):
-            best[k + 1, 0], best[k + 1, 1], slots[k + 1] = max(s, best[k + 1, 0]), spread, who
+    _farther(slots, best, 1, a, spread, who, tol)
+    _farther(slots, best, 2, -a, spread, who, tol)
+    _farther(slots, best, 3, b, spread, who, tol)
+    _farther(slots, best, 4, -b, spread, who, tol)
+    _farther(slots, best, 5, a + b, spread, who, tol)
+    _farther(slots, best, 6, -a - b, spread, who, tol)
+    _farther(slots, best, 7, a - b, spread, who, tol)
+    _farther(slots, best, 8, b - a, spread, who, tol)
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
+def _farther(slots, best, k, s, spread, who, tol):
+    """Offer a point at ``s`` along slot k's direction (``_slot``)."""
+    if s > best[k, 0] + tol or (s > best[k, 0] - tol and spread > best[k, 1]):
+        best[k, 0], best[k, 1], slots[k] = max(s, best[k, 0]), spread, who
+
+
+@njit(**JIT_NO_REFCOUNT)
 def _fresh(slots, best):
     slots[:] = -1
     best[:, 0] = -np.inf
@@ -160,7 +171,7 @@ def _fresh(slots, best):
     best[0, 0], best[0, 1] = np.inf, np.inf
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _distinct(slots, k):
     """Whether slot k holds a point no earlier slot holds."""
     if slots[k] < 0:
@@ -215,12 +226,8 @@ def collider_contacts(bodies, frames, a, margin, scene, out, count, touching):
             continue
         tangents[:] = _tangents(nx, ny, nz)
         _fresh(slots, best)
-        for i in range(x.shape[0]):
-            gap, _, _, _ = _outline_gap(rows, c, x[i], radius, cell)
-            if gap < margin:
-                _slot(slots, best, gap, x[i], frame, 0.25 * radius, tangents, i)
-                if gap < TOUCH:
-                    touching[0 if c < scene.plain else 1] += 1
+        _offer_particles((x, radius, cell), frame, (c, rows), margin, (slots, best, tangents),
+                         touching, 0 if c < scene.plain else 1)
         for k in range(SLOTS):
             if _distinct(slots, k):
                 _collider_row(x[slots[k]], a, c, (radius, radius), cell, com, rows,
@@ -230,7 +237,23 @@ def collider_contacts(bodies, frames, a, margin, scene, out, count, touching):
     return count
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
+def _offer_particles(particles, frame, collider, margin, picks, touching, side):
+    """Offer to the slots (``picks``: slots, best, tangents) each particle whose outline
+    (``particles``: positions, radius, cell) comes within ``margin`` of ``collider`` (its
+    index and the collider rows); count in ``touching[side]`` those within ``TOUCH``."""
+    x, radius, cell = particles
+    c, rows = collider
+    slots, best, tangents = picks
+    for i in range(x.shape[0]):
+        gap, _, _, _ = _outline_gap(rows, c, x[i], radius, cell)
+        if gap < margin:
+            _slot(slots, best, gap, x[i], frame, 0.25 * radius, tangents, i)
+            if gap < TOUCH:
+                touching[side] += 1
+
+
+@njit(**JIT_NO_REFCOUNT)
 def _boxy(cell):
     """Whether ``cell`` holds a lattice cell's half edges (else zeros or none: a sphere)."""
     total = 0.0
@@ -240,7 +263,7 @@ def _boxy(cell):
     return total > 0.0
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _outline_gap(rows, c, p, radius, cell):
     """(gap, normal) of particle p's outline against collider c: its lattice cell (``cell``
     (3, 3), its half edges as columns), whose reach along the normal is the sum of

@@ -11,7 +11,7 @@ body meets the other's particles with its sphere.  Rows and slots as for the col
 import numpy as np
 from numba import njit
 
-from .jit import JIT
+from .jit import JIT, JIT_NO_REFCOUNT
 from .linalg import jacobi3
 from .stiff_contacts import (F_COM, F_HI, F_LO, F_REACH, K_A, K_B, K_COLL, K_E, K_GAP,
                              K_MU, K_N, K_RA, K_RB, K_SLOP, K_WHO, SLOP_SHARE, SLOTS,
@@ -30,7 +30,7 @@ FACE_POINTS = 4
 FACE_TILT = 0.7
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _near(x, lo, hi, grow, out):
     """Indices of the particles of x inside the box lo..hi grown by ``grow``; the count."""
     count = np.int64(0)
@@ -67,22 +67,35 @@ def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
     tangents[:] = _tangents(n[0], n[1], n[2])
     slots = np.empty(SLOTS, dtype=np.int64)
     best = np.empty((SLOTS, 2))
-    mid = np.empty(3)
     _fresh(slots, best)
-    for p in range(close.shape[0]):
-        i, j = close[p, 0], close[p, 1]
-        gap = _gap_of(xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2], n,
-                      face) - ra - rb
-        if gap < margin:
-            for k in range(3):
-                mid[k] = 0.5 * (xa[i, k] + xb[j, k])
-            _slot(slots, best, gap, mid, fa, 0.25 * ra, tangents, i * xb.shape[0] + j)
+    _offer_pairs((xa, xb, close), (n, face), (ra, rb, margin), fa, (slots, best, tangents),
+                 np.empty(3))
     for k in range(SLOTS):
         if _distinct(slots, k):
             _pair_row(bodies, frames, (a, b), slots[k], (n, face), scene, out[count])
             out[count, K_WHO] = k
             count += 1
     return count
+
+
+@njit(**JIT_NO_REFCOUNT)
+def _offer_pairs(close, normal, reach, frame, picks, mid):
+    """Offer to the slots (``picks``: slots, best, tangents) the middle of each particle
+    pair of ``close`` (a's positions, b's, the pairs) whose gap along the pair's
+    ``normal`` (and whether a face gave it) is within its margin (``reach``: a's radius,
+    b's, the margin); ``mid`` scratch (3,)."""
+    xa, xb, pairs = close
+    n, face = normal
+    ra, rb, margin = reach
+    slots, best, tangents = picks
+    for p in range(pairs.shape[0]):
+        i, j = pairs[p, 0], pairs[p, 1]
+        gap = _gap_of(xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2], n,
+                      face) - ra - rb
+        if gap < margin:
+            for k in range(3):
+                mid[k] = 0.5 * (xa[i, k] + xb[j, k])
+            _slot(slots, best, gap, mid, frame, 0.25 * ra, tangents, i * xb.shape[0] + j)
 
 
 @njit(**JIT)
@@ -198,33 +211,16 @@ def _body_row(pair, gap, n, point, frames, rules, row):
 
 @njit(**JIT)
 def _close_pairs(xa, xb, near_a, near_b, reach):
-    """The particle pairs (i of a, j of b) closer than ``reach``, (count, 2): b's particles
-    sorted along the axis they spread most on, each of a's scanned only over those within
-    ``reach`` of it along that axis."""
-    spread = np.zeros(3)
-    for k in range(3):
-        lo, hi = np.inf, -np.inf
-        for j in near_b:
-            lo, hi = min(lo, xb[j, k]), max(hi, xb[j, k])
-        spread[k] = hi - lo
-    axis = int(np.argmax(spread))
-    keys = np.empty(len(near_b))
-    for q in range(len(near_b)):
-        keys[q] = xb[near_b[q], axis]
-    order = np.argsort(keys)
-    keys = keys[order]
-    sorted_b = near_b[order]
-    out = np.empty((16, 2), dtype=np.int64)
-    count = np.int64(0)
+    """The particle pairs (i of a, j of b) closer than ``reach``, (count, 2), of the
+    particles ``near_a`` and ``near_b`` (the few near the other body: every pair is
+    tried)."""
+    out = np.empty((len(near_a) * len(near_b), 2), dtype=np.int64)
+    count = 0
     for i in near_a:
-        start = np.searchsorted(keys, xa[i, axis] - reach)
-        for q in range(start, len(keys)):
-            if keys[q] > xa[i, axis] + reach:
-                break
-            j = sorted_b[q]
+        for j in near_b:
             dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
             if dx * dx + dy * dy + dz * dz < reach * reach:
-                out = append_pair(out, count, i, j)
+                out[count, 0], out[count, 1] = i, j
                 count += 1
     return out[:count]
 
@@ -304,7 +300,7 @@ def _face(flat, normal, pull):
     return flat <= FLAT and abs(along) >= FACE_TILT, (normal if along >= 0.0 else -normal)
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _gap_of(dx, dy, dz, n, face):
     """A particle pair's distance d along the normal n of a face, else its length."""
     if face:
@@ -312,11 +308,13 @@ def _gap_of(dx, dy, dz, n, face):
     return np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _add_point(side, p, w):
     """Add point p with weight w to a side's sums (``_pair_normal``)."""
     side[0] += w
-    side[1:4] += w * p
+    side[1] += w * p[0]
+    side[2] += w * p[1]
+    side[3] += w * p[2]
     side[4] += w * p[0] * p[0]
     side[5] += w * p[1] * p[1]
     side[6] += w * p[2] * p[2]

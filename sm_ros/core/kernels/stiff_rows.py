@@ -11,7 +11,7 @@ Body b < 0 is a collider: infinitely heavy, moving at that surface speed.
 import numpy as np
 from numba import njit
 
-from .jit import JIT
+from .jit import JIT, JIT_NO_REFCOUNT
 from .stiff_contacts import (F_INV, F_SPIN, F_VEL, K_A, K_B, K_GRIP, K_MU, K_N, K_RA, K_RB,
                              K_SURF, K_TARGET, _tangents)
 
@@ -32,8 +32,12 @@ def _side(j, inv_inertia, b, r, at_c, at_i, frames):
     if b < 0:
         j[at_i:at_i + 3] = 0.0
         return 0.0
-    j[at_i:at_i + 3] = inv_inertia[b] @ j[at_c:at_c + 3]
-    return frames[b, F_INV] + j[at_c:at_c + 3] @ j[at_i:at_i + 3]
+    inv = frames[b, F_INV]
+    for i in range(3):
+        j[at_i + i] = (inv_inertia[b, i, 0] * j[at_c] + inv_inertia[b, i, 1] * j[at_c + 1]
+                       + inv_inertia[b, i, 2] * j[at_c + 2])
+        inv += j[at_c + i] * j[at_i + i]
+    return inv
 
 
 @njit(**JIT)
@@ -53,11 +57,13 @@ def jacobians(frames, inv_inertia, rows):
             inv = (_side(j, inv_inertia, a, row[K_RA:K_RA + 3], J_CA, J_IA, frames)
                    + _side(j, inv_inertia, b, row[K_RB:K_RB + 3], J_CB, J_IB, frames))
             j[J_MASS] = 1.0 / inv if inv > 0.0 else 0.0
-            j[J_SURF] = j[J_D:J_D + 3] @ row[K_SURF:K_SURF + 3] if b < 0 else 0.0
+            if b < 0:
+                j[J_SURF] = (j[J_D] * row[K_SURF] + j[J_D + 1] * row[K_SURF + 1]
+                             + j[J_D + 2] * row[K_SURF + 2])
     return jac
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def speed_along(frames, j, a, b, surface):
     """The speed of a's contact point relative to b's (or the collider's surface, when
     ``surface``) along the direction of row j."""
@@ -72,7 +78,7 @@ def speed_along(frames, j, a, b, surface):
     return s
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def apply(frames, j, a, b, lam):
     """Impulse ``lam`` along the direction of row j: + on a, - on b."""
     wa = frames[a, F_INV] * lam
@@ -86,7 +92,7 @@ def apply(frames, j, a, b, lam):
             frames[b, F_SPIN + i] -= lam * j[J_IB + i]
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def visit(frames, jac, row, acc):
     """One visit of a contact: its normal impulse towards its target speed, accumulated
     and never pulling, then its friction, held within mu times the normal impulse so far
@@ -115,7 +121,7 @@ def visit(frames, jac, row, acc):
     return change
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def push_visit(frames, jn, row, acc, target):
     """One visit of the position solve: the normal push towards ``target`` (a speed that,
     for one step, removes part of the overlap), accumulated and never pulling; colliders

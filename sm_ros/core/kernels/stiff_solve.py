@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .jit import JIT
+from .jit import JIT, JIT_NO_REFCOUNT
 from .colliders import C_ANG, C_BOUND, C_VEL
 from .stiff_rows import J_D, J_MASS, apply, jacobians, push_visit, speed_along, visit
 from .stiff_contacts import (F_COM, F_HI, F_INV, F_LO, F_MASS, F_REACH, F_ROW, F_SPIN,
@@ -161,11 +161,11 @@ def _bottom_up(rows, frames, gravity):
     height = np.empty(rows.shape[0])
     for k in range(rows.shape[0]):
         a, b = int(rows[k, K_A]), int(rows[k, K_B])
-        up = -(frames[a, F_COM:F_COM + 3] @ gravity)
+        up = -_dot3(frames[a, F_COM:F_COM + 3], gravity)
         if b < 0:
             up -= 1e9
         else:
-            up = min(up, -(frames[b, F_COM:F_COM + 3] @ gravity))
+            up = min(up, -_dot3(frames[b, F_COM:F_COM + 3], gravity))
         height[k] = up
     return np.argsort(height, kind='mergesort')
 
@@ -253,15 +253,30 @@ def energy_share(before, after, inertia, awake, limit):
         dv = after[b, F_VEL:F_VEL + 3] - v0
         dw = after[b, F_SPIN:F_SPIN + 3] - w0
         mass = before[b, F_MASS]
-        start += 0.5 * mass * (v0 @ v0) + 0.5 * (w0 @ (inertia[b] @ w0))
-        slope += mass * (v0 @ dv) + w0 @ (inertia[b] @ dw)
-        curve += 0.5 * mass * (dv @ dv) + 0.5 * (dw @ (inertia[b] @ dw))
+        start += 0.5 * mass * _dot3(v0, v0) + 0.5 * _quad(inertia[b], w0, w0)
+        slope += mass * _dot3(v0, dv) + _quad(inertia[b], w0, dw)
+        curve += 0.5 * mass * _dot3(dv, dv) + 0.5 * _quad(inertia[b], dw, dw)
     if start + slope + curve <= limit:
         return 1.0
     if curve <= 0.0 or start >= limit:
         return 0.0
     return max(0.0, (-slope + np.sqrt(slope * slope - 4.0 * curve * (start - limit)))
                / (2.0 * curve))
+
+
+@njit(**JIT_NO_REFCOUNT)
+def _dot3(u, w):
+    """u . w of two 3-vectors."""
+    return u[0] * w[0] + u[1] * w[1] + u[2] * w[2]
+
+
+@njit(**JIT_NO_REFCOUNT)
+def _quad(mat, u, w):
+    """u . (mat w) of a 3x3 matrix and two 3-vectors."""
+    total = 0.0
+    for i in range(3):
+        total += u[i] * (mat[i, 0] * w[0] + mat[i, 1] * w[1] + mat[i, 2] * w[2])
+    return total
 
 
 @njit(**JIT)
@@ -271,11 +286,11 @@ def kinetic_energy(frames, inertia, awake):
     for b in range(frames.shape[0]):
         if awake[b]:
             v, w = frames[b, F_VEL:F_VEL + 3], frames[b, F_SPIN:F_SPIN + 3]
-            total += 0.5 * frames[b, F_MASS] * (v @ v) + 0.5 * (w @ (inertia[b] @ w))
+            total += 0.5 * frames[b, F_MASS] * _dot3(v, v) + 0.5 * _quad(inertia[b], w, w)
     return total
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def solve_velocities(frames, jac, rows, iters, tol, acc):
     """Symmetric sweeps of ``stiff_rows.visit`` from the impulses ``acc`` (count, 3), at
     most ``iters``, until none changes a contact's speed by more than ``tol``; returns the
