@@ -816,14 +816,17 @@ def test_spin_of_a_body_held_by_another_is_stopped():
     np.testing.assert_allclose(tot[:2], 0.0, atol=1e-12)
 
 
-def _overlaps_numpy(X, off, act, selfc, grow):
-    """The twin of ``body_overlaps``: grown boxes, every pair of bodies compared."""
+def _overlaps_numpy(X, off, act, selfc, rigid, grow):
+    """The twin of ``body_overlaps``: grown boxes, every pair of bodies but two rigid
+    ones compared."""
     nb = len(off) - 1
     lo = np.array([X[:, off[b]:off[b + 1]].min(axis=1) - grow[b] for b in range(nb)])
     hi = np.array([X[:, off[b]:off[b + 1]].max(axis=1) + grow[b] for b in range(nb)])
     out = np.array([bool(act[b] and selfc[b]) for b in range(nb)])
     for b in range(nb):
         for c in range(b + 1, nb):
+            if rigid[b] and rigid[c]:
+                continue
             if act[b] and act[c] and np.all(lo[b] <= hi[c]) and np.all(lo[c] <= hi[b]):
                 out[b] = out[c] = True
     return out
@@ -840,10 +843,12 @@ def test_body_overlaps_matches_numpy(seed):
         [centres[b] + rng.uniform(-0.05, 0.05, (counts[b], 3)) for b in range(nb)]).T)
     act = rng.random(nb) > 0.1
     selfc = rng.random(nb) > 0.9
+    rigid = rng.random(nb) > 0.5
     grow = rng.uniform(0.0, 0.2, nb)
     out = np.zeros(nb, np.bool_)
-    C.body_overlaps(X, off, act, selfc, grow, np.zeros((nb, 6)), np.zeros(nb, np.int64), out)
-    want = _overlaps_numpy(X, off, act, selfc, grow)
+    C.body_overlaps(X, off, (act, selfc, rigid), grow, np.zeros((nb, 6)),
+                    np.zeros(nb, np.int64), out)
+    want = _overlaps_numpy(X, off, act, selfc, rigid, grow)
     np.testing.assert_array_equal(out, want)
     assert 0 < want.sum() < nb                             # some in, some out
 

@@ -76,11 +76,16 @@ def test_touch_restless_matches_numpy():
     touch = (d < SL.TOUCH_FACTOR * (R[i] + R[j])) & (B[i] != B[j])
     flat = SL.FlatArrays(x=X, v=X, inv_mass=R, awake_inv_mass=R, radius=R, body=B, offset=off,
                          touched=np.zeros(nb, np.uint8))
+    # the stiff pass's body pairs in contact: a, b, a above b (1), below (-1) or neither
+    stiff = np.array([[1, 2, 1], [4, 5, -1], [0, 4, 0], [5, 1, 1]], dtype=np.int64)
     for up in (np.zeros(3), np.array([0.0, 0.0, 1.0]), np.array([0.6, 0.0, -0.8])):
-        SL.touch_restless(flat, xs, SL.Pairs(pi, pj, len(pi)), level, up, near,
+        SL.touch_restless(flat, xs, SL.Pairs(pi, pj, len(pi), stiff), level, up, near,
                           SL.TOUCH_FACTOR)
         want = np.zeros(nb, dtype=np.uint8)
-        for a, b, above in zip(B[i][touch], B[j][touch], (X[:, i] - X[:, j]).T[touch] @ up):
+        both = zip(np.concatenate([B[i][touch], stiff[:, 0]]),
+                   np.concatenate([B[j][touch], stiff[:, 1]]),
+                   np.concatenate([(X[:, i] - X[:, j]).T[touch] @ up, stiff[:, 2]]))
+        for a, b, above in both:
             # a level 1 counts only from below (any side without gravity); 2 always
             if level[b] == 2 or (level[b] == 1 and (not up.any() or above > 0)):
                 want[a] = max(want[a], level[b])

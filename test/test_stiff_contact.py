@@ -216,6 +216,19 @@ def test_no_contact_creates_energy_and_body_pairs_keep_both_momenta(e, seed, bal
     np.testing.assert_allclose(after[1], before[1], atol=1e-12)
 
 
+def test_touches_lists_each_body_pair_contact_with_which_lies_above():
+    """One row per body-pair contact (colliders' rows left out): a, b and the side of the
+    normal (from b towards a) against gravity."""
+    rows = np.zeros((5, SC.K_ROW))
+    rows[:, SC.K_A] = [0, 1, 2, 3, 1]
+    rows[:, SC.K_B] = [-1, 0, 0, 2, 3]
+    rows[:, SC.K_N:SC.K_N + 3] = [[0, 0, 1], [0, 0.6, 0.8], [0, 0.6, -0.8], [1, 0, 0],
+                                  [0, 0, 1]]
+    got = SS.touches(rows, np.array([0.0, 0.0, -9.81]))
+    np.testing.assert_array_equal(got, [[1, 0, 1], [2, 0, -1], [3, 2, 0], [1, 3, 1]])
+    assert SS.touches(rows, np.zeros(3))[:, 2].tolist() == [0, 0, 0, 0]
+
+
 @pytest.mark.parametrize('ball', [False, True])
 @pytest.mark.parametrize('e', [0.0, 0.5, 1.0])
 def test_no_collider_contact_creates_energy(e, ball):

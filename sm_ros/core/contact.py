@@ -286,8 +286,11 @@ class Contact:
         self.valid = False
 
     def set_rigid(self, flags):
-        """Mark the bodies whose pairs with one another the stiff pass takes."""
-        self.rigid[:len(flags)] = flags
+        """Mark the bodies whose pairs with one another the stiff pass takes; the pair
+        list, which leaves such pairs out, is built anew when the marks change."""
+        if not np.array_equal(self.rigid[:len(flags)], flags):
+            self.rigid[:len(flags)] = flags
+            self.valid = False
 
     def add_counts(self, stiff_stats):
         """Add the stiff pass's body-pair contacts and overlaps (``World._stiff_stats``)
@@ -325,8 +328,8 @@ class Contact:
         # broad phase: only bodies whose boxes (grown by r + skin / 2) meet another's go
         # into the grid; valid until the next build (no pair comes closer by the skin)
         act = self._act_eff
-        body_overlaps(f.X, f.off, self.act, self.selfc, self._grow, self._box, self._order,
-                      act)
+        body_overlaps(f.X, f.off, (self.act, self.selfc, self.rigid), self._grow, self._box,
+                      self._order, act)
         src = PairSource(f.X, f.R, f.B, act, self.selfc, f.X0, self.cell, self.skin,
                          SELF_REST_FACTOR)
         grid = GridScratch(self._particle_cell, self._cnt, self._srt, self._sorted_points,

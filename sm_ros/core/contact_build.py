@@ -57,17 +57,20 @@ GridScratch = namedtuple('GridScratch', 'particle_cell cell_start order points p
 
 
 @njit(**JIT)
-def body_overlaps(X, off, act, selfc, grow, box, order, out):
-    """The broad phase of a pair-list build: out[b] = 1 for a colliding body (``act``)
-    that self-collides or whose bounding box, grown by ``grow[b]`` on every side, overlaps
-    another colliding body's grown box; 0 otherwise (none of its particles can come within
-    a contact distance plus the skin of another body's: the builders may leave it out).
+def body_overlaps(X, off, flags, grow, box, order, out):
+    """The broad phase of a pair-list build: out[b] = 1 for a colliding body that
+    self-collides or whose bounding box, grown by ``grow[b]`` on every side, overlaps
+    another colliding body's grown box, unless both are rigid (the stiff pass takes their
+    contact); 0 otherwise (none of its particles can come within a contact distance plus
+    the skin of another body's that this pass solves: the builders may leave it out).
+    ``flags``: per body whether it collides, self-collides and is rigid.
 
     ``box`` (bodies, 6) and ``order`` (bodies,) int64: scratch.  One pass over the
     colliding particles (min/max per row: vectorises over a body's particles), then a
     sweep over the boxes sorted by their low x (each box meets only those that start
     before it ends).  A body whose box is not finite is kept, with every other (out 1).
     """
+    act, selfc, rigid = flags
     nb = off.shape[0] - 1
     m = 0
     for b in range(nb):
@@ -111,6 +114,8 @@ def body_overlaps(X, off, act, selfc, grow, box, order, out):
             c = srt[c_]
             if box[c, 0] > box[b, 3]:
                 break                          # sorted by low x: no later box meets b
+            if rigid[b] and rigid[c]:
+                continue
             if (box[c, 1] <= box[b, 4] and box[b, 1] <= box[c, 4]
                     and box[c, 2] <= box[b, 5] and box[b, 2] <= box[c, 5]):
                 out[b] = 1

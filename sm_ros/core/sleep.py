@@ -135,6 +135,12 @@ def touch_restless(flat, body_x, pairs, level, up, near, touch):
                 near[bi] = lj
             if li > near[bj] and (li == 2 or anyway or above < 0.0):
                 near[bj] = li
+    for p in range(pairs.bodies.shape[0]):
+        a, b, above = pairs.bodies[p, 0], pairs.bodies[p, 1], pairs.bodies[p, 2]
+        if level[b] > near[a] and (level[b] == 2 or anyway or above > 0):
+            near[a] = level[b]
+        if level[a] > near[b] and (level[a] == 2 or anyway or above < 0):
+            near[b] = level[a]
 
 
 class FlatArrays(NamedTuple):
@@ -167,11 +173,15 @@ class SleepArrays(NamedTuple):
 
 
 class Pairs(NamedTuple):
-    """The contact pass's pair list: particles ``first[p]``, ``second[p]``, p < count."""
+    """Who may touch whom: the contact pass's pair list (particles ``first[p]``,
+    ``second[p]``, p < count) and the stiff pass's body pairs in contact (``bodies``:
+    rows of a, b and 1 where a lies above b, -1 where below, 0 neither;
+    ``stiff_solve.touches``), whose particle pairs the list leaves out."""
 
     first: np.ndarray
     second: np.ndarray
     count: int
+    bodies: np.ndarray = np.zeros((0, 3), dtype=np.int64)
 
 
 class SleepRule(NamedTuple):
@@ -315,8 +325,9 @@ class Sleep:
                                            flat.Wa, self.calm):
             flat.w_version += 1
 
-    def update(self, contact, h, params, gravity):
-        """After the contact pass, before the scatter (``sleep_update``)."""
+    def update(self, contact, h, params, gravity, touches):
+        """After the contact pass, before the scatter (``sleep_update``); ``touches``:
+        the stiff pass's body pairs in contact (``Pairs.bodies``)."""
         flat = self.flat
         norm = float(np.linalg.norm(gravity))
         up = -gravity / norm if norm > 0.0 else np.zeros(3)
@@ -324,7 +335,7 @@ class Sleep:
                             radius=flat.R, body=flat.B, offset=flat.off, touched=flat.touched)
         rule = SleepRule(up=up, h=float(h), speed=float(params.sleep_speed),
                          t_sleep=float(params.sleep_time), allow=bool(params.sleep))
-        pairs = Pairs(contact._pair_i, contact._pair_j, contact.npairs)
+        pairs = Pairs(contact._pair_i, contact._pair_j, contact.npairs, touches)
         if sleep_update(arrays, flat._x_blocks, flat.flag_list(), self.state, pairs, rule):
             flat.w_version += 1
 

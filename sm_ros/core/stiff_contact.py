@@ -21,6 +21,9 @@ from . import tuning
 from .quaternion import quat_matrix
 from .kernels.stiff_solve import StiffBodies, StiffScene, stiff_step
 
+#: No body pairs in contact (``StiffContact.touches``).
+NO_TOUCHES = np.zeros((0, 3), dtype=np.int64)
+
 #: Sequential-impulse sweeps over the contacts per step, at most (they stop once settled).
 ITERATIONS = 100
 
@@ -123,6 +126,7 @@ class StiffContact:
         self._round = {}     # id of a body: (its rest shape, radius, round, lattice axes)
         self.keys = np.zeros(0, dtype=np.int64)      # the last step's contacts (sorted)
         self.impulses = np.zeros((0, 3))            # and their impulses
+        self.touches = NO_TOUCHES       # the last step's body pairs in contact (touches)
 
     def __getstate__(self):
         """Copies (pickle, deepcopy) leave out the typed lists; they are made again."""
@@ -208,8 +212,8 @@ class StiffContact:
                            ITERATIONS, tuning.WAKE_FACTOR * float(p.sleep_speed))
         tally = np.zeros((len(rows) - 1, 6))
         stats = np.zeros((len(bodies), 5))
-        self.keys, self.impulses = stiff_step(self._bodies(world, bodies), scene,
-                                              (self.keys, self.impulses), tally, stats)
+        self.keys, self.impulses, self.touches = stiff_step(
+            self._bodies(world, bodies), scene, (self.keys, self.impulses), tally, stats)
         for k in np.flatnonzero(stats[:, 4]):
             bodies[k][0]._dirty = True
             if stats[k, 4] == 3:

@@ -16,7 +16,7 @@ from .flat import FlatState
 from .kernels.flags import SLEEP
 from .kinematic import Particles
 from .sleep import Sleep
-from .stiff_contact import StiffContact
+from .stiff_contact import NO_TOUCHES, StiffContact
 from .world_colliders import WorldColliders
 
 
@@ -46,6 +46,7 @@ class World(WorldColliders):
         self._coupling_key = None
         self._stiff = StiffContact()            # stiff bodies' contacts (stiff_contact.py)
         self._stiff_stats = None                # (bodies, 5) what that pass counted
+        self._stiff_touches = NO_TOUCHES        # its body pairs in contact (flat order)
         self._collider_radius = np.zeros(0)     # per body (flat order): _collider_radii
         self._radii_key = None
         self._stiff_key = self._stiff_cache = None      # _stiff_members
@@ -409,7 +410,7 @@ class World(WorldColliders):
             # bodies sleep only under gravity: without it nothing rests on anything, and
             # freezing a slow drift would take momentum out of a conservative world
             if sl is not None and cs is None and self._contact_params.sleep and self._gnorm:
-                sl.update(c, h, self._contact_params, self._gravity)
+                sl.update(c, h, self._contact_params, self._gravity, self._stiff_touches)
             f.scatter()
             return
         f.refresh_masses()
@@ -450,8 +451,12 @@ class World(WorldColliders):
         if stats is None or len(stats) != len(bodies):
             stats = self._stiff_stats = np.zeros((len(bodies), 5))
         stats[:] = 0.0
+        self._stiff_touches = NO_TOUCHES
         if any(not body.asleep for body, _ in members):
             stats[index] = self._stiff.run(self, members, h, thresh)
+            pairs = self._stiff.touches            # of members: to flat body indices
+            self._stiff_touches = np.column_stack((index[pairs[:, 0]], index[pairs[:, 1]],
+                                                   pairs[:, 2]))
 
     def _zero_bid(self, n):
         """Body index 0 for n particles (the per-body path of the collider pass)."""

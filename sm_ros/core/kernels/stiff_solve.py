@@ -21,7 +21,7 @@ from .colliders import C_ANG, C_BOUND, C_VEL
 from .stiff_rows import J_D, J_MASS, apply, jacobians, push_visit, speed_along, visit
 from .stiff_contacts import (F_COM, F_HI, F_INV, F_LO, F_MASS, F_REACH, F_ROW, F_SPIN,
                              F_VEL, K_A, K_APPROACH, K_B, K_BOUNCE, K_COLL, K_E, K_FALL,
-                             K_GAP, K_GRIP, K_RA, K_ROW, K_SLOP, K_TARGET,
+                             K_GAP, K_GRIP, K_N, K_RA, K_ROW, K_SLOP, K_TARGET,
                              K_WHO, SLOTS, body_frame, collider_contacts)
 from .stiff_pairs import append_pair, pair_contacts
 
@@ -380,7 +380,8 @@ def stiff_step(bodies, scene, memory, tally, stats):
     step's contact keys (sorted) and impulses; ``stats`` (B, 5) per body: its particles
     touching the plain colliders and the others, its body-pair contacts, its deepest
     overlap, and 1 where its velocities changed, 2 where its positions did too, 3 where a
-    hit woke it.  Returns this step's contact keys and impulses, sorted."""
+    hit woke it.  Returns this step's contact keys and impulses, sorted, and the body
+    pairs in contact (``touches``)."""
     nb = len(bodies.x)
     frames = np.zeros((nb, F_ROW))
     inertia, inv_inertia = np.zeros((nb, 3, 3)), np.zeros((nb, 3, 3))
@@ -397,7 +398,7 @@ def stiff_step(bodies, scene, memory, tally, stats):
     rows = _contacts(frames, bodies, scene, stats)
     keys = contact_keys(rows, nb, scene.rows.shape[0])
     if rows.shape[0] == 0:
-        return keys, np.zeros((0, 3))
+        return keys, np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
     _pair_stats(rows, stats)
     for _ in range(2):
         start = frames.copy()
@@ -414,7 +415,28 @@ def stiff_step(bodies, scene, memory, tally, stats):
         if awake[b]:
             _move(bodies, b, start[b], done[b] - start[b], push[b], scene, stats[b])
     order = np.argsort(keys)
-    return keys[order], acc[order]
+    return keys[order], acc[order], touches(rows, scene.gravity)
+
+
+@njit(**JIT)
+def touches(rows, gravity):
+    """The body pairs of the body-pair contacts (c, 3): a, b and which lies above the
+    other against ``gravity`` along the contact's normal (1: a, -1: b, 0: side by side or
+    no gravity), one row per contact (the sleep pass's who touches whom)."""
+    count = 0
+    for k in range(rows.shape[0]):
+        count += rows[k, K_B] >= 0
+    out = np.empty((count, 3), dtype=np.int64)
+    count = 0
+    for k in range(rows.shape[0]):
+        if rows[k, K_B] < 0:
+            continue
+        up = -(rows[k, K_N] * gravity[0] + rows[k, K_N + 1] * gravity[1]
+               + rows[k, K_N + 2] * gravity[2])
+        out[count, 0], out[count, 1] = int(rows[k, K_A]), int(rows[k, K_B])
+        out[count, 2] = 1 if up > 0.0 else (-1 if up < 0.0 else 0)
+        count += 1
+    return out
 
 
 @njit(**JIT)
