@@ -2,7 +2,6 @@
 
 import math
 
-import numba
 import numpy as np
 import pytest
 
@@ -62,14 +61,12 @@ def build_with(kernel, X, R, B, act, selfc, X0, cell, skin, cap):
                          np.zeros(len(cnt) - 1, np.int32))
     if kernel == 'hash':
         m = C.build_pairs(src, grid, np.zeros(n, np.int64), sco, pi, pj)
-    elif kernel == 'grid':
-        m = C.build_pairs_grid(src, grid, pi, pj)
     else:
-        m = C.build_pairs_grid_par(src, grid, pi, pj, numba.get_num_threads())
+        m = C.build_pairs_grid(src, grid, pi, pj)
     return m, pi, pj
 
 
-BUILDERS = ['grid', 'grid_par', 'hash']
+BUILDERS = ['grid', 'hash']
 
 
 @pytest.mark.parametrize('kernel', BUILDERS)
@@ -120,9 +117,9 @@ def heap_of_lattices(seed, n_bodies=14, side=5, selfc_body=3, off_body=5):
 
 @pytest.mark.parametrize('seed', [0, 1, 2])
 def test_pair_builders_agree_on_a_heap_of_bodies(seed):
-    """Every builder lists the same pairs as brute force on overlapping rotated blocks; the
-    serial and the parallel grid builder the same list in the same order, so the solve does
-    not depend on the thread count; ``sort_pairs`` orders by the lower index, stably."""
+    """The grid builder and its fallback for sparse worlds list the same pairs as brute
+    force on overlapping rotated blocks; ``sort_pairs`` orders by the lower index,
+    stably."""
     X, R, B, act, selfc, X0 = heap_of_lattices(seed)
     skin = 0.25 * S
     want = brute_pairs(X.T, R, B, act, selfc, X0.T, skin)
@@ -141,63 +138,19 @@ def test_pair_builders_agree_on_a_heap_of_bodies(seed):
         low = np.minimum(*lists[kernel])
         stable = np.argsort(low, kind='stable')            # the same as a stable sort
         np.testing.assert_array_equal(pj[:m], np.maximum(*lists[kernel])[stable])
-    for k in (0, 1):
-        np.testing.assert_array_equal(lists['grid_par'][k], lists['grid'][k])
 
 
-def test_parallel_builder_grows_a_full_list():
-    """With too small a list, the parallel builder asks for more room than it has (the
-    caller grows it), then fills it like the serial one."""
+def test_builder_counts_past_a_full_list():
+    """With too small a list, the builder fills it and counts on (the caller grows it),
+    then, given room, lists every pair in the same order."""
     X, R, B, act, selfc, X0 = heap_of_lattices(5)
     skin = 0.25 * S
-    m_ser, pi_s, pj_s = build_with('grid', X, R, B, act, selfc, X0, 2 * R.max() + skin, skin,
-                                   16 * X.shape[1])
-    m, _, _ = build_with('grid_par', X, R, B, act, selfc, X0, 2 * R.max() + skin, skin, 64)
-    assert m > 64
-    m2, pi, pj = build_with('grid_par', X, R, B, act, selfc, X0, 2 * R.max() + skin, skin,
-                            int(m * 1.5) + 1024)
-    assert m2 == m_ser
-    np.testing.assert_array_equal(pi[:m2], pi_s[:m_ser])
-    np.testing.assert_array_equal(pj[:m2], pj_s[:m_ser])
-
-
-def falling_blocks(build):
-    """Eight 4 x 4 x 4 blocks dropped in a heap; ``Contact.parallel_build`` set to ``build``."""
-    w = World()
-    w.set_colliders(ground=Ground())
-    p = BodyParams(mode='linear', alpha=0.9, damping=0.05)
-    for k in range(8):
-        w.add_body(lattice(4, 4, 4, center=(0.03 * (k % 3), 0.025 * (k % 2), 0.05 + 0.07 * k)),
-                   0.01, p, f'b{k}')
-    w.contact.parallel_build = build
-    return w
-
-
-def test_serial_and_parallel_builds_step_bit_identically():
-    """The pair list does not depend on the builder's thread count, so neither does the
-    world: a falling heap stepped with either is bit-identical (rebuilt at most steps)."""
-    ws = [falling_blocks(False), falling_blocks(True)]
-    for _ in range(40):
-        for w in ws:
-            w.step(1 / 120)
-    assert ws[0].contact.builds > 10 and ws[0].contact.found > 0
-    assert ws[0].contact.builds == ws[1].contact.builds
-    for a, b in zip(ws[0].bodies, ws[1].bodies):
-        np.testing.assert_array_equal(a.x, b.x)
-        np.testing.assert_array_equal(a.v, b.v)
-
-
-def test_builder_choice(monkeypatch):
-    """Serial below ``PARALLEL_BUILD_MIN`` particles or on one thread; all threads above
-    it."""
-    w = falling_blocks(None)
-    c = w.contact
-    nt = numba.get_num_threads()
-    assert c._grid_builder() == 1
-    monkeypatch.setattr(C, 'PARALLEL_BUILD_MIN', 10)
-    assert c._grid_builder() == (nt if nt > 1 else 1)
-    c.parallel_build = False
-    assert c._grid_builder() == 1
+    m_full, pi_f, pj_f = build_with('grid', X, R, B, act, selfc, X0, 2 * R.max() + skin,
+                                    skin, 16 * X.shape[1])
+    m, pi, pj = build_with('grid', X, R, B, act, selfc, X0, 2 * R.max() + skin, skin, 64)
+    assert m == m_full > 64
+    np.testing.assert_array_equal(pi, pi_f[:64])
+    np.testing.assert_array_equal(pj, pj_f[:64])
 
 
 def test_far_apart_bodies_fall_back_to_hashed_cells():
@@ -234,7 +187,6 @@ def test_grid_refuses_a_box_larger_than_its_table():
                          np.zeros((2, 4)), np.zeros(2, np.int32), np.zeros(16, np.int32))
     out = (np.zeros(4, np.int32), np.zeros(4, np.int32))
     assert C.build_pairs_grid(src, grid, *out) == -1
-    assert C.build_pairs_grid_par(src, grid, *out, 2) == -1
 
 
 def test_pair_response_conserves_momentum_and_separates():

@@ -12,15 +12,14 @@ written to ``--out``:
   rebuild alone and the per-step part alone; the flat-state copies (gather/scatter) that
   the World needs until it owns the flat arrays; the bodies' own step (shape matching)
   of the same scene;
-- the pair-list builder side by side with itself (round-robin, same state): the grid
-  builder on one thread and on ``--build-threads``: the rebuild alone and a step that
-  rebuilds (bodies moving), on the resting bin and on ``paper_384`` while it pours;
+- the pair-list builder: the rebuild alone and a step that rebuilds (bodies moving), on
+  the resting bin and on ``paper_384`` while it pours;
 - one body without self-collision: world step with contact on and off;
 - scaling: the contact pass on 1x, 2x, 4x, 10x the blocks (log-log slope in N);
 - ``paper_384``: the node's tick (``Simulation.tick``: 2 substeps, no ROS publishing) once
   the heap has formed (``--paper-seconds`` of simulated pouring first), and the contact
-  pass's share of it per builder (ticks taken in turn with each), sleeping bodies off
-  (``contact.sleep``: the contact pass is what is timed);
+  pass's share of it, sleeping bodies off (``contact.sleep``: the contact pass is what is
+  timed);
 - sleeping bodies: ``--sleep-scene`` (``paper_384``) as users run it, from the start for
   ``--sleep-seconds`` of simulated time, with sleeping on and off (two simulations ticked
   in turn): the median tick over the whole run and once every body sleeps.
@@ -64,8 +63,6 @@ def add_arguments(p: argparse.ArgumentParser):
     p.add_argument('--sleep-seconds', type=float, default=20.0,
                    help='simulated time of the sleeping-bodies rows (0: skip them)')
     p.add_argument('--threads', type=int, default=1, help='Numba threads')
-    p.add_argument('--build-threads', type=int, default=2,
-                   help='threads of the parallel pair-list builder, timed side by side')
     p.add_argument('--blocks', type=int, default=384, help='blocks in the bin (a smoke run: few)')
     p.add_argument('--one-body-side', type=int, default=38,
                    help='side of the one-body lattice (38^3 = 54,872 particles)')
@@ -167,32 +164,13 @@ def contact_parts(world) -> Dict[str, float]:
             'pairs_listed': int(c.npairs), 'pairs_touching': over}
 
 
-#: The pair-list builders timed side by side: (name, ``Contact.parallel_build``, threads;
-#: None: ``--build-threads``).
-BUILDERS = (('serial', False, 1), ('parallel', True, None))
-
-
-class _Threads:
-    """Numba threads set to ``count`` inside the block (capped by NUMBA_NUM_THREADS)."""
-
-    def __init__(self, count):
-        import numba
-        self.count = max(1, min(int(count), numba.config.NUMBA_NUM_THREADS))
-
-    def __enter__(self):
-        import numba
-        self.old = numba.get_num_threads()
-        numba.set_num_threads(self.count)
-
-    def __exit__(self, *exc):
-        import numba
-        numba.set_num_threads(self.old)
-
-
-def builders(world, build_threads: int, rounds: int = 5) -> Dict[str, Any]:
-    """Each pair-list builder on the world's present state, round-robin: the rebuild alone
-    and a step that rebuilds (``Contact.invalidate`` + ``run``: bodies that move more than
-    a quarter radius a step), median ms; the state is put back before every call."""
+def builders(world, rounds: int = 5) -> Dict[str, Any]:
+    """The pair-list builder on the world's present state: the rebuild alone and a step
+    that rebuilds (``Contact.invalidate`` + ``run``: bodies that move more than a quarter
+    radius a step), median ms, and its counting sort by cell; the state is put back
+    before every call."""
+    from sm_ros.core.contact_build import GridScratch, PairSource
+    from sm_ros.core.contact_build import grid_sort as grid_sort_kernel
     c = world.contact
     f = world._flat
     f.gather()
@@ -206,48 +184,37 @@ def builders(world, build_threads: int, rounds: int = 5) -> Dict[str, Any]:
         restore()
         c.invalidate()
         c.run(1.0 / 120.0, 0.16, world._contact_colliders(0.16), world._gravity)
-    samples = {name: {'rebuild': [], 'moving': []} for name, _, _ in BUILDERS}
-    pairs = {}
-    tr = bc.time_calls(restore, min_time=0.1, min_reps=10, max_reps=100)
-    sort = []
 
     def grid_sort():
         src = PairSource(f.X, f.R, f.B, c.act, c.selfc, f.X0, c.cell, c.skin, 0.0)
         grid = GridScratch(c._particle_cell, c._cnt, c._srt, c._sorted_points,
                            c._sorted_body, c._cell_body)
         grid_sort_kernel(src, grid, dims)
-    from sm_ros.core.contact_build import GridScratch, PairSource
-    from sm_ros.core.contact_build import grid_sort as grid_sort_kernel
     dims = np.zeros(3, dtype=np.int64)
-    old = c.parallel_build
+    samples = {'rebuild': [], 'moving': [], 'sort': []}
+    tr = bc.time_calls(restore, min_time=0.1, min_reps=10, max_reps=100)
     try:
+        restore()
+        c._build()
+        listed = c.npairs
         for _ in range(rounds):
-            for name, mode, nt in BUILDERS:
-                c.parallel_build = mode
-                with _Threads(build_threads if nt is None else nt):
-                    restore()
-                    c._build()
-                    pairs[name] = c.npairs
-                    samples[name]['rebuild'] += bc.time_calls(
-                        c._build, min_time=0.05, min_reps=3, max_reps=10).tolist()
-                    samples[name]['moving'] += bc.time_calls(
-                        moving, min_time=0.05, min_reps=3, max_reps=10).tolist()
+            samples['rebuild'] += bc.time_calls(c._build, min_time=0.05, min_reps=3,
+                                                max_reps=10).tolist()
+            samples['moving'] += bc.time_calls(moving, min_time=0.05, min_reps=3,
+                                               max_reps=10).tolist()
             restore()
-            sort += bc.time_calls(grid_sort, min_time=0.05, min_reps=3, max_reps=10).tolist()
+            samples['sort'] += bc.time_calls(grid_sort, min_time=0.05, min_reps=3,
+                                             max_reps=10).tolist()
     finally:
-        c.parallel_build = old
         restore()
         c.invalidate()
-    out = {name: {'rebuild_ms': _median_ms(v['rebuild']),
-                  'rebuild_min_ms': 1e3 * float(np.min(v['rebuild'])),
-                  'moving_ms': max(0.0, _median_ms(v['moving']) - _median_ms(tr)),
-                  'moving_min_ms': max(0.0, 1e3 * float(np.min(v['moving']) - np.min(tr))),
-                  'pairs_listed': int(pairs[name])} for name, v in samples.items()}
-    out['grid_sort_ms'] = _median_ms(sort)
-    out['grid_sort_min_ms'] = 1e3 * float(np.min(sort))
-    out['threads'] = _Threads(build_threads).count
-    out['N'] = f.n
-    return out
+    return {'rebuild_ms': _median_ms(samples['rebuild']),
+            'rebuild_min_ms': 1e3 * float(np.min(samples['rebuild'])),
+            'moving_ms': max(0.0, _median_ms(samples['moving']) - _median_ms(tr)),
+            'moving_min_ms': max(0.0, 1e3 * float(np.min(samples['moving']) - np.min(tr))),
+            'grid_sort_ms': _median_ms(samples['sort']),
+            'grid_sort_min_ms': 1e3 * float(np.min(samples['sort'])),
+            'pairs_listed': int(listed), 'N': f.n}
 
 
 def one_body(n_side: int = 38) -> Dict[str, float]:
@@ -286,13 +253,12 @@ def scaling(scales: List[int], blocks: int = 384) -> List[Dict[str, Any]]:
     return rows
 
 
-def paper_tick(seconds: float, ticks: int, build_threads: int = 2) -> Optional[Dict[str, Any]]:
+def paper_tick(seconds: float, ticks: int) -> Optional[Dict[str, Any]]:
     """Simulation.tick of paper_384 (2 substeps of 1/120 s) after pouring ``seconds``.
 
-    The ticks are taken in turn with each builder (``BUILDERS``); per builder the contact
-    passes' time per tick (all substeps, and those of the live error estimate's copies of
-    the world, which step within the tick), their rebuilds per tick and the rebuild alone
-    per call.  Then the builders side by side on the state reached (``builders``).
+    The contact passes' time per tick (all substeps, and those of the live error
+    estimate's steps within the tick), their rebuilds per tick and the rebuild alone per
+    call.  Then the builder on the state reached (``builders``).
     """
     if seconds <= 0:
         return None
@@ -303,12 +269,10 @@ def paper_tick(seconds: float, ticks: int, build_threads: int = 2) -> Optional[D
     for _ in range(int(round(seconds / dt))):
         world.step(dt)
     c = world.contact
-    # timed on the class: the live error estimate's copies of the world run their own
-    # contact passes within the tick (an instance's wrapper would be copied with it and
-    # run the original's pass)
+    # timed on the class, as before: every contact pass within the tick counts
     from sm_ros.core.contact import Contact
     runs, builds = [], []
-    saved = Contact.run, Contact._build, Contact._grid_builder
+    saved = Contact.run, Contact._build
 
     def timed(fn, into):
         def wrapper(self, *a, **k):
@@ -317,41 +281,30 @@ def paper_tick(seconds: float, ticks: int, build_threads: int = 2) -> Optional[D
             into.append(time.perf_counter() - t0)
             return r
         return wrapper
-    ts = []
-    per = {name: {'contact': [], 'build': [], 'builds': 0, 'ticks': 0}
-           for name, _, _ in BUILDERS}
+    ts, contact, built = [], [], []
     try:
         Contact.run = timed(saved[0], runs)
         Contact._build = timed(saved[1], builds)
-        for k in range(ticks):
-            name, mode, nt = BUILDERS[k % len(BUILDERS)]
-            threads = _Threads(build_threads if nt is None else nt)
-            choice = threads.count if mode else 1
-            Contact._grid_builder = lambda self, choice=choice: choice
-            with threads:
-                del runs[:], builds[:]
-                t0 = time.perf_counter()
-                sim.tick()
-                ts.append(time.perf_counter() - t0)
-            p = per[name]
-            p['contact'].append(sum(runs))
-            p['build'] += builds
-            p['builds'] += len(builds)
-            p['ticks'] += 1
+        for _ in range(ticks):
+            del runs[:], builds[:]
+            t0 = time.perf_counter()
+            sim.tick()
+            ts.append(time.perf_counter() - t0)
+            contact.append(sum(runs))
+            built += builds
     finally:
-        Contact.run, Contact._build, Contact._grid_builder = saved
+        Contact.run, Contact._build = saved
     ke = sum(0.5 * float((b.m[:, None] * b.v ** 2).sum()) for b in world.bodies)
     out = {'points': sim.num_points, 'bodies': len(world.bodies),
            'clusters': sum(b.num_clusters for b in world.bodies),
            'tick_median_ms': _median_ms(ts), 'tick_p90_ms': 1e3 * float(np.percentile(ts, 90)),
            'substeps': int(sim.params['substeps']), 'pairs_touching': int(c.found),
            'kinetic_energy_j': ke, 'poured_s': seconds,
-           'per_builder': {name: {'contact_ms_per_tick': _median_ms(p['contact']),
-                                  'rebuild_ms': _median_ms(p['build']) if p['build'] else 0.0,
-                                  'rebuilds_per_tick': p['builds'] / max(1, p['ticks'])}
-                           for name, p in per.items() if p['ticks']}}
-    bc.log('contact: paper_384 builders side by side')
-    out['builders'] = builders(world, build_threads)
+           'contact_ms_per_tick': _median_ms(contact),
+           'rebuild_ms': _median_ms(built) if built else 0.0,
+           'rebuilds_per_tick': len(built) / max(1, ticks)}
+    bc.log('contact: paper_384 pair-list builder')
+    out['builders'] = builders(world)
     return out
 
 
@@ -413,7 +366,7 @@ def _run(args, out: Path) -> Dict[str, Any]:
     res['ckdtree'] = base
     res['settle'] = settle_and_time(w, args.steps)
     res['parts'] = contact_parts(w)
-    res['builders'] = builders(w, args.build_threads)
+    res['builders'] = builders(w)
     bc.log('contact: one body')
     res['one_body'] = one_body(args.one_body_side)
     res['scaling'] = scaling([int(s) for s in bc.as_list(args.scales, int)], args.blocks)
@@ -422,7 +375,7 @@ def _run(args, out: Path) -> Dict[str, Any]:
         res['slope_rebuild'] = bc.loglog_slope(xs, [r['rebuild_ms'] for r in res['scaling']])
         res['slope_step'] = bc.loglog_slope(xs, [r['step_ms'] for r in res['scaling']])
     bc.log('contact: paper_384')
-    res['paper_384'] = paper_tick(args.paper_seconds, args.paper_ticks, args.build_threads)
+    res['paper_384'] = paper_tick(args.paper_seconds, args.paper_ticks)
     bc.log('contact: sleeping bodies')
     res['sleeping'] = sleeping(args.sleep_scene, args.sleep_seconds)
     text = markdown(res)

@@ -30,12 +30,11 @@ from dataclasses import dataclass, fields, replace
 import math
 from typing import Optional
 
-import numba
 import numpy as np
 
 from .contact_bodies import solve_bodies
 from .contact_build import (GridScratch, PairSource, body_overlaps, build_pairs_grid,
-                            build_pairs_grid_par, moved_spread2, sort_pairs)
+                            moved_spread2, sort_pairs)
 from .contact_cells import build_pairs
 from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_pairs, wall_candidates)
@@ -51,11 +50,6 @@ from .kernels.stiff_solve import drop_rigid_pairs
 SELF_REST_FACTOR = 2.0
 #: Verlet skin as a fraction of the largest contact radius.
 SKIN_FACTOR = 0.5
-#: The pair list is built on the Numba threads (``build_pairs_grid_par``) from this many
-#: particles when more than one thread is set: below it a threaded build loses whenever
-#: another job holds a core (OpenMP waits for the descheduled thread;
-#: ``python -m sm_ros.bench contact`` times both side by side).
-PARALLEL_BUILD_MIN = 262144
 #: A body carries its contacts as a whole (``Contact.coupling``) when its goal pull alpha
 #: at the step is at least this (one cluster or many): the shape match then restores
 #: most of a deviation within the step, so the body is stiff (doc/contact.md); softer
@@ -229,10 +223,6 @@ class Contact:
         self._sorted_points = np.zeros((n, 4))
         self._sorted_body = np.zeros(n, dtype=np.int32)
         self._cell_body = np.zeros(tsize, dtype=np.int32)
-        #: None: the serial builder, or the parallel one from ``PARALLEL_BUILD_MIN``
-        #: particles when more than one Numba thread is set; True / False: always / never
-        #: the parallel one.
-        self.parallel_build = None
         cap = max(1024, 2 * n)
         self._pair_i = np.zeros(cap, dtype=np.int32)
         self._pair_j = np.zeros(cap, dtype=np.int32)
@@ -314,17 +304,8 @@ class Contact:
                                 self._scratch_i, self._scratch_j)
         return self._scratch_i, self._scratch_j, kept
 
-    def _grid_builder(self):
-        """The number of threads of the grid builder."""
-        mode = self.parallel_build
-        nt = numba.get_num_threads()
-        if mode is None:
-            mode = self.flat.n >= PARALLEL_BUILD_MIN and nt > 1
-        return nt if mode else 1
-
     def _build(self):
         f = self.flat
-        nt = self._grid_builder()
         # broad phase: only bodies whose boxes (grown by r + skin / 2) meet another's go
         # into the grid; valid until the next build (no pair comes closer by the skin)
         act = self._act_eff
@@ -336,10 +317,7 @@ class Contact:
                            self._sorted_body, self._cell_body)
         while True:
             pairs = (self._pair_i, self._pair_j)
-            if nt == 1:
-                m = build_pairs_grid(src, grid, *pairs)
-            else:
-                m = build_pairs_grid_par(src, grid, *pairs, nt)
+            m = build_pairs_grid(src, grid, *pairs)
             if m < 0:                           # sparse world: hashed cells
                 m = build_pairs(src, grid, self._skey, self._sco, *pairs)
             if m <= len(self._pair_i):
@@ -454,10 +432,10 @@ class Contact:
 
 __all__ = ['ContactParams', 'BodyContact', 'Contact', 'GridScratch', 'PairSource',
            'default_radius', 'SELF_REST_FACTOR',
-           'COUPLE_ALPHA', 'STACK_SWEEPS', 'PARALLEL_BUILD_MIN', 'body_inverse_masses',
+           'COUPLE_ALPHA', 'STACK_SWEEPS', 'body_inverse_masses',
            'body_overlaps',
            'body_velocities', 'build_pairs', 'build_pairs_grid',
-           'build_pairs_grid_par', 'contact_velocity', 'count_fast', 'inverse_sym3',
+           'contact_velocity', 'count_fast', 'inverse_sym3',
            'moved_spread2',
            'median_nn_distance', 'solve_bodies', 'solve_pairs', 'sort_pairs',
            'wall_candidates']

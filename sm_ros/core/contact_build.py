@@ -19,22 +19,18 @@ adjacent).  Each cell also records its body when it holds only one (``cb``); a r
 cells hold only the body of a one-body cell (without self-collision) is skipped without
 touching its particles: in a heap of small bodies most of the stencil lies within one
 body, and a visit of a cell of about two particles costs more than its tests.
-``build_pairs_grid_par`` runs the pair walk on the Numba threads (cells split into
-contiguous chunks; each chunk writes its own segment, then the segments are closed up in
-order), so its list is the serial one.
 
 ``contact_cells.build_pairs`` (hashed cells) is the fallback when the bounding box holds
 more cells than the table (bodies far apart). ``sort_pairs`` orders the list by lower index
-(stable): the solve then reads X, V in increasing order. The serial and the parallel grid
-builder make the same list in the same order, so the solve's result does not depend on the
-thread count; the other builders list the same pairs, a particle's partners maybe in
-another order.
+(stable): the solve then reads X, V in increasing order. The fallback lists the same
+pairs, a particle's partners maybe in another order. One thread builds the list, so the
+solve's result does not depend on the thread count.
 """
 
 from collections import namedtuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .kernels.jit import JIT
 from .kernels.pair_grid import grid_box
@@ -320,51 +316,6 @@ def build_pairs_grid(src, grid, pi, pj):
     if nact <= 0:
         return nact
     return _cell_pairs(0, nact, dims, src, grid, pi, pj, 0, pi.shape[0])
-
-
-@njit(parallel=True, **JIT)
-def build_pairs_grid_par(src, grid, pi, pj, nt):
-    """``build_pairs_grid`` with the pair walk on the Numba threads; the same list in the
-    same order.
-
-    The sorted particles are cut into ``nt`` chunks of whole cells (``nt``: the Numba
-    threads, ``numba.get_num_threads()``, passed in: read inside, it keeps the kernel out
-    of the on-disk cache); chunk k writes
-    its pairs into its own k-th share of ``pi``/``pj``, then the shares are closed up in
-    order.  When a share overflows, returns a count above ``len(pi)`` that is enough
-    for every share (the caller grows the arrays and calls again).
-    """
-    dims = np.zeros(3, dtype=np.int64)
-    nact = grid_sort(src, grid, dims)
-    if nact <= 0:
-        return nact
-    hb, cnt, srt = grid.particle_cell, grid.cell_start, grid.order
-    nt = max(1, nt)
-    cap = pi.shape[0]
-    seg = cap // nt
-    start = np.zeros(nt + 1, dtype=np.int64)
-    for k in range(1, nt):
-        a = k * nact // nt
-        start[k] = max(start[k - 1], cnt[hb[srt[a]]])  # back to the start of its cell
-    start[nt] = nact
-    got = np.zeros(nt, dtype=np.int64)
-    for k in prange(nt):
-        got[k] = _cell_pairs(start[k], start[k + 1], dims, src, grid, pi, pj, k * seg,
-                             (k + 1) * seg) - k * seg
-    most = 0
-    total = 0
-    for k in range(nt):
-        most = max(most, got[k])
-        total += got[k]
-    if most > seg:
-        return max(nt * most + nt, cap + 1)
-    m = got[0]
-    for k in range(1, nt):
-        for s in range(got[k]):
-            pi[m + s] = pi[k * seg + s]
-            pj[m + s] = pj[k * seg + s]
-        m += got[k]
-    return total
 
 
 @njit(**JIT)
