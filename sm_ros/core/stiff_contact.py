@@ -165,19 +165,18 @@ class StiffContact:
         if self._lists_key is not bodies:
             self._lists = self._body_constants(world, bodies)
             self._lists_key = bodies
-        lists, radius, collide, shapes, ball = self._lists
-        awake = np.array([not b.asleep for b, _ in bodies], dtype=np.bool_)
+        lists, radius, collide, ball, (boxy, rest) = self._lists
+        awake = np.fromiter((not b.asleep for b, _ in bodies), dtype=np.bool_,
+                            count=len(bodies))
         cells = np.zeros((len(bodies), 3, 3))
-        boxy = [k for k, (_, axes) in enumerate(shapes) if axes is not None]
-        if boxy:           # the lattice axes turned as the body's shape match turns them
+        if len(boxy):      # the lattice axes turned as the body's shape match turns them
             wxyz = np.array([bodies[k][0]._quat[0] for k in boxy])
-            turns = quat_matrix(wxyz[:, [1, 2, 3, 0]])
-            rest = np.array([shapes[k][1] * radius[k] for k in boxy])
-            cells[boxy] = turns @ rest
+            cells[boxy] = quat_matrix(wxyz[:, [1, 2, 3, 0]]) @ rest
         return StiffBodies(*lists, radius, awake, collide, ball, cells)
 
     def _body_constants(self, world, bodies):
-        """(typed lists, radii, collide flags, outlines, round flags) of the pass's bodies."""
+        """(typed lists, radii, collide flags, round flags, (the bodies on a lattice, their
+        cells' half edges at rest)) of the pass's bodies."""
         lists = body_lists([b._x for b, _ in bodies], [b._v for b, _ in bodies],
                            [b._m for b, _ in bodies])
         ids = {id(b) for b, _ in bodies}           # forget the bodies that left the pass
@@ -188,7 +187,10 @@ class StiffContact:
                            dtype=np.bool_)
         shapes = [self._outline(b, r) for b, r in bodies]
         ball = np.array([round_ for round_, _ in shapes], dtype=np.bool_)
-        return lists, radius, collide, shapes, ball
+        boxy = np.array([k for k, (_, axes) in enumerate(shapes) if axes is not None],
+                        dtype=np.int64)
+        rest = np.array([shapes[k][1] * radius[k] for k in boxy]).reshape(-1, 3, 3)
+        return lists, radius, collide, ball, (boxy, rest)
 
     def _outline(self, body, radius):
         """(``is_round``, ``lattice_axes`` unless round) of a body, kept while it keeps
