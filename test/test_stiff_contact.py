@@ -205,7 +205,8 @@ def test_no_contact_creates_energy_and_body_pairs_keep_both_momenta(e, seed, bal
     rng = np.random.default_rng(seed)
     bodies = _bodies(rng, 4, 0.12, ball)
     rows = np.zeros((1, ROW))
-    scene = SS.StiffScene(rows, 0, False, 0.0, e, np.zeros(3), 1.0 / 120.0, 1e-3, 100, 0.04)
+    scene = SS.StiffScene(rows, 0, False, 0.0, e, np.zeros(3), 1.0 / 120.0, 1e-3, 100, 0.04,
+                          1.1)
     before = _energy_momenta(bodies)
     stats = np.zeros((4, 5))
     SS.stiff_step(bodies, scene, (np.zeros(0, np.int64), np.zeros((0, 3))),
@@ -217,16 +218,19 @@ def test_no_contact_creates_energy_and_body_pairs_keep_both_momenta(e, seed, bal
 
 
 def test_touches_lists_each_body_pair_contact_with_which_lies_above():
-    """One row per body-pair contact (colliders' rows left out): a, b and the side of the
-    normal (from b towards a) against gravity."""
-    rows = np.zeros((5, SC.K_ROW))
-    rows[:, SC.K_A] = [0, 1, 2, 3, 1]
-    rows[:, SC.K_B] = [-1, 0, 0, 2, 3]
+    """One row per body-pair contact within the touching distance (colliders' rows and
+    a pair 5 mm apart left out; 1.1 times radii of 1 cm reach 2 mm): a, b and the side
+    of the normal (from b towards a) against gravity."""
+    rows = np.zeros((6, SC.K_ROW))
+    rows[:, SC.K_A] = [0, 1, 2, 3, 1, 2]
+    rows[:, SC.K_B] = [-1, 0, 0, 2, 3, 3]
+    rows[:, SC.K_GAP] = [0.0, 0.0, -0.001, 0.0019, 0.001, 0.005]
     rows[:, SC.K_N:SC.K_N + 3] = [[0, 0, 1], [0, 0.6, 0.8], [0, 0.6, -0.8], [1, 0, 0],
-                                  [0, 0, 1]]
-    got = SS.touches(rows, np.array([0.0, 0.0, -9.81]))
+                                  [0, 0, 1], [0, 0, 1]]
+    radius = np.full(4, 0.01)
+    got = SS.touches(rows, np.array([0.0, 0.0, -9.81]), radius, 1.1)
     np.testing.assert_array_equal(got, [[1, 0, 1], [2, 0, -1], [3, 2, 0], [1, 3, 1]])
-    assert SS.touches(rows, np.zeros(3))[:, 2].tolist() == [0, 0, 0, 0]
+    assert SS.touches(rows, np.zeros(3), radius, 1.1)[:, 2].tolist() == [0, 0, 0, 0]
 
 
 @pytest.mark.parametrize('ball', [False, True])
@@ -239,7 +243,8 @@ def test_no_collider_contact_creates_energy(e, ball):
     bodies = _bodies(rng, 3, 0.2, ball)
     rows = np.stack([np.zeros(ROW), _box_row((0.2, 0.0, 0.0), (0.05, 0.3, 0.3), 0.8, e)])
     rows[0, C_MU], rows[0, C_E] = 0.6, e
-    scene = SS.StiffScene(rows, 1, True, 0.5, e, np.zeros(3), 1.0 / 60.0, 1e-3, 100, 0.04)
+    scene = SS.StiffScene(rows, 1, True, 0.5, e, np.zeros(3), 1.0 / 60.0, 1e-3, 100, 0.04,
+                          1.1)
     before = _energy_momenta(bodies)[0]
     stats = np.zeros((3, 5))
     SS.stiff_step(bodies, scene, (np.zeros(0, np.int64), np.zeros((0, 3))),
@@ -260,7 +265,7 @@ def test_bodies_apart_at_any_angle_get_no_overlap(seed):
     grid = np.arange(3) * 0.04 - 0.04
     cube = np.stack(np.meshgrid(grid, grid, grid, indexing='ij'), -1).reshape(-1, 3)
     scene = SS.StiffScene(np.zeros((1, ROW)), 0, False, 0.5, 0.0, np.zeros(3), 1.0 / 120.0,
-                          0.16, 100, 0.04)
+                          0.16, 100, 0.04, 1.1)
     rng = np.random.default_rng(seed)
     for _ in range(40):
         xb = cube @ np.linalg.qr(rng.normal(size=(3, 3)))[0].T

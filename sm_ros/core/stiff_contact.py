@@ -211,7 +211,8 @@ class StiffContact:
         p = world._contact_params
         scene = StiffScene(rows, plain, world.ground is not None, float(p.friction),
                            float(p.restitution), world._gravity, float(h), float(thresh),
-                           ITERATIONS, tuning.WAKE_FACTOR * float(p.sleep_speed))
+                           ITERATIONS, tuning.WAKE_FACTOR * float(p.sleep_speed),
+                           tuning.TOUCH_FACTOR)
         tally = np.zeros((len(rows) - 1, 6))
         stats = np.zeros((len(bodies), 5))
         self.keys, self.impulses, self.touches = stiff_step(

@@ -63,8 +63,9 @@ class StiffScene(NamedTuple):
     """What the bodies meet: ``rows`` (row 0 the ground, rows 1.. the colliders in
     ``kinematic`` columns, the first ``plain`` of them the world's plain boxes and
     spheres), whether the ground is on, the body-body friction and restitution, gravity,
-    the step, the restitution threshold speed, the sweeps and the speed at which a hit
-    wakes a sleeping body."""
+    the step, the restitution threshold speed, the sweeps, the speed at which a hit
+    wakes a sleeping body and the distance, in contact distances, within which two bodies
+    touch for the sleep pass (``tuning.TOUCH_FACTOR``)."""
 
     rows: np.ndarray
     plain: int
@@ -76,6 +77,7 @@ class StiffScene(NamedTuple):
     thresh: float
     iters: int
     wake_speed: float
+    touch: float
 
 
 @njit(**JIT)
@@ -415,21 +417,30 @@ def stiff_step(bodies, scene, memory, tally, stats):
         if awake[b]:
             _move(bodies, b, start[b], done[b] - start[b], push[b], scene, stats[b])
     order = np.argsort(keys)
-    return keys[order], acc[order], touches(rows, scene.gravity)
+    return keys[order], acc[order], touches(rows, scene.gravity, bodies.radius, scene.touch)
 
 
 @njit(**JIT)
-def touches(rows, gravity):
-    """The body pairs of the body-pair contacts (c, 3): a, b and which lies above the
-    other against ``gravity`` along the contact's normal (1: a, -1: b, 0: side by side or
-    no gravity), one row per contact (the sleep pass's who touches whom)."""
+def _touching(row, radius, touch):
+    """Whether a contact row is a body pair within ``touch`` times its contact distance
+    (the sum of its bodies' ``radius``)."""
+    a, b = int(row[K_A]), int(row[K_B])
+    return b >= 0 and row[K_GAP] < (touch - 1.0) * (radius[a] + radius[b])
+
+
+@njit(**JIT)
+def touches(rows, gravity, radius, touch):
+    """The body pairs of the body-pair contacts within ``touch`` times their contact
+    distance (``_touching``), (c, 3): a, b and which lies above the other against
+    ``gravity`` along the contact's normal (1: a, -1: b, 0: side by side or no gravity),
+    one row per contact (the sleep pass's who touches whom)."""
     count = 0
     for k in range(rows.shape[0]):
-        count += rows[k, K_B] >= 0
+        count += _touching(rows[k], radius, touch)
     out = np.empty((count, 3), dtype=np.int64)
     count = 0
     for k in range(rows.shape[0]):
-        if rows[k, K_B] < 0:
+        if not _touching(rows[k], radius, touch):
             continue
         up = -(rows[k, K_N] * gravity[0] + rows[k, K_N + 1] * gravity[1]
                + rows[k, K_N + 2] * gravity[2])
