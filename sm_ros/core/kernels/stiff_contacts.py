@@ -20,6 +20,9 @@ from .jit import JIT, JIT_NO_REFCOUNT
 #: Contact points kept per collider or body pair: the deepest and the farthest along 8
 #: directions of the contact plane.
 SLOTS = 9
+#: Those 8 directions in the plane's two tangents: +-t1, +-t2 and the four diagonals.
+AROUND = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0], [1.0, 1.0],
+                   [-1.0, -1.0], [1.0, -1.0], [-1.0, 1.0]])
 #: Columns of a contact row: bodies a and b (b -1: a collider, ``K_COLL`` its row in the
 #: collider rows, -1 the ground, -2 a body pair), the gap (m, < 0: overlap), the normal
 #: pointing from b towards a, the contact point relative to a's and b's centres, the
@@ -146,21 +149,10 @@ def _slot(slots, best, gap, p, frame, tol, tangents, who):
     spread = dx * dx + dy * dy + dz * dz
     if gap < best[0, 0] - tol or (gap < best[0, 0] + tol and spread < best[0, 1]):
         best[0, 0], best[0, 1], slots[0] = min(gap, best[0, 0]), spread, who
-    _farther(slots, best, 1, a, spread, who, tol)
-    _farther(slots, best, 2, -a, spread, who, tol)
-    _farther(slots, best, 3, b, spread, who, tol)
-    _farther(slots, best, 4, -b, spread, who, tol)
-    _farther(slots, best, 5, a + b, spread, who, tol)
-    _farther(slots, best, 6, -a - b, spread, who, tol)
-    _farther(slots, best, 7, a - b, spread, who, tol)
-    _farther(slots, best, 8, b - a, spread, who, tol)
-
-
-@njit(**JIT_NO_REFCOUNT)
-def _farther(slots, best, k, s, spread, who, tol):
-    """Offer a point at ``s`` along slot k's direction (``_slot``)."""
-    if s > best[k, 0] + tol or (s > best[k, 0] - tol and spread > best[k, 1]):
-        best[k, 0], best[k, 1], slots[k] = max(s, best[k, 0]), spread, who
+    for k in range(1, SLOTS):
+        s = AROUND[k - 1, 0] * a + AROUND[k - 1, 1] * b
+        if s > best[k, 0] + tol or (s > best[k, 0] - tol and spread > best[k, 1]):
+            best[k, 0], best[k, 1], slots[k] = max(s, best[k, 0]), spread, who
 
 
 @njit(**JIT_NO_REFCOUNT)
