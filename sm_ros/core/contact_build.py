@@ -33,7 +33,7 @@ import numpy as np
 from numba import njit
 
 from .kernels.jit import JIT
-from .kernels.pair_grid import grid_box
+from .kernels.pair_grid import counting_sort, grid_box
 from .kernels.spread import moved_box, spread_of
 
 #: ``cb`` of a cell without particles (``grid_sort``).
@@ -175,18 +175,7 @@ def grid_sort(src, grid, dims):
         c = cx + nx * cy + nxy * cz
         hb[i] = c
         cnt[c + 1] += 1
-    for c in range(ncell):
-        cnt[c + 1] += cnt[c]
-    for i in range(n):
-        c = hb[i]
-        if c >= 0:
-            a = cnt[c]
-            srt[a] = i
-            cnt[c] = a + 1
-    for c in range(ncell, 0, -1):
-        cnt[c] = cnt[c - 1]
-    cnt[0] = 0
-    nact = cnt[ncell]
+    nact = counting_sort(hb, cnt, srt, ncell)
     cb[:ncell] = EMPTY
     # copy in cell order, and each cell's one body (-1: several)
     a0 = 0

@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit
 
 from .kernels.jit import JIT
-from .kernels.pair_grid import kept_pair
+from .kernels.pair_grid import counting_sort, kept_pair
 
 
 @njit(**JIT)
@@ -50,18 +50,7 @@ def _hash_sort(src, grid, skey, sco):
         s = _bucket(k, mask)
         hb[i] = s
         cnt[s + 1] += 1
-    for s in range(tsize):
-        cnt[s + 1] += cnt[s]
-    for i in range(n):
-        s = hb[i]
-        if s >= 0:
-            a = cnt[s]
-            srt[a] = i
-            cnt[s] = a + 1
-    for s in range(tsize, 0, -1):
-        cnt[s] = cnt[s - 1]
-    cnt[0] = 0
-    nact = cnt[tsize]
+    nact = counting_sort(hb, cnt, srt, tsize)
     for a in range(nact):
         i = srt[a]
         sco[0, a] = X[0, i]

@@ -1,5 +1,6 @@
 """Pieces the pair-list builders share (``contact_build.py``, ``contact_cells.py``): the
-dense grid over the colliding particles and the test that keeps a pair.  Here, in the
+dense grid over the colliding particles, the counting sort by cell and the test that
+keeps a pair.  Here, in the
 kernel package, so that an edit recompiles both builders (``jit.py``: the package's cache
 stamp)."""
 
@@ -68,3 +69,22 @@ def kept_pair(sco, a, t, selfc, X0, srt, skin, self_fac):
         rest = self_fac * cut
         return ex * ex + ey * ey + ez * ez > rest * rest
     return True
+
+
+@njit(**JIT)
+def counting_sort(hb, cnt, srt, ncell):
+    """The particles into ``srt`` ordered by their cell ``hb[i]`` (-1: left out), from
+    each cell's count in ``cnt[c + 1]``; leaves ``cnt[c]`` the start of cell c in that
+    order (``cnt[ncell]`` their number, returned)."""
+    for c in range(ncell):
+        cnt[c + 1] += cnt[c]
+    for i in range(hb.shape[0]):
+        c = hb[i]
+        if c >= 0:
+            a = cnt[c]
+            srt[a] = i
+            cnt[c] = a + 1
+    for c in range(ncell, 0, -1):
+        cnt[c] = cnt[c - 1]
+    cnt[0] = 0
+    return cnt[ncell]
