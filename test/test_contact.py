@@ -805,6 +805,26 @@ def test_body_overlaps_matches_numpy(seed):
     assert 0 < want.sum() < nb                             # some in, some out
 
 
+def test_a_rigid_body_grabbed_beside_another_meets_it_per_particle_at_once():
+    """Two rigid cubes face to face: their contact is the stiff pass's, so the pair list
+    leaves them out. Once one is grabbed (no longer rigid in contact) and pushed 2 mm into
+    the other, less than the skin that would rebuild the list, the list is built anew
+    with their pairs at once and the other cube's face gives way."""
+    w = World(gravity=(0.0, 0.0, 0.0))
+    p = BodyParams(mode='rigid', alpha=1.0)
+    a = w.add_body(lattice(4, 4, 4), 0.01, p, 'a')
+    b = w.add_body(lattice(4, 4, 4, center=(4 * S, 0.0, 0.0)), 0.01, p, 'b')
+    w.step(1 / 120)
+    c = w.contact
+    assert c.rigid[:2].all() and c.npairs == 0 and 2 * 0.002 < c.skin
+    builds = c.builds
+    a.set_kinematic(np.arange(a.n), a.x + [0.002, 0.0, 0.0])
+    w.step(1 / 120)
+    assert not c.rigid[0] and c.builds == builds + 1 and c.npairs > 0
+    gap = b.x[:, 0].min() - a.x[:, 0].max()
+    assert gap > 2 * S / 2 - 2e-4                    # the faces a contact distance apart
+
+
 def test_broad_phase_keeps_every_pair_of_a_pour():
     # paper_384's pour (bodies in layers, most apart): the pair list built with the broad
     # phase is the builders' list over every colliding body, pair for pair
