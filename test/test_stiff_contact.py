@@ -217,6 +217,22 @@ def test_no_contact_creates_energy_and_body_pairs_keep_both_momenta(e, seed, bal
     np.testing.assert_allclose(after[1], before[1], atol=1e-12)
 
 
+@pytest.mark.parametrize('count', [20, 400])
+def test_close_pairs_match_numpy(count):
+    """The particle pairs closer than the reach, every pair tried (few) or swept along an
+    axis (many: 400 x 400 near particles), against all pairs by NumPy."""
+    rng = np.random.default_rng(count)
+    xa, xb = rng.uniform(0.0, 0.5, (count + 5, 3)), rng.uniform(0.2, 0.7, (count + 9, 3))
+    near_a = np.sort(rng.choice(len(xa), count, replace=False))
+    near_b = np.sort(rng.choice(len(xb), count, replace=False))
+    got = SP.close_pairs(xa, xb, near_a, near_b, 0.06)
+    d = np.linalg.norm(xa[near_a][:, None] - xb[near_b][None], axis=2)
+    i, j = np.nonzero(d < 0.06)
+    assert len(i) > 0 and (count * count > SP.FEW_PAIRS) == (count == 400)
+    assert sorted(map(tuple, got.tolist())) == sorted(zip(near_a[i].tolist(),
+                                                          near_b[j].tolist()))
+
+
 def test_touches_lists_each_body_pair_contact_with_which_lies_above():
     """One row per body-pair contact within the touching distance (colliders' rows and
     a pair 5 mm apart left out; 1.1 times radii of 1 cm reach 2 mm): a, b and the side

@@ -28,6 +28,9 @@ FLAT = 0.1
 #: acos of this of the pairs' mean direction (a lattice offset tilts them by 27 deg).
 FACE_POINTS = 4
 FACE_TILT = 0.7
+#: Up to this many particle pairs near two bodies' contact, every one is tried; more (big
+#: bodies, loose bounds) are swept along an axis (``close_pairs``).
+FEW_PAIRS = 4096
 
 
 @njit(**JIT_NO_REFCOUNT)
@@ -59,7 +62,7 @@ def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
     nb = _near(xb, fa[F_LO:F_LO + 3], fa[F_HI:F_HI + 3], reach, near_b)
     if na == 0 or nb == 0:
         return count
-    close = _close_pairs(xa, xb, near_a[:na], near_b[:nb], reach)
+    close = close_pairs(xa, xb, near_a[:na], near_b[:nb], reach)
     n, face = _pair_normal(xa, xb, close, reach)
     if not np.any(n != 0.0):
         return count
@@ -210,19 +213,57 @@ def _body_row(pair, gap, n, point, frames, rules, row):
 
 
 @njit(**JIT)
-def _close_pairs(xa, xb, near_a, near_b, reach):
-    """The particle pairs (i of a, j of b) closer than ``reach``, (count, 2), of the
-    particles ``near_a`` and ``near_b`` (the few near the other body: every pair is
-    tried)."""
-    out = np.empty((len(near_a) * len(near_b), 2), dtype=np.int64)
-    count = 0
+def close_pairs(xa, xb, near_a, near_b, reach):
+    """The particle pairs (i of a, j of b) of the particles ``near_a`` and ``near_b``
+    closer than ``reach``, (count, 2), in the order of ``near_a``: every pair tried where
+    there are few (``FEW_PAIRS``), else each of a's against b's sorted along the axis they
+    spread most on, only over those within ``reach`` of it along that axis."""
+    count = np.int64(0)
+    if len(near_a) * len(near_b) <= FEW_PAIRS:
+        out = np.empty((len(near_a) * len(near_b), 2), dtype=np.int64)
+        for i in near_a:
+            for j in near_b:
+                if _closer(xa, xb, i, j, reach):
+                    out[count, 0], out[count, 1] = i, j
+                    count += 1
+        return out[:count]
+    out = np.empty((16, 2), dtype=np.int64)
+    axis = _widest_axis(xb, near_b)
+    keys = np.empty(len(near_b))
+    for q in range(len(near_b)):
+        keys[q] = xb[near_b[q], axis]
+    order = np.argsort(keys)
+    keys = keys[order]
+    sorted_b = near_b[order]
     for i in near_a:
-        for j in near_b:
-            dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
-            if dx * dx + dy * dy + dz * dz < reach * reach:
-                out[count, 0], out[count, 1] = i, j
+        start = np.searchsorted(keys, xa[i, axis] - reach)
+        for q in range(start, len(keys)):
+            if keys[q] > xa[i, axis] + reach:
+                break
+            if _closer(xa, xb, i, sorted_b[q], reach):
+                out = append_pair(out, count, i, sorted_b[q])
                 count += 1
     return out[:count]
+
+
+@njit(**JIT_NO_REFCOUNT)
+def _closer(xa, xb, i, j, reach):
+    """Whether particle i of xa and j of xb are closer than ``reach``."""
+    dx, dy, dz = xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2]
+    return dx * dx + dy * dy + dz * dz < reach * reach
+
+
+@njit(**JIT_NO_REFCOUNT)
+def _widest_axis(x, index):
+    """The axis along which the particles ``index`` of x spread most."""
+    widest, axis = -1.0, 0
+    for k in range(3):
+        lo, hi = np.inf, -np.inf
+        for j in index:
+            lo, hi = min(lo, x[j, k]), max(hi, x[j, k])
+        if hi - lo > widest:
+            widest, axis = hi - lo, k
+    return axis
 
 
 @njit(**JIT)
