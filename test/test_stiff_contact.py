@@ -244,9 +244,9 @@ def test_touches_lists_each_body_pair_contact_with_which_lies_above():
     rows[:, SC.K_N:SC.K_N + 3] = [[0, 0, 1], [0, 0.6, 0.8], [0, 0.6, -0.8], [1, 0, 0],
                                   [0, 0, 1], [0, 0, 1]]
     radius = np.full(4, 0.01)
-    got = SS.touches(rows, np.array([0.0, 0.0, -9.81]), radius, 1.1)
+    got = SC.touches(rows, np.array([0.0, 0.0, -9.81]), radius, 1.1)
     np.testing.assert_array_equal(got, [[1, 0, 1], [2, 0, -1], [3, 2, 0], [1, 3, 1]])
-    assert SS.touches(rows, np.zeros(3), radius, 1.1)[:, 2].tolist() == [0, 0, 0, 0]
+    assert SC.touches(rows, np.zeros(3), radius, 1.1)[:, 2].tolist() == [0, 0, 0, 0]
 
 
 @pytest.mark.parametrize('ball', [False, True])

@@ -34,7 +34,7 @@ import numpy as np
 
 from .contact_bodies import solve_bodies
 from .contact_build import (GridScratch, PairSource, body_overlaps, build_pairs_grid,
-                            moved_spread2, sort_pairs)
+                            drop_rigid_pairs, moved_spread2, sort_pairs)
 from .contact_cells import build_pairs
 from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_pairs, wall_candidates)
@@ -42,7 +42,6 @@ from .contact_state import (NO_WALLS, CarriedBodies, ContactLaw, ContactParticle
                             ContactReport, PairList, PairSweep, WallCandidates)
 from .kernels.colliders import Colliders, contact_velocity
 from .params import _finite
-from .kernels.stiff_solve import drop_rigid_pairs
 
 #: Same-body pairs self-collide only when their rest distance exceeds this many times
 #: their contact distance ``r_i + r_j`` (lattice neighbours up to two spacings apart

@@ -308,6 +308,22 @@ def build_pairs_grid(src, grid, pi, pj):
 
 
 @njit(**JIT)
+def drop_rigid_pairs(pi, pj, count, body, rigid, out_i, out_j):
+    """The particle pairs of ``pi``, ``pj`` (first ``count``) but those between two
+    bodies flagged ``rigid`` (their contact is the stiff pass's), into ``out_i``,
+    ``out_j``; returns how many."""
+    kept = 0
+    for k in range(count):
+        i, j = pi[k], pj[k]
+        bi, bj = body[i], body[j]
+        if rigid[bi] and rigid[bj] and bi != bj:
+            continue
+        out_i[kept], out_j[kept] = i, j
+        kept += 1
+    return kept
+
+
+@njit(**JIT)
 def sort_pairs(pi, pj, m, n, cnt, ti, tj):
     """Order the first m pairs by their lower index (counting sort, stable: a particle's
     partners stay in build order; ``cnt`` (n + 1,) int64, ``ti``/``tj`` scratch like

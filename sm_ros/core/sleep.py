@@ -176,7 +176,7 @@ class Pairs(NamedTuple):
     """Who may touch whom: the contact pass's pair list (particles ``first[p]``,
     ``second[p]``, p < count) and the stiff pass's body pairs in contact (``bodies``:
     rows of a, b and 1 where a lies above b, -1 where below, 0 neither;
-    ``stiff_solve.touches``), whose particle pairs the list leaves out."""
+    ``stiff_contacts.touches``), whose particle pairs the list leaves out."""
 
     first: np.ndarray
     second: np.ndarray

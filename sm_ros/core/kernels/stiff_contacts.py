@@ -7,7 +7,8 @@ outline (its lattice cell, or its sphere of the contact radius) and the collider
 surface; a round body meets it as one sphere.  Of the particles in reach, a few are kept
 per collider (and per body pair, ``stiff_pairs``): the deepest and the farthest along 8
 directions of the contact plane, so a face keeps its outline (``SLOTS``).  A contact is a
-row of ``K_*`` columns (``stiff_solve`` solves them).
+row of ``K_*`` columns (``stiff_solve`` solves them); ``touches`` lists the body pairs that
+touch for the sleep pass.
 """
 
 import numpy as np
@@ -307,3 +308,33 @@ def _collider_row(centre, a, c, radii, cell, com, rows, row):
         row[K_SURF + 2] = coll[C_VEL + 2] + wx * oy - wy * ox
     row[K_MU], row[K_E], row[K_SLOP] = coll[C_MU], coll[C_E], SLOP_SHARE * grain
     return gap
+
+
+@njit(**JIT)
+def _touching(row, radius, touch):
+    """Whether a contact row is a body pair within ``touch`` times its contact distance
+    (the sum of its bodies' ``radius``)."""
+    a, b = int(row[K_A]), int(row[K_B])
+    return b >= 0 and row[K_GAP] < (touch - 1.0) * (radius[a] + radius[b])
+
+
+@njit(**JIT)
+def touches(rows, gravity, radius, touch):
+    """The body pairs of the body-pair contacts within ``touch`` times their contact
+    distance (``_touching``), (c, 3): a, b and which lies above the other against
+    ``gravity`` along the contact's normal (1: a, -1: b, 0: side by side or no gravity),
+    one row per contact (the sleep pass's who touches whom)."""
+    count = 0
+    for k in range(rows.shape[0]):
+        count += _touching(rows[k], radius, touch)
+    out = np.empty((count, 3), dtype=np.int64)
+    count = 0
+    for k in range(rows.shape[0]):
+        if not _touching(rows[k], radius, touch):
+            continue
+        up = -(rows[k, K_N] * gravity[0] + rows[k, K_N + 1] * gravity[1]
+               + rows[k, K_N + 2] * gravity[2])
+        out[count, 0], out[count, 1] = int(rows[k, K_A]), int(rows[k, K_B])
+        out[count, 2] = 1 if up > 0.0 else (-1 if up < 0.0 else 0)
+        count += 1
+    return out

@@ -21,8 +21,8 @@ from .colliders import C_ANG, C_BOUND, C_VEL
 from .stiff_rows import J_D, J_MASS, apply, jacobians, push_visit, speed_along, visit
 from .stiff_contacts import (F_COM, F_HI, F_INV, F_LO, F_MASS, F_REACH, F_ROW, F_SPIN,
                              F_VEL, K_A, K_APPROACH, K_B, K_BOUNCE, K_COLL, K_E, K_FALL,
-                             K_GAP, K_GRIP, K_N, K_RA, K_ROW, K_SLOP, K_TARGET,
-                             K_WHO, SLOTS, body_frame, collider_contacts)
+                             K_GAP, K_GRIP, K_RA, K_ROW, K_SLOP, K_TARGET,
+                             K_WHO, SLOTS, body_frame, collider_contacts, touches)
 from .stiff_pairs import append_pair, pair_contacts
 
 #: A gap (m) within which a contact counts as reached, and the share of an overlap beyond
@@ -421,36 +421,6 @@ def stiff_step(bodies, scene, memory, tally, stats):
 
 
 @njit(**JIT)
-def _touching(row, radius, touch):
-    """Whether a contact row is a body pair within ``touch`` times its contact distance
-    (the sum of its bodies' ``radius``)."""
-    a, b = int(row[K_A]), int(row[K_B])
-    return b >= 0 and row[K_GAP] < (touch - 1.0) * (radius[a] + radius[b])
-
-
-@njit(**JIT)
-def touches(rows, gravity, radius, touch):
-    """The body pairs of the body-pair contacts within ``touch`` times their contact
-    distance (``_touching``), (c, 3): a, b and which lies above the other against
-    ``gravity`` along the contact's normal (1: a, -1: b, 0: side by side or no gravity),
-    one row per contact (the sleep pass's who touches whom)."""
-    count = 0
-    for k in range(rows.shape[0]):
-        count += _touching(rows[k], radius, touch)
-    out = np.empty((count, 3), dtype=np.int64)
-    count = 0
-    for k in range(rows.shape[0]):
-        if not _touching(rows[k], radius, touch):
-            continue
-        up = -(rows[k, K_N] * gravity[0] + rows[k, K_N + 1] * gravity[1]
-               + rows[k, K_N + 2] * gravity[2])
-        out[count, 0], out[count, 1] = int(rows[k, K_A]), int(rows[k, K_B])
-        out[count, 2] = 1 if up > 0.0 else (-1 if up < 0.0 else 0)
-        count += 1
-    return out
-
-
-@njit(**JIT)
 def _solve(frames, inertias, rows, keys, scene, awake):
     """The velocity and position solves of the pass from ``frames`` (left as they are;
     ``inertias``: the bodies' inertia tensors and their inverses): (the bodies' frames
@@ -507,19 +477,3 @@ def _move(bodies, b, start, change, push, scene, stats):
     if np.any(pvel != 0.0) or np.any(pspin != 0.0):
         _add_motion(bodies.x[b], bodies.x[b], com, pvel, pspin, scene.h)
         stats[4] = 2
-
-
-@njit(**JIT)
-def drop_rigid_pairs(pi, pj, count, body, rigid, out_i, out_j):
-    """The particle pairs of ``pi``, ``pj`` (first ``count``) but those between two
-    bodies flagged ``rigid`` (their contact is the stiff pass's), into ``out_i``,
-    ``out_j``; returns how many."""
-    kept = 0
-    for k in range(count):
-        i, j = pi[k], pj[k]
-        bi, bj = body[i], body[j]
-        if rigid[bi] and rigid[bj] and bi != bj:
-            continue
-        out_i[kept], out_j[kept] = i, j
-        kept += 1
-    return kept
