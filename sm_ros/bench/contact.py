@@ -269,7 +269,7 @@ def paper_tick(seconds: float, ticks: int) -> Optional[Dict[str, Any]]:
     for _ in range(int(round(seconds / dt))):
         world.step(dt)
     c = world.contact
-    # timed on the class, as before: every contact pass within the tick counts
+    # timed on the class, so that every contact pass within the tick counts
     from sm_ros.core.contact import Contact
     runs, builds = [], []
     saved = Contact.run, Contact._build

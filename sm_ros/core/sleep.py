@@ -172,6 +172,10 @@ class SleepArrays(NamedTuple):
     near: np.ndarray            # (bodies,) uint8 scratch: largest level touching the body
 
 
+#: No body pairs in contact (``Pairs.bodies``).
+NO_TOUCHES = np.zeros((0, 3), dtype=np.int64)
+
+
 class Pairs(NamedTuple):
     """Who may touch whom: the contact pass's pair list (particles ``first[p]``,
     ``second[p]``, p < count) and the stiff pass's body pairs in contact (``bodies``:
@@ -181,7 +185,7 @@ class Pairs(NamedTuple):
     first: np.ndarray
     second: np.ndarray
     count: int
-    bodies: np.ndarray = np.zeros((0, 3), dtype=np.int64)
+    bodies: np.ndarray = NO_TOUCHES
 
 
 class SleepRule(NamedTuple):

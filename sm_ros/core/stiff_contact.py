@@ -21,9 +21,6 @@ from . import tuning
 from .quaternion import quat_matrix
 from .kernels.stiff_solve import StiffBodies, StiffScene, stiff_step
 
-#: No body pairs in contact (``StiffContact.touches``).
-NO_TOUCHES = np.zeros((0, 3), dtype=np.int64)
-
 #: Sequential-impulse sweeps over the contacts per step, at most (they stop once settled).
 ITERATIONS = 100
 
@@ -126,7 +123,6 @@ class StiffContact:
         self._round = {}     # id of a body: (its rest shape, radius, round, lattice axes)
         self.keys = np.zeros(0, dtype=np.int64)      # the last step's contacts (sorted)
         self.impulses = np.zeros((0, 3))            # and their impulses
-        self.touches = NO_TOUCHES       # the last step's body pairs in contact (touches)
 
     def __getstate__(self):
         """Copies (pickle, deepcopy) leave out the typed lists; they are made again."""
@@ -206,7 +202,8 @@ class StiffContact:
         """The pass over ``bodies`` ((body, contact radius) pairs) before a step of ``h``
         s; returns (B, 5) per body: its particles touching the plain colliders and the
         others, its body-pair contacts, its deepest overlap (m), and 1 where its
-        velocities changed, 2 where its positions did too, 3 where a hit woke it."""
+        velocities changed, 2 where its positions did too, 3 where a hit woke it; and the
+        body pairs that touch (``stiff_contacts.touches``, indices into ``bodies``)."""
         rows, plain = self._rows(world)
         p = world._contact_params
         scene = StiffScene(rows, plain, world.ground is not None, float(p.friction),
@@ -215,7 +212,7 @@ class StiffContact:
                            tuning.TOUCH_FACTOR)
         tally = np.zeros((len(rows) - 1, 6))
         stats = np.zeros((len(bodies), 5))
-        self.keys, self.impulses, self.touches = stiff_step(
+        self.keys, self.impulses, touches = stiff_step(
             self._bodies(world, bodies), scene, (self.keys, self.impulses), tally, stats)
         for k in np.flatnonzero(stats[:, 4]):
             bodies[k][0]._dirty = True
@@ -224,4 +221,4 @@ class StiffContact:
         cset = world._cset
         if cset is not None and len(self.keys):
             cset.imp[:] += tally[plain:]
-        return stats
+        return stats, touches

@@ -15,8 +15,8 @@ from .contact import COUPLE_ALPHA, BodyContact, Contact, ContactParams, default_
 from .flat import FlatState
 from .kernels.flags import SLEEP
 from .kinematic import Particles
-from .sleep import Sleep
-from .stiff_contact import NO_TOUCHES, StiffContact
+from .sleep import NO_TOUCHES, Sleep
+from .stiff_contact import StiffContact
 from .world_colliders import WorldColliders
 
 
@@ -453,8 +453,8 @@ class World(WorldColliders):
         stats[:] = 0.0
         self._stiff_touches = NO_TOUCHES
         if any(not body.asleep for body, _ in members):
-            stats[index] = self._stiff.run(self, members, h, thresh)
-            pairs = self._stiff.touches            # of members: to flat body indices
+            stats[index], pairs = self._stiff.run(self, members, h, thresh)
+            # the pairs name members: in flat body indices for the sleep pass
             self._stiff_touches = np.column_stack((index[pairs[:, 0]], index[pairs[:, 1]],
                                                    pairs[:, 2]))
 
