@@ -47,30 +47,34 @@ def brute_pairs(x, r, body, act, selfc, x0, cutoff_extra):
 # Kernels against NumPy
 # ---------------------------------------------------------------------------------------
 
-def build_with(kernel, X, R, B, act, selfc, X0, cell, skin, cap):
-    """Run one pair-list builder; (m, pi, pj) with the table sized as ``Contact`` does."""
+def build_with(X, R, B, act, selfc, X0, cell, skin, cap, table=None):
+    """Run the pair-list builder; (m, pi, pj) with the table sized as ``Contact`` does
+    (or of ``table`` cells)."""
     n = X.shape[1]
-    hb = np.zeros(n, np.int64)
-    srt = np.zeros(n, np.int64)
-    sco = np.zeros((5, n))
     pi = np.zeros(cap, np.int32)
     pj = np.zeros(cap, np.int32)
-    cnt = np.zeros((1 << max(4, int(np.ceil(np.log2(4 * n))))) + 1, np.int64)
+    table = table or 1 << max(5, int(np.ceil(np.log2(4 * n))))
     src = C.PairSource(X, R, B, act, selfc, X0, cell, skin, C.SELF_REST_FACTOR)
-    grid = C.GridScratch(hb, cnt, srt, np.zeros((n, 4)), np.zeros(n, np.int32),
-                         np.zeros(len(cnt) - 1, np.int32))
-    if kernel == 'hash':
-        m = C.build_pairs(src, grid, np.zeros(n, np.int64), sco, pi, pj)
-    else:
-        m = C.build_pairs_grid(src, grid, pi, pj)
-    return m, pi, pj
+    grid = C.GridScratch(np.zeros(n, np.int64), np.zeros(table + 1, np.int64),
+                         np.zeros(n, np.int64), np.zeros((n, 4)), np.zeros(n, np.int32),
+                         np.zeros(table, np.int32))
+    return C.build_pairs_grid(src, grid, pi, pj), pi, pj
 
 
-BUILDERS = ['grid', 'hash']
+def built_set(m, pi, pj):
+    """The unordered pairs of a build, checking that none is listed twice."""
+    got = {(min(a, b), max(a, b)) for a, b in zip(pi[:m].tolist(), pj[:m].tolist())}
+    assert len(got) == m
+    return got
 
 
-@pytest.mark.parametrize('kernel', BUILDERS)
-def test_pair_build_matches_brute_force(kernel):
+#: Tables of the grid: as ``Contact`` sizes it, and small ones that make it wrap around
+#: (the smallest a world gets: 32 cells).
+TABLES = [None, 32, 100]
+
+
+@pytest.mark.parametrize('table', TABLES)
+def test_pair_build_matches_brute_force(table):
     rng = np.random.default_rng(4)
     n, nb = 600, 7
     X = np.ascontiguousarray(rng.uniform(-0.2, 0.2, (3, n)))
@@ -80,12 +84,47 @@ def test_pair_build_matches_brute_force(kernel):
     act = np.array([True, True, True, False, True, True, True])
     selfc = np.array([False, True, False, True, False, True, False])
     skin = 0.005
-    m, pi, pj = build_with(kernel, X, R, B, act, selfc, X0, 2 * R.max() + skin, skin, 10 * n)
-    got = {(min(a, b), max(a, b)) for a, b in zip(pi[:m].tolist(), pj[:m].tolist())}
-    assert len(got) == m                                   # each pair once
+    m, pi, pj = build_with(X, R, B, act, selfc, X0, 2 * R.max() + skin, skin, 10 * n, table)
     want = brute_pairs(X.T, R, B, act, selfc, X0.T, skin)
-    assert got == want
+    assert built_set(m, pi, pj) == want
     assert any(B[a] == B[b] for a, b in want)              # self pairs were tested too
+
+
+@pytest.mark.parametrize('table', TABLES)
+@pytest.mark.parametrize('spread', [(1e3, 0.0, 0.0), (0.0, 50.0, -70.0), (3.0, 2.0, 1.0)])
+def test_pair_build_wraps_a_box_larger_than_its_table(spread, table):
+    """Bodies far apart (along x, along y and z, along a diagonal) make a box of far more
+    cells than the table: the grid wraps around and still lists exactly brute force's
+    pairs, each once, with particles of far-apart places sharing cells."""
+    X, R, B, act, selfc, X0 = heap_of_lattices(6, n_bodies=8)
+    far = B >= 5                                            # three bodies moved far away
+    X = X.copy()
+    X[:, far] += np.array(spread)[:, None] * (B[far] - 4)
+    skin = 0.25 * S
+    cell = 2 * R.max() + skin
+    extent = np.prod(np.floor(np.ptp(X, axis=1) / cell) + 1)
+    n = X.shape[1]
+    assert extent > 8 * (table or 8 * n)
+    m, pi, pj = build_with(X, R, B, act, selfc, X0, cell, skin, 16 * n, table)
+    want = brute_pairs(X.T, R, B, act, selfc, X0.T, skin)
+    assert len(want) > 500
+    assert built_set(m, pi, pj) == want
+
+
+def test_pair_build_wraps_a_diagonal_self_colliding_cable():
+    """A cable along the box's diagonal (a few hundred particles, a box of millions of
+    cells), curled so that it meets itself: every pair brute force finds, once."""
+    t = np.linspace(0.0, 1.0, 400)
+    X = np.ascontiguousarray(np.stack([t, t, t]) * 8.0)
+    X[:, 300:] = X[:, 100:200][:, ::-1] + np.array([[0.012], [0.0], [0.0]])
+    X0 = np.ascontiguousarray(np.stack([t, t, t]) * 8.0)
+    B = np.zeros(400, np.int32)
+    R = np.full(400, 0.01)
+    act, selfc = np.ones(1, bool), np.ones(1, bool)
+    m, pi, pj = build_with(X, R, B, act, selfc, X0, 0.025, 0.005, 4000)
+    want = brute_pairs(X.T, R, B, act, selfc, X0.T, 0.005)
+    assert len(want) > 50
+    assert built_set(m, pi, pj) == want
 
 
 def heap_of_lattices(seed, n_bodies=14, side=5, selfc_body=3, off_body=5):
@@ -117,8 +156,8 @@ def heap_of_lattices(seed, n_bodies=14, side=5, selfc_body=3, off_body=5):
 
 @pytest.mark.parametrize('seed', [0, 1, 2])
 def test_pair_builders_agree_on_a_heap_of_bodies(seed):
-    """The grid builder and its fallback for sparse worlds list the same pairs as brute
-    force on overlapping rotated blocks; ``sort_pairs`` orders by the lower index,
+    """The builder lists the same pairs as brute force on overlapping rotated blocks, in a
+    grid that fits and in one that wraps around; ``sort_pairs`` orders by the lower index,
     stably."""
     X, R, B, act, selfc, X0 = heap_of_lattices(seed)
     skin = 0.25 * S
@@ -126,9 +165,9 @@ def test_pair_builders_agree_on_a_heap_of_bodies(seed):
     assert len(want) > 500 and any(B[a] == B[b] for a, b in want)
     n = X.shape[1]
     lists = {}
-    for kernel in BUILDERS:
-        m, pi, pj = build_with(kernel, X, R, B, act, selfc, X0, 2 * R.max() + skin, skin,
-                               8 * n)
+    for kernel in TABLES:
+        m, pi, pj = build_with(X, R, B, act, selfc, X0, 2 * R.max() + skin, skin, 8 * n,
+                               kernel)
         assert m == len(want), kernel
         lists[kernel] = (pi[:m].copy(), pj[:m].copy())
         C.sort_pairs(pi, pj, m, n, np.zeros(n + 1, np.int64), np.zeros_like(pi),
@@ -145,17 +184,17 @@ def test_builder_counts_past_a_full_list():
     then, given room, lists every pair in the same order."""
     X, R, B, act, selfc, X0 = heap_of_lattices(5)
     skin = 0.25 * S
-    m_full, pi_f, pj_f = build_with('grid', X, R, B, act, selfc, X0, 2 * R.max() + skin,
-                                    skin, 16 * X.shape[1])
-    m, pi, pj = build_with('grid', X, R, B, act, selfc, X0, 2 * R.max() + skin, skin, 64)
+    m_full, pi_f, pj_f = build_with(X, R, B, act, selfc, X0, 2 * R.max() + skin, skin,
+                                    16 * X.shape[1])
+    m, pi, pj = build_with(X, R, B, act, selfc, X0, 2 * R.max() + skin, skin, 64)
     assert m == m_full > 64
     np.testing.assert_array_equal(pi, pi_f[:64])
     np.testing.assert_array_equal(pj, pj_f[:64])
 
 
-def test_far_apart_bodies_fall_back_to_hashed_cells():
-    """A body a kilometre away makes the grid's box larger than its table: the pass falls
-    back to hashed cells and lists the same pairs of the touching bodies."""
+def test_far_apart_bodies_get_the_same_pairs():
+    """A body a kilometre away makes the grid's box larger than its table: the grid wraps
+    around and lists the same pairs of the touching bodies."""
     def world(far):
         w = World(gravity=(0, 0, 0))
         w.add_body(lattice(4, 4, 4), 0.01, BodyParams(mode='rigid'), 'a')
@@ -177,16 +216,39 @@ def test_far_apart_bodies_fall_back_to_hashed_cells():
     assert near.npairs > 0 and far_pairs == near_pairs
 
 
-def test_grid_refuses_a_box_larger_than_its_table():
-    X = np.array([[0.0, 1e3], [0.0, 0.0], [0.0, 0.0]])
-    R = np.full(2, 0.01)
-    B = np.array([0, 1], np.int32)
-    act = np.ones(2, bool)
-    src = C.PairSource(X, R, B, act, ~act, X, 0.03, 0.01, 2.0)
-    grid = C.GridScratch(np.zeros(2, np.int64), np.zeros(17, np.int64), np.zeros(2, np.int64),
-                         np.zeros((2, 4)), np.zeros(2, np.int32), np.zeros(16, np.int32))
-    out = (np.zeros(4, np.int32), np.zeros(4, np.int32))
-    assert C.build_pairs_grid(src, grid, *out) == -1
+def test_wrapped_dims_fit_the_table():
+    """A box that fits keeps its cells; one that does not wraps its longer axes to 3 cells
+    or more, keeps the short ones, and never needs more cells than the table."""
+    from sm_ros.core.kernels.pair_grid import wrapped_dims
+    dims = np.zeros(6, np.int64)
+    wrapped_dims((4.0, 5.0, 6.0), 128, dims)
+    assert dims.tolist() == [4, 5, 6, 0, 0, 0]
+    rng = np.random.default_rng(2)
+    for _ in range(300):
+        extent = tuple(float(e) for e in np.floor(10.0 ** rng.uniform(0, 6, 3)) + 1)
+        table = int(2 ** rng.integers(5, 21))
+        wrapped_dims(extent, table, dims)
+        n, wraps = dims[:3], dims[3:] > 0
+        if np.prod(extent) <= table:
+            assert not wraps.any() and n.tolist() == [int(e) for e in extent]
+            continue
+        assert np.prod(n) <= table and wraps.any()
+        assert np.all(n[wraps] >= 3) and np.all(n[wraps] < np.array(extent)[wraps])
+        assert np.all(n[~wraps] == np.array(extent)[~wraps])
+
+
+def test_grid_sort_refuses_a_dims_array_of_another_size():
+    """``grid_sort`` writes six values (cells per axis, which axes wrap): a shorter array is
+    refused before anything is written."""
+    X = np.zeros((3, 2))
+    src = C.PairSource(X, np.full(2, 0.01), np.zeros(2, np.int32), np.ones(1, bool),
+                       np.zeros(1, bool), X, 0.03, 0.01, 2.0)
+    grid = C.GridScratch(np.full(2, 7, np.int64), np.zeros(33, np.int64), np.zeros(2, np.int64),
+                         np.zeros((2, 4)), np.zeros(2, np.int32), np.zeros(32, np.int32))
+    from sm_ros.core.contact_build import grid_sort
+    with pytest.raises(ValueError, match='6 values'):
+        grid_sort(src, grid, np.zeros(3, np.int64))
+    assert (grid.particle_cell == 7).all()
 
 
 def test_pair_response_conserves_momentum_and_separates():
@@ -837,7 +899,7 @@ def test_broad_phase_keeps_every_pair_of_a_pour():
         c, f = w.contact, w._flat
         c._build()
         got = set(zip(c._pair_i[:c.npairs].tolist(), c._pair_j[:c.npairs].tolist()))
-        m, pi, pj = build_with('grid', f.X, f.R, f.B, c.act, c.selfc, f.X0, c.cell, c.skin,
+        m, pi, pj = build_with(f.X, f.R, f.B, c.act, c.selfc, f.X0, c.cell, c.skin,
                                4 * f.n)
         C.sort_pairs(pi, pj, m, f.n, np.zeros(f.n + 1, np.int64), np.zeros_like(pi),
                      np.zeros_like(pj))

@@ -190,7 +190,7 @@ def builders(world, rounds: int = 5) -> Dict[str, Any]:
         grid = GridScratch(c._particle_cell, c._cnt, c._srt, c._sorted_points,
                            c._sorted_body, c._cell_body)
         grid_sort_kernel(src, grid, dims)
-    dims = np.zeros(3, dtype=np.int64)
+    dims = np.zeros(6, dtype=np.int64)        # cells per axis, which axes wrap
     samples = {'rebuild': [], 'moving': [], 'sort': []}
     tr = bc.time_calls(restore, min_time=0.1, min_reps=10, max_reps=100)
     try:

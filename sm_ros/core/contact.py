@@ -20,7 +20,7 @@ another does not spin (``contact_bodies.solve_bodies``): stacks stand and heaps 
 bodies (``paper_384``) come to rest at the node's step.
 
 Neighbour search (a Verlet pair list on a cell grid) and the per-pair solve are compiled
-kernels in ``contact_build.py``, ``contact_cells.py``, ``contact_kernels.py`` and
+kernels in ``contact_build.py``, ``kernels/pair_grid.py``, ``contact_kernels.py`` and
 ``contact_bodies.py``; this file holds the settings
 (``ContactParams``, ``BodyContact``) and the pass ``Contact`` that owns the buffers and calls
 them.
@@ -35,7 +35,6 @@ import numpy as np
 from .contact_bodies import solve_bodies
 from .contact_build import (GridScratch, PairSource, body_overlaps, build_pairs_grid,
                             drop_rigid_pairs, moved_spread2, sort_pairs)
-from .contact_cells import build_pairs
 from .contact_kernels import (body_inverse_masses, body_velocities, count_fast,
                               inverse_sym3, median_nn_distance, solve_pairs, wall_candidates)
 from .contact_state import (NO_WALLS, CarriedBodies, ContactLaw, ContactParticles,
@@ -213,12 +212,11 @@ class Contact:
         self.cell = max(2.0 * rmax + self.skin, 1e-12)
         self.needed = nb > 0 and rmax > 0.0 and (int(self.act[:nb].sum()) >= 2
                                                   or bool(self.selfc[:nb].any()))
-        tsize = 1 << max(4, int(math.ceil(math.log2(max(4 * n, 2)))))
+        # the grid's table: 4 to 8 cells a particle, and 27 or more for a grid that wraps
+        tsize = 1 << max(5, int(math.ceil(math.log2(max(4 * n, 2)))))
         self._particle_cell = np.zeros(n, dtype=np.int64)
         self._cnt = np.zeros(tsize + 1, dtype=np.int64)
         self._srt = np.zeros(n, dtype=np.int64)
-        self._skey = np.zeros(n, dtype=np.int64)
-        self._sco = np.zeros((5, n))
         self._sorted_points = np.zeros((n, 4))
         self._sorted_body = np.zeros(n, dtype=np.int32)
         self._cell_body = np.zeros(tsize, dtype=np.int32)
@@ -317,8 +315,6 @@ class Contact:
         while True:
             pairs = (self._pair_i, self._pair_j)
             m = build_pairs_grid(src, grid, *pairs)
-            if m < 0:                           # sparse world: hashed cells
-                m = build_pairs(src, grid, self._skey, self._sco, *pairs)
             if m <= len(self._pair_i):
                 break
             cap = int(m * 1.5) + 1024           # grows rarely (a rebuild, not a step)
@@ -433,7 +429,7 @@ __all__ = ['ContactParams', 'BodyContact', 'Contact', 'GridScratch', 'PairSource
            'default_radius', 'SELF_REST_FACTOR',
            'COUPLE_ALPHA', 'STACK_SWEEPS', 'body_inverse_masses',
            'body_overlaps',
-           'body_velocities', 'build_pairs', 'build_pairs_grid',
+           'body_velocities', 'build_pairs_grid',
            'contact_velocity', 'count_fast', 'inverse_sym3',
            'moved_spread2',
            'median_nn_distance', 'solve_bodies', 'solve_pairs', 'sort_pairs',

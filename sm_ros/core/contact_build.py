@@ -10,7 +10,7 @@ positions checks each step (``moved_spread2``; a common motion, such as bodies f
 together, does not count).  Pairs of one body are skipped (unless the body
 self-collides, and then only pairs farther apart than the rest-distance rule).
 
-``build_pairs_grid`` (the default): a dense cell grid of side ``r_i + r_j + skin`` (largest)
+``build_pairs_grid``, the one builder: a dense cell grid of side ``r_i + r_j + skin`` (largest)
 over the colliding particles' bounding box; counting sort by cell (x fastest), the
 particles' x, y, z, r copied in cell order into one (N, 4) array so that a cell's particles
 are one run of memory; the forward half-stencil of 13 cells plus the own cell, so each pair
@@ -20,11 +20,13 @@ cells hold only the body of a one-body cell (without self-collision) is skipped 
 touching its particles: in a heap of small bodies most of the stencil lies within one
 body, and a visit of a cell of about two particles costs more than its tests.
 
-``contact_cells.build_pairs`` (hashed cells) is the fallback when the bounding box holds
-more cells than the table (bodies far apart). ``sort_pairs`` orders the list by lower index
-(stable): the solve then reads X, V in increasing order. The fallback lists the same
-pairs, a particle's partners maybe in another order. One thread builds the list, so the
-solve's result does not depend on the thread count.
+Where the bounding box holds more cells than the table (bodies far apart), the grid wraps
+its longer axes around (``pair_grid.wrapped_dims``): cell k of an axis of n is k mod n, so
+particles of far-apart places may share a cell (the distance test drops their pairs) and
+neighbouring cells stay neighbours; a row of the stencil that crosses the end of x is two
+runs.  ``sort_pairs`` orders the list by lower index (stable): the solve then reads X, V
+in increasing order.  One thread builds the list, so the solve's result does not depend on
+the thread count.
 """
 
 from collections import namedtuple
@@ -32,8 +34,8 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from .kernels.jit import JIT
-from .kernels.pair_grid import counting_sort, grid_box
+from .kernels.jit import JIT, JIT_NO_REFCOUNT
+from .kernels.pair_grid import counting_sort, grid_box, wrapped_dims
 from .kernels.spread import moved_box, spread_of
 
 #: ``cb`` of a cell without particles (``grid_sort``).
@@ -140,38 +142,41 @@ def moved_spread2(X, Xref, off, act):
 
 @njit(**JIT)
 def grid_sort(src, grid, dims):
-    """Counting sort of the colliding particles of ``src`` (``PairSource``) into a dense
-    grid of cells of side ``src.cell``, in ``grid`` (``GridScratch``: hb, cnt, srt, P, sb,
-    cb below).
+    """Counting sort of the colliding particles of ``src`` (``PairSource``) into a grid of
+    cells of side ``src.cell``, in ``grid`` (``GridScratch``: hb, cnt, srt, P, sb, cb below).
 
-    Returns the number of particles sorted (0: none collide; -1, doing nothing else, when the
-    bounding box holds more cells than ``cnt`` (T + 1,) has slots).  Out: ``hb[i]`` the cell
-    of particle i (-1: not colliding or not finite), ``cnt[c]`` the start of cell c in the
-    sorted order (cells numbered x fastest; ``cnt[c + 1]`` its end), ``srt[a]`` the particle
-    at sorted place a, ``P[a]`` its x, y, z, r, ``sb[a]`` its body, ``dims`` (nx, ny, nz);
-    ``cb[c]`` (T,) the body of every particle of cell c, -1 when it holds several,
-    ``EMPTY`` when none (every cell of the box written).
+    Returns the number of particles sorted (0: none collide).  Out: ``dims`` the grid's
+    cells per axis and which axes wrap around (``pair_grid.wrapped_dims``; a table of T
+    cells), ``hb[i]`` the cell of particle i (-1: not colliding or not finite), ``cnt[c]``
+    the start of cell c in the sorted order (cells numbered x fastest; ``cnt[c + 1]`` its
+    end), ``srt[a]`` the particle at sorted place a, ``P[a]`` its x, y, z, r, ``sb[a]`` its
+    body; ``cb[c]`` (T,) the body of every particle of cell c, -1 when it holds several,
+    ``EMPTY`` when none (every cell of the grid written).
     """
+    if dims.shape[0] != 6:
+        raise ValueError('grid_sort: dims must hold 6 values')
     X, R, B, act = src.x, src.radius, src.body, src.active
     hb, cnt, srt = grid.particle_cell, grid.cell_start, grid.order
     P, sb, cb = grid.points, grid.point_body, grid.cell_body
     n = X.shape[1]
     inv = 1.0 / src.cell
-    lo0, lo1, lo2, nx, ny, nz = grid_box(X, B, act, hb, inv, cnt.shape[0] - 1)
-    if nx <= 0:
-        return nx
+    lo0, lo1, lo2, f0, f1, f2 = grid_box(X, B, act, hb, inv)
+    if f0 == 0.0:
+        return 0
+    wrapped_dims((f0, f1, f2), cnt.shape[0] - 1, dims)
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    wraps = dims[3] + dims[4] + dims[5] > 0
     nxy = nx * ny
     ncell = nxy * nz
-    dims[0] = nx
-    dims[1] = ny
-    dims[2] = nz
-    cnt[:ncell + 1] = 0                 # only the cells of this box (the table may be larger)
+    cnt[:ncell + 1] = 0                 # only the cells of this grid (the table may be larger)
     for i in range(n):
         if hb[i] < 0:
             continue
-        cx = min(np.int64((X[0, i] - lo0) * inv), nx - 1)
-        cy = min(np.int64((X[1, i] - lo1) * inv), ny - 1)
-        cz = min(np.int64((X[2, i] - lo2) * inv), nz - 1)
+        cx = min(np.int64((X[0, i] - lo0) * inv), np.int64(f0) - 1)
+        cy = min(np.int64((X[1, i] - lo1) * inv), np.int64(f1) - 1)
+        cz = min(np.int64((X[2, i] - lo2) * inv), np.int64(f2) - 1)
+        if wraps:
+            cx, cy, cz = cx % nx, cy % ny, cz % nz
         c = cx + nx * cy + nxy * cz
         hb[i] = c
         cnt[c + 1] += 1
@@ -205,44 +210,68 @@ def _only(cb, cell, b):
     return (e == b) | (e == EMPTY)
 
 
-@njit(**JIT)
-def _cell_pairs(a_lo, a_hi, dims, src, grid, pi, pj, m0, cap):
-    """The pairs of the particles at sorted places [a_lo, a_hi) (whole cells, ``grid_sort``)
-    with the later particles of their own cell and the 13 cells of the forward half-stencil
-    (five runs of the sorted particles, cells being numbered x fastest: the own cell with
-    the next in x, and the rows of three at (dy, dz) = (1, 0), (-1, 1), (0, 1), (1, 1)),
-    written to pi, pj from m0 while below ``cap``; returns m0 + their number.  From a cell
-    of one body (not self-colliding), cells of that body alone or empty are left out.
+@njit(inline='always', **JIT)
+def _beside(k, d, n, wrap):
+    """Cell coordinate k + d on an axis of n cells (wrapped around with ``wrap``), or -1
+    past the grid's edge."""
+    k += d
+    if wrap:
+        return k % n
+    return k if 0 <= k < n else -1
+
+
+@njit(inline='always', **JIT)
+def _around(k, n):
+    """Cell coordinate k (-1 .. n) of a row of n cells that wraps around."""
+    return k + n if k < 0 else (k - n if k >= n else k)
+
+
+@njit(**JIT_NO_REFCOUNT)
+def _cell_pairs(nact, dims, src, grid, pairs):
+    """The pairs of the ``nact`` sorted particles (``grid_sort``), each with the later
+    particles of its own cell and the 13 cells of the forward half-stencil: the own cell
+    with the next in x, and the rows of three at (dy, dz) = (1, 0), (-1, 1), (0, 1), (1, 1)
+    (cells being numbered x fastest, a row is one run of the sorted particles, two where it
+    wraps around), written to ``pairs`` (pi, pj) while they have room; returns their
+    number.  From a cell of one body (not self-colliding), cells of that body alone or
+    empty are left out.
     """
-    R, selfc, X0, skin, self_fac = (src.radius, src.self_collide, src.rest, src.skin,
-                                    src.self_factor)
-    hb, cnt, srt = grid.particle_cell, grid.cell_start, grid.order
-    P, sb, cb = grid.points, grid.point_body, grid.cell_body
+    hb, cnt, srt, cb = grid.particle_cell, grid.cell_start, grid.order, grid.cell_body
     nx, ny, nz = dims[0], dims[1], dims[2]
+    wrap_x, wrap_y, wrap_z = dims[3] > 0, dims[4] > 0, dims[5] > 0
     nxy = nx * ny
-    m, a0 = m0, a_lo
-    while a0 < a_hi:
+    m, a0 = 0, 0
+    while a0 < nact:
         c = hb[srt[a0]]
         a1 = cnt[c + 1]
         cz = c // nxy
         cy = (c - cz * nxy) // nx
         cx = c - cz * nxy - cy * nx
         b = cb[c]
-        one = b >= 0 and not selfc[b]       # the cell holds one body, not self-colliding
+        one = b >= 0 and not src.self_collide[b]   # one body, not self-colliding
+        edge = wrap_x and (cx == 0 or cx == nx - 1)  # rows that wrap around: two runs
         xl = -1 if cx > 0 else 0
         xh = 1 if cx < nx - 1 else 0
         for q in range(5):
+            dy = 0 if q == 0 else (1 if q == 1 else q - 3)
+            dz = 0 if q <= 1 else 1
+            ry = _beside(cy, dy, ny, wrap_y)
+            rz = _beside(cz, dz, nz, wrap_z)
+            if ry < 0 or rz < 0:
+                continue
+            row = nx * ry + nxy * rz
+            if edge:
+                first = (1 if one else 0) if q == 0 else -1
+                m = _test_row((a0, a1), (row, cx, first, 1), b if one else -1, dims, src,
+                              grid, pairs, m)
+                continue
+            base = row + cx
             if q == 0:                      # own cell (later particles) and the next in x
                 if one and (xh == 0 or _only(cb, c + 1, b)):
                     continue
                 t0b = cnt[c + 1] if one else -1     # one body: nothing to test in its cell
                 t1 = cnt[c + 1 + xh]
             else:                           # a row of up to three cells
-                dy = 1 if q == 1 else q - 3
-                dz = 0 if q == 1 else 1
-                if cy + dy < 0 or cy + dy >= ny or cz + dz >= nz:
-                    continue
-                base = c + dy * nx + dz * nxy
                 first, last = xl, xh
                 if one:
                     k0 = _only(cb, base + xl, b)
@@ -257,54 +286,96 @@ def _cell_pairs(a_lo, a_hi, dims, src, grid, pi, pj, m0, cap):
                         last = xl if k1 else 0
                 t0b = cnt[base + first]
                 t1 = cnt[base + last + 1]
-            if t0b == t1:
-                continue
-            for a in range(a0, a1):
-                xi, yi, zi, ri = P[a, 0], P[a, 1], P[a, 2], P[a, 3]
-                bi = sb[a]
-                si = selfc[bi]
-                t0 = a + 1 if t0b < 0 else t0b
-                for t in range(t0, t1):
-                    dx = P[t, 0] - xi
-                    dy_ = P[t, 1] - yi
-                    dz_ = P[t, 2] - zi
-                    d2 = dx * dx + dy_ * dy_ + dz_ * dz_
-                    lim = ri + P[t, 3] + skin
-                    # one rarely taken branch: in range, and two bodies or self-colliding
-                    if (d2 < lim * lim) & ((sb[t] != bi) | si):
-                        i, j = srt[a], srt[t]
-                        if sb[t] == bi:
-                            ex = X0[0, j] - X0[0, i]
-                            ey = X0[1, j] - X0[1, i]
-                            ez = X0[2, j] - X0[2, i]
-                            rest = self_fac * (R[i] + R[j])
-                            if ex * ex + ey * ey + ez * ez <= rest * rest:
-                                continue
-                        if m < cap:
-                            pi[m] = i
-                            pj[m] = j
-                        m += 1
+            m = _test_run((a0, a1), (t0b, t1), src, grid, pairs, m)
         a0 = a1
+    return m
+
+
+@njit(inline='always', **JIT)
+def _test_row(places, span, b, dims, src, grid, pairs, m):
+    """``_test_run`` of ``places`` [a0, a1) (cell cx) against the cells cx + first ..
+    cx + last of the row starting at cell ``row`` (``span``) of a grid whose x wraps around
+    (two runs where they cross its end; ``_cell_pairs`` walks the cells at the ends of x
+    with it); first = 0 takes the own cell from the place after each particle's own.  For
+    a cell of one body b (>= 0), end cells of b alone or empty are left out."""
+    row, cx, first, last = span
+    nx, cnt, cb = dims[0], grid.cell_start, grid.cell_body
+    lo, hi = cx + first, cx + last
+    while lo <= hi and b >= 0 and _only(cb, row + _around(lo, nx), b):
+        lo += 1
+    while hi >= lo and b >= 0 and _only(cb, row + _around(hi, nx), b):
+        hi -= 1
+    if lo > hi:
+        return m
+    if lo < 0:                                      # wrapped: the row's last cell first
+        m = _test_run(places, (cnt[row + nx - 1], cnt[row + nx]), src, grid, pairs, m)
+        lo = 0
+    if hi >= nx:                                    # wrapped: then its first cell
+        m = _test_run(places, (cnt[row], cnt[row + 1]), src, grid, pairs, m)
+        hi = nx - 1
+    if lo <= hi:
+        start = -1 if first == 0 else cnt[row + lo]
+        m = _test_run(places, (start, cnt[row + hi + 1]), src, grid, pairs, m)
+    return m
+
+
+@njit(inline='always', **JIT)
+def _test_run(places, others, src, grid, pairs, m):
+    """The pairs of the particles at sorted ``places`` [a0, a1) with those at ``others``
+    [t0, t1) (t0 < 0: from the place after each one's own), written to ``pairs`` (pi, pj)
+    from m while they have room; returns m plus their number."""
+    a0, a1 = places
+    t0b, t1 = others
+    if t0b == t1:
+        return m
+    pi, pj = pairs
+    cap = pi.shape[0]
+    R, selfc, X0, skin, self_fac = (src.radius, src.self_collide, src.rest, src.skin,
+                                    src.self_factor)
+    srt, P, sb = grid.order, grid.points, grid.point_body
+    for a in range(a0, a1):
+        xi, yi, zi, ri = P[a, 0], P[a, 1], P[a, 2], P[a, 3]
+        bi = sb[a]
+        si = selfc[bi]
+        t0 = a + 1 if t0b < 0 else t0b
+        for t in range(t0, t1):
+            dx = P[t, 0] - xi
+            dy = P[t, 1] - yi
+            dz = P[t, 2] - zi
+            d2 = dx * dx + dy * dy + dz * dz
+            lim = ri + P[t, 3] + skin
+            # one rarely taken branch: in range, and two bodies or self-colliding
+            if (d2 < lim * lim) & ((sb[t] != bi) | si):
+                i, j = srt[a], srt[t]
+                if sb[t] == bi:
+                    ex = X0[0, j] - X0[0, i]
+                    ey = X0[1, j] - X0[1, i]
+                    ez = X0[2, j] - X0[2, i]
+                    rest = self_fac * (R[i] + R[j])
+                    if ex * ex + ey * ey + ez * ez <= rest * rest:
+                        continue
+                if m < cap:
+                    pi[m] = i
+                    pj[m] = j
+                m += 1
     return m
 
 
 @njit(**JIT)
 def build_pairs_grid(src, grid, pi, pj):
     """Candidate pairs of ``src`` (``PairSource``) closer than r_i + r_j + skin into pi,
-    pj (one thread; scratch ``grid``, a ``GridScratch``); returns their
-    number, or -1 when the bounding box holds more cells than ``cnt`` has slots (far-apart
-    bodies: use ``build_pairs``).
+    pj (one thread; scratch ``grid``, a ``GridScratch``); returns their number.
 
     Pairs of one body are listed only when it self-collides, and only when farther apart
     at rest than ``self_factor`` times their contact distance.  When more pairs exist than
     ``pi`` holds, the count is still returned (the caller grows the arrays and calls
     again).
     """
-    dims = np.zeros(3, dtype=np.int64)
+    dims = np.zeros(6, dtype=np.int64)
     nact = grid_sort(src, grid, dims)
     if nact <= 0:
         return nact
-    return _cell_pairs(0, nact, dims, src, grid, pi, pj, 0, pi.shape[0])
+    return _cell_pairs(nact, dims, src, grid, (pi, pj))
 
 
 @njit(**JIT)

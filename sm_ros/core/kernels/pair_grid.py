@@ -1,8 +1,7 @@
-"""Pieces the pair-list builders share (``contact_build.py``, ``contact_cells.py``): the
-dense grid over the colliding particles, the counting sort by cell and the test that
-keeps a pair.  Here, in the
-kernel package, so that an edit recompiles both builders (``jit.py``: the package's cache
-stamp)."""
+"""The cell grid of the pair-list builder (``contact_build.build_pairs_grid``): the box of
+the colliding particles, the grid's cells per axis (wrapped around where the box holds
+more cells than the table) and the counting sort by cell.  Here, in the kernel package,
+so that an edit recompiles the builder (``jit.py``: the package's cache stamp)."""
 
 import math
 
@@ -13,11 +12,10 @@ from .jit import JIT
 
 
 @njit(**JIT)
-def grid_box(X, B, act, hb, inv, tsize):
-    """The dense grid of cells of side 1 / ``inv`` over the colliding particles (body
-    ``act``, finite): its corner and cells per axis (lo0, lo1, lo2, nx, ny, nz); nx is 0
-    when no particle collides and -1 when the box holds more than ``tsize`` cells.
-    ``hb[i]`` is set to 0 for a colliding particle, -1 for any other."""
+def grid_box(X, B, act, hb, inv):
+    """The box of the colliding particles (body ``act``, finite) in cells of side 1 /
+    ``inv``: its corner and cells per axis (lo0, lo1, lo2, f0, f1, f2); f0 is 0 when no
+    particle collides.  ``hb[i]`` is set to 0 for a colliding particle, -1 for any other."""
     lo0 = lo1 = lo2 = np.inf
     hi0 = hi1 = hi2 = -np.inf
     for i in range(X.shape[1]):
@@ -35,40 +33,35 @@ def grid_box(X, B, act, hb, inv, tsize):
         hi1 = max(hi1, y)
         hi2 = max(hi2, z)
     if not lo0 <= hi0:
-        return 0.0, 0.0, 0.0, np.int64(0), np.int64(0), np.int64(0)
-    f0 = math.floor((hi0 - lo0) * inv) + 1.0
-    f1 = math.floor((hi1 - lo1) * inv) + 1.0
-    f2 = math.floor((hi2 - lo2) * inv) + 1.0
-    if f0 * f1 * f2 > tsize:
-        return 0.0, 0.0, 0.0, np.int64(-1), np.int64(0), np.int64(0)
-    return lo0, lo1, lo2, np.int64(f0), np.int64(f1), np.int64(f2)
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    return (lo0, lo1, lo2, math.floor((hi0 - lo0) * inv) + 1.0,
+            math.floor((hi1 - lo1) * inv) + 1.0, math.floor((hi2 - lo2) * inv) + 1.0)
 
 
-@njit(inline='always', **JIT)
-def kept_pair(sco, a, t, selfc, X0, srt, skin, self_fac):
-    """Whether the particles at sorted places a and t (``sco`` (5, N): x, y, z, radius,
-    body) make a pair of the list: closer than their contact distance plus ``skin``, of
-    two bodies, or of one self-colliding body (``selfc``) farther apart at rest than
-    ``self_fac`` times their contact distance (``X0``; ``srt`` the particles)."""
-    bi = np.int64(sco[4, a])
-    same = np.int64(sco[4, t]) == bi
-    if same and not selfc[bi]:
-        return False                   # one body without self-collision
-    cut = sco[3, a] + sco[3, t]
-    dx = sco[0, t] - sco[0, a]
-    dy = sco[1, t] - sco[1, a]
-    dz = sco[2, t] - sco[2, a]
-    lim = cut + skin
-    if dx * dx + dy * dy + dz * dz >= lim * lim:
-        return False
-    if same:
-        i, j = srt[a], srt[t]
-        ex = X0[0, j] - X0[0, i]
-        ey = X0[1, j] - X0[1, i]
-        ez = X0[2, j] - X0[2, i]
-        rest = self_fac * cut
-        return ex * ex + ey * ey + ez * ez > rest * rest
-    return True
+@njit(**JIT)
+def wrapped_dims(extent, tsize, dims):
+    """The grid's cells per axis for a box of ``extent`` (f0, f1, f2) cells and a table of
+    ``tsize`` (at least 27) cells, into ``dims``: (nx, ny, nz, then 1 for an axis that wraps
+    around).  A box that fits keeps its cells; one that does not wraps its longer axes
+    around to at least 3 cells each (cell k at k mod n: particles far apart may share a
+    cell, which the distance test sorts out, and neighbours stay neighbours)."""
+    budget = float(tsize)
+    if extent[0] * extent[1] * extent[2] <= budget:
+        for k in range(3):
+            dims[k], dims[3 + k] = np.int64(extent[k]), 0
+        return
+    order = np.argsort(np.array(extent))            # the shortest axes keep their cells
+    for r in range(3):
+        k = order[r]
+        left = 3 - r
+        cap = max(np.int64(budget ** (1.0 / left)), 3)
+        while float(cap + 1) ** left <= budget:     # the root rounded down exactly
+            cap += 1
+        while cap > 3 and float(cap) ** left > budget:
+            cap -= 1
+        n = min(np.int64(extent[k]), cap)
+        dims[k], dims[3 + k] = n, np.int64(n < extent[k])
+        budget = budget / n
 
 
 @njit(**JIT)
