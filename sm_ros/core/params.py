@@ -225,19 +225,15 @@ def _path(kind, c):
     return out
 
 
-@dataclass(frozen=True)
-class Box:
-    """A solid box from ``lo`` to ``hi`` (axis-aligned unless ``orientation`` is given).
+@dataclass(frozen=True, kw_only=True)
+class _Collider:
+    """What every static or moving collider has (keyword arguments): its surface's
+    ``friction`` and ``restitution``; a ``name`` (reports a wrench; the frame_id of
+    ``collider_pose``); an ``orientation`` (unit quaternion x, y, z, w about its centre);
+    ``kinematic`` (moved by ``World.move_collider``; needs a name) and ``path`` (kinematic
+    only: keyframes ``(time, position[, quaternion])`` played from the declared pose at
+    time 0, piecewise linear / slerp, until the first ``move_collider`` of it)."""
 
-    Optional: ``name`` (reports a wrench; the frame_id of ``collider_pose``),
-    ``orientation`` (unit quaternion x, y, z, w about the box centre), ``kinematic``
-    (moved by ``World.move_collider``; needs a name) and ``path`` (kinematic only:
-    keyframes ``(time, position[, quaternion])`` played from the declared pose at time 0,
-    piecewise linear / slerp, until the first ``move_collider`` of this collider).
-    """
-
-    lo: tuple = (0.0, 0.0, 0.0)
-    hi: tuple = (1.0, 1.0, 1.0)
     friction: float = 0.5
     restitution: float = 0.0
     name: Optional[str] = None
@@ -247,8 +243,17 @@ class Box:
 
     @property
     def simple(self) -> bool:
-        """Unnamed, axis-aligned and static: handled inside the fused body step."""
+        """Unnamed, unturned and static: handled inside the fused body step."""
         return self.name is None and self.orientation is None and not self.kinematic
+
+
+@dataclass(frozen=True)
+class Box(_Collider):
+    """A solid box from ``lo`` to ``hi`` (axis-aligned unless ``orientation`` is given,
+    about the box centre); the keywords of every collider (``_Collider``)."""
+
+    lo: tuple = (0.0, 0.0, 0.0)
+    hi: tuple = (1.0, 1.0, 1.0)
 
     def row(self):
         """Return the validated row the kernels read."""
@@ -267,22 +272,11 @@ class Box:
 
 
 @dataclass(frozen=True)
-class Sphere:
-    """A solid sphere; ``name``, ``orientation`` and ``kinematic`` as for ``Box``."""
+class Sphere(_Collider):
+    """A solid sphere; the keywords of every collider (``_Collider``)."""
 
     center: tuple = (0.0, 0.0, 0.0)
     radius: float = 1.0
-    friction: float = 0.5
-    restitution: float = 0.0
-    name: Optional[str] = None
-    orientation: Optional[tuple] = None
-    kinematic: bool = False
-    path: tuple = ()
-
-    @property
-    def simple(self) -> bool:
-        """Unnamed and static: handled inside the fused body step."""
-        return self.name is None and self.orientation is None and not self.kinematic
 
     def row(self):
         """Return the validated row the kernels read."""
@@ -300,21 +294,15 @@ class Sphere:
 
 
 @dataclass(frozen=True)
-class Capsule:
+class Capsule(_Collider):
     """A solid capsule: the points within ``radius`` of a segment of ``length`` along the
     local z axis, centred on ``center`` (end to end: length + 2 radius; length 0 is a
-    sphere).  ``name``, ``orientation`` and ``kinematic`` as for ``Box``.
+    sphere); the keywords of every collider (``_Collider``).
     """
 
     center: tuple = (0.0, 0.0, 0.0)
     radius: float = 0.05
     length: float = 0.1
-    friction: float = 0.5
-    restitution: float = 0.0
-    name: Optional[str] = None
-    orientation: Optional[tuple] = None
-    kinematic: bool = False
-    path: tuple = ()
 
     @property
     def simple(self) -> bool:
