@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit
 
 from .jit import JIT, U
-from .linalg import sym3_solve
+from .linalg import add_moments, sym3_solve
 
 
 @njit(**JIT)
@@ -158,7 +158,6 @@ def damp_rigid(x, v, mass, members, ref, k_damp, scratch):
             r1 = x[i, 1] - ref[k, 1]
             r2 = x[i, 2] - ref[k, 2]
             v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
-            rr = r0 * r0 + r1 * r1 + r2 * r2
             lin[k, 0] += w
             lin[k, 1] += w * v0
             lin[k, 2] += w * v1
@@ -166,15 +165,7 @@ def damp_rigid(x, v, mass, members, ref, k_damp, scratch):
             w3[k, 0] += w * r0
             w3[k, 1] += w * r1
             w3[k, 2] += w * r2
-            lin[k, 4] += w * (r1 * v2 - r2 * v1)
-            lin[k, 5] += w * (r2 * v0 - r0 * v2)
-            lin[k, 6] += w * (r0 * v1 - r1 * v0)
-            lin[k, 7] += w * (rr - r0 * r0)
-            lin[k, 8] += w * (rr - r1 * r1)
-            lin[k, 9] += w * (rr - r2 * r2)
-            lin[k, 10] -= w * r0 * r1
-            lin[k, 11] -= w * r1 * r2
-            lin[k, 12] -= w * r2 * r0
+            add_moments(lin, k, w, (r0, r1, r2), (v0, v1, v2))
     _rigid_fields(scratch)
     for i in range(n):
         j0, j1 = ptr[i], ptr[i + 1]

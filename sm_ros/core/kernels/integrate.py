@@ -49,14 +49,21 @@ StepGoals = namedtuple('StepGoals', 'goal_lin goal_off trans alpha h acc ang com
 FusedDamping = namedtuple('FusedDamping', 'on rate field part')
 
 @njit(inline='always', **JIT)
-def _acc_lin(row, w, d0, d1, d2, q0, q1, q2):
-    """Add one particle's w (x - ref) and w (x - ref) q^T to the accumulator row ``a``."""
+def _acc_weighted(row, w, d0, d1, d2):
+    """row[0:3] += w d (d = x - ref); returns w d."""
     d0 *= w
     d1 *= w
     d2 *= w
     row[0] += d0
     row[1] += d1
     row[2] += d2
+    return d0, d1, d2
+
+
+@njit(inline='always', **JIT)
+def _acc_lin(row, w, d0, d1, d2, q0, q1, q2):
+    """Add one particle's w (x - ref) and w (x - ref) q^T to the accumulator row ``a``."""
+    d0, d1, d2 = _acc_weighted(row, w, d0, d1, d2)
     row[3] += d0 * q0
     row[4] += d0 * q1
     row[5] += d0 * q2
@@ -71,12 +78,7 @@ def _acc_lin(row, w, d0, d1, d2, q0, q1, q2):
 @njit(inline='always', **JIT)
 def _acc_quad(row, w, d0, d1, d2, q0, q1, q2):
     """Quadratic accumulator: w (x - ref) and w (x - ref) q~^T (3 + 27 entries)."""
-    d0 *= w
-    d1 *= w
-    d2 *= w
-    row[0] += d0
-    row[1] += d1
-    row[2] += d2
+    d0, d1, d2 = _acc_weighted(row, w, d0, d1, d2)
     f3 = q0 * q0
     f4 = q1 * q1
     f5 = q2 * q2

@@ -24,7 +24,7 @@ from numba import njit
 import numpy as np
 
 from .jit import JIT, U, finite
-from .linalg import sym3_solve
+from .linalg import add_moments, sym3_solve
 
 @njit(**JIT)
 def limit_speed(x, v, h, v_max):
@@ -147,19 +147,8 @@ def _turn_moments(x, v, mass, ptr, cl, flagged, lin, w3):
             r0 = x[i, 0] - w3[k, 3]
             r1 = x[i, 1] - w3[k, 4]
             r2 = x[i, 2] - w3[k, 5]
-            u0 = v[i, 0] - lin[k, 1]
-            u1 = v[i, 1] - lin[k, 2]
-            u2 = v[i, 2] - lin[k, 3]
-            rr = r0 * r0 + r1 * r1 + r2 * r2
-            lin[k, 4] += w * (r1 * u2 - r2 * u1)
-            lin[k, 5] += w * (r2 * u0 - r0 * u2)
-            lin[k, 6] += w * (r0 * u1 - r1 * u0)
-            lin[k, 7] += w * (rr - r0 * r0)
-            lin[k, 8] += w * (rr - r1 * r1)
-            lin[k, 9] += w * (rr - r2 * r2)
-            lin[k, 10] -= w * r0 * r1
-            lin[k, 11] -= w * r1 * r2
-            lin[k, 12] -= w * r2 * r0
+            add_moments(lin, k, w, (r0, r1, r2),
+                        (v[i, 0] - lin[k, 1], v[i, 1] - lin[k, 2], v[i, 2] - lin[k, 3]))
 
 
 @njit(inline='always', **JIT)

@@ -389,3 +389,22 @@ def sym3_solve(mat, b0, b1, b2, rcond, wout, wa, wv):
     return (wout[0, 0] * b0 + wout[0, 1] * b1 + wout[0, 2] * b2,
             wout[1, 0] * b0 + wout[1, 1] * b1 + wout[1, 2] * b2,
             wout[2, 0] * b0 + wout[2, 1] * b1 + wout[2, 2] * b2)
+
+
+@njit(inline='always', **JIT)
+def add_moments(lin, k, w, r, u):
+    """A particle's share of cluster k's angular momentum and inertia about a centre:
+    lin[k, 4:7] += w r x u and lin[k, 7:13] += w (|r|^2 - r_a^2 on the diagonal xx yy zz,
+    -r_a r_b off it xy yz zx), with r its offset from the centre and u its velocity."""
+    r0, r1, r2 = r
+    u0, u1, u2 = u
+    rr = r0 * r0 + r1 * r1 + r2 * r2
+    lin[k, 4] += w * (r1 * u2 - r2 * u1)
+    lin[k, 5] += w * (r2 * u0 - r0 * u2)
+    lin[k, 6] += w * (r0 * u1 - r1 * u0)
+    lin[k, 7] += w * (rr - r0 * r0)
+    lin[k, 8] += w * (rr - r1 * r1)
+    lin[k, 9] += w * (rr - r2 * r2)
+    lin[k, 10] -= w * r0 * r1
+    lin[k, 11] -= w * r1 * r2
+    lin[k, 12] -= w * r2 * r0

@@ -54,11 +54,10 @@ def sets_reduce(part, pairs, sref, rest_lin, ref, quad, out, work):
     wk, pm = work
     out[0, :, :] = 0.0
     u = wk[0]
+    _expand(part, pairs, sref, ref, out, u, quad)
     if quad:
-        _expand_quad(part, pairs, sref, ref, out, u)
         _map_quad(rest_lin, out, u, pm)
     else:
-        _expand_lin(part, pairs, sref, ref, out, u)
         _map_lin(rest_lin, out, u)
 
 
@@ -74,40 +73,67 @@ def _set_sums(part, s, width, u):
 
 
 @njit(inline='always', **JIT)
-def _expand_quad(part, pairs, sref, ref, out, u):
-    """``sets_reduce``'s sums of every set-cluster pair about the cluster (quadratic)."""
+def _expand(part, pairs, sref, ref, out, u, quad):
+    """``sets_reduce``'s sums of every set-cluster pair about the cluster: the set's sums
+    about its reference ``sref[s]`` moved to the cluster's ``ref[k]`` and into the
+    cluster's features (``_pair_quad`` or ``_pair_lin``)."""
     sptr, scl, scnt, sphi, stp = pairs.ptr, pairs.cl, pairs.cnt, pairs.phi, pairs.pair_offsets
     for s in range(part.shape[1]):
-        _set_sums(part, s, 10, u)
+        _set_sums(part, s, 10 if quad else 4, u)
         inv_n = 1.0 / scnt[s]
         for j in range(sptr[s], sptr[s + 1]):
             k = scl[j]
-            t0, t1, t2 = stp[j, 0], stp[j, 1], stp[j, 2]
+            t = (stp[j, 0], stp[j, 1], stp[j, 2])
             for a in range(3):
-                dr = sref[s, a] - ref[k, a]
-                v0 = inv_n * (u[a, 0] + dr * sphi[s, 0])
-                v1 = inv_n * (u[a, 1] + dr * sphi[s, 1])
-                v2 = inv_n * (u[a, 2] + dr * sphi[s, 2])
-                v3 = inv_n * (u[a, 3] + dr * sphi[s, 3])
-                v4 = inv_n * (u[a, 4] + dr * sphi[s, 4])
-                v5 = inv_n * (u[a, 5] + dr * sphi[s, 5])
-                v6 = inv_n * (u[a, 6] + dr * sphi[s, 6])
-                v7 = inv_n * (u[a, 7] + dr * sphi[s, 7])
-                v8 = inv_n * (u[a, 8] + dr * sphi[s, 8])
-                v9 = inv_n * (u[a, 9] + dr * sphi[s, 9])
+                shift = (inv_n, sref[s, a] - ref[k, a])
                 row = out[0, k]
-                b = 10 * a
-                # phi(y + t): z_j = y_j + t_j, z_a z_c = y_a y_c + t_c y_a + t_a y_c + t_a t_c
-                row[b] += v0
-                row[b + 1] += v1 + t0 * v0
-                row[b + 2] += v2 + t1 * v0
-                row[b + 3] += v3 + t2 * v0
-                row[b + 4] += v4 + 2.0 * t0 * v1 + t0 * t0 * v0
-                row[b + 5] += v5 + 2.0 * t1 * v2 + t1 * t1 * v0
-                row[b + 6] += v6 + 2.0 * t2 * v3 + t2 * t2 * v0
-                row[b + 7] += v7 + t1 * v1 + t0 * v2 + t0 * t1 * v0
-                row[b + 8] += v8 + t2 * v2 + t1 * v3 + t1 * t2 * v0
-                row[b + 9] += v9 + t0 * v3 + t2 * v1 + t2 * t0 * v0
+                if quad:
+                    _pair_quad(row, a, u, shift, sphi, s, t)
+                else:
+                    _pair_lin(row, a, u, shift, sphi, s, t)
+
+
+@njit(inline='always', **JIT)
+def _pair_quad(row, a, u, shift, sphi, s, t):
+    """Component a's 10 quadratic sums of set s (``u[a]``), moved by dr and averaged
+    (``shift`` = (1 / its count, dr); ``sphi[s]`` its phi sums), added to row[10 a ..]
+    in the features of z = y + t."""
+    inv_n, dr = shift
+    t0, t1, t2 = t
+    b = 10 * a
+    v0 = inv_n * (u[a, 0] + dr * sphi[s, 0])
+    v1 = inv_n * (u[a, 1] + dr * sphi[s, 1])
+    v2 = inv_n * (u[a, 2] + dr * sphi[s, 2])
+    v3 = inv_n * (u[a, 3] + dr * sphi[s, 3])
+    v4 = inv_n * (u[a, 4] + dr * sphi[s, 4])
+    v5 = inv_n * (u[a, 5] + dr * sphi[s, 5])
+    v6 = inv_n * (u[a, 6] + dr * sphi[s, 6])
+    v7 = inv_n * (u[a, 7] + dr * sphi[s, 7])
+    v8 = inv_n * (u[a, 8] + dr * sphi[s, 8])
+    v9 = inv_n * (u[a, 9] + dr * sphi[s, 9])
+    # phi(y + t): z_j = y_j + t_j, z_a z_c = y_a y_c + t_c y_a + t_a y_c + t_a t_c
+    row[b] += v0
+    row[b + 1] += v1 + t0 * v0
+    row[b + 2] += v2 + t1 * v0
+    row[b + 3] += v3 + t2 * v0
+    row[b + 4] += v4 + 2.0 * t0 * v1 + t0 * t0 * v0
+    row[b + 5] += v5 + 2.0 * t1 * v2 + t1 * t1 * v0
+    row[b + 6] += v6 + 2.0 * t2 * v3 + t2 * t2 * v0
+    row[b + 7] += v7 + t1 * v1 + t0 * v2 + t0 * t1 * v0
+    row[b + 8] += v8 + t2 * v2 + t1 * v3 + t1 * t2 * v0
+    row[b + 9] += v9 + t0 * v3 + t2 * v1 + t2 * t0 * v0
+
+
+@njit(inline='always', **JIT)
+def _pair_lin(row, a, u, shift, sphi, s, t):
+    """``_pair_quad`` for the rigid/linear mode's 4 sums (1 and z = y + t), to row[4 a ..]."""
+    inv_n, dr = shift
+    b = 4 * a
+    v0 = inv_n * (u[a, 0] + dr * sphi[s, 0])
+    row[b] += v0
+    row[b + 1] += inv_n * (u[a, 1] + dr * sphi[s, 1]) + t[0] * v0
+    row[b + 2] += inv_n * (u[a, 2] + dr * sphi[s, 2]) + t[1] * v0
+    row[b + 3] += inv_n * (u[a, 3] + dr * sphi[s, 3]) + t[2] * v0
 
 
 @njit(inline='always', **JIT)
@@ -129,27 +155,6 @@ def _map_quad(rest_lin, out, u, pm):
                 for fi in range(4, 10):
                     acc += pm[jj, fi] * u[a, fi]
                 row[3 + 9 * a + jj] = acc
-
-
-@njit(inline='always', **JIT)
-def _expand_lin(part, pairs, sref, ref, out, u):
-    """``sets_reduce``'s sums of every set-cluster pair about the cluster (rigid/linear)."""
-    sptr, scl, scnt, sphi, stp = pairs.ptr, pairs.cl, pairs.cnt, pairs.phi, pairs.pair_offsets
-    for s in range(part.shape[1]):
-        _set_sums(part, s, 4, u)
-        inv_n = 1.0 / scnt[s]
-        for j in range(sptr[s], sptr[s + 1]):
-            k = scl[j]
-            t0, t1, t2 = stp[j, 0], stp[j, 1], stp[j, 2]
-            row = out[0, k]
-            for a in range(3):
-                dr = sref[s, a] - ref[k, a]
-                v0 = inv_n * (u[a, 0] + dr * sphi[s, 0])
-                b = 4 * a
-                row[b] += v0
-                row[b + 1] += inv_n * (u[a, 1] + dr * sphi[s, 1]) + t0 * v0
-                row[b + 2] += inv_n * (u[a, 2] + dr * sphi[s, 2]) + t1 * v0
-                row[b + 3] += inv_n * (u[a, 3] + dr * sphi[s, 3]) + t2 * v0
 
 
 @njit(inline='always', **JIT)
