@@ -17,8 +17,8 @@ def lattice(n, spacing=0.02):
 
 def _world(compiled=True):
     """Damped and undamped rigid/linear one-cluster bodies (packed; two of them larger than
-    a block of the pass), a set-layout body, a quadratic one and a plastic one (not
-    packed), on a ground and a box; spinning and fast enough to hit both limits."""
+    a block of the pass), a set-layout body, a quadratic one (records) and a plastic one
+    (stepped alone), on a ground and a box; spinning and fast enough to hit both limits."""
     world = World()
     world.compiled_step = compiled
     world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.3),
@@ -78,7 +78,7 @@ def test_packed_step_equals_stepping_bodies_one_at_a_time(monkeypatch, parallel)
     want = _run(_world(False), 12)
     pack, records, slow, _ = got._split_bodies(1.0 / 240.0)
     assert [b.name for b in pack.bodies] == ['b0', 'b1', 'b2', 'b3', 'b4', 'late']
-    assert len(records) == 1 and 'b7' in [b.name for b in slow]     # b6 (quadratic): sets
+    assert len(records) == 2 and [b.name for b in slow] == ['b7']   # b5, b6: sets
     counts = np.array([s[3] for s in _states(got)])
     assert counts[:5, 0].sum() > 0 and counts[:5, 1].sum() > 0        # both limits acted
     assert got.bodies[2].n > 256 and got.bodies[3].n > 256               # several blocks

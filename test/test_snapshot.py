@@ -133,7 +133,7 @@ def _lead(scene, lead):
 
 @pytest.mark.parametrize('scene,lead', [('default', 30), ('many', 120), ('grasp', 20),
                                         ('plastic', 40), ('sheet_rod', 20),
-                                        ('stack', 12), ('stack', 150), ('held', 30),
+                                        ('stack', 12), ('stack', 50), ('held', 30),
                                         ('paper_384', 60)])
 def test_save_steps_load_leave_the_world_as_a_twin_that_never_took_part(scene, lead):
     """Bodies packed, on records or stepped alone, contact with warm starts and pair lists
@@ -216,14 +216,22 @@ def _estimate_then_step(world, twin, snap, h):
 
 
 def test_a_forgotten_name_is_found(monkeypatch):
-    """The check above fails where a class leaves out one of its state arrays."""
+    """The check above fails where a class leaves out one of its state arrays: the stack's
+    sleep anchors move while it lands (at some of these leads the half steps start a still
+    spell where the whole step does not), and the check finds them and what they change."""
     from sm_ros.core.sleep import Sleep
     monkeypatch.setattr(Sleep, 'step_state', lambda self: ('slept', 'calm', 'fast', 'prev'))
-    world, twin, h = _lead('stack', 100)   # settling: its anchor moves
-    snap = Snapshot()
-    snap.save(world)
-    _, differ = _estimate_then_step(world, twin, snap, h)
-    assert differ == ['World/World._sleep/Sleep.state.anchor']
+    found = []
+    for lead in range(4, 14):
+        world, twin, h = _lead('stack', lead)
+        snap = Snapshot()
+        snap.save(world)
+        found.append(_estimate_then_step(world, twin, snap, h)[1])
+    anchor = 'World/World._sleep/Sleep.state.anchor'
+    assert ['World/World._sleep/Sleep.state.anchor'] in found, found
+    # elsewhere nothing, or the anchor with what it changed (the still spell's time)
+    assert all(not d or (anchor in d and set(d) <= {anchor, 'World/World._sleep/Sleep.state.calm'})
+               for d in found), found
 
 
 def test_a_load_after_the_bodies_were_packed_again_writes_into_their_new_rows():

@@ -17,8 +17,9 @@ PARALLEL_MIN_WORK = 262144
 FUSED_DAMPING_MIN = 1024
 #: Set-layout bodies with this many particles damp inside the particle pass.
 FUSED_DAMPING_MIN_SETS = 0
-#: Multi-cluster bodies use the set layout when memberships / set-cluster pairs reach this.
-SET_LAYOUT_MIN_RATIO = 8
+#: Multi-cluster bodies use the set layout when memberships / set-cluster pairs reach this:
+#: all of them (its compiled step beats the membership layout's on small bodies too).
+SET_LAYOUT_MIN_RATIO = 0
 #: Single-cluster quadratic bodies use the set layout too (one set).
 SINGLE_QUADRATIC_SETS = True
 #: Compiled-step records are shared with helper threads from this many particles in records.
