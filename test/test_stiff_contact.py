@@ -408,3 +408,40 @@ def test_a_one_particle_body_takes_the_same_compiled_pass():
     compiled = len(SS.stiff_step.signatures)
     worlds[1].step(1.0 / 120.0)
     assert len(SS.stiff_step.signatures) == compiled
+
+
+def test_the_stiff_pass_runs_only_where_stiff_bodies_can_meet_something(monkeypatch):
+    """A lone rigid body with no collider pays nothing for contact (the pass does not run,
+    and its free fall is exact); a ground, a second colliding rigid body or a moving
+    collider makes it run; a second body that does not collide does not."""
+    from sm_ros.bench.common import cube_lattice
+    from sm_ros.core import BodyParams, Capsule, Ground, World
+    from sm_ros.core.contact import BodyContact
+    from sm_ros.core.stiff_contact import StiffContact
+    calls = []
+    run = StiffContact.run
+    monkeypatch.setattr(StiffContact, 'run', lambda self, *a: calls.append(1) or run(self, *a))
+    stiff = BodyParams(mode='rigid', alpha=1.0)
+
+    def steps(*, ground=False, second=None, finger=False):
+        world = World()
+        world.set_colliders(ground=Ground() if ground else None,
+                            capsules=[Capsule(center=(0.0, 0.0, -3.0), name='finger',
+                                              kinematic=True)] if finger else [])
+        body = world.add_body(cube_lattice(4, 0.1, (0.0, 0.0, 1.0)), 0.01, stiff)
+        if second is not None:
+            world.add_body(cube_lattice(4, 0.1, (0.5, 0.0, 1.0)), 0.01, stiff,
+                           contact=BodyContact(collide=second))
+        calls.clear()
+        start = body.com()[2]
+        for _ in range(12):
+            world.step(1.0 / 120.0)
+        return len(calls), body.com()[2] - start
+
+    count, drop = steps()
+    t = 12 / 120.0                    # 12 steps of semi-implicit Euler: g h^2 (1 + ... + 12)
+    assert count == 0 and drop == pytest.approx(-0.5 * 9.81 * t * (t + 1.0 / 120.0), rel=1e-12)
+    assert steps(second=False)[0] == 0
+    assert steps(ground=True)[0] == 12
+    assert steps(second=True)[0] == 12
+    assert steps(finger=True)[0] == 12

@@ -452,11 +452,26 @@ class World(WorldColliders):
             stats = self._stiff_stats = np.zeros((len(bodies), 5))
         stats[:] = 0.0
         self._stiff_touches = NO_TOUCHES
-        if any(not body.asleep for body, _ in members):
-            stats[index], pairs = self._stiff.run(self, members, h, thresh)
-            # the pairs name members: in flat body indices for the sleep pass
-            self._stiff_touches = np.column_stack((index[pairs[:, 0]], index[pairs[:, 1]],
-                                                   pairs[:, 2]))
+        if not any(not body.asleep for body, _ in members):
+            return
+        if not self._stiff_can_touch(members):  # nothing to meet: a step adds no contact
+            self._stiff.forget()
+            return
+        stats[index], pairs = self._stiff.run(self, members, h, thresh)
+        # the pairs name members: in flat body indices for the sleep pass
+        self._stiff_touches = np.column_stack((index[pairs[:, 0]], index[pairs[:, 1]],
+                                               pairs[:, 2]))
+
+    def _stiff_can_touch(self, members):
+        """Whether the stiff bodies ``members`` may meet anything in the stiff pass: a
+        collider, or each other (two of them colliding).  A lone rigid body in the air
+        pays nothing for contact."""
+        if self._has_col or self._cset is not None:
+            return True
+        if not self._contact_params.enabled:
+            return False
+        colliding = (b for b, _ in members if self._contacts[b.name][0].collide)
+        return next(colliding, None) is not None and next(colliding, None) is not None
 
     def _zero_bid(self, n):
         """Body index 0 for n particles (the per-body path of the collider pass)."""
