@@ -445,3 +445,36 @@ def test_the_stiff_pass_runs_only_where_stiff_bodies_can_meet_something(monkeypa
     assert steps(ground=True)[0] == 12
     assert steps(second=True)[0] == 12
     assert steps(finger=True)[0] == 12
+
+
+def test_body_frame_equals_its_numpy_twin():
+    """``body_frame`` of random bodies (masses, a common velocity, a spin, noise): mass,
+    centre, velocity, the spin that keeps the angular momentum, the inertia tensor and its
+    inverse, the reach and the bounds, as NumPy computes them."""
+    rng = np.random.default_rng(8)
+    for n in (1, 7, 300, 4099):
+        x = np.asfortranarray(rng.normal(size=(n, 3)) * [0.3, 0.1, 0.2] + [5.0, -2.0, 1.0])
+        m = rng.uniform(0.5, 2.0, n)
+        spin = rng.normal(size=3)
+        v = np.asfortranarray([1.0, -3.0, 0.5] + np.cross(spin, x - x.mean(0))
+                              + 0.01 * rng.normal(size=(n, 3)))
+        frame, inertia, inverse = np.zeros(SC.F_ROW), np.zeros((3, 3)), np.zeros((3, 3))
+        SC.body_frame(x, v, m, frame, inertia, inverse)
+        mass = m.sum()
+        com, vel = m @ x / mass, m @ v / mass
+        r, u = x - com, v - vel
+        want = np.einsum('i,ij,ik->jk', m, r, r)
+        want = np.trace(want) * np.eye(3) - want
+        ang = (m[:, None] * np.cross(r, u)).sum(0)
+        np.testing.assert_allclose(inertia, want, rtol=1e-10, atol=1e-12 * mass)
+        if n >= 7:
+            np.testing.assert_allclose(inverse @ want, np.eye(3), atol=1e-9)
+            np.testing.assert_allclose(frame[SC.F_SPIN:SC.F_SPIN + 3],
+                                       np.linalg.solve(want, ang), rtol=1e-8, atol=1e-12)
+        assert frame[SC.F_MASS] == pytest.approx(mass, rel=1e-14)
+        assert frame[SC.F_INV] == pytest.approx(1.0 / mass, rel=1e-14)
+        np.testing.assert_allclose(frame[SC.F_COM:SC.F_COM + 3], com, rtol=1e-13)
+        np.testing.assert_allclose(frame[SC.F_VEL:SC.F_VEL + 3], vel, rtol=1e-12, atol=1e-14)
+        assert frame[SC.F_REACH] == pytest.approx(np.sqrt((r ** 2).sum(1).max()), rel=1e-12)
+        np.testing.assert_array_equal(frame[SC.F_LO:SC.F_LO + 3], x.min(0))
+        np.testing.assert_array_equal(frame[SC.F_HI:SC.F_HI + 3], x.max(0))

@@ -15,7 +15,6 @@ import numpy as np
 from numba import njit
 
 from .colliders import C_ANG, C_BOUND, C_E, C_MU, C_POS, C_VEL, surface_gap
-from .grabs import inertia
 from .jit import JIT, JIT_NO_REFCOUNT
 
 #: Contact points kept per collider or body pair: the deepest and the farthest along 8
@@ -54,32 +53,11 @@ F_ROW = 18
 def body_frame(x, v, m, frame, inertia_out, inv_inertia):
     """Fill ``frame`` (``F_*`` columns), the inertia tensor ``inertia_out`` and its inverse
     ``inv_inertia`` (3, 3) of a body: the rigid motion that keeps its particles' momentum
-    and angular momentum, and their bounds."""
-    n = x.shape[0]
-    mass = 0.0
-    com = np.zeros(3)
-    vel = np.zeros(3)
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
-    for i in range(n):
-        mass += m[i]
-        for k in range(3):
-            com[k] += m[i] * x[i, k]
-            vel[k] += m[i] * v[i, k]
-            lo[k] = min(lo[k], x[i, k])
-            hi[k] = max(hi[k], x[i, k])
-    com /= mass
-    vel /= mass
-    inertia(x, m, com, inertia_out)
-    ang = np.zeros(3)
-    reach = 0.0
-    for i in range(n):
-        rx, ry, rz = x[i, 0] - com[0], x[i, 1] - com[1], x[i, 2] - com[2]
-        ux, uy, uz = v[i, 0] - vel[0], v[i, 1] - vel[1], v[i, 2] - vel[2]
-        reach = max(reach, rx * rx + ry * ry + rz * rz)
-        ang[0] += m[i] * (ry * uz - rz * uy)
-        ang[1] += m[i] * (rz * ux - rx * uz)
-        ang[2] += m[i] * (rx * uy - ry * ux)
+    and angular momentum, and their bounds.  Two passes over the particles, their sums in
+    registers (the loops vectorise): mass, centre, velocity and bounds, then the inertia
+    tensor, the angular momentum and the reach about the centre."""
+    mass, com, vel, lo, hi = _moments(x, v, m)
+    ang, reach = _second_moments(x, v, m, (com, vel), inertia_out)
     inv_inertia[:, :] = inverse3(inertia_out)
     frame[F_MASS], frame[F_INV] = mass, 1.0 / mass
     frame[F_COM:F_COM + 3] = com
@@ -88,6 +66,60 @@ def body_frame(x, v, m, frame, inertia_out, inv_inertia):
     frame[F_REACH] = np.sqrt(reach)
     frame[F_LO:F_LO + 3] = lo
     frame[F_HI:F_HI + 3] = hi
+
+
+@njit(inline='always', **JIT)
+def _moments(x, v, m):
+    """(mass, centre of mass, mean velocity, lowest and highest coordinates) of particles
+    x, v (N, 3) of masses m."""
+    mass = cx = cy = cz = px = py = pz = 0.0
+    lx = ly = lz = np.inf
+    hx = hy = hz = -np.inf
+    for i in range(x.shape[0]):
+        w, x0, x1, x2 = m[i], x[i, 0], x[i, 1], x[i, 2]
+        mass += w
+        cx += w * x0
+        cy += w * x1
+        cz += w * x2
+        px += w * v[i, 0]
+        py += w * v[i, 1]
+        pz += w * v[i, 2]
+        lx, ly, lz = min(lx, x0), min(ly, x1), min(lz, x2)
+        hx, hy, hz = max(hx, x0), max(hy, x1), max(hz, x2)
+    inv = 1.0 / mass
+    return (mass, np.array([cx * inv, cy * inv, cz * inv]),
+            np.array([px * inv, py * inv, pz * inv]), np.array([lx, ly, lz]),
+            np.array([hx, hy, hz]))
+
+
+@njit(inline='always', **JIT)
+def _second_moments(x, v, m, frame, inertia_out):
+    """About the centre ``frame[0]`` moving at ``frame[1]``: the inertia tensor
+    sum m (|r|^2 I - r r^T) into ``inertia_out``; returns (the angular momentum
+    sum m r x (v - vel), the largest |r|^2)."""
+    com, vel = frame
+    c0, c1, c2, u0, u1, u2 = com[0], com[1], com[2], vel[0], vel[1], vel[2]
+    i00 = i11 = i22 = i01 = i02 = i12 = a0 = a1 = a2 = reach = 0.0
+    for i in range(x.shape[0]):
+        w = m[i]
+        rx, ry, rz = x[i, 0] - c0, x[i, 1] - c1, x[i, 2] - c2
+        ux, uy, uz = v[i, 0] - u0, v[i, 1] - u1, v[i, 2] - u2
+        rr = rx * rx + ry * ry + rz * rz
+        reach = max(reach, rr)
+        i00 += w * (rr - rx * rx)
+        i11 += w * (rr - ry * ry)
+        i22 += w * (rr - rz * rz)
+        i01 -= w * rx * ry
+        i02 -= w * rx * rz
+        i12 -= w * ry * rz
+        a0 += w * (ry * uz - rz * uy)
+        a1 += w * (rz * ux - rx * uz)
+        a2 += w * (rx * uy - ry * ux)
+    inertia_out[0, 0], inertia_out[1, 1], inertia_out[2, 2] = i00, i11, i22
+    inertia_out[0, 1] = inertia_out[1, 0] = i01
+    inertia_out[0, 2] = inertia_out[2, 0] = i02
+    inertia_out[1, 2] = inertia_out[2, 1] = i12
+    return np.array([a0, a1, a2]), reach
 
 
 @njit(**JIT)
