@@ -270,7 +270,12 @@ def _offer_particles(particles, frame, collider, margin, picks, touching, side):
     x, radius, cell = particles
     c, rows = collider
     slots, best, tangents = picks
+    # an outline reaches at most ``outer`` past its centre: a particle whose centre is that
+    # much farther than the margin is left out without its outline's gap
+    outer = _outer(cell, radius)
     for i in range(x.shape[0]):
+        if _collider_gap(rows, c, x[i, 0], x[i, 1], x[i, 2], 0.0)[0] - outer >= margin:
+            continue
         gap, _, _, _ = _outline_gap(rows, c, x[i], radius, cell)
         if gap < margin:
             _slot(slots, best, gap, x[i], frame, 0.25 * radius, tangents, i)
@@ -286,6 +291,18 @@ def _boxy(cell):
         for k in range(3):
             total += abs(cell[k, j])
     return total > 0.0
+
+
+@njit(**JIT_NO_REFCOUNT)
+def _outer(cell, radius):
+    """How far a particle's outline reaches past its centre at most: the sum of its cell's
+    half edges' lengths, or its sphere's radius (``_outline_gap``)."""
+    if not _boxy(cell):
+        return radius
+    total = 0.0
+    for k in range(3):
+        total += np.sqrt(cell[0, k] ** 2 + cell[1, k] ** 2 + cell[2, k] ** 2)
+    return total
 
 
 @njit(**JIT_NO_REFCOUNT)
