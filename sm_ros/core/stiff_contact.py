@@ -138,8 +138,9 @@ class StiffContact:
 
     def forget(self):
         """A step in which nothing could touch: no contacts to warm-start the next."""
-        self.keys = np.zeros(0, dtype=np.int64)
-        self.impulses = np.zeros((0, 3))
+        if len(self.keys):
+            self.keys = np.zeros(0, dtype=np.int64)
+            self.impulses = np.zeros((0, 3))
 
     def _rows(self, world):
         """Row 0 the ground, then the plain boxes and spheres, then the collider set's

@@ -470,8 +470,12 @@ class World(WorldColliders):
             return True
         if not self._contact_params.enabled:
             return False
-        colliding = (b for b, _ in members if self._contacts[b.name][0].collide)
-        return next(colliding, None) is not None and next(colliding, None) is not None
+        colliding = 0
+        for body, _ in members:
+            colliding += self._contacts[body.name][0].collide
+            if colliding == 2:
+                return True
+        return False
 
     def _zero_bid(self, n):
         """Body index 0 for n particles (the per-body path of the collider pass)."""

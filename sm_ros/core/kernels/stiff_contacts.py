@@ -274,9 +274,10 @@ def _offer_particles(particles, frame, collider, margin, picks, touching, side):
     # much farther than the margin is left out without its outline's gap
     outer = _outer(cell, radius)
     for i in range(x.shape[0]):
-        if _collider_gap(rows, c, x[i, 0], x[i, 1], x[i, 2], 0.0)[0] - outer >= margin:
+        gap, nx, ny, nz = _collider_gap(rows, c, x[i, 0], x[i, 1], x[i, 2], 0.0)
+        if gap - outer >= margin:
             continue
-        gap, _, _, _ = _outline_gap(rows, c, x[i], radius, cell)
+        gap -= _reach(cell, radius, nx, ny, nz)
         if gap < margin:
             _slot(slots, best, gap, x[i], frame, 0.25 * radius, tangents, i)
             if gap < TOUCH:
@@ -311,12 +312,19 @@ def _outline_gap(rows, c, p, radius, cell):
     (3, 3), its half edges as columns), whose reach along the normal is the sum of
     |n . edge|; or its sphere of ``radius``."""
     gap, nx, ny, nz = _collider_gap(rows, c, p[0], p[1], p[2], 0.0)
+    return gap - _reach(cell, radius, nx, ny, nz), nx, ny, nz
+
+
+@njit(inline='always', **JIT)
+def _reach(cell, radius, nx, ny, nz):
+    """How far a particle's outline reaches past its centre along the normal n: the sum of
+    |n . edge| over its cell's half edges, or its sphere's radius."""
     if not _boxy(cell):
-        return gap - radius, nx, ny, nz
+        return radius
     reach = 0.0
     for k in range(3):
         reach += abs(nx * cell[0, k] + ny * cell[1, k] + nz * cell[2, k])
-    return gap - reach, nx, ny, nz
+    return reach
 
 
 @njit(**JIT)
