@@ -965,3 +965,23 @@ def test_pair_list_kept_for_a_common_motion_and_always_complete():
         assert touching <= listed
         met += len(touching)
     assert met > 0 and c.builds > builds + 2
+
+
+@pytest.mark.parametrize('far', [1e6, 1e25, 1e200, 1e308])
+def test_pair_build_keeps_its_pairs_with_bodies_flung_beyond_any_grid(far):
+    """Bodies at a million to 1e308 m from a heap (a box of more cells than integers count,
+    or wider than floats reach): the grid wraps, nothing is written out of bounds, and the
+    heap's pairs are brute force's, each once."""
+    X, R, B, act, selfc, X0 = heap_of_lattices(7, n_bodies=6)
+    X = X.copy()
+    X[:, B == 4] += np.array([[far], [0.0], [0.0]])
+    X[:, B == 5] -= np.array([[far], [far], [0.0]])
+    skin = 0.25 * S
+    m, pi, pj = build_with(X, R, B, act, selfc, X0, 2 * R.max() + skin, skin, 16 * X.shape[1])
+    with np.errstate(over='ignore'):                     # NumPy's distances overflow
+        want = brute_pairs(X.T, R, B, act, selfc, X0.T, skin) if far < 1e300 else None
+    got = built_set(m, pi, pj)
+    if want is not None:
+        assert got == want
+    heap = {p for p in got if B[p[0]] < 4 and B[p[1]] < 4}
+    assert len(heap) > 100 and all(B[a] < 4 and B[b] < 4 for a, b in got)

@@ -172,12 +172,14 @@ def grid_sort(src, grid, dims):
     for i in range(n):
         if hb[i] < 0:
             continue
-        cx = min(np.int64((X[0, i] - lo0) * inv), np.int64(f0) - 1)
-        cy = min(np.int64((X[1, i] - lo1) * inv), np.int64(f1) - 1)
-        cz = min(np.int64((X[2, i] - lo2) * inv), np.int64(f2) - 1)
+        # cell coordinates as floats (a box of any size), wrapped before they become integers
+        fx = min((X[0, i] - lo0) * inv, f0 - 1.0)
+        fy = min((X[1, i] - lo1) * inv, f1 - 1.0)
+        fz = min((X[2, i] - lo2) * inv, f2 - 1.0)
         if wraps:
-            cx, cy, cz = cx % nx, cy % ny, cz % nz
-        c = cx + nx * cy + nxy * cz
+            c = _wrap_cell(fx, nx) + nx * _wrap_cell(fy, ny) + nxy * _wrap_cell(fz, nz)
+        else:
+            c = np.int64(fx) + nx * np.int64(fy) + nxy * np.int64(fz)
         hb[i] = c
         cnt[c + 1] += 1
     nact = counting_sort(hb, cnt, srt, ncell)
@@ -201,6 +203,18 @@ def grid_sort(src, grid, dims):
         cb[c] = b
         a0 = a1
     return nact
+
+
+@njit(inline='always', **JIT)
+def _wrap_cell(f, n):
+    """The cell of coordinate f >= 0 (a float, however large) on an axis of n cells that
+    wraps around; beyond what floats hold (a box wider than 1e308 m), cell 0: the distance
+    test decides."""
+    if f < 4.0e18:                       # an integer holds it
+        return np.int64(f) % n
+    if f < np.inf:                       # a float this large is an integer: exact remainder
+        return np.int64(np.fmod(f, n))
+    return np.int64(0)
 
 
 @njit(inline='always', **JIT)

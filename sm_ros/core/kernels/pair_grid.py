@@ -59,7 +59,7 @@ def wrapped_dims(extent, tsize, dims):
             cap += 1
         while cap > 3 and float(cap) ** left > budget:
             cap -= 1
-        n = min(np.int64(extent[k]), cap)
+        n = cap if extent[k] > cap else np.int64(extent[k])    # compared as floats: any size
         dims[k], dims[3 + k] = n, np.int64(n < extent[k])
         budget = budget / n
 
