@@ -56,22 +56,19 @@ def body_frame(x, v, m, frame, inertia_out, inv_inertia):
     and angular momentum, and their bounds.  Two passes over the particles, their sums in
     registers (the loops vectorise): mass, centre, velocity and bounds, then the inertia
     tensor, the angular momentum and the reach about the centre."""
-    mass, com, vel, lo, hi = _moments(x, v, m)
-    ang, reach = _second_moments(x, v, m, (com, vel), inertia_out)
+    _moments(x, v, m, frame)
+    a0, a1, a2, reach = _second_moments(x, v, m, frame, inertia_out)
     inv_inertia[:, :] = inverse3(inertia_out)
-    frame[F_MASS], frame[F_INV] = mass, 1.0 / mass
-    frame[F_COM:F_COM + 3] = com
-    frame[F_VEL:F_VEL + 3] = vel
-    frame[F_SPIN:F_SPIN + 3] = inv_inertia @ ang
+    for k in range(3):
+        frame[F_SPIN + k] = (inv_inertia[k, 0] * a0 + inv_inertia[k, 1] * a1
+                             + inv_inertia[k, 2] * a2)
     frame[F_REACH] = np.sqrt(reach)
-    frame[F_LO:F_LO + 3] = lo
-    frame[F_HI:F_HI + 3] = hi
 
 
 @njit(inline='always', **JIT)
-def _moments(x, v, m):
-    """(mass, centre of mass, mean velocity, lowest and highest coordinates) of particles
-    x, v (N, 3) of masses m."""
+def _moments(x, v, m, frame):
+    """The mass, its inverse, the centre of mass, the mean velocity and the lowest and
+    highest coordinates of particles x, v (N, 3) of masses m, into ``frame``."""
     mass = cx = cy = cz = px = py = pz = 0.0
     lx = ly = lz = np.inf
     hx = hy = hz = -np.inf
@@ -87,18 +84,20 @@ def _moments(x, v, m):
         lx, ly, lz = min(lx, x0), min(ly, x1), min(lz, x2)
         hx, hy, hz = max(hx, x0), max(hy, x1), max(hz, x2)
     inv = 1.0 / mass
-    return (mass, np.array([cx * inv, cy * inv, cz * inv]),
-            np.array([px * inv, py * inv, pz * inv]), np.array([lx, ly, lz]),
-            np.array([hx, hy, hz]))
+    frame[F_MASS], frame[F_INV] = mass, inv
+    frame[F_COM], frame[F_COM + 1], frame[F_COM + 2] = cx * inv, cy * inv, cz * inv
+    frame[F_VEL], frame[F_VEL + 1], frame[F_VEL + 2] = px * inv, py * inv, pz * inv
+    frame[F_LO], frame[F_LO + 1], frame[F_LO + 2] = lx, ly, lz
+    frame[F_HI], frame[F_HI + 1], frame[F_HI + 2] = hx, hy, hz
 
 
 @njit(inline='always', **JIT)
 def _second_moments(x, v, m, frame, inertia_out):
-    """About the centre ``frame[0]`` moving at ``frame[1]``: the inertia tensor
-    sum m (|r|^2 I - r r^T) into ``inertia_out``; returns (the angular momentum
-    sum m r x (v - vel), the largest |r|^2)."""
-    com, vel = frame
-    c0, c1, c2, u0, u1, u2 = com[0], com[1], com[2], vel[0], vel[1], vel[2]
+    """About the centre of ``frame``, moving at its velocity: the inertia tensor
+    sum m (|r|^2 I - r r^T) into ``inertia_out``; returns the angular momentum
+    sum m r x (v - vel) (3 numbers) and the largest |r|^2."""
+    c0, c1, c2 = frame[F_COM], frame[F_COM + 1], frame[F_COM + 2]
+    u0, u1, u2 = frame[F_VEL], frame[F_VEL + 1], frame[F_VEL + 2]
     i00 = i11 = i22 = i01 = i02 = i12 = a0 = a1 = a2 = reach = 0.0
     for i in range(x.shape[0]):
         w = m[i]
@@ -119,7 +118,7 @@ def _second_moments(x, v, m, frame, inertia_out):
     inertia_out[0, 1] = inertia_out[1, 0] = i01
     inertia_out[0, 2] = inertia_out[2, 0] = i02
     inertia_out[1, 2] = inertia_out[2, 1] = i12
-    return np.array([a0, a1, a2]), reach
+    return a0, a1, a2, reach
 
 
 @njit(**JIT)
