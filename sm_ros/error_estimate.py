@@ -84,19 +84,18 @@ def estimate(world, dt: float, snapshot: Optional[Snapshot] = None) -> Dict[str,
 
 
 class Estimate:
-    """One estimate of ``world`` at ``dt`` in ``PIECES`` pieces (``run``): S saved in
-    ``start``; while no tick stepped the world (``touched``) it holds S, else a run puts
-    the live state aside in ``live``; the fine half way waits in ``start`` between runs.
+    """One estimate of ``world`` at ``dt`` in ``PIECES`` pieces (``run``), with ticks
+    stepping the world between them (then ``touched``): S waits in ``start`` (the half way
+    H too, between a run that ends at it and the next), the live state in ``live``.
     ``result``: :func:`error_from`'s keys, ``cost_s`` (saves, steps, loads), ``steps``."""
 
     def __init__(self, world, dt: float, start: Snapshot, live: Snapshot):
         t0 = time.perf_counter()
         self.world, self.dt, self.start, self.live = world, float(dt), start, live
         start.save(world)
-        self.done_pieces, self.touched, self.coarse, self.result = 0, False, None, None
-        self.fine_half = None
         rigid = any(body.params.mode == 'rigid' for body in world.bodies)
         self.piece_steps = PIECE_STEPS if rigid else 1
+        self.done_pieces, self.touched, self.runs, self.result = 0, False, [], None
         self.cost_s = time.perf_counter() - t0
 
     def run(self, pieces: int) -> float:
@@ -106,30 +105,28 @@ class Estimate:
         end = min(PIECES, first + max(int(pieces), 0))
         if end == first:
             return 0.0
-        aside = self.touched or end == 2 or first == 2      # S not in ``start`` at the end
+        aside = self.touched or 2 in (first, end)      # S is not in ``start`` at the end
         if aside:
             self.live.save(world)
-        at = 'live' if self.touched else 'start'            # what the world holds now
+        holds = 'live' if self.touched else 'S'        # what the world holds now
         for k in range(first, end):
-            if at != ('half' if k == 2 else 'start'):
+            if holds != 'SSH'[k]:                      # from S, S, then the half way H
                 self.start.load(world)
             after = []
             for _ in range(self.piece_steps):
                 world.step(self.dt if k == 0 else 0.5 * self.dt)
                 after.append(positions(world))
-            at = ('coarse', 'half', 'fine')[k]
-            self.coarse = after if k == 0 else self.coarse
-            self.fine_half = after[-1] if k == 1 else self.fine_half
-            if k == 2:
-                fine = (after[-1],) if self.piece_steps == 1 else (self.fine_half, after[-1])
-                diff = step_difference(world, self.coarse, fine)
-                self.result = error_from(diff, self.dt)
+            self.runs.append(after)
+            holds = 'CHF'[k]
         if end == 2:
             self.start.save(world)
         (self.live if aside else self.start).load(world)
         self.done_pieces = end
         self.cost_s += time.perf_counter() - t0
-        if self.result is not None:
+        if end == PIECES:
+            coarse, half, fine = self.runs             # the fine run's every second half step
+            self.result = error_from(step_difference(world, coarse, (half + fine)[1::2]),
+                                     self.dt)
             self.result.update(cost_s=self.cost_s, steps=PIECES * self.piece_steps)
         return time.perf_counter() - t0
 
