@@ -129,85 +129,48 @@ def _fused_plain(start, end, particles, gmap, motion, point, limits):
     return (err2, over, s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22, low)
 
 
+#: Particles a damped loop takes at a time: its three sweeps find a block in the first
+#: level cache, and none of them holds so many accumulators that they leave the registers.
+DAMP_BLOCK = 256
+
+
+@njit(inline='always', **JIT)
+def _damp_block(lo, hi, x, v, field):
+    """v <- km v + f + o x p for particles lo..hi (``damp_constants``' folded damping)."""
+    km, f0, f1, f2, o0, o1, o2 = field
+    for i in range(U(lo), U(hi)):
+        p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
+        v[i, 0] = km * v[i, 0] + f0 + o1 * p2 - o2 * p1
+        v[i, 1] = km * v[i, 1] + f1 + o2 * p0 - o0 * p2
+        v[i, 2] = km * v[i, 2] + f2 + o0 * p1 - o1 * p0
+
+
+@njit(inline='always', **JIT)
+def _sum12(a, b):
+    """The sum of two 12-tuples, entry by entry."""
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5],
+            a[6] + b[6], a[7] + b[7], a[8] + b[8], a[9] + b[9], a[10] + b[10], a[11] + b[11])
+
+
 @njit(inline='always', **JIT)
 def _fused_damped(start, end, particles, gmap, field, motion, point, limits):
-    """``_fused_loop`` with damping: its 27 values."""
-    x, v, x0 = particles
-    alpha_h, h, hx, hy, hz = motion
+    """``_fused_loop`` with damping, ``DAMP_BLOCK`` particles at a time: the damping, the
+    plain loop (``_fused_plain``) and the damping sums of the new state
+    (``damp_sums_uniform``); returns the plain loop's 15 values and the 12 damping sums."""
+    x, v, _ = particles
     k0, k1, k2 = point
-    lim2, gz = limits
-    l00, l01, l02, l10, l11, l12, l20, l21, l22, b0, b1, b2 = gmap
-    km, f0, f1, f2, o0, o1, o2 = field
-    err2 = 0.0
-    over = 0
-    low = 0
-    s0 = s1 = s2 = 0.0
-    c00 = c01 = c02 = c10 = c11 = c12 = c20 = c21 = c22 = 0.0
-    # the damping sums: momentum, angular momentum about k, second moments of d, mass
-    pm0 = pm1 = pm2 = am0 = am1 = am2 = 0.0
-    e00 = e11 = e22 = e01 = e12 = e20 = 0.0
-    for i in range(U(start), U(end)):
-        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
-        p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
-        # damp_towards, its constants folded (damp_constants)
-        u0 = km * v[i, 0] + f0 + o1 * p2 - o2 * p1
-        u1 = km * v[i, 1] + f1 + o2 * p0 - o0 * p2
-        u2 = km * v[i, 2] + f2 + o0 * p1 - o1 * p0
-        # advance (Eq. 13-14), its expressions
-        e0 = l00 * a0 + l01 * a1 + l02 * a2 + b0 - p0
-        e1 = l10 * a0 + l11 * a1 + l12 * a2 + b1 - p1
-        e2 = l20 * a0 + l21 * a1 + l22 * a2 + b2 - p2
-        v0 = u0 + alpha_h * e0 + hx
-        v1 = u1 + alpha_h * e1 + hy
-        v2 = u2 + alpha_h * e2 + hz
-        y0 = p0 + h * v0
-        y1 = p1 + h * v1
-        y2 = p2 + h * v2
-        x[i, 0] = y0
-        x[i, 1] = y1
-        x[i, 2] = y2
-        v[i, 0] = v0
-        v[i, 1] = v1
-        v[i, 2] = v2
-        err2 += e0 * e0 + e1 * e1 + e2 * e2
-        over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
-        low += below_ground(y2, gz)
-        # the next step's shape-match sums of the new state
-        wd0 = y0 - k0
-        wd1 = y1 - k1
-        wd2 = y2 - k2
-        s0 += wd0
-        s1 += wd1
-        s2 += wd2
-        c00 += wd0 * a0
-        c01 += wd0 * a1
-        c02 += wd0 * a2
-        c10 += wd1 * a0
-        c11 += wd1 * a1
-        c12 += wd1 * a2
-        c20 += wd2 * a0
-        c21 += wd2 * a1
-        c22 += wd2 * a2
-        # the next step's damping sums of the new state (``damp_sums_range``'s)
-        d0, d1, d2 = y0 - k0, y1 - k1, y2 - k2
-        pm0 += v0
-        pm1 += v1
-        pm2 += v2
-        am0 += wd1 * v2 - wd2 * v1
-        am1 += wd2 * v0 - wd0 * v2
-        am2 += wd0 * v1 - wd1 * v0
-        e00 += wd0 * d0
-        e11 += wd1 * d1
-        e22 += wd2 * d2
-        e01 += wd0 * d1
-        e12 += wd1 * d2
-        e20 += wd2 * d0
-    # A non-finite speed makes its new position, hence a sum of the positions, non-finite:
-    # err2 takes it once a call, not per particle (4 operations a particle of ~46), so that
-    # ``Body._err`` still flags the state the pass wrote (``World.state_flagged``).
-    err2 += 0.0 * (s0 + s1 + s2)
-    return (err2, over, s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22, low,
-            pm0, pm1, pm2, am0, am1, am2, e00, e11, e22, e01, e12, e20)
+    err2, over, low = 0.0, 0, 0
+    shape = damped = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    for lo in range(start, end, DAMP_BLOCK):
+        hi = min(lo + DAMP_BLOCK, end)
+        _damp_block(lo, hi, x, v, field)
+        t = _fused_plain(lo, hi, particles, gmap, motion, point, limits)
+        err2 += t[0]
+        over += t[1]
+        low += t[14]
+        shape = _sum12(shape, t[2:14])
+        damped = _sum12(damped, damp_sums_uniform(lo, hi, x, v, 1.0, k0, k1, k2)[:12])
+    return (err2, over) + shape + (low,) + damped
 
 
 @njit(inline='always', **JIT)
