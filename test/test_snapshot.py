@@ -15,15 +15,13 @@ from sm_ros.core.snapshot import Snapshot
 #: Arrays a step writes before it reads them (per step scratch, work buffers and the
 #: results of a body's shape match, damping and limits, the plastic refresh's moments; the
 #: contact solve's per-step rows; the pair build's grid, hash tables and sort buffers; the
-#: sleep pass's per-step figures), which a snapshot does not save; and what holds
-#: addresses, not values (``ptrs``, ``_arena``: the addresses of a world's own arrays and a
-#: block whose alignment is its own).
+#: sleep pass's per-step figures), which a snapshot does not save.
 SCRATCH = {
     'Body': {'_accbuf', '_apq', '_acc', '_ang', '_com', '_dacc', '_dmp', '_dref',
              '_goal_lin', '_goal_off', '_lin', '_damp_spin', '_mat39', '_quat_n', '_quat_v',
              '_quat_prev', '_mat3', '_trans', '_kin_prev', '_lim_lin', '_lim_w', '_flagged',
              '_changed', '_quat_scratch', '_inertia', '_inertia_inv', '_mat9', '_features9',
-             '_mom3', '_mom9', '_arena'},
+             '_mom3', '_mom9'},
     '_SetLayout': {'goal_maps', 'work', 'quad_map', 'cluster_maps'},
     'Contact': {'_active_pairs', '_pair_rows', '_pair_row_index', '_pair_target',
                 '_body_centre', '_body_inv_inertia', '_body_spin', '_body_velocity',
@@ -33,7 +31,6 @@ SCRATCH = {
                 '_scratch_i', '_scratch_j', '_pcnt'},
     'Sleep': {'state.step2', 'state.drift2', 'state.level', 'state.near'},
     'FlatState': {'touched'},
-    'Pack': {'ptrs', 'scratch'},
     'StiffContact': {'_lists', '_lists_key', '_round', '_static', '_static_key'},
 }
 _PLAIN = (type(None), bool, int, float, complex, str, bytes, np.generic)

@@ -222,7 +222,6 @@ class Body:
         state = self.__dict__.copy()
         state.pop('_one', None)                # a typed list does not copy: rebuilt
         state.pop('_pack_owner', None)
-        state.pop('_arena', None)              # the copy's buffers are its own: packed again
         return state
 
     def __setstate__(self, state):

@@ -186,7 +186,6 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     _damping_buffers(body, fused_damping_min, fused_damping_min_sets)
     body._dirty = True
     body._flags[DAMP_SUMS] = 0.0           # no fused damping sums yet
-    body._arena = None                     # fast_record packs the new buffers (compact)
     _GENERATION[0] += 1
 
 
@@ -362,76 +361,9 @@ def merge_kinematic(body):
     _GENERATION[0] += 1
 
 
-#: Per-body buffers of a compiled-step record that ``compact`` moves into one block.
-_ARENA_ATTRS = ('_rest_lin', '_rest_off', '_part', '_wsum', '_sum_q', '_ref', '_quat',
-                '_aqq3', '_aqq9', '_scale', '_trans', '_goal_lin', '_goal_off', '_apq',
-                '_accbuf', '_mat39', '_quat_n', '_quat_v', '_nmat', '_cdet', '_acc', '_ang',
-                '_com', '_err', '_dpart', '_dmp', '_dref', '_dacc', '_lin', '_damp_spin',
-                '_quat_prev', '_flagged', '_lim_lin', '_lim_w', '_facc', '_flags',
-                '_limit_counts', '_udv', '_ptr', '_cl')
-_ARENA_SETS = ('sid', 'goal_maps', 'ref', 'part', 'ptr', 'cl', 'cnt', 'phi', 'org', 'work',
-               'quad_map', 'pair_offsets', 'cluster_maps')
-#: Alignment (bytes) of each buffer in the block: a cache line.
-_ARENA_ALIGN = 64
-
-
-def compact(body):
-    """Move the small buffers a record holds into one contiguous block (``body._arena``)
-    and rebind the body's attributes to views of it (values kept; the particle arrays x,
-    v, x0, y0 and the masses stay where they are).
-
-    A record holds ~65 arrays, each its own allocation: a step of a 144-particle body
-    touched as many scattered cache lines and pages, and between two steps of the same
-    body (contact, the other bodies) they leave the caches.  In one block, 64-byte
-    aligned in the order the step uses them, they stream in.  Done once per build (at the
-    first ``fast_record``), so every record of the body sees the same buffers; the views
-    keep dtype, shape, C order and alignment, so the compiled step's types do not change.
-    """
-    items = []
-    for name in _ARENA_ATTRS:
-        items.append((body, name, None))
-    for i in range(len(body._mat3)):
-        items.append((body._mat3, i, None))
-    if body._sets is not None:
-        for name in _ARENA_SETS:
-            items.append((body._sets, name, None))
-    if body._dsets is not None and body._sets is None:
-        for i in range(3):
-            items.append((body._dsets, i, None))
-    chosen, total = [], 0
-    for owner, key, _ in items:
-        a = owner[key] if isinstance(owner, (list, tuple)) else getattr(owner, key)
-        if not isinstance(a, np.ndarray) or a.size == 0 or not a.flags.c_contiguous:
-            continue
-        chosen.append((owner, key, a, total))
-        total += -(-a.nbytes // _ARENA_ALIGN) * _ARENA_ALIGN
-    arena = np.zeros(total + _ARENA_ALIGN, dtype=np.uint8)
-    base = -arena.ctypes.data % _ARENA_ALIGN
-    dsets = list(body._dsets) if body._dsets is not None else None
-    for owner, key, a, off in chosen:
-        view = arena[base + off:base + off + a.nbytes].view(a.dtype).reshape(a.shape)
-        view[...] = a
-        if not a.flags.writeable:
-            view.flags.writeable = False
-        if isinstance(owner, list):
-            owner[key] = view
-        elif isinstance(owner, tuple):
-            dsets[key] = view
-        else:
-            setattr(owner, key, view)
-    if body._sets is not None and body._dsets is not None:
-        st = body._sets
-        dsets = [st.ptr, st.cl, st.cnt]      # the damping sets are the set layout's
-    if dsets is not None:
-        body._dsets = tuple(dsets)
-    body._arena = arena
-
-
 def fast_record(body, h):
     """The buffers ``kernels.world_step`` steps, a ``StepRecord`` (valid until the next
     rebuild)."""
-    if getattr(body, '_arena', None) is None:
-        compact(body)
     body._fstate = np.zeros(13)
     retime_record(body, body._fstate, h)
     sptr, scl, scnt = body._dsets if body._dsets else (
