@@ -22,6 +22,7 @@ import numpy as np
 from numba import njit
 
 from .kernels.jit import JIT, JIT_NO_REFCOUNT, U
+from .kernels.linalg import ZERO16, add_damping
 from .kernels.pair_contact import collide_moved, is_carried, pair_normal, report_touch
 from .kernels.spread import moved_box, spread_of
 
@@ -218,37 +219,13 @@ def _moments(X, V, M, start, end):
     of particles start..end about the first one (for round-off), and their lowest
     height."""
     q0, q1, q2 = X[0, start], X[1, start], X[2, start]
-    p0 = p1 = p2 = 0.0
-    s0 = s1 = s2 = 0.0
-    l0 = l1 = l2 = 0.0
-    xx = yy = zz = xy = yz = zx = 0.0
+    sums = ZERO16
     lo = np.inf
     for k in range(U(start), U(end)):
-        x0, x1, x2 = X[0, k], X[1, k], X[2, k]
-        lo = min(lo, x2)
-        m = M[k]
-        y0 = x0 - q0
-        y1 = x1 - q1
-        y2 = x2 - q2
-        u0 = m * V[0, k]
-        u1 = m * V[1, k]
-        u2 = m * V[2, k]
-        p0 += u0
-        p1 += u1
-        p2 += u2
-        s0 += m * y0
-        s1 += m * y1
-        s2 += m * y2
-        l0 += y1 * u2 - y2 * u1
-        l1 += y2 * u0 - y0 * u2
-        l2 += y0 * u1 - y1 * u0
-        xx += m * y0 * y0
-        yy += m * y1 * y1
-        zz += m * y2 * y2
-        xy += m * y0 * y1
-        yz += m * y1 * y2
-        zx += m * y2 * y0
-    return (p0, p1, p2), (s0, s1, s2), (l0, l1, l2), (xx, yy, zz, xy, yz, zx), lo
+        lo = min(lo, X[2, k])
+        sums = add_damping(sums, M[k], X[0, k] - q0, X[1, k] - q1, X[2, k] - q2,
+                           V[0, k], V[1, k], V[2, k])
+    return sums[3:6], sums[:3], sums[6:9], sums[9:15], lo
 
 
 @njit(inline='always', **JIT)

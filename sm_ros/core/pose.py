@@ -16,6 +16,7 @@ from numba import njit
 import numpy as np
 
 from sm_ros.core.kernels import extract_rotation
+from sm_ros.core.kernels.linalg import ZERO12, add_outer
 
 
 @njit(cache=True, fastmath=False)
@@ -29,29 +30,16 @@ def com_apq(x, m, x0, com, apq):
     are contiguous rows).
     """
     sm = 0.0
-    cx = cy = cz = 0.0
-    a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
+    sums = ZERO12
     for i in range(x.shape[0]):
         mi = m[i]
-        px, py, pz = mi * x[i, 0], mi * x[i, 1], mi * x[i, 2]
-        qx, qy, qz = x0[i, 0], x0[i, 1], x0[i, 2]
         sm += mi
-        cx += px
-        cy += py
-        cz += pz
-        a00 += px * qx
-        a01 += px * qy
-        a02 += px * qz
-        a10 += py * qx
-        a11 += py * qy
-        a12 += py * qz
-        a20 += pz * qx
-        a21 += pz * qy
-        a22 += pz * qz
-    com[0], com[1], com[2] = cx / sm, cy / sm, cz / sm
-    apq[0, 0], apq[0, 1], apq[0, 2] = a00, a01, a02
-    apq[1, 0], apq[1, 1], apq[1, 2] = a10, a11, a12
-    apq[2, 0], apq[2, 1], apq[2, 2] = a20, a21, a22
+        sums = add_outer(sums, mi * x[i, 0], mi * x[i, 1], mi * x[i, 2], x0[i, 0], x0[i, 1],
+                         x0[i, 2])
+    com[0], com[1], com[2] = sums[0] / sm, sums[1] / sm, sums[2] / sm
+    apq[0, 0], apq[0, 1], apq[0, 2] = sums[3], sums[4], sums[5]
+    apq[1, 0], apq[1, 1], apq[1, 2] = sums[6], sums[7], sums[8]
+    apq[2, 0], apq[2, 1], apq[2, 2] = sums[9], sums[10], sums[11]
 
 
 def com_apq_numpy(x, m, x0):

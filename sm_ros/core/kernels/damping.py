@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit
 
 from .jit import JIT, U
-from .linalg import add_moments, sym3_solve
+from .linalg import ZERO16, add_damping, add_moments, sym3_solve
 
 
 @njit(**JIT)
@@ -233,35 +233,11 @@ def damp_sums_range(lo, hi, x, v, mass, k0, k1, k2):
     19) and sum w d (rows 0-2), 16 values, w = ``mass``.  Vectorises across particles
     (unit-stride columns of x, v, unsigned index: one lane a particle, a vector
     accumulator a sum).  Inlined by Numba into ``damp_acc_range``."""
-    a0 = a1 = a2 = b0 = b1 = b2 = c0 = c1 = c2 = 0.0
-    e00 = e11 = e22 = e01 = e12 = e20 = 0.0
-    ms = 0.0
+    sums = ZERO16
     for k in range(U(lo), U(hi)):
-        w = mass[k]
-        d0 = x[k, 0] - k0
-        d1 = x[k, 1] - k1
-        d2 = x[k, 2] - k2
-        v0, v1, v2 = v[k, 0], v[k, 1], v[k, 2]
-        wd0 = w * d0
-        wd1 = w * d1
-        wd2 = w * d2
-        ms += w
-        a0 += wd0
-        a1 += wd1
-        a2 += wd2
-        b0 += w * v0
-        b1 += w * v1
-        b2 += w * v2
-        c0 += wd1 * v2 - wd2 * v1
-        c1 += wd2 * v0 - wd0 * v2
-        c2 += wd0 * v1 - wd1 * v0
-        e00 += wd0 * d0
-        e11 += wd1 * d1
-        e22 += wd2 * d2
-        e01 += wd0 * d1
-        e12 += wd1 * d2
-        e20 += wd2 * d0
-    return b0, b1, b2, c0, c1, c2, e00, e11, e22, e01, e12, e20, ms, a0, a1, a2
+        sums = add_damping(sums, mass[k], x[k, 0] - k0, x[k, 1] - k1, x[k, 2] - k2,
+                           v[k, 0], v[k, 1], v[k, 2])
+    return sums[3:15] + (sums[15],) + sums[:3]
 
 
 @njit(**JIT)

@@ -11,6 +11,7 @@ rigid field into three multiply-adds a component.
 from numba import njit
 
 from .jit import JIT, U
+from .linalg import ZERO12, ZERO16, add_damping, add_outer
 
 
 @njit(inline='always', **JIT)
@@ -67,8 +68,8 @@ def _fused_loop(start, end, particles, gmap, damp, field, motion, point, limits)
     reduced once a call).  Inlined by Numba into ``_int_single_fused`` (one cluster, x0 the
     rest positions) and ``sets._sets_fused_lin`` (a run of one set, x0 its offsets y).
 
-    Damped, the loop also takes the damping sums of the new state (13 accumulators more, 28
-    in all), so a damped block is read once instead of twice.
+    Damped, ``_fused_damped`` runs it block by block between the damping and the damping
+    sums of the new state, each block read from the first level cache.
     """
     if damp:
         return _fused_damped(start, end, particles, gmap, field, motion, point, limits)
@@ -87,8 +88,7 @@ def _fused_plain(start, end, particles, gmap, motion, point, limits):
     err2 = 0.0
     over = 0
     low = 0
-    s0 = s1 = s2 = 0.0
-    c00 = c01 = c02 = c10 = c11 = c12 = c20 = c21 = c22 = 0.0
+    sums = ZERO12
     for i in range(U(start), U(end)):
         a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
         p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
@@ -110,23 +110,9 @@ def _fused_plain(start, end, particles, gmap, motion, point, limits):
         err2 += e0 * e0 + e1 * e1 + e2 * e2
         over += (v0 * v0 + v1 * v1 + v2 * v2) > lim2
         low += below_ground(y2, gz)
-        wd0 = y0 - k0
-        wd1 = y1 - k1
-        wd2 = y2 - k2
-        s0 += wd0
-        s1 += wd1
-        s2 += wd2
-        c00 += wd0 * a0
-        c01 += wd0 * a1
-        c02 += wd0 * a2
-        c10 += wd1 * a0
-        c11 += wd1 * a1
-        c12 += wd1 * a2
-        c20 += wd2 * a0
-        c21 += wd2 * a1
-        c22 += wd2 * a2
-    err2 += 0.0 * (s0 + s1 + s2)
-    return (err2, over, s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22, low)
+        sums = add_outer(sums, y0 - k0, y1 - k1, y2 - k2, a0, a1, a2)
+    err2 += 0.0 * (sums[0] + sums[1] + sums[2])
+    return (err2, over) + sums + (low,)
 
 
 #: Particles a damped loop takes at a time: its three sweeps find a block in the first
@@ -160,7 +146,7 @@ def _fused_damped(start, end, particles, gmap, field, motion, point, limits):
     x, v, _ = particles
     k0, k1, k2 = point
     err2, over, low = 0.0, 0, 0
-    shape = damped = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    shape = damped = ZERO12
     for lo in range(start, end, DAMP_BLOCK):
         hi = min(lo + DAMP_BLOCK, end)
         _damp_block(lo, hi, x, v, field)
@@ -181,25 +167,10 @@ def damp_sums_uniform(lo, hi, x, v, wuni, k0, k1, k2):
     one-loop passes (``packed._pass``, ``sets._sets_fused_lin``) for a block or run the
     colliders or the speed cap moved after their loop (``_fused_loop`` takes the same
     sums); they take sum w d from their shape sums."""
-    b0 = b1 = b2 = c0 = c1 = c2 = 0.0
-    e00 = e11 = e22 = e01 = e12 = e20 = 0.0
+    sums = ZERO16
     for k in range(U(lo), U(hi)):
-        d0 = x[k, 0] - k0
-        d1 = x[k, 1] - k1
-        d2 = x[k, 2] - k2
-        v0, v1, v2 = v[k, 0], v[k, 1], v[k, 2]
-        b0 += v0
-        b1 += v1
-        b2 += v2
-        c0 += d1 * v2 - d2 * v1
-        c1 += d2 * v0 - d0 * v2
-        c2 += d0 * v1 - d1 * v0
-        e00 += d0 * d0
-        e11 += d1 * d1
-        e22 += d2 * d2
-        e01 += d0 * d1
-        e12 += d1 * d2
-        e20 += d2 * d0
-    return (wuni * b0, wuni * b1, wuni * b2, wuni * c0, wuni * c1, wuni * c2,
-            wuni * e00, wuni * e11, wuni * e22, wuni * e01, wuni * e12, wuni * e20,
-            wuni * (hi - lo))
+        sums = add_damping(sums, 1.0, x[k, 0] - k0, x[k, 1] - k1, x[k, 2] - k2,
+                           v[k, 0], v[k, 1], v[k, 2])
+    return (wuni * sums[3], wuni * sums[4], wuni * sums[5], wuni * sums[6], wuni * sums[7],
+            wuni * sums[8], wuni * sums[9], wuni * sums[10], wuni * sums[11],
+            wuni * sums[12], wuni * sums[13], wuni * sums[14], wuni * (hi - lo))

@@ -31,6 +31,7 @@ from .jit import JIT, U, claim_next
 from .colliders import _collide_range
 from .damping import damp_acc_range, damp_towards
 from .goals import _goal_quad, _qhat
+from .linalg import ZERO12, add_outer
 from .fused import _fused_range, damp_constants
 
 #: A body's particles as the passes read them: positions, velocities and rest positions
@@ -142,27 +143,12 @@ def _rest_sums(start, end, x, x0, mass, r0, r1, r2):
     vectorises across particles (unit-stride columns of x, x0, unsigned index: one lane a
     particle, 12 vector accumulators).  Inlined by Numba into its callers (``_acc_single``;
     ``sets._sets_fused_lin`` with x0 the set offsets y)."""
-    s0 = s1 = s2 = 0.0
-    c00 = c01 = c02 = c10 = c11 = c12 = c20 = c21 = c22 = 0.0
+    sums = ZERO12
     for i in range(U(start), U(end)):
-        a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
         w = mass[i]
-        d0 = w * (x[i, 0] - r0)
-        d1 = w * (x[i, 1] - r1)
-        d2 = w * (x[i, 2] - r2)
-        s0 += d0
-        s1 += d1
-        s2 += d2
-        c00 += d0 * a0
-        c01 += d0 * a1
-        c02 += d0 * a2
-        c10 += d1 * a0
-        c11 += d1 * a1
-        c12 += d1 * a2
-        c20 += d2 * a0
-        c21 += d2 * a1
-        c22 += d2 * a2
-    return s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22
+        sums = add_outer(sums, w * (x[i, 0] - r0), w * (x[i, 1] - r1), w * (x[i, 2] - r2),
+                         x0[i, 0], x0[i, 1], x0[i, 2])
+    return sums
 
 
 @njit(inline='always', **JIT)

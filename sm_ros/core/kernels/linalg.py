@@ -408,3 +408,35 @@ def add_moments(lin, k, w, r, u):
     lin[k, 10] -= w * r0 * r1
     lin[k, 11] -= w * r1 * r2
     lin[k, 12] -= w * r2 * r0
+
+
+#: Twelve zeros: the start of ``add_outer``'s sums.
+ZERO12 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@njit(inline='always', **JIT)
+def add_outer(sums, d0, d1, d2, a0, a1, a2):
+    """``sums`` (sum d (3), then sum d a^T row by row (9)) with one more pair d, a: the
+    shape match's sums of a particle loop, kept in registers when the loop carries them."""
+    s0, s1, s2, c00, c01, c02, c10, c11, c12, c20, c21, c22 = sums
+    return (s0 + d0, s1 + d1, s2 + d2, c00 + d0 * a0, c01 + d0 * a1, c02 + d0 * a2,
+            c10 + d1 * a0, c11 + d1 * a1, c12 + d1 * a2, c20 + d2 * a0, c21 + d2 * a1,
+            c22 + d2 * a2)
+
+
+#: Sixteen zeros: the start of ``add_damping``'s sums.
+ZERO16 = ZERO12 + (0.0, 0.0, 0.0, 0.0)
+
+
+@njit(inline='always', **JIT)
+def add_damping(sums, w, d0, d1, d2, v0, v1, v2):
+    """``sums`` (sum w d (3), sum w v (3), sum w d x v (3), the six second moments sum w
+    d_a d_b as xx yy zz xy yz zx, sum w) with one more particle of weight w, offset d from
+    the point the sums are taken about and velocity v: what the damping needs of a loop."""
+    u0, u1, u2 = w * v0, w * v1, w * v2
+    wd0, wd1, wd2 = w * d0, w * d1, w * d2
+    return (sums[0] + wd0, sums[1] + wd1, sums[2] + wd2, sums[3] + u0, sums[4] + u1,
+            sums[5] + u2, sums[6] + (d1 * u2 - d2 * u1), sums[7] + (d2 * u0 - d0 * u2),
+            sums[8] + (d0 * u1 - d1 * u0), sums[9] + wd0 * d0, sums[10] + wd1 * d1,
+            sums[11] + wd2 * d2, sums[12] + wd0 * d1, sums[13] + wd1 * d2,
+            sums[14] + wd2 * d0, sums[15] + w)

@@ -12,6 +12,7 @@ import numpy as np
 from numba import njit
 
 from .jit import JIT, U, claim_next
+from .linalg import ZERO12, ZERO16, add_damping, add_outer
 
 
 @njit(inline='always', **JIT)
@@ -39,6 +40,27 @@ def _add_row(sums, s, values):
     sums[s, 9] += values[9]
     sums[s, 10] += values[10]
     sums[s, 11] += values[11]
+
+
+@njit(inline='always', **JIT)
+def _add_shape_sums(sums, s, shape):
+    """sums[s, 0:12] += a run's shape sums (``linalg.add_outer``'s), in the row's order:
+    per axis, sum w d and then sum w d y^T."""
+    _add_row(sums, s, (shape[0], shape[3], shape[4], shape[5], shape[1], shape[6],
+                       shape[7], shape[8], shape[2], shape[9], shape[10], shape[11]))
+
+
+#: Ten zeros: the start of a row of ``_add_features``.
+ZERO10 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@njit(inline='always', **JIT)
+def _add_features(row, d, phi):
+    """A row of the quadratic sums (sum d phi(y)^T, phi = 1, y, y^2 terms) with one more
+    particle: its offset component d and its nine features ``phi`` after the 1."""
+    return (row[0] + d, row[1] + d * phi[0], row[2] + d * phi[1], row[3] + d * phi[2],
+            row[4] + d * phi[3], row[5] + d * phi[4], row[6] + d * phi[5],
+            row[7] + d * phi[6], row[8] + d * phi[7], row[9] + d * phi[8])
 
 
 @njit(inline='always', **JIT)
@@ -93,32 +115,16 @@ def _sets_acc_lin(start, end, x, y0, mass, sid, runs, sref, sums):
     while i < end:
         s = sid[i]
         r0, r1, r2 = sref[s, 0], sref[s, 1], sref[s, 2]
-        a00 = a01 = a02 = a03 = 0.0
-        a10 = a11 = a12 = a13 = 0.0
-        a20 = a21 = a22 = a23 = 0.0
+        shape = ZERO12
         r += 1
         j = min(runs[r], end)                  # the run's end (``_SetLayout.runs``)
         # a reduction over the run: vectorises (module docstring)
         for k in range(U(i), U(j)):
             w = mass[k]
-            d0 = w * (x[k, 0] - r0)
-            d1 = w * (x[k, 1] - r1)
-            d2 = w * (x[k, 2] - r2)
-            y_0, y_1, y_2 = y0[k, 0], y0[k, 1], y0[k, 2]
-            a00 += d0
-            a01 += d0 * y_0
-            a02 += d0 * y_1
-            a03 += d0 * y_2
-            a10 += d1
-            a11 += d1 * y_0
-            a12 += d1 * y_1
-            a13 += d1 * y_2
-            a20 += d2
-            a21 += d2 * y_0
-            a22 += d2 * y_1
-            a23 += d2 * y_2
+            shape = add_outer(shape, w * (x[k, 0] - r0), w * (x[k, 1] - r1),
+                              w * (x[k, 2] - r2), y0[k, 0], y0[k, 1], y0[k, 2])
         i = j
-        _add_row(sums, s, (a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23))
+        _add_shape_sums(sums, s, shape)
 
 
 @njit(**JIT)
@@ -145,62 +151,20 @@ def _sets_acc_damp_lin(start, end, particles, sets, sums, dsums):
             row[17] = x[i, 2]
             row[18] = 1.0
         q0, q1, q2 = row[15], row[16], row[17]
-        a00 = a01 = a02 = a03 = 0.0
-        a10 = a11 = a12 = a13 = 0.0
-        a20 = a21 = a22 = a23 = 0.0
-        e0 = e1 = e2 = b0 = b1 = b2 = c0 = c1 = c2 = 0.0
-        e00 = e11 = e22 = e01 = e12 = e20 = ms = 0.0
+        shape, damp = ZERO12, ZERO16
         r += 1
         j = min(runs[r], end)                  # the run's end (``_SetLayout.runs``)
         for k in range(U(i), U(j)):
             w = mass[k]
             p0, p1, p2 = x[k, 0], x[k, 1], x[k, 2]
-            d0 = w * (p0 - r0)
-            d1 = w * (p1 - r1)
-            d2 = w * (p2 - r2)
-            y_0, y_1, y_2 = y0[k, 0], y0[k, 1], y0[k, 2]
-            a00 += d0
-            a01 += d0 * y_0
-            a02 += d0 * y_1
-            a03 += d0 * y_2
-            a10 += d1
-            a11 += d1 * y_0
-            a12 += d1 * y_1
-            a13 += d1 * y_2
-            a20 += d2
-            a21 += d2 * y_0
-            a22 += d2 * y_1
-            a23 += d2 * y_2
-            # the damping sums about p_s (damping.damp_acc_range, same operations)
-            f0 = p0 - q0
-            f1 = p1 - q1
-            f2 = p2 - q2
-            u0 = w * v[k, 0]
-            u1 = w * v[k, 1]
-            u2 = w * v[k, 2]
-            wf0 = w * f0
-            wf1 = w * f1
-            wf2 = w * f2
-            ms += w
-            e0 += wf0
-            e1 += wf1
-            e2 += wf2
-            b0 += u0
-            b1 += u1
-            b2 += u2
-            c0 += f1 * u2 - f2 * u1
-            c1 += f2 * u0 - f0 * u2
-            c2 += f0 * u1 - f1 * u0
-            e00 += wf0 * f0
-            e11 += wf1 * f1
-            e22 += wf2 * f2
-            e01 += wf0 * f1
-            e12 += wf1 * f2
-            e20 += wf2 * f0
+            shape = add_outer(shape, w * (p0 - r0), w * (p1 - r1), w * (p2 - r2),
+                              y0[k, 0], y0[k, 1], y0[k, 2])
+            # the damping sums about p_s (damping.damp_acc_range's)
+            damp = add_damping(damp, w, p0 - q0, p1 - q1, p2 - q2, v[k, 0], v[k, 1], v[k, 2])
         i = j
-        _add_row(sums, s, (a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23))
-        _add_damping_sums(row, (e0, e1, e2, b0, b1, b2, c0, c1, c2, e00, e11, e22, e01, e12, e20))
-        row[19] += ms
+        _add_shape_sums(sums, s, shape)
+        _add_damping_sums(row, damp[:15])
+        row[19] += damp[15]
 
 
 @njit(**JIT)
@@ -210,55 +174,17 @@ def _sets_acc_quad(start, end, x, y0, mass, sid, sref, sums):
     while i < end:
         s = sid[i]
         r0, r1, r2 = sref[s, 0], sref[s, 1], sref[s, 2]
-        a00 = a01 = a02 = a03 = a04 = a05 = a06 = a07 = a08 = a09 = 0.0
-        a10 = a11 = a12 = a13 = a14 = a15 = a16 = a17 = a18 = a19 = 0.0
-        a20 = a21 = a22 = a23 = a24 = a25 = a26 = a27 = a28 = a29 = 0.0
+        row0 = row1 = row2 = ZERO10
         while i < end and sid[i] == s:
             w = mass[i]
-            d0 = w * (x[i, 0] - r0)
-            d1 = w * (x[i, 1] - r1)
-            d2 = w * (x[i, 2] - r2)
             y_0, y_1, y_2 = y0[i, 0], y0[i, 1], y0[i, 2]
-            f4 = y_0 * y_0
-            f5 = y_1 * y_1
-            f6 = y_2 * y_2
-            f7 = y_0 * y_1
-            f8 = y_1 * y_2
-            f9 = y_2 * y_0
-            a00 += d0
-            a01 += d0 * y_0
-            a02 += d0 * y_1
-            a03 += d0 * y_2
-            a04 += d0 * f4
-            a05 += d0 * f5
-            a06 += d0 * f6
-            a07 += d0 * f7
-            a08 += d0 * f8
-            a09 += d0 * f9
-            a10 += d1
-            a11 += d1 * y_0
-            a12 += d1 * y_1
-            a13 += d1 * y_2
-            a14 += d1 * f4
-            a15 += d1 * f5
-            a16 += d1 * f6
-            a17 += d1 * f7
-            a18 += d1 * f8
-            a19 += d1 * f9
-            a20 += d2
-            a21 += d2 * y_0
-            a22 += d2 * y_1
-            a23 += d2 * y_2
-            a24 += d2 * f4
-            a25 += d2 * f5
-            a26 += d2 * f6
-            a27 += d2 * f7
-            a28 += d2 * f8
-            a29 += d2 * f9
+            phi = (y_0, y_1, y_2, y_0 * y_0, y_1 * y_1, y_2 * y_2, y_0 * y_1, y_1 * y_2,
+                   y_2 * y_0)
+            row0 = _add_features(row0, w * (x[i, 0] - r0), phi)
+            row1 = _add_features(row1, w * (x[i, 1] - r1), phi)
+            row2 = _add_features(row2, w * (x[i, 2] - r2), phi)
             i += 1
-        _add_quad_row(sums, s, (a00, a01, a02, a03, a04, a05, a06, a07, a08, a09,
-                                 a10, a11, a12, a13, a14, a15, a16, a17, a18, a19,
-                                 a20, a21, a22, a23, a24, a25, a26, a27, a28, a29))
+        _add_quad_row(sums, s, row0 + row1 + row2)
 
 
 @njit(**JIT)
