@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sm_ros.core import BodyParams, Ground, World
-from sm_ros.core import contact as C
+from sm_ros.core import contact as C, tuning
 from sm_ros.core.contact import BodyContact, ContactParams
 from sm_ros.core.contact_state import (NO_WALLS, ContactLaw, ContactParticles, PairList,
                                       carried_bodies_for, pair_sweep_for, report_for)
@@ -39,7 +39,7 @@ def brute_pairs(x, r, body, act, selfc, x0, cutoff_extra):
     ok = act[body[i]] & act[body[j]] & (d < cut + cutoff_extra)
     same = body[i] == body[j]
     rest = np.linalg.norm(x0[i] - x0[j], axis=1)
-    ok &= ~same | (selfc[body[i]] & (rest > C.SELF_REST_FACTOR * cut))
+    ok &= ~same | (selfc[body[i]] & (rest > tuning.SELF_REST_FACTOR * cut))
     return set(zip(i[ok].tolist(), j[ok].tolist()))
 
 
@@ -54,7 +54,7 @@ def build_with(X, R, B, act, selfc, X0, cell, skin, cap, table=None):
     pi = np.zeros(cap, np.int32)
     pj = np.zeros(cap, np.int32)
     table = table or 1 << max(5, int(np.ceil(np.log2(4 * n))))
-    src = C.PairSource(X, R, B, act, selfc, X0, cell, skin, C.SELF_REST_FACTOR)
+    src = C.PairSource(X, R, B, act, selfc, X0, cell, skin, tuning.SELF_REST_FACTOR)
     grid = C.GridScratch(np.zeros(n, np.int64), np.zeros(table + 1, np.int64),
                          np.zeros(n, np.int64), np.zeros((n, 4)), np.zeros(n, np.int32),
                          np.zeros(table, np.int32))

@@ -2,7 +2,7 @@
 
 Model (doc/contact.md): every particle of a colliding body is a sphere of
 its body's contact radius ``r``; two particles of different bodies (or of one
-self-colliding body whose rest distance exceeds ``SELF_REST_FACTOR`` times their contact
+self-colliding body whose rest distance exceeds ``tuning.SELF_REST_FACTOR`` times their contact
 distance) must stay at least ``r_i + r_j`` apart.  After the bodies' own step (each
 substep) every overlapping pair is pushed apart along the line of its start-of-step
 positions (x - h v), weighted by inverse mass (pinned and grabbed particles have infinite
@@ -11,11 +11,11 @@ then gets the ground's contact law (``solve_pairs``).  Every velocity change als
 particles by h times it, so without friction angular momentum is kept to round-off too.
 Particles that contact moved are then projected out of the static colliders again.
 With ``ContactParams.stacking`` (the default), under gravity, a stiff body (alpha at the
-step at least ``COUPLE_ALPHA``, one cluster or many, no pinned or grabbed particle) carries
+step at least ``tuning.COUPLE_ALPHA``, one cluster or many, no pinned or grabbed particle) carries
 its contacts as a whole: an impulse on one of its particles translates the body, so its
 load reaches all of it within the step instead of compressing its touching layer; such
 pairs, and such bodies on the ground, are solved with accumulated impulses over several
-sweeps, warm-started from the last step (``WARM_START``), and a carried body held by
+sweeps, warm-started from the last step (``tuning.WARM_START``), and a carried body held by
 another does not spin (``contact_bodies.solve_bodies``): stacks stand and heaps of such
 bodies (``paper_384``) come to rest at the node's step.
 
@@ -41,32 +41,8 @@ from .contact_state import (NO_WALLS, CarriedBodies, ContactLaw, ContactParticle
                             ContactReport, PairList, PairSweep, WallCandidates)
 from .kernels.colliders import Colliders, contact_velocity
 from .params import _finite
+from . import tuning
 
-#: Same-body pairs self-collide only when their rest distance exceeds this many times
-#: their contact distance ``r_i + r_j`` (lattice neighbours up to two spacings apart
-#: never do: they are held by the shape match).
-SELF_REST_FACTOR = 2.0
-#: Verlet skin as a fraction of the largest contact radius.
-SKIN_FACTOR = 0.5
-#: A body carries its contacts as a whole (``Contact.coupling``) when its goal pull alpha
-#: at the step is at least this (one cluster or many): the shape match then restores
-#: most of a deviation within the step, so the body is stiff (doc/contact.md); softer
-#: bodies give way at their contacts, per particle.
-COUPLE_ALPHA = 0.5
-#: With stacking, ``solve_bodies`` sweeps the pairs of bodies carried as a whole at most
-#: this many times a step (at least ``iterations``): 4 left five stacked boxes jittering
-#: by 1.2 mm at the node's step, 8 by 0.01 mm.
-STACK_SWEEPS = 8
-#: ``solve_bodies`` stops sweeping once no velocity changed by more than this fraction of
-#: the resting threshold (``World.step``: 2 |g| h) in a sweep.
-SWEEP_TOL = 0.01
-#: ``solve_bodies`` starts each step from this fraction of the velocity impulses its
-#: pairs of carried bodies (and their ground contacts) ended the last step with, while the
-#: pair list is unchanged (``kernels.pair_contact.warm_start``): without it the 8 sweeps did
-#: not carry the load of ``paper_384``'s heap (up to ten bodies high) to the ground, its
-#: top bodies kept about 2 g h of downward speed that the position impulses cancelled
-#: every step (1.3 J left); with 1.0 five stacked boxes sank 14 mm in 10 s.
-WARM_START = 0.5
 _NO_GROUND = np.zeros(4)
 _NO_ROWS8 = np.zeros((0, 8))
 _NO_ROWS6 = np.zeros((0, 6))
@@ -92,7 +68,7 @@ class ContactParams:
     is used as given); ``iterations`` Gauss-Seidel sweeps over the pairs per step.
     ``stacking`` (on by default; scene key ``contact: {stacking: ...}``, node parameter
     ``contact.stacking``): under gravity, stiff bodies carry their contacts as a whole
-    (``COUPLE_ALPHA``, ``STACK_SWEEPS``, ``WARM_START``; doc/contact.md:
+    (``tuning``: ``COUPLE_ALPHA``, ``STACK_SWEEPS``, ``WARM_START``; doc/contact.md:
     stacks stand and heaps of such bodies come to rest at the node's step); False: every
     particle acts on its own (``solve_pairs``), as softer bodies always do.
     ``rigid`` (on by default; ``contact.rigid``): stiff bodies take their contacts as rigid
@@ -201,7 +177,7 @@ class Contact:
             flat.R[flat.off[k]:flat.off[k + 1]] = self.radii[k]
         n = flat.n
         rmax = float(self.radii[self.act[:nb]].max()) if nb and self.act[:nb].any() else 0.0
-        self.skin = SKIN_FACTOR * rmax
+        self.skin = tuning.SKIN_FACTOR * rmax
         # the broad phase of a build (``body_overlaps``): per-body box growth, scratch,
         # and which bodies the builders take
         self._grow = np.zeros(max(nb, 1))
@@ -309,7 +285,7 @@ class Contact:
         body_overlaps(f.X, f.off, (self.act, self.selfc, self.rigid), self._grow, self._box,
                       self._order, act)
         src = PairSource(f.X, f.R, f.B, act, self.selfc, f.X0, self.cell, self.skin,
-                         SELF_REST_FACTOR)
+                         tuning.SELF_REST_FACTOR)
         grid = GridScratch(self._particle_cell, self._cnt, self._srt, self._sorted_points,
                            self._sorted_body, self._cell_body)
         while True:
@@ -384,9 +360,10 @@ class Contact:
             self._active_pairs = np.zeros(m, dtype=np.int64)
             self._pair_rows = np.zeros((7, m))       # solve_bodies' compact rows
             self._pair_row_index = np.zeros((5, m), dtype=np.int32)
+        sweeps = max(int(p.iterations), tuning.STACK_SWEEPS)
         law = ContactLaw(float(p.friction), float(p.restitution), float(thresh), float(h),
-                         max(int(p.iterations), STACK_SWEEPS), SWEEP_TOL * float(thresh),
-                         WARM_START if self._warm else 0.0)
+                         sweeps, tuning.SWEEP_TOL * float(thresh),
+                         tuning.WARM_START if self._warm else 0.0)
         sweep = PairSweep(self._active_pairs, self._pair_impulse, self._pair_target,
                           self._pair_rows, self._pair_row_index)
         self.found = solve_bodies(parts, pairs, sweep, self._carried_bodies(), law, col,
@@ -426,8 +403,8 @@ class Contact:
 
 
 __all__ = ['ContactParams', 'BodyContact', 'Contact', 'GridScratch', 'PairSource',
-           'default_radius', 'SELF_REST_FACTOR',
-           'COUPLE_ALPHA', 'STACK_SWEEPS', 'body_inverse_masses',
+           'default_radius',
+           'body_inverse_masses',
            'body_overlaps',
            'body_velocities', 'build_pairs_grid',
            'contact_velocity', 'count_fast', 'inverse_sym3',

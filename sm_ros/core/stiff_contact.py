@@ -21,10 +21,6 @@ from . import tuning
 from .quaternion import quat_matrix
 from .kernels.stiff_solve import StiffBodies, StiffScene, stiff_step
 
-#: Sequential-impulse sweeps over the contacts per step, at most (they stop once settled).
-ITERATIONS = 100
-
-
 def _directions() -> np.ndarray:
     """The 26 lattice directions and 100 spread over the sphere (a Fibonacci spiral)."""
     grid = np.stack(np.meshgrid(*[[-1.0, 0.0, 1.0]] * 3, indexing='ij'), -1).reshape(-1, 3)
@@ -214,7 +210,7 @@ class StiffContact:
         p = world._contact_params
         scene = StiffScene(rows, plain, world.ground is not None, float(p.friction),
                            float(p.restitution), world._gravity, float(h), float(thresh),
-                           ITERATIONS, tuning.WAKE_FACTOR * float(p.sleep_speed),
+                           tuning.STIFF_SWEEPS, tuning.WAKE_FACTOR * float(p.sleep_speed),
                            tuning.TOUCH_FACTOR)
         tally = np.zeros((len(rows) - 1, 6))
         stats = np.zeros((len(bodies), 5))

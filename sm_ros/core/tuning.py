@@ -35,3 +35,18 @@ MIN_SHARED = 3
 STIFF_SHARE = 0.6
 #: Stiff bodies: the most cluster cubes per axis (more bend between them, as a sheet does).
 STIFF_CLUSTERS = 2
+
+#: Contact: same-body pairs self-collide beyond this many contact distances apart at rest.
+SELF_REST_FACTOR = 2.0
+#: Contact: the pair list's Verlet skin, as a share of the largest contact radius.
+SKIN_FACTOR = 0.5
+#: Contact: a body whose goal pull alpha at the step reaches this is carried as a whole.
+COUPLE_ALPHA = 0.5
+#: Contact: the least sweeps a step over the pairs of bodies carried as a whole.
+STACK_SWEEPS = 8
+#: Contact: sweeps stop once no velocity changes by this share of the resting threshold.
+SWEEP_TOL = 0.01
+#: Contact: share of the last step's impulses of carried pairs a step starts from.
+WARM_START = 0.5
+#: Stiff bodies: the most sequential-impulse sweeps a step (they stop once settled).
+STIFF_SWEEPS = 100

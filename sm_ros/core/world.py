@@ -11,7 +11,7 @@ from . import body as body_mod, body_build, tuning
 from .body import Body
 from .kernels.world_step import step_bodies_parallel, step_single_bodies
 from .packed import Pack
-from .contact import COUPLE_ALPHA, BodyContact, Contact, ContactParams, default_radius
+from .contact import BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
 from .kernels.flags import SLEEP
 from .kinematic import Particles
@@ -426,7 +426,7 @@ class World(WorldColliders):
 
     def _contact_coupling(self, h):
         """Mark the bodies that carry their contacts as a whole (``Contact.coupling``):
-        alpha at the step at least ``contact.COUPLE_ALPHA``, with one cluster or many
+        alpha at the step at least ``tuning.COUPLE_ALPHA``, with one cluster or many
         (doc/contact.md).  Recomputed when a body, its parameters or the step change.
         Keyed by the count of flat states built, not the flat state's id: a deep copy of
         the world holds the coupling flags with the key they were set for, and keeps them."""
@@ -435,7 +435,7 @@ class World(WorldColliders):
             return
         c = self._contact.coupling
         for k, b in enumerate(self._flat.bodies):
-            c[k] = b._params.at_step(h).alpha >= COUPLE_ALPHA
+            c[k] = b._params.at_step(h).alpha >= tuning.COUPLE_ALPHA
         self._coupling_key = key
 
     def _stiff_pass(self, h, thresh):
