@@ -79,20 +79,22 @@ def error_from(d, dt: float, order: float = ORDER, horizon: float = HORIZON_S) -
 
 def estimate(world, dt: float, snapshot: Optional[Snapshot] = None) -> Dict[str, Any]:
     """Step-double ``world`` from its state now, in one go, and leave it as it was."""
-    (est := Estimate(world, dt, snapshot or Snapshot(), Snapshot())).run(PIECES)
+    snaps = (snapshot or Snapshot(), Snapshot(), Snapshot())   # one go: only the first
+    (est := Estimate(world, dt, snaps)).run(PIECES)
     return est.result
 
 
 class Estimate:
-    """One estimate of ``world`` at ``dt`` in ``PIECES`` pieces (``run``), with ticks
-    stepping the world between them (then ``touched``): S waits in ``start`` (the half way
-    H too, between a run that ends at it and the next), the live state in ``live``.
-    ``result``: :func:`error_from`'s keys, ``cost_s`` (saves, steps, loads), ``steps``."""
+    """One estimate of ``world`` at ``dt`` in ``PIECES`` pieces (``run``): a step of h from
+    the state S, then two of h/2 from S through the half way H.  Ticks may step the world
+    between pieces (then ``touched``); S waits in the first snapshot, H in the second, the
+    live state in the third.  ``result``: :func:`error_from`'s keys, ``cost_s``, ``steps``."""
 
-    def __init__(self, world, dt: float, start: Snapshot, live: Snapshot):
+    def __init__(self, world, dt: float, snapshots):
         t0 = time.perf_counter()
-        self.world, self.dt, self.start, self.live = world, float(dt), start, live
-        start.save(world)
+        self.world, self.dt = world, float(dt)
+        self.start, self.half, self.live = snapshots
+        self.start.save(world)
         rigid = any(body.params.mode == 'rigid' for body in world.bodies)
         self.piece_steps = PIECE_STEPS if rigid else 1
         self.done_pieces, self.touched, self.runs, self.result = 0, False, [], None
@@ -105,22 +107,21 @@ class Estimate:
         end = min(PIECES, first + max(int(pieces), 0))
         if end == first:
             return 0.0
-        aside = self.touched or 2 in (first, end)      # S is not in ``start`` at the end
-        if aside:
+        if self.touched:
             self.live.save(world)
         holds = 'live' if self.touched else 'S'        # what the world holds now
         for k in range(first, end):
             if holds != 'SSH'[k]:                      # from S, S, then the half way H
-                self.start.load(world)
+                (self.half if k == 2 else self.start).load(world)
             after = []
             for _ in range(self.piece_steps):
                 world.step(self.dt if k == 0 else 0.5 * self.dt)
                 after.append(positions(world))
             self.runs.append(after)
             holds = 'CHF'[k]
-        if end == 2:
-            self.start.save(world)
-        (self.live if aside else self.start).load(world)
+        if holds == 'H':
+            self.half.save(world)
+        (self.live if self.touched else self.start).load(world)
         self.done_pieces = end
         self.cost_s += time.perf_counter() - t0
         if end == PIECES:
@@ -137,10 +138,10 @@ class LiveEstimate:
     def __init__(self):
         self.result = self.result_at = self.running = self.piece_s = None
         self._started, self._due, self._deadline = 0.0, -math.inf, math.inf
-        self._snaps = (Snapshot(), Snapshot())
+        self._snaps = (Snapshot(), Snapshot(), Snapshot())
 
     def snapshot_bytes(self) -> int:
-        """Bytes of state a save copies (the larger of the two snapshots)."""
+        """Bytes of state a save copies (the largest snapshot)."""
         return max(snap.nbytes for snap in self._snaps)
 
     def age(self, now: float) -> Optional[float]:
@@ -163,9 +164,9 @@ class LiveEstimate:
                     period: float, step_s: float) -> float:
         """Due 1 / rate s after the state of the last, an estimate runs whole in the first
         tick with room (``room_s``) for its pieces (each ``piece_s``, or ``step_s`` before
-        one was timed), in parts where only some fit, and whatever is left at once in the
-        last tick (``period`` s apart) before the last would be 2 / rate old.  Returns the
-        seconds spent."""
+        one was timed), in parts where only some fit; in the last ticks (``period`` s
+        apart) before the last would be 2 / rate old, at least as many as leave one piece
+        for each tick still in time.  Returns the seconds spent."""
         if rate <= 0.0 or not world.bodies:
             self.__init__()                      # off: forgotten, the snapshots too
             return 0.0
@@ -178,16 +179,17 @@ class LiveEstimate:
         if est is None and now < self._due:
             return 0.0
         self._deadline = min(self._deadline, now + 1.0 / rate)
-        forced = now + period >= self._deadline
+        later = max(math.ceil((self._deadline - now) / period - 1e-6) - 1, 0)  # ticks in time
+        left = PIECES - (est.done_pieces if est is not None else 0)
         cost = self.piece_s or step_s
-        fit = PIECES if forced else (int(max(room_s, 0.0) // cost) if cost > 0.0 else 0)
+        fit = max(int(max(room_s, 0.0) // cost) if cost > 0.0 else 0, left - later)
         if est is None and world.all_asleep:     # no step moves it: 0, nothing saved
             self._done({'local_m': 0.0, 'rate_m_s': 0.0, 'error_m': 0.0, 'cost_s': 0.0,
                         'steps': 0}, now)
         if est is None and (world.all_asleep or fit == 0):
             return 0.0
         if est is None:
-            est, self._started = Estimate(world, float(dt), *self._snaps), now
+            est, self._started = Estimate(world, float(dt), self._snaps), now
             self.running = est
         first = est.done_pieces
         self.piece_s = est.run(fit) / max(est.done_pieces - first, 1) if fit else self.piece_s

@@ -158,6 +158,35 @@ def test_estimate_is_never_older_than_two_periods_and_is_counted():
     assert off.error_estimate is None and off.status_values()['error_estimate_age_s'] is None
 
 
+def test_ticks_without_room_share_the_pieces_one_each_before_the_deadline(monkeypatch):
+    """No tick leaves room: an estimate waits, then its three pieces run one a tick in the
+    last three ticks before the last would be 2 / rate old (none takes all three), and
+    the world steps on as one without estimates."""
+    world, twin, h = _worlds('default', 20)
+    live, period, ran, tick = EE.LiveEstimate(), 0.01, [], [0]
+    run = EE.Estimate.run
+
+    def counted(est, pieces):
+        first = est.done_pieces
+        spent = run(est, pieces)
+        ran.append((tick[0], est.done_pieces - first))
+        return spent
+
+    monkeypatch.setattr(EE.Estimate, 'run', counted)
+    for k in range(420):                                  # rate 1 Hz: 2 s at most
+        tick[0] = k
+        live.piece_s = 1e9                                # no piece ever fits the room
+        live.before_tick(world, h, 1.0, k * period, room_s=0.005, period=period, step_s=1e9)
+        for w in (world, twin):
+            w.step(h)
+        live.after_tick()
+        assert live.age(k * period) is None or live.age(k * period) <= 2.0 + 1e-9
+    assert [n for _, n in ran] == [1] * 6                 # two estimates, a piece a tick
+    assert [k for k, _ in ran] == [97, 98, 99, 294, 295, 296]
+    for a, b in zip(world.bodies, twin.bodies):
+        assert a.x.tobytes() == b.x.tobytes() and a.v.tobytes() == b.v.tobytes()
+
+
 def test_a_heap_asleep_estimates_zero_without_copying(monkeypatch):
     from test_snapshot import _stack
     world = _stack()
