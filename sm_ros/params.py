@@ -250,8 +250,8 @@ TABLE: Tuple[Param, ...] = (
           'dt/2, two against four with a rigid-mode body, on the running world, which is '
           'then put back bit for bit; the local error per second times 2 s, '
           'doc/error_estimate.md). Its steps run in what the '
-          'ticks leave of their period, all at once when the next estimate is due, so the '
-          'last one is never older than 2 / rate (Hz; 0 disables)', 'Hz', 0.0, 10.0),
+          'ticks leave of their period, or one piece a tick in the last ticks before the '
+          'last one would be 2 / rate old (Hz; 0 disables)', 'Hz', 0.0, 10.0),
 )
 
 #: Every row by name.

@@ -57,7 +57,7 @@ class Snapshot:
     """A world's state: ``save(world)`` copies it in, ``load(world)`` puts it back."""
 
     def __init__(self):
-        self.world, self.nbytes = None, 0
+        self.world = None
         self._entries = []               # (holder, name, kind, what was saved)
         self._buffers = []               # the saved arrays, reused by the next save
 
@@ -80,7 +80,11 @@ class Snapshot:
             else:
                 entries.append((obj, name, _BOUND, value))
         self.world, self._entries, self._buffers = world, entries, buffers
-        self.nbytes = sum(saved.nbytes for saved in buffers)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of array state the last save copied."""
+        return sum(saved.nbytes for saved in self._buffers)
 
     def load(self, world) -> None:
         """Put the saved state back into ``world`` (the world it was saved from, with the
