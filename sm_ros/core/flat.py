@@ -7,7 +7,7 @@ the world at once, so they read one set of arrays instead of one per body:
   columns ``off[b]:off[b + 1]``;
 * ``M`` (N,) the particles' masses (``Body.m``);
 * ``W`` (N,) inverse mass, 0 for pinned and grabbed (kinematic) particles and for the
-  particles of sleeping bodies (infinite mass; ``sleep.py``); ``Wa`` the same without the
+  particles of sleeping bodies (infinite mass; ``sleep.py``); ``awake_W`` the same without the
   sleeping bodies (what a body gets back when it wakes);
 * ``B`` (N,) int32 body index of each particle; ``R`` (N,) contact radius (metres);
 * ``X0`` (3, N) rest positions (``Body.x_init``), for the self-collision rest-distance test.
@@ -85,7 +85,7 @@ class FlatState:
         self.X = np.zeros((3, n))
         self.V = np.zeros((3, n))
         self.W = np.zeros(n)
-        self.Wa = np.zeros(n)
+        self.awake_W = np.zeros(n)
         self.M = np.zeros(n)                 # masses (``Body.m``), for the contact pass's sums
         self.B = np.repeat(np.arange(nb, dtype=np.int32), counts)
         self.R = np.zeros(n)
@@ -143,12 +143,12 @@ class FlatState:
             if kin is self._kin_seen[k]:
                 continue
             o0, o1 = self.off[k], self.off[k + 1]
-            self.Wa[o0:o1] = 1.0 / b._m
+            self.awake_W[o0:o1] = 1.0 / b._m
             self.M[o0:o1] = b._m
             if len(kin):
-                self.Wa[o0 + kin] = 0.0
+                self.awake_W[o0 + kin] = 0.0
             if not b._flags[3] > 0.0:        # a sleeping body keeps W = 0 (sleep.py)
-                self.W[o0:o1] = self.Wa[o0:o1]
+                self.W[o0:o1] = self.awake_W[o0:o1]
             self.w_version += 1              # W changed (Contact keeps body masses of it)
             self._kin_seen[k] = kin
         self._mass_gen = gen

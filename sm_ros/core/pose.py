@@ -56,7 +56,7 @@ class BodyPose:
         self._state: Dict[int, Tuple[object, np.ndarray, np.ndarray]] = {}
         self._com = np.zeros(3)
         self._apq = np.zeros((3, 3))
-        self._r = np.zeros((3, 3))
+        self._rotation = np.zeros((3, 3))
         self._quat_n = np.zeros((4, 4))
         self._quat_v = np.zeros((4, 4))
 
@@ -73,8 +73,8 @@ class BodyPose:
             self._state[id(body)] = entry
         _, x0, quat = entry
         com_apq(body._x, body._m, x0, self._com, self._apq)
-        extract_rotation(self._apq, quat, self._r, self._quat_n, self._quat_v)
-        return self._com.copy(), self._r.copy()
+        extract_rotation(self._apq, quat, self._rotation, self._quat_n, self._quat_v)
+        return self._com.copy(), self._rotation.copy()
 
     def forget(self, keep=()) -> None:
         """Drop the scratch of bodies not in ``keep`` (after a scene change)."""

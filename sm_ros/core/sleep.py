@@ -45,16 +45,16 @@ from .kernels.flags import SLEEP
 from .tuning import TOUCH_FACTOR, WAKE_FACTOR
 
 @njit(**JIT)
-def sleep_sync(flags, slept, off, W, Wa, calm):
+def sleep_sync(flags, slept, off, W, awake_W, calm):
     """Bodies woken from outside since the last step (``flags[b][SLEEP]`` <= 0 while
-    ``slept[b]``): their inverse masses back from ``Wa``; returns how many."""
+    ``slept[b]``): their inverse masses back from ``awake_W``; returns how many."""
     woken = 0
     for b in range(len(flags)):
         if slept[b] and flags[b][SLEEP] <= 0.0:
             slept[b] = 0
             calm[b] = 0.0
             for k in range(off[b], off[b + 1]):
-                W[k] = Wa[k]
+                W[k] = awake_W[k]
             woken += 1
     return woken
 
@@ -326,7 +326,7 @@ class Sleep:
         """Restore the inverse masses of the bodies woken from outside (before contact)."""
         flat = self.flat
         if self.slept.any() and sleep_sync(flat.flag_list(), self.slept, flat.off, flat.W,
-                                           flat.Wa, self.calm):
+                                           flat.awake_W, self.calm):
             flat.w_version += 1
 
     def update(self, contact, h, params, gravity, touches):
@@ -335,7 +335,7 @@ class Sleep:
         flat = self.flat
         norm = float(np.linalg.norm(gravity))
         up = -gravity / norm if norm > 0.0 else np.zeros(3)
-        arrays = FlatArrays(x=flat.X, v=flat.V, inv_mass=flat.W, awake_inv_mass=flat.Wa,
+        arrays = FlatArrays(x=flat.X, v=flat.V, inv_mass=flat.W, awake_inv_mass=flat.awake_W,
                             radius=flat.R, body=flat.B, offset=flat.off, touched=flat.touched)
         rule = SleepRule(up=up, h=float(h), speed=float(params.sleep_speed),
                          t_sleep=float(params.sleep_time), allow=bool(params.sleep))
