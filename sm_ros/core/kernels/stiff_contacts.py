@@ -16,6 +16,7 @@ from numba import njit
 
 from .colliders import C_ANG, C_BOUND, C_E, C_MU, C_POS, C_VEL, surface_gap
 from .jit import JIT, JIT_NO_REFCOUNT
+from .linalg import ZERO16, add_damping
 
 #: Contact points kept per collider or body pair: the deepest and the farthest along 8
 #: directions of the contact plane.
@@ -98,27 +99,17 @@ def _second_moments(x, v, m, frame, inertia_out):
     sum m r x (v - vel) (3 numbers) and the largest |r|^2."""
     c0, c1, c2 = frame[F_COM], frame[F_COM + 1], frame[F_COM + 2]
     u0, u1, u2 = frame[F_VEL], frame[F_VEL + 1], frame[F_VEL + 2]
-    i00 = i11 = i22 = i01 = i02 = i12 = a0 = a1 = a2 = reach = 0.0
+    sums, reach = ZERO16, 0.0
     for i in range(x.shape[0]):
-        w = m[i]
         rx, ry, rz = x[i, 0] - c0, x[i, 1] - c1, x[i, 2] - c2
-        ux, uy, uz = v[i, 0] - u0, v[i, 1] - u1, v[i, 2] - u2
-        rr = rx * rx + ry * ry + rz * rz
-        reach = max(reach, rr)
-        i00 += w * (rr - rx * rx)
-        i11 += w * (rr - ry * ry)
-        i22 += w * (rr - rz * rz)
-        i01 -= w * rx * ry
-        i02 -= w * rx * rz
-        i12 -= w * ry * rz
-        a0 += w * (ry * uz - rz * uy)
-        a1 += w * (rz * ux - rx * uz)
-        a2 += w * (rx * uy - ry * ux)
-    inertia_out[0, 0], inertia_out[1, 1], inertia_out[2, 2] = i00, i11, i22
-    inertia_out[0, 1] = inertia_out[1, 0] = i01
-    inertia_out[0, 2] = inertia_out[2, 0] = i02
-    inertia_out[1, 2] = inertia_out[2, 1] = i12
-    return a0, a1, a2, reach
+        reach = max(reach, rx * rx + ry * ry + rz * rz)
+        sums = add_damping(sums, m[i], rx, ry, rz, v[i, 0] - u0, v[i, 1] - u1, v[i, 2] - u2)
+    sxx, syy, szz, sxy, syz, szx = sums[9:15]
+    inertia_out[0, 0], inertia_out[1, 1], inertia_out[2, 2] = syy + szz, sxx + szz, sxx + syy
+    inertia_out[0, 1] = inertia_out[1, 0] = -sxy
+    inertia_out[0, 2] = inertia_out[2, 0] = -szx
+    inertia_out[1, 2] = inertia_out[2, 1] = -syz
+    return sums[6], sums[7], sums[8], reach
 
 
 @njit(**JIT)
