@@ -9,6 +9,8 @@ writes before it reads them, are not named and not saved.  ``load`` writes the v
 the arrays the attributes hold then, so a re-packing of the bodies since the save (their
 attributes become views of new rows) is undone too."""
 
+import operator
+
 import numpy as np
 
 _ARRAY, _LIST, _BOUND, _FOLLOWED = range(4)
@@ -50,7 +52,7 @@ def named_state(world):
 
 def _same_items(value, items) -> bool:
     now = _items(value)
-    return len(now) == len(items) and all(map(lambda a, b: a is b, now, items))
+    return len(now) == len(items) and all(map(operator.is_, now, items))
 
 
 class Snapshot:

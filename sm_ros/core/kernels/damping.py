@@ -228,16 +228,16 @@ def damp_towards(v, i, r, field, k_damp):
 
 @njit(inline='always', **JIT)
 def damp_sums_range(lo, hi, x, v, mass, k0, k1, k2):
-    """The damping sums of particles lo..hi about the point k (rows 3-14 of ``NDAMP``:
-    sum w v, sum w d x v, the six second moments of d = x - k), then their mass sum (row
-    19) and sum w d (rows 0-2), 16 values, w = ``mass``.  Vectorises across particles
-    (unit-stride columns of x, v, unsigned index: one lane a particle, a vector
-    accumulator a sum).  Inlined by Numba into ``damp_acc_range``."""
+    """The damping sums of particles lo..hi about the point k in the order of a row of
+    ``NDAMP`` (``linalg.add_damping``'s: sum w d, sum w v, sum w d x v, the six second
+    moments of d = x - k, rows 0-14), then their mass sum (row 19), w = ``mass``.
+    Vectorises across particles (unit-stride columns of x, v, unsigned index: one lane a
+    particle, a vector accumulator a sum).  Inlined by Numba into ``damp_acc_range``."""
     sums = ZERO16
     for k in range(U(lo), U(hi)):
         sums = add_damping(sums, mass[k], x[k, 0] - k0, x[k, 1] - k1, x[k, 2] - k2,
                            v[k, 0], v[k, 1], v[k, 2])
-    return sums[3:15] + (sums[15],) + sums[:3]
+    return sums
 
 
 @njit(**JIT)
@@ -266,12 +266,9 @@ def damp_acc_range(start, end, x, v, mass, sid, dsums):
             while j < end and sid[j] == s:
                 j += 1
         t = damp_sums_range(i, j, x, v, mass, r0, r1, r2)
-        row[0] += t[13]
-        row[1] += t[14]
-        row[2] += t[15]
-        for k in range(12):
-            row[3 + k] += t[k]
-        row[19] += t[12]
+        for k in range(15):
+            row[k] += t[k]
+        row[19] += t[15]
         i = j
 
 

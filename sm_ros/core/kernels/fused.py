@@ -46,8 +46,8 @@ def _fused_range(start, end, particles, wuni, gmap, damp, field, motion, point, 
     the ground's test, so that a run the ground cannot reach skips its collider pass; gz
     is -inf without a ground), then,
     with ``damp``, the next step's 13 damping sums of the new state about the same point
-    (``damping.damp_sums_range``'s first 13: sum w v, sum w d x v, the six second moments
-    of d, W; zeros without ``damp``).
+    (rows 3-14 of ``damping.damp_sums_range``'s: sum w v, sum w d x v, the six second
+    moments of d; then W; zeros without ``damp``).
 
     Every particle weighs ``wuni``: the loop sums unweighted and scales the sums once.
     """
@@ -161,8 +161,8 @@ def _fused_damped(start, end, particles, gmap, field, motion, point, limits):
 
 @njit(inline='always', **JIT)
 def damp_sums_uniform(lo, hi, x, v, wuni, k0, k1, k2):
-    """The first 13 of ``damping.damp_sums_range``'s sums (sum w v, sum w d x v, the six
-    second moments of d = x - k, W) for particles that all weigh ``wuni``: summed
+    """Rows 3-14 of ``damping.damp_sums_range``'s sums (sum w v, sum w d x v, the six
+    second moments of d = x - k), then W, for particles that all weigh ``wuni``: summed
     unweighted and scaled once (12 products a particle, not 18).  Inlined by Numba into the
     one-loop passes (``packed._pass``, ``sets._sets_fused_lin``) for a block or run the
     colliders or the speed cap moved after their loop (``_fused_loop`` takes the same
