@@ -170,7 +170,7 @@ def run(node_class, args=None) -> int:
 
     def start_up_watchdog():
         # Still starting a moment after the Ctrl-C (a cold warm-up takes minutes): stop
-        # the second warm-up process and leave at once (nothing is spinning yet).
+        # the warm-up helper processes and leave at once (nothing is spinning yet).
         interrupted.wait()
         time.sleep(START_UP_GRACE_S)
         if starting.is_set():

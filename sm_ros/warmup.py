@@ -5,9 +5,9 @@ its scene needs (building the scene steps a throwaway copy of it) and then start
 :func:`start_background`: ``python -m sm_ros.warmup --background``, niced on one core,
 compiles the rest into the cache while the node runs, so that a later scene, contact or
 mode loads its kernels instead of compiling them.  ``python -m sm_ros.warmup`` (``ros2 run
-sm_ros warmup``) does all of it ahead of time; ``make test`` runs it.  The stiff bodies'
-contact pass (``stiff_contact.py``) is left out of that (``_stiff_bodies``): it compiles on
-first use or in the background warm-up.
+sm_ros warmup``) does all of it ahead of time; ``make test`` runs it.  On a cold cache it
+compiles in three processes: the stiff bodies' contact pass (``stiff_contact.py``) has one
+of its own, since no other stage needs it.
 """
 
 import argparse
@@ -169,14 +169,27 @@ def _background() -> int:
     return 0
 
 
-def _stiff_bodies() -> None:
-    """Stiff bodies' contact (``stiff_contact.py``), left out of :func:`warm_up`."""
+def _stiff_world():
+    """Two rigid cubes on the ground beside the moving colliders."""
     from sm_ros.core import BodyParams, World
     world = World(gravity=(0.0, 0.0, -9.81))
     _colliders(world, 0.3)
     for i in range(2):
         world.add_body(_cube() + (0.0, 0.0, 0.05 + 0.11 * i), 0.01, BodyParams('rigid', 0.9))
-    world.step(1.0 / 120.0)
+    return world
+
+
+def _stiff_bodies() -> None:
+    """Stiff bodies' contact (``stiff_contact.py``) and the step around it."""
+    _stiff_world().step(1.0 / 120.0)
+
+
+def _stiff_pass() -> None:
+    """The stiff bodies' contact pass alone (``World._stiff_pass``), without the bodies'
+    own step, which the other warm-up processes compile meanwhile."""
+    world = _stiff_world()
+    world._ensure_flat()
+    world._stiff_pass(1.0 / 120.0, 1e-3)
 
 
 def warm_up(on_stage: Optional[Callable[[str], None]] = None, split: bool = True) -> float:
@@ -186,27 +199,32 @@ def warm_up(on_stage: Optional[Callable[[str], None]] = None, split: bool = True
     particles, so the node's first tick does not pay for compilation (a fraction of a
     second from a warm cache).
 
-    On a cold cache (and ``split``) a second process (``python -m sm_ros.warmup --extra``,
-    :func:`warm_extra`) compiles ``EXTRA_STAGES`` on the second core while this one
-    compiles ``MAIN_STAGES``; Numba's cache files are written whole (a temporary file, then
-    renamed), so each process loads what the other has finished.  Without a second process
-    this one does both."""
+    On a cold cache (and ``split``) two helper processes compile beside this one, which
+    compiles ``MAIN_STAGES``: ``python -m sm_ros.warmup --extra`` (:func:`warm_extra`,
+    ``EXTRA_STAGES``) and ``--stiff`` (the stiff bodies' contact pass); Numba's cache files
+    are written whole (a temporary file, then renamed), so each process loads what another
+    has finished.  Without helpers this one does all of it."""
     t0 = time.perf_counter()
-    extra = _start_extra() if split and _cpus() > 1 and cold_kernels() else None
-    if extra is not None:
-        _HELPERS.append(extra)
+    helpers = {}                             # (process, stderr file): its part
+    if split and _cpus() > 1 and cold_kernels():
+        for flag, part in (('--extra', warm_extra), ('--stiff', _stiff_pass)):
+            helper = _spawn([flag])
+            if helper is not None:
+                helpers[helper] = part
+    _HELPERS.extend(helpers)
     try:
-        return _warm_up(on_stage, extra, t0)
-    except BaseException:                    # Ctrl-C, an error: the second process too
-        if extra is not None:
-            _stop(extra)
+        return _warm_up(on_stage, helpers, t0)
+    except BaseException:                    # Ctrl-C, an error: the other processes too
+        for helper in helpers:
+            _stop(helper)
         raise
     finally:
-        if extra is not None and extra in _HELPERS:
-            _HELPERS.remove(extra)
+        for helper in helpers:
+            if helper in _HELPERS:
+                _HELPERS.remove(helper)
 
 
-#: The second warm-up processes running now (``warm_up``), for ``stop_helpers``.
+#: The warm-up helper processes running now (``warm_up``), for ``stop_helpers``.
 _HELPERS = []
 
 
@@ -218,21 +236,23 @@ def _stop(extra) -> None:
 
 
 def stop_helpers() -> None:
-    """Kill and reap the second warm-up processes still running: a Ctrl-C while the node
+    """Kill and reap the warm-up helper processes still running: a Ctrl-C while the node
     starts ends the process without unwinding the warm-up (``startup.run``)."""
     for extra in list(_HELPERS):
         _stop(extra)
 
 
-def _warm_up(on_stage, extra, t0) -> float:
+def _warm_up(on_stage, helpers, t0) -> float:
     for stage in MAIN_STAGES:
         _soft(stage)
         if on_stage is not None:
             on_stage(stage.__name__.strip('_').replace('_', ' '))
-    if extra is not None:
-        _finish_extra(extra)
-    else:
-        warm_extra()
+    for part in (warm_extra, _stiff_pass):
+        started = [helper for helper, its in helpers.items() if its is part]
+        if started:
+            _finish_extra(started[0], part)
+        else:
+            part()
     mark_warm()
     return time.perf_counter() - t0
 
@@ -374,7 +394,7 @@ EXTRA_STAGES = (_damped, _points)
 
 
 def warm_extra() -> float:
-    """The second process of a cold warm-up (:func:`warm_up`): ``EXTRA_STAGES``.  Return
+    """A helper process of a cold warm-up (:func:`warm_up`): ``EXTRA_STAGES``.  Return
     the seconds spent."""
     t0 = time.perf_counter()
     for stage in EXTRA_STAGES:
@@ -397,11 +417,6 @@ def _cpus() -> int:
         return os.cpu_count() or 1
 
 
-def _start_extra():
-    """Start :func:`warm_extra` in a second Python process; None when it cannot start."""
-    return _spawn(['--extra'])
-
-
 def _spawn(args, env_extra=None):
     """Start ``python -m sm_ros.warmup ARGS`` on this package; (process, stderr file)."""
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -418,18 +433,19 @@ def _spawn(args, env_extra=None):
     return proc, err
 
 
-def _finish_extra(extra) -> None:
-    """Wait for the second process; if it failed, say so and compile its part here."""
+def _finish_extra(extra, part=None) -> None:
+    """Wait for a helper process; if it failed, say so and compile its ``part`` (default
+    :func:`warm_extra`) here."""
     proc, err = extra
     with err:
         code = proc.wait()
         if code != 0:
             err.seek(0)
             tail = err.read().decode(errors='replace').strip().splitlines()[-3:]
-            print('sm_ros: the second warm-up process failed (exit status '
+            print('sm_ros: a warm-up helper process failed (exit status '
                   f'{code}): {" / ".join(tail)}; compiling its kernels here',
                   file=sys.stderr, flush=True)
-            warm_extra()
+            (part or warm_extra)()
 
 
 #: Stages ``warm_up`` reports to ``on_stage``.
@@ -451,10 +467,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument('scenes', nargs='*', default=['default'],
                     help="bundled scene names or YAML paths (default: 'default')")
     ap.add_argument('--extra', action='store_true', help=argparse.SUPPRESS)
+    ap.add_argument('--stiff', action='store_true', help=argparse.SUPPRESS)
     ap.add_argument('--background', action='store_true', help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    if args.extra:                      # the second process of a cold warm_up
+    if args.extra:                      # the helper processes of a cold warm_up
         warm_extra()
+        return 0
+    if args.stiff:
+        _stiff_pass()
         return 0
     if args.background:                 # started by a node on a cold cache
         return _background()

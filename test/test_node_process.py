@@ -149,11 +149,11 @@ def test_only_the_echoes_of_a_start_up_ctrl_c_are_kept_quiet():
     assert not interrupt_noise(ours, True)          # anything else: reported
 
 
-def test_an_interrupted_warm_up_stops_its_second_process(monkeypatch):
+def test_an_interrupted_warm_up_stops_its_helper_processes(monkeypatch):
     from sm_ros import warmup
     procs = []
 
-    def start():
+    def start(args, env_extra=None):
         import tempfile
         p = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'])
         procs.append(p)
@@ -162,41 +162,42 @@ def test_an_interrupted_warm_up_stops_its_second_process(monkeypatch):
     def interrupted(*_):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(warmup, '_start_extra', start)
+    monkeypatch.setattr(warmup, '_spawn', start)
     monkeypatch.setattr(warmup, 'cold_kernels', lambda: 5)
     monkeypatch.setattr(warmup, '_cpus', lambda: 2)
     monkeypatch.setattr(warmup, '_warm_up', interrupted)
     with pytest.raises(KeyboardInterrupt):
         warmup.warm_up()
-    assert len(procs) == 1 and procs[0].poll() is not None   # killed and reaped
+    assert len(procs) == 2 and all(p.poll() is not None for p in procs)   # killed, reaped
 
 
-def test_the_start_up_watchdog_stops_a_running_second_warm_up(monkeypatch):
+def test_the_start_up_watchdog_stops_running_warm_up_helpers(monkeypatch):
     """A Ctrl-C while the node starts ends the process from ``startup.run``'s watchdog,
     without unwinding the warm-up; ``warmup.stop_helpers`` (what the watchdog calls
-    first) kills and reaps the second warm-up process that is running, and a finished
+    first) kills and reaps the warm-up helper processes that are running, and a finished
     warm-up leaves none behind."""
     from sm_ros import warmup
     procs = []
 
-    def start():
+    def start(args, env_extra=None):
         import tempfile
         p = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'])
         procs.append(p)
         return p, tempfile.TemporaryFile()
 
-    def body(on_stage, extra, t0):
-        assert warmup._HELPERS == [extra] and procs[0].poll() is None
+    def body(on_stage, helpers, t0):
+        assert warmup._HELPERS == list(helpers) and len(helpers) == 2
+        assert all(p.poll() is None for p in procs)
         warmup.stop_helpers()                 # the watchdog, on a Ctrl-C
-        assert procs[0].poll() is not None    # killed and reaped
+        assert all(p.poll() is not None for p in procs)    # killed and reaped
         return 0.0
 
-    monkeypatch.setattr(warmup, '_start_extra', start)
+    monkeypatch.setattr(warmup, '_spawn', start)
     monkeypatch.setattr(warmup, 'cold_kernels', lambda: 5)
     monkeypatch.setattr(warmup, '_cpus', lambda: 2)
     monkeypatch.setattr(warmup, '_warm_up', body)
     assert warmup.warm_up() >= 0.0
-    assert len(procs) == 1 and warmup._HELPERS == []
+    assert len(procs) == 2 and warmup._HELPERS == []
 
 
 BIG_SCENE = """

@@ -79,7 +79,13 @@ def test_a_failed_second_warm_up_process_is_reported_and_its_part_done_here(monk
     warmup._finish_extra((proc, err))
     assert done == [1]
     msg = capsys.readouterr().err
-    assert 'second warm-up process failed (exit status 3): boom' in msg
+    assert 'a warm-up helper process failed (exit status 3): boom' in msg
+    assert err.closed
+    # the stiff pass's helper: its own part is done here
+    err = tempfile.TemporaryFile()
+    warmup._finish_extra((subprocess.Popen([sys.executable, '-c', 'import sys; sys.exit(1)'],
+                                           stderr=err), err), lambda: done.append(2))
+    assert done == [1, 2] and 'exit status 1' in capsys.readouterr().err
     assert err.closed
     # a process that succeeded: nothing said, nothing done again
     err = tempfile.TemporaryFile()
