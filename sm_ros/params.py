@@ -194,9 +194,10 @@ TABLE: Tuple[Param, ...] = (
     Param('contact.stacking', True, 'Under gravity, stiff one-cluster bodies carry their '
           'contacts as a whole (stacks stand, piles come to rest at the default step; '
           'false: every particle on its own)'),
-    Param('contact.rigid', True, 'Stiff bodies take their contacts as rigid bodies: '
-          'contact turns them, static friction holds them, restitution never adds energy '
-          '(false: they are carried as a whole, the faster model of paper_384)'),
+    Param('contact.rigid', True, 'Stiff bodies, and under gravity those stacking carries '
+          'among themselves, take their contacts as rigid bodies: contact turns them, '
+          'static friction holds them, restitution never adds energy (false: they are '
+          'carried as a whole, the faster model of paper_384)'),
     Param('contact.sleep', True, 'Bodies that have come to rest in a contact world sleep '
           '(are not stepped) until a moving body touches them or an input changes them'),
     Param('contact.sleep_speed', 0.01, 'A body falls asleep once no particle got farther '

@@ -808,9 +808,10 @@ def test_body_velocities_match_numpy():
 
 
 def test_spin_of_a_body_held_by_another_is_stopped():
-    # a spinning box lands on a box: carried bodies are not turned by their contacts, and
-    # one held by another body does not keep spinning (a spinning body in a heap would
-    # otherwise drive its neighbours sideways forever); linear momentum stays exact
+    # a spinning box lands on a box, no stiff body in the world: carried bodies are not
+    # turned by their contacts, and one held by another body does not keep spinning (a
+    # spinning body in a heap would otherwise drive its neighbours sideways forever);
+    # linear momentum stays exact
     w = World()
     w.set_colliders(ground=Ground())
     p = BodyParams(mode='linear', alpha=0.9, clusters=2)
@@ -828,6 +829,34 @@ def test_spin_of_a_body_held_by_another_is_stopped():
     # total momentum, the ground only upwards (z)
     tot = a.momentum() + b.momentum()
     np.testing.assert_allclose(tot[:2], 0.0, atol=1e-12)
+
+
+@pytest.mark.parametrize('friction', [0.5, 0.0])
+def test_a_spinning_box_on_another_is_stopped_by_the_contact_friction(friction):
+    # a box spinning about the vertical rests on a box: both carry their contacts as a
+    # whole and a stiff body lies near, so their contact is the stiff pass's, which turns
+    # them; its friction stops the spin within a few steps (a spinning body in a heap would
+    # otherwise drive its neighbours sideways forever), and without friction nothing does
+    w = World()
+    w.set_colliders(ground=Ground())
+    w.contact_params = ContactParams(friction=friction)
+    p = BodyParams(mode='linear', alpha=0.9, clusters=2)
+    w.add_body(lattice(4, 4, 3, center=(0, 0, 0.02)), 0.01, p, 'a')
+    pts = lattice(4, 4, 3, center=(0, 0, 0.079))         # 1 mm into it
+    spin = np.cross([0.0, 0.0, 3.0], pts - pts.mean(axis=0))
+    b = w.add_body(pts, 0.01, p, 'b', velocities=spin)
+    w.add_body(lattice(4, 4, 3, center=(1, 0, 0.02)), 0.01, BodyParams('rigid', 1.0), 'c')
+    for _ in range(6):
+        w.step(1 / 120)
+    assert w.contact.coupling[:2].all() and w.contact.rigid[:3].all()
+    assert w.contact_stats()['b'][0] > 0
+    r = b.x - b.com()
+    ang = (b.m[:, None] * np.cross(r, b.v - b.v.mean(axis=0))).sum(0)
+    ang0 = (b.m[:, None] * np.cross(pts - pts.mean(axis=0), spin)).sum(0)
+    if friction:
+        assert abs(ang[2]) < 0.01 * abs(ang0[2])
+    else:
+        assert abs(ang[2]) > 0.9 * abs(ang0[2])
 
 
 def _overlaps_numpy(X, off, act, selfc, rigid, grow):
@@ -947,7 +976,7 @@ def test_pair_list_kept_for_a_common_motion_and_always_complete():
     # contact
     w = World()
     w.set_colliders(ground=Ground(height=-0.3))
-    p = BodyParams(alpha=0.9, damping=0.02)
+    p = BodyParams(alpha=0.4, damping=0.02)          # soft: its contact is this pass's
     w.add_body(lattice(3, 3, 3, 0.05, (0.0, 0.0, 0.0)), params=p, name='a')
     w.add_body(lattice(3, 3, 3, 0.05, (0.06, 0.0, 0.6)), params=p, name='b')
     w.step(1 / 120)

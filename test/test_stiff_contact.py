@@ -182,7 +182,8 @@ def _bodies(rng, count, spread, ball=False):
         ms.append(rng.uniform(0.5, 2.0, 27))
     xs, vs, ms = body_lists(xs, vs, ms)
     return SS.StiffBodies(xs, vs, ms, np.full(count, 0.02), np.ones(count, np.bool_),
-                          np.ones(count, np.bool_), np.full(count, ball, np.bool_),
+                          np.ones(count, np.bool_), np.ones(count, np.bool_),
+                          np.full(count, ball, np.bool_),
                           np.zeros((count, 3, 3)))
 
 
@@ -295,7 +296,8 @@ def test_bodies_apart_at_any_angle_get_no_overlap(seed):
                                 [np.zeros((len(x), 3), order='F') for x in (xa, xb)],
                                 [np.ones(len(x)) for x in (xa, xb)])
         bodies = SS.StiffBodies(xs, vs, ms, np.full(2, 0.02), np.ones(2, np.bool_),
-                                np.ones(2, np.bool_), np.zeros(2, np.bool_),
+                                np.ones(2, np.bool_), np.ones(2, np.bool_),
+                                np.zeros(2, np.bool_),
                                 np.zeros((2, 3, 3)))
         frames = np.zeros((2, SC.F_ROW))
         for b in range(2):
@@ -478,3 +480,74 @@ def test_body_frame_equals_its_numpy_twin():
         assert frame[SC.F_REACH] == pytest.approx(np.sqrt((r ** 2).sum(1).max()), rel=1e-12)
         np.testing.assert_array_equal(frame[SC.F_LO:SC.F_LO + 3], x.min(0))
         np.testing.assert_array_equal(frame[SC.F_HI:SC.F_HI + 3], x.max(0))
+
+
+# --- bodies carried as a whole beside stiff ones ---------------------------------------
+
+_MIXED_STACK = """
+colliders: {ground: {friction: 0.6}}
+contact: {friction: 0.6, sleep: false}
+bodies:
+  - {name: lower, shape: box, size: [0.2, 0.2, 0.12], spacing: 0.04, mass: 0.6,
+     position: [0.0, 0.0, 0.07], mode: linear, alpha: 0.9, beta: 0.2, clusters: 2}
+  - {name: upper, shape: box, size: [0.2, 0.2, 0.12], spacing: 0.04, mass: 0.6,
+     position: [0.05, 0.0, 0.20], mode: linear, alpha: 0.9, beta: 0.2, clusters: 2}
+  - {name: ball, shape: sphere, radius: 0.14, spacing: 0.04, mass: 0.5,
+     position: [0.1, 0.0, 0.42], mode: quadratic, alpha: 0.8, beta: 0.5, clusters: 2}
+"""
+
+
+def test_a_soft_ball_on_a_stack_of_stiff_boxes_comes_to_rest():
+    """A ball too soft to be stiff but carried as a whole rests on two stiff boxes: its
+    contact is solved with theirs, so its weight reaches the ground through both and after
+    a second every body is at rest, its velocity that of its motion (no body sinking into
+    the one below while another pass pushes it back)."""
+    import yaml
+    from sm_ros.scene import build_world, parse_scene
+    world, _ = build_world(parse_scene(yaml.safe_load(_MIXED_STACK)))
+    h = 1.0 / 120.0
+    for _ in range(120):
+        world.step(h)
+    start = {b.name: b.x.mean(axis=0) for b in world.bodies}
+    for _ in range(60):
+        world.step(h)
+    for body in world.bodies:
+        assert np.linalg.norm(body.v.mean(axis=0)) < 5e-3, body.name
+        assert np.linalg.norm(body.x.mean(axis=0) - start[body.name]) < 1e-3, body.name
+
+
+def test_a_soft_body_alone_still_lands_on_its_particles():
+    """Two soft blocks (alpha 0.5: carried as a whole) dropped apart beside a stiff box:
+    they take their contacts with it and each other in the stiff pass, but each meets the
+    ground with its own particles while it is near no other body, so it squashes on
+    landing, as a soft body does."""
+    from sm_ros.core import BodyParams, Ground, World
+    world = World()
+    world.set_colliders(ground=Ground())
+    g = np.stack(np.meshgrid(*[np.arange(7)] * 3, indexing='ij'), -1).reshape(-1, 3) * 0.025
+    params = BodyParams(mode='quadratic', alpha=0.5, beta=0.5)
+    block = world.add_body(g - g.mean(axis=0) + (0.0, 0.0, 0.5), 0.01, params, 'a')
+    world.add_body(g - g.mean(axis=0) + (1.0, 0.0, 0.5), 0.01, params, 'b')
+    world.add_body(g - g.mean(axis=0) + (2.0, 0.0, 0.1), 0.01, BodyParams('rigid', 1.0), 'c')
+    rest = np.ptp(block.x[:, 2])
+    least = rest
+    for _ in range(120):
+        world.step(1.0 / 120.0)
+        least = min(least, np.ptp(block.x[:, 2]))
+    assert world.contact.rigid[:3].all()             # the stiff pass's bodies
+    assert least < 0.6 * rest
+
+
+def test_bodies_carried_as_a_whole_keep_their_pass_where_none_is_stiff():
+    """A bin of blocks carried as a whole and no stiff body: their contacts stay in the
+    contact pass (its pair list holds them), which costs less than the stiff pass for
+    many bodies; one stiff body among them takes them all into the stiff pass."""
+    from sm_ros.bench.contact_scenes import block_bin
+    from sm_ros.core import BodyParams
+    world = block_bin(24)
+    world.step(1.0 / 120.0)
+    assert world.contact.coupling[:24].all() and not world.contact.rigid[:24].any()
+    assert world.contact.npairs > 0
+    world.body('block0').set_params(BodyParams('rigid', 1.0))
+    world.step(1.0 / 120.0)
+    assert world.contact.rigid[:24].all()

@@ -71,8 +71,9 @@ class ContactParams:
     (``tuning``: ``COUPLE_ALPHA``, ``STACK_SWEEPS``, ``WARM_START``; doc/contact.md:
     stacks stand and heaps of such bodies come to rest at the node's step); False: every
     particle acts on its own (``solve_pairs``), as softer bodies always do.
-    ``rigid`` (on by default; ``contact.rigid``): stiff bodies take their contacts as rigid
-    bodies (``stiff_contact.py``); False: stacking carries them as a whole, as before.
+    ``rigid`` (on by default; ``contact.rigid``): stiff bodies, and under gravity those
+    stacking carries, take their contacts with one another as rigid bodies
+    (``stiff_contact.py``); False: stacking carries them as a whole in this pass.
     ``sleep`` (on by default): a body whose particles all moved slower than
     ``sleep_speed`` (m/s) for ``sleep_time`` seconds and that touches no moving body falls
     asleep and is not stepped until something wakes it (``sleep.py``, doc/sleeping.md).

@@ -1,14 +1,16 @@
 """Stiff bodies take their contacts as rigid bodies (doc/contact.md).
 
-Before the bodies' own step, every stiff body (``is_stiff``) takes its contacts with the
-colliders and with the other stiff bodies as one rigid body (``kernels/stiff_solve.py``
+Before the bodies' own step, every stiff body (``is_stiff``), and under gravity every body
+stiff enough to carry its contacts as a whole (``takes_part``), takes its contacts with
+the colliders and with the other bodies of the pass as one rigid body (``kernels/stiff_solve.py``
 solves the contacts that ``kernels/stiff_contacts.py`` and ``kernels/stiff_pairs.py``
 find): an impulse at a contact point changes the body's velocity and spin, so contact
 tips, rolls, holds and spins it; restitution acts on the approach speed at the point, and
-overlap is removed without adding speed.  It meets colliders with its outline: its
-particles' lattice cells (``lattice_axes``), one sphere (``is_round``) or its particles'
-spheres.  Those contacts are then left out of the per-particle contact pass, which
-softer bodies keep.
+overlap is removed without adding speed.  A stiff body meets colliders with its outline:
+its particles' lattice cells (``lattice_axes``), one sphere (``is_round``) or its
+particles' spheres; another body with its particles' spheres, and only while it is near
+another body of the pass (alone, its own step dents it against them).  Those contacts are
+then left out of the per-particle contact pass, which softer bodies keep.
 """
 
 import numpy as np
@@ -89,6 +91,16 @@ def is_stiff(body, h) -> bool:
             and len(body._kin_idx) == 0)
 
 
+def takes_part(body, h, gravity: bool) -> bool:
+    """Whether ``body`` takes its contacts in the stiff pass at steps of ``h`` s: a stiff
+    one (``is_stiff``), and under ``gravity`` one stiff enough to carry its contacts as a
+    whole (alpha at the step at least ``tuning.COUPLE_ALPHA``, no pinned or grabbed
+    particle), so that the loads resting on it and those it rests on are solved together;
+    either takes a contact's impulse as a rigid body (velocity and spin)."""
+    return is_stiff(body, h) or (gravity and len(body._kin_idx) == 0
+                                 and body._params.at_step(h).alpha >= tuning.COUPLE_ALPHA)
+
+
 #: The types of a body's arrays in the pass: (N, 3) positions and velocities of any layout
 #: (a body of one particle is C- and F-contiguous at once) and read-only masses, so that
 #: every caller shares one compiled pass.
@@ -155,26 +167,28 @@ class StiffContact:
         moving = cset.rows if cset is not None else np.zeros((0, ROW))
         return np.concatenate([ground, self._static, moving]), len(self._static)
 
-    def _bodies(self, world, bodies):
+    def _bodies(self, world, bodies, h):
         """``StiffBodies`` of (body, radius) pairs.  What does not change from step to
         step (the typed lists, radii, collide flags, outlines) is kept while the world
         passes the same list (``World._stiff_members``: the same bodies and settings; a
         body's arrays, rest shape included, are its own for its lifetime)."""
         if self._lists_key is not bodies:
-            self._lists = self._body_constants(world, bodies)
+            self._lists = self._body_constants(world, bodies, h)
             self._lists_key = bodies
-        lists, radius, collide, ball, (boxy, rest) = self._lists
+        lists, radius, (collide, stiff), ball, (boxy, rest) = self._lists
         awake = np.fromiter((not b.asleep for b, _ in bodies), dtype=np.bool_,
                             count=len(bodies))
         cells = np.zeros((len(bodies), 3, 3))
         if len(boxy):      # the lattice axes turned as the body's shape match turns them
             wxyz = np.array([bodies[k][0]._quat[0] for k in boxy])
             cells[boxy] = quat_matrix(wxyz[:, [1, 2, 3, 0]]) @ rest
-        return StiffBodies(*lists, radius, awake, collide, ball, cells)
+        return StiffBodies(*lists, radius, awake, collide, stiff, ball, cells)
 
-    def _body_constants(self, world, bodies):
-        """(typed lists, radii, collide flags, round flags, (the bodies on a lattice, their
-        cells' half edges at rest)) of the pass's bodies."""
+    def _body_constants(self, world, bodies, h):
+        """(typed lists, radii, (collide flags, stiff flags), round flags, (the bodies on a
+        lattice, their cells' half edges at rest)) of the pass's bodies.  A body not stiff
+        (``is_stiff``) deforms too much for an outline of its rest shape: it meets
+        everything with its particles' spheres."""
         lists = body_lists([b._x for b, _ in bodies], [b._v for b, _ in bodies],
                            [b._m for b, _ in bodies])
         ids = {id(b) for b, _ in bodies}           # forget the bodies that left the pass
@@ -183,12 +197,14 @@ class StiffContact:
         on = world._contact_params.enabled
         collide = np.array([on and world._contacts[b.name][0].collide for b, _ in bodies],
                            dtype=np.bool_)
-        shapes = [self._outline(b, r) for b, r in bodies]
+        stiff = np.array([is_stiff(b, h) for b, _ in bodies], dtype=np.bool_)
+        shapes = [self._outline(b, r) if hard else (False, None)
+                  for (b, r), hard in zip(bodies, stiff)]
         ball = np.array([round_ for round_, _ in shapes], dtype=np.bool_)
         boxy = np.array([k for k, (_, axes) in enumerate(shapes) if axes is not None],
                         dtype=np.int64)
         rest = np.array([shapes[k][1] * radius[k] for k in boxy]).reshape(-1, 3, 3)
-        return lists, radius, collide, ball, (boxy, rest)
+        return lists, radius, (collide, stiff), ball, (boxy, rest)
 
     def _outline(self, body, radius):
         """(``is_round``, ``lattice_axes`` unless round) of a body, kept while it keeps
@@ -215,7 +231,7 @@ class StiffContact:
         tally = np.zeros((len(rows) - 1, 6))
         stats = np.zeros((len(bodies), 5))
         self.keys, self.impulses, touches = stiff_step(
-            self._bodies(world, bodies), scene, (self.keys, self.impulses), tally, stats)
+            self._bodies(world, bodies, h), scene, (self.keys, self.impulses), tally, stats)
         for k in np.flatnonzero(stats[:, 4]):
             bodies[k][0]._dirty = True
             if stats[k, 4] == 3:

@@ -14,7 +14,7 @@ from . import body_build
 from .colliders import ColliderSet
 from .kernels.colliders import Colliders
 from .params import Box, Capsule, Ground, Sphere
-from .stiff_contact import is_stiff
+from .stiff_contact import is_stiff, takes_part
 
 
 class WorldColliders:
@@ -177,20 +177,29 @@ class WorldColliders:
     def _stiff_members(self, h):
         """(per body, flat order, whether it takes its contacts in the stiff pass; the
         indices of those that do; their (body, contact radius) pairs), kept while no body,
-        its parameters, the step or the contact settings change."""
+        its parameters, the step or the contact settings change.  A body that is not
+        stiff joins only where it can meet a stiff one: a world of bodies carried as a whole
+        and none stiff keeps them in the faster contact pass."""
         cp = self._contact_params
-        key = (body_build._GENERATION[0], h, self._flat_builds, cp.stacking, cp.rigid)
+        key = (body_build._GENERATION[0], h, self._flat_builds, cp.stacking, cp.rigid,
+               bool(self._gnorm))
         if key != self._stiff_key:
-            bodies = self._flat.bodies
-            stiff = np.array([cp.stacking and cp.rigid and is_stiff(b, h) for b in bodies],
-                             dtype=np.bool_)
-            index = np.flatnonzero(stiff)
+            bodies, on = self._flat.bodies, cp.stacking and cp.rigid
+            stiff = np.array([on and is_stiff(b, h) for b in bodies], dtype=np.bool_)
+            member = stiff | np.array([on and takes_part(b, h, bool(self._gnorm))
+                                       and not self._contacts[b.name][0].self_collision
+                                       for b in bodies], dtype=np.bool_)
+            meets = np.array([cp.enabled and self._contacts[b.name][0].collide
+                              for b in bodies], dtype=np.bool_)
+            if not (stiff & meets).any() or (member & meets).sum() < 2:
+                member = stiff                  # no stiff body to meet: the stiff ones only
+            index = np.flatnonzero(member)
             members = [(bodies[k], self.contact_radius(bodies[k].name)) for k in index]
             old = self._stiff_cache
-            if old is not None and old[2] == members:
+            if old is not None and old[2] == members and np.array_equal(old[3], stiff):
                 members = old[2]        # the same list: the stiff pass keeps what it built
-            self._stiff_cache, self._stiff_key = (stiff, index, members), key
-        return self._stiff_cache
+            self._stiff_cache, self._stiff_key = (member, index, members, stiff), key
+        return self._stiff_cache[:3]
 
     def _collider_radii(self, h):
         """Every body meets the colliders with its particles' spheres of its contact
@@ -203,8 +212,8 @@ class WorldColliders:
         key = (body_build._GENERATION[0], h, self._flat_builds, cp.stacking, cp.rigid)
         if key == self._radii_key:
             return
-        bodies, stiff = self._flat.bodies, self._stiff_members(h)[0]
-        radii = np.array([0.0 if stiff[k] else self.contact_radius(b.name)
+        bodies, member = self._flat.bodies, self._stiff_members(h)[0]
+        radii = np.array([0.0 if member[k] and is_stiff(b, h) else self.contact_radius(b.name)
                           for k, b in enumerate(bodies)])
         changed = any(b._collider_radius != r for b, r in zip(bodies, radii))
         for b, r in zip(bodies, radii):

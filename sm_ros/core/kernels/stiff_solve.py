@@ -44,7 +44,9 @@ WARM = 1.0
 class StiffBodies(NamedTuple):
     """The bodies of the pass: typed lists of their (N, 3) positions and velocities and
     (N,) masses, their contact radii, whether each is awake (asleep: an obstacle of
-    infinite mass), whether it collides with other bodies, whether it is round (meets
+    infinite mass), whether it collides with other bodies, whether it is stiff (else it
+    meets the colliders here only while near another body of the pass: alone, its own
+    step's per-particle contact dents it), whether it is round (meets
     the colliders as one sphere, ``stiff_contacts.collider_contacts``) and (B, 3, 3) the
     half edges of its particles' lattice cells, in world axes (zeros: no lattice, its
     particles meet the colliders as spheres)."""
@@ -55,6 +57,7 @@ class StiffBodies(NamedTuple):
     radius: np.ndarray
     awake: np.ndarray
     collide: np.ndarray
+    stiff: np.ndarray
     round: np.ndarray
     cells: np.ndarray
 
@@ -132,19 +135,23 @@ def _pairs(frames, bodies, slack):
 @njit(**JIT)
 def _contacts(frames, bodies, scene, stats):
     """Every contact of the pass: each awake body's with the colliders (its touching
-    particles in ``stats[b, :2]``), then each near body pair's (``stiff_contacts``)."""
+    particles in ``stats[b, :2]``; a body not stiff only while near another), then each
+    near body pair's (``stiff_contacts``)."""
     h, nb = scene.h, frames.shape[0]
     g = np.sqrt(scene.gravity[0] ** 2 + scene.gravity[1] ** 2 + scene.gravity[2] ** 2)
     fastest = 0.0
     for b in range(nb):
         fastest = max(fastest, _speed(frames[b]))
     pairs = _pairs(frames, bodies, 2.0 * h * (fastest + g * h) + SLOP)
+    near = bodies.stiff.copy()
+    for p in range(len(pairs)):
+        near[pairs[p, 0]] = near[pairs[p, 1]] = True
     ncoll = scene.rows.shape[0]
     out = np.empty((SLOTS * (nb * ncoll + len(pairs)), K_ROW))
     count = np.int64(0)
     row_speed = _rows_speed(scene.rows)
     for b in range(nb):
-        if bodies.awake[b]:
+        if bodies.awake[b] and near[b]:
             margin = h * (_speed(frames[b]) + g * h + row_speed) + SLOP
             count = collider_contacts(bodies, frames, b, margin, scene, out, count,
                                       stats[b, :2])
