@@ -22,8 +22,7 @@ import threading
 import time
 from typing import Callable, Optional, Sequence
 
-from .warmup_stages import (MAIN_STAGES, run_soft, stiff_bodies, warm_extra, warm_scene,
-                            warm_stiff)
+from .warmup_stages import MAIN_STAGES, run_soft, warm_extra, warm_scene, warm_stiff
 
 #: Seconds a cold compile of every kernel takes on 2 idle cores (its three processes share
 #: them; ``python -m sm_ros.bench startup`` reports the CPU seconds); ``warmup`` quotes it
@@ -167,7 +166,6 @@ def _background() -> int:
         pass                       # the priority is a courtesy: warm up all the same
     warm_up(split=False)
     warm_scene('default')
-    stiff_bodies()
     return 0
 
 
@@ -226,11 +224,10 @@ def _warm_up(on_stage, helpers, t0) -> float:
         run_soft(stage)
         if on_stage is not None:
             on_stage(stage.__name__.strip('_').replace('_', ' '))
+    for helper, part in helpers.items():
+        _finish_extra(helper, part)
     for part in (warm_extra, warm_stiff):
-        started = [helper for helper, its in helpers.items() if its is part]
-        if started:
-            _finish_extra(started[0], part)
-        else:
+        if part not in helpers.values():         # no helper started for it: here
             part()
     mark_warm()
     return time.perf_counter() - t0

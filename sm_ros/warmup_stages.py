@@ -19,11 +19,6 @@ def _stiff_world():
     return world
 
 
-def stiff_bodies() -> None:
-    """Stiff bodies' contact (``stiff_contact.py``) and the step around it."""
-    _stiff_world().step(1.0 / 120.0)
-
-
 def _stiff_pass() -> None:
     """The stiff bodies' contact pass alone (``World._stiff_pass``), without the bodies'
     own step, which the other warm-up processes compile meanwhile."""

@@ -443,7 +443,7 @@ class World(WorldColliders):
         before their own step; the contact pass leaves their pairs alone.  Their contact
         figures wait in ``_stiff_stats`` (flat body order) for the diagnostics."""
         bodies = self._flat.bodies
-        stiff, index, members = self._stiff_members(h)
+        stiff, index, members, _ = self._stiff_members(h)
         c = self._contact
         if c is not None:
             c.set_rigid(stiff)

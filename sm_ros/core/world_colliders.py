@@ -176,10 +176,11 @@ class WorldColliders:
 
     def _stiff_members(self, h):
         """(per body, flat order, whether it takes its contacts in the stiff pass; the
-        indices of those that do; their (body, contact radius) pairs), kept while no body,
-        its parameters, the step or the contact settings change.  A body that is not
-        stiff joins only where it can meet a stiff one: a world of bodies carried as a whole
-        and none stiff keeps them in the faster contact pass."""
+        indices of those that do; their (body, contact radius) pairs; per body whether it
+        is stiff, ``stiff_contact.is_stiff``), kept while no body, its parameters, the
+        step or the contact settings change.  A body that is not stiff joins only where it
+        can meet a stiff one: a world of bodies carried as a whole and none stiff keeps
+        them in the faster contact pass."""
         cp = self._contact_params
         key = (body_build._GENERATION[0], h, self._flat_builds, cp.stacking, cp.rigid,
                bool(self._gnorm))
@@ -199,7 +200,7 @@ class WorldColliders:
             if old is not None and old[2] == members and np.array_equal(old[3], stiff):
                 members = old[2]        # the same list: the stiff pass keeps what it built
             self._stiff_cache, self._stiff_key = (member, index, members, stiff), key
-        return self._stiff_cache[:3]
+        return self._stiff_cache
 
     def _collider_radii(self, h):
         """Every body meets the colliders with its particles' spheres of its contact
@@ -212,8 +213,8 @@ class WorldColliders:
         key = (body_build._GENERATION[0], h, self._flat_builds, cp.stacking, cp.rigid)
         if key == self._radii_key:
             return
-        bodies, member = self._flat.bodies, self._stiff_members(h)[0]
-        radii = np.array([0.0 if member[k] and is_stiff(b, h) else self.contact_radius(b.name)
+        bodies, stiff = self._flat.bodies, self._stiff_members(h)[3]
+        radii = np.array([0.0 if stiff[k] else self.contact_radius(b.name)
                           for k, b in enumerate(bodies)])
         changed = any(b._collider_radius != r for b, r in zip(bodies, radii))
         for b, r in zip(bodies, radii):
