@@ -129,12 +129,12 @@ def test_pypbd_driver_uses_our_clusters():
     from sm_ros.bench.pypbd_driver import clusters
     from sm_ros.core.clusters import build_memberships
     x0 = bc.cube_lattice(6)
-    ptr, cl, n_clusters = build_memberships(x0, 2)
+    ptr, cluster_ids, n_clusters = build_memberships(x0, 2)
     members = clusters(x0, 2)
     assert len(members) == n_clusters == 8
-    assert sum(len(m) for m in members) == len(cl)
+    assert sum(len(m) for m in members) == len(cluster_ids)
     for i in (0, 17, 215):
-        assert {c for c, m in enumerate(members) if i in m} == set(cl[ptr[i]:ptr[i + 1]])
+        assert {c for c, m in enumerate(members) if i in m} == set(cluster_ids[ptr[i]:ptr[i + 1]])
 
 
 def test_pypbd_driver_runs_one_configuration():

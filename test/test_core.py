@@ -247,7 +247,7 @@ def test_numba_matches_numpy_reference(mode, clusters, plastic):
         assert np.abs(body.v - ref.v).max() < 1e-9 / h
     if plastic:
         assert not np.allclose(body.plastic_state, np.eye(3))   # the case exercised it
-        np.testing.assert_allclose(body.plastic_state, np.array(ref.sp), atol=1e-9)
+        np.testing.assert_allclose(body.plastic_state, np.array(ref.plastic_state), atol=1e-9)
 
 
 @pytest.mark.parametrize('mode,clusters', [('linear', 2), ('quadratic', 2), ('rigid', 1)])
@@ -261,8 +261,8 @@ def test_numba_matches_numpy_reference_step_by_step_in_contact(mode, clusters):
     h = 1.0 / 60.0
     for step in range(40):
         ref.x, ref.v = body.x.copy(), body.v.copy()
-        if not np.array_equal(np.array(ref.sp), body.plastic_state):
-            ref.sp = list(body.plastic_state)
+        if not np.array_equal(np.array(ref.plastic_state), body.plastic_state):
+            ref.plastic_state = list(body.plastic_state)
             ref._rest()
         world.step(h)
         ref.step(h, world.gravity, ground, radius=body._collider_radius)
@@ -447,7 +447,7 @@ def test_plasticity_of_flat_and_line_bodies_matches_reference(shape):
         ref.step(0.01)
         assert np.abs(body.x - ref.x).max() < 1e-9, step
     assert body.plastic_state[0][0, 0] > 1.0
-    np.testing.assert_allclose(body.plastic_state, np.array(ref.sp), atol=1e-9)
+    np.testing.assert_allclose(body.plastic_state, np.array(ref.plastic_state), atol=1e-9)
 
 
 def test_no_particle_below_ground_and_rest_on_ground():

@@ -105,7 +105,7 @@ def test_plastic_refresh_at_cluster_cost_matches_the_particle_pass(mode, cluster
         world.step(0.005)
     assert np.abs(body.plastic_state - np.eye(3)).max() > 0.01      # it flowed
     sum_q, mom3 = np.zeros_like(body._sum_q), np.zeros_like(body._mom3)
-    K.moments(body._x0, body._m, (body._ptr, body._cl), (body._rest_lin, body._rest_off),
+    K.moments(body._x0, body._m, (body._ptr, body._cluster_ids), (body._rest_lin, body._rest_off),
               body._wsum, np.ones(body.num_clusters, dtype=np.bool_), (True, False),
               (sum_q, mom3, np.zeros((1, 9, 9))), np.zeros(9))
     scale = np.abs(mom3).max()

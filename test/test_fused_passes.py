@@ -131,14 +131,14 @@ def test_fused_set_pass_matches_its_numpy_twin(damping, cap):
     wuni = body._wuni
     assert wuni == 1.5
     err2, capped = KS._sets_fused_lin(
-        0, body.n, K.BodyParticles(body._x, body._v, st.y0, body._m),
+        0, body.n, K.BodyParticles(body._x, body._v, st.rest_local, body._m),
         K.Sets(st.sid, st.runs, st.goal_maps, st.ref, wuni),
         K.SetMotion(0.6, H, acc, np.zeros(3), np.zeros(3), cap),
         K.FusedDamping(damping > 0.0, damping, dmp, dsums[None]), sums, dsums,
         K.Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), 1e-3, 0.0))
     tx, tv, tsums, tds, terr, tcapped = _twin(
-        x0, v0, np.asarray(st.y0), body._m, wuni, st.sid, st.runs, st.goal_maps, st.ref, 0.6, H,
-        acc, damping > 0.0, damping, dmp, cap, nsets)
+        x0, v0, np.asarray(st.rest_local), body._m, wuni, st.sid, st.runs, st.goal_maps, st.ref,
+        0.6, H, acc, damping > 0.0, damping, dmp, cap, nsets)
     assert capped == tcapped and (capped > 0) == (cap < 100.0)
     np.testing.assert_allclose(body._x, tx, rtol=0, atol=1e-13)
     np.testing.assert_allclose(body._v, tv, rtol=0, atol=1e-11)
@@ -184,7 +184,7 @@ def test_capped_and_collided_runs_leave_the_set_sums_valid(order):
     st = body._sets
     fresh = np.zeros_like(st.part)
     K.sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64),
-                             quad=False, x=body._x, y0=st.y0, mass=body._m, sid=st.sid,
+                             quad=False, x=body._x, y0=st.rest_local, mass=body._m, sid=st.sid,
                              runs=st.runs, sref=st.ref, part=fresh)
     np.testing.assert_allclose(st.part, fresh, rtol=1e-10,
                                atol=1e-12 * np.abs(fresh).max())
@@ -350,7 +350,7 @@ def test_sums_stay_those_of_the_state_on_the_ground(layout):
             st = body._sets
             shape = np.zeros_like(st.part)
             K.sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64),
-                                     quad=False, x=body._x, y0=st.y0, mass=body._m,
+                                     quad=False, x=body._x, y0=st.rest_local, mass=body._m,
                                      sid=st.sid, runs=st.runs, sref=st.ref, part=shape)
             stored, sid = st.part, st.sid
         np.testing.assert_allclose(stored, shape, rtol=1e-10, atol=1e-12 * np.abs(shape).max())

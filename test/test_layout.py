@@ -29,7 +29,7 @@ def _layout_ok(body):
     for a in (body._x, body._v, body._x0):
         assert a.shape == (body.n, 3) and a.T.flags.c_contiguous
     if body._sets is not None:
-        assert body._sets.y0.T.flags.c_contiguous
+        assert body._sets.rest_local.T.flags.c_contiguous
 
 
 def test_views_are_column_major_read_only_and_follow_the_state():
@@ -148,7 +148,7 @@ def test_state_blocks_start_on_a_cache_line(n_side, clusters):
             body.set_params(mode='quadratic')            # new rest data, same state
         blocks = [body._x, body._v, body._x0]
         if body._sets is not None:
-            blocks.append(body._sets.y0)
+            blocks.append(body._sets.rest_local)
         for a in blocks:
             assert a.ctypes.data % 64 == 0 and a.flags.f_contiguous
             if body.n % 4 == 0:

@@ -300,17 +300,17 @@ def test_limit_turn_caps_the_spin_and_keeps_the_momentum(clusters):
     c = m @ x / m.sum()
     v = np.cross([0.0, 30.0, 40.0], x - c) + [0.3, 0.0, -0.2]    # 50 rad/s, drifting
     if clusters == 1:
-        ptr, cl, nk = np.zeros(0, np.int64), np.zeros(0, np.int32), 1
+        ptr, cluster_ids, nk = np.zeros(0, np.int64), np.zeros(0, np.int32), 1
     else:
-        ptr, cl, nk = build_memberships(x - c, clusters)
+        ptr, cluster_ids, nk = build_memberships(x - c, clusters)
     v_new = v.copy()
     z3 = [np.zeros((3, 3)) for _ in range(4)]
     scratch = (np.zeros((nk, 13)), np.zeros((nk, 6)), z3[0], z3[1], z3[2], z3[3])
-    count = K.limit_turn(x, v_new, m, (ptr, cl), np.ones(nk, np.bool_), 10.0, scratch)
+    count = K.limit_turn(x, v_new, m, (ptr, cluster_ids), np.ones(nk, np.bool_), 10.0, scratch)
     assert count == nk
     np.testing.assert_allclose(m @ v_new, m @ v, atol=1e-12 * np.abs(m @ v).max())
     members = ([np.arange(len(x))] if clusters == 1 else
-               [np.repeat(np.arange(len(x)), np.diff(ptr))[cl == k] for k in range(nk)])
+               [np.repeat(np.arange(len(x)), np.diff(ptr))[cluster_ids == k] for k in range(nk)])
     counts = np.ones(len(x)) if clusters == 1 else np.diff(ptr).astype(float)
     for idx in members:                     # each cluster's own spin, about its centre
         w = m[idx] / counts[idx]
@@ -325,7 +325,8 @@ def test_limit_turn_caps_the_spin_and_keeps_the_momentum(clusters):
                 assert np.linalg.norm(omega) < 0.7 * 50.0   # measured 31 rad/s
     # unflagged clusters are not touched
     v_same = v.copy()
-    assert K.limit_turn(x, v_same, m, (ptr, cl), np.zeros(nk, np.bool_), 10.0, scratch) == 0
+    unflagged = np.zeros(nk, np.bool_)
+    assert K.limit_turn(x, v_same, m, (ptr, cluster_ids), unflagged, 10.0, scratch) == 0
     np.testing.assert_array_equal(v_same, v)
 
 

@@ -43,9 +43,9 @@ def test_every_set_is_one_run_and_the_body_shows_the_callers_order(mode, shape):
     assert np.array_equal(body._x, pts[perm])
     assert body.x.flags.f_contiguous and not body.x.flags.writeable
     # the memberships reused from the ordering are the ones the body would compute
-    ptr, cl, nk = build_memberships(body._x0, 2)
+    ptr, cluster_ids, nk = build_memberships(body._x0, 2)
     assert nk == body.num_clusters
-    assert np.array_equal(ptr, body._ptr) and np.array_equal(cl, body._cl)
+    assert np.array_equal(ptr, body._ptr) and np.array_equal(cluster_ids, body._cluster_ids)
     # given in the stored order already: nothing moves
     again = Body(body._x, params=BodyParams(mode=mode, clusters=2))
     assert again._perm is None and np.shares_memory(again.x, again._x)

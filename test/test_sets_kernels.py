@@ -46,14 +46,14 @@ def test_sets_reduce_matches_the_per_particle_sums(monkeypatch, mode):
     st, quad = body._sets, body._quad
     x = body._x
     K.sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64),
-                             quad=quad, x=x, y0=st.y0, mass=body._m, sid=st.sid, runs=st.runs,
-                             sref=st.ref, part=st.part)
+                             quad=quad, x=x, y0=st.rest_local, mass=body._m, sid=st.sid,
+                             runs=st.runs, sref=st.ref, part=st.part)
     ref = body._ref + np.array([0.01, -0.02, 0.015])      # any reference point
     out = np.zeros_like(body._part)
-    pairs = K.SetClusters(st.ptr, st.cl, st.cnt, st.phi, st.pair_offsets, st.org)
+    pairs = K.SetClusters(st.ptr, st.cluster_ids, st.cnt, st.phi, st.pair_offsets, st.org)
     K.sets_reduce(st.part, pairs, st.ref, body._rest_lin, ref, quad, out, (st.work, st.quad_map))
     twin = reference.cluster_sums(np.asarray(x), np.asarray(body._x0), body._m, body._ptr,
-                                  body._cl, body._rest_lin, body._rest_off, ref, quad)
+                                  body._cluster_ids, body._rest_lin, body._rest_off, ref, quad)
     scale = np.abs(twin).max(axis=0)
     assert np.abs(out[0] - twin).max() <= 1e-12 * scale.max()
     np.testing.assert_allclose(out[0], twin, rtol=1e-9, atol=1e-13 * scale.max())
@@ -67,20 +67,20 @@ def test_sets_maps_give_the_mean_of_the_clusters_goals(monkeypatch, mode):
     st, quad = body._sets, body._quad
     sref = np.zeros_like(st.ref)
     gm = np.zeros_like(st.goal_maps)
-    pairs = K.SetClusters(st.ptr, st.cl, st.cnt, st.phi, st.pair_offsets, st.org)
+    pairs = K.SetClusters(st.ptr, st.cluster_ids, st.cnt, st.phi, st.pair_offsets, st.org)
     K.sets_maps(pairs, body._rest_lin, (body._trans, body._goal_lin, body._goal_off), body._ref,
                 quad, (gm, sref), (st.quad_map, st.cluster_maps))
-    y = np.asarray(st.y0)
+    y = np.asarray(st.rest_local)
     phi = np.stack([np.ones(len(y)), y[:, 0], y[:, 1], y[:, 2], y[:, 0] ** 2, y[:, 1] ** 2,
                     y[:, 2] ** 2, y[:, 0] * y[:, 1], y[:, 1] * y[:, 2], y[:, 2] * y[:, 0]], 1)
     got = np.einsum('iaf,if->ia', gm[st.sid], phi[:, :gm.shape[2]])   # 4 or 10 terms
-    twin = reference.set_goals(np.asarray(body._x0), body._ptr, body._cl, body._rest_lin,
+    twin = reference.set_goals(np.asarray(body._x0), body._ptr, body._cluster_ids, body._rest_lin,
                                body._rest_off, body._trans, body._goal_lin, body._goal_off,
                                quad)
     assert np.abs(got - twin).max() < 1e-13
     # the sets' reference points: the mean of their clusters' centres
     for s in range(len(st.cnt)):
-        ks = st.cl[st.ptr[s]:st.ptr[s + 1]]
+        ks = st.cluster_ids[st.ptr[s]:st.ptr[s + 1]]
         np.testing.assert_allclose(sref[s], body._ref[ks].mean(axis=0), rtol=0, atol=1e-15)
 
 

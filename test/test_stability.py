@@ -487,10 +487,10 @@ def test_sparse_lattice_in_many_clusters_holds_together(n, rotated):
     x0 = lattice(n, SIZE)
     if rotated:
         x0 = x0 @ random_rotation(np.random.default_rng(n)).T
-    ptr, cl, nk = build_memberships(x0, 4)
+    ptr, cluster_ids, nk = build_memberships(x0, 4)
     rows = np.repeat(np.arange(len(x0)), np.diff(ptr))
     # every cluster that shares no particle with the others would be a loose piece
-    others = [set(cl[np.isin(rows, rows[cl == k])]) - {k} for k in range(nk)]
+    others = [set(cluster_ids[np.isin(rows, rows[cluster_ids == k])]) - {k} for k in range(nk)]
     assert nk == 1 or all(others)
     world = World(gravity=(0.0, 0.0, 0.0))
     v = np.cross([0.0, 0.0, 12.0], x0)                 # 0.2 rad per step of 1/60 s

@@ -39,10 +39,10 @@ def lattice(pbd, model, n: int) -> np.ndarray:
 def clusters(points: np.ndarray, k: int) -> List[np.ndarray]:
     """Return the particle indices of each cluster, as sm_ros builds them for ``points``."""
     from sm_ros.core.clusters import build_memberships
-    ptr, cl, n_clusters = build_memberships(points, k)
+    ptr, cluster_ids, n_clusters = build_memberships(points, k)
     owner = np.repeat(np.arange(len(points)), np.diff(ptr))
-    order = np.argsort(cl, kind='stable')
-    bounds = np.searchsorted(cl[order], np.arange(n_clusters + 1))
+    order = np.argsort(cluster_ids, kind='stable')
+    bounds = np.searchsorted(cluster_ids[order], np.arange(n_clusters + 1))
     return [owner[order[bounds[c]:bounds[c + 1]]] for c in range(n_clusters)]
 
 

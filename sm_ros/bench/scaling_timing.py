@@ -227,7 +227,7 @@ def time_size(n_side: int, modes, ks, min_time: float,
     out = []
     for mode, k, variant, tick, body, build_s, samples, world in cfgs:
         s = np.asarray(samples)
-        memberships = len(body._cl) if len(getattr(body, '_cl', ())) else n
+        memberships = len(body._cluster_ids) if len(getattr(body, '_cluster_ids', ())) else n
         layout = 'single' if k == 1 else ('sets' if getattr(body, '_sets', None) is not None
                                           else 'memberships')
         # runs of consecutive particles of one set (the set-layout loops' unit)

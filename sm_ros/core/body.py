@@ -88,8 +88,8 @@ class Body:
         self._v = soa(v)
         # rest positions about the mass centre: every kernel reads these (exact for any
         # far-away placement)
-        self._c0 = (m @ x) / self.total_mass
-        self._x0 = soa(x - self._c0)
+        self._rest_centre = (m @ x) / self.total_mass
+        self._x0 = soa(x - self._rest_centre)
         self._force = np.zeros(3)
         self._facc = np.zeros(3)               # force / total mass
         self._torque = np.zeros(3)

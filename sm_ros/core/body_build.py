@@ -54,8 +54,8 @@ _GENERATION = [0]
 _EMPTY_I32 = np.zeros(0, dtype=np.int32)
 
 
-def group_sets(ptr, cl):
-    """The sets of a particle-major membership CSR (``ptr``, ``cl``): ``(sid, uniq)``.
+def group_sets(ptr, cluster_ids):
+    """The sets of a particle-major membership CSR (``ptr``, ``cluster_ids``): ``(sid, uniq)``.
 
     ``sid`` (N,) int64 is each particle's set, ``uniq`` (S, width) the clusters of each
     set padded with -1 (set ids in the order of the sets' hash keys, which does not depend
@@ -64,9 +64,9 @@ def group_sets(ptr, cl):
     n = len(ptr) - 1
     counts = np.diff(ptr)
     rows = np.repeat(np.arange(n), counts)
-    pos = np.arange(len(cl)) - ptr[rows]
+    pos = np.arange(len(cluster_ids)) - ptr[rows]
     pad = np.full((n, int(counts.max())), -1, dtype=np.int64)
-    pad[rows, pos] = cl
+    pad[rows, pos] = cluster_ids
     # group equal membership lists by a 64-bit hash (np.unique over rows is ~50x
     # slower), then check that every particle's list equals its set's first one
     mult = np.random.default_rng(12345).integers(1, 2 ** 62, pad.shape[1],
@@ -88,35 +88,35 @@ def set_order(x0, clusters, set_layout_min_ratio):
     particles, the given order kept within a set), or is None where the body takes no
     set layout (one cluster, or memberships that do not pass ``set_layout_min_ratio``, as
     in ``build``) or the particles are in that order already.  ``members`` is
-    ``(clusters, ptr, cl, n_clusters, (sid, uniq))`` of the reordered particles (``build``
+    ``(clusters, ptr, cluster_ids, n_clusters, (sid, uniq))`` of the reordered particles (``build``
     reuses it: the memberships and sets are computed once; None for one cluster).
 
     Cost: the memberships (``build_memberships``) and the grouping, no body build.
     """
     if clusters <= 1:
         return None, None
-    ptr, cl, nk = build_memberships(x0, clusters)
-    sid, uniq = group_sets(ptr, cl)
-    if ((uniq >= 0).sum() * set_layout_min_ratio > len(cl)     # no set layout (``build``)
+    ptr, cluster_ids, nk = build_memberships(x0, clusters)
+    sid, uniq = group_sets(ptr, cluster_ids)
+    if ((uniq >= 0).sum() * set_layout_min_ratio > len(cluster_ids)     # no set layout (``build``)
             or np.all(sid[1:] >= sid[:-1])):
-        return None, (clusters, ptr, cl, nk, (sid, uniq))
+        return None, (clusters, ptr, cluster_ids, nk, (sid, uniq))
     perm = np.argsort(sid, kind='stable').astype(np.int64)
     counts = np.diff(ptr)[perm]
     nptr = np.zeros(len(ptr), dtype=np.int64)
     np.cumsum(counts, out=nptr[1:])
     # the memberships of particle perm[i], moved to row i
-    src = np.repeat(ptr[:-1][perm] - nptr[:-1], counts) + np.arange(len(cl))
-    return perm, (clusters, nptr, np.ascontiguousarray(cl[src]), nk, (sid[perm], uniq))
+    src = np.repeat(ptr[:-1][perm] - nptr[:-1], counts) + np.arange(len(cluster_ids))
+    return perm, (clusters, nptr, np.ascontiguousarray(cluster_ids[src]), nk, (sid[perm], uniq))
 
 
 class _SetLayout:
     """Particles grouped by the set of clusters they belong to (see ``kernels.sets_*``).
 
-    ``sid`` (N,) set of each particle, ``ptr``/``cl`` the clusters of each set (CSR),
-    ``cnt`` their number, ``org`` (S, 3) a rest-space origin per set, ``y0`` (N, 3) the
+    ``sid`` (N,) set of each particle, ``ptr``/``cluster_ids`` the clusters of each set (CSR),
+    ``cnt`` their number, ``org`` (S, 3) a rest-space origin per set, ``rest_local`` (N, 3) the
     rest offsets from it, ``phi`` (S, 10) sum m phi(y), ``ref`` (S, 3) the reference point
     of the per-set sums, ``goal_maps`` (S, 3, 10); ``pair_offsets`` (pairs, 3) the offset
-    org[s] - cm0[k] of each set-cluster pair (``cl`` order) from the cluster's rest centre
+    org[s] - cm0[k] of each set-cluster pair (``cluster_ids`` order) from the cluster's rest centre
     ``cm0``; scratch: ``work`` (2, 3, 10), ``quad_map`` (9, 10: a cluster's quadratic rest
     map) and ``cluster_maps`` (clusters, 3, 10: each cluster's goal map in those terms);
     ``runs`` (R + 1,) the first particle of each run of consecutive particles of one set,
@@ -124,9 +124,9 @@ class _SetLayout:
     steps run by run without looking for the ends).
     """
 
-    def __init__(self, x0, m, ptr, cl, c0, cm0, quad, groups=None):
+    def __init__(self, x0, m, ptr, cluster_ids, c0, cm0, quad, groups=None):
         n = len(x0)
-        sid, uniq = group_sets(ptr, cl) if groups is None else groups
+        sid, uniq = group_sets(ptr, cluster_ids) if groups is None else groups
         ns = len(uniq)
         self.sid = np.ascontiguousarray(sid, dtype=np.int32)
         self.runs = np.concatenate(([0], np.flatnonzero(np.diff(self.sid)) + 1, [n])).astype(
@@ -135,13 +135,13 @@ class _SetLayout:
         self.cnt = valid.sum(axis=1).astype(np.float64)
         self.ptr = np.zeros(ns + 1, dtype=np.int64)
         np.cumsum(valid.sum(axis=1), out=self.ptr[1:])
-        self.cl = np.ascontiguousarray(uniq[valid], dtype=np.int32)
+        self.cluster_ids = np.ascontiguousarray(uniq[valid], dtype=np.int32)
         pop = np.bincount(self.sid, minlength=ns).astype(np.float64)
         self.org = np.stack([np.bincount(self.sid, weights=x0[:, j], minlength=ns)
                              for j in range(3)], axis=1) / pop[:, None]
         # per component, as the body's positions (``body.soa``)
-        self.y0 = soa(x0 - self.org[self.sid])
-        y = self.y0
+        self.rest_local = soa(x0 - self.org[self.sid])
+        y = self.rest_local
         phi = np.stack([np.ones(n), y[:, 0], y[:, 1], y[:, 2], y[:, 0] ** 2, y[:, 1] ** 2,
                         y[:, 2] ** 2, y[:, 0] * y[:, 1], y[:, 1] * y[:, 2],
                         y[:, 2] * y[:, 0]], axis=1)
@@ -151,11 +151,11 @@ class _SetLayout:
         # goal maps: 4 coefficients a row (rigid/linear) or 10 (quadratic)
         self.goal_maps = np.zeros((ns, 3, 10 if quad else 4))
         self.pair_offsets = np.ascontiguousarray(np.repeat(self.org, valid.sum(axis=1), axis=0)
-                                       - cm0[self.cl])
+                                       - cm0[self.cluster_ids])
         self.cluster_maps = np.zeros((len(cm0) if quad else 0, 3, 10))
         self.work = np.zeros((2, 3, 10))
         self.quad_map = np.zeros((9, 10))
-        self.pairs = len(self.cl)
+        self.pairs = len(self.cluster_ids)
         self.part = None
 
     def step_state(self) -> tuple:
@@ -190,27 +190,27 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
 
 
 def _rest_moments(body):
-    """The memberships (``body._ptr``, ``body._cl``; none for one cluster), and each
+    """The memberships (``body._ptr``, ``body._cluster_ids``; none for one cluster), and each
     cluster's weight, rest centre, scale and rest moments about its centre; returns the
     set grouping ``set_order`` computed with the memberships (or None)."""
     p, n = body._params, body.n
     x0, m = body._x0, body._m
     groups = None
     if p.clusters == 1:
-        body._ptr, body._cl, nk = _EMPTY_I64, _EMPTY_I32, 1
+        body._ptr, body._cluster_ids, nk = _EMPTY_I64, _EMPTY_I32, 1
         w = m
         member = np.zeros(n, dtype=np.int64)
         rows = np.arange(n)
     else:
         pre = getattr(body, '_members', None)   # from set_order (``Body.__init__``)
         if pre is not None and pre[0] == p.clusters:
-            body._ptr, body._cl, nk, groups = pre[1:]
+            body._ptr, body._cluster_ids, nk, groups = pre[1:]
         else:
-            body._ptr, body._cl, nk = build_memberships(x0, p.clusters)
+            body._ptr, body._cluster_ids, nk = build_memberships(x0, p.clusters)
         counts = np.diff(body._ptr)
         rows = np.repeat(np.arange(n), counts)
         w = (m / counts)[rows]
-        member = body._cl.astype(np.int64)
+        member = body._cluster_ids.astype(np.int64)
     body.num_clusters = nk
     wsum = np.bincount(member, weights=w, minlength=nk)
     cm0 = np.stack([np.bincount(member, weights=w * x0[rows, j], minlength=nk)
@@ -258,7 +258,7 @@ def _cluster_state(body) -> None:
     body._trans = np.zeros((nk, 3, 9))
     body._goal_lin = np.zeros((nk, 3, 3))
     body._goal_off = np.zeros((nk, 3))
-    body._ref = body._cm0 + body._c0
+    body._ref = body._cm0 + body._rest_centre
     # speed and turn limits (kernels/limits.py): previous rotations, scratch, flags
     body._quat_prev = np.zeros((nk, 4))
     body._flagged = np.zeros(nk, dtype=np.bool_)
@@ -272,17 +272,17 @@ def _layout(body, groups, parallel_min_work, set_layout_min_ratio, single_quadra
     na = 30 if body._quad else 12
     body._sets = None
     if p.clusters > 1:
-        sets = _SetLayout(body._x0, body._m, body._ptr, body._cl, body._c0, body._cm0,
-                          body._quad, groups)
-        if sets.pairs * set_layout_min_ratio <= len(body._cl):
+        sets = _SetLayout(body._x0, body._m, body._ptr, body._cluster_ids, body._rest_centre,
+                          body._cm0, body._quad, groups)
+        if sets.pairs * set_layout_min_ratio <= len(body._cluster_ids):
             body._sets = sets
     elif body._quad and single_quadratic_sets:
         # one set: the quadratic goal as one polynomial of x0 (27 multiply-adds less
         # per particle than features-then-transform)
         body._sets = _SetLayout(body._x0, body._m, np.arange(n + 1, dtype=np.int64),
-                                np.zeros(n, dtype=np.int32), body._c0, body._cm0, True)
+                                np.zeros(n, dtype=np.int32), body._rest_centre, body._cm0, True)
     # work per step: one unit per particle (one cluster, set layout) or per membership
-    work = len(body._cl) if p.clusters > 1 and body._sets is None else n
+    work = len(body._cluster_ids) if p.clusters > 1 and body._sets is None else n
     body._parallel = work >= parallel_min_work and numba.get_num_threads() > 1
     nch = numba.get_num_threads() if body._parallel else 1
     nch = max(1, min(nch, n))
@@ -303,7 +303,7 @@ def _damping_buffers(body, fused_damping_min, fused_damping_min_sets) -> None:
         (sets is not None and n >= min(fused_damping_min, fused_damping_min_sets))
         or (sets is None and p.clusters == 1 and n >= fused_damping_min))
     if body._damp_fused and sets is not None:
-        body._dsets = (sets.ptr, sets.cl, sets.cnt)
+        body._dsets = (sets.ptr, sets.cluster_ids, sets.cnt)
         body._dpart = np.zeros((len(sets.part), len(sets.cnt), K.NDAMP))
     elif body._damp_fused:
         body._dsets = (np.array([0, 1], dtype=np.int64), np.zeros(1, dtype=np.int32),
@@ -339,8 +339,9 @@ def refresh_rest(body, which):
                    - sq[:, :, None] * sq[:, None, :] / body._wsum[idx, None, None])
             body._mom3[idx] = 0.5 * (mom + mom.transpose(0, 2, 1))
     else:
-        K.moments(body._x0, body._m, (body._ptr, body._cl), (body._rest_lin, body._rest_off),
-                  body._wsum, which, needs, (body._sum_q, body._mom3, body._mom9), body._features9)
+        K.moments(body._x0, body._m, (body._ptr, body._cluster_ids),
+                  (body._rest_lin, body._rest_off), body._wsum, which, needs,
+                  (body._sum_q, body._mom3, body._mom9), body._features9)
     K.invert_moments(which, needs, (body._mom3, body._mom9), (body._aqq3, body._aqq9),
                      (body._mat3[0], body._mat3[1], body._mat9[0], body._mat9[1]), RCOND)
     if body._mode == 1:
@@ -371,10 +372,10 @@ def fast_record(body, h):
     lin = body._lin if body._lin is not None else np.zeros((body.num_clusters, 13))
     w3 = body._damp_spin if body._damp_spin is not None else np.zeros((body.num_clusters, 3))
     s3 = body._mat3
-    # x, v, x0 (and the set layout's y0) as their (3, N) C-contiguous blocks: a typed list
+    # x, v, x0 (and the set layout's rest_local) as their (3, N) C-contiguous blocks: a typed list
     # fixes the element type from its first record, and a one-particle body's (1, 3) view
     # is typed C (both orders at once); the world step transposes them back (layout F)
-    own = (body._x.T, body._v.T, body._x0.T, body._m, body._ptr, body._cl, body._rest_lin,
+    own = (body._x.T, body._v.T, body._x0.T, body._m, body._ptr, body._cluster_ids, body._rest_lin,
            body._rest_off, body._part, body._wsum, body._sum_q, body._ref, body._quat,
            body._aqq3, body._aqq9, body._scale, body._trans, body._goal_lin, body._goal_off,
            body._apq, body._accbuf, s3[0], s3[1], s3[2], s3[3], body._mat39, body._quat_n,
@@ -411,8 +412,9 @@ def fast_sets(body):
     """The set-layout buffers of a record (empty ones for a one-cluster body)."""
     st = body._sets
     if st is not None:
-        return (st.y0.T, st.sid, st.goal_maps, st.ref, st.part, st.ptr, st.cl, st.cnt, st.phi,
-                st.org, st.work, st.quad_map, st.pair_offsets, st.cluster_maps, st.runs)
+        return (st.rest_local.T, st.sid, st.goal_maps, st.ref, st.part, st.ptr, st.cluster_ids,
+                st.cnt, st.phi, st.org, st.work, st.quad_map, st.pair_offsets, st.cluster_maps,
+                st.runs)
     na = 30 if body._quad else 12
     return (np.zeros((3, 0)), _EMPTY_I32, np.zeros((0, 3, 10)), np.zeros((0, 3)),
             np.zeros((1, 0, na)), np.zeros(1, dtype=np.int64), _EMPTY_I32, np.zeros(0),

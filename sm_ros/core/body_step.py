@@ -73,12 +73,12 @@ def _particles(body):
 
 def _rest(body):
     """The body's clusters as the passes of ``kernels/integrate.py`` read them."""
-    return K.ClusterRest(body._ptr, body._cl, body._rest_lin, body._rest_off, body._ref)
+    return K.ClusterRest(body._ptr, body._cluster_ids, body._rest_lin, body._rest_off, body._ref)
 
 
 def _set_particles(body):
     """The particles of a set-layout body as its passes read them (y0 for x0)."""
-    return K.BodyParticles(body._x, body._v, body._sets.y0, body._m)
+    return K.BodyParticles(body._x, body._v, body._sets.rest_local, body._m)
 
 
 def _sets(body):
@@ -95,7 +95,8 @@ def _shape(body):
 
 def _set_clusters(sets):
     """A set layout's set-cluster pairs as its kernels read them."""
-    return K.SetClusters(sets.ptr, sets.cl, sets.cnt, sets.phi, sets.pair_offsets, sets.org)
+    return K.SetClusters(sets.ptr, sets.cluster_ids, sets.cnt, sets.phi, sets.pair_offsets,
+                         sets.org)
 
 
 def _take_sums(body) -> None:
@@ -105,7 +106,7 @@ def _take_sums(body) -> None:
     sets = body._sets
     if sets is not None:
         if body._dirty:
-            _chunks(body, K.sets_accumulate_chunks, quad=body._quad, x=body._x, y0=sets.y0,
+            _chunks(body, K.sets_accumulate_chunks, quad=body._quad, x=body._x, y0=sets.rest_local,
                     mass=body._m, sid=sets.sid, runs=sets.runs, sref=sets.ref, part=sets.part)
         K.sets_reduce(sets.part, _set_clusters(sets), sets.ref, body._rest_lin, body._ref,
                       body._quad, body._part, (sets.work, sets.quad_map))
@@ -135,7 +136,7 @@ def _match(body, p, h) -> int:
             np.cos(0.5 * turn), out=body._flagged)
     if not body._flagged.any():
         return 0
-    turned = K.limit_turn(body._x, body._v, body._m, (body._ptr, body._cl), body._flagged,
+    turned = K.limit_turn(body._x, body._v, body._m, (body._ptr, body._cluster_ids), body._flagged,
                           turn / h, (body._lim_lin, body._lim_w, s3[0], s3[1], s3[2], s3[3]))
     body._limit_counts[1] += turned
     return turned
@@ -199,7 +200,8 @@ def _damping(body, p, fused, turned) -> None:
                           dref=body._dref, sref=sets.ref if sets is not None else body._ref,
                           dmp=body._dmp)
     elif p.damping > 0.0:
-        K.damp_rigid(body._x, body._v, body._m, (body._ptr, body._cl), body._ref, p.damping,
+        K.damp_rigid(body._x, body._v, body._m, (body._ptr, body._cluster_ids), body._ref,
+                     p.damping,
                      (body._lin, body._damp_spin, s3[0], s3[1], s3[2], s3[3]))
 
 

@@ -24,8 +24,8 @@ from . import tuning
 def build_memberships(x0: np.ndarray, k: int, margin: float = tuning.DEFAULT_MARGIN):
     """Cluster memberships of the rest positions ``x0`` (N, 3).
 
-    Returns ``(ptr, cl, n_clusters)``: particle i belongs to clusters
-    ``cl[ptr[i]:ptr[i + 1]]`` (particle-major CSR, cluster ids 0 .. n_clusters - 1).
+    Returns ``(ptr, cluster_ids, n_clusters)``: particle i belongs to clusters
+    ``cluster_ids[ptr[i]:ptr[i + 1]]`` (particle-major CSR, cluster ids 0 .. n_clusters - 1).
     """
     x0 = np.asarray(x0, dtype=float)
     n = len(x0)
@@ -42,13 +42,13 @@ def build_memberships(x0: np.ndarray, k: int, margin: float = tuning.DEFAULT_MAR
         if k <= 1 or kk.max() <= 1 or _one_piece(first, last, rows, raw, kk):
             break
         k = int(kk.max()) - 1
-    used, cl = np.unique(raw, return_inverse=True)
+    used, cluster_ids = np.unique(raw, return_inverse=True)
     counts = np.bincount(rows, minlength=n)
     if np.any(counts == 0):  # cannot happen by construction; keep the invariant explicit
         raise RuntimeError('cluster construction left a particle without a cluster')
     ptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(counts, out=ptr[1:])
-    return ptr, cl.astype(np.int32), len(used)
+    return ptr, cluster_ids.astype(np.int32), len(used)
 
 
 def _candidates(x0, lo, ext, kk, margin):

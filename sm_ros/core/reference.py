@@ -189,21 +189,21 @@ class ReferenceBody:
             counts = np.ones(n)
         else:
             x0 = self.x_init - (self.m @ self.x_init) / self.m.sum()
-            ptr, cl, nk = build_memberships(x0, self.params.clusters)
+            ptr, cluster_ids, nk = build_memberships(x0, self.params.clusters)
             counts = np.diff(ptr)
             rows = np.repeat(np.arange(n), counts)
-            members = [rows[cl == k] for k in range(nk)]
+            members = [rows[cluster_ids == k] for k in range(nk)]
         self.members = members
         self.weights = [self.m[idx] / counts[idx] for idx in members]
         self.counts = counts
         self.cm0 = [w @ self.x_init[idx] / w.sum() for idx, w in zip(members, self.weights)]
-        self.sp = [np.eye(3) for _ in members]
+        self.plastic_state = [np.eye(3) for _ in members]
         self._rest()
 
     def _rest(self):
         """q = S^P (x0 - x0_cm) per cluster and the inverse moment matrices."""
         self.q, self.aqq, self.aqq9, self.mom = [], [], [], []
-        for idx, w, cm0, sp in zip(self.members, self.weights, self.cm0, self.sp):
+        for idx, w, cm0, sp in zip(self.members, self.weights, self.cm0, self.plastic_state):
             q = (self.x_init[idx] - cm0) @ sp.T
             self.q.append(q)
             self.mom.append((w[:, None] * q).T @ q)
@@ -276,10 +276,10 @@ class ReferenceBody:
         e = e + null @ null.T
         if np.max(np.abs(np.linalg.eigvalsh(e))) <= p.plastic_yield:
             return False
-        sp = (np.eye(3) + min(h * p.at_step(h).creep, 1.0) * e) @ self.sp[k]
+        sp = (np.eye(3) + min(h * p.at_step(h).creep, 1.0) * e) @ self.plastic_state[k]
         if np.linalg.det(sp) <= 1e-12:
             return False
-        self.sp[k] = cap_plastic(_unit_det(sp), p.plastic_max)
+        self.plastic_state[k] = cap_plastic(_unit_det(sp), p.plastic_max)
         return True
 
     def step(self, h, gravity=(0.0, 0.0, 0.0), ground=None, boxes=(), spheres=(),
@@ -357,7 +357,7 @@ def collide(x, v, ground, boxes, spheres, thresh, radius=0.0):
     return x, v
 
 
-def cluster_sums(x, x0, m, ptr, cl, rest_lin, rest_off, ref, quad):
+def cluster_sums(x, x0, m, ptr, cluster_ids, rest_lin, rest_off, ref, quad):
     """Per-cluster accumulators (clusters, 12 or 30) straight from the particles: row k =
     [sum w (x - ref_k), sum w (x - ref_k) f^T (row-major)] over k's members, w = m / (the
     particle's number of clusters), f = q-hat = G_k x0 + h_k or its quadratic features q~.
@@ -367,7 +367,7 @@ def cluster_sums(x, x0, m, ptr, cl, rest_lin, rest_off, ref, quad):
     counts = np.diff(ptr)
     for i in range(len(x)):
         w = m[i] / counts[i]
-        for k in cl[ptr[i]:ptr[i + 1]]:
+        for k in cluster_ids[ptr[i]:ptr[i + 1]]:
             q = rest_lin[k] @ x0[i] + rest_off[k]
             f = quadratic_terms(q[None])[0] if quad else q
             d = w * (x[i] - ref[k])
@@ -376,12 +376,12 @@ def cluster_sums(x, x0, m, ptr, cl, rest_lin, rest_off, ref, quad):
     return out
 
 
-def set_goals(x0, ptr, cl, rest_lin, rest_off, trans, goal_lin, goal_off, quad):
+def set_goals(x0, ptr, cluster_ids, rest_lin, rest_off, trans, goal_lin, goal_off, quad):
     """Every particle's goal, the mean over its clusters of T_k q~ + goal_off_k (quadratic)
     or goal_lin_k x0 + goal_off_k: what ``kernels.sets_maps``'s per-set polynomials give."""
     g = np.zeros_like(x0)
     for i in range(len(x0)):
-        ks = cl[ptr[i]:ptr[i + 1]]
+        ks = cluster_ids[ptr[i]:ptr[i + 1]]
         for k in ks:
             if quad:
                 q = rest_lin[k] @ x0[i] + rest_off[k]

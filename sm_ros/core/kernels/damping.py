@@ -129,7 +129,7 @@ def damp_rigid(x, v, mass, members, ref, k_damp, scratch):
     Per cluster: v_cm = sum w v / W, L = sum w r x v, I = sum w (|r|^2 - r r^T),
     omega = I^+ L; each particle moves a fraction ``k_damp`` towards the mean of its
     clusters' rigid velocities.  Linear and angular momentum of every cluster are kept.
-    ``members`` = (ptr, cl), the clusters of each particle (empty: one cluster);
+    ``members`` = (ptr, cluster_ids), the clusters of each particle (empty: one cluster);
     ``scratch`` = (lin (K, 13), w3 (K, 3), four 3 x 3).
 
     r = x - ref is taken about the centre of mass d = sum w r / W that ``ref`` holds only
@@ -137,7 +137,7 @@ def damp_rigid(x, v, mass, members, ref, k_damp, scratch):
     that, a body flying at 1e10 m/s far from the origin got ``(sum w r) x v`` of rounding
     noise as angular momentum, and the damping spun it apart.
     """
-    ptr, cl = members
+    ptr, cluster_ids = members
     lin, w3 = scratch[0], scratch[1]
     if ptr.shape[0] == 0:
         _damp_rigid_single(x, v, mass, ref, k_damp, scratch)
@@ -153,7 +153,7 @@ def damp_rigid(x, v, mass, members, ref, k_damp, scratch):
         j0, j1 = ptr[i], ptr[i + 1]
         w = mass[i] / (j1 - j0)
         for j in range(j0, j1):
-            k = cl[j]
+            k = cluster_ids[j]
             r0 = x[i, 0] - ref[k, 0]
             r1 = x[i, 1] - ref[k, 1]
             r2 = x[i, 2] - ref[k, 2]
@@ -173,7 +173,7 @@ def damp_rigid(x, v, mass, members, ref, k_damp, scratch):
         t1 = 0.0
         t2 = 0.0
         for j in range(j0, j1):
-            k = cl[j]
+            k = cluster_ids[j]
             r0 = x[i, 0] - ref[k, 0]
             r1 = x[i, 1] - ref[k, 1]
             r2 = x[i, 2] - ref[k, 2]

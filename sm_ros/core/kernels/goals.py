@@ -204,7 +204,7 @@ def _affine_goal(k, rest, match):
 @njit(**JIT)
 def moments(x0, mass, members, rest_map, wsum, which, needs, out, f9):
     """sum w q~ and the centred moments sum w (q - mean)(q - mean)^T of the clusters marked
-    in ``which`` (``members`` = (ptr, cl), the clusters of each particle, empty for one;
+    in ``which`` (``members`` = (ptr, cluster_ids), the clusters of each particle, empty for one;
     ``rest_map`` = (rest_lin, rest_off); ``needs`` = (need3, need9): which moments; ``out``
     = (sum_q, mom3, mom9); ``f9`` scratch).
 
@@ -212,7 +212,7 @@ def moments(x0, mass, members, rest_map, wsum, which, needs, out, f9):
     mean): the goals then share the cluster's centre of mass, which keeps linear momentum,
     and an exactly quadratic deformation is reproduced.
     """
-    ptr, cl = members
+    ptr, cluster_ids = members
     rest_lin, rest_off = rest_map
     need3, need9 = needs
     sum_q, mom3, mom9 = out
@@ -234,7 +234,7 @@ def moments(x0, mass, members, rest_map, wsum, which, needs, out, f9):
         a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
         j0, j1, w = _span(i, single, ptr, mass)
         for j in range(j0, j1):
-            k = 0 if single else cl[j]
+            k = 0 if single else cluster_ids[j]
             if not which[k]:
                 continue
             q0, q1, q2 = _qhat(rest_lin=rest_lin, rest_off=rest_off, k=k, a0=a0, a1=a1, a2=a2)

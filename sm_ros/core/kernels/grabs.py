@@ -28,7 +28,7 @@ def apply_kinematic(quad, particles, rest, part, targets, h):
     positions: their contribution is swapped for the one at the target.
     """
     x, v, x0, mass = particles.x, particles.v, particles.x0, particles.mass
-    ptr, cl, rest_lin, rest_off = rest.ptr, rest.cl, rest.rest_lin, rest.rest_off
+    ptr, cluster_ids, rest_lin, rest_off = rest.ptr, rest.cluster_ids, rest.rest_lin, rest.rest_off
     idx, tgt, prev = targets
     single = ptr.shape[0] == 0
     for p in range(idx.shape[0]):
@@ -36,7 +36,7 @@ def apply_kinematic(quad, particles, rest, part, targets, h):
         a0, a1, a2 = x0[i, 0], x0[i, 1], x0[i, 2]
         j0, j1, w = _span(i, single, ptr, mass)
         for j in range(j0, j1):
-            k = 0 if single else cl[j]
+            k = 0 if single else cluster_ids[j]
             q0, q1, q2 = _qhat(rest_lin=rest_lin, rest_off=rest_off, k=k, a0=a0, a1=a1, a2=a2)
             d0 = tgt[p, 0] - x[i, 0]
             d1 = tgt[p, 1] - x[i, 1]

@@ -37,10 +37,10 @@ from .fused import _fused_range, damp_constants
 #: A body's particles as the passes read them: positions, velocities and rest positions
 #: (N, 3; the transposes of its (3, N) blocks, typed F) and masses (N,).
 BodyParticles = namedtuple('BodyParticles', 'x v x0 mass')
-#: Its clusters: the membership (``ptr`` (N + 1,) into ``cl``, the clusters of each
+#: Its clusters: the membership (``ptr`` (N + 1,) into ``cluster_ids``, the clusters of each
 #: particle; empty for one cluster), each cluster's rest map (``rest_lin``, ``rest_off``)
 #: and the point its sums are taken about (``ref``, the last centre of mass).
-ClusterRest = namedtuple('ClusterRest', 'ptr cl rest_lin rest_off ref')
+ClusterRest = namedtuple('ClusterRest', 'ptr cluster_ids rest_lin rest_off ref')
 #: The step's goals and forces: each cluster's goal map (``goal_lin``, ``goal_off``;
 #: ``trans`` when quadratic), alpha, h, the acceleration ``acc`` and the angular one
 #: ``ang`` about ``com``.
@@ -332,7 +332,8 @@ def _acc_range(start, end, quad, particles, rest, sums):
     """Add particles start..end to the sums of their clusters (``sums``: clusters, 12 or
     30)."""
     x, x0, mass = particles.x, particles.x0, particles.mass
-    ptr, cl, rest_lin, rest_off, ref = rest.ptr, rest.cl, rest.rest_lin, rest.rest_off, rest.ref
+    ptr, cluster_ids, rest_lin = rest.ptr, rest.cluster_ids, rest.rest_lin
+    rest_off, ref = rest.rest_off, rest.ref
     if ptr.shape[0] == 0:
         _acc_single(start=start, end=end, quad=quad, x=x, x0=x0, mass=mass, rest_lin=rest_lin,
                     rest_off=rest_off, ref=ref, sums=sums)
@@ -342,7 +343,7 @@ def _acc_range(start, end, quad, particles, rest, sums):
         j0, j1 = ptr[i], ptr[i + 1]
         w = mass[i] / (j1 - j0)
         for j in range(j0, j1):
-            k = cl[j]
+            k = cluster_ids[j]
             q0, q1, q2 = _qhat(rest_lin=rest_lin, rest_off=rest_off, k=k, a0=a0, a1=a1, a2=a2)
             d0 = x[i, 0] - ref[k, 0]
             d1 = x[i, 1] - ref[k, 1]
@@ -393,7 +394,7 @@ def _int_range(start, end, quad, particles, rest, goals, damping):
     if single and not quad:
         return _int_single_lin(start, end, particles, rest, goals, damping)
     x, v, x0 = particles.x, particles.v, particles.x0
-    ptr, cl, rest_lin, rest_off = rest.ptr, rest.cl, rest.rest_lin, rest.rest_off
+    ptr, cluster_ids, rest_lin, rest_off = rest.ptr, rest.cluster_ids, rest.rest_lin, rest.rest_off
     trans, goal_lin, goal_off = goals.trans, goals.goal_lin, goals.goal_off
     acc, ang, com, h = goals.acc, goals.ang, goals.com, goals.h
     alpha_h = goals.alpha / h
@@ -409,7 +410,7 @@ def _int_range(start, end, quad, particles, rest, goals, damping):
         g1 = 0.0
         g2 = 0.0
         for j in range(j0, j1):
-            k = 0 if single else cl[j]
+            k = 0 if single else cluster_ids[j]
             if quad:
                 q0, q1, q2 = _qhat(rest_lin=rest_lin, rest_off=rest_off, k=k, a0=a0, a1=a1, a2=a2)
                 o0, o1, o2 = _goal_quad(trans=trans, k=k, q0=q0, q1=q1, q2=q2)

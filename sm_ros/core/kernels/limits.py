@@ -77,24 +77,24 @@ def limit_turn(x, v, mass, members, flagged, w_max, scratch):
     """Take from every flagged cluster the angular velocity above ``w_max``; return the count.
 
     Per flagged cluster k: W, v_cm, d (centre), L and I about d from its members
-    (``members`` = (ptr, cl), the clusters of each particle, empty for one; weights
+    (``members`` = (ptr, cluster_ids), the clusters of each particle, empty for one; weights
     m_i / clusters of i, like the goals), omega = I^+ L; if |omega| > w_max the excess
     e_k = omega (1 - w_max / |omega|) is removed from each member's velocity as the mean
     over its clusters of e_k x (x_i - c_k).  ``scratch`` = (lin (K, 13), w3 (K, 6), four
     3 x 3).
     """
-    ptr, cl = members
+    ptr, cluster_ids = members
     lin, w3, m3a, m3b, m3c, m3d = scratch
     lin[:, :] = 0.0
     w3[:, :] = 0.0
-    _turn_centres(x, v, mass, ptr, cl, flagged, lin, w3)
-    _turn_moments(x, v, mass, ptr, cl, flagged, lin, w3)
+    _turn_centres(x, v, mass, ptr, cluster_ids, flagged, lin, w3)
+    _turn_moments(x, v, mass, ptr, cluster_ids, flagged, lin, w3)
     count = 0
     for k in range(flagged.shape[0]):
         if flagged[k] and lin[k, 0] > 0.0:
             count += _turn_excess(k, w_max, lin, w3, m3a, m3b, m3c, m3d)
     if count > 0:
-        _remove_excess(x, v, ptr, cl, flagged, w3)
+        _remove_excess(x, v, ptr, cluster_ids, flagged, w3)
     return count
 
 
@@ -108,14 +108,14 @@ def _span(i, single, ptr, mass):
 
 
 @njit(inline='always', **JIT)
-def _turn_centres(x, v, mass, ptr, cl, flagged, lin, w3):
+def _turn_centres(x, v, mass, ptr, cluster_ids, flagged, lin, w3):
     """Each flagged cluster's weight W (``lin[k, 0]``), centre (``w3[k, 3:6]``) and mean
     velocity (``lin[k, 1:4]``), the particles' own."""
     single = ptr.shape[0] == 0
     for i in range(x.shape[0]):
         j0, j1, w = _span(i, single, ptr, mass)
         for j in range(j0, j1):
-            k = 0 if single else cl[j]
+            k = 0 if single else cluster_ids[j]
             if not flagged[k]:
                 continue
             lin[k, 0] += w
@@ -134,14 +134,14 @@ def _turn_centres(x, v, mass, ptr, cl, flagged, lin, w3):
 
 
 @njit(inline='always', **JIT)
-def _turn_moments(x, v, mass, ptr, cl, flagged, lin, w3):
+def _turn_moments(x, v, mass, ptr, cluster_ids, flagged, lin, w3):
     """Each flagged cluster's angular momentum L (``lin[k, 4:7]``) and inertia I
     (``lin[k, 7:13]``: xx, yy, zz, xy, yz, zx) about its centre."""
     single = ptr.shape[0] == 0
     for i in range(x.shape[0]):
         j0, j1, w = _span(i, single, ptr, mass)
         for j in range(j0, j1):
-            k = 0 if single else cl[j]
+            k = 0 if single else cluster_ids[j]
             if not flagged[k]:
                 continue
             r0 = x[i, 0] - w3[k, 3]
@@ -174,7 +174,7 @@ def _turn_excess(k, w_max, lin, w3, m3a, m3b, m3c, m3d):
 
 
 @njit(inline='always', **JIT)
-def _remove_excess(x, v, ptr, cl, flagged, w3):
+def _remove_excess(x, v, ptr, cluster_ids, flagged, w3):
     """Take from each particle the mean over its clusters of e_k x (x_i - c_k)."""
     single = ptr.shape[0] == 0
     for i in range(x.shape[0]):
@@ -183,7 +183,7 @@ def _remove_excess(x, v, ptr, cl, flagged, w3):
         t1 = 0.0
         t2 = 0.0
         for j in range(j0, j1):
-            k = 0 if single else cl[j]
+            k = 0 if single else cluster_ids[j]
             if not flagged[k]:
                 continue
             r0 = x[i, 0] - w3[k, 3]

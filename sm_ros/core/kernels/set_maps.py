@@ -9,10 +9,10 @@ from numba import njit
 
 from .jit import JIT
 
-#: The set layout's set-cluster pairs: each set's clusters (``ptr`` into ``cl``) and their
+#: The set layout's set-cluster pairs: each set's clusters (``ptr`` into ``cluster_ids``) and their
 #: number (``cnt``), the set's sum of phi(y) (``phi``), each pair's offset t_ks from the
 #: cluster's rest centre (``pair_offsets``) and each set's origin o_s (``org``).
-SetClusters = namedtuple('SetClusters', 'ptr cl cnt phi pair_offsets org')
+SetClusters = namedtuple('SetClusters', 'ptr cluster_ids cnt phi pair_offsets org')
 
 
 @njit(**JIT)
@@ -77,7 +77,8 @@ def _expand(part, pairs, sref, ref, out, u, quad):
     """``sets_reduce``'s sums of every set-cluster pair about the cluster: the set's sums
     about its reference ``sref[s]`` moved to the cluster's ``ref[k]`` and into the
     cluster's features (``_pair_quad`` or ``_pair_lin``)."""
-    sptr, scl, scnt, sphi, stp = pairs.ptr, pairs.cl, pairs.cnt, pairs.phi, pairs.pair_offsets
+    sptr, scl, scnt = pairs.ptr, pairs.cluster_ids, pairs.cnt
+    sphi, stp = pairs.phi, pairs.pair_offsets
     for s in range(part.shape[1]):
         _set_sums(part, s, 10 if quad else 4, u)
         inv_n = 1.0 / scnt[s]
@@ -184,7 +185,8 @@ def sets_maps(pairs, rest_lin, match, ref, quad, out, work):
     ``SetClusters``; ``match`` = (trans, goal_lin, goal_off) of the clusters; ``out`` =
     (gm, sref); ``work`` = (pm (9, 10), ck) scratch.
     """
-    sptr, scl, scnt, sorg, stp = pairs.ptr, pairs.cl, pairs.cnt, pairs.org, pairs.pair_offsets
+    sptr, scl, scnt = pairs.ptr, pairs.cluster_ids, pairs.cnt
+    sorg, stp = pairs.org, pairs.pair_offsets
     trans, goal_lin, goal_off = match
     gm, sref = out
     pm, ck = work

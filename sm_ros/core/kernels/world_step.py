@@ -44,11 +44,11 @@ from .sets_sums import sets_accumulate_chunks
 #: The buffers of one body that ``step_bodies_claimed`` steps (``body_build.fast_record``):
 #: the names of ``Body``'s own attributes, the set layout's with ``s_``.
 StepRecord = namedtuple('StepRecord', (
-    'xt vt x0t mass ptr cl rest_lin rest_off part wsum sum_q ref quat aqq3 aqq9 scale trans '
-    'goal_lin goal_off apq accbuf m3a m3b m3c m3d m39 n4 v4 nmat cdet acc ang com err dpart '
+    'xt vt x0t mass ptr cluster_ids rest_lin rest_off part wsum sum_q ref quat aqq3 aqq9 scale '
+    'trans goal_lin goal_off apq accbuf m3a m3b m3c m3d m39 n4 v4 nmat cdet acc ang com err dpart '
     'dmp dref dacc lin w3 sptr scl scnt quat_prev flagged lim_lin lim_w force state flags '
-    'counts y0t sid goal_maps sref s_part s_ptr s_cl s_cnt s_phi s_org work quad_map '
-    's_pair_offsets s_cluster_maps s_runs '
+    'counts rest_local_t sid goal_maps sref s_part s_ptr s_cluster_ids s_cnt s_phi s_org work '
+    'quad_map s_pair_offsets s_cluster_maps s_runs '
     'udv').split())
 
 #: Where ``StepRecord.state`` holds the radius the body meets the colliders with.
@@ -148,13 +148,13 @@ def _record_particles(rec):
 @njit(inline='always', **JIT)
 def _record_rest(rec):
     """A record's clusters as the passes of ``integrate.py`` read them."""
-    return ClusterRest(rec.ptr, rec.cl, rec.rest_lin, rec.rest_off, rec.ref)
+    return ClusterRest(rec.ptr, rec.cluster_ids, rec.rest_lin, rec.rest_off, rec.ref)
 
 
 @njit(inline='always', **JIT)
 def _set_clusters(rec):
     """A set-layout record's set-cluster pairs."""
-    return SetClusters(rec.s_ptr, rec.s_cl, rec.s_cnt, rec.s_phi, rec.s_pair_offsets,
+    return SetClusters(rec.s_ptr, rec.s_cluster_ids, rec.s_cnt, rec.s_phi, rec.s_pair_offsets,
                        rec.s_org)
 
 
@@ -166,8 +166,8 @@ def _record_sums(rec, sets, dirty):
     if sets:
         if dirty:
             sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64), quad=quad, x=rec.xt.T,
-                                   y0=rec.y0t.T, mass=rec.mass, sid=rec.sid, runs=rec.s_runs,
-                                   sref=rec.sref, part=rec.s_part)
+                                   y0=rec.rest_local_t.T, mass=rec.mass, sid=rec.sid,
+                                   runs=rec.s_runs, sref=rec.sref, part=rec.s_part)
         sets_reduce(rec.s_part, _set_clusters(rec), rec.sref, rec.rest_lin, rec.ref, quad,
                     rec.part, (rec.work, rec.quad_map))
     elif dirty:
@@ -201,8 +201,8 @@ def _record_match(rec):
         any_flagged = any_flagged or flagged[k]
     if not any_flagged:
         return 0
-    turned = limit_turn(rec.xt.T, rec.vt.T, rec.mass, (rec.ptr, rec.cl), flagged, state[10],
-                        (rec.lim_lin, rec.lim_w, rec.m3a, rec.m3b, rec.m3c, rec.m3d))
+    turned = limit_turn(rec.xt.T, rec.vt.T, rec.mass, (rec.ptr, rec.cluster_ids), flagged,
+                        state[10], (rec.lim_lin, rec.lim_w, rec.m3a, rec.m3b, rec.m3c, rec.m3d))
     rec.counts[1] += turned
     return turned
 
@@ -225,7 +225,7 @@ def _record_damping(rec, fused, sets, stale):
         damping_targets(sptr=rec.sptr, scl=rec.scl, scnt=rec.scnt, lin=rec.lin, w3=rec.w3,
                         dref=rec.dref, sref=rec.sref if sets else rec.ref, dmp=rec.dmp)
     elif rec.state[2] > 0.0:
-        damp_rigid(x, v, rec.mass, (rec.ptr, rec.cl), rec.ref, rec.state[2],
+        damp_rigid(x, v, rec.mass, (rec.ptr, rec.cluster_ids), rec.ref, rec.state[2],
                    _damping_scratch(rec))
 
 
@@ -242,7 +242,7 @@ def _record_integrate_sets(rec, h, colliders, fused):
     state = rec.state
     quad = state[8] > 0.0
     chunk_capped = np.zeros(rec.s_part.shape[0], dtype=np.int64)
-    particles = BodyParticles(rec.xt.T, rec.vt.T, rec.y0t.T, rec.mass)
+    particles = BodyParticles(rec.xt.T, rec.vt.T, rec.rest_local_t.T, rec.mass)
     sets = Sets(rec.sid, rec.s_runs, rec.goal_maps, rec.sref, state[11])
     motion = SetMotion(state[0], h, rec.acc, rec.ang, rec.com, state[3])
     sets_integrate_chunks(np.zeros(1, dtype=np.int64), chunk_capped, quad, particles, sets,
