@@ -235,7 +235,8 @@ def test_node_killed_mid_recording_leaves_a_readable_bag(tmp_path):
     bag = tmp_path / 'killed'
     env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
     proc = subprocess.Popen([sys.executable, '-m', 'sm_ros.node', '--ros-args', '-p',
-                             f'scene:={scene}', '-p', f'record.path:={bag}'],
+                             f'scene:={scene}', '-p', f'record.path:={bag}',
+                             '-p', 'record.split_s:=1.0'],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         import yaml
