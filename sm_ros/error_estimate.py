@@ -1,12 +1,10 @@
 """The live error estimate: step doubling on the running world itself (no ROS).
 
 From the state S the world takes one step of h and, from S again, two of h/2, and is put
-back to S bit for bit (``sm_ros.core.snapshot``).  The RMS difference of the answers,
-Richardson-scaled with order ``ORDER``, is a step's local error.  Where a body is
-rigid-mode both runs go on for as long again, and such a body counts instead the rigid
-motion (translation and turn) of its difference after two steps, per step: its shape
-match removes the rest before it can add up.
-``error_m`` is the local error per second times ``HORIZON_S`` (doc/error_estimate.md)."""
+back to S bit for bit (``sm_ros.core.snapshot``).  The RMS difference, Richardson-scaled
+with order ``ORDER``, is a step's local error; a rigid-mode body counts the rigid motion of
+its difference after two steps, halved (its shape match removes the rest before it adds
+up).  ``error_m`` is the local error per second times ``HORIZON_S`` (doc/error_estimate.md)."""
 
 import math
 import time
@@ -27,16 +25,13 @@ PIECE_STEPS = 2
 
 
 def positions(world) -> np.ndarray:
-    """Every particle's position, body after body (N, 3), each body's in the order it
-    stores them (the runs are compared particle by particle: any fixed order serves, and
-    this one needs no reordering copy)."""
+    """Every particle's position (N, 3), body after body, each in its storage order."""
     return np.concatenate([b._x for b in world.bodies]) if world.bodies else np.zeros((0, 3))
 
 
 def rigid_part(x, d, starts) -> np.ndarray:
     """The rigid motion (translation and small turn about the centroid) closest to the
-    displacements ``d`` of the points ``x`` (N, 3), fitted for each run of points that
-    begins at an index of ``starts``."""
+    displacements ``d`` of the points ``x`` (N, 3), per run of points from each of ``starts``."""
     count = np.diff(np.append(starts, len(x)))[:, None]
     run = np.repeat(np.arange(len(starts)), count[:, 0])
     centre, shift = np.add.reduceat(x, starts) / count, np.add.reduceat(d, starts) / count
@@ -50,15 +45,12 @@ def rigid_part(x, d, starts) -> np.ndarray:
 
 def step_difference(world, coarse, fine) -> np.ndarray:
     """Each particle's difference between h and h/2 over one step (N, 3), from the
-    positions after one and after two steps of h (``coarse``) and of h/2 steps
-    (``fine``): the difference after one step, and for a rigid-mode body the rigid part
-    of the difference after two, halved."""
+    positions after each step of h (``coarse``) and each pair of h/2 (``fine``): the
+    first, or for a rigid-mode body the rigid part of the second, halved."""
     d = fine[0] - coarse[0]
-    if len(coarse) < 2:
-        return d
-    sizes = np.array([b.n for b in world.bodies], dtype=np.int64)
     rigid = np.array([b.params.mode == 'rigid' for b in world.bodies], dtype=bool)
-    if rigid.any():
+    if len(coarse) > 1 and rigid.any():
+        sizes = np.array([b.n for b in world.bodies], dtype=np.int64)
         mask = np.repeat(rigid, sizes)
         starts = np.concatenate(([0], np.cumsum(sizes[rigid])[:-1]))
         x, d2 = coarse[1][mask], fine[1][mask] - coarse[1][mask]
@@ -68,9 +60,9 @@ def step_difference(world, coarse, fine) -> np.ndarray:
 
 
 def error_from(d, dt: float, order: float = ORDER, horizon: float = HORIZON_S) -> Dict[str, float]:
-    """``local_m`` (the step's local error, Richardson-scaled), ``rate_m_s`` (per second)
-    and ``error_m`` (over ``horizon`` s) from the particles' differences ``d`` between one
-    step of ``dt`` and two of ``dt / 2``; inf where they are not finite."""
+    """``local_m`` (a step's local error, Richardson-scaled), ``rate_m_s`` (per second) and
+    ``error_m`` (over ``horizon`` s) from the particles' differences ``d`` between one step
+    of ``dt`` and two of ``dt / 2``; inf where they are not finite."""
     d = np.asarray(d)
     rms = math.sqrt(float(np.einsum('ij,ij->', d, d)) / max(len(d), 1))
     local = rms / (1.0 - 2.0 ** -order) if math.isfinite(rms) else math.inf
@@ -79,16 +71,15 @@ def error_from(d, dt: float, order: float = ORDER, horizon: float = HORIZON_S) -
 
 def estimate(world, dt: float, snapshot: Optional[Snapshot] = None) -> Dict[str, Any]:
     """Step-double ``world`` from its state now, in one go, and leave it as it was."""
-    snaps = (snapshot or Snapshot(), Snapshot(), Snapshot())   # one go: only the first
-    (est := Estimate(world, dt, snaps)).run(PIECES)
+    (est := Estimate(world, dt, (snapshot or Snapshot(), Snapshot(), Snapshot()))).run(PIECES)
     return est.result
 
 
 class Estimate:
-    """One estimate of ``world`` at ``dt`` in ``PIECES`` pieces (``run``): a step of h from
-    the state S, then two of h/2 from S through the half way H.  Ticks may step the world
-    between pieces (then ``touched``); S waits in the first snapshot, H in the second, the
-    live state in the third.  ``result``: :func:`error_from`'s keys, ``cost_s``, ``steps``."""
+    """One estimate in ``PIECES`` pieces (``run``): a step of h from the state S, then two
+    of h/2 from S through the half way H.  S waits in the first snapshot, H in the second
+    and, where ticks stepped the world between pieces (``touched``), the live state in the
+    third.  ``result``: :func:`error_from`'s keys, ``cost_s`` and ``steps``."""
 
     def __init__(self, world, dt: float, snapshots):
         t0 = time.perf_counter()
@@ -97,21 +88,25 @@ class Estimate:
         self.start.save(world)
         rigid = any(body.params.mode == 'rigid' for body in world.bodies)
         self.piece_steps = PIECE_STEPS if rigid else 1
-        self.done_pieces, self.touched, self.runs, self.result = 0, False, [], None
+        self.runs, self.touched, self.result = [], False, None
         self.cost_s = time.perf_counter() - t0
+
+    @property
+    def done_pieces(self) -> int:
+        """The pieces run so far."""
+        return len(self.runs)
 
     def run(self, pieces: int) -> float:
         """Do up to ``pieces`` more pieces; return the seconds spent."""
-        t0 = time.perf_counter()
-        world, first = self.world, self.done_pieces
-        end = min(PIECES, first + max(int(pieces), 0))
-        if end == first:
+        t0, world = time.perf_counter(), self.world
+        todo = range(len(self.runs), min(PIECES, len(self.runs) + max(int(pieces), 0)))
+        if not todo:
             return 0.0
         if self.touched:
             self.live.save(world)
-        holds = 'live' if self.touched else 'S'        # what the world holds now
-        for k in range(first, end):
-            if holds != 'SSH'[k]:                      # from S, S, then the half way H
+        holds = 'live' if self.touched else 'S'            # what the world holds now
+        for k in todo:
+            if holds != 'SSH'[k]:                          # from S, S, then H
                 (self.half if k == 2 else self.start).load(world)
             after = []
             for _ in range(self.piece_steps):
@@ -122,10 +117,9 @@ class Estimate:
         if holds == 'H':
             self.half.save(world)
         (self.live if self.touched else self.start).load(world)
-        self.done_pieces = end
         self.cost_s += time.perf_counter() - t0
-        if end == PIECES:
-            coarse, half, fine = self.runs             # the fine run's every second half step
+        if len(self.runs) == PIECES:
+            coarse, half, fine = self.runs                 # the fine run's every second half
             self.result = error_from(step_difference(world, coarse, (half + fine)[1::2]),
                                      self.dt)
             self.result.update(cost_s=self.cost_s, steps=PIECES * self.piece_steps)
@@ -133,7 +127,7 @@ class Estimate:
 
 
 class LiveEstimate:
-    """A running simulation's estimate: ``result`` (last), ``age(now)``, ``piece_s``."""
+    """A running simulation's estimate: ``result`` (the last), ``age(now)``, ``piece_s``."""
 
     def __init__(self):
         self.result = self.result_at = self.running = self.piece_s = None
@@ -157,22 +151,19 @@ class LiveEstimate:
         if self.running is not None:
             self.running.touched = True
 
-    def _done(self, result, at: float) -> None:
-        self.result, self.result_at, self.running, self._due = result, at, None, at
-
     def before_tick(self, world, dt: float, rate: float, now: float, room_s: float,
                     period: float, step_s: float) -> float:
-        """Due 1 / rate s after the state of the last, an estimate runs whole in the first
-        tick with room (``room_s``) for its pieces (each ``piece_s``, or ``step_s`` before
-        one was timed), in parts where only some fit; in the last ticks (``period`` s
-        apart) before the last would be 2 / rate old, at least as many as leave one piece
-        for each tick still in time.  Returns the seconds spent."""
+        """Run what is due of an estimate before a tick; return the seconds spent.
+
+        Due 1 / rate s after the state of the last, it runs as many pieces as fit in
+        ``room_s`` (each ``piece_s``, or ``step_s`` before one was timed), and at least as
+        many as leave one for each tick (``period`` s apart) still before the last estimate
+        would be 2 / rate old.  A world asleep estimates 0, with nothing saved or stepped."""
         if rate <= 0.0 or not world.bodies:
             self.__init__()                      # off: forgotten, the snapshots too
             return 0.0
         if self.result_at is not None and self._due > -math.inf:     # follows the rate
             self._due, self._deadline = (self.result_at + k / rate for k in (1.0, 2.0))
-        t0 = time.perf_counter()
         est = self.running
         if est is not None and (est.world is not world or est.dt != float(dt)):
             est = self.running = None            # another world or step: start anew
@@ -180,19 +171,23 @@ class LiveEstimate:
             return 0.0
         self._deadline = min(self._deadline, now + 1.0 / rate)
         later = max(math.ceil((self._deadline - now) / period - 1e-6) - 1, 0)  # ticks in time
-        left = PIECES - (est.done_pieces if est is not None else 0)
         cost = self.piece_s or step_s
-        fit = max(int(max(room_s, 0.0) // cost) if cost > 0.0 else 0, left - later)
-        if est is None and world.all_asleep:     # no step moves it: 0, nothing saved
+        fit = max(int(max(room_s, 0.0) // cost) if cost > 0.0 else 0,
+                  PIECES - (est.done_pieces if est else 0) - later)
+        if est is None and world.all_asleep:
             self._done({'local_m': 0.0, 'rate_m_s': 0.0, 'error_m': 0.0, 'cost_s': 0.0,
                         'steps': 0}, now)
         if est is None and (world.all_asleep or fit == 0):
             return 0.0
+        t0 = time.perf_counter()
         if est is None:
-            est, self._started = Estimate(world, float(dt), self._snaps), now
-            self.running = est
+            est = self.running = Estimate(world, float(dt), self._snaps)
+            self._started = now
         first = est.done_pieces
         self.piece_s = est.run(fit) / max(est.done_pieces - first, 1) if fit else self.piece_s
         if est.result is not None:
             self._done(est.result, self._started)
         return time.perf_counter() - t0
+
+    def _done(self, result, at: float) -> None:
+        self.result, self.result_at, self.running, self._due = result, at, None, at

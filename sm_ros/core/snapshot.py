@@ -1,58 +1,47 @@
 """Save a world's state and put it back bit for bit (the live error estimate's steps).
 
 Each stateful solver class names, in its ``step_state()``, the attributes a step changes
-and a later step reads.  A :class:`Snapshot` follows those names from the world: an object
-with ``step_state`` (or a dict, list or tuple of them) is followed, an array is copied by
-value into a buffer kept from save to save, a plain list's items are kept, and anything
-else (numbers, flags, None) keeps its binding.  Scratch and derived arrays, which a step
-writes before it reads them, are not named and not saved.  ``load`` writes the values into
-the arrays the attributes hold then, so a re-packing of the bodies since the save (their
-attributes become views of new rows) is undone too."""
+and a later step reads.  A :class:`Snapshot` follows those names from the world: objects
+with ``step_state`` (alone or as the items of a dict, list or tuple) are followed, arrays
+are copied by value into buffers kept from save to save, a plain list keeps its items and
+anything else (numbers, flags, None) its binding.  Scratch that a step writes before it
+reads it is not named.  ``load`` writes into the arrays the attributes hold then, so a
+re-packing of the bodies since the save (new rows, new views) is undone too."""
 
 import operator
 
 import numpy as np
 
-_ARRAY, _LIST, _BOUND, _FOLLOWED = range(4)
 
-
-def _is_holder(value) -> bool:
-    return hasattr(value, 'step_state')
-
-
-def _items(value) -> list:
-    """The items of a list or tuple, the values of a dict."""
-    return list(value.values()) if isinstance(value, dict) else list(value)
-
-
-def _followed(value) -> bool:
-    """Whether ``value`` is a holder or a container of holders (followed, not saved)."""
+def _holders(value):
+    """The objects with ``step_state`` that ``value`` is or holds, or None."""
+    if hasattr(value, 'step_state'):
+        return [value]
     if isinstance(value, (dict, list, tuple)):
-        items = _items(value)
-        return bool(items) and all(map(_is_holder, items))
-    return _is_holder(value)
+        items = list(value.values()) if isinstance(value, dict) else list(value)
+        if items and all(hasattr(item, 'step_state') for item in items):
+            return items
+    return None
 
 
 def named_state(world):
-    """(holder, name, value) of every name in the ``step_state`` of every object reached
-    from ``world`` (the world first, each object once)."""
+    """(holder, name, value) of every name in the ``step_state`` of every holder reached
+    from ``world`` (the world first, each holder once)."""
     seen, stack = set(), [world]
     while stack:
         obj = stack.pop()
-        if obj is None or id(obj) in seen:
+        if id(obj) in seen:
             continue
         seen.add(id(obj))
-        if isinstance(obj, (dict, list, tuple)):
-            stack.extend(reversed(_items(obj)))
-        elif _is_holder(obj):
-            named = [(obj, name, getattr(obj, name)) for name in obj.step_state()]
-            yield from named
-            stack.extend(reversed([value for _, _, value in named]))
+        named = [(obj, name, getattr(obj, name)) for name in obj.step_state()]
+        yield from named
+        for _, _, value in reversed(named):
+            stack.extend(reversed(_holders(value) or []))
 
 
-def _same_items(value, items) -> bool:
-    now = _items(value)
-    return len(now) == len(items) and all(map(operator.is_, now, items))
+def _same(now, saved) -> bool:
+    """Whether the holders ``now`` are the very objects ``saved``."""
+    return now is not None and len(now) == len(saved) and all(map(operator.is_, now, saved))
 
 
 class Snapshot:
@@ -63,49 +52,48 @@ class Snapshot:
         self._entries = []               # (holder, name, kind, what was saved)
         self._buffers = []               # the saved arrays, reused by the next save
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of array state the last save copied."""
+        return sum(saved.nbytes for saved in self._buffers)
+
     def save(self, world) -> None:
         """Copy ``world``'s state into the snapshot."""
         entries, buffers, spare = [], [], iter(self._buffers)
         for obj, name, value in named_state(world):
+            held = _holders(value)
             if isinstance(value, np.ndarray):
                 saved = next(spare, None)
                 if saved is None or saved.shape != value.shape or saved.dtype != value.dtype:
                     saved = np.empty_like(value)
                 np.copyto(saved, value)
                 buffers.append(saved)
-                entries.append((obj, name, _ARRAY, saved))
-            elif _followed(value):
-                items = _items(value) if isinstance(value, (dict, list, tuple)) else None
-                entries.append((obj, name, _FOLLOWED, items))
+                entries.append((obj, name, 'array', saved))
+            elif held is not None:           # followed; a container's items must stay
+                entries.append((obj, name, 'held', None if held[0] is value else held))
             elif isinstance(value, list):
-                entries.append((obj, name, _LIST, list(value)))
+                entries.append((obj, name, 'list', list(value)))
             else:
-                entries.append((obj, name, _BOUND, value))
+                entries.append((obj, name, 'bound', value))
         self.world, self._entries, self._buffers = world, entries, buffers
-
-    @property
-    def nbytes(self) -> int:
-        """Bytes of array state the last save copied."""
-        return sum(saved.nbytes for saved in self._buffers)
 
     def load(self, world) -> None:
         """Put the saved state back into ``world`` (the world it was saved from, with the
         same bodies)."""
         if world is not self.world:
             raise ValueError('a snapshot loads only into the world it was saved from')
-        for obj, name, kind, items in self._entries:
-            if kind == _FOLLOWED and items is not None and not _same_items(
-                    getattr(obj, name), items):
+        for obj, name, kind, saved in self._entries:
+            if kind == 'held' and saved is not None and not _same(_holders(getattr(obj, name)),
+                                                                   saved):
                 raise ValueError('the world has other bodies than when it was saved')
         for obj, name, kind, saved in self._entries:
-            if kind == _ARRAY:
-                now = getattr(obj, name)
-                if (isinstance(now, np.ndarray) and now.shape == saved.shape
-                        and now.dtype == saved.dtype):
-                    np.copyto(now, saved)
-                else:
-                    setattr(obj, name, saved.copy())
-            elif kind == _LIST:
-                getattr(obj, name)[:] = saved
-            elif kind == _BOUND:
+            now = getattr(obj, name)
+            if kind == 'array' and (isinstance(now, np.ndarray) and now.shape == saved.shape
+                                    and now.dtype == saved.dtype):
+                np.copyto(now, saved)
+            elif kind == 'array':
+                setattr(obj, name, saved.copy())
+            elif kind == 'list':
+                now[:] = saved
+            elif kind == 'bound':
                 setattr(obj, name, saved)
