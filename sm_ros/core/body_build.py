@@ -14,6 +14,7 @@ from numba.typed import List as TypedList
 
 from . import kernels as K
 from .clusters import build_memberships
+from .kernels import world_step as R
 from .kernels.flags import DAMP_SUMS
 
 
@@ -365,7 +366,7 @@ def merge_kinematic(body):
 def fast_record(body, h):
     """The buffers ``kernels.world_step`` steps, a ``StepRecord`` (valid until the next
     rebuild)."""
-    body._fstate = np.zeros(13)
+    body._fstate = np.zeros(R.R_SIZE)
     retime_record(body, body._fstate, h)
     sptr, scl, scnt = body._dsets if body._dsets else (
         np.zeros(2, dtype=np.int64), np.zeros(1, dtype=np.int32), np.ones(1))
@@ -390,12 +391,17 @@ def retime_record(body, fstate, h):
     """Write the numbers of a record for steps of ``h`` (``fast_record``'s ``_fstate``:
     the material's coefficients at the step, the turn limit's rate, the collider radius)
     into ``fstate``."""
-    p = body._params.at_step(h)
-    body._at_step = (h, body._params, p)
-    fstate[:] = (p.alpha, p.beta, p.damping, body._params.max_speed, body._params.max_turn,
-                 1.0 / body.total_mass, body._mode, 1.0 if body._damp_fused else 0.0,
-                 1.0 if body._quad else 0.0, 1.0 if body._sets is not None else 0.0,
-                 body._params.max_turn / h, body._wuni, body._collider_radius)
+    params = body._params
+    p = params.at_step(h)
+    body._at_step = (h, params, p)
+    numbers = {R.R_ALPHA: p.alpha, R.R_BETA: p.beta, R.R_DAMPING: p.damping,
+               R.R_MAX_SPEED: params.max_speed, R.R_MAX_TURN: params.max_turn,
+               R.R_TURN_RATE: params.max_turn / h, R.R_MODE: body._mode,
+               R.R_FUSED: body._damp_fused, R.R_QUAD: body._quad,
+               R.R_SETS: body._sets is not None, R.R_WUNI: body._wuni,
+               R.R_RADIUS: body._collider_radius}
+    for slot, value in numbers.items():
+        fstate[slot] = float(value)
 
 
 def one_record(body, h):

@@ -31,6 +31,7 @@ from numba.typed import List
 
 from .body_build import _GENERATION
 from .kernels import JIT
+from .kernels.flags import SLEEP
 
 
 @njit(**JIT)
@@ -147,7 +148,7 @@ class FlatState:
             self.M[o0:o1] = b._m
             if len(kin):
                 self.awake_W[o0 + kin] = 0.0
-            if not b._flags[3] > 0.0:        # a sleeping body keeps W = 0 (sleep.py)
+            if not b._flags[SLEEP] > 0.0:        # a sleeping body keeps W = 0 (sleep.py)
                 self.W[o0:o1] = self.awake_W[o0:o1]
             self.w_version += 1              # W changed (Contact keeps body masses of it)
             self._kin_seen[k] = kin
@@ -162,7 +163,7 @@ class FlatState:
 
     def flag_list(self):
         """The bodies' flag arrays (``Body._flags``) as a typed list for the kernels."""
-        # the bodies' flag arrays (``Body._dirty`` is ``_flags[0]``): a packed body's are
+        # the bodies' flag arrays (``Body._dirty`` is ``_flags[DIRTY]``): a packed body's are
         # a view of its pack's row, replaced when it is packed again, so the typed list is
         # rebuilt when one of them is not the array it holds (a check of identities,
         # cheaper than setting a property on every body)

@@ -13,11 +13,9 @@ record.
 
 A record (``Body._fast_record``) is a ``StepRecord``, a named tuple of the body's own buffers
 (x, v, x0, y0 as their (3, N) blocks, transposed back to (N, 3) views of layout F here);
-``state`` holds [alpha, beta, damping (per step), max_speed, max_turn, 1 / total mass,
-mode, fused damping, quadratic, set layout, max_turn / h, the particles' one mass or 0
-(``Body._wuni``), the radius it meets the colliders with (``Body._collider_radius``)],
-``force`` the force over the total mass (both divided in Python, as ``Body._step`` does:
-fast math would round them otherwise), ``flags`` the body's flags (``kernels.flags``: a
+``state`` holds the body's numbers at the step (``R_*`` below), ``force`` the force over
+the total mass (divided in Python, as ``Body._step`` does: fast math would round it
+otherwise), ``flags`` the body's flags (``kernels.flags``: a
 sleeping record is not stepped), ``counts`` the limit counters; the set-layout buffers
 (``s_*``) are empty for one-cluster bodies.
 """
@@ -51,8 +49,13 @@ StepRecord = namedtuple('StepRecord', (
     'quad_map s_pair_offsets s_cluster_maps s_runs '
     'udv').split())
 
-#: Where ``StepRecord.state`` holds the radius the body meets the colliders with.
-RADIUS = 12
+#: Where ``StepRecord.state`` holds each number (``body_build.retime_record`` writes them):
+#: the material at the step (alpha, beta, damping), the limits (max_speed, max_turn and
+#: max_turn / h), the mode (0 rigid, 1 linear, 2 quadratic), whether the damping is fused
+#: into the particle pass, quadratic, the set layout, the particles' one mass or 0
+#: (``Body._wuni``) and the radius the body meets the colliders with.
+(R_ALPHA, R_BETA, R_DAMPING, R_MAX_SPEED, R_MAX_TURN, R_TURN_RATE, R_MODE, R_FUSED, R_QUAD,
+ R_SETS, R_WUNI, R_RADIUS, R_SIZE) = range(13)
 
 
 @njit(**JIT)
@@ -75,7 +78,7 @@ def step_bodies_claimed(bodies, claim, h, gravity, has_col, ground, boxes, spher
             return stepped
         rec = bodies[b]
         _step_record(rec, h, gravity, Colliders(has_col, ground, boxes, spheres, thresh,
-                                                rec.state[RADIUS]))
+                                                rec.state[R_RADIUS]))
         stepped += 1
 
 
@@ -119,14 +122,14 @@ def _step_record(rec, h, gravity, colliders):
     if rec.flags[SLEEP] > 0.0:                 # asleep (``sm_ros.core.sleep``): not stepped
         return
     state = rec.state
-    fused = state[7] > 0.0 and state[2] > 0.0
-    sets = state[9] > 0.0
+    fused = state[R_FUSED] > 0.0 and state[R_DAMPING] > 0.0
+    sets = state[R_SETS] > 0.0
     dirty = rec.flags[DIRTY] > 0.0
     _record_sums(rec, sets, dirty)
     turned = _record_match(rec)
     if sets:
         sets_maps(_set_clusters(rec), rec.rest_lin, (rec.trans, rec.goal_lin, rec.goal_off),
-                  rec.ref, state[8] > 0.0, (rec.goal_maps, rec.sref),
+                  rec.ref, state[R_QUAD] > 0.0, (rec.goal_maps, rec.sref),
                   (rec.quad_map, rec.s_cluster_maps))
     for i in range(3):
         rec.acc[i] = rec.force[i] + gravity[i]
@@ -162,7 +165,7 @@ def _set_clusters(rec):
 def _record_sums(rec, sets, dirty):
     """The clusters' sums of the current state: taken afresh where the state changed since
     the last pass summed it (``dirty``); the set layout reduces its per-set sums."""
-    quad = rec.state[8] > 0.0
+    quad = rec.state[R_QUAD] > 0.0
     if sets:
         if dirty:
             sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64), quad=quad, x=rec.xt.T,
@@ -180,15 +183,16 @@ def _record_match(rec):
     """The shape match of every cluster, then the turn limit (as ``Body._step``); returns
     the clusters whose spin was capped."""
     state = rec.state
-    turn = state[4]
+    turn = state[R_MAX_TURN]
     quat, quat_prev, flagged = rec.quat, rec.quat_prev, rec.flagged
     if turn > 0.0:
         quat_prev[:, :] = quat
     shape = ClusterShape(rec.wsum, rec.sum_q, rec.aqq3, rec.aqq9, rec.scale, rec.nmat, rec.cdet)
     match = ClusterMatch(quat, rec.trans, rec.goal_lin, rec.goal_off, rec.apq, rec.udv)
     scratch = MatchScratch(rec.accbuf, rec.m3a, rec.m3b, rec.m3c, rec.m39, rec.n4, rec.v4)
-    solve_clusters_warm(rec.part, _record_rest(rec), shape, match, scratch, int(state[6]),
-                        state[1], np.bool_(True))      # bool, not a literal: Body._step's copy
+    solve_clusters_warm(rec.part, _record_rest(rec), shape, match, scratch,
+                        int(state[R_MODE]), state[R_BETA],
+                        np.bool_(True))        # bool, not a literal: Body._step's copy
     if turn <= 0.0:
         return 0
     # |q_prev . q| = cos(angle / 2), as Body._step
@@ -202,7 +206,8 @@ def _record_match(rec):
     if not any_flagged:
         return 0
     turned = limit_turn(rec.xt.T, rec.vt.T, rec.mass, (rec.ptr, rec.cluster_ids), flagged,
-                        state[10], (rec.lim_lin, rec.lim_w, rec.m3a, rec.m3b, rec.m3c, rec.m3d))
+                        state[R_TURN_RATE],
+                        (rec.lim_lin, rec.lim_w, rec.m3a, rec.m3b, rec.m3c, rec.m3d))
     rec.counts[1] += turned
     return turned
 
@@ -224,8 +229,8 @@ def _record_damping(rec, fused, sets, stale):
                        _damping_scratch(rec))
         damping_targets(sptr=rec.sptr, scl=rec.scl, scnt=rec.scnt, lin=rec.lin, w3=rec.w3,
                         dref=rec.dref, sref=rec.sref if sets else rec.ref, dmp=rec.dmp)
-    elif rec.state[2] > 0.0:
-        damp_rigid(x, v, rec.mass, (rec.ptr, rec.cluster_ids), rec.ref, rec.state[2],
+    elif rec.state[R_DAMPING] > 0.0:
+        damp_rigid(x, v, rec.mass, (rec.ptr, rec.cluster_ids), rec.ref, rec.state[R_DAMPING],
                    _damping_scratch(rec))
 
 
@@ -240,15 +245,15 @@ def _record_integrate_sets(rec, h, colliders, fused):
     """Eq. 13-14 with the static colliders and the speed cap, set by set: the speeds are
     capped block by block before the sums are taken, so the sums stay valid."""
     state = rec.state
-    quad = state[8] > 0.0
+    quad = state[R_QUAD] > 0.0
     chunk_capped = np.zeros(rec.s_part.shape[0], dtype=np.int64)
     particles = BodyParticles(rec.xt.T, rec.vt.T, rec.rest_local_t.T, rec.mass)
-    sets = Sets(rec.sid, rec.s_runs, rec.goal_maps, rec.sref, state[11])
-    motion = SetMotion(state[0], h, rec.acc, rec.ang, rec.com, state[3])
+    sets = Sets(rec.sid, rec.s_runs, rec.goal_maps, rec.sref, state[R_WUNI])
+    motion = SetMotion(state[R_ALPHA], h, rec.acc, rec.ang, rec.com, state[R_MAX_SPEED])
     sets_integrate_chunks(np.zeros(1, dtype=np.int64), chunk_capped, quad, particles, sets,
                           motion, rec.s_part, rec.err, colliders,
-                          FusedDamping(fused, state[2], rec.dmp, rec.dpart))
-    _fused_refs(quad, state[11], rec.ang, rec.s_runs, fused, rec.sref, rec.dpart)
+                          FusedDamping(fused, state[R_DAMPING], rec.dmp, rec.dpart))
+    _fused_refs(quad, state[R_WUNI], rec.ang, rec.s_runs, fused, rec.sref, rec.dpart)
     rec.counts[0] += chunk_capped.sum()
     rec.flags[DIRTY] = 0.0
 
@@ -259,13 +264,13 @@ def _record_integrate(rec, h, colliders, fused):
     the sums stale: ``DIRTY``)."""
     state = rec.state
     x, v = rec.xt.T, rec.vt.T
-    goals = StepGoals(rec.goal_lin, rec.goal_off, rec.trans, state[0], h, rec.acc, rec.ang,
+    goals = StepGoals(rec.goal_lin, rec.goal_off, rec.trans, state[R_ALPHA], h, rec.acc, rec.ang,
                       rec.com)
-    integrate_chunks(np.zeros(1, dtype=np.int64), state[8] > 0.0, _record_particles(rec),
+    integrate_chunks(np.zeros(1, dtype=np.int64), state[R_QUAD] > 0.0, _record_particles(rec),
                      _record_rest(rec), goals, rec.part, rec.err, colliders,
-                     FusedDamping(fused, state[2], rec.dmp, rec.dpart))
+                     FusedDamping(fused, state[R_DAMPING], rec.dmp, rec.dpart))
     capped = 0
-    if state[3] > 0.0:
-        capped = limit_speed(x=x, v=v, h=h, v_max=state[3])
+    if state[R_MAX_SPEED] > 0.0:
+        capped = limit_speed(x=x, v=v, h=h, v_max=state[R_MAX_SPEED])
         rec.counts[0] += capped
     rec.flags[DIRTY] = 1.0 if capped > 0 else 0.0
