@@ -581,27 +581,24 @@ def test_undamped_inverted_body_stays_bounded_over_a_long_run(mode, beta, alpha)
     assert worst < 30.0 * e0
 
 
-@pytest.mark.parametrize('damping, bounded', [
-    (0.05, True),
-    pytest.param(0.0, True, marks=pytest.mark.xfail(
-        strict=True, reason='parametric resonance: undamped, alpha changed every tick '
-        'pumps energy into a deformed body (4e7 m/s after 20 s); damping removes it')),
-])
-def test_alpha_changed_every_tick_on_a_resting_linear_body(damping, bounded):
+@pytest.mark.parametrize('mode, damping', [('linear', 0.05), ('linear', 0.0),
+                                           ('quadratic', 0.0), ('rigid', 0.0)])
+def test_alpha_changed_every_tick_on_a_resting_body(mode, damping):
     """
     Alpha set at random every tick (the soak's 50 Hz parameter changes), box on the ground.
 
     Each step of Eq. 13-14 maps (x, h v) of a mode with a matrix of determinant 1; a
     product of such matrices with random alpha grows (a positive Lyapunov exponent,
-    e-folding in about 100 steps for alpha in [0.2, 0.9] switched every 2 steps). A body
-    that sags under gravity has deformation for the switching to act on; damping 0.05 (the
-    bundled scenes') outweighs the growth.
+    e-folding in about 100 steps for alpha in [0.2, 0.9] switched every 2 steps): a body
+    that sags under gravity has deformation for the switching to act on, and undamped it
+    reached the speed limit within 4 s.  A change that would raise the elastic energy
+    takes it from the internal motion (``param_energy``), so the box stays a resting box.
     """
     x0 = np.stack(np.meshgrid(*[np.arange(10) * 0.01] * 3, indexing='ij'), -1).reshape(-1, 3)
     world = World()
     world.set_colliders(ground=Ground(friction=0.5))
     body = world.add_body(x0 + [0.0, 0.0, 0.001], 1e-3, BodyParams(
-        mode='linear', alpha=0.5, beta=0.5, damping=damping))
+        mode=mode, alpha=0.5, beta=0.5, damping=damping, clusters=2 if mode != 'rigid' else 1))
     rng = np.random.default_rng(7)
     fastest = 0.0
     for _ in range(60 * 20):
@@ -610,4 +607,5 @@ def test_alpha_changed_every_tick_on_a_resting_linear_body(damping, bounded):
             world.step(1.0 / 120.0)
         fastest = max(fastest, float(np.abs(body.v).max()))
     assert body.is_finite()
-    assert (fastest < 5.0) == bounded, fastest
+    assert fastest < 5.0, fastest
+    assert np.ptp(body.x, axis=0).max() < 0.12           # a 9 cm box stays one

@@ -9,7 +9,7 @@ without plasticity no plastic state, a one-cluster body no membership lists.
 
 import numpy as np
 
-from . import body_build, body_step, tuning
+from . import body_build, body_step, param_energy, tuning
 from . import kernels as K
 from .kernels.flags import DIRTY, ERR_STALE, SLEEP
 from .body_build import _EMPTY_I64, _GENERATION, soa  # noqa: F401 (body.soa)
@@ -319,7 +319,9 @@ class Body:
         self.wake()
 
     def set_params(self, params=None, **changes):
-        """Apply new parameters from the next step on; rebuild only what they reshape."""
+        """Apply new parameters from the next step on; rebuild only what they reshape.  The
+        change adds no energy: where the new material holds the present deformation with
+        more elastic energy, the body's internal motion gives it up (``param_energy``)."""
         new = (params if params is not None else self._params)
         if not isinstance(new, BodyParams):
             raise ValueError('params must be a BodyParams')
@@ -329,12 +331,17 @@ class Body:
         from dataclasses import replace
         new = replace(new, **changes).validate()
         old = self._params
+        reshaped = any(getattr(new, k) != getattr(old, k) for k in param_energy.SHAPE_KEYS)
+        moving = reshaped and param_energy.deforming(self)
+        before = param_energy.elastic_energy(self) if moving else 0.0
         self._params = new
         _GENERATION[0] += 1
         self.wake()
         if (new.mode != old.mode or new.clusters != old.clusters or new.plastic != old.plastic
                 or (new.damping > 0) != (old.damping > 0)):
             self._build()
+        if moving:
+            param_energy.shed(self, param_energy.elastic_energy(self) - before)
 
     def set_wrench(self, force, torque=(0.0, 0.0, 0.0)):
         """External force at the centre of mass and torque about it, held until replaced."""
