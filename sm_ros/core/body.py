@@ -331,17 +331,14 @@ class Body:
         from dataclasses import replace
         new = replace(new, **changes).validate()
         old = self._params
-        reshaped = any(getattr(new, k) != getattr(old, k) for k in param_energy.SHAPE_KEYS)
-        moving = reshaped and param_energy.deforming(self)
-        before = param_energy.elastic_energy(self) if moving else 0.0
+        change = param_energy.MaterialChange(self, old, new)
         self._params = new
         _GENERATION[0] += 1
         self.wake()
         if (new.mode != old.mode or new.clusters != old.clusters or new.plastic != old.plastic
                 or (new.damping > 0) != (old.damping > 0)):
             self._build()
-        if moving:
-            param_energy.shed(self, param_energy.elastic_energy(self) - before)
+        change.finish()
 
     def set_wrench(self, force, torque=(0.0, 0.0, 0.0)):
         """External force at the centre of mass and torque about it, held until replaced."""
