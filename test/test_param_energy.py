@@ -1,4 +1,5 @@
-"""A change of a body's material adds no energy (``sm_ros.core.param_energy``)."""
+"""A change of a body's material gives up the elastic energy it would add
+(``sm_ros.core.param_energy``)."""
 
 import numpy as np
 import pytest
@@ -54,23 +55,39 @@ def test_a_stiffer_material_takes_its_energy_from_the_internal_motion(mode):
     np.testing.assert_allclose(body.angular_momentum(), spin, rtol=0.0, atol=1e-14)
 
 
-def test_more_elastic_energy_than_internal_motion_stops_the_internal_motion():
+def test_more_elastic_energy_than_internal_motion_also_shrinks_the_deformation():
     """Alpha 0.3 -> 0.9 at the stretch's widest: the gain outweighs the internal motion,
-    which is all given up (the rigid motion stays)."""
+    which is all given up (the rigid motion stays), and the deformation shrinks towards
+    the goals.  Goals averaged over overlapping clusters do not all follow it, so a few
+    per cent are left of the two thirds the energy grew by without this."""
     body = _moving_body(steps=3)
-    internal, gain = PE.relative_energy(body), -PE.elastic_energy(body)
+    before, internal = _energy(body), PE.relative_energy(body)
     rigid = PE.rigid_velocity(body.x, body.v, body.m)
+    unshed = before + PE.elastic_energy(body) * (PE.stiffness(BodyParams(alpha=0.9))
+                                                 / PE.stiffness(body.params) - 1.0)
+    spread = np.abs(PE.deviation(body)).max()
     body.set_params(alpha=0.9)
-    assert PE.elastic_energy(body) + gain > internal > 0.0
     np.testing.assert_allclose(body.v, rigid, rtol=0.0, atol=1e-12)
+    assert 0.0 < internal and np.abs(PE.deviation(body)).max() < 0.9 * spread
+    assert unshed > 1.5 * before and _energy(body) < 1.05 * before
 
 
-def test_a_softer_material_and_a_body_at_rest_keep_their_velocities():
-    body = _moving_body(alpha=0.6)
-    v = body.v.copy()
-    body.set_params(alpha=0.3, damping=0.1)
-    assert body.v.tobytes() == v.tobytes()
-    resting = World(gravity=(0.0, 0.0, 0.0)).add_body(np.random.default_rng(1).random((20, 3)),
-                                                       0.01, BodyParams(alpha=0.2))
-    resting.set_params(alpha=0.9, beta=0.5)
-    assert not resting.v.any()
+def test_a_sagging_body_made_rigid_rises_into_its_shape_without_a_jump():
+    """A soft box resting on the ground, sagged under gravity, made rigid: it takes its
+    shape where it lies, its centre rising by the sag it loses and no higher (it sprang
+    1.8x as high before a change took the energy it adds from the deformation)."""
+    from sm_ros.core import Ground
+    x0 = np.stack(np.meshgrid(*[np.arange(6) * 0.02] * 3, indexing='ij'), -1).reshape(-1, 3)
+    world = World()
+    world.set_colliders(ground=Ground(friction=0.5))
+    body = world.add_body(x0 + [0.0, 0.0, 0.011], 0.01, BodyParams(alpha=0.1, damping=0.3))
+    for _ in range(240):
+        world.step(1.0 / 120.0)
+    assert np.abs(body.v).max() < 0.01 and np.abs(PE.deviation(body)).max() > 1e-3   # sags
+    low = body.com()[2]
+    body.set_params(mode='rigid', alpha=1.0)
+    heights = []
+    for _ in range(60):
+        world.step(1.0 / 120.0)
+        heights.append(body.com()[2] - low)
+    assert 0.01 < heights[-1] and max(heights) < 1.1 * heights[-1]

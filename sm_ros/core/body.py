@@ -319,9 +319,9 @@ class Body:
         self.wake()
 
     def set_params(self, params=None, **changes):
-        """Apply new parameters from the next step on; rebuild only what they reshape.  The
-        change adds no energy: where the new material holds the present deformation with
-        more elastic energy, the body's internal motion gives it up (``param_energy``)."""
+        """Apply new parameters from the next step on; rebuild only what they reshape.  Where
+        the new material holds the present deformation with more elastic energy, the body's
+        internal motion and then its deformation give the rise up (``param_energy``)."""
         new = (params if params is not None else self._params)
         if not isinstance(new, BodyParams):
             raise ValueError('params must be a BodyParams')
