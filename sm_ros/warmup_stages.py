@@ -66,7 +66,7 @@ def _modes() -> None:
     for _ in range(2):
         world.step(1.0 / 120.0)
     for b in bodies:
-        b.com(), b.rotation(), b.shape_error_rms(), b.momentum(), b.is_finite(), b.goals()
+        b.com(), b.rotation(), b.shape_error_rms(), b.momentum(), b.is_finite()
 
 
 def _damped() -> None:

@@ -321,7 +321,7 @@ class Body:
     def set_params(self, params=None, **changes):
         """Apply new parameters from the next step on; rebuild only what they reshape.  Where
         the new material holds the present deformation with more elastic energy, the body's
-        internal motion and then its deformation give the rise up (``param_energy``)."""
+        internal motion gives the rise up (``param_energy``)."""
         new = (params if params is not None else self._params)
         if not isinstance(new, BodyParams):
             raise ValueError('params must be a BodyParams')
@@ -331,14 +331,14 @@ class Body:
         from dataclasses import replace
         new = replace(new, **changes).validate()
         old = self._params
-        change = param_energy.MaterialChange(self, old, new)
+        spread = self.total_mass * self.shape_error_rms() ** 2
         self._params = new
         _GENERATION[0] += 1
         self.wake()
         if (new.mode != old.mode or new.clusters != old.clusters or new.plastic != old.plastic
                 or (new.damping > 0) != (old.damping > 0)):
             self._build()
-        change.finish()
+        param_energy.give_up(self, old, new, spread)
 
     def set_wrench(self, force, torque=(0.0, 0.0, 0.0)):
         """External force at the centre of mass and torque about it, held until replaced."""

@@ -1,117 +1,82 @@
-"""A change of a body's material never adds energy to it (``Body.set_params``).
+"""A stiffer material set while a body moves takes the energy it adds from the body's wobble
+(``Body.set_params``).
 
 The shape match pulls each particle towards its goal like a spring of stiffness
-k = alpha / ((1 - alpha) h0^2) per unit mass (``BodyParams.at_step``), so a body deformed by
-d_i = x_i - g_i holds U = k / 2 sum m_i |d_i|^2.  A new alpha, beta, mode, cluster count or
-material step changes U at the same positions.  Where U grows, the body's motion relative
-to its rigid motion gives the rise up, and where that motion holds too little, the
-deformation shrinks towards the goals (a few passes: the goals follow it; averaged over
-overlapping clusters they do not all).  Without this, stiffness changed at random every
-tick pumps an undamped body up like a parametric oscillator, and a deformed body made
-rigid springs into its shape."""
+k = a / ((1 - a) h0^2) per unit mass (``BodyParams.at_step``), a = alpha for a rigid-mode body
+and alpha (1 - beta) for the deformations the linear and quadratic goals do not follow.  A
+body deformed by d_i = x_i - g_i (the last step's shape error) holds U = k / 2 sum m_i |d_i|^2,
+so a new alpha, beta, mode or material step changes U at the same positions.  Where U
+grows, the body's motion relative to its rigid motion gives the rise up (all of it at
+most; momentum and angular momentum stay).  Without this, stiffness changed at random every
+tick pumps an undamped body up like a parametric oscillator.  A body at rest is left as it
+is.  Everything here is a few sums over the particles: no goal pass."""
 
 import math
 
 import numpy as np
 
-from . import body_step
-
 #: Parameters whose change can raise the elastic energy of a deformed body.
-SHAPE_KEYS = ('mode', 'alpha', 'beta', 'clusters', 'material_dt')
-#: A gain below this share of the energy of a deformation as large as the body and of its
-#: motion is round-off: nothing changes.
-ROUND_OFF = 1e-12
-#: Times the deformation is shrunk towards goals that move with it.
-SHRINK_PASSES = 4
-
-
-def rigid_velocity(x, v, m) -> np.ndarray:
-    """The rigid motion (velocity of the centre, spin about it) that keeps the momentum and
-    angular momentum of the points ``x`` (N, 3) moving at ``v`` with masses ``m``."""
-    total = m.sum()
-    centre, drift = m @ x / total, m @ v / total
-    r = x - centre
-    spin_l = np.cross(r, v - drift).T @ m
-    inertia = np.einsum('i,ij,ik->jk', m, r, r)
-    inertia = np.trace(inertia) * np.eye(3) - inertia
-    return drift + np.cross(np.linalg.pinv(inertia) @ spin_l, r)
-
-
-def _weighted_square(m, d) -> float:
-    return float(m @ np.einsum('ij,ij->i', d, d))
-
-
-def relative_energy(body) -> float:
-    """Kinetic energy (J) of the body's motion relative to its rigid motion."""
-    return 0.5 * _weighted_square(body._m, body._v - rigid_velocity(body._x, body._v, body._m))
+SHAPE_KEYS = ('mode', 'alpha', 'beta', 'material_dt')
+#: A body whose internal motion is slower than this (m/s, RMS) is left alone.
+STILL_SPEED = 1e-3
 
 
 def stiffness(params) -> float:
-    """k (1/s^2 per unit mass) of the shape match's pull under ``params``."""
-    return params.alpha / max(1.0 - params.alpha, 1e-12) / params.material_dt ** 2
+    """k (1/s^2 per unit mass) of the pull on the deformations ``params`` holds."""
+    a = params.alpha if params.mode == 'rigid' else params.alpha * (1.0 - params.beta)
+    return a / max(1.0 - a, 1e-12) / params.material_dt ** 2
 
 
-def deviation(body) -> np.ndarray:
-    """x - g (N, 3, storage order) of the goals under the body's present parameters."""
-    return body._x - body_step.goals(body)
+def _motion(x, v, m):
+    """(centre, its velocity, spin, kinetic energy of the motion relative to the rigid
+    one) of the points ``x`` (N, 3) moving at ``v`` with masses ``m``: the rigid motion
+    keeps the momentum and angular momentum, and the two kinetic energies add up.  A few
+    3 x N products over the particles."""
+    total, weighted = m.sum(), x * m[:, None]
+    centre, drift = weighted.sum(axis=0) / total, m @ v / total
+    moment = weighted.T @ x - total * np.outer(centre, centre)
+    cross = weighted.T @ v
+    spin_l = (np.array([cross[1, 2] - cross[2, 1], cross[2, 0] - cross[0, 2],
+                        cross[0, 1] - cross[1, 0]]) - total * np.cross(centre, drift))
+    spin = np.linalg.pinv(np.trace(moment) * np.eye(3) - moment) @ spin_l
+    kinetic = 0.5 * float(np.einsum('ij,ij->', v * m[:, None], v))
+    relative = kinetic - 0.5 * total * float(drift @ drift) - 0.5 * float(spin @ spin_l)
+    return centre, drift, spin, max(relative, 0.0)
 
 
-def elastic_energy(body) -> float:
-    """U = k / 2 sum m |x - g|^2 (J) under the body's present parameters."""
-    return 0.5 * stiffness(body.params) * _weighted_square(body._m, deviation(body))
+def rigid_motion(x, v, m):
+    """(centre, its velocity, spin) of the rigid motion that keeps the momentum and angular
+    momentum of the points ``x`` (N, 3) moving at ``v`` with masses ``m``."""
+    return _motion(x, v, m)[:3]
 
 
-class MaterialChange:
-    """Made before ``Body.set_params`` puts ``new`` parameters in place of ``old``;
-    ``finish()`` after it takes what the change added to the elastic energy from the
-    body's internal motion, then from its deformation.  Alpha alone keeps the goals (one
-    goal pass); other changes move them (U before and after)."""
-
-    def __init__(self, body, old, new):
-        self.body, self.before, self.deviation = body, None, None
-        changed = {key for key in SHAPE_KEYS if getattr(new, key) != getattr(old, key)}
-        if not changed or not body.is_finite() or (changed == {'alpha'}
-                                                   and new.alpha < old.alpha):
-            return
-        if changed == {'alpha'}:
-            self.deviation = deviation(body)
-            self.before = 0.5 * stiffness(old) * _weighted_square(body._m, self.deviation)
-        else:
-            self.before = elastic_energy(body)
-
-    def finish(self) -> None:
-        """Give up the elastic energy the change added (``Body.set_params``, after it)."""
-        if self.before is None:
-            return
-        body, k = self.body, stiffness(self.body.params)
-        d = self.deviation if self.deviation is not None else deviation(body)
-        after = 0.5 * k * _weighted_square(body._m, d)
-        gain = after - self.before
-        spread = body._x - body._m @ body._x / body.total_mass     # a deformation as large
-        scale = 0.5 * (k * _weighted_square(body._m, spread)        # as the body, the motion
-                       + _weighted_square(body._m, body._v))
-        if not gain > ROUND_OFF * scale:
-            return
-        target = after - gain + _shed(body, gain)           # the U the deformation may keep
-        for _ in range(SHRINK_PASSES):                      # the goals follow x: again
-            if not after > target * (1.0 + 1e-9):
-                return
-            body._x -= (1.0 - math.sqrt(max(target, 0.0) / after)) * d
-            body._dirty = True
-            d = deviation(body)
-            after = 0.5 * k * _weighted_square(body._m, d)
+def relative_energy(x, v, m) -> float:
+    """Kinetic energy (J) of the motion relative to the rigid motion."""
+    return _motion(x, v, m)[3]
 
 
-def _shed(body, energy: float) -> float:
-    """Take up to ``energy`` (J) from the body's motion relative to its rigid motion;
-    return the energy taken."""
-    kinetic = relative_energy(body)
-    if not (energy > 0.0 and kinetic > 0.0):
-        return 0.0
-    keep = math.sqrt(max(0.0, 1.0 - energy / kinetic))
+def elastic_energy(params, spread: float) -> float:
+    """U = k / 2 sum m |x - g|^2 (J) under ``params`` of a body with ``spread`` =
+    sum m |x - g|^2 (its mass times the square of its shape error)."""
+    return 0.5 * stiffness(params) * spread
+
+
+def give_up(body, old, new, spread: float) -> None:
+    """After ``Body.set_params`` put ``new`` in place of ``old``: take what the change added
+    to the elastic energy (``spread`` as it was before) from the body's motion relative to
+    its rigid motion."""
+    if all(getattr(new, key) == getattr(old, key) for key in SHAPE_KEYS):
+        return
+    gain = elastic_energy(new, spread) - elastic_energy(old, spread)
+    x, v, m = body._x, body._v, body._m
+    if not (gain > 0.0 and body.is_finite()):
+        return
+    centre, drift, spin, kinetic = _motion(x, v, m)
+    if kinetic <= 0.5 * body.total_mass * STILL_SPEED ** 2:
+        return
+    keep = math.sqrt(max(0.0, 1.0 - gain / kinetic))
     if keep == 1.0:                      # a gain below round-off: nothing to take
-        return 0.0
-    rigid = rigid_velocity(body._x, body._v, body._m)
-    body._v[:] = rigid + keep * (body._v - rigid)
+        return
+    rigid = drift + np.cross(spin, x - centre)
+    v[:] = rigid + keep * (v - rigid)
     body._dirty = True
-    return kinetic * (1.0 - keep * keep)
