@@ -6,7 +6,8 @@
 # is missing and reinstalls only when setup.py or package.xml changes. The node compiles
 # the solver kernels its scene needs when it starts (seconds, once: Numba's on-disk cache)
 # and the rest in a background process; `make test` compiles them all first
-# (python -m sm_ros.warmup). `make lint` checks every Python file with ruff (configured in
+# (python -m sm_ros.warmup), then runs the suite in two worker processes (pytest-xdist:
+# each its own ROS domain). `make lint` checks every Python file with ruff (configured in
 # pyproject.toml) and that the files generated from the parameter table are up to date.
 
 PYTHON ?= python3
@@ -33,7 +34,7 @@ run: $(STAMP)
 
 test: $(STAMP)
 	$(VENV)/bin/python -m sm_ros.warmup
-	$(VENV)/bin/python -m pytest -q test $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest -q test -n 2 $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(VENV)/bin/python -m ruff check .

@@ -54,7 +54,7 @@ setup(
         # linear-elastic FEM reference of `python -m sm_ros.bench material` (issue 12 part 6)
         'fem': ['scikit-fem'],
         'test': [
-            'pytest', 'hypothesis', 'psutil', 'trimesh', 'matplotlib',
+            'pytest', 'pytest-xdist', 'hypothesis', 'psutil', 'trimesh', 'matplotlib',
             'foxglove-sdk', 'mcap', 'mcap-ros2-support', 'tqdm',
             'rosbags', 'websockets', 'protobuf', 'scikit-fem',
             'colcon-core', 'colcon-python-setup-py', 'colcon-ros', 'catkin_pkg',

@@ -6,8 +6,9 @@ probe node in a namespace of its own, and helpers that spin until a condition ho
 future completes (with timeouts; never sleeps as synchronisation). ``warm`` compiles the
 solver's Numba kernels once per session. ``scene_file`` writes a small scene YAML.
 
-The DDS domain is picked per test session (unless ROS_DOMAIN_ID is set) and discovery is
-kept on this host, so parallel test runs on one machine do not see each other.
+The DDS domain is picked per test session (unless ROS_DOMAIN_ID is set; each worker of
+``pytest -n`` takes one of its own) and discovery is kept on this host, so parallel test
+runs on one machine do not see each other.
 """
 
 import itertools
@@ -16,10 +17,23 @@ import random
 import textwrap
 import time
 
-os.environ.setdefault('ROS_DOMAIN_ID', str(random.Random(os.getpid()).randint(1, 200)))
+_WORKER = os.environ.get('PYTEST_XDIST_WORKER', '')           # 'gw0', 'gw1', ... under -n
+if _WORKER:                          # the workers of one run: different domains for certain
+    _base = random.Random(os.getppid()).randint(0, 199)
+    os.environ['ROS_DOMAIN_ID'] = str(1 + (_base + 97 * int(_WORKER[2:])) % 200)
+else:
+    os.environ.setdefault('ROS_DOMAIN_ID', str(random.Random(os.getpid()).randint(1, 200)))
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 import pytest  # noqa: E402
+
+
+def spare_domain() -> int:
+    """A DDS domain for a node in a process of its own that no test of another worker of
+    this run uses: 201-215 for the first worker (and a run without workers), 216-230 for
+    the second, and so on around."""
+    index = int(_WORKER[2:]) if _WORKER else 0
+    return 201 + (15 * index + random.randrange(15)) % 30
 
 DEFAULT_TIMEOUT = 10.0
 _names = itertools.count()

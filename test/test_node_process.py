@@ -7,7 +7,6 @@ traceback), and the first cloud seen by another process.
 
 import contextlib
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -15,6 +14,7 @@ import time
 
 import numpy as np
 import pytest
+from conftest import spare_domain
 
 pytest.importorskip('rclpy', reason='ROS 2 wheels not installed (pip install -e .[ros])')
 
@@ -30,7 +30,7 @@ def sim_node_cmd(*args):
 
 def run_fail(*args, timeout=120):
     """Run sim_node expecting it to stop by itself; return (code, stderr lines)."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(201, 230)))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(spare_domain()))
     proc = subprocess.run(sim_node_cmd(*args), env=env, capture_output=True, text=True,
                           timeout=timeout)
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
@@ -96,7 +96,7 @@ def _reap(proc):
 
 
 def test_first_cloud_then_clean_ctrl_c(warm, tmp_path):
-    domain = random.randint(201, 230)
+    domain = spare_domain()
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     with _cloud_probe(domain) as (ex, got):
         proc = subprocess.Popen(sim_node_cmd('--ros-args', '-p', 'rate:=30.0'), env=env,
@@ -121,7 +121,7 @@ def test_ctrl_c_during_start_up_is_clean(tmp_path, delay, cold):
     # signal lands in it; warm: somewhere in scene building, warm-up or the first ticks.
     # (Ctrl-C in the first fraction of a second, while Python imports rclpy, prints a
     # KeyboardInterrupt traceback like any rclpy node.)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(201, 230)))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(spare_domain()))
     if cold:
         env['NUMBA_CACHE_DIR'] = str(tmp_path)
     proc = subprocess.Popen(sim_node_cmd(), env=env, stdout=subprocess.PIPE,
@@ -231,7 +231,7 @@ def test_a_large_cloud_goes_out_over_the_packaged_profile_to_a_plain_subscriber(
     256 MiB shared-memory segment, mapped by the node) and says so; a subscriber in this
     process, which sets nothing, receives the 56,000-point (896 KB) cloud whole."""
     scene = _write(tmp_path / 'big.yaml', BIG_SCENE)
-    domain = random.randint(201, 230)
+    domain = spare_domain()
     env = {k: v for k, v in os.environ.items()
            if k not in ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE',
                         'FASTDDS_BUILTIN_TRANSPORTS')}
@@ -293,7 +293,7 @@ def test_node_killed_mid_recording_leaves_files_every_reader_opens_unrepaired(wa
     from test_node_outputs import NODE_SCENE, rosbags_messages
     scene = _write(tmp_path / 'box.yaml', NODE_SCENE)
     bag = tmp_path / 'killed'
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(201, 230)))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(spare_domain()))
     proc = subprocess.Popen(sim_node_cmd('--ros-args', '-p', f'scene:={scene}', '-p',
                                          f'record.path:={bag}', '-p', 'record.split_s:=1.0'),
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)

@@ -11,13 +11,12 @@ received clouds holding every particle.
 """
 
 import json
-import os
-import random
 
 import pytest
 
 pytest.importorskip('rclpy', reason='ROS 2 wheels not installed (pip install -e .[ros])')
 
+from conftest import spare_domain  # noqa: E402
 from sm_ros.bench import soak  # noqa: E402
 
 RSS_GROWTH_MB = 64.0
@@ -26,8 +25,7 @@ POINTS = 27_000
 
 def test_three_second_soak(tmp_path, warm):
     out = tmp_path / 'soak.json'
-    taken = int(os.environ.get('ROS_DOMAIN_ID', '0'))
-    domain = random.Random(os.getpid() + 1).choice([d for d in range(101, 201) if d != taken])
+    domain = spare_domain()
     # five processes on a loaded 2-core CI machine cannot hold 60 Hz: the rate is the
     # benchmark's business (--max-dropped 0.01 by default), not this test's
     rc = soak.main(['--seconds', '3', '--points', str(POINTS), '--lead', '1',
