@@ -126,10 +126,10 @@ _PREPARING = []
 
 
 def prepare_lists() -> threading.Thread:
-    """Build ``body_lists`` of small bodies of every layout on a helper thread, once per
-    process: Numba compiles the typed lists' methods in every process (its disk cache does
-    not keep them), and without this the first stiff pass of a running simulation waits
-    for them (about 0.3 s).  Returns the thread."""
+    """Build ``body_lists`` of one small body on a helper thread, once per process: Numba
+    compiles the typed lists' methods in every process (its disk cache does not keep
+    them), so that the first stiff pass of a running simulation would wait for them
+    (about 0.3 s).  Returns the thread."""
     if not _PREPARING:
         blocks = [np.zeros((3, 2)).T, np.zeros((2, 3)), np.zeros((1, 3))]   # F, C, both
         masses = np.ones(2)
