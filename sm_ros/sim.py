@@ -35,7 +35,6 @@ import numpy as np
 from sm_ros import params as table
 from sm_ros.inputs import checked_points, checked_wrench, Forces, Grippers, InputError
 from sm_ros.params import MAX_COORDINATE
-from sm_ros.core.stiff_contact import prepare_lists
 from sm_ros.error_estimate import LiveEstimate
 from sm_ros.stats import MomentumDrift, TickStats, solver_figures
 
@@ -464,7 +463,6 @@ class Simulation:
         tick_s = time.perf_counter() - t0
         self._own_s = tick_s - estimate_s
         stats.add_tick(tick_s, substeps * dt, period, estimate_s=estimate_s)
-        prepare_lists()              # after the first tick: its kernels come first
 
     def reset_nonfinite(self) -> List[str]:
         """Reset every body whose state is no longer finite; return their names."""

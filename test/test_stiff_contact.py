@@ -551,21 +551,3 @@ def test_bodies_carried_as_a_whole_keep_their_pass_where_none_is_stiff():
     world.body('block0').set_params(BodyParams('rigid', 1.0))
     world.step(1.0 / 120.0)
     assert world.contact.rigid[:24].all()
-
-
-def test_a_simulation_builds_the_pass_lists_once_on_a_helper_thread_after_its_first_tick():
-    """The typed lists' methods compile on a helper thread, one per process, started by a
-    simulation's first tick; the lists it builds are those of the pass."""
-    from sm_ros.core import stiff_contact
-    from sm_ros.sim import Simulation
-    sim = Simulation({'scene': 'default', 'error_estimate.rate': 0.0})
-    sim.tick()
-    helper = stiff_contact.prepare_lists()
-    assert helper is stiff_contact.prepare_lists() and helper.name == 'sm_ros-lists'
-    helper.join(60.0)
-    assert not helper.is_alive()
-    x = np.zeros((4, 3), order='F')
-    m = np.ones(4)
-    m.flags.writeable = False
-    xs, vs, ms = stiff_contact.body_lists([x], [x], [m])
-    assert len(xs) == len(vs) == len(ms) == 1 and ms[0].shape == (4,)

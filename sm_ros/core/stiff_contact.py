@@ -13,8 +13,6 @@ another body of the pass (alone, its own step dents it against them).  Those con
 then left out of the per-particle contact pass, which softer bodies keep.
 """
 
-import threading
-
 import numpy as np
 from numba import types
 from numba.typed import List as TypedList
@@ -120,24 +118,6 @@ def body_lists(xs, vs, ms):
         lists[1].append(v)
         lists[2].append(m)
     return lists
-
-
-_PREPARING = []
-
-
-def prepare_lists() -> threading.Thread:
-    """Build ``body_lists`` of one small body on a helper thread, once per process: Numba
-    compiles the typed lists' methods in every process (its disk cache does not keep
-    them), so that the first stiff pass of a running simulation would wait for them
-    (about 0.3 s).  Returns the thread."""
-    if not _PREPARING:
-        blocks = [np.zeros((3, 2)).T, np.zeros((2, 3)), np.zeros((1, 3))]   # F, C, both
-        masses = np.ones(2)
-        masses.flags.writeable = False
-        _PREPARING.append(threading.Thread(target=body_lists, args=(blocks, blocks, [masses] * 3),
-                                           daemon=True, name='sm_ros-lists'))
-        _PREPARING[0].start()
-    return _PREPARING[0]
 
 
 class StiffContact:
