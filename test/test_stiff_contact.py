@@ -551,3 +551,17 @@ def test_bodies_carried_as_a_whole_keep_their_pass_where_none_is_stiff():
     world.body('block0').set_params(BodyParams('rigid', 1.0))
     world.step(1.0 / 120.0)
     assert world.contact.rigid[:24].all()
+
+
+def test_the_pass_lists_hold_the_bodies_own_arrays_of_any_layout():
+    """``body_lists`` (made and filled by cached compiled functions) holds each body's
+    positions, velocities and masses themselves, F-ordered, C-ordered or one particle."""
+    from sm_ros.core.stiff_contact import body_lists
+    blocks = [np.arange(6.0).reshape(3, 2).T, np.arange(6.0).reshape(2, 3), np.ones((1, 3))]
+    masses = [np.full(len(b), 0.5) for b in blocks]
+    for m in masses:
+        m.flags.writeable = False
+    xs, vs, ms = body_lists(blocks, blocks, masses)
+    assert len(xs) == len(vs) == len(ms) == 3
+    for got, want in zip(list(xs) + list(ms), blocks + masses):
+        assert np.shares_memory(got, want) and np.array_equal(got, want)

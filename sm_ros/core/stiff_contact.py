@@ -14,13 +14,14 @@ then left out of the per-particle contact pass, which softer bodies keep.
 """
 
 import numpy as np
-from numba import types
+from numba import njit, types
 from numba.typed import List as TypedList
 
 from .colliders import ColliderSet
 from .kinematic import C_E, C_MU, C_POS, ROW
 from . import tuning
 from .quaternion import quat_matrix
+from .kernels import JIT
 from .kernels.stiff_solve import StiffBodies, StiffScene, stiff_step
 
 def _directions() -> np.ndarray:
@@ -108,15 +109,27 @@ _BLOCK = types.Array(types.float64, 2, 'A')
 _MASSES = types.Array(types.float64, 1, 'C', readonly=True)
 
 
+@njit(**JIT)
+def _empty_lists():
+    return (TypedList.empty_list(_BLOCK), TypedList.empty_list(_BLOCK),
+            TypedList.empty_list(_MASSES))
+
+
+@njit(**JIT)
+def _append(lists, x, v, m):
+    lists[0].append(x)
+    lists[1].append(v)
+    lists[2].append(m)
+
+
 def body_lists(xs, vs, ms):
     """The typed lists of the bodies' positions, velocities and masses that
-    ``stiff_solve.StiffBodies`` holds."""
-    lists = (TypedList.empty_list(_BLOCK), TypedList.empty_list(_BLOCK),
-             TypedList.empty_list(_MASSES))
+    ``stiff_solve.StiffBodies`` holds (made and filled by cached compiled functions:
+    Numba keeps no disk cache for a typed list's own methods, which would compile again in
+    every process)."""
+    lists = _empty_lists()
     for x, v, m in zip(xs, vs, ms):
-        lists[0].append(x)
-        lists[1].append(v)
-        lists[2].append(m)
+        _append(lists, x, v, m)
     return lists
 
 
