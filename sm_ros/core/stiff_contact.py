@@ -180,15 +180,16 @@ class StiffContact:
         moving = cset.rows if cset is not None else np.zeros((0, ROW))
         return np.concatenate([ground, self._static, moving]), len(self._static)
 
-    def _bodies(self, world, bodies, h):
-        """``StiffBodies`` of (body, radius) pairs.  What does not change from step to
-        step (the typed lists, radii, collide flags, outlines) is kept while the world
-        passes the same list (``World._stiff_members``: the same bodies and settings; a
-        body's arrays, rest shape included, are its own for its lifetime)."""
+    def _bodies(self, world, bodies, stiff):
+        """``StiffBodies`` of (body, radius) pairs, ``stiff`` whether each is stiff.  What
+        does not change from step to step (the typed lists, radii, collide flags, outlines)
+        is kept while the world passes the same list (``World._stiff_members``: the same
+        bodies and settings; a body's arrays, rest shape included, are its own for its
+        lifetime)."""
         if self._lists_key is not bodies:
-            self._lists = self._body_constants(world, bodies, h)
+            self._lists = self._body_constants(world, bodies, stiff)
             self._lists_key = bodies
-        lists, radius, (collide, stiff), ball, (boxy, rest) = self._lists
+        lists, radius, collide, ball, (boxy, rest) = self._lists
         awake = np.fromiter((not b.asleep for b, _ in bodies), dtype=np.bool_,
                             count=len(bodies))
         cells = np.zeros((len(bodies), 3, 3))
@@ -197,11 +198,11 @@ class StiffContact:
             cells[boxy] = quat_matrix(wxyz[:, [1, 2, 3, 0]]) @ rest
         return StiffBodies(*lists, radius, awake, collide, stiff, ball, cells)
 
-    def _body_constants(self, world, bodies, h):
-        """(typed lists, radii, (collide flags, stiff flags), round flags, (the bodies on a
-        lattice, their cells' half edges at rest)) of the pass's bodies.  A body not stiff
-        (``is_stiff``) deforms too much for an outline of its rest shape: it meets
-        everything with its particles' spheres."""
+    def _body_constants(self, world, bodies, stiff):
+        """(typed lists, radii, collide flags, round flags, (the bodies on a lattice, their
+        cells' half edges at rest)) of the pass's bodies.  A body not ``stiff`` deforms too
+        much for an outline of its rest shape: it meets everything with its particles'
+        spheres."""
         lists = body_lists([b._x for b, _ in bodies], [b._v for b, _ in bodies],
                            [b._m for b, _ in bodies])
         ids = {id(b) for b, _ in bodies}           # forget the bodies that left the pass
@@ -210,14 +211,13 @@ class StiffContact:
         on = world._contact_params.enabled
         collide = np.array([on and world._contacts[b.name][0].collide for b, _ in bodies],
                            dtype=np.bool_)
-        stiff = np.array([is_stiff(b, h) for b, _ in bodies], dtype=np.bool_)
         shapes = [self._outline(b, r) if hard else (False, None)
                   for (b, r), hard in zip(bodies, stiff)]
         ball = np.array([round_ for round_, _ in shapes], dtype=np.bool_)
         boxy = np.array([k for k, (_, axes) in enumerate(shapes) if axes is not None],
                         dtype=np.int64)
         rest = np.array([shapes[k][1] * radius[k] for k in boxy]).reshape(-1, 3, 3)
-        return lists, radius, (collide, stiff), ball, (boxy, rest)
+        return lists, radius, collide, ball, (boxy, rest)
 
     def _outline(self, body, radius):
         """(``is_round``, ``lattice_axes`` unless round) of a body, kept while it keeps
@@ -229,12 +229,13 @@ class StiffContact:
             self._round[id(body)] = known
         return known[2], known[3]
 
-    def run(self, world, bodies, h, thresh):
-        """The pass over ``bodies`` ((body, contact radius) pairs) before a step of ``h``
-        s; returns (B, 5) per body: its particles touching the plain colliders and the
-        others, its body-pair contacts, its deepest overlap (m), and 1 where its
-        velocities changed, 2 where its positions did too, 3 where a hit woke it; and the
-        body pairs that touch (``stiff_contacts.touches``, indices into ``bodies``)."""
+    def run(self, world, bodies, stiff, h, thresh):
+        """The pass over ``bodies`` ((body, contact radius) pairs; ``stiff`` whether each
+        is stiff, ``is_stiff``) before a step of ``h`` s; returns (B, 5) per body: its
+        particles touching the plain colliders and the others, its body-pair contacts, its
+        deepest overlap (m), and 1 where its velocities changed, 2 where its positions did
+        too, 3 where a hit woke it; and the body pairs that touch (``stiff_contacts.touches``,
+        indices into ``bodies``)."""
         rows, plain = self._rows(world)
         p = world._contact_params
         scene = StiffScene(rows, plain, world.ground is not None, float(p.friction),
@@ -244,7 +245,7 @@ class StiffContact:
         tally = np.zeros((len(rows) - 1, 6))
         stats = np.zeros((len(bodies), 5))
         self.keys, self.impulses, touches = stiff_step(
-            self._bodies(world, bodies, h), scene, (self.keys, self.impulses), tally, stats)
+            self._bodies(world, bodies, stiff), scene, (self.keys, self.impulses), tally, stats)
         for k in np.flatnonzero(stats[:, 4]):
             bodies[k][0]._dirty = True
             if stats[k, 4] == 3:

@@ -443,7 +443,7 @@ class World(WorldColliders):
         before their own step; the contact pass leaves their pairs alone.  Their contact
         figures wait in ``_stiff_stats`` (flat body order) for the diagnostics."""
         bodies = self._flat.bodies
-        stiff, index, members, _ = self._stiff_members(h)
+        stiff, index, members, hard = self._stiff_members(h)
         c = self._contact
         if c is not None:
             c.set_rigid(stiff)
@@ -457,7 +457,7 @@ class World(WorldColliders):
         if not self._stiff_can_touch(members):  # nothing to meet: a step adds no contact
             self._stiff.forget()
             return
-        stats[index], pairs = self._stiff.run(self, members, h, thresh)
+        stats[index], pairs = self._stiff.run(self, members, hard[index], h, thresh)
         # the pairs name members: in flat body indices for the sleep pass
         self._stiff_touches = np.column_stack((index[pairs[:, 0]], index[pairs[:, 1]],
                                                pairs[:, 2]))
