@@ -27,7 +27,7 @@ def stiffness(params) -> float:
     return a / max(1.0 - a, 1e-12) / params.material_dt ** 2
 
 
-def _motion(x, v, m):
+def motion(x, v, m):
     """(centre, its velocity, spin, kinetic energy of the motion relative to the rigid
     one) of the points ``x`` (N, 3) moving at ``v`` with masses ``m``: the rigid motion
     keeps the momentum and angular momentum, and the two kinetic energies add up.  A few
@@ -42,17 +42,6 @@ def _motion(x, v, m):
     kinetic = 0.5 * float(np.einsum('ij,ij->', v * m[:, None], v))
     relative = kinetic - 0.5 * total * float(drift @ drift) - 0.5 * float(spin @ spin_l)
     return centre, drift, spin, max(relative, 0.0)
-
-
-def rigid_motion(x, v, m):
-    """(centre, its velocity, spin) of the rigid motion that keeps the momentum and angular
-    momentum of the points ``x`` (N, 3) moving at ``v`` with masses ``m``."""
-    return _motion(x, v, m)[:3]
-
-
-def relative_energy(x, v, m) -> float:
-    """Kinetic energy (J) of the motion relative to the rigid motion."""
-    return _motion(x, v, m)[3]
 
 
 def elastic_energy(params, spread: float) -> float:
@@ -71,7 +60,7 @@ def give_up(body, old, new, spread: float) -> None:
     x, v, m = body._x, body._v, body._m
     if not (gain > 0.0 and body.is_finite()):
         return
-    centre, drift, spin, kinetic = _motion(x, v, m)
+    centre, drift, spin, kinetic = motion(x, v, m)
     if kinetic <= 0.5 * body.total_mass * STILL_SPEED ** 2:
         return
     keep = math.sqrt(max(0.0, 1.0 - gain / kinetic))
