@@ -455,7 +455,6 @@ class Simulation:
             self.momentum.track(world, before)
         else:
             self.momentum.forget()
-        self._estimates.after_tick()
         tp = time.perf_counter()
         for fn in self._tick_listeners:
             fn(self)

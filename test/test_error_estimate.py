@@ -50,22 +50,24 @@ def test_ballistic_estimate_is_the_exact_error():
     assert res['local_m'] == pytest.approx(9.81 * 0.01 ** 2 / 2.0, rel=1e-6)
 
 
-def test_rigid_part_keeps_a_rigid_motion_and_drops_a_stretch():
-    """Per run of points: a translation plus a small turn is its own rigid part; a stretch
-    along an axis of a box's points has none; one point keeps its translation."""
-    rng = np.random.default_rng(3)
-    x = rng.random((40, 3))
+def test_step_difference_keeps_a_rigid_bodys_rigid_motion_halved_and_drops_a_stretch():
+    """A linear body counts its first-step difference; a rigid-mode body half the rigid
+    motion (a translation plus a small turn) closest to its second-step difference, so a
+    stretch of a box's points along an axis counts nothing."""
+    from sm_ros.core import BodyParams, World
+    rng, world = np.random.default_rng(3), World(gravity=(0.0, 0.0, 0.0))
+    soft = world.add_body(rng.random((25, 3)), 0.1, BodyParams(mode='linear'))
     corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
-    x[25:39] = 0.5 + np.concatenate([corners, np.eye(3), -np.eye(3)]) * [0.2, 0.1, 0.3]
-    starts = np.array([0, 25, 39])
-    moved = np.concatenate([np.array([1e-3, -2e-3, 5e-4]) + np.cross([0.0, 2e-3, -1e-3], x[:25]
-                                                                        - x[:25].mean(0)),
-                            np.zeros((15, 3))])
-    moved[39] = [3e-4, 0.0, 0.0]
-    stretch = np.zeros((40, 3))
-    stretch[25:39, 0] = 1e-3 * (x[25:39, 0] - x[25:39, 0].mean())
-    np.testing.assert_allclose(EE.rigid_part(x, moved, starts), moved, atol=1e-15)
-    np.testing.assert_allclose(EE.rigid_part(x, stretch, starts), 0.0, atol=1e-15)
+    box = world.add_body(2.0 + np.concatenate([corners, np.eye(3), -np.eye(3)]) * [0.2, 0.1, 0.3],
+                         0.1, BodyParams(mode='rigid'))
+    x = np.concatenate([soft._x, box._x])
+    first, moved, stretch = rng.random((39, 3)) * 1e-3, np.zeros((39, 3)), np.zeros((39, 3))
+    moved[25:] = [1e-3, -2e-3, 5e-4] + np.cross([0.0, 2e-3, -1e-3], box._x - box._x.mean(0))
+    stretch[25:, 0] = 1e-3 * (box._x[:, 0] - box._x[:, 0].mean())
+    for second, counted in ((moved, 0.5 * moved[25:]), (stretch, 0.0)):
+        d = EE.step_difference(world, [x, x], [x + first, x + second])
+        np.testing.assert_allclose(d[:25], first[:25], atol=1e-15)
+        np.testing.assert_allclose(d[25:], counted, atol=1e-15)
 
 
 def test_error_from_positions():
@@ -112,7 +114,6 @@ def test_pieces_between_ticks_leave_the_world_as_without_estimates(scene, lead):
         live.piece_s = 1.0
         for w in (world, twin):
             w.step(h)
-        live.after_tick()
     assert live.result['error_m'] == whole['error_m'] > 0.0
     assert live.age(0.05) == pytest.approx(0.05)
     live.before_tick(world, h, 1.0, 0.5, room_s=3.5, period=0.01, step_s=1.0)
@@ -167,9 +168,9 @@ def test_ticks_without_room_share_the_pieces_one_each_before_the_deadline(monkey
     run = EE.Estimate.run
 
     def counted(est, pieces):
-        first = est.done_pieces
+        first = len(est.runs)
         spent = run(est, pieces)
-        ran.append((tick[0], est.done_pieces - first))
+        ran.append((tick[0], len(est.runs) - first))
         return spent
 
     monkeypatch.setattr(EE.Estimate, 'run', counted)
@@ -179,7 +180,6 @@ def test_ticks_without_room_share_the_pieces_one_each_before_the_deadline(monkey
         live.before_tick(world, h, 1.0, k * period, room_s=0.005, period=period, step_s=1e9)
         for w in (world, twin):
             w.step(h)
-        live.after_tick()
         assert live.age(k * period) is None or live.age(k * period) <= 2.0 + 1e-9
     assert [n for _, n in ran] == [1] * 6                 # two estimates, a piece a tick
     assert [k for k, _ in ran] == [97, 98, 99, 294, 295, 296]

@@ -140,7 +140,7 @@ def cost_run(scene: str, seconds: float, rate=None) -> Dict[str, Any]:
         est = sim._estimates
         if est.result is not None and est.result.get('steps'):
             done.add(est.result_at)
-        saved = max(saved, est.snapshot_bytes())
+        saved = max([saved] + [snap.nbytes for snap in est.snapshots])
         next_tick += period
         time.sleep(max(0.0, next_tick - time.monotonic()))
     st = sim.stats

@@ -1,12 +1,11 @@
 """Save a world's state and put it back bit for bit (the live error estimate's steps).
 
-Each stateful solver class names, in its ``step_state()``, the attributes a step changes
-and a later step reads.  A :class:`Snapshot` follows those names from the world: objects
-with ``step_state`` (alone or as the items of a dict, list or tuple) are followed, arrays
-are copied by value into buffers kept from save to save, a plain list keeps its items and
-anything else (numbers, flags, None) its binding.  Scratch that a step writes before it
-reads it is not named.  ``load`` writes into the arrays the attributes hold then, so a
-re-packing of the bodies since the save (new rows, new views) is undone too."""
+Each stateful solver class names, in ``step_state()``, what a step changes and a later step
+reads; scratch a step writes before it reads is not named. A :class:`Snapshot` follows those
+names from the world: holders of ``step_state`` (alone or as a dict's, list's or tuple's
+items) are followed, arrays are copied into buffers kept from save to save, a plain list
+keeps its items and anything else its binding. ``load`` writes into the arrays the
+attributes hold then, so a re-packing of the bodies since the save is undone too."""
 
 import operator
 
@@ -39,11 +38,6 @@ def named_state(world):
             stack.extend(reversed(_holders(value) or []))
 
 
-def _same(now, saved) -> bool:
-    """Whether the holders ``now`` are the very objects ``saved``."""
-    return now is not None and len(now) == len(saved) and all(map(operator.is_, now, saved))
-
-
 class Snapshot:
     """A world's state: ``save(world)`` copies it in, ``load(world)`` puts it back."""
 
@@ -61,7 +55,6 @@ class Snapshot:
         """Copy ``world``'s state into the snapshot."""
         entries, buffers, spare = [], [], iter(self._buffers)
         for obj, name, value in named_state(world):
-            held = _holders(value)
             if isinstance(value, np.ndarray):
                 saved = next(spare, None)
                 if saved is None or saved.shape != value.shape or saved.dtype != value.dtype:
@@ -69,23 +62,23 @@ class Snapshot:
                 np.copyto(saved, value)
                 buffers.append(saved)
                 entries.append((obj, name, 'array', saved))
-            elif held is not None:           # followed; a container's items must stay
+            elif (held := _holders(value)) is not None:  # followed; a container's items stay
                 entries.append((obj, name, 'held', None if held[0] is value else held))
-            elif isinstance(value, list):
-                entries.append((obj, name, 'list', list(value)))
             else:
-                entries.append((obj, name, 'bound', value))
+                entries.append((obj, name, 'list' if isinstance(value, list) else 'bound',
+                                list(value) if isinstance(value, list) else value))
         self.world, self._entries, self._buffers = world, entries, buffers
 
     def load(self, world) -> None:
-        """Put the saved state back into ``world`` (the world it was saved from, with the
-        same bodies)."""
+        """Put the saved state back into ``world``, the world it was saved from, with the
+        same bodies."""
         if world is not self.world:
             raise ValueError('a snapshot loads only into the world it was saved from')
         for obj, name, kind, saved in self._entries:
-            if kind == 'held' and saved is not None and not _same(_holders(getattr(obj, name)),
-                                                                   saved):
-                raise ValueError('the world has other bodies than when it was saved')
+            if kind == 'held' and saved is not None:
+                held = _holders(getattr(obj, name)) or []
+                if len(held) != len(saved) or any(map(operator.is_not, held, saved)):
+                    raise ValueError('the world has other bodies than when it was saved')
         for obj, name, kind, saved in self._entries:
             now = getattr(obj, name)
             if kind == 'array' and (isinstance(now, np.ndarray) and now.shape == saved.shape
