@@ -37,9 +37,11 @@ ROOT = str(Path(__file__).resolve().parent.parent.parent)
 
 def _env(cache: Optional[str]) -> Dict[str, str]:
     """This environment with this package first on the path, a DDS domain of its own and,
-    when given, the Numba cache folder."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.Random().randint(100, 200)),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    when given, the Numba cache folder. The discovery range stays the user's, as in the
+    probe's own participant: with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` a subscriber
+    that was there first often sees a new node only at its next announcement, up to 3 s
+    later (doc/running.md)."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.Random().randint(100, 200)))
     env['PYTHONPATH'] = os.pathsep.join(p for p in (ROOT, env.get('PYTHONPATH')) if p)
     if cache is not None:
         env['NUMBA_CACHE_DIR'] = cache
