@@ -21,11 +21,12 @@ def _run(name):
 
 @pytest.mark.parametrize('on', ['body', 'table'])
 def test_a_box_past_the_edge_topples_and_one_inside_stays(on):
-    """Centre of mass 5 cm past the edge: over 45 deg within 1.5 s; 5 cm inside: under
-    2 deg and 5 mm after 10 s."""
+    """Centre of mass 5 cm past the edge: over 45 deg within 1.5 s, and it falls off (past
+    90 deg: not left leaning on the edge, as PyBullet and MuJoCo flip it over); 5 cm
+    inside: under 2 deg and 5 mm after 10 s."""
     past = _run(f'topple_{on}_past')
     inside = _run(f'topple_{on}_inside')
-    assert past['turn_1.5s_deg'] > 45.0
+    assert past['turn_1.5s_deg'] > 45.0 and past['turn_end_deg'] > 90.0
     assert inside['turn_end_deg'] < 2.0 and inside['drift_mm'] < 5.0
 
 
@@ -305,6 +306,41 @@ def test_bodies_apart_at_any_angle_get_no_overlap(seed):
         out = np.zeros((SC.SLOTS, SC.K_ROW))
         count = SP.pair_contacts(bodies, frames, 0, 1, 0.002, scene, out, 0)
         assert np.all(out[:count, SC.K_GAP] > -SC.SLOP_SHARE * 0.04)
+
+
+def test_an_edge_on_a_face_meets_it_with_its_cell_not_its_sphere():
+    """A lattice cube turned 45 deg about y rests an edge on another's top face: the
+    pair's gaps are along the face's normal between the cells' outlines (the edge reaches
+    r (cos 45 + sin 45) below its particles, as the body's outline does), so the closest
+    is the 1 mm the test leaves; with spheres (no cells) it is 8.3 mm more."""
+    from sm_ros.core.stiff_contact import body_lists
+    r, grid = 0.02, np.arange(3) * 0.04 - 0.04
+    cube = np.stack(np.meshgrid(grid, grid, grid, indexing='ij'), -1).reshape(-1, 3)
+    c, s = math.cos(math.pi / 4), math.sin(math.pi / 4)
+    turn = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    xa = cube @ turn.T
+    xa[:, 2] += (0.04 + r) + r * (c + s) + 0.001 - xa[:, 2].min()   # 1 mm above b's top
+    scene = SS.StiffScene(np.zeros((1, ROW)), 0, False, 0.5, 0.0, np.zeros(3), 1.0 / 120.0,
+                          0.16, 100, 0.04, 1.1)
+    gaps = {}
+    for name, cells in (('cells', np.array([r * turn, r * np.eye(3)])),
+                        ('spheres', np.zeros((2, 3, 3)))):
+        xs, vs, ms = body_lists([np.asfortranarray(x) for x in (xa, cube)],
+                                [np.zeros((len(x), 3), order='F') for x in (xa, cube)],
+                                [np.ones(len(x)) for x in (xa, cube)])
+        bodies = SS.StiffBodies(xs, vs, ms, np.full(2, r), np.ones(2, np.bool_),
+                                np.ones(2, np.bool_), np.ones(2, np.bool_),
+                                np.zeros(2, np.bool_), cells)
+        frames = np.zeros((2, SC.F_ROW))
+        for b in range(2):
+            SC.body_frame(xs[b], vs[b], ms[b], frames[b], np.zeros((3, 3)), np.zeros((3, 3)))
+        out = np.zeros((SC.SLOTS, SC.K_ROW))
+        count = SP.pair_contacts(bodies, frames, 0, 1, 0.02, scene, out, 0)
+        np.testing.assert_allclose(out[:count, SC.K_N:SC.K_N + 3], [[0.0, 0.0, 1.0]] * count,
+                                   atol=1e-9)
+        gaps[name] = out[:count, SC.K_GAP].min()
+    assert gaps['cells'] == pytest.approx(0.001, abs=1e-9)
+    assert gaps['spheres'] == pytest.approx(0.001 + r * (c + s - 1.0), abs=1e-9)
 
 
 def test_a_cell_meets_the_ground_with_its_lowest_corner():

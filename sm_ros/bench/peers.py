@@ -217,8 +217,8 @@ def soft_sm_ros(seconds: float) -> Dict[str, Any]:
 
 NOTES = """\
 - The engines' solids are the cases' outlines.  sm_ros fills them with particles 2 cm
-  apart, of contact radius 1 cm, that touch one another as spheres and the colliders with
-  their lattice cells (a ball: as one sphere), so its solids rest and tip on their
+  apart, of contact radius 1 cm, that touch the colliders, and one another across a face,
+  with their lattice cells (a ball: as one sphere), so its solids rest and tip on their
   outlines.
 - PyBullet's default damping (0.04, linear and angular) slows fast bodies: the rolling
   ball and the sliding box lose speed and the zero-g hit momentum.  Without it

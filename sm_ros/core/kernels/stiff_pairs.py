@@ -15,7 +15,7 @@ from .jit import JIT, JIT_NO_REFCOUNT
 from .linalg import jacobi3
 from .stiff_contacts import (F_COM, F_HI, F_LO, F_REACH, K_A, K_B, K_COLL, K_E, K_GAP,
                              K_MU, K_N, K_RA, K_RB, K_SLOP, K_WHO, SLOP_SHARE, SLOTS,
-                             _distinct, _fresh, _slot, _tangents)
+                             _distinct, _fresh, _reach, _slot, _tangents)
 
 #: Particle pairs of two bodies count towards their contact up to this many times the sum
 #: of their radii apart (plus the step's reach): two lattices' faces offset by half a
@@ -71,8 +71,8 @@ def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
     slots = np.empty(SLOTS, dtype=np.int64)
     best = np.empty((SLOTS, 2))
     _fresh(slots, best)
-    _offer_pairs((xa, xb, close), (n, face), (ra, rb, margin), fa, (slots, best, tangents),
-                 np.empty(3))
+    _offer_pairs((xa, xb, close), (n, face), _outlines(bodies, a, b, n, face) + (margin,), fa,
+                 (slots, best, tangents), np.empty(3))
     for k in range(SLOTS):
         if _distinct(slots, k):
             _pair_row(bodies, frames, (a, b), slots[k], (n, face), scene, out[count])
@@ -85,8 +85,9 @@ def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
 def _offer_pairs(close, normal, reach, frame, picks, mid):
     """Offer to the slots (``picks``: slots, best, tangents) the middle of each particle
     pair of ``close`` (a's positions, b's, the pairs) whose gap along the pair's
-    ``normal`` (and whether a face gave it) is within its margin (``reach``: a's radius,
-    b's, the margin); ``mid`` scratch (3,)."""
+    ``normal`` (and whether a face gave it) is within its margin (``reach``: how far a's
+    and b's outlines reach towards each other, ``_outlines``, and the margin); ``mid``
+    scratch (3,)."""
     xa, xb, pairs = close
     n, face = normal
     ra, rb, margin = reach
@@ -386,14 +387,29 @@ def _flatness(side):
 
 
 @njit(**JIT)
+def _outlines(bodies, a, b, n, face):
+    """How far a particle's outline of body a and of body b reach towards the other along
+    a face's normal n: their lattice cells' (``stiff_contacts._reach``), so an edge or
+    corner resting on a face is as sharp as the body's outline; their spheres' radii
+    where no face gave the normal or a body has no lattice."""
+    ra, rb = bodies.radius[a], bodies.radius[b]
+    if not face:
+        return ra, rb
+    return (_reach(bodies.cells[a], ra, n[0], n[1], n[2]),
+            _reach(bodies.cells[b], rb, n[0], n[1], n[2]))
+
+
+@njit(**JIT)
 def _pair_row(bodies, frames, pair, who, normal, scene, row):
     """Fill a contact row for the particle pair ``who`` (a's index times b's count plus
     b's) of the body pair (a, b); ``normal``: ``_pair_normal``'s."""
     a, b = pair
     n, face = normal
-    xa, xb, ra, rb = bodies.x[a], bodies.x[b], bodies.radius[a], bodies.radius[b]
+    xa, xb = bodies.x[a], bodies.x[b]
+    ra, rb = _outlines(bodies, a, b, n, face)
     i, j = who // xb.shape[0], who % xb.shape[0]
     gap = _gap_of(xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1], xa[i, 2] - xb[j, 2], n,
                   face) - ra - rb
     point = 0.5 * (xa[i] + xb[j]) + 0.5 * (rb - ra) * n
-    _body_row(pair, gap, n, point, frames, (scene, SLOP_SHARE * (ra + rb)), row)
+    slop = SLOP_SHARE * (bodies.radius[a] + bodies.radius[b])
+    _body_row(pair, gap, n, point, frames, (scene, slop), row)
