@@ -47,6 +47,40 @@ def _collide(X, V, w, rows, h, thresh, imp=None, nbodies=1, bid=None, radius=Non
     return stats, touched
 
 
+@pytest.mark.parametrize('twin', [False, True])
+def test_a_thin_collider_sends_a_particle_back_to_the_side_it_came_from(twin):
+    """A step that carries a particle past a thin collider's middle: a 1 cm rod (a capsule)
+    a particle was pulled 7 cm down through, ending inside it below its axis or past it
+    altogether, goes back on top of it; a 5 mm ball moving 2 m/s past a particle at rest
+    pushes it ahead instead of leaving it behind.  The nearest surface alone sends both
+    out on the far side (compiled pass and NumPy twin alike)."""
+    rod = _rows([Capsule(center=(0.0, 0.0, 0.5), radius=0.01, length=0.4,
+                         orientation=_quat((1, 0, 0), math.pi / 2), friction=0.0)])
+    h, r = 1.0 / 120.0, 0.01                         # the particle's sphere: 1 cm
+    for end in (0.49, 0.44):                         # inside below the axis; past the rod
+        X = np.array([[0.0], [0.0], [end]])
+        V = np.array([[0.0], [0.0], [(end - 0.53) / h]])   # it was at 0.53, on top
+        _run_pass(twin, X, V, rod.rows, h, r)
+        assert X[2, 0] == pytest.approx(0.5 + 0.01 + r)     # back on the tangent plane
+        assert V[2, 0] == pytest.approx(0.0, abs=1e-12)
+    ball = _rows([Sphere(center=(0.01, 0.0, 0.0), radius=0.005, friction=0.0)],
+                 vel=np.array([[2.0, 0.0, 0.0]]))
+    X, V = np.zeros((3, 1)), np.zeros((3, 1))        # at rest; the ball came from -0.0067
+    _run_pass(twin, X, V, ball.rows, h, r)
+    assert X[0, 0] > 0.01 + 0.005 + r - 1e-12 and V[0, 0] == pytest.approx(2.0)
+
+
+def _run_pass(twin, X, V, rows, h, radius):
+    """One collider pass over the particles X, V (one body, spheres of ``radius``)."""
+    n = X.shape[1]
+    args = (KC.Particles(X, V, np.ones(n), np.zeros(n, dtype=np.int32), np.array([radius])),)
+    tally = KC.ColliderTally(np.zeros((len(rows), 6)), np.zeros((1, 2)), np.zeros(1, np.uint8))
+    if twin:
+        KC.collide_numpy(*args, rows, h, 0.05, tally)
+    else:
+        KC.collide_range(*args, 0, n, rows, h, 0.05, tally)
+
+
 def test_kernel_matches_numpy_twin():
     rng = np.random.default_rng(3)
     items = [Box(lo=(-0.3, -0.2, -0.1), hi=(0.3, 0.2, 0.1), orientation=_quat((1, 2, 3), 0.7),

@@ -6,7 +6,11 @@ too), per-particle mass ``m`` and inverse mass ``w`` (0 for pinned or grabbed pa
 which the colliders then leave alone: they act as infinite mass).
 
 A particle inside a collider is projected to the nearest surface point along the surface
-normal; its velocity relative to the collider's surface velocity ``v + omega x (p - c)``
+normal, or, where it crossed the collider's middle within the step (a rod or a plate
+thinner than its step: the nearest surface faces away from where it came from), back onto
+the tangent plane of the side it came from (``_entry_side``), so a thin collider holds
+what a body pulls over it instead of letting it through; its velocity relative to the
+collider's surface velocity ``v + omega x (p - c)``
 gets the ground's contact rule (restitution above ``thresh``, Coulomb friction removing up
 to mu * dv_n of the tangential velocity), and the step's displacement gets the same
 tangential change (h times it), so static friction holds a particle where it is: without
@@ -59,14 +63,51 @@ class ColliderTally(NamedTuple):
     touched: np.ndarray
 
 
+#: Two surface normals face opposite ways below this cosine (not a box's two faces at
+#: right angles, whose cosine rounds to either side of 0).
+FACING = 1e-9
+
+
 @njit(**JIT)
-def _closest_surface(row, px, py, pz, radius):
-    """(depth, nx, ny, nz): depth > 0 when the sphere of ``radius`` at p overlaps the
-    collider (``colliders.surface_gap``); n the outward normal there."""
+def _came_from(row, p, v, h):
+    """Where the particle at p moving at v was, relative to the collider, a step of h s
+    ago: p - h (v - the collider surface's velocity at p)."""
+    px, py, pz = p
+    rx, ry, rz = px - row[C_POS], py - row[C_POS + 1], pz - row[C_POS + 2]
+    wx, wy, wz = row[C_ANG], row[C_ANG + 1], row[C_ANG + 2]
+    return (px - h * (v[0] - row[C_VEL] - (wy * rz - wz * ry)),
+            py - h * (v[1] - row[C_VEL + 1] - (wz * rx - wx * rz)),
+            pz - h * (v[2] - row[C_VEL + 2] - (wx * ry - wy * rx)))
+
+
+@njit(**JIT)
+def _passes_by(row, p, came, reach):
+    """Whether the segment from ``came`` to p comes within ``reach`` of the collider's
+    centre (its bounding sphere grown by the particle's radius)."""
+    dx, dy, dz = p[0] - came[0], p[1] - came[1], p[2] - came[2]
+    cx, cy, cz = row[C_POS] - came[0], row[C_POS + 1] - came[1], row[C_POS + 2] - came[2]
+    dd = dx * dx + dy * dy + dz * dz
+    t = min(max((cx * dx + cy * dy + cz * dz) / dd, 0.0), 1.0) if dd > 0.0 else 0.0
+    ex, ey, ez = cx - t * dx, cy - t * dy, cz - t * dz
+    return ex * ex + ey * ey + ez * ez < reach * reach
+
+
+@njit(**JIT)
+def _swept_contact(row, p, came, radius):
+    """(depth, nx, ny, nz) of the particle now at p, which was at ``came``: against the
+    collider's nearest surface (depth > 0: overlap), or, where it crossed the collider's
+    middle within the step (it ends inside, or its path's midpoint is inside, and the
+    nearest surfaces to ``came`` and to p face opposite ways), against the tangent plane of
+    the side it came from, so a rod or a plate thinner than a step holds it."""
+    px, py, pz = p
+    ox, oy, oz = came
     gap, nx, ny, nz = surface_gap(row, px, py, pz, radius)
-    if gap < 0.0:
-        return -gap, nx, ny, nz
-    return -1.0, 0.0, 0.0, 1.0
+    came_gap, mx, my, mz = surface_gap(row, ox, oy, oz, radius)
+    if mx * nx + my * ny + mz * nz < -FACING and (
+            gap < 0.0 or surface_gap(row, 0.5 * (px + ox), 0.5 * (py + oy), 0.5 * (pz + oz),
+                                     radius)[0] < 0.0):
+        return -(came_gap + (px - ox) * mx + (py - oy) * my + (pz - oz) * mz), mx, my, mz
+    return -gap, nx, ny, nz
 
 
 @njit(**JIT)
@@ -76,8 +117,8 @@ def collide_range(particles, start, end, rows, h, thresh, tally):
     impulse about the collider centre (3) that the particles exert on each collider, one
     contact per particle and collider touched, the deepest penetration of each body, and
     the bodies whose particles moved.
-    Loops over particles (outer) and colliders (inner, a few): each particle's reject test
-    against a collider's bounding sphere is six flops.
+    Loops over particles (outer) and colliders (inner, a few): a particle whose step's
+    path stays outside a collider's bounding sphere is passed over after a few flops.
     """
     X, V, w, bid = particles.x, particles.v, particles.inv_mass, particles.body
     imp, stats, touched = tally.impulse, tally.stats, tally.touched
@@ -90,11 +131,10 @@ def collide_range(particles, start, end, rows, h, thresh, tally):
         hit = False
         for c in range(nc):
             row = rows[c]
-            cx, cy, cz = px - row[C_POS], py - row[C_POS + 1], pz - row[C_POS + 2]
-            b = row[C_BOUND] + rad
-            if cx * cx + cy * cy + cz * cz >= b * b:
+            came = _came_from(row, (px, py, pz), (V[0, i], V[1, i], V[2, i]), h)
+            if not _passes_by(row, (px, py, pz), came, row[C_BOUND] + rad):
                 continue
-            depth, nx, ny, nz = _closest_surface(row, px, py, pz, rad)
+            depth, nx, ny, nz = _swept_contact(row, (px, py, pz), came, rad)
             if depth <= 0.0:
                 continue
             hit = True
@@ -142,6 +182,33 @@ def collide_range(particles, start, end, rows, h, thresh, tally):
             touched[bid[i]] = 1
 
 
+def _surface_numpy(row, p, rad):
+    """(depth, normal) of the points p (3, N) with spheres of ``rad`` against one collider
+    row (``surface_gap``'s rule in NumPy; depth > 0 where they overlap)."""
+    rel = p - row[C_POS:C_POS + 3, None]
+    rot = row[C_ROT:C_ROT + 9].reshape(3, 3)
+    kind = int(row[C_KIND])
+    if kind == 0:
+        d = np.linalg.norm(rel, axis=0)
+        safe = np.where(d > 0, d, 1.0)
+        return row[C_DIM] + rad - d, np.where(d > 0, rel / safe, np.array([[0.0], [0.0], [1.0]]))
+    q = rot.T @ rel
+    if kind == 1:
+        half = row[C_DIM:C_DIM + 3, None]
+        e = q - np.clip(q, -half, half)         # outside: towards the nearest surface point
+        out = np.linalg.norm(e, axis=0)
+        dd = half - np.abs(q)
+        ax = np.argmin(dd, axis=0)              # first minimum: x before y before z
+        s = np.where(q[ax, np.arange(q.shape[1])] >= 0, 1.0, -1.0)
+        depth = np.where(out > 0, rad - out, dd.min(axis=0) + rad)
+        return depth, np.where(out > 0, rot @ (e / np.where(out > 0, out, 1.0)), rot[:, ax] * s)
+    z = np.clip(q[2], -row[C_DIM + 1], row[C_DIM + 1])
+    e = rel - rot[:, 2:3] * z
+    d = np.linalg.norm(e, axis=0)
+    safe = np.where(d > 0, d, 1.0)
+    return row[C_DIM] + rad - d, np.where(d > 0, e / safe, rot[:, 0:1])
+
+
 def collide_numpy(particles, rows, h, thresh, tally):
     """Plain NumPy twin of ``collide_range`` over every particle (vectorised per collider;
     the same sequence of colliders per particle)."""
@@ -154,33 +221,16 @@ def collide_numpy(particles, rows, h, thresh, tally):
     rad = np.asarray(particles.radius)[np.asarray(bid)][free]
     for c, row in enumerate(rows):
         p = X[:, free]
+        depth, n = _surface_numpy(row, p, rad)
+        # where it came from (``_swept_contact``): the tangent plane of that side if it crossed
         rel = p - row[C_POS:C_POS + 3, None]
-        rot = row[C_ROT:C_ROT + 9].reshape(3, 3)
-        kind = int(row[C_KIND])
-        n = np.zeros_like(p)
-        if kind == 0:
-            d = np.linalg.norm(rel, axis=0)
-            depth = row[C_DIM] + rad - d
-            safe = np.where(d > 0, d, 1.0)
-            n = np.where(d > 0, rel / safe, np.array([[0.0], [0.0], [1.0]]))
-        elif kind == 1:
-            q = rot.T @ rel
-            half = row[C_DIM:C_DIM + 3, None]
-            e = q - np.clip(q, -half, half)     # outside: towards the nearest surface point
-            out = np.linalg.norm(e, axis=0)
-            dd = half - np.abs(q)
-            ax = np.argmin(dd, axis=0)          # first minimum: x before y before z
-            s = np.where(q[ax, np.arange(q.shape[1])] >= 0, 1.0, -1.0)
-            depth = np.where(out > 0, rad - out, dd.min(axis=0) + rad)
-            n = np.where(out > 0, rot @ (e / np.where(out > 0, out, 1.0)), rot[:, ax] * s)
-        else:
-            q = rot.T @ rel
-            z = np.clip(q[2], -row[C_DIM + 1], row[C_DIM + 1])
-            e = rel - rot[:, 2:3] * z
-            d = np.linalg.norm(e, axis=0)
-            depth = row[C_DIM] + rad - d
-            safe = np.where(d > 0, d, 1.0)
-            n = np.where(d > 0, e / safe, rot[:, 0:1])
+        surface = row[C_VEL:C_VEL + 3, None] + np.cross(row[C_ANG:C_ANG + 3], rel, axis=0)
+        came = p - h * (V[:, free] - surface)
+        depth_came, n_came = _surface_numpy(row, came, rad)
+        midway = _surface_numpy(row, 0.5 * (p + came), rad)[0]
+        crossed = ((n * n_came).sum(axis=0) < -FACING) & ((depth > 0) | (midway > 0))
+        depth = np.where(crossed, depth_came - ((p - came) * n_came).sum(axis=0), depth)
+        n = np.where(crossed, n_came, n)
         hit = depth > 0
         if not hit.any():
             continue
