@@ -14,7 +14,7 @@ from sm_ros.core.kernels.colliders import Colliders
 
 S = 0.02                                           # lattice spacing of the test bodies
 NO_COLLIDERS = Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), 0.0,
-                         np.zeros(8))
+                         np.zeros(8), 0.0)
 
 
 def lattice(nx, ny, nz, s=S, center=(0.0, 0.0, 0.0)):

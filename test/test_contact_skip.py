@@ -22,7 +22,7 @@ from sm_ros.core.kernels.colliders import Colliders
 H = 1 / 120
 THRESH = 2 * 9.81 * H
 NO_COLLIDERS = Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), THRESH,
-                         np.zeros(8))
+                         np.zeros(8), 0.0)
 WALL = np.array([[0.05, -1.0, -1.0, 0.2, 1.0, 1.0, 0.5, 0.0]])   # box x in [0.05, 0.2]
 
 
@@ -68,7 +68,7 @@ def _solve(X, V, W, B, off, boxes, ground, cand_margin, margin):
     nb = len(off) - 1
     n = X.shape[1]
     bodies, box = _body_rows(X, V, W, off)
-    col = Colliders(True, ground, boxes, np.zeros((0, 6)), THRESH, np.zeros(nb))
+    col = Colliders(True, ground, boxes, np.zeros((0, 6)), THRESH, np.zeros(nb), 0.0)
     walls = WallCandidates(np.zeros(n, np.int64), np.zeros(nb + 1, np.int64), margin)
     m = C.wall_candidates(X, bodies, col, cand_margin, walls, np.ones(nb, np.bool_), box,
                           np.zeros(6))

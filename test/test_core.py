@@ -189,7 +189,7 @@ def test_collide_point_matches_reference(radius):
     spheres = [Sphere(center=(0.5, 0.0, 0.3), radius=0.25, friction=0.7, restitution=0.0)]
     w = World()
     w.set_colliders(ground, boxes, spheres)
-    col = K.Colliders(True, w._ground_row, w._box_rows, w._sphere_rows, 0.05, radius)
+    col = K.Colliders(True, w._ground_row, w._box_rows, w._sphere_rows, 0.05, radius, 0.0)
     moved = 0
     for _ in range(500):
         x = rng.uniform(-0.8, 0.8, 3)

@@ -55,8 +55,9 @@ def test_collide_range_equals_collide_point_on_every_particle(nbox, nsph):
         if trial % 5 == 0:
             ground[0] = 0.0
         radius = rng.choice([0.0, 0.03])      # particles as points and as spheres
-        col = K.Colliders(True, ground, boxes, spheres, 0.05, radius)
-        reach = _range_reach(0, len(x), x, col)
+        step = rng.choice([0.0, 0.05])        # not swept, and swept over a step of 50 ms
+        col = K.Colliders(True, ground, boxes, spheres, 0.05, radius, step)
+        reach = _range_reach(0, len(x), x, v, col)
         seen.add(reach)
         want_x, want_v = _collide_each(x, v, col)
         got_x, got_v = x.copy(), v.copy()
@@ -69,16 +70,40 @@ def test_collide_range_equals_collide_point_on_every_particle(nbox, nsph):
         assert any(r[1] for r in seen)
 
 
+@pytest.mark.parametrize('end', [0.485, 0.472, 0.40])
+def test_a_step_past_a_thin_plate_leaves_it_by_the_face_it_entered(end):
+    """A 2 cm plate (a plain box, top at 0.5 m) and a particle of radius 1 cm that the
+    step carried down from 0.6 m: ending just below the plate's middle, near its bottom
+    or past it altogether, it goes back onto the top face (0.51 m) with its downward
+    speed gone, in the compiled pass and in the NumPy reference alike; without the step
+    (h = 0) a particle inside leaves by the nearest face, one outside is left alone."""
+    from sm_ros.core.reference import collide
+    from sm_ros.core import Box
+    plate = Box(lo=(-0.5, -0.5, 0.48), hi=(0.5, 0.5, 0.5), friction=0.5, restitution=0.0)
+    boxes = np.array([plate.row()], dtype=float)
+    h, p = 1.0 / 120.0, np.array([0.1, 0.0, end])
+    v = (p - [0.1, 0.0, 0.6]) / h
+    for step, want in ((h, 0.51), (0.0, 0.47 if end > 0.47 else end)):
+        col = K.Colliders(True, np.zeros(4), boxes, np.zeros((0, 6)), 0.05, 0.01, step)
+        x_out = K.collide_point(*p, *v, col)
+        ref_x, ref_v = collide(p, v, None, [plate], [], 0.05, 0.01, step)
+        np.testing.assert_allclose(x_out[:3], ref_x, atol=1e-15)
+        np.testing.assert_allclose(x_out[3:], ref_v, atol=1e-12)
+        assert x_out[2] == pytest.approx(want)
+        if step:
+            assert x_out[5] == pytest.approx(0.0)
+
+
 def test_collide_range_culls_a_body_in_the_air():
     ground = np.array([1.0, 0.0, 0.5, 0.0])
     boxes = np.array([[-1.35, -1.35, 0.0, -1.25, 1.35, 1.5, 0.6, 0.0]])
-    col = K.Colliders(True, ground, boxes, np.zeros((0, 6)), 0.05, 0.02)
-    x = np.array([[0.0, 0.0, 0.5], [0.1, 0.0, 0.6]])
-    assert _range_reach(0, 2, x, col) == (False, False)
+    col = K.Colliders(True, ground, boxes, np.zeros((0, 6)), 0.05, 0.02, 0.0)
+    x, v = np.array([[0.0, 0.0, 0.5], [0.1, 0.0, 0.6]]), np.zeros((2, 3))
+    assert _range_reach(0, 2, x, v, col) == (False, False)
     x[0, 2] = 0.015                         # within its radius of the ground: the ground only
-    assert _range_reach(0, 2, x, col) == (True, False)
+    assert _range_reach(0, 2, x, v, col) == (True, False)
     x[1, 0] = -1.24                         # within its radius of the wall
-    assert _range_reach(0, 2, x, col) == (True, True)
+    assert _range_reach(0, 2, x, v, col) == (True, True)
 
 
 def test_sym3_solve_equals_the_pseudo_inverse():

@@ -135,7 +135,7 @@ def test_fused_set_pass_matches_its_numpy_twin(damping, cap):
         K.Sets(st.sid, st.runs, st.goal_maps, st.ref, wuni),
         K.SetMotion(0.6, H, acc, np.zeros(3), np.zeros(3), cap),
         K.FusedDamping(damping > 0.0, damping, dmp, dsums[None]), sums, dsums,
-        K.Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), 1e-3, 0.0))
+        K.Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), 1e-3, 0.0, 0.0))
     tx, tv, tsums, tds, terr, tcapped = _twin(
         x0, v0, np.asarray(st.rest_local), body._m, wuni, st.sid, st.runs, st.goal_maps, st.ref,
         0.6, H, acc, damping > 0.0, damping, dmp, cap, nsets)
@@ -289,7 +289,7 @@ def test_ground_projection_corrects_the_sums_it_changes(damp):
     w = np.full(n, 1.5)
     ground = np.array([1.0, 0.35, 0.4, 0.3])             # on, height, friction, restitution
     k = np.array([3.1, -1.9, 0.5])
-    col = Colliders(True, ground, np.zeros((0, 8)), np.zeros((0, 6)), 1e-3, 0.02)
+    col = Colliders(True, ground, np.zeros((0, 8)), np.zeros((0, 6)), 1e-3, 0.02, 0.0)
     below = x[:, 2] < ground[1] + 0.02                  # the particles' spheres of 2 cm
     assert 20 < below.sum() < n - 20
     shape0, damp0 = _sums_about(x, v, x0, w, k)

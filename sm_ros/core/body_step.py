@@ -50,7 +50,7 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     if kin:
         K.gather_rows(body._x, body._kin_idx, body._kin_prev)
     colliders = Colliders(bool(has_col), ground, boxes, spheres, float(thresh),
-                          body._collider_radius)
+                          body._collider_radius, float(h))
     capped = _integrate(body, p, h, fused, colliders)
     if kin:
         _grabbed(body, fused, h)
@@ -286,7 +286,8 @@ def goals(body) -> np.ndarray:
     g = body._x.copy(order='K')            # the layout of x: the kernels' own specialisation
     goals = K.StepGoals(goal_lin, goal_off, trans, 1.0, 1.0, np.zeros(3), np.zeros(3),
                         np.zeros(3))
-    no_colliders = Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), 0.0, 0.0)
+    no_colliders = Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), 0.0, 0.0,
+                             0.0)
     K.integrate_chunks(np.zeros(1, dtype=np.int64), body._quad,
                        K.BodyParticles(g, np.zeros_like(g), body._x0, body._m),
                        _rest(body)._replace(ref=ref), goals, part, np.zeros(1), no_colliders,

@@ -321,7 +321,7 @@ class Contact:
         p = self.params
         if col is None:
             col = Colliders(False, _NO_GROUND, _NO_ROWS8, _NO_ROWS6, float(thresh),
-                            np.zeros(len(f.bodies)))
+                            np.zeros(len(f.bodies)), 0.0)
         grav = gravity is not None and bool(np.any(gravity != 0.0))
         carried = p.stacking and grav and self.coupling.any()
         if carried:

@@ -334,7 +334,7 @@ def _wall_sweep(parts, bodies, law, col, walls):
     for b in range(bodies.pending.shape[0]):
         if not bodies.pending[b]:
             continue
-        own = Colliders(True, _NO_GROUND, col.boxes, col.spheres, law.thresh, col.radius[b])
+        own = Colliders(True, _NO_GROUND, col.boxes, col.spheres, law.thresh, col.radius[b], 0.0)
         for t in range(walls.start[b], walls.start[b + 1]):
             p = walls.particles[t]
             x0 = X[0, p] + h * dv[b, 0] + dv[b, 3]

@@ -158,7 +158,7 @@ class Pack:
             call = self._entry = self._resolve(gravity, ground, boxes, spheres)
         first, turned, nb = 0, -1, len(self.bodies)   # the body to step from, its turn
         while first < nb:
-            col = Colliders(bool(has_col), ground, boxes, spheres, float(thresh), 0.0)
+            col = Colliders(bool(has_col), ground, boxes, spheres, float(thresh), 0.0, float(h))
             first = call[0](self.rows, self.counts, self.arrays, float(h), gravity, col, first,
                             turned)
             turned = self._limit_turn(first) if first < nb else -1
@@ -186,7 +186,7 @@ class Pack:
         overloads = getattr(fn, 'overloads', None)
         if overloads is not None:
             args = (self.rows, self.counts, self.arrays, 0.0, gravity,
-                    Colliders(False, ground, boxes, spheres, 0.0, 0.0), 0, 0)
+                    Colliders(False, ground, boxes, spheres, 0.0, 0.0, 0.0), 0, 0)
             sig = tuple(fn.typeof_pyval(a) for a in args)
             if sig not in overloads:
                 fn.compile(sig)
@@ -269,7 +269,7 @@ def step_packed(rows, counts, arrays, h, gravity, colliders, first, turned_first
             dp[15 + j] = pnt[0, j]
         dp[18] = 1.0
         col = Colliders(colliders.on, colliders.ground, colliders.boxes, colliders.spheres,
-                        colliders.thresh, row[C_RADIUS])
+                        colliders.thresh, row[C_RADIUS], colliders.h)
         err2, capped = _pass(0, n, x, v, x0, mass, row, h, work, col)
         counts[b, 0] += capped
         _store(row, err2, damp, work)

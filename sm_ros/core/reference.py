@@ -307,7 +307,7 @@ class ReferenceBody:
         thresh = max(1e-3, 2.0 * np.linalg.norm(gravity) * h)
         for i in range(len(self.x)):
             self.x[i], self.v[i] = collide(self.x[i], self.v[i], ground, boxes, spheres,
-                                           thresh, radius)
+                                           thresh, radius, h)
         self.x[kin] = tgt
         self.v[kin] = (tgt - x_prev) / h
         if changed:
@@ -326,10 +326,32 @@ def _contact(v, n, friction, restitution, thresh):
     return vt + vn_new * n
 
 
-def collide(x, v, ground, boxes, spheres, thresh, radius=0.0):
+def box_entry(came, x, lo, hi):
+    """(axis, positive, exit axis): the face of the box lo..hi through which the path from
+    ``came`` to x enters it, and the axis of the face it leaves by; None where ``came`` is
+    inside or the path misses (slab test)."""
+    outside = (came <= lo) | (came >= hi)
+    d = x - came
+    if not outside.any() or np.any(outside & (d == 0.0)):
+        return None
+    moving = d != 0.0
+    with np.errstate(divide='ignore', invalid='ignore'):
+        t0, t1 = (lo - came) / d, (hi - came) / d
+    enter = np.where(outside & moving, np.minimum(t0, t1), -np.inf)
+    leave = np.where(moving, np.maximum(t0, t1), np.inf)
+    axis, out_axis = int(np.argmax(enter)), int(np.argmin(leave))
+    if not (0.0 <= enter[axis] <= 1.0 and enter[axis] < leave[out_axis]):
+        return None
+    return axis, bool(d[axis] < 0), out_axis
+
+
+def collide(x, v, ground, boxes, spheres, thresh, radius=0.0, h=0.0):
     """Project one particle, a sphere of ``radius``, out of the colliders (each grown by
-    the radius; a box keeps its square edges) and correct its velocity."""
+    the radius; a box keeps its square edges) and correct its velocity; one the step of
+    ``h`` s carried past a box's middle, or through it, leaves by the face it entered
+    through (where it was: x - h v)."""
     x, v = x.copy(), v.copy()
+    came = x - h * v
     if ground is not None and x[2] < ground.height + radius:
         x[2] = ground.height + radius
         v = _contact(v, np.array([0.0, 0.0, 1.0]), ground.friction, ground.restitution,
@@ -337,11 +359,16 @@ def collide(x, v, ground, boxes, spheres, thresh, radius=0.0):
     for b in boxes:
         lo = np.asarray(b.lo, dtype=float) - radius
         hi = np.asarray(b.hi, dtype=float) + radius
-        if np.all(x > lo) and np.all(x < hi):
+        entry, inside = box_entry(came, x, lo, hi), np.all(x > lo) and np.all(x < hi)
+        through = entry is not None and entry[2] == entry[0]   # out at the opposite face
+        if inside or through:
             depth = np.concatenate([x - lo, hi - x])   # -x, +x faces interleaved below
             order = [0, 3, 1, 4, 2, 5]
             face = min(order, key=lambda f: depth[f])
             axis, positive = face % 3, face >= 3
+            if not inside or (entry is not None and entry[0] == axis
+                              and entry[1] != positive):
+                axis, positive = entry[:2]
             n = np.zeros(3)
             n[axis] = 1.0 if positive else -1.0
             x[axis] = hi[axis] if positive else lo[axis]

@@ -172,7 +172,7 @@ class WorldColliders:
         """The static colliders as the contact pass meets them (``Colliders`` with one
         radius per body, flat order)."""
         return Colliders(bool(self._has_col), self._ground_row, self._box_rows,
-                         self._sphere_rows, float(thresh), self._collider_radius)
+                         self._sphere_rows, float(thresh), self._collider_radius, 0.0)
 
     def _stiff_members(self, h):
         """(per body, flat order, whether it takes its contacts in the stiff pass; the

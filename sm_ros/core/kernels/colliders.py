@@ -4,7 +4,9 @@ and the rows of the collider pass (``C_*`` columns), measured by ``surface_gap``
 A particle is a sphere of its body's contact radius: every collider is grown by it.  A
 particle inside a grown collider is projected onto its surface and its velocity corrected:
 restitution along the normal above a threshold speed (so resting contact stays put) and
-Coulomb friction along the surface.  Runs right after Eq. 13-14 inside the fused pass.
+Coulomb friction along the surface.  A box takes the face the particle's step entered
+through where the step carried it past the box's middle (``box_entry``), so a thin plate
+holds a fast body.  Runs right after Eq. 13-14 inside the fused pass.
 """
 
 from collections import namedtuple
@@ -18,8 +20,9 @@ from .jit import JIT
 #: [enabled, height, friction, restitution] (plane z = height, normal +z), the box rows
 #: [lo(3), hi(3), friction, restitution] (axis-aligned, solid), the sphere rows [centre(3),
 #: radius, friction, restitution] (solid), the speed (m/s) above which restitution acts,
-#: and the particles' radius (m), by which every collider is grown.
-Colliders = namedtuple('Colliders', 'on ground boxes spheres thresh radius')
+#: the particles' radius (m), by which every collider is grown, and the step h (s) whose
+#: velocity brought each particle where it is (0 after a contact solve: not swept).
+Colliders = namedtuple('Colliders', 'on ground boxes spheres thresh radius h')
 
 #: Columns of a collider row of the collider pass (``sm_ros.core.kinematic``) and of the
 #: stiff bodies' contact (``stiff_contacts``).
@@ -67,11 +70,38 @@ def contact_velocity(vx, vy, vz, nx, ny, nz, friction, restitution, thresh):
 
 
 @njit(**JIT)
+def box_entry(came, p, lo, hi):
+    """(axis, sign) of the face of the box lo..hi through which the path from ``came`` to
+    p enters it, and the axis of the face through which it leaves (slab test); (-1, 0.0,
+    -1) where ``came`` is inside or the path misses."""
+    enter, leave, axis, sign, out_axis = -np.inf, np.inf, -1, 0.0, -1
+    for k in range(3):
+        d = p[k] - came[k]
+        outside = came[k] <= lo[k] or came[k] >= hi[k]
+        if d == 0.0:
+            if outside:
+                return -1, 0.0, -1
+            continue
+        t0, t1 = (lo[k] - came[k]) / d, (hi[k] - came[k]) / d
+        if outside and min(t0, t1) > enter:
+            enter, axis, sign = min(t0, t1), k, (-1.0 if d > 0.0 else 1.0)
+        if max(t0, t1) < leave:
+            leave, out_axis = max(t0, t1), k
+    if axis < 0 or not (0.0 <= enter <= 1.0 and enter < leave):
+        return -1, 0.0, -1
+    return axis, sign, out_axis
+
+
+@njit(**JIT)
 def collide_point(px, py, pz, vx, vy, vz, col):
     """Project a particle, a sphere of radius ``col.radius``, out of the static colliders
     of ``col`` (``Colliders``) and correct its velocity.  A box grown by the radius keeps
-    its square edges: near an edge a particle is pushed out slightly early."""
+    its square edges: near an edge a particle is pushed out slightly early.  Where the
+    step (``col.h``, from p - h v) carried the particle past a box's middle (it ends
+    nearest the face opposite the one it entered through) or through it, it goes back out
+    of the face it entered through, so a plate thinner than a step's fall holds it."""
     ground, boxes, spheres, r = col.ground, col.boxes, col.spheres, col.radius
+    came = (px - col.h * vx, py - col.h * vy, pz - col.h * vz)
     gz = ground[1] + r
     if ground[0] > 0.5 and pz < gz:
         pz = gz
@@ -81,7 +111,11 @@ def collide_point(px, py, pz, vx, vy, vz, col):
     for b in range(boxes.shape[0]):
         lo0, lo1, lo2 = boxes[b, 0] - r, boxes[b, 1] - r, boxes[b, 2] - r
         hi0, hi1, hi2 = boxes[b, 3] + r, boxes[b, 4] + r, boxes[b, 5] + r
-        if px > lo0 and px < hi0 and py > lo1 and py < hi1 and pz > lo2 and pz < hi2:
+        entry, entry_sign, exit_axis = box_entry(came, (px, py, pz), (lo0, lo1, lo2),
+                                                 (hi0, hi1, hi2))
+        inside = px > lo0 and px < hi0 and py > lo1 and py < hi1 and pz > lo2 and pz < hi2
+        through = entry >= 0 and exit_axis == entry     # in at one face, out at its opposite
+        if inside or through:
             best = px - lo0
             axis = 0
             sgn = -1.0
@@ -100,6 +134,8 @@ def collide_point(px, py, pz, vx, vy, vz, col):
             d = hi2 - pz
             if d < best:
                 best, axis, sgn = d, 2, 1.0
+            if not inside or (entry == axis and entry_sign != sgn):
+                axis, sgn = entry, entry_sign
             nx = sgn if axis == 0 else 0.0
             ny = sgn if axis == 1 else 0.0
             nz = sgn if axis == 2 else 0.0
@@ -134,26 +170,29 @@ def collide_point(px, py, pz, vx, vy, vz, col):
 
 
 @njit(**JIT)
-def _range_reach(start, end, x, col):
-    """Which colliders of ``col`` particles start..end can be inside: (ground, any box or
-    sphere), each grown by the particles' radius.
+def _range_reach(start, end, x, v, col):
+    """Which colliders of ``col`` particles start..end can be inside or have passed through
+    within the step: (ground, any box or sphere), each grown by the particles' radius.
 
-    From the bounds of the range: a box whose extent the bounds do not overlap, a sphere
-    whose bounding cube they do not, cannot hold any of its particles (the tests below use
-    the same strict comparisons, so this is exact; nan fails both).  A ground projection
-    sets z to the ground height: the bounds then include it, since a box or sphere may
-    start there.
+    From the bounds of the range, where the particles are and were a step ago (x - h v):
+    a box whose extent the bounds do not overlap, a sphere whose bounding cube they do
+    not, cannot hold any of its particles nor have been crossed (the tests below use the
+    same strict comparisons, so this is exact; nan fails both).  A ground projection sets
+    z to the ground height: the bounds then include it, since a box or sphere may start
+    there.
     """
     lo0 = lo1 = lo2 = np.inf              # a nan coordinate never widens the bounds: it
     hi0 = hi1 = hi2 = -np.inf             # fails every collider test below as well
+    h = col.h
     for i in range(start, end):
         p0, p1, p2 = x[i, 0], x[i, 1], x[i, 2]
-        lo0 = p0 if p0 < lo0 else lo0
-        hi0 = p0 if p0 > hi0 else hi0
-        lo1 = p1 if p1 < lo1 else lo1
-        hi1 = p1 if p1 > hi1 else hi1
-        lo2 = p2 if p2 < lo2 else lo2
-        hi2 = p2 if p2 > hi2 else hi2
+        q0, q1, q2 = p0 - h * v[i, 0], p1 - h * v[i, 1], p2 - h * v[i, 2]
+        lo0 = min(lo0, p0, q0)
+        hi0 = max(hi0, p0, q0)
+        lo1 = min(lo1, p1, q1)
+        hi1 = max(hi1, p1, q1)
+        lo2 = min(lo2, p2, q2)
+        hi2 = max(hi2, p2, q2)
     ground, boxes, spheres, r = col.ground, col.boxes, col.spheres, col.radius
     gz = ground[1] + r
     on_ground = ground[0] > 0.5 and lo2 < gz
@@ -258,7 +297,7 @@ def _collide_range(start, end, x, v, col):
     """
     if end <= start:
         return False
-    on_ground, others = _range_reach(start, end, x, col)
+    on_ground, others = _range_reach(start, end, x, v, col)
     if not others:
         if not on_ground:
             return False

@@ -18,7 +18,8 @@ from .jit import JIT, JIT_NO_REFCOUNT
 def body_colliders(col, b):
     """The colliders of the contact pass (``col.radius``: one radius per body) as the
     particles of body ``b`` meet them: grown by its radius."""
-    return Colliders(col.on, col.ground, col.boxes, col.spheres, col.thresh, col.radius[b])
+    return Colliders(col.on, col.ground, col.boxes, col.spheres, col.thresh, col.radius[b],
+                     col.h)
 
 
 @njit(inline='always', **JIT)

@@ -78,7 +78,7 @@ def step_bodies_claimed(bodies, claim, h, gravity, has_col, ground, boxes, spher
             return stepped
         rec = bodies[b]
         _step_record(rec, h, gravity, Colliders(has_col, ground, boxes, spheres, thresh,
-                                                rec.state[R_RADIUS]))
+                                                rec.state[R_RADIUS], h))
         stepped += 1
 
 
