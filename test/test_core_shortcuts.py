@@ -94,6 +94,25 @@ def test_a_step_past_a_thin_plate_leaves_it_by_the_face_it_entered(end):
             assert x_out[5] == pytest.approx(0.0)
 
 
+@pytest.mark.parametrize('end', [-0.005, -0.03])
+def test_a_step_past_a_small_sphere_leaves_it_on_the_side_it_came_from(end):
+    """A 5 mm static sphere and a particle of radius 1 cm that the step carried down from
+    3 cm above its centre to just below it or past it: it goes back onto the tangent plane
+    above (1.5 cm) with its downward speed gone, compiled and NumPy reference alike."""
+    from sm_ros.core.reference import collide
+    from sm_ros.core import Sphere
+    ball = Sphere(center=(0.0, 0.0, 0.0), radius=0.005, friction=0.5, restitution=0.0)
+    spheres = np.array([ball.row()], dtype=float)
+    h, p = 1.0 / 120.0, np.array([0.002, 0.0, end])
+    v = (p - [0.002, 0.0, 0.03]) / h
+    col = K.Colliders(True, np.zeros(4), np.zeros((0, 8)), spheres, 0.05, 0.01, h)
+    x_out = K.collide_point(*p, *v, col)
+    ref_x, ref_v = collide(p, v, None, [], [ball], 0.05, 0.01, h)
+    np.testing.assert_allclose(x_out[:3], ref_x, atol=1e-15)
+    np.testing.assert_allclose(x_out[3:], ref_v, atol=1e-12)
+    assert x_out[2] > 0.0 and x_out[5] == pytest.approx(0.0, abs=1e-9)
+
+
 def test_collide_range_culls_a_body_in_the_air():
     ground = np.array([1.0, 0.0, 0.5, 0.0])
     boxes = np.array([[-1.35, -1.35, 0.0, -1.25, 1.35, 1.5, 0.6, 0.0]])

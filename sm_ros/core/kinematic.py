@@ -36,7 +36,8 @@ import numpy as np
 from numba import njit
 
 from .kernels.colliders import (C_ANG, C_BOUND, C_DIM, C_E, C_KIND, C_MU,  # noqa: F401
-                                C_POS, C_ROT, C_VEL, ROW, contact_velocity, surface_gap)
+                                C_POS, C_ROT, C_VEL, FACING, ROW, contact_velocity,
+                                surface_gap)
 from .kernels.jit import JIT
 
 
@@ -61,11 +62,6 @@ class ColliderTally(NamedTuple):
     impulse: np.ndarray
     stats: np.ndarray
     touched: np.ndarray
-
-
-#: Two surface normals face opposite ways below this cosine (not a box's two faces at
-#: right angles, whose cosine rounds to either side of 0).
-FACING = 1e-9
 
 
 @njit(**JIT)

@@ -349,7 +349,8 @@ def collide(x, v, ground, boxes, spheres, thresh, radius=0.0, h=0.0):
     """Project one particle, a sphere of ``radius``, out of the colliders (each grown by
     the radius; a box keeps its square edges) and correct its velocity; one the step of
     ``h`` s carried past a box's middle, or through it, leaves by the face it entered
-    through (where it was: x - h v)."""
+    through, and past a sphere's middle by the tangent plane of its side (where it was:
+    x - h v)."""
     x, v = x.copy(), v.copy()
     came = x - h * v
     if ground is not None and x[2] < ground.height + radius:
@@ -374,14 +375,23 @@ def collide(x, v, ground, boxes, spheres, thresh, radius=0.0, h=0.0):
             x[axis] = hi[axis] if positive else lo[axis]
             v = _contact(v, n, b.friction, b.restitution, thresh)
     for s in spheres:
-        c = np.asarray(s.center, dtype=float)
-        d = x - c
-        dist = np.linalg.norm(d)
-        if dist < s.radius + radius:
-            n = d / dist if dist > 0 else np.array([0.0, 0.0, 1.0])
-            x = c + (s.radius + radius) * n
-            v = _contact(v, n, s.friction, s.restitution, thresh)
+        c, rad = np.asarray(s.center, dtype=float), s.radius + radius
+        n, m = _unit(x - c), _unit(came - c)
+        inside = np.linalg.norm(x - c) < rad
+        if n @ m < -1e-9 and (inside or np.linalg.norm(0.5 * (x + came) - c) < rad):
+            x, n = x + (rad - (x - c) @ m) * m, m       # the tangent plane it came by
+        elif inside:
+            x = c + rad * n
+        else:
+            continue
+        v = _contact(v, n, s.friction, s.restitution, thresh)
     return x, v
+
+
+def _unit(d):
+    """d over its length; +z for the zero vector."""
+    size = np.linalg.norm(d)
+    return d / size if size > 0 else np.array([0.0, 0.0, 1.0])
 
 
 def cluster_sums(x, x0, m, ptr, cluster_ids, rest_lin, rest_off, ref, quad):

@@ -6,7 +6,9 @@ particle inside a grown collider is projected onto its surface and its velocity 
 restitution along the normal above a threshold speed (so resting contact stays put) and
 Coulomb friction along the surface.  A box takes the face the particle's step entered
 through where the step carried it past the box's middle (``box_entry``), so a thin plate
-holds a fast body.  Runs right after Eq. 13-14 inside the fused pass.
+holds a fast body, and a sphere the tangent plane of the side the particle came from
+where its step crossed the sphere's middle.  Runs right after Eq. 13-14 inside the fused
+pass.
 """
 
 from collections import namedtuple
@@ -67,6 +69,11 @@ def contact_velocity(vx, vy, vz, nx, ny, nz, friction, restitution, thresh):
         ty *= keep
         tz *= keep
     return tx + vn_new * nx, ty + vn_new * ny, tz + vn_new * nz
+
+
+#: Two surface normals face opposite ways below this cosine (not two faces at right angles,
+#: whose cosine rounds to either side of 0).
+FACING = 1e-9
 
 
 @njit(**JIT)
@@ -149,24 +156,39 @@ def collide_point(px, py, pz, vx, vy, vz, col):
                                           friction=boxes[b, 6], restitution=boxes[b, 7],
                                           thresh=col.thresh)
     for s in range(spheres.shape[0]):
-        dx = px - spheres[s, 0]
-        dy = py - spheres[s, 1]
-        dz = pz - spheres[s, 2]
-        rad = spheres[s, 3] + r
+        c0, c1, c2, rad = spheres[s, 0], spheres[s, 1], spheres[s, 2], spheres[s, 3] + r
+        dx, dy, dz = px - c0, py - c1, pz - c2
         d2 = dx * dx + dy * dy + dz * dz
-        if d2 < rad * rad:
-            d = np.sqrt(d2)
-            if d > 0.0:
-                nx, ny, nz = dx / d, dy / d, dz / d
-            else:
-                nx, ny, nz = 0.0, 0.0, 1.0
-            px = spheres[s, 0] + rad * nx
-            py = spheres[s, 1] + rad * ny
-            pz = spheres[s, 2] + rad * nz
-            vx, vy, vz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
-                                          friction=spheres[s, 4], restitution=spheres[s, 5],
-                                          thresh=col.thresh)
+        nx, ny, nz = _unit(dx, dy, dz)
+        mx, my, mz = _unit(came[0] - c0, came[1] - c1, came[2] - c2)
+        if mx * nx + my * ny + mz * nz < -FACING and (d2 < rad * rad or _inside_sphere(
+                0.5 * (px + came[0]) - c0, 0.5 * (py + came[1]) - c1,
+                0.5 * (pz + came[2]) - c2, rad)):
+            push = rad - (dx * mx + dy * my + dz * mz)   # onto the tangent plane it came by
+            px, py, pz, nx, ny, nz = px + push * mx, py + push * my, pz + push * mz, mx, my, mz
+        elif d2 < rad * rad:
+            px, py, pz = c0 + rad * nx, c1 + rad * ny, c2 + rad * nz
+        else:
+            continue
+        vx, vy, vz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
+                                      friction=spheres[s, 4], restitution=spheres[s, 5],
+                                      thresh=col.thresh)
     return px, py, pz, vx, vy, vz
+
+
+@njit(inline='always', **JIT)
+def _unit(dx, dy, dz):
+    """(dx, dy, dz) over its length; +z for the zero vector."""
+    d = np.sqrt(dx * dx + dy * dy + dz * dz)
+    if d > 0.0:
+        return dx / d, dy / d, dz / d
+    return 0.0, 0.0, 1.0
+
+
+@njit(inline='always', **JIT)
+def _inside_sphere(dx, dy, dz, rad):
+    """Whether the offset (dx, dy, dz) from a sphere's centre lies inside radius ``rad``."""
+    return dx * dx + dy * dy + dz * dz < rad * rad
 
 
 @njit(**JIT)
