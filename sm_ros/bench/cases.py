@@ -7,11 +7,9 @@ restitution for every surface, the duration and the function that measures it.  
 turns a case into a ``Track`` (``simulate``: each solid's centre, rotation, velocity, spin,
 kinetic energy, momentum and angular momentum every ``SAMPLE_DT``); the measurements read
 only the track, so every engine is measured the same way (``python -m sm_ros.bench
-peers``).  In sm_ros (``SmRos``) a solid is a lattice of particles ``SPACING`` apart at
-the centres of the cells filling its outline (a ball: the points within radius - half a
-spacing): with particles of contact radius half a spacing its outline is the case's.
-Rigid solids take ``mode: rigid, alpha: 0.9`` at the node's default step
-(``dt``, ``substeps`` of ``sm_ros/params.py``).  Angles in degrees, drifts in mm.
+peers``).  In sm_ros (``SmRos``) a solid is a lattice of particles ``SPACING`` apart
+filling its outline (a ball: the points within radius - half a spacing), of contact
+radius half a spacing, ``RIGID`` at the node's step.  Angles in degrees, drifts in mm.
 """
 
 from dataclasses import dataclass, field
@@ -218,11 +216,9 @@ def measure_push(case: Case, tr: Track) -> Dict[str, float]:
 
 def measure_drop(case: Case, tr: Track) -> Dict[str, float]:
     """The dropped ball: first bounce's height over the drop's (target e^2), and its energy
-    at the top of that bounce over the drop's: the height above the contact and the
-    kinetic energy but that of the vertical speed, which is zero at the top.  Read there,
-    not wherever in flight: the engines' semi-implicit Euler holds a velocity half a step
-    ahead of the position, so kinetic plus potential energy read at a sample swings by
-    g h v (2 % at the contact) without any energy made or lost."""
+    at the top of it (height, and kinetic energy but the vertical) over the drop's: read
+    anywhere in flight, semi-implicit Euler's velocity, half a step ahead of the position,
+    swings kinetic plus potential energy by g h v (2 % at the contact)."""
     k = tr.names.index('ball')
     z, m = tr.com[:, k, 2], case.solids[k].mass
     low = int(np.argmin(z[:tr.at(case.extra['first_low_s']) + 1]))
