@@ -106,7 +106,8 @@ def collide_point(px, py, pz, vx, vy, vz, col):
     its square edges: near an edge a particle is pushed out slightly early.  Where the
     step (``col.h``, from p - h v) carried the particle past a box's middle (it ends
     nearest the face opposite the one it entered through) or through it, it goes back out
-    of the face it entered through, so a plate thinner than a step's fall holds it."""
+    of the face it entered through, so a plate thinner than a step's fall holds it; past a
+    sphere's middle, onto the tangent plane of the side it came from."""
     ground, boxes, spheres, r = col.ground, col.boxes, col.spheres, col.radius
     came = (px - col.h * vx, py - col.h * vy, pz - col.h * vz)
     gz = ground[1] + r
