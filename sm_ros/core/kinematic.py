@@ -8,7 +8,7 @@ which the colliders then leave alone: they act as infinite mass).
 A particle inside a collider is projected to the nearest surface point along the surface
 normal, or, where it crossed the collider's middle within the step (a rod or a plate
 thinner than its step: the nearest surface faces away from where it came from), back onto
-the tangent plane of the side it came from (``_entry_side``), so a thin collider holds
+the tangent plane of the side it came from (``_swept_contact``), so a thin collider holds
 what a body pulls over it instead of letting it through; its velocity relative to the
 collider's surface velocity ``v + omega x (p - c)``
 gets the ground's contact rule (restitution above ``thresh``, Coulomb friction removing up
@@ -98,10 +98,11 @@ def _swept_contact(row, p, came, radius):
     px, py, pz = p
     ox, oy, oz = came
     gap, nx, ny, nz = surface_gap(row, px, py, pz, radius)
+    if gap >= 0.0 and surface_gap(row, 0.5 * (px + ox), 0.5 * (py + oy), 0.5 * (pz + oz),
+                                  radius)[0] >= 0.0:
+        return -gap, nx, ny, nz                     # neither it nor its path's middle
     came_gap, mx, my, mz = surface_gap(row, ox, oy, oz, radius)
-    if mx * nx + my * ny + mz * nz < -FACING and (
-            gap < 0.0 or surface_gap(row, 0.5 * (px + ox), 0.5 * (py + oy), 0.5 * (pz + oz),
-                                     radius)[0] < 0.0):
+    if mx * nx + my * ny + mz * nz < -FACING:
         return -(came_gap + (px - ox) * mx + (py - oy) * my + (pz - oz) * mz), mx, my, mz
     return -gap, nx, ny, nz
 

@@ -119,6 +119,10 @@ def collide_point(px, py, pz, vx, vy, vz, col):
     for b in range(boxes.shape[0]):
         lo0, lo1, lo2 = boxes[b, 0] - r, boxes[b, 1] - r, boxes[b, 2] - r
         hi0, hi1, hi2 = boxes[b, 3] + r, boxes[b, 4] + r, boxes[b, 5] + r
+        if (max(px, came[0]) < lo0 or min(px, came[0]) > hi0 or max(py, came[1]) < lo1
+                or min(py, came[1]) > hi1 or max(pz, came[2]) < lo2
+                or min(pz, came[2]) > hi2):
+            continue                                    # the step's path misses the box
         entry, entry_sign, exit_axis = box_entry(came, (px, py, pz), (lo0, lo1, lo2),
                                                  (hi0, hi1, hi2))
         inside = px > lo0 and px < hi0 and py > lo1 and py < hi1 and pz > lo2 and pz < hi2
@@ -159,15 +163,16 @@ def collide_point(px, py, pz, vx, vy, vz, col):
     for s in range(spheres.shape[0]):
         c0, c1, c2, rad = spheres[s, 0], spheres[s, 1], spheres[s, 2], spheres[s, 3] + r
         dx, dy, dz = px - c0, py - c1, pz - c2
-        d2 = dx * dx + dy * dy + dz * dz
+        inside = _inside_sphere(dx, dy, dz, rad)
+        if not (inside or _inside_sphere(0.5 * (px + came[0]) - c0, 0.5 * (py + came[1]) - c1,
+                                         0.5 * (pz + came[2]) - c2, rad)):
+            continue                                    # neither it nor its path's middle
         nx, ny, nz = _unit(dx, dy, dz)
         mx, my, mz = _unit(came[0] - c0, came[1] - c1, came[2] - c2)
-        if mx * nx + my * ny + mz * nz < -FACING and (d2 < rad * rad or _inside_sphere(
-                0.5 * (px + came[0]) - c0, 0.5 * (py + came[1]) - c1,
-                0.5 * (pz + came[2]) - c2, rad)):
+        if mx * nx + my * ny + mz * nz < -FACING:
             push = rad - (dx * mx + dy * my + dz * mz)   # onto the tangent plane it came by
             px, py, pz, nx, ny, nz = px + push * mx, py + push * my, pz + push * mz, mx, my, mz
-        elif d2 < rad * rad:
+        elif inside:
             px, py, pz = c0 + rad * nx, c1 + rad * ny, c2 + rad * nz
         else:
             continue
