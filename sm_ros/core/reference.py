@@ -10,6 +10,7 @@ Damping is not modelled here.
 import numpy as np
 
 from .clusters import build_memberships
+from .kernels.colliders import FACING
 from .params import BodyParams
 
 RCOND = 1e-10
@@ -378,7 +379,7 @@ def collide(x, v, ground, boxes, spheres, thresh, radius=0.0, h=0.0):
         c, rad = np.asarray(s.center, dtype=float), s.radius + radius
         n, m = _unit(x - c), _unit(came - c)
         inside = np.linalg.norm(x - c) < rad
-        if n @ m < -1e-9 and (inside or np.linalg.norm(0.5 * (x + came) - c) < rad):
+        if n @ m < -FACING and (inside or np.linalg.norm(0.5 * (x + came) - c) < rad):
             x, n = x + (rad - (x - c) @ m) * m, m       # the tangent plane it came by
         elif inside:
             x = c + rad * n
