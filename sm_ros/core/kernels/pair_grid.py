@@ -34,8 +34,10 @@ def grid_box(X, B, act, hb, inv):
         hi2 = max(hi2, z)
     if not lo0 <= hi0:
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    return (lo0, lo1, lo2, math.floor((hi0 - lo0) * inv) + 1.0,
-            math.floor((hi1 - lo1) * inv) + 1.0, math.floor((hi2 - lo2) * inv) + 1.0)
+    # np.floor stays a float: math.floor is an int64 in Numba, undefined (CPU-dependent)
+    # for a box of more cells than an int64 counts
+    return (lo0, lo1, lo2, np.floor((hi0 - lo0) * inv) + 1.0,
+            np.floor((hi1 - lo1) * inv) + 1.0, np.floor((hi2 - lo2) * inv) + 1.0)
 
 
 @njit(**JIT)
