@@ -103,6 +103,7 @@ class Body:
         self._inertia_inv = np.zeros((3, 3))
         self._mat3 = [np.zeros((3, 3)) for _ in range(4)]
         self._mat39 = np.zeros((3, 9))
+        self._match_work = np.zeros((2, 3, 3))
         self._quat_n = np.zeros((4, 4))
         self._quat_v = np.zeros((4, 4))
         self._mat9 = [np.zeros((9, 9)) for _ in range(2)]

@@ -384,7 +384,7 @@ def fast_record(body, h):
            body._dpart, body._dmp, body._dref, body._dacc, lin, w3, sptr, scl, scnt,
            body._quat_prev, body._flagged, body._lim_lin, body._lim_w, body._facc,
            body._fstate, body._flags, body._limit_counts)
-    return K.StepRecord(*own, *body._fast_sets(), body._udv)
+    return K.StepRecord(*own, *body._fast_sets(), body._udv, body._match_work)
 
 
 def retime_record(body, fstate, h):

@@ -125,7 +125,7 @@ def _match(body, p, h) -> int:
     match = K.ClusterMatch(body._quat, body._trans, body._goal_lin, body._goal_off, body._apq,
                            body._udv)
     scratch = K.MatchScratch(body._accbuf, s3[0], s3[1], s3[2], body._mat39, body._quat_n,
-                             body._quat_v)
+                             body._quat_v, body._match_work)
     K.solve_clusters_warm(body._part, _rest(body), _shape(body), match, scratch, body._mode,
                           p.beta, True)
     if turn <= 0.0:
@@ -280,7 +280,8 @@ def goals(body) -> np.ndarray:
     match = K.ClusterMatch(quat, trans, goal_lin, goal_off, np.zeros_like(body._apq),
                            body._nmat)
     scratch = K.MatchScratch(np.zeros(32), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3)),
-                             np.zeros((3, 9)), np.zeros((4, 4)), np.zeros((4, 4)))
+                             np.zeros((3, 9)), np.zeros((4, 4)), np.zeros((4, 4)),
+                             np.zeros((2, 3, 3)))
     K.solve_clusters_warm(part, _rest(body)._replace(ref=ref), _shape(body), match, scratch,
                           body._mode, p.beta, np.bool_(False))     # a cold start
     g = body._x.copy(order='K')            # the layout of x: the kernels' own specialisation

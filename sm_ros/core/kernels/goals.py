@@ -12,7 +12,6 @@ plastic state changes; ``_qhat`` is a particle's plastic, scaled rest offset q-h
 
 from collections import namedtuple
 
-import numpy as np
 from numba import njit
 
 from .jit import JIT, JIT_NO_REFCOUNT, finite
@@ -31,8 +30,8 @@ ClusterShape = namedtuple('ClusterShape', 'wsum sum_q aqq3 aqq9 scale nmat cdet'
 #: eigenvectors (``udv``, the warm start of its next match).
 ClusterMatch = namedtuple('ClusterMatch', 'quat trans goal_lin goal_off apq udv')
 #: The match's scratch: a cluster's reduced sums (``sums``), three 3 x 3, a 3 x 9 and two
-#: 4 x 4 matrices.
-MatchScratch = namedtuple('MatchScratch', 'sums m3a m3b m3c m39 n4 v4')
+#: 4 x 4 matrices, and two more 3 x 3 (``work``, 2 x 3 x 3) for the linear mode.
+MatchScratch = namedtuple('MatchScratch', 'sums m3a m3b m3c m39 n4 v4 work')
 
 
 @njit(inline='always', **JIT)
@@ -94,9 +93,9 @@ def solve_clusters_warm(part, rest, shape, match, scratch, mode, beta, warm):
     from the eigenvectors of its last (``match.udv``; ``nearest_unit_det_warm``).
     """
     m39 = scratch.m39
-    # the linear mode's 3x3 scratch, made once (not once a cluster); C-contiguous like the
-    # packed step's, so both callers share one compiled eigen solver
-    work = (m39[:, 3:6], m39[:, 6:9], np.empty((3, 3)), np.empty((3, 3)))
+    # the linear mode's 3x3 scratch (the last two C-contiguous like the packed step's, so
+    # both callers share one compiled eigen solver)
+    work = (m39[:, 3:6], m39[:, 6:9], scratch.work[0], scratch.work[1])
     _match_clusters(part, rest, shape, match, scratch, mode, beta, warm, work)
 
 

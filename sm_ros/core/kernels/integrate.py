@@ -440,6 +440,11 @@ def _int_range(start, end, quad, particles, rest, goals, damping):
     return err2
 
 
+#: The set ids of fused damping without the set layout: one cluster, every particle in
+#: set 0, so none are stored (a constant: the pass allocates nothing).
+_ONE_SET = np.zeros(0, dtype=np.int32)
+
+
 @njit(inline='always', **JIT)
 def _int_chunk(chunk, quad, particles, rest, goals, part, err, col, damping):
     """Integrate a chunk block by block; collide (``col``: ``colliders.Colliders``) and
@@ -454,8 +459,6 @@ def _int_chunk(chunk, quad, particles, rest, goals, part, err, col, damping):
     sums = _zero_chunk(part, chunk)
     if damping.on:
         _zero_chunk(damping.part, chunk)
-    # fused damping without the set layout: one cluster, all particles in set 0 (no ids)
-    one_set = np.zeros(0, dtype=np.int32)
     err2 = 0.0
     for bs in range(start, end, BLOCK):
         be = min(bs + BLOCK, end)
@@ -464,7 +467,7 @@ def _int_chunk(chunk, quad, particles, rest, goals, part, err, col, damping):
             _collide_range(bs, be, x, v, col)
         _acc_range(start=bs, end=be, quad=quad, particles=particles, rest=rest, sums=sums)
         if damping.on:
-            damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass, sid=one_set,
+            damp_acc_range(start=bs, end=be, x=x, v=v, mass=mass, sid=_ONE_SET,
                            dsums=damping.part[chunk])
     err[chunk] = err2
 

@@ -33,7 +33,7 @@ from .damping import damp_accumulate, damp_rigid, damping_fields, damping_target
 from .goals import ClusterMatch, ClusterShape, MatchScratch, solve_clusters_warm
 from .integrate import (BodyParticles, ClusterRest, FusedDamping, StepGoals, accumulate_chunks,
                         integrate_chunks)
-from .jit import JIT, claim_next
+from .jit import JIT, JIT_NO_REFCOUNT, claim_next
 from .limits import limit_speed, limit_turn
 from .sets import SetMotion, Sets, _fused_refs, sets_integrate_chunks
 from .set_maps import SetClusters, sets_maps, sets_reduce
@@ -47,7 +47,7 @@ StepRecord = namedtuple('StepRecord', (
     'dmp dref dacc lin w3 sptr scl scnt quat_prev flagged lim_lin lim_w force state flags '
     'counts rest_local_t sid goal_maps sref s_part s_ptr s_cluster_ids s_cnt s_phi s_org work '
     'quad_map s_pair_offsets s_cluster_maps s_runs '
-    'udv').split())
+    'udv match_work').split())
 
 #: Where ``StepRecord.state`` holds each number (``body_build.retime_record`` writes them):
 #: the material at the step (alpha, beta, damping), the limits (max_speed, max_turn and
@@ -72,13 +72,16 @@ def step_bodies_claimed(bodies, claim, h, gravity, has_col, ground, boxes, spher
     """
     n = len(bodies)
     stepped = 0
+    counters = np.zeros(8, dtype=np.int64)
     while True:
         b = claim_next(claim)
         if b >= n:
             return stepped
         rec = bodies[b]
+        if counters.shape[0] < rec.s_part.shape[0] + 1:
+            counters = np.zeros(rec.s_part.shape[0] + 1, dtype=np.int64)
         _step_record(rec, h, gravity, Colliders(has_col, ground, boxes, spheres, thresh,
-                                                rec.state[R_RADIUS], h))
+                                                rec.state[R_RADIUS], h), counters)
         stepped += 1
 
 
@@ -114,18 +117,19 @@ def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, th
     HELPERS.run(min(threads, len(bodies)) - 1, step_bodies_claimed, args, before)
 
 
-@njit(inline='always', **JIT)
-def _step_record(rec, h, gravity, colliders):
-    """``Body._step`` for one record (inlined into ``step_bodies_claimed`` by Numba: one
-    compiled function, not a second one linked and optimised again into it); ``colliders``:
-    ``colliders.Colliders`` with the body's radius."""
+@njit(**JIT_NO_REFCOUNT)
+def _step_record(rec, h, gravity, colliders, counters):
+    """``Body._step`` for one record; ``colliders``: ``colliders.Colliders`` with the body's
+    radius, ``counters`` int64 scratch of at least its chunks + 1 (the passes' claim and
+    capped counts).  It allocates nothing, so it runs without reference counting: reading
+    the record's arrays would otherwise cost an atomic operation each."""
     if rec.flags[SLEEP] > 0.0:                 # asleep (``sm_ros.core.sleep``): not stepped
         return
     state = rec.state
     fused = state[R_FUSED] > 0.0 and state[R_DAMPING] > 0.0
     sets = state[R_SETS] > 0.0
     dirty = rec.flags[DIRTY] > 0.0
-    _record_sums(rec, sets, dirty)
+    _record_sums(rec, sets, dirty, counters)
     turned = _record_match(rec)
     if sets:
         sets_maps(_set_clusters(rec), rec.rest_lin, (rec.trans, rec.goal_lin, rec.goal_off),
@@ -136,9 +140,9 @@ def _step_record(rec, h, gravity, colliders):
         rec.ang[i] = 0.0
     _record_damping(rec, fused, sets, dirty or turned > 0)
     if sets:
-        _record_integrate_sets(rec, h, colliders, fused)
+        _record_integrate_sets(rec, h, colliders, fused, counters)
     else:
-        _record_integrate(rec, h, colliders, fused)
+        _record_integrate(rec, h, colliders, fused, counters)
     rec.flags[ERR_STALE] = 1.0
 
 
@@ -162,19 +166,26 @@ def _set_clusters(rec):
 
 
 @njit(inline='always', **JIT)
-def _record_sums(rec, sets, dirty):
+def _claim(counters):
+    """A fresh claim counter (``claim_next``) from ``counters``' first slot."""
+    counters[0] = 0
+    return counters[0:1]
+
+
+@njit(inline='always', **JIT)
+def _record_sums(rec, sets, dirty, counters):
     """The clusters' sums of the current state: taken afresh where the state changed since
     the last pass summed it (``dirty``); the set layout reduces its per-set sums."""
     quad = rec.state[R_QUAD] > 0.0
     if sets:
         if dirty:
-            sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64), quad=quad, x=rec.xt.T,
+            sets_accumulate_chunks(claim=_claim(counters), quad=quad, x=rec.xt.T,
                                    y0=rec.rest_local_t.T, mass=rec.mass, sid=rec.sid,
                                    runs=rec.s_runs, sref=rec.sref, part=rec.s_part)
         sets_reduce(rec.s_part, _set_clusters(rec), rec.sref, rec.rest_lin, rec.ref, quad,
                     rec.part, (rec.work, rec.quad_map))
     elif dirty:
-        accumulate_chunks(np.zeros(1, dtype=np.int64), quad, _record_particles(rec),
+        accumulate_chunks(_claim(counters), quad, _record_particles(rec),
                           _record_rest(rec), rec.part)
 
 
@@ -186,10 +197,13 @@ def _record_match(rec):
     turn = state[R_MAX_TURN]
     quat, quat_prev, flagged = rec.quat, rec.quat_prev, rec.flagged
     if turn > 0.0:
-        quat_prev[:, :] = quat
+        for k in range(quat.shape[0]):
+            for c in range(4):
+                quat_prev[k, c] = quat[k, c]
     shape = ClusterShape(rec.wsum, rec.sum_q, rec.aqq3, rec.aqq9, rec.scale, rec.nmat, rec.cdet)
     match = ClusterMatch(quat, rec.trans, rec.goal_lin, rec.goal_off, rec.apq, rec.udv)
-    scratch = MatchScratch(rec.accbuf, rec.m3a, rec.m3b, rec.m3c, rec.m39, rec.n4, rec.v4)
+    scratch = MatchScratch(rec.accbuf, rec.m3a, rec.m3b, rec.m3c, rec.m39, rec.n4, rec.v4,
+                           rec.match_work)
     solve_clusters_warm(rec.part, _record_rest(rec), shape, match, scratch,
                         int(state[R_MODE]), state[R_BETA],
                         np.bool_(True))        # bool, not a literal: Body._step's copy
@@ -223,7 +237,7 @@ def _record_damping(rec, fused, sets, stale):
             if sets:
                 damp_accumulate(x=x, v=v, mass=rec.mass, sid=rec.sid, dpart=rec.dpart)
             else:
-                damp_accumulate(x=x, v=v, mass=rec.mass, sid=np.zeros(0, dtype=np.int32),
+                damp_accumulate(x=x, v=v, mass=rec.mass, sid=rec.sid[:0],
                                 dpart=rec.dpart)
         damping_fields(rec.dpart, (rec.sptr, rec.scl, rec.scnt), rec.dref, rec.dacc,
                        _damping_scratch(rec))
@@ -241,16 +255,17 @@ def _damping_scratch(rec):
 
 
 @njit(inline='always', **JIT)
-def _record_integrate_sets(rec, h, colliders, fused):
+def _record_integrate_sets(rec, h, colliders, fused, counters):
     """Eq. 13-14 with the static colliders and the speed cap, set by set: the speeds are
     capped block by block before the sums are taken, so the sums stay valid."""
     state = rec.state
     quad = state[R_QUAD] > 0.0
-    chunk_capped = np.zeros(rec.s_part.shape[0], dtype=np.int64)
+    chunk_capped = counters[1:1 + rec.s_part.shape[0]]
+    chunk_capped[:] = 0
     particles = BodyParticles(rec.xt.T, rec.vt.T, rec.rest_local_t.T, rec.mass)
     sets = Sets(rec.sid, rec.s_runs, rec.goal_maps, rec.sref, state[R_WUNI])
     motion = SetMotion(state[R_ALPHA], h, rec.acc, rec.ang, rec.com, state[R_MAX_SPEED])
-    sets_integrate_chunks(np.zeros(1, dtype=np.int64), chunk_capped, quad, particles, sets,
+    sets_integrate_chunks(_claim(counters), chunk_capped, quad, particles, sets,
                           motion, rec.s_part, rec.err, colliders,
                           FusedDamping(fused, state[R_DAMPING], rec.dmp, rec.dpart))
     _fused_refs(quad, state[R_WUNI], rec.ang, rec.s_runs, fused, rec.sref, rec.dpart)
@@ -259,14 +274,14 @@ def _record_integrate_sets(rec, h, colliders, fused):
 
 
 @njit(inline='always', **JIT)
-def _record_integrate(rec, h, colliders, fused):
+def _record_integrate(rec, h, colliders, fused, counters):
     """Eq. 13-14 with the static colliders, then the speed cap (capped positions leave
     the sums stale: ``DIRTY``)."""
     state = rec.state
     x, v = rec.xt.T, rec.vt.T
     goals = StepGoals(rec.goal_lin, rec.goal_off, rec.trans, state[R_ALPHA], h, rec.acc, rec.ang,
                       rec.com)
-    integrate_chunks(np.zeros(1, dtype=np.int64), state[R_QUAD] > 0.0, _record_particles(rec),
+    integrate_chunks(_claim(counters), state[R_QUAD] > 0.0, _record_particles(rec),
                      _record_rest(rec), goals, rec.part, rec.err, colliders,
                      FusedDamping(fused, state[R_DAMPING], rec.dmp, rec.dpart))
     capped = 0
