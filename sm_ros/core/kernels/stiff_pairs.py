@@ -2,8 +2,9 @@
 pairs at which they touch and the normal they share (``pair_contacts``).
 
 The particle pairs of both bodies closer than their radii (plus the step's reach) give one
-normal for the pair: a face's where one side's particles lie in a plane, else their mean
-direction, and each pair's gap along it, so two flat faces meet as flat faces.  A round
+normal for the pair: a face's where one side's particles lie in a plane (of two faces, the
+one along which they overlap least), else their mean direction, and each pair's gap along
+it, so two flat faces meet as flat faces.  A round
 body meets the other's particles with its sphere.  Rows and slots as for the colliders
 (``stiff_contacts``).
 """
@@ -50,7 +51,7 @@ def _near(x, lo, hi, grow, out):
 def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
     """Append to ``out`` (from ``count``) the contacts of stiff bodies a and b
     (``stiff_solve.StiffBodies``, their frames); returns the new count.  The pair's normal
-    is ``_pair_normal``, each particle pair's gap is along it."""
+    is ``_contact_normal``'s, each particle pair's gap is along it."""
     if bodies.round[a] or bodies.round[b]:
         return _ball_pair(bodies, frames, (a, b), margin, scene, out, count)
     xa, xb, ra, rb = bodies.x[a], bodies.x[b], bodies.radius[a], bodies.radius[b]
@@ -63,7 +64,7 @@ def pair_contacts(bodies, frames, a, b, margin, scene, out, count):
     if na == 0 or nb == 0:
         return count
     close = close_pairs(xa, xb, near_a[:na], near_b[:nb], reach)
-    n, face = _pair_normal(xa, xb, close, reach)
+    n, face = _contact_normal(bodies, (a, b), close, _pair_normal(xa, xb, close, reach))
     if not np.any(n != 0.0):
         return count
     tangents = np.empty(6)
@@ -281,16 +282,14 @@ def append_pair(out, count, i, j):
 
 @njit(**JIT)
 def _pair_normal(xa, xb, close, reach):
-    """(the normal of a body pair's contact, from b towards a (zeros: none in reach),
-    whether a face gave it), from its particle pairs in reach (``close``).
+    """(the mean direction of a body pair's particle pairs in reach (``close``), from b
+    towards a, weighted by how far in (zeros: none in reach); a's side and b's: whether
+    its particles in reach form a face (``_face``), and that face's normal).
 
     Each body's particles in reach of the other's lie in a plane where that body meets the
-    other with a face: of the two, the flatter face (the smaller share of its spread across
-    its plane) gives the normal, whatever the faces' offset or an edge resting on it (the
-    particle pairs' own directions would tilt with the offset and push the faces apart
-    sideways).  Where neither is flat (an edge on an edge, a corner), the mean direction of
-    the pairs in reach, weighted by how far in: then a pair's gap is its own distance, not
-    its distance along the normal (``_gap_of``)."""
+    other with a face; a face's normal holds whatever the faces' offset or an edge resting
+    on it (the particle pairs' own directions would tilt with the offset and push the faces
+    apart sideways).  ``_contact_normal`` chooses."""
     pull = np.zeros(3)
     side_a, side_b = np.zeros(10), np.zeros(10)     # weight, sum of w x (3), of w x x^T (6)
     seen_a = np.zeros(xa.shape[0], dtype=np.bool_)
@@ -313,15 +312,47 @@ def _pair_normal(xa, xb, close, reach):
         seen_a[i] = seen_b[j] = True
     size = np.sqrt(pull[0] ** 2 + pull[1] ** 2 + pull[2] ** 2)
     if not size > 0.0:
-        return np.zeros(3), False
+        return np.zeros(3), (False, pull), (False, pull)
     pull /= size
     flat_a, normal_a = _side_flatness(side_a, count_a, pull)
     flat_b, normal_b = _side_flatness(side_b, count_b, pull)
-    if flat_a < flat_b:
-        face, n = _face(flat_a, normal_a, pull)
-    else:
-        face, n = _face(flat_b, normal_b, pull)
-    return (n if face else pull), face
+    return pull, _face(flat_a, normal_a, pull), _face(flat_b, normal_b, pull)
+
+
+@njit(**JIT)
+def _contact_normal(bodies, pair, close, sides):
+    """(the normal of a body pair's contact, whether a face gave it) from
+    ``_pair_normal``'s ``sides``: of the sides that form a face, the one along whose
+    normal the particle pairs overlap least (the separating axis, as rigid-body engines
+    pick their reference face), so a box tipped over another's edge meets it with its own
+    face, not with the other's top face, below which its particles past the edge dip.
+    Where neither side is a face (an edge on an edge, a corner), the mean direction: then
+    a pair's gap is its own distance, not its distance along the normal (``_gap_of``)."""
+    pull, (face_a, n_a), (face_b, n_b) = sides
+    if face_a and face_b:
+        if _least_gap(bodies, pair, close, n_a) >= _least_gap(bodies, pair, close, n_b):
+            return n_a, True
+        return n_b, True
+    if face_a:
+        return n_a, True
+    if face_b:
+        return n_b, True
+    return pull, False
+
+
+@njit(**JIT)
+def _least_gap(bodies, pair, close, n):
+    """The smallest gap along a face normal n between the outlines (``_outlines``) of
+    the particle pairs ``close`` of the body pair (a, b)."""
+    a, b = pair
+    xa, xb = bodies.x[a], bodies.x[b]
+    ra, rb = _outlines(bodies, a, b, n, True)
+    least = np.inf
+    for p in range(close.shape[0]):
+        i, j = close[p, 0], close[p, 1]
+        least = min(least, _gap_of(xa[i, 0] - xb[j, 0], xa[i, 1] - xb[j, 1],
+                                   xa[i, 2] - xb[j, 2], n, True))
+    return least - ra - rb
 
 
 @njit(**JIT)
@@ -402,7 +433,7 @@ def _outlines(bodies, a, b, n, face):
 @njit(**JIT)
 def _pair_row(bodies, frames, pair, who, normal, scene, row):
     """Fill a contact row for the particle pair ``who`` (a's index times b's count plus
-    b's) of the body pair (a, b); ``normal``: ``_pair_normal``'s."""
+    b's) of the body pair (a, b); ``normal``: ``_contact_normal``'s."""
     a, b = pair
     n, face = normal
     xa, xb = bodies.x[a], bodies.x[b]
