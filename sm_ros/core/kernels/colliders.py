@@ -16,7 +16,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from .jit import JIT
+from .jit import JIT, JIT_NO_REFCOUNT
 
 #: What a particle pass meets: whether any static collider is on, the ground row
 #: [enabled, height, friction, restitution] (plane z = height, normal +z), the box rows
@@ -40,7 +40,7 @@ C_BOUND = 24        # radius of a sphere about the centre holding the collider (
 ROW = 25
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def contact_velocity(vx, vy, vz, nx, ny, nz, friction, restitution, thresh):
     """Velocity after a contact with unit normal n: the contact law of every collider.
 
@@ -76,7 +76,7 @@ def contact_velocity(vx, vy, vz, nx, ny, nz, friction, restitution, thresh):
 FACING = 1e-9
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def box_entry(came, p, lo, hi):
     """(axis, sign) of the face of the box lo..hi through which the path from ``came`` to
     p enters it, and the axis of the face through which it leaves (slab test); (-1, 0.0,
@@ -99,7 +99,7 @@ def box_entry(came, p, lo, hi):
     return axis, sign, out_axis
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def collide_point(px, py, pz, vx, vy, vz, col):
     """Project a particle, a sphere of radius ``col.radius``, out of the static colliders
     of ``col`` (``Colliders``) and correct its velocity.  A box grown by the radius keeps
@@ -197,7 +197,7 @@ def _inside_sphere(dx, dy, dz, rad):
     return dx * dx + dy * dy + dz * dz < rad * rad
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _range_reach(start, end, x, v, col):
     """Which colliders of ``col`` particles start..end can be inside or have passed through
     within the step: (ground, any box or sphere), each grown by the particles' radius.
@@ -312,7 +312,7 @@ def ground_range_sums(start, end, x, v, x0, wuni, col, point, damp):
     return s2, c20, c21, c22, b0, b1, b2, a0, a1, a2, 0.0, 0.0, e22, 0.0, e12, e20
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _collide_range(start, end, x, v, col):
     """The colliders of ``col`` (``Colliders``) for particles start..end.
 
@@ -337,7 +337,7 @@ def _collide_range(start, end, x, v, col):
     return True
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def surface_gap(row, px, py, pz, radius):
     """(gap, nx, ny, nz) of a sphere of ``radius`` at p against a collider row
     (``kinematic`` columns): the distance between the two surfaces (< 0: overlap) and the

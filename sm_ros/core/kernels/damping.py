@@ -8,11 +8,11 @@ keeps every cluster's linear and angular momentum.
 import numpy as np
 from numba import njit
 
-from .jit import JIT, U
+from .jit import JIT, JIT_NO_REFCOUNT, U
 from .linalg import ZERO16, add_damping, add_moments, sym3_solve
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _rigid_fields(scratch):
     """Each cluster's rigid velocity field from its sums about a reference point ref_k
     (``scratch`` = (lin, w3, four 3 x 3)).
@@ -52,7 +52,7 @@ def _rigid_fields(scratch):
         lin[k, 3] = u2 - (o0 * d1 - o1 * d0)
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _damp_rigid_single(x, v, mass, ref, k_damp, scratch):
     """``damp_rigid`` of a one-cluster body: the same sums and the same per-particle
     update, accumulated in 16 local scalars (registers) instead of ``lin``/``w3`` rows.
@@ -122,7 +122,7 @@ def _damp_rigid_single(x, v, mass, ref, k_damp, scratch):
         v[i, 2] += k_damp * (c2 + o0 * r1 - o1 * r0 - v[i, 2])
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def damp_rigid(x, v, mass, members, ref, k_damp, scratch):
     """Damp velocities towards each cluster's rigid motion (v_cm + w x r), never the motion.
 
@@ -240,7 +240,7 @@ def damp_sums_range(lo, hi, x, v, mass, k0, k1, k2):
     return sums
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def damp_acc_range(start, end, x, v, mass, sid, dsums):
     """Rows ``dsums[s]`` += the particles start..end (``sid`` empty: all in set 0).
 
@@ -272,7 +272,7 @@ def damp_acc_range(start, end, x, v, mass, sid, dsums):
         i = j
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def damp_accumulate(x, v, mass, sid, dpart):
     """The damping rows of the current state (changed outside a step) into chunk 0."""
     for c in range(dpart.shape[0]):
@@ -284,7 +284,7 @@ def damp_accumulate(x, v, mass, sid, dpart):
                    dsums=dpart[0])
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def damp_kinematic(x, v, mass, sid, dpart, idx, sign):
     """Add (``sign`` 1) or remove (-1) the kinematic particles ``idx`` from chunk 0's rows."""
     single = sid.shape[0] == 0
@@ -346,7 +346,7 @@ def _shift(acc, row, t0, t1, t2):
     acc[19] += ms
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def damping_fields(dpart, set_clusters, dref, acc, scratch):
     """Every cluster's rigid field (``lin[k, 1:4]`` = c_k, ``w3[k]`` = omega_k, ``scratch``
     = (lin, w3, four 3 x 3)) about a point ``dref[k]`` inside it, from the damping rows of
@@ -419,7 +419,7 @@ def damping_fields(dpart, set_clusters, dref, acc, scratch):
     _rigid_fields(scratch)
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def damping_targets(sptr, scl, scnt, lin, w3, dref, sref, dmp):
     """Per set: the mean of its clusters' rigid fields as ``dmp[s]`` = [c_s, omega_s], the
     field c_s + omega_s x (x - sref[s]); the clusters' fields are about ``dref[k]``."""

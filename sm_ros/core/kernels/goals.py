@@ -46,7 +46,7 @@ def _qhat(rest_lin, rest_off, k, a0, a1, a2):
             + rest_off[k, 2])
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def quad_features(q0, q1, q2, feat):
     """q~ = [qx, qy, qz, qx^2, qy^2, qz^2, qx qy, qy qz, qz qx] (Eq. 19) into ``f``."""
     feat[0] = q0
@@ -81,7 +81,7 @@ def _goal_quad(trans, k, q0, q1, q2):
     return out0, out1, out2
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def solve_clusters_warm(part, rest, shape, match, scratch, mode, beta, warm):
     """Reduce the per-chunk sums ``part`` and build every cluster's goal transform.
 
@@ -200,7 +200,7 @@ def _affine_goal(k, rest, match):
                                 + trans[k, i, 2] * rest_off[k, 2] + ref[k, i])
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def moments(x0, mass, members, rest_map, wsum, which, needs, out, f9):
     """sum w q~ and the centred moments sum w (q - mean)(q - mean)^T of the clusters marked
     in ``which`` (``members`` = (ptr, cluster_ids), the clusters of each particle, empty for one;
@@ -267,7 +267,7 @@ def moments(x0, mass, members, rest_map, wsum, which, needs, out, f9):
                         mom3[k, u, z] -= sum_q[k, u] * sum_q[k, z] * inv_w
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def invert_moments(which, needs, moments, inverses, work, rcond):
     """A_qq = (sum w q q^T)^+ and A~_qq = (sum w q~ q~^T)^+ (robust pseudo-inverses) of
     the clusters marked in ``which``: ``needs`` = (need3, need9), ``moments`` = (mom3,

@@ -27,7 +27,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from .jit import JIT, U, claim_next
+from .jit import JIT, JIT_NO_REFCOUNT, U, claim_next
 from .colliders import _collide_range
 from .damping import damp_acc_range, damp_towards
 from .goals import _goal_quad, _qhat
@@ -115,7 +115,7 @@ def _acc_quad(row, w, d0, d1, d2, q0, q1, q2):
     row[29] += d2 * f8
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _acc_single(start, end, quad, x, x0, mass, rest_lin, rest_off, ref, sums):
     g00, g01, g02 = rest_lin[0, 0, 0], rest_lin[0, 0, 1], rest_lin[0, 0, 2]
     g10, g11, g12 = rest_lin[0, 1, 0], rest_lin[0, 1, 1], rest_lin[0, 1, 2]
@@ -210,7 +210,7 @@ def advance(x, v, i, p, g, alpha_h, h, dv):
     return err + 0.0 * (v0 + v1 + v2)
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _int_single_lin(start, end, particles, rest, goals, damping):
     """Eq. 13-14 for a one-cluster rigid/linear body, its goal map held in registers; with
     ``damping.on`` the velocities are first damped towards its field about ``rest.ref``.
@@ -282,7 +282,7 @@ def _int_single_lin(start, end, particles, rest, goals, damping):
     return err2
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _int_single_fused(start, end, particles, wuni, work, step, gz, boxed):
     """The one-cluster pass over ``particles`` = (x, v, x0) start..end in one loop (no
     torque), with ``work`` a packed body's rows (``packed.Work``) and ``step`` =
@@ -327,7 +327,7 @@ def _int_single_fused(start, end, particles, wuni, work, step, gz, boxed):
 
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _acc_range(start, end, quad, particles, rest, sums):
     """Add particles start..end to the sums of their clusters (``sums``: clusters, 12 or
     30)."""
@@ -364,7 +364,7 @@ def _zero_chunk(part, chunk):
     return sums
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def accumulate_chunks(claim, quad, particles, rest, part):
     """Accumulation pass over the chunks this call claims (``claim``, counted up
     atomically): called once it does every chunk; called on several threads with one
@@ -385,7 +385,7 @@ def accumulate_chunks(claim, quad, particles, rest, part):
 BLOCK = 1024
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _int_range(start, end, quad, particles, rest, goals, damping):
     """Eq. 13-14 for particles start..end; returns sum |g - x|^2.  Fused damping
     (``damping.on``) only on the one-cluster rigid/linear path (else
@@ -472,7 +472,7 @@ def _int_chunk(chunk, quad, particles, rest, goals, part, err, col, damping):
     err[chunk] = err2
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def integrate_chunks(claim, quad, particles, rest, goals, part, err, col, damping):
     """Integration pass over the chunks this call claims (as ``accumulate_chunks``): Eq.
     13-14 towards ``goals``, the colliders ``col``, the sums of the new state into

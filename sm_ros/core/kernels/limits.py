@@ -23,10 +23,10 @@ Both return how many particles / clusters they capped (counted in /diagnostics).
 from numba import njit
 import numpy as np
 
-from .jit import JIT, U, finite
+from .jit import JIT, JIT_NO_REFCOUNT, U, finite
 from .linalg import add_moments, sym3_solve
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def limit_speed(x, v, h, v_max):
     """Cap |v_i| at ``v_max`` (and the displacement made with the excess); return the count.
 
@@ -36,7 +36,7 @@ def limit_speed(x, v, h, v_max):
     return limit_speed_range(np.int64(0), v.shape[0], x, v, h, v_max)   # int64: one copy
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def limit_speed_range(start, end, x, v, h, v_max):
     """``limit_speed`` for particles start..end (the packed step caps block by block).
 
@@ -72,7 +72,7 @@ def limit_speed_range(start, end, x, v, h, v_max):
     return count
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def limit_turn(x, v, mass, members, flagged, w_max, scratch):
     """Take from every flagged cluster the angular velocity above ``w_max``; return the count.
 

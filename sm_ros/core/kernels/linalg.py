@@ -9,10 +9,10 @@ write-up), so these routines are used instead; each writes into caller-provided 
 import numpy as np
 from numba import njit
 
-from .jit import FLOAT_MAX, JIT
+from .jit import FLOAT_MAX, JIT, JIT_NO_REFCOUNT
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def jacobi_eigh(mat, vecs, max_sweeps=50):
     """Diagonalise the symmetric matrix ``a`` in place by cyclic Jacobi rotations.
 
@@ -103,7 +103,7 @@ def _rotate_columns(vecs, p, q, c, s):
         vecs[k, q] = s * vkp + c * vkq
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def jacobi3(mat, vecs, max_sweeps=50):
     """``jacobi_eigh`` for a symmetric 3x3 ``mat``: the same cyclic rotations and stopping
     rule, on the six distinct entries held in registers (the rotated pair's diagonal by
@@ -141,7 +141,7 @@ def jacobi3(mat, vecs, max_sweeps=50):
     mat[1, 2] = mat[2, 1] = a12
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def jacobi3_warm(mat, vecs, warm, work):
     """``jacobi3`` of a symmetric 3x3 ``mat`` started from the orthonormal ``warm`` (in/out:
     the eigenvectors of a nearby matrix, such as the same cluster's last step): Jacobi on
@@ -285,7 +285,7 @@ def _sweeps(a):
     return a00, a01, a02, a11, a12, a22, v00, v01, v02, v10, v11, v12, v20, v21, v22
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def pinv_sym(mat, out, wa, wv, rcond):
     """Pseudo-inverse of the symmetric positive semi-definite matrix ``m`` into ``out``.
 
@@ -316,7 +316,7 @@ def pinv_sym(mat, out, wa, wv, rcond):
                     out[i, j] += vik * wv[j, k]
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def det3(a):
     """Determinant of a 3x3 matrix."""
     return (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1])
@@ -324,7 +324,7 @@ def det3(a):
             + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def matmul(a, b, out):
     """``out = a @ b`` for small matrices (no aliasing between ``out`` and inputs)."""
     n, k = a.shape
@@ -337,7 +337,7 @@ def matmul(a, b, out):
             out[i, j] = s
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def norm2(mat, wa, wv):
     """Spectral norm (largest singular value) of the 3x3 matrix ``m``."""
     for i in range(3):
@@ -359,7 +359,7 @@ def norm2(mat, wa, wv):
 WELL_POSED = 1e-6
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def sym3_solve(mat, b0, b1, b2, rcond, wout, wa, wv):
     """``pinv_sym(mat, rcond) @ b`` for a symmetric positive semi-definite 3x3 ``mat``.
 

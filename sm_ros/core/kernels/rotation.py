@@ -10,11 +10,11 @@ equation, far cheaper than a Jacobi eigen-decomposition.
 import numpy as np
 from numba import njit
 
-from .jit import JIT, finite
+from .jit import JIT_NO_REFCOUNT, finite
 from .linalg import jacobi_eigh
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def quat_to_mat(quat, rot):
     """Rotation matrix of the unit quaternion ``q`` = (w, x, y, z) into ``r`` (3x3)."""
     w, x, y, z = quat[0], quat[1], quat[2], quat[3]
@@ -29,7 +29,7 @@ def quat_to_mat(quat, rot):
     rot[2, 2] = 1.0 - 2.0 * (x * x + y * y)
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _top_jacobi(n4, v4, scale):
     """The unit top eigenvector of Horn's matrix ``n4`` (destroyed) closest to e0 (Jacobi):
     e0 projected onto the eigenspace of the eigenvalues within 1e-9 ``scale`` of the top,
@@ -75,7 +75,7 @@ def _top_jacobi(n4, v4, scale):
 NEWTON_GAP = 1e-6
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _top_newton(n4, scale):
     """(ok, u): the top eigenvector of Horn's matrix N from the warm start e0, by Newton's
     method on its secular equation; ok False where that is not provably the answer.
@@ -130,7 +130,7 @@ def _top_newton(n4, scale):
     return True, inv, z0 * inv, z1 * inv, z2 * inv
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def extract_rotation(mat, quat, rot, n4, v4):
     """Least-squares rotation of ``a`` (3x3): the proper R maximising tr(R^T a).
 

@@ -7,7 +7,7 @@ from collections import namedtuple
 
 from numba import njit
 
-from .jit import JIT
+from .jit import JIT, JIT_NO_REFCOUNT
 
 #: The set layout's set-cluster pairs: each set's clusters (``ptr`` into ``cluster_ids``) and their
 #: number (``cnt``), the set's sum of phi(y) (``phi``), each pair's offset t_ks from the
@@ -15,7 +15,7 @@ from .jit import JIT
 SetClusters = namedtuple('SetClusters', 'ptr cluster_ids cnt phi pair_offsets org')
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _quad_map(rest_lin, k, pm):
     """Cluster k's quadratic features as polynomials of z = x0 - cm0_k: q~ = P phi(z) with
     P into ``pm`` (9 x 10); q-hat = G_k z has no constant term (rest_off = -G_k cm0_k), so
@@ -38,7 +38,7 @@ def _quad_map(rest_lin, k, pm):
         pm[row, 9] = rest_lin[k, a, 2] * rest_lin[k, c, 0] + rest_lin[k, a, 0] * rest_lin[k, c, 2]
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def sets_reduce(part, pairs, sref, rest_lin, ref, quad, out, work):
     """Per-cluster accumulators ``out`` (1, clusters, 12 or 30) from the per-set sums.
 
@@ -173,7 +173,7 @@ def _map_lin(rest_lin, out, u):
                                        + rest_lin[k, jj, 2] * u[a, 3])
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def sets_maps(pairs, rest_lin, match, ref, quad, out, work):
     """Goal maps ``gm`` (sets, 3, 10): mean over the set's clusters of each goal polynomial.
 

@@ -50,7 +50,7 @@ Sets = namedtuple('Sets', 'sid runs goal_maps ref uniform_mass')
 SetMotion = namedtuple('SetMotion', 'alpha h acc ang com v_max')
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _sets_int_lin(start, end, particles, sets, alpha_h, h, accel, spin, damping):
     """Rigid/linear goals: each run of one set with its 3 x 4 map in registers.
 
@@ -120,7 +120,7 @@ def _sets_int_lin(start, end, particles, sets, alpha_h, h, accel, spin, damping)
     return err2
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _sets_int_quad(start, end, particles, sets, alpha_h, h, accel, spin, damping):
     """Quadratic goals: gm[s] (3 x 10) times phi(y); damping as in ``_sets_int_lin``.
 
@@ -184,7 +184,7 @@ def _unpack(particles, sets):
             sets.ref)
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _sets_int_range(start, end, quad, particles, sets, motion, damping):
     """Eq. 13-14 for particles start..end with the set goal maps; returns sum |g - x|^2."""
     acc, ang, com, h = motion.acc, motion.ang, motion.com, motion.h
@@ -362,7 +362,7 @@ def _sets_int_chunk(chunk, quad, particles, sets, motion, part, err, col, dampin
     return capped
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def long_runs(runs):
     """Whether the runs (``_SetLayout.runs``) hold ``FUSED_MIN_RUN`` particles or more on
     average: the run test of ``_fused_pass`` (callable from Python: the tests ask it)."""
@@ -377,7 +377,7 @@ def _fused_pass(quad, wuni, ang, runs):
             and long_runs(runs))
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _fused_refs(quad, wuni, ang, runs, damp, sref, dpart):
     """After a damped ``_sets_fused_lin`` pass: each set's reference becomes the point its
     sums were taken about (the damping row's P_s, alike in every chunk), which the next
@@ -394,7 +394,7 @@ def _fused_refs(quad, wuni, ang, runs, damp, sref, dpart):
                 break
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def sets_integrate_chunks(claim, capped, quad, particles, sets, motion, part, err, col,
                           damping):
     """Fused step pass of a set-layout body over the chunks this call claims (``claim``, as
@@ -409,7 +409,7 @@ def sets_integrate_chunks(claim, capped, quad, particles, sets, motion, part, er
                                         damping)
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def sets_kinematic(quad, particles, sets, part, targets, h):
     """Kinematic particles onto their targets (``targets``: the particles, their targets and
     their positions before the step); their per-set sums moved to the target."""

@@ -11,7 +11,7 @@ chunk per thread (``part`` holds a slot per chunk).
 import numpy as np
 from numba import njit
 
-from .jit import JIT, U, claim_next
+from .jit import JIT, JIT_NO_REFCOUNT, U, claim_next
 from .linalg import ZERO12, ZERO16, add_damping, add_outer
 
 
@@ -107,7 +107,7 @@ def _add_quad_row(sums, s, values):
     sums[s, 29] += values[29]
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _sets_acc_lin(start, end, x, y0, mass, sid, runs, sref, sums):
     """U_s += m (x - r_s) [1, y]^T for particles start..end, runs of one set in registers."""
     r = first_run(runs, start)
@@ -127,7 +127,7 @@ def _sets_acc_lin(start, end, x, y0, mass, sid, runs, sref, sums):
         _add_shape_sums(sums, s, shape)
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _sets_acc_damp_lin(start, end, particles, sets, sums, dsums):
     """``_sets_acc_lin`` and ``damping.damp_acc_range`` in one loop over the runs: each run
     (particles of one set) is found once and read once, with its 12 set sums and 16
@@ -167,7 +167,7 @@ def _sets_acc_damp_lin(start, end, particles, sets, sums, dsums):
         row[19] += damp[15]
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _sets_acc_quad(start, end, x, y0, mass, sid, sref, sums):
     """U_s += m (x - r_s) phi(y)^T (3 x 10) for particles start..end."""
     i = start
@@ -187,7 +187,7 @@ def _sets_acc_quad(start, end, x, y0, mass, sid, sref, sums):
         _add_quad_row(sums, s, row0 + row1 + row2)
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _sets_acc_range(start, end, quad, x, y0, mass, sid, runs, sref, sums):
     if quad:
         _sets_acc_quad(start=start, end=end, x=x, y0=y0, mass=mass, sid=sid, sref=sref, sums=sums)
@@ -208,7 +208,7 @@ def _sets_acc_chunk(chunk, nchunks, quad, x, y0, mass, sid, runs, sref, part):
                     y0=y0, mass=mass, sid=sid, sref=sref, sums=sums)
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def sets_accumulate_chunks(claim, quad, x, y0, mass, sid, runs, sref, part):
     """Per-set sums of the current state (when it was changed outside a step) over the
     chunks this call claims (``claim``, counted up atomically; as

@@ -12,11 +12,11 @@ values leave [1/limit, limit] is blended towards R (``_stretch_ok``);
 import numpy as np
 from numba import njit
 
-from .jit import JIT, finite
+from .jit import JIT_NO_REFCOUNT, finite
 from .linalg import det3, jacobi3, jacobi3_warm, matmul
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _logprod(s0, s1, s2, lam):
     """log prod_i (s_i + sqrt(s_i^2 + 4 lam)) / 2."""
     return (np.log(0.5 * (s0 + np.sqrt(max(s0 * s0 + 4.0 * lam, 0.0))))
@@ -24,7 +24,7 @@ def _logprod(s0, s1, s2, lam):
             + np.log(0.5 * (s2 + np.sqrt(max(s2 * s2 + 4.0 * lam, 0.0)))))
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _plus_roots(s0, s1, s2, lo, hi, ftol, xtol):
     """x_i = (s_i + sqrt(s_i^2 + 4 mu)) / 2 at the root mu in [lo, hi] of sum_i log x_i.
 
@@ -60,7 +60,7 @@ def _plus_roots(s0, s1, s2, lo, hi, ftol, xtol):
     return x0, x1, x2
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _times_v_diag_vt(a, wv, d0, d1, d2, out):
     """out = a V diag(d) V^T (3x3; V the columns of ``wv``)."""
     for i in range(3):
@@ -77,7 +77,7 @@ def _times_v_diag_vt(a, wv, d0, d1, d2, out):
 STRETCH_LIMIT = 2.0
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def volume_preserving(a, out, wa, wv, limit):
     """A' = the det-1 matrix closest to ``a`` (3x3) with its singular vectors, into ``out``.
 
@@ -125,7 +125,7 @@ def volume_preserving(a, out, wa, wv, limit):
     return True
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _plus_prod(s0, s1, s2, mu):
     """prod_i (s_i + sqrt(s_i^2 + 4 mu)) / 2: compared with 1 it gives the sign of
     ``_unit_det_sum`` on the plus roots without three logarithms."""
@@ -134,13 +134,13 @@ def _plus_prod(s0, s1, s2, mu):
             * (0.5 * (s2 + np.sqrt(max(s2 * s2 + 4.0 * mu, 0.0)))))
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _logx(sv, root, minus):
     """log of x = (s + r) / 2, or of the minus root (s - r) / 2 = -mu / ((s + r) / 2)."""
     return np.log(0.5 * (sv - root)) if minus else np.log(0.5 * (sv + root))
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _unit_det_sum(s0, s1, s2, mu, kmin):
     """sum_i log x_i(mu) with the minus root for index ``kmin`` (-1: plus roots only)."""
     r0 = np.sqrt(max(s0 * s0 + 4.0 * mu, 0.0))
@@ -149,13 +149,13 @@ def _unit_det_sum(s0, s1, s2, mu, kmin):
     return _logx(s0, r0, kmin == 0) + _logx(s1, r1, kmin == 1) + _logx(s2, r2, kmin == 2)
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def nearest_unit_det(f, out, wa, wv):
     """``nearest_unit_det_warm`` from a cold start (``jacobi3`` from the identity)."""
     return nearest_unit_det_warm(f=f, out=out, wa=wa, wv=wv, vw=wv, warm=np.bool_(False))
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def nearest_unit_det_warm(f, out, wa, wv, vw, warm):
     """C = argmin ||C - f||_F over det C = 1 (3x3), into ``out``; False if det f <= 0.
 
@@ -218,7 +218,7 @@ def nearest_unit_det_warm(f, out, wa, wv, vw, warm):
     return True
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _stretch_ok(b, rot, blend, work, wa, wv, limit):
     """Whether R + t (B - R) has every singular value in [1 / limit, limit].
 
@@ -260,14 +260,14 @@ def _stretch_ok(b, rot, blend, work, wa, wv, limit):
     return True
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def unit_det_match(apq, nmat, c_s, rot, out, work, limit):
     """``unit_det_match_warm`` from a cold start."""
     return unit_det_match_warm(apq=apq, nmat=nmat, c_s=c_s, rot=rot, out=out, work=work,
                                limit=limit, vw=work[3], warm=np.bool_(False))
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def unit_det_match_warm(apq, nmat, c_s, rot, out, work, limit, vw, warm):
     """The linear mode's B = argmin sum w ||p - B q||^2 over det B = 1, into ``out``.
 
@@ -306,7 +306,7 @@ def unit_det_match_warm(apq, nmat, c_s, rot, out, work, limit, vw, warm):
     return True
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def unit_det_frames(which, mom3, nmat, cdet, wa, wv, rcond):
     """Per cluster: N = (A_qq-hat / c)^(-1/2) and c = det(A_qq-hat)^(1/3) (linear mode).
 
