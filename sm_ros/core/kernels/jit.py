@@ -22,11 +22,10 @@ from numba.extending import intrinsic
 FASTMATH = {'nsz', 'arcp', 'contract', 'afn', 'reassoc'}
 #: Options of every kernel: cached on disk, fast math as above, the GIL released.
 JIT = dict(cache=True, fastmath=FASTMATH, nogil=True)
-#: Options of the kernels that read arrays from tuples or take rows of arrays inside their
-#: loops (the contact solves' visits, the stiff pass's contact points, the set layout's
-#: runs) and allocate nothing: without Numba's reference counting (its ``_nrt`` option),
-#: which counts a reference at every such read with an atomic operation that costs more
-#: than the arithmetic around it.
+#: Options of the kernels that allocate nothing (the body step's, the contact solves'
+#: visits, the stiff pass's contact points): without Numba's reference counting (its
+#: ``_nrt`` option), which counts a reference at every read of an array from a tuple and
+#: at every call with an atomic operation that costs more than the arithmetic around it.
 JIT_NO_REFCOUNT = dict(JIT, _nrt=False)
 
 _KERNEL_DIR = os.path.dirname(os.path.abspath(__file__))
