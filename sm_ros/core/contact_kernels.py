@@ -27,7 +27,7 @@ from .kernels.pair_contact import collide_moved, is_carried, pair_normal, report
 from .kernels.spread import moved_box, spread_of
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def body_inverse_masses(W, off, bw):
     """bw[b] = 1 / (mass of body b), or 0 when b has a pinned or grabbed particle."""
     for b in range(off.shape[0] - 1):
@@ -123,7 +123,7 @@ def _push_pair(parts, law, i, j, report, first):
     return True
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def count_fast(V, R, B, act, h, fast):
     """fast[b] = particles of colliding body b moving more than their radius per step."""
     fast[:] = 0
@@ -160,7 +160,7 @@ def median_nn_distance(x, step):
     return np.sqrt(best[ns // 2])
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def inverse_sym3(a, out):
     """out (9,) = the inverse of the symmetric 3x3 matrix a (9,), row-major, by its
     adjugate; zero when a is singular to round-off (a body of collinear particles)."""
@@ -194,9 +194,22 @@ def body_velocities(X, V, M, bodies, Xref, act, dbox):
     ``Xref``, and writes the displacements' bounding box to ``dbox`` (6,) (lo x y z, hi
     x y z; for ``wall_candidates``): body by body, so the pass reads the positions from
     memory once for both."""
-    a = np.zeros(9)
     dlo = np.full(3, np.inf)
     dhi = np.full(3, -np.inf)
+    nan = _body_frames(X, V, M, bodies, (Xref, act), (dlo, dhi), np.zeros(9))
+    for r in range(3):
+        dbox[r] = dlo[r] if dlo[0] <= dhi[0] else 0.0    # empty: nothing colliding
+        dbox[3 + r] = dhi[r] if dlo[0] <= dhi[0] else 0.0
+    return spread_of(dlo, dhi, nan)
+
+
+@njit(**JIT_NO_REFCOUNT)
+def _body_frames(X, V, M, bodies, moved_since, box, a):
+    """``body_velocities``' loop over the bodies (it allocates nothing, so it runs without
+    reference counting); ``moved_since`` (Xref, act), ``box`` (dlo, dhi) the
+    displacements' bounds, ``a`` (9,) scratch.  Returns ``moved_box``'s non-finite count."""
+    Xref, act = moved_since
+    dlo, dhi = box
     nan = 0.0
     off = bodies.offsets
     for b in range(off.shape[0] - 1):
@@ -207,10 +220,7 @@ def body_velocities(X, V, M, bodies, Xref, act, dbox):
             nan += moved_box(X, Xref, off[b], off[b + 1], dlo, dhi)
         if is_carried(bodies, b):
             _body_frame(X, V, M, bodies, b, a)
-    for r in range(3):
-        dbox[r] = dlo[r] if dlo[0] <= dhi[0] else 0.0    # empty: nothing colliding
-        dbox[3 + r] = dhi[r] if dlo[0] <= dhi[0] else 0.0
-    return spread_of(dlo, dhi, nan)
+    return nan
 
 
 @njit(inline='always', **JIT)
