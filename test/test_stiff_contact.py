@@ -13,6 +13,11 @@ from sm_ros.core.kernels import stiff_contacts as SC
 from sm_ros.core.kernels import stiff_pairs as SP
 from sm_ros.core.kernels import stiff_solve as SS
 from sm_ros.core.kinematic import C_BOUND, C_DIM, C_E, C_KIND, C_MU, C_POS, C_ROT, ROW
+from test_contact import lattice
+
+#: No collider, no gravity: two stiff bodies meeting each other (``pair_contacts``).
+_PAIR_SCENE = SS.StiffScene(np.zeros((1, ROW)), 0, False, 0.5, 0.0, np.zeros(3), 1.0 / 120.0,
+                            0.16, 100, 0.04, 1.1)
 
 
 def _run(name):
@@ -276,6 +281,25 @@ def test_no_collider_contact_creates_energy(e, ball):
     assert _energy_momenta(bodies)[0] <= before * (1.0 + 1e-12)
 
 
+def _pair_rows(xa, xb, radius, cells, margin):
+    """The contact rows ``pair_contacts`` gives two bodies at rest of unit-mass particles
+    xa and xb (N, 3), of contact ``radius`` and lattice ``cells`` (2, 3, 3; zeros: none,
+    their particles' spheres), within ``margin``."""
+    from sm_ros.core.stiff_contact import body_lists
+    xs, vs, ms = body_lists([np.asfortranarray(x) for x in (xa, xb)],
+                            [np.zeros((len(x), 3), order='F') for x in (xa, xb)],
+                            [np.ones(len(x)) for x in (xa, xb)])
+    bodies = SS.StiffBodies(xs, vs, ms, np.full(2, radius), np.ones(2, np.bool_),
+                            np.ones(2, np.bool_), np.ones(2, np.bool_), np.zeros(2, np.bool_),
+                            cells)
+    frames = np.zeros((2, SC.F_ROW))
+    for b in range(2):
+        SC.body_frame(xs[b], vs[b], ms[b], frames[b], np.zeros((3, 3)), np.zeros((3, 3)))
+    out = np.zeros((SC.SLOTS, SC.K_ROW))
+    count = SP.pair_contacts(bodies, frames, 0, 1, margin, _PAIR_SCENE, out, 0)
+    return out[:count]
+
+
 @pytest.mark.parametrize('seed', range(3))
 def test_bodies_apart_at_any_angle_get_no_overlap(seed):
     """Two 3x3x3 lattice cubes (radius 0.02, spacing 0.04), one turned at random, their
@@ -284,11 +308,7 @@ def test_bodies_apart_at_any_angle_get_no_overlap(seed):
     little past its particles).  An edge or a corner in reach gives a handful of
     particles, and any three lie in a plane: they make no face (``FACE_POINTS``), whose
     normal would make gaps of centimetres out of particles that do not touch."""
-    from sm_ros.core.stiff_contact import body_lists
-    grid = np.arange(3) * 0.04 - 0.04
-    cube = np.stack(np.meshgrid(grid, grid, grid, indexing='ij'), -1).reshape(-1, 3)
-    scene = SS.StiffScene(np.zeros((1, ROW)), 0, False, 0.5, 0.0, np.zeros(3), 1.0 / 120.0,
-                          0.16, 100, 0.04, 1.1)
+    cube = lattice(3, 3, 3, 0.04)
     rng = np.random.default_rng(seed)
     for _ in range(40):
         xb = cube @ np.linalg.qr(rng.normal(size=(3, 3)))[0].T
@@ -298,19 +318,8 @@ def test_bodies_apart_at_any_angle_get_no_overlap(seed):
         for _ in range(4):                  # nearest particles 0.0476 m apart
             near = np.sqrt(((xa[:, None] - xb[None]) ** 2).sum(-1)).min()
             xa -= (near - 0.0476) * away
-        xs, vs, ms = body_lists([np.asfortranarray(x) for x in (xa, xb)],
-                                [np.zeros((len(x), 3), order='F') for x in (xa, xb)],
-                                [np.ones(len(x)) for x in (xa, xb)])
-        bodies = SS.StiffBodies(xs, vs, ms, np.full(2, 0.02), np.ones(2, np.bool_),
-                                np.ones(2, np.bool_), np.ones(2, np.bool_),
-                                np.zeros(2, np.bool_),
-                                np.zeros((2, 3, 3)))
-        frames = np.zeros((2, SC.F_ROW))
-        for b in range(2):
-            SC.body_frame(xs[b], vs[b], ms[b], frames[b], np.zeros((3, 3)), np.zeros((3, 3)))
-        out = np.zeros((SC.SLOTS, SC.K_ROW))
-        count = SP.pair_contacts(bodies, frames, 0, 1, 0.002, scene, out, 0)
-        assert np.all(out[:count, SC.K_GAP] > -SC.SLOP_SHARE * 0.04)
+        rows = _pair_rows(xa, xb, 0.02, np.zeros((2, 3, 3)), 0.002)
+        assert np.all(rows[:, SC.K_GAP] > -SC.SLOP_SHARE * 0.04)
 
 
 def test_an_edge_on_a_face_meets_it_with_its_cell_not_its_sphere():
@@ -318,32 +327,18 @@ def test_an_edge_on_a_face_meets_it_with_its_cell_not_its_sphere():
     pair's gaps are along the face's normal between the cells' outlines (the edge reaches
     r (cos 45 + sin 45) below its particles, as the body's outline does), so the closest
     is the 1 mm the test leaves; with spheres (no cells) it is 8.3 mm more."""
-    from sm_ros.core.stiff_contact import body_lists
-    r, grid = 0.02, np.arange(3) * 0.04 - 0.04
-    cube = np.stack(np.meshgrid(grid, grid, grid, indexing='ij'), -1).reshape(-1, 3)
+    r, cube = 0.02, lattice(3, 3, 3, 0.04)
     c, s = math.cos(math.pi / 4), math.sin(math.pi / 4)
     turn = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
     xa = cube @ turn.T
     xa[:, 2] += (0.04 + r) + r * (c + s) + 0.001 - xa[:, 2].min()   # 1 mm above b's top
-    scene = SS.StiffScene(np.zeros((1, ROW)), 0, False, 0.5, 0.0, np.zeros(3), 1.0 / 120.0,
-                          0.16, 100, 0.04, 1.1)
     gaps = {}
     for name, cells in (('cells', np.array([r * turn, r * np.eye(3)])),
                         ('spheres', np.zeros((2, 3, 3)))):
-        xs, vs, ms = body_lists([np.asfortranarray(x) for x in (xa, cube)],
-                                [np.zeros((len(x), 3), order='F') for x in (xa, cube)],
-                                [np.ones(len(x)) for x in (xa, cube)])
-        bodies = SS.StiffBodies(xs, vs, ms, np.full(2, r), np.ones(2, np.bool_),
-                                np.ones(2, np.bool_), np.ones(2, np.bool_),
-                                np.zeros(2, np.bool_), cells)
-        frames = np.zeros((2, SC.F_ROW))
-        for b in range(2):
-            SC.body_frame(xs[b], vs[b], ms[b], frames[b], np.zeros((3, 3)), np.zeros((3, 3)))
-        out = np.zeros((SC.SLOTS, SC.K_ROW))
-        count = SP.pair_contacts(bodies, frames, 0, 1, 0.02, scene, out, 0)
-        np.testing.assert_allclose(out[:count, SC.K_N:SC.K_N + 3], [[0.0, 0.0, 1.0]] * count,
+        rows = _pair_rows(xa, cube, r, cells, 0.02)
+        np.testing.assert_allclose(rows[:, SC.K_N:SC.K_N + 3], [[0.0, 0.0, 1.0]] * len(rows),
                                    atol=1e-9)
-        gaps[name] = out[:count, SC.K_GAP].min()
+        gaps[name] = rows[:, SC.K_GAP].min()
     assert gaps['cells'] == pytest.approx(0.001, abs=1e-9)
     assert gaps['spheres'] == pytest.approx(0.001 + r * (c + s - 1.0), abs=1e-9)
 
@@ -354,33 +349,17 @@ def test_a_box_tipped_over_an_edge_meets_it_with_its_own_face(tilt_deg):
     its particles past the edge below that box's top: the contact's normal is the tipped
     face's and its closest gap the 1 mm, not a false overlap along the other box's top or
     side normal (the flatter side's, before: 3-15 mm, which pushed the box off the edge)."""
-    from sm_ros.core.stiff_contact import body_lists
-    r, spacing = 0.02, 0.04
-
-    def lattice(nx, ny, nz):
-        axes = [np.arange(n) * spacing for n in (nx, ny, nz)]
-        return np.stack(np.meshgrid(*axes, indexing='ij'), -1).reshape(-1, 3)
-    base = lattice(5, 3, 3) - [0.16, 0.04, 0.08]        # top layer at z = 0, edge at x = 0
+    r = 0.02
+    base = lattice(5, 3, 3, 0.04, (-0.08, 0.0, -0.04))  # top layer at z = 0, edge at x = 0
     c, s = math.cos(math.radians(tilt_deg)), math.sin(math.radians(tilt_deg))
     turn = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
     normal = turn[:, 2]
-    tipped = (lattice(7, 3, 3) - [0.1, 0.04, 0.0]) @ turn.T + normal * (0.001 + r * (1 + s + c))
-    scene = SS.StiffScene(np.zeros((1, ROW)), 0, False, 0.5, 0.0, np.zeros(3), 1.0 / 120.0,
-                          0.16, 100, 0.04, 1.1)
-    xs, vs, ms = body_lists([np.asfortranarray(x) for x in (tipped, base)],
-                            [np.zeros((len(x), 3), order='F') for x in (tipped, base)],
-                            [np.ones(len(x)) for x in (tipped, base)])
-    bodies = SS.StiffBodies(xs, vs, ms, np.full(2, r), np.ones(2, np.bool_),
-                            np.ones(2, np.bool_), np.ones(2, np.bool_), np.zeros(2, np.bool_),
-                            np.array([r * turn, r * np.eye(3)]))
-    frames = np.zeros((2, SC.F_ROW))
-    for b in range(2):
-        SC.body_frame(xs[b], vs[b], ms[b], frames[b], np.zeros((3, 3)), np.zeros((3, 3)))
-    out = np.zeros((SC.SLOTS, SC.K_ROW))
-    count = SP.pair_contacts(bodies, frames, 0, 1, 0.02, scene, out, 0)
-    assert count > 0
-    np.testing.assert_allclose(out[:count, SC.K_N:SC.K_N + 3], [normal] * count, atol=1e-9)
-    assert out[:count, SC.K_GAP].min() == pytest.approx(0.001, abs=1e-9)
+    off = normal * (0.001 + r * (1 + s + c))           # its outline 1 mm off the edge cell's
+    tipped = lattice(7, 3, 3, 0.04, (0.02, 0.0, 0.04)) @ turn.T + off
+    rows = _pair_rows(tipped, base, r, np.array([r * turn, r * np.eye(3)]), 0.02)
+    assert len(rows) > 0
+    np.testing.assert_allclose(rows[:, SC.K_N:SC.K_N + 3], [normal] * len(rows), atol=1e-9)
+    assert rows[:, SC.K_GAP].min() == pytest.approx(0.001, abs=1e-9)
 
 
 def test_a_cell_meets_the_ground_with_its_lowest_corner():
