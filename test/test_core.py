@@ -601,8 +601,8 @@ def test_set_layout_matches_membership_layout(monkeypatch, mode, clusters):
     per-membership kernels."""
     sets = _run_layout(monkeypatch, mode, clusters, SET_LAYOUT_MIN_RATIO=0.0)
     plain = _run_layout(monkeypatch, mode, clusters, SET_LAYOUT_MIN_RATIO=float('inf'),
-                        SINGLE_QUADRATIC_SETS=False)
-    assert (sets._sets is not None) == (clusters > 1 or mode == 'quadratic')
+                        SINGLE_CLUSTER_SETS=False)
+    assert sets._sets is not None
     assert plain._sets is None
     np.testing.assert_allclose(sets.x, plain.x, atol=1e-11)
     np.testing.assert_allclose(sets.plastic_state, plain.plastic_state, atol=1e-11)

@@ -13,7 +13,6 @@ from . import body_build, body_step, param_energy, tuning
 from . import kernels as K
 from .kernels.flags import DIRTY, ERR_STALE, SLEEP
 from .body_build import _EMPTY_I64, _GENERATION, soa  # noqa: F401 (body.soa)
-from .packed import Pack
 from .params import BodyParams
 
 
@@ -139,7 +138,7 @@ class Body:
                          fused_damping_min=tuning.FUSED_DAMPING_MIN,
                          fused_damping_min_sets=tuning.FUSED_DAMPING_MIN_SETS,
                          set_layout_min_ratio=tuning.SET_LAYOUT_MIN_RATIO,
-                         single_quadratic_sets=tuning.SINGLE_QUADRATIC_SETS)
+                         single_cluster_sets=tuning.SINGLE_CLUSTER_SETS)
 
     def _refresh_rest(self, which):
         """Plastic rest data of the clusters in ``which`` (``body_build.refresh_rest``)."""
@@ -194,27 +193,6 @@ class Body:
                 and (point or not (self._params.plastic or self._has_torque))
                 and len(self._kin_idx) == 0 and not self._parallel)
 
-    def _packed_ok(self) -> bool:
-        """Whether the packed world step (``packed.py``) may step this body: one cluster,
-        rigid or linear, every particle of one mass (its loop sums unweighted), no
-        plasticity, grabs or torque (a body built for threads too: it steps on one thread in
-        the pack)."""
-        return (self._params.clusters == 1 and self._sets is None and not self._quad
-                and self._wuni > 0.0
-                and (self._fast_ok() or (self._parallel and not self._params.plastic
-                                         and len(self._kin_idx) == 0
-                                         and not self._has_torque)))
-
-    def _one_pack(self, h):
-        """A ``packed.Pack`` of this body alone, kept until a body changes, h or its collider
-        radius does or the body was packed elsewhere."""
-        key = (_GENERATION[0], h, self._collider_radius)
-        one = getattr(self, '_one', None)
-        if (one is None or one[0] != key or not isinstance(one[1], Pack)
-                or getattr(self, '_pack_owner', None) is not one[1]):
-            one = self._one = (key, Pack([self], h))
-        return one[1]
-
     def _fast_record(self, h):
         """The tuple of buffers ``kernels.world_step`` steps (``body_build.fast_record``)."""
         return body_build.fast_record(self, h)
@@ -222,7 +200,6 @@ class Body:
     def __getstate__(self):
         state = self.__dict__.copy()
         state.pop('_one', None)                # a typed list does not copy: rebuilt
-        state.pop('_pack_owner', None)
         return state
 
     def __setstate__(self, state):

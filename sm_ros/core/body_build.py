@@ -166,7 +166,7 @@ class _SetLayout:
 
 
 def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
-          single_quadratic_sets, fused_damping_min_sets=None):
+          single_cluster_sets, fused_damping_min_sets=None):
     """Precompute everything of ``body`` that depends on the rest shape and the parameters.
 
     The layout thresholds are the ``sm_ros.core.tuning`` constants of the same names
@@ -181,7 +181,7 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     body._need9 = body._quad
     groups = _rest_moments(body)
     _cluster_state(body)
-    _layout(body, groups, parallel_min_work, set_layout_min_ratio, single_quadratic_sets)
+    _layout(body, groups, parallel_min_work, set_layout_min_ratio, single_cluster_sets)
     if fused_damping_min_sets is None:
         fused_damping_min_sets = fused_damping_min
     _damping_buffers(body, fused_damping_min, fused_damping_min_sets)
@@ -267,7 +267,7 @@ def _cluster_state(body) -> None:
     body._lim_w = np.zeros((nk, 6))
 
 
-def _layout(body, groups, parallel_min_work, set_layout_min_ratio, single_quadratic_sets):
+def _layout(body, groups, parallel_min_work, set_layout_min_ratio, single_cluster_sets):
     """The set layout (or none), whether the body runs on threads, and the per-chunk sums."""
     p, n, nk = body._params, body.n, body.num_clusters
     na = 30 if body._quad else 12
@@ -277,11 +277,12 @@ def _layout(body, groups, parallel_min_work, set_layout_min_ratio, single_quadra
                           body._cm0, body._quad, groups)
         if sets.pairs * set_layout_min_ratio <= len(body._cluster_ids):
             body._sets = sets
-    elif body._quad and single_quadratic_sets:
-        # one set: the quadratic goal as one polynomial of x0 (27 multiply-adds less
-        # per particle than features-then-transform)
+    elif single_cluster_sets:
+        # one set: the set layout's one-loop pass (sums, damping, goals while in cache);
+        # a quadratic goal as one polynomial of x0
         body._sets = _SetLayout(body._x0, body._m, np.arange(n + 1, dtype=np.int64),
-                                np.zeros(n, dtype=np.int32), body._rest_centre, body._cm0, True)
+                                np.zeros(n, dtype=np.int32), body._rest_centre, body._cm0,
+                                body._quad)
     # work per step: one unit per particle (one cluster, set layout) or per membership
     work = len(body._cluster_ids) if p.clusters > 1 and body._sets is None else n
     body._parallel = work >= parallel_min_work and numba.get_num_threads() > 1

@@ -30,9 +30,6 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     runs for it (the kernels compiled inside one caller or called one by one from Python
     can round differently under fast math).
     """
-    if body._packed_ok():
-        body._one_pack(h).step(h, gravity, has_col, ground, boxes, spheres, thresh)
-        return
     if body._fast_ok():
         K.step_single_bodies(body._one_record(h), h, gravity, has_col, ground, boxes, spheres,
                              thresh)

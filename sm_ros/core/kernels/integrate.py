@@ -32,7 +32,6 @@ from .colliders import _collide_range
 from .damping import damp_acc_range, damp_towards
 from .goals import _goal_quad, _qhat
 from .linalg import ZERO12, add_outer
-from .fused import _fused_range, damp_constants
 
 #: A body's particles as the passes read them: positions, velocities and rest positions
 #: (N, 3; the transposes of its (3, N) blocks, typed F) and masses (N,).
@@ -280,51 +279,6 @@ def _int_single_lin(start, end, particles, rest, goals, damping):
                                 h * (ay + w2 * p0 - w0 * p2),
                                 h * (az + w0 * p1 - w1 * p0)))
     return err2
-
-
-@njit(**JIT_NO_REFCOUNT)
-def _int_single_fused(start, end, particles, wuni, work, step, gz, boxed):
-    """The one-cluster pass over ``particles`` = (x, v, x0) start..end in one loop (no
-    torque), with ``work`` a packed body's rows (``packed.Work``) and ``step`` =
-    (alpha, h, damp, k_damp, v_max): the damping towards ``work.dmp[0]`` about
-    ``work.ref[0]`` (with ``damp``), Eq. 13-14, the count of speeds above ``v_max`` (0: no
-    cap) and of new heights below ``gz`` (the ground's height; -inf without a ground),
-    and the shape match's 12 sums of the new state about ``work.pnt[0]`` (``_acc_single``)
-    into ``work.part[0]`` (``_fused_range``, the loop), and with ``damp`` its 12 damping
-    sums about the same point into ``work.dpart[0, 3:15]`` (``damp_acc_range``'s rows; W
-    and sum w d are the caller's).
-
-    Returns (sum of |g - p|^2 as ``advance``, speeds over the cap, heights below the
-    ground).  The sums are added only when no speed is over the cap and no box or sphere is
-    in the world (``boxed``): otherwise the caller projects the range onto the colliders,
-    caps it and takes its sums again, so a moved particle is summed where it ends.  With
-    heights below the ground (and neither), the caller projects them and adds what that
-    changed in the sums (``colliders.ground_range_sums``).
-    """
-    x, v, x0 = particles
-    alpha, h, damp, k_damp, v_max = step
-    goal_lin, goal_off, dmp, ref, pnt = work.goal_lin, work.goal_off, work.dmp, work.ref, work.pnt
-    acc, sums, dsums = work.acc, work.part, work.dpart
-    gmap = (goal_lin[0, 0, 0], goal_lin[0, 0, 1], goal_lin[0, 0, 2], goal_lin[0, 1, 0],
-            goal_lin[0, 1, 1], goal_lin[0, 1, 2], goal_lin[0, 2, 0], goal_lin[0, 2, 1],
-            goal_lin[0, 2, 2], goal_off[0, 0], goal_off[0, 1], goal_off[0, 2])
-    field = damp_constants(damp, k_damp,
-                           (dmp[0, 0], dmp[0, 1], dmp[0, 2], dmp[0, 3], dmp[0, 4], dmp[0, 5]),
-                           (ref[0, 0], ref[0, 1], ref[0, 2]))
-    lim2 = v_max * v_max if v_max > 0.0 else np.inf
-    out = _fused_range(start, end, (x, v, x0), wuni, gmap, damp, field,
-                       (alpha / h, h, h * acc[0], h * acc[1], h * acc[2]),
-                       (pnt[0, 0], pnt[0, 1], pnt[0, 2]), (lim2, gz))
-    err2, over, low = out[0], out[1], out[14]
-    if over == 0 and not boxed:
-        _add_rest_sums(work.rest_lin, work.rest_off, sums[0], out[2:14])
-        if damp:
-            d = out[15:27]
-            for j in range(12):
-                dsums[0, 3 + j] += d[j]
-    return err2, over, low
-
-
 
 
 @njit(**JIT_NO_REFCOUNT)
