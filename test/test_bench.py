@@ -44,7 +44,6 @@ def test_quick_run_writes_tables(tmp_path):
         assert float(r['ns_per_particle']) == pytest.approx(
             1e6 * float(r['ms_median']) / int(r['N']), rel=1e-3)
         assert r['layout'] == 'single' if r['clusters'] == '1' else r['layout'] != 'single'
-        assert (r['damping_pass'] == '') == (r['variant'] == 'plain')
     var = _rows(out / 'scaling_variants.csv')
     assert len(var) == 2 * 3 * 3
     for r in var:
@@ -86,22 +85,7 @@ def test_scaling_subcommand_as_a_process(tmp_path):
                           'fast', '--out', str(out)], cwd=ROOT, capture_output=True,
                          text=True, timeout=300)
     assert bad.returncode != 0
-    assert 'choose from plain, damped, substeps2, damped_pass, ground, damped_ground' \
-        in bad.stderr
-
-
-def test_damped_pass_times_the_separate_damping_pass():
-    """``damped_pass`` damps in the separate pass through every rebuild (``World.reset``
-    before each timed batch), where ``damped`` fuses it; the thresholds come back."""
-    from sm_ros.core import tuning
-    from sm_ros.bench import scaling
-    saved = tuning.FUSED_DAMPING_MIN, tuning.FUSED_DAMPING_MIN_SETS
-    rows = scaling.time_size(11, ['linear'], [1, 2], 0.0, ('plain', 'damped', 'damped_pass'))
-    assert [(r['clusters'], r['variant'], r['damping_pass']) for r in rows] == [
-        (1, 'plain', ''), (1, 'damped', 'fused'), (1, 'damped_pass', 'separate'),
-        (8, 'plain', ''), (8, 'damped', 'fused'), (8, 'damped_pass', 'separate')]
-    assert all(r['finite'] and r['rounds'] >= 3 for r in rows)
-    assert (tuning.FUSED_DAMPING_MIN, tuning.FUSED_DAMPING_MIN_SETS) == saved
+    assert 'choose from plain, damped, substeps2, ground, damped_ground' in bad.stderr
 
 
 def test_soak_hook_hands_over_its_arguments(monkeypatch):

@@ -594,20 +594,6 @@ def _run_layout(monkeypatch, mode, clusters, **consts):
     return body
 
 
-@pytest.mark.parametrize('mode', ['rigid', 'linear', 'quadratic'])
-@pytest.mark.parametrize('clusters', [1, 2, 4])
-def test_set_layout_matches_membership_layout(monkeypatch, mode, clusters):
-    """Particles grouped by their cluster set give the same trajectory as the plain
-    per-membership kernels."""
-    sets = _run_layout(monkeypatch, mode, clusters, SET_LAYOUT_MIN_RATIO=0.0)
-    plain = _run_layout(monkeypatch, mode, clusters, SET_LAYOUT_MIN_RATIO=float('inf'),
-                        SINGLE_CLUSTER_SETS=False)
-    assert sets._sets is not None
-    assert plain._sets is None
-    np.testing.assert_allclose(sets.x, plain.x, atol=1e-11)
-    np.testing.assert_allclose(sets.plastic_state, plain.plastic_state, atol=1e-11)
-
-
 @pytest.mark.parametrize('mode,clusters', [('linear', 1), ('quadratic', 1), ('linear', 2),
                                            ('quadratic', 4)])
 def test_parallel_kernels_match_serial(monkeypatch, mode, clusters):

@@ -1,10 +1,12 @@
-"""Passes fused into the particle pass give the states of the separate passes they replace."""
+"""The passes fused into the particle pass (damping, the next step's sums) against the NumPy
+reference and the compiled world step against stepping bodies one by one."""
 
 import numba
 import numpy as np
 import pytest
 
-from sm_ros.core import BodyParams, Box, Ground, Sphere, World, tuning
+from sm_ros.core import BodyParams, Ground, World, tuning
+from sm_ros.core.reference import ReferenceBody
 
 
 def lattice(n, spacing=0.02):
@@ -12,67 +14,61 @@ def lattice(n, spacing=0.02):
     return np.stack(np.meshgrid(g, g, g, indexing='ij'), axis=-1).reshape(-1, 3)
 
 
-def _world(mode, clusters, plastic, fused, colliders=True, seed=3):
-    """Two damped bodies (one grabbed, one under a wrench), over colliders."""
-    rng = np.random.default_rng(seed)
-    world = World()
-    if colliders:
-        world.set_colliders(ground=Ground(height=0.0, friction=0.4, restitution=0.2),
-                            boxes=[Box(lo=(0.05, -0.1, 0.0), hi=(0.2, 0.1, 0.03))],
-                            spheres=[Sphere(center=(-0.05, 0.05, 0.02), radius=0.04)])
-    kw = dict(mode=mode, clusters=clusters, alpha=0.3, beta=0.4, damping=0.3)
-    if plastic:
-        kw.update(plastic_yield=0.01, plastic_creep=20.0, plastic_max=0.3)
-    bodies = []
-    for b in range(2):
-        x0 = lattice(6) + (0.15 * b - 0.05, 0.0, 0.02 + 0.05 * b)
-        x0 = x0 + 0.002 * rng.standard_normal(x0.shape)
-        v0 = rng.standard_normal(x0.shape)
-        body = world.add_body(x0, masses=0.01 + 0.02 * rng.random(len(x0)),
-                              params=BodyParams(**kw), velocities=v0, name=f'b{b}')
-        body._damp_fused = body._damp_fused and fused
-        bodies.append(body)
-    bodies[0].set_kinematic(np.array([0, 5]), bodies[0].x[[0, 5]] + (0.0, 0.0, 0.01))
-    bodies[1].set_wrench((0.02, 0.0, 0.1), (0.0, 0.001, 0.002))
-    return world, bodies
-
-
 @pytest.mark.parametrize('mode,clusters,plastic,parallel', [
     ('rigid', 1, False, False), ('linear', 1, True, True), ('quadratic', 1, False, False),
     ('linear', 8, False, True), ('quadratic', 8, True, False), ('rigid', 27, False, False)])
-@pytest.mark.parametrize('steps,colliders,tol', [(4, True, 1e-13), (60, False, 1e-8)])
-def test_fused_damping_matches_the_damping_pass(monkeypatch, mode, clusters, plastic,
-                                                parallel, steps, colliders, tol):
-    """Damping fused into the particle pass (sums from the last pass, applied in the same
-    loop as Eq. 13-14) gives the states of ``damp_rigid``'s own two passes, with
-    kinematic particles, a wrench, colliders, plasticity and a state set by hand.
-
-    Round-off differs (other summation order): a few steps agree to 1e-13 with colliders;
-    over 60 steps without colliders (which amplify a 1e-15 change to 1e-8 in this violent
-    scene, as for two runs of the same solver) to 1e-8.
-    """
+def test_damped_body_matches_the_numpy_reference(monkeypatch, mode, clusters, plastic,
+                                                 parallel):
+    """Damping inside the particle pass (each set's field from the sums the last pass
+    took) gives the states of the NumPy reference, which damps towards each cluster's rigid
+    motion from the state itself: on the ground, under a wrench, with plasticity, grabbed
+    particles and a state set by hand."""
     monkeypatch.setattr(tuning, 'PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
-    monkeypatch.setattr(tuning, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
-    monkeypatch.setattr(tuning, 'FUSED_DAMPING_MIN', 0)       # and fused damping
-    states = []
-    for fused in (True, False):
-        world, bodies = _world(mode, clusters, plastic, fused, colliders)
-        assert bodies[0]._damp_fused == fused
-        for step in range(steps):
-            world.step(1.0 / 200.0)
-            if step == steps // 2:
-                bodies[1].set_state(v=0.5 * bodies[1].v)
-        states.append([np.concatenate([b.x, b.v]) for b in bodies])
-    for got, want in zip(*states):
-        scale = np.abs(want).max()
-        assert np.abs(got - want).max() <= tol * scale
-        assert np.all(np.isfinite(got))
+    rng = np.random.default_rng(3)
+    x0 = lattice(6) + 0.002 * rng.standard_normal((216, 3)) + (0.0, 0.0, 0.03)
+    m = 0.01 + 0.02 * rng.random(len(x0))
+    kw = dict(plastic_yield=0.01, plastic_creep=20.0, plastic_max=0.3) if plastic else {}
+    params = BodyParams(mode=mode, clusters=clusters, alpha=0.3, beta=0.4, damping=0.3, **kw)
+    world = World(gravity=(0.0, 0.0, -9.81))
+    ground = Ground(height=0.0, friction=0.4, restitution=0.2)
+    world.set_colliders(ground=ground)
+    body = world.add_body(x0, m, params)
+    ref = ReferenceBody(x0, m, params)
+    v0 = rng.normal(scale=0.3, size=x0.shape)
+    body.set_state(v=v0)
+    ref.v = v0.copy()
+    for b in (body, ref):
+        b.set_wrench((0.02, 0.0, 0.1), (0.0, 0.001, 0.002))
+    assert body._parallel == parallel
+    h = 1.0 / 200.0
+    for step in range(40):
+        if step == 10:
+            for b in (body, ref):
+                b.set_kinematic(np.array([0, 5]), body.x[[0, 5]] + (0.0, 0.0, 0.01))
+        if step == 20:
+            body.set_state(v=0.5 * body.v)
+            ref.v = 0.5 * ref.v
+        world.step(h)
+        ref.step(h, world.gravity, ground, radius=body._collider_radius)
+        assert np.abs(body.x - ref.x).max() < 1e-9, step
+        assert np.abs(body.v - ref.v).max() < 1e-9 / h, step
+    # the damping acted: an undamped twin moves otherwise
+    undamped = ReferenceBody(x0, m, BodyParams(mode=mode, clusters=clusters, alpha=0.3,
+                                               beta=0.4, **kw))
+    undamped.x, undamped.v = x0.copy(), v0.copy()
+    undamped.set_wrench((0.02, 0.0, 0.1), (0.0, 0.001, 0.002))
+    for _ in range(10):
+        undamped.step(h, world.gravity, ground, radius=body._collider_radius)
+    damped = ReferenceBody(x0, m, params)
+    damped.x, damped.v = x0.copy(), v0.copy()
+    damped.set_wrench((0.02, 0.0, 0.1), (0.0, 0.001, 0.002))
+    for _ in range(10):
+        damped.step(h, world.gravity, ground, radius=body._collider_radius)
+    assert np.abs(damped.v - undamped.v).max() > 0.1 * np.abs(v0).max()
 
 
 def test_fused_damping_keeps_momentum(monkeypatch):
     """Damping alone (no gravity, no goals' net force) keeps linear and angular momentum."""
-    monkeypatch.setattr(tuning, 'SET_LAYOUT_MIN_RATIO', 0)
-    monkeypatch.setattr(tuning, 'FUSED_DAMPING_MIN', 0)
     world = World(gravity=(0.0, 0.0, 0.0))
     rng = np.random.default_rng(0)
     x0 = lattice(5)
@@ -80,7 +76,6 @@ def test_fused_damping_keeps_momentum(monkeypatch):
                           params=BodyParams(mode='linear', clusters=8, damping=0.5,
                                             max_turn=0.0),   # the turn limit changes L
                           velocities=rng.standard_normal(x0.shape))
-    assert body._damp_fused
     p0, l0 = body.momentum(), body.angular_momentum()
     e0 = float(np.sum(body.m[:, None] * body.v ** 2))
     for _ in range(50):
@@ -140,7 +135,6 @@ def test_compiled_world_step_equals_stepping_bodies_one_by_one(monkeypatch, para
     called body by body (the same kernels in the same order: bit for bit), through
     parameter changes, a state set by hand, a torque (the body leaves the compiled step
     and comes back), a new body and two step sizes."""
-    monkeypatch.setattr(tuning, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
     states = []
     for compiled in (True, False):
         # the records on the helper threads
@@ -160,7 +154,6 @@ def test_compiled_world_step_equals_stepping_bodies_one_by_one(monkeypatch, para
             records, slow, helpers = world._split_bodies(1.0 / 120.0)
             assert helpers == (parallel and numba.get_num_threads() > 1)
             assert len(records) == 8 and [b.name for b in slow] == ['b4']
-            assert world.body('b6')._sets is not None and world.body('b6')._damp_fused
             assert world.body('b7')._sets is not None and world.body('b4')._sets is not None
         states.append([(b.x.copy(), b.v.copy(), b.shape_error_rms(), b._limit_counts.copy())
                        for b in world.bodies])

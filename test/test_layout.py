@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from sm_ros.core import BodyParams, Ground, World
-from sm_ros.core import tuning
 from sm_ros.core.reference import ReferenceBody
 
 
@@ -105,8 +104,7 @@ def test_copies_keep_the_layout_and_the_trajectory(copy, copy_world):
 def test_compiled_step_on_the_layout_matches_the_numpy_twin(monkeypatch, mode, clusters):
     """The compiled world step (no torque: ``Body._fast_ok``) on the per-component layout
     against the NumPy reference (row-major (N, 3) arrays) to round-off, with the ground
-    (the 3-cluster body on the set layout, whose rest offsets y0 are stored per component)."""
-    monkeypatch.setattr(tuning, 'SET_LAYOUT_MIN_RATIO', 0)
+    (the set layout, whose rest offsets y0 are stored per component)."""
     rng = np.random.default_rng(3)
     x0 = _lattice(4) + rng.uniform(-0.02, 0.02, (64, 3)) + (0.0, 0.0, 0.12)
     m = rng.uniform(0.5, 2.0, len(x0))

@@ -15,13 +15,37 @@ import math
 import numpy as np
 import pytest
 
-from sm_ros.core import BodyParams, World, tuning
+from sm_ros.core import BodyParams, Box, Ground, Sphere, World, tuning
 from sm_ros.core.contact import BodyContact, ContactParams
 from sm_ros import nonfinite
 from sm_ros.nonfinite import NonFiniteCheck
-from test_core_fused import _world, lattice
+from test_core_fused import lattice
 
 BAD = (math.nan, math.inf, -math.inf)
+
+
+def _world(mode, clusters, plastic, colliders=True, seed=3):
+    """Two damped bodies (one grabbed, one under a wrench), over colliders."""
+    rng = np.random.default_rng(seed)
+    world = World()
+    if colliders:
+        world.set_colliders(ground=Ground(height=0.0, friction=0.4, restitution=0.2),
+                            boxes=[Box(lo=(0.05, -0.1, 0.0), hi=(0.2, 0.1, 0.03))],
+                            spheres=[Sphere(center=(-0.05, 0.05, 0.02), radius=0.04)])
+    kw = dict(mode=mode, clusters=clusters, alpha=0.3, beta=0.4, damping=0.3)
+    if plastic:
+        kw.update(plastic_yield=0.01, plastic_creep=20.0, plastic_max=0.3)
+    bodies = []
+    for b in range(2):
+        x0 = lattice(6) + (0.15 * b - 0.05, 0.0, 0.02 + 0.05 * b)
+        x0 = x0 + 0.002 * rng.standard_normal(x0.shape)
+        v0 = rng.standard_normal(x0.shape)
+        body = world.add_body(x0, masses=0.01 + 0.02 * rng.random(len(x0)),
+                              params=BodyParams(**kw), velocities=v0, name=f'b{b}')
+        bodies.append(body)
+    bodies[0].set_kinematic(np.array([0, 5]), bodies[0].x[[0, 5]] + (0.0, 0.0, 0.01))
+    bodies[1].set_wrench((0.02, 0.0, 0.1), (0.0, 0.001, 0.002))
+    return world, bodies
 
 
 @pytest.mark.parametrize('mode,clusters,plastic,parallel', [
@@ -31,11 +55,9 @@ BAD = (math.nan, math.inf, -math.inf)
 def test_the_pass_flags_a_poisoned_value(monkeypatch, mode, clusters, plastic, parallel,
                                          where):
     monkeypatch.setattr(tuning, 'PARALLEL_MIN_WORK', 0 if parallel else 1 << 40)
-    monkeypatch.setattr(tuning, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
-    monkeypatch.setattr(tuning, 'FUSED_DAMPING_MIN', 0)
     rng = np.random.default_rng(7)
     for bad in BAD:
-        world, bodies = _world(mode, clusters, plastic, True)
+        world, bodies = _world(mode, clusters, plastic)
         world.contact_params = ContactParams(enabled=False)
         check = NonFiniteCheck()
         for _ in range(2):
@@ -62,7 +84,6 @@ def test_the_compiled_world_step_flags_it(monkeypatch, threaded, in_python):
     monkeypatch.setattr(nonfinite, 'PYTHON_FLAGS_MAX', 10 ** 6 if in_python else 0)
     # the records on the helper threads
     monkeypatch.setattr(tuning, 'RECORDS_PARALLEL_MIN_WORK', 0 if threaded else 1 << 40)
-    monkeypatch.setattr(tuning, 'SET_LAYOUT_MIN_RATIO', 0)    # small bodies: sets too
     rng = np.random.default_rng(11)
     world = World()
     world.contact_params = ContactParams(enabled=False)

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from sm_ros.core import Body, BodyParams, World
-from sm_ros.core import tuning
 from sm_ros.core.clusters import build_memberships
 from sm_ros.core.pose import BodyPose
 from sm_ros.params import scene_defaults
@@ -51,19 +50,12 @@ def test_every_set_is_one_run_and_the_body_shows_the_callers_order(mode, shape):
     assert again._perm is None and np.shares_memory(again.x, again._x)
 
 
-def test_bodies_without_a_set_layout_keep_the_callers_order():
+def test_one_cluster_bodies_are_one_set_in_the_callers_order():
     pts = lattice(6, 6, 4)
     for params in (BodyParams(clusters=1), BodyParams(mode='quadratic', clusters=1)):
         body = Body(pts, params=params)
         assert body._perm is None and np.array_equal(body._x, pts)
-    # memberships that do not pass SET_LAYOUT_MIN_RATIO: the membership path, unsorted
-    old = tuning.SET_LAYOUT_MIN_RATIO
-    tuning.SET_LAYOUT_MIN_RATIO = 10 ** 6
-    try:
-        body = Body(pts, params=BodyParams(clusters=2))
-        assert body._sets is None and body._perm is None and np.array_equal(body._x, pts)
-    finally:
-        tuning.SET_LAYOUT_MIN_RATIO = old
+        assert len(body._sets.cnt) == 1 and np.all(body._sets.sid == 0)
 
 
 def scrambled():

@@ -13,7 +13,6 @@ import pytest
 from numba.typed import List
 
 from sm_ros.core import BodyParams, Ground, World
-from sm_ros.core import tuning
 from sm_ros.core import kernels as K
 from sm_ros.core import reference
 from sm_ros.core.kernels.linalg import _jacobi_angle
@@ -22,7 +21,6 @@ H = 1.0 / 120.0
 
 
 def _body(monkeypatch, mode, clusters, seed=2):
-    monkeypatch.setattr(tuning, 'SET_LAYOUT_MIN_RATIO', 0)     # the set layout always
     rng = np.random.default_rng(seed)
     g = np.stack(np.meshgrid(*[np.arange(6)] * 3, indexing='ij'), axis=-1).reshape(-1, 3)
     x0 = g * 0.04 + rng.uniform(-0.008, 0.008, g.shape) + (0.3, -0.2, 0.5)

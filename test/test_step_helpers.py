@@ -95,7 +95,6 @@ def test_the_world_shares_its_records_with_the_helpers(monkeypatch):
     if numba.get_num_threads() < 2:
         pytest.skip('one Numba thread: no helpers')
     monkeypatch.setattr(tuning, 'RECORDS_PARALLEL_MIN_WORK', 0)
-    monkeypatch.setattr(tuning, 'SET_LAYOUT_MIN_RATIO', 0)
     calls = []
     real = world_mod.step_bodies_parallel
 

@@ -8,9 +8,8 @@ configuration runs in four variants by default, timed round-robin in one run: ``
 damping, one step per tick), ``damped`` (damping 0.05, what 6 of the 7 bundled scenes use),
 ``substeps2`` (damping 0.05, two steps of dt / 2 per tick, the node's default) and
 ``damped_ground`` (damped, the lattice settling on a ground, as the bundled scenes run
-bodies); the times are per tick.  ``--variants`` adds ``ground`` (plain, on a ground) and
-``damped_pass`` (damped in the separate pass the solver takes for small one-cluster bodies,
-beside the pass fused into the particle pass).  Every body is built through
+bodies); the times are per tick.  ``--variants`` adds ``ground`` (plain, on a ground).
+Every body is built through
 ``World.add_body``, which picks its storage order.  ``many``: 64 and 384 bodies of 144
 particles in one world (the paper's Fig. 7 body count, contact off), timed round-robin too.
 
@@ -33,8 +32,8 @@ from .scaling_timing import (CLUSTER_NAMES, MANY_BODY, MODES, VARIANTS,  # noqa:
 
 #: the columns of the variants table: each variant's ms, then these ratios (num / den)
 VARIANT_COLUMNS = tuple(VARIANTS)
-VARIANT_RATIOS = (('damped', 'plain'), ('substeps2', 'damped'), ('damped_pass', 'damped'),
-                  ('ground', 'plain'), ('damped_ground', 'ground'))
+VARIANT_RATIOS = (('damped', 'plain'), ('substeps2', 'damped'), ('ground', 'plain'),
+                  ('damped_ground', 'ground'))
 #: what ``bench scaling`` / ``bench all`` time by default: the plain lattice, and as the
 #: bundled scenes run bodies (damped, on a ground)
 DEFAULT_VARIANTS = ('plain', 'damped', 'substeps2', 'damped_ground')
@@ -59,8 +58,7 @@ def add_arguments(p: argparse.ArgumentParser):
                    help='array size of the streaming copy (MB); 0: no bandwidth fraction')
     p.add_argument('--variants', default=','.join(DEFAULT_VARIANTS),
                    help='plain (no damping), damped (0.05), substeps2 (0.05, 2 substeps), '
-                        'damped_pass (0.05 in the separate pass of small bodies), ground '
-                        'and damped_ground (plain and damped, settling on a ground, as in '
+                        'ground and damped_ground (plain and damped, settling on a ground, as in '
                         'the bundled scenes)')
     p.add_argument('--many', default='64,384',
                    help='body counts of the many-bodies rows ("" to skip)')
@@ -116,15 +114,14 @@ def _picker(results: List[Dict[str, Any]], first_variant: str):
 def _scaling_table(args, out: Path, sizes, modes, ks, variants) -> List[Dict[str, Any]]:
     """Every configuration of every size, timed round-robin per size."""
     table = bc.Table('scaling', ['N', 'mode', 'clusters', 'variant', 'memberships', 'layout',
-                                 'damping_pass', 'set_runs', 'ms_median', 'ms_min',
+                                 'set_runs', 'ms_median', 'ms_min',
                                  'ns_per_particle', 'parallel', 'build_s'],
                      'ms per tick against N (World.step, dt = 5 ms per tick, gravity, no '
                      'colliders but in the ground variants; variants: plain, damped = '
                      'damping 0.05, substeps2 = damping 0.05 in two steps of 2.5 ms, '
-                     'damped_pass = damped in the separate pass, ground / damped_ground = '
-                     'plain / damped settling on a ground; damping_pass: fused into the '
-                     'particle pass or separate; set_runs: runs of one set in the set '
-                     'layout; the configurations of one N timed round-robin)')
+                     'ground / damped_ground = plain / damped settling on a ground; '
+                     'set_runs: runs of one set in the set layout; the configurations of '
+                     'one N timed round-robin)')
     results: List[Dict[str, Any]] = []
     for n_side in sizes:
         bc.log(f'[scaling] sm_ros N={n_side ** 3}: {len(modes) * len(ks) * len(variants)} '

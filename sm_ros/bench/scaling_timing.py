@@ -5,7 +5,6 @@ peer pypbd in a subprocess, and the memory bandwidth of a streaming copy beside 
 single-cluster linear step.
 """
 
-import contextlib
 import os
 from pathlib import Path
 import sys
@@ -20,12 +19,9 @@ DT = 0.005                      # pypbd's default step (its TimeManager), used f
 GRAVITY = (0.0, 0.0, -9.81)
 MODES = ('rigid', 'linear', 'quadratic')
 CLUSTER_NAMES = {1: 1, 2: 8, 3: 27, 4: 64}
-#: variant -> (damping, steps per tick); ``damped_pass`` is ``damped`` with the damping in
-#: the separate pass (the one of one-cluster bodies below ``sm_ros.core.tuning``'s
-#: ``FUSED_DAMPING_MIN`` and of membership-layout bodies; set-layout bodies always fuse),
-#: for the side-by-side figure of what the fused pass saves
+#: variant -> (damping, steps per tick)
 VARIANTS = {'plain': (0.0, 1), 'damped': (0.05, 1), 'substeps2': (0.05, 2),
-            'damped_pass': (0.05, 1), 'ground': (0.0, 1), 'damped_ground': (0.05, 1)}
+            'ground': (0.0, 1), 'damped_ground': (0.05, 1)}
 #: the variants with a ground under the lattice (the bundled scenes all have one): the
 #: lattice's lowest layer starts on it, and it settles onto it within each timed batch
 GROUND_VARIANTS = ('ground', 'damped_ground')
@@ -143,27 +139,6 @@ def build_world(n_side: int, mode: str, k: int, alpha: float = 1.0, damping: flo
     return world, body
 
 
-@contextlib.contextmanager
-def separate_damping(on: bool):
-    """Bodies built inside (``on``) damp in the separate pass: the fused pass's size
-    thresholds (``sm_ros.core.tuning``, read at each build) out of reach."""
-    from sm_ros.core import tuning
-    saved = tuning.FUSED_DAMPING_MIN, tuning.FUSED_DAMPING_MIN_SETS
-    if on:
-        tuning.FUSED_DAMPING_MIN = tuning.FUSED_DAMPING_MIN_SETS = 2 ** 62
-    try:
-        yield
-    finally:
-        tuning.FUSED_DAMPING_MIN, tuning.FUSED_DAMPING_MIN_SETS = saved
-
-
-def damping_pass(body) -> str:
-    """'fused' (damped in the particle pass), 'separate' (a pass of its own) or ''."""
-    if body.params.damping <= 0.0:
-        return ''
-    return 'fused' if body._damp_fused else 'separate'
-
-
 def tick_function(world, substeps: int):
     """One tick of ``world``: ``substeps`` steps of DT / substeps."""
     if substeps == 1:
@@ -201,9 +176,8 @@ def time_size(n_side: int, modes, ks, min_time: float,
             for variant in variants:
                 damping, substeps = VARIANTS[variant]
                 t0 = time.perf_counter()
-                with separate_damping(variant == 'damped_pass'):
-                    world, body = build_world(n_side, mode, k, damping=damping,
-                                              ground=variant in GROUND_VARIANTS)
+                world, body = build_world(n_side, mode, k, damping=damping,
+                                          ground=variant in GROUND_VARIANTS)
                 build_s = time.perf_counter() - t0
                 tick = tick_function(world, substeps)
                 for _ in range(3):
@@ -216,8 +190,7 @@ def time_size(n_side: int, modes, ks, min_time: float,
     rounds = 0
     while rounds < 3 or (clock() < t_end and rounds < 400):
         for mode, k, variant, tick, body, build_s, samples, world in cfgs:
-            with separate_damping(variant == 'damped_pass'):
-                world.reset()             # rebuilds the body
+            world.reset()                 # rebuilds the body
             tick()
             for _ in range(batch):
                 t0 = clock()
@@ -237,7 +210,6 @@ def time_size(n_side: int, modes, ks, min_time: float,
                     'variant': variant, 'damping': VARIANTS[variant][0],
                     'substeps': VARIANTS[variant][1],
                     'memberships': memberships, 'layout': layout, 'set_runs': set_runs,
-                    'damping_pass': damping_pass(body),
                     'ms_median': 1e3 * float(np.median(s)), 'ms_min': 1e3 * float(s.min()),
                     'ns_per_particle': 1e9 * float(np.median(s)) / n, 'build_s': build_s,
                     'parallel': bool(getattr(body, '_parallel', False)),

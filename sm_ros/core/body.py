@@ -34,7 +34,7 @@ class Body:
     """One shape-matched body; made by ``World.add_body``.
 
     Every public array and index is in the caller's order (``x[i]`` is ``points[i]``).
-    Inside, a body with a set layout stores its particles set by set
+    Inside, a body of several clusters stores its particles set by set
     (``body_build.set_order``: each set one run, which the set kernels vectorise over);
     ``_perm`` maps a stored row to the caller's index, ``_inv`` back (both None where the
     storage order is the caller's).
@@ -58,8 +58,7 @@ class Body:
         pins = self._check_indices(pinned if pinned is not None else [], n, 'pinned')
         # the storage order; the memberships computed for it are reused by the first build
         self._perm, self._inv = None, None
-        perm, self._members = body_build.set_order(
-            x - (m @ x) / m.sum(), params.clusters, tuning.SET_LAYOUT_MIN_RATIO)
+        perm, self._members = body_build.set_order(x - (m @ x) / m.sum(), params.clusters)
         if perm is not None:
             x, m, v = x[perm], np.ascontiguousarray(m[perm]), v[perm]
             self._perm = perm
@@ -133,12 +132,8 @@ class Body:
 
     def _build(self):
         """Precompute everything that depends on the rest shape and the parameters
-        (``body_build.build`` with the layout thresholds of ``tuning``, read at each build)."""
-        body_build.build(self, parallel_min_work=tuning.PARALLEL_MIN_WORK,
-                         fused_damping_min=tuning.FUSED_DAMPING_MIN,
-                         fused_damping_min_sets=tuning.FUSED_DAMPING_MIN_SETS,
-                         set_layout_min_ratio=tuning.SET_LAYOUT_MIN_RATIO,
-                         single_cluster_sets=tuning.SINGLE_CLUSTER_SETS)
+        (``body_build.build`` with ``tuning.PARALLEL_MIN_WORK``, read at each build)."""
+        body_build.build(self, parallel_min_work=tuning.PARALLEL_MIN_WORK)
 
     def _refresh_rest(self, which):
         """Plastic rest data of the clusters in ``which`` (``body_build.refresh_rest``)."""
@@ -189,8 +184,7 @@ class Body:
         it; it takes this step, whose records hold x as a (3, 1) block, since its own (1, 3)
         arrays would need kernels compiled for them alone."""
         point = self.n == 1
-        return ((self._sets is not None or self._params.clusters == 1 or point)
-                and (point or not (self._params.plastic or self._has_torque))
+        return ((point or not (self._params.plastic or self._has_torque))
                 and len(self._kin_idx) == 0 and not self._parallel)
 
     def _fast_record(self, h):

@@ -81,14 +81,13 @@ def group_sets(ptr, cluster_ids):
     return sid.reshape(-1), uniq
 
 
-def set_order(x0, clusters, set_layout_min_ratio):
+def set_order(x0, clusters):
     """The order of the particles by cluster set, for a body of rest positions ``x0``
     (N, 3) with ``clusters`` cubes per axis: ``(perm, members)``.
 
     ``perm`` (N,) int64 lists the particles set by set (each set one run of consecutive
-    particles, the given order kept within a set), or is None where the body takes no
-    set layout (one cluster, or memberships that do not pass ``set_layout_min_ratio``, as
-    in ``build``) or the particles are in that order already.  ``members`` is
+    particles, the given order kept within a set), or is None for one cluster (one set)
+    or where the particles are in that order already.  ``members`` is
     ``(clusters, ptr, cluster_ids, n_clusters, (sid, uniq))`` of the reordered particles (``build``
     reuses it: the memberships and sets are computed once; None for one cluster).
 
@@ -98,8 +97,7 @@ def set_order(x0, clusters, set_layout_min_ratio):
         return None, None
     ptr, cluster_ids, nk = build_memberships(x0, clusters)
     sid, uniq = group_sets(ptr, cluster_ids)
-    if ((uniq >= 0).sum() * set_layout_min_ratio > len(cluster_ids)     # no set layout (``build``)
-            or np.all(sid[1:] >= sid[:-1])):
+    if np.all(sid[1:] >= sid[:-1]):
         return None, (clusters, ptr, cluster_ids, nk, (sid, uniq))
     perm = np.argsort(sid, kind='stable').astype(np.int64)
     counts = np.diff(ptr)[perm]
@@ -165,13 +163,10 @@ class _SetLayout:
         return ('part', 'ref')
 
 
-def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
-          single_cluster_sets, fused_damping_min_sets=None):
-    """Precompute everything of ``body`` that depends on the rest shape and the parameters.
-
-    The layout thresholds are the ``sm_ros.core.tuning`` constants of the same names
-    (passed by ``Body._build``, read there at each build).
-    """
+def build(body, *, parallel_min_work):
+    """Precompute everything of ``body`` that depends on the rest shape and the parameters;
+    ``parallel_min_work``: ``tuning.PARALLEL_MIN_WORK`` (passed by ``Body._build``, read
+    there at each build)."""
     body.shape_error_rms()                 # keep the last step's figure across a rebuild
     p = body._params
     mode = _MODE_ID[p.mode]
@@ -181,10 +176,8 @@ def build(body, *, parallel_min_work, fused_damping_min, set_layout_min_ratio,
     body._need9 = body._quad
     groups = _rest_moments(body)
     _cluster_state(body)
-    _layout(body, groups, parallel_min_work, set_layout_min_ratio, single_cluster_sets)
-    if fused_damping_min_sets is None:
-        fused_damping_min_sets = fused_damping_min
-    _damping_buffers(body, fused_damping_min, fused_damping_min_sets)
+    _layout(body, groups, parallel_min_work)
+    _damping_buffers(body)
     body._dirty = True
     body._flags[DAMP_SUMS] = 0.0           # no fused damping sums yet
     _GENERATION[0] += 1
@@ -267,54 +260,33 @@ def _cluster_state(body) -> None:
     body._lim_w = np.zeros((nk, 6))
 
 
-def _layout(body, groups, parallel_min_work, set_layout_min_ratio, single_cluster_sets):
-    """The set layout (or none), whether the body runs on threads, and the per-chunk sums."""
+def _layout(body, groups, parallel_min_work):
+    """The set layout (a one-cluster body is one set), whether the body runs on threads,
+    and the per-chunk sums."""
     p, n, nk = body._params, body.n, body.num_clusters
     na = 30 if body._quad else 12
-    body._sets = None
     if p.clusters > 1:
-        sets = _SetLayout(body._x0, body._m, body._ptr, body._cluster_ids, body._rest_centre,
-                          body._cm0, body._quad, groups)
-        if sets.pairs * set_layout_min_ratio <= len(body._cluster_ids):
-            body._sets = sets
-    elif single_cluster_sets:
-        # one set: the set layout's one-loop pass (sums, damping, goals while in cache);
-        # a quadratic goal as one polynomial of x0
+        body._sets = _SetLayout(body._x0, body._m, body._ptr, body._cluster_ids,
+                                body._rest_centre, body._cm0, body._quad, groups)
+    else:
         body._sets = _SetLayout(body._x0, body._m, np.arange(n + 1, dtype=np.int64),
                                 np.zeros(n, dtype=np.int32), body._rest_centre, body._cm0,
                                 body._quad)
-    # work per step: one unit per particle (one cluster, set layout) or per membership
-    work = len(body._cluster_ids) if p.clusters > 1 and body._sets is None else n
-    body._parallel = work >= parallel_min_work and numba.get_num_threads() > 1
-    nch = numba.get_num_threads() if body._parallel else 1
-    nch = max(1, min(nch, n))
-    if body._sets is not None:
-        body._sets.part = np.zeros((nch, len(body._sets.cnt), na))
-        nch = 1                            # body._part: the reduced per-cluster sums
-    body._part = np.zeros((nch, nk, na))
-    body._err = np.zeros(len(body._sets.part) if body._sets is not None else nch)
+    body._parallel = n >= parallel_min_work and numba.get_num_threads() > 1
+    nch = max(1, min(numba.get_num_threads() if body._parallel else 1, n))
+    body._sets.part = np.zeros((nch, len(body._sets.cnt), na))
+    body._part = np.zeros((1, nk, na))     # the per-set sums reduced to the clusters
+    body._err = np.zeros(nch)
 
 
-def _damping_buffers(body, fused_damping_min, fused_damping_min_sets) -> None:
-    """Damping's buffers, and whether it is fused into the particle pass (set layout, one
-    cluster; kernels/damping.py): where the pass it saves costs more than the fused one."""
-    p, n, nk, sets = body._params, body.n, body.num_clusters, body._sets
-    body._lin = np.zeros((nk, 13)) if p.damping > 0 else None
-    body._damp_spin = np.zeros((nk, 3)) if p.damping > 0 else None
-    body._damp_fused = p.damping > 0 and (
-        (sets is not None and n >= min(fused_damping_min, fused_damping_min_sets))
-        or (sets is None and p.clusters == 1 and n >= fused_damping_min))
-    if body._damp_fused and sets is not None:
-        body._dsets = (sets.ptr, sets.cluster_ids, sets.cnt)
-        body._dpart = np.zeros((len(sets.part), len(sets.cnt), K.NDAMP))
-    elif body._damp_fused:
-        body._dsets = (np.array([0, 1], dtype=np.int64), np.zeros(1, dtype=np.int32),
-                       np.ones(1))
-        body._dpart = np.zeros((len(body._part), 1, K.NDAMP))
-    else:
-        body._dsets = None
-        body._dpart = np.zeros((1, 1, K.NDAMP))
-    body._dmp = np.zeros((len(body._dsets[2]) if body._dsets else 1, 6))
+def _damping_buffers(body) -> None:
+    """Damping's buffers: it runs inside the particle pass, towards each set's share of
+    its clusters' rigid motion (kernels/damping.py)."""
+    nk, sets = body.num_clusters, body._sets
+    body._lin = np.zeros((nk, 13))
+    body._damp_spin = np.zeros((nk, 3))
+    body._dpart = np.zeros((len(sets.part), len(sets.cnt), K.NDAMP))
+    body._dmp = np.zeros((len(sets.cnt), 6))
     body._dref = np.zeros((nk, 3))
     body._dacc = np.zeros(K.NDAMP)
 
@@ -369,10 +341,6 @@ def fast_record(body, h):
     rebuild)."""
     body._fstate = np.zeros(R.R_SIZE)
     retime_record(body, body._fstate, h)
-    sptr, scl, scnt = body._dsets if body._dsets else (
-        np.zeros(2, dtype=np.int64), np.zeros(1, dtype=np.int32), np.ones(1))
-    lin = body._lin if body._lin is not None else np.zeros((body.num_clusters, 13))
-    w3 = body._damp_spin if body._damp_spin is not None else np.zeros((body.num_clusters, 3))
     s3 = body._mat3
     # x, v, x0 (and the set layout's rest_local) as their (3, N) C-contiguous blocks: a typed list
     # fixes the element type from its first record, and a one-particle body's (1, 3) view
@@ -382,7 +350,7 @@ def fast_record(body, h):
            body._aqq3, body._aqq9, body._scale, body._trans, body._goal_lin, body._goal_off,
            body._apq, body._accbuf, s3[0], s3[1], s3[2], s3[3], body._mat39, body._quat_n,
            body._quat_v, body._nmat, body._cdet, body._acc, body._ang, body._com, body._err,
-           body._dpart, body._dmp, body._dref, body._dacc, lin, w3, sptr, scl, scnt,
+           body._dpart, body._dmp, body._dref, body._dacc, body._lin, body._damp_spin,
            body._quat_prev, body._flagged, body._lim_lin, body._lim_w, body._facc,
            body._fstate, body._flags, body._limit_counts)
     return K.StepRecord(*own, *body._fast_sets(), body._udv, body._match_work)
@@ -398,8 +366,7 @@ def retime_record(body, fstate, h):
     numbers = {R.R_ALPHA: p.alpha, R.R_BETA: p.beta, R.R_DAMPING: p.damping,
                R.R_MAX_SPEED: params.max_speed, R.R_MAX_TURN: params.max_turn,
                R.R_TURN_RATE: params.max_turn / h, R.R_MODE: body._mode,
-               R.R_FUSED: body._damp_fused, R.R_QUAD: body._quad,
-               R.R_SETS: body._sets is not None, R.R_WUNI: body._wuni,
+               R.R_QUAD: body._quad, R.R_WUNI: body._wuni,
                R.R_RADIUS: body._collider_radius}
     for slot, value in numbers.items():
         fstate[slot] = float(value)
@@ -416,14 +383,8 @@ def one_record(body, h):
 
 
 def fast_sets(body):
-    """The set-layout buffers of a record (empty ones for a one-cluster body)."""
+    """The set-layout buffers of a record."""
     st = body._sets
-    if st is not None:
-        return (st.rest_local.T, st.sid, st.goal_maps, st.ref, st.part, st.ptr, st.cluster_ids,
-                st.cnt, st.phi, st.org, st.work, st.quad_map, st.pair_offsets, st.cluster_maps,
-                st.runs)
-    na = 30 if body._quad else 12
-    return (np.zeros((3, 0)), _EMPTY_I32, np.zeros((0, 3, 10)), np.zeros((0, 3)),
-            np.zeros((1, 0, na)), np.zeros(1, dtype=np.int64), _EMPTY_I32, np.zeros(0),
-            np.zeros((0, 10)), np.zeros((0, 3)), np.zeros((2, 3, 10)), np.zeros((9, 10)),
-            np.zeros((0, 3)), np.zeros((0, 3, 10)), np.zeros(1, dtype=np.int64))
+    return (st.rest_local.T, st.sid, st.goal_maps, st.ref, st.part, st.ptr, st.cluster_ids,
+            st.cnt, st.phi, st.org, st.work, st.quad_map, st.pair_offsets, st.cluster_maps,
+            st.runs)

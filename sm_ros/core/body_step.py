@@ -16,10 +16,6 @@ from .step_threads import HELPERS
 from .kernels.colliders import Colliders
 from .kernels.flags import DAMP_SUMS
 
-#: The set ids of a one-cluster body's fused damping: none, every particle in set 0.
-_ONE_SET = np.zeros(0, dtype=np.int32)
-
-
 def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     """One step of h seconds of ``body`` (``Body._step``; the kernels of ``kernels/``
     in the order of algorithm.md): goals, limits, plasticity, damping, Eq. 13-14 with
@@ -37,35 +33,28 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     if body._at_step[0] != h or body._at_step[1] is not body._params:
         body._at_step = (h, body._params, body._params.at_step(h))
     p = body._at_step[2]                   # the material's coefficients at this step
-    fused = body._damp_fused and p.damping > 0.0
+    damped = p.damping > 0.0
     _take_sums(body)
     turned = _match(body, p, h)
     nchanged = _plastic_flow(body, p, h)
     _forces(body, gravity, h)
-    _damping(body, p, fused, turned)
+    if damped:
+        _damping(body, turned)
     kin = len(body._kin_idx) > 0
     if kin:
         K.gather_rows(body._x, body._kin_idx, body._kin_prev)
     colliders = Colliders(bool(has_col), ground, boxes, spheres, float(thresh),
                           body._collider_radius, float(h))
-    capped = _integrate(body, p, h, fused, colliders)
+    _integrate(body, p, h, damped, colliders)
     if kin:
-        _grabbed(body, fused, h)
+        _grabbed(body, damped, h)
     body._shape_err = None                 # computed from body._err when asked
-    body._flags[DAMP_SUMS] = 1.0 if fused else 0.0
-    # capped positions: the membership layout's sums are stale (the set layout caps
-    # before it sums)
-    sets = body._sets
-    body._dirty = capped > 0 and sets is None
+    body._flags[DAMP_SUMS] = 1.0 if damped else 0.0
+    # the pass caps the speeds before it sums, so the sums are those of the new state; the
+    # per-set sums do not depend on the rest shape, so plastic flow leaves them valid too
+    body._dirty = False
     if nchanged:
         body._refresh_rest(body._changed)
-        # the per-set sums do not depend on the rest shape; the per-cluster ones do
-        body._dirty = body._dirty or sets is None
-
-
-def _particles(body):
-    """The body's particles as the passes of ``kernels/integrate.py`` read them."""
-    return K.BodyParticles(body._x, body._v, body._x0, body._m)
 
 
 def _rest(body):
@@ -97,19 +86,15 @@ def _set_clusters(sets):
 
 
 def _take_sums(body) -> None:
-    """The clusters' sums of the current state (Eq. 7-11): taken afresh where the state
-    changed since the last pass summed it (``body._dirty``); the set layout reduces its
-    per-set sums to the clusters'."""
+    """The clusters' sums of the current state (Eq. 7-11): the per-set sums, taken afresh
+    where the state changed since the last pass summed them (``body._dirty``), reduced to
+    the clusters'."""
     sets = body._sets
-    if sets is not None:
-        if body._dirty:
-            _chunks(body, K.sets_accumulate_chunks, quad=body._quad, x=body._x, y0=sets.rest_local,
-                    mass=body._m, sid=sets.sid, runs=sets.runs, sref=sets.ref, part=sets.part)
-        K.sets_reduce(sets.part, _set_clusters(sets), sets.ref, body._rest_lin, body._ref,
-                      body._quad, body._part, (sets.work, sets.quad_map))
-    elif body._dirty:
-        _chunks(body, K.accumulate_chunks, quad=body._quad, particles=_particles(body),
-                rest=_rest(body), part=body._part)
+    if body._dirty:
+        _chunks(body, K.sets_accumulate_chunks, quad=body._quad, x=body._x, y0=sets.rest_local,
+                mass=body._m, sid=sets.sid, runs=sets.runs, sref=sets.ref, part=sets.part)
+    K.sets_reduce(sets.part, _set_clusters(sets), sets.ref, body._rest_lin, body._ref,
+                  body._quad, body._part, (sets.work, sets.quad_map))
 
 
 def _match(body, p, h) -> int:
@@ -151,10 +136,9 @@ def _plastic_flow(body, p, h) -> int:
                                     (body._quat_scratch, s3[0], s3[1], s3[2], body._quat_n,
                                      body._quat_v))
     sets = body._sets
-    if sets is not None:
-        K.sets_maps(_set_clusters(sets), body._rest_lin,
-                    (body._trans, body._goal_lin, body._goal_off), body._ref, body._quad,
-                    (sets.goal_maps, sets.ref), (sets.quad_map, sets.cluster_maps))
+    K.sets_maps(_set_clusters(sets), body._rest_lin, (body._trans, body._goal_lin, body._goal_off),
+                body._ref, body._quad, (sets.goal_maps, sets.ref),
+                (sets.quad_map, sets.cluster_maps))
     return nchanged
 
 
@@ -180,76 +164,46 @@ def _forces(body, gravity, h) -> None:
             body._limit_counts[1] += 1
 
 
-def _damping(body, p, fused, turned) -> None:
-    """Damping towards each cluster's rigid motion: fused into the particle pass (the rigid
-    fields from the sums of the last pass, taken again if the state changed since: set by
-    hand, contact, turn limit) or a pass of its own."""
+def _damping(body, turned) -> None:
+    """The field of the damping towards each cluster's rigid motion, which the particle
+    pass applies: from the sums of the last pass, taken again if the state changed since
+    (set by hand, contact, turn limit)."""
     s3 = body._mat3
-    if fused:
-        sets = body._sets
-        sptr, scl, scnt = body._dsets
-        if body._dirty or turned:
-            K.damp_accumulate(x=body._x, v=body._v, mass=body._m, sid=_set_ids(body),
-                              dpart=body._dpart)
-        K.damping_fields(body._dpart, (sptr, scl, scnt), body._dref, body._dacc,
-                         (body._lin, body._damp_spin, s3[0], s3[1], s3[2], s3[3]))
-        K.damping_targets(sptr=sptr, scl=scl, scnt=scnt, lin=body._lin, w3=body._damp_spin,
-                          dref=body._dref, sref=sets.ref if sets is not None else body._ref,
-                          dmp=body._dmp)
-    elif p.damping > 0.0:
-        K.damp_rigid(body._x, body._v, body._m, (body._ptr, body._cluster_ids), body._ref,
-                     p.damping,
-                     (body._lin, body._damp_spin, s3[0], s3[1], s3[2], s3[3]))
-
-
-def _set_ids(body):
-    """The set id of each particle for the fused damping (none: one set)."""
-    return body._sets.sid if body._sets is not None else _ONE_SET
-
-
-def _integrate(body, p, h, fused, colliders) -> int:
-    """Eq. 13-14 with the static colliders (``colliders.Colliders``) and the speed cap,
-    the next step's sums taken in the same pass; returns the capped speeds."""
     sets = body._sets
-    v_max = body._params.max_speed
-    if sets is not None:
-        # the speeds capped block by block before the sums are taken: the sums stay valid
-        chunk_capped = np.zeros(len(sets.part), dtype=np.int64)
-        motion = K.SetMotion(p.alpha, h, body._acc, body._ang, body._com, v_max)
-        _chunks(body, K.sets_integrate_chunks, capped=chunk_capped, quad=body._quad,
-                particles=_set_particles(body), sets=_sets(body), motion=motion,
-                part=sets.part, err=body._err, col=colliders,
-                damping=K.FusedDamping(fused, p.damping, body._dmp, body._dpart))
-        K._fused_refs(body._quad, body._wuni, body._ang, sets.runs, fused, sets.ref, body._dpart)
-        capped = int(chunk_capped.sum())
-        body._limit_counts[0] += capped
-        return capped
-    goals = K.StepGoals(body._goal_lin, body._goal_off, body._trans, p.alpha, h, body._acc,
-                        body._ang, body._com)
-    _chunks(body, K.integrate_chunks, quad=body._quad, particles=_particles(body),
-            rest=_rest(body), goals=goals, part=body._part, err=body._err, col=colliders,
-            damping=K.FusedDamping(fused, p.damping, body._dmp, body._dpart))
-    if v_max <= 0.0:
-        return 0
-    capped = K.limit_speed(x=body._x, v=body._v, h=h, v_max=v_max)
-    body._limit_counts[0] += capped
-    return capped
+    if body._dirty or turned:
+        K.damp_accumulate(x=body._x, v=body._v, mass=body._m, sid=sets.sid, dpart=body._dpart)
+    K.damping_fields(body._dpart, (sets.ptr, sets.cluster_ids, sets.cnt), body._dref, body._dacc,
+                     (body._lin, body._damp_spin, s3[0], s3[1], s3[2], s3[3]))
+    K.damping_targets(sptr=sets.ptr, scl=sets.cluster_ids, scnt=sets.cnt, lin=body._lin,
+                      w3=body._damp_spin, dref=body._dref, sref=sets.ref, dmp=body._dmp)
 
 
-def _grabbed(body, fused, h) -> None:
-    """The grabbed and pinned particles to their targets (their sums, and with fused
-    damping their damping sums, follow them)."""
+def _integrate(body, p, h, damped, colliders) -> None:
+    """Eq. 13-14 with the static colliders (``colliders.Colliders``) and the speed cap,
+    set by set, the next step's sums taken in the same pass (the speeds are capped block
+    by block before they are summed)."""
+    sets = body._sets
+    chunk_capped = np.zeros(len(sets.part), dtype=np.int64)
+    motion = K.SetMotion(p.alpha, h, body._acc, body._ang, body._com, body._params.max_speed)
+    _chunks(body, K.sets_integrate_chunks, capped=chunk_capped, quad=body._quad,
+            particles=_set_particles(body), sets=_sets(body), motion=motion,
+            part=sets.part, err=body._err, col=colliders,
+            damping=K.FusedDamping(damped, p.damping, body._dmp, body._dpart))
+    K._fused_refs(body._quad, body._wuni, body._ang, sets.runs, damped, sets.ref, body._dpart)
+    body._limit_counts[0] += int(chunk_capped.sum())
+
+
+def _grabbed(body, damped, h) -> None:
+    """The grabbed and pinned particles to their targets (their sums, and damped their
+    damping sums, follow them)."""
     sets = body._sets
     targets = (body._kin_idx, body._kin_tgt, body._kin_prev)
-    if fused:
-        K.damp_kinematic(x=body._x, v=body._v, mass=body._m, sid=_set_ids(body),
+    if damped:
+        K.damp_kinematic(x=body._x, v=body._v, mass=body._m, sid=sets.sid,
                          dpart=body._dpart, idx=body._kin_idx, sign=-1.0)
-    if sets is not None:
-        K.sets_kinematic(body._quad, _set_particles(body), _sets(body), sets.part, targets, h)
-    else:
-        K.apply_kinematic(body._quad, _particles(body), _rest(body), body._part, targets, h)
-    if fused:
-        K.damp_kinematic(x=body._x, v=body._v, mass=body._m, sid=_set_ids(body),
+    K.sets_kinematic(body._quad, _set_particles(body), _sets(body), sets.part, targets, h)
+    if damped:
+        K.damp_kinematic(x=body._x, v=body._v, mass=body._m, sid=sets.sid,
                          dpart=body._dpart, idx=body._kin_idx, sign=1.0)
 
 
@@ -266,28 +220,35 @@ def _chunks(body, kernel, **args):
 
 
 def goals(body) -> np.ndarray:
-    """Goal positions g_i for the current state (Eq. 12/18/22, averaged over clusters)."""
-    p = body._params
-    part = np.zeros((1,) + body._part.shape[1:])
-    ref, quat = body._ref.copy(), body._quat.copy()
+    """Goal positions g_i for the current state (Eq. 12/18/22, averaged over clusters):
+    the step's kernels on copies, the integration with alpha = h = 1 from rest (x = g)."""
+    p, sets, quad = body._params, body._sets, body._quad
+    claim = np.zeros(1, dtype=np.int64)
+    set_sums = np.zeros((1,) + sets.part.shape[1:])
+    K.sets_accumulate_chunks(claim, quad=quad, x=body._x, y0=sets.rest_local, mass=body._m,
+                             sid=sets.sid, runs=sets.runs, sref=sets.ref, part=set_sums)
+    part, ref = np.zeros_like(body._part), body._ref.copy()
+    K.sets_reduce(set_sums, _set_clusters(sets), sets.ref, body._rest_lin, ref, quad, part,
+                  (np.zeros_like(sets.work), np.zeros_like(sets.quad_map)))
     trans, goal_lin = np.zeros_like(body._trans), np.zeros_like(body._goal_lin)
     goal_off = np.zeros_like(body._goal_off)
-    K.accumulate_chunks(np.zeros(1, dtype=np.int64), body._quad, _particles(body),
-                        _rest(body)._replace(ref=ref), part)
-    match = K.ClusterMatch(quat, trans, goal_lin, goal_off, np.zeros_like(body._apq),
-                           body._nmat)
+    match = K.ClusterMatch(body._quat.copy(), trans, goal_lin, goal_off,
+                           np.zeros_like(body._apq), np.zeros_like(body._udv))
     scratch = K.MatchScratch(np.zeros(32), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3)),
                              np.zeros((3, 9)), np.zeros((4, 4)), np.zeros((4, 4)),
                              np.zeros((2, 3, 3)))
     K.solve_clusters_warm(part, _rest(body)._replace(ref=ref), _shape(body), match, scratch,
                           body._mode, p.beta, np.bool_(False))     # a cold start
+    maps, set_refs = np.zeros_like(sets.goal_maps), np.zeros_like(sets.ref)
+    K.sets_maps(_set_clusters(sets), body._rest_lin, (trans, goal_lin, goal_off), ref, quad,
+                (maps, set_refs), (np.zeros_like(sets.quad_map), np.zeros_like(sets.cluster_maps)))
     g = body._x.copy(order='K')            # the layout of x: the kernels' own specialisation
-    goals = K.StepGoals(goal_lin, goal_off, trans, 1.0, 1.0, np.zeros(3), np.zeros(3),
-                        np.zeros(3))
+    at_rest = K.SetMotion(1.0, 1.0, np.zeros(3), np.zeros(3), np.zeros(3), 0.0)
+    undamped = K.FusedDamping(False, 0.0, np.zeros((1, 6)), np.zeros((1, 1, K.NDAMP)))
     no_colliders = Colliders(False, np.zeros(4), np.zeros((0, 8)), np.zeros((0, 6)), 0.0, 0.0,
                              0.0)
-    K.integrate_chunks(np.zeros(1, dtype=np.int64), body._quad,
-                       K.BodyParticles(g, np.zeros_like(g), body._x0, body._m),
-                       _rest(body)._replace(ref=ref), goals, part, np.zeros(1), no_colliders,
-                       K.FusedDamping(False, 0.0, np.zeros((1, 6)), np.zeros((1, 1, K.NDAMP))))
+    K.sets_integrate_chunks(np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), quad,
+                            K.BodyParticles(g, np.zeros_like(g), sets.rest_local, body._m),
+                            K.Sets(sets.sid, sets.runs, maps, set_refs, body._wuni), at_rest,
+                            set_sums, np.zeros(1), no_colliders, undamped)
     return g

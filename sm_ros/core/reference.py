@@ -3,8 +3,8 @@
 This is the twin of the Numba kernels: the tests compare trajectories of both, and the
 benchmark uses it as the baseline.  It favours the textbook formulas over speed: centres
 of mass, A_pq, A_qq and the goals are computed cluster by cluster with NumPy, the rotation
-comes from an SVD (sign-corrected so it is proper), and A_qq from ``numpy.linalg.pinv``.
-Damping is not modelled here.
+comes from an SVD (sign-corrected so it is proper), and A_qq from ``numpy.linalg.pinv``;
+damping moves each velocity towards its clusters' rigid motion before Eq. 13.
 """
 
 import numpy as np
@@ -283,10 +283,23 @@ class ReferenceBody:
         self.plastic_state[k] = cap_plastic(_unit_det(sp), p.plastic_max)
         return True
 
+    def _rigid_motion(self):
+        """Each particle's damping target: the mean over its clusters of the cluster's
+        rigid motion v_cm + omega x (x - x_cm), omega = I^+ L (``kernels.damping``)."""
+        target = np.zeros_like(self.v)
+        for idx, w in zip(self.members, self.weights):
+            x, v = self.x[idx], self.v[idx]
+            r = x - w @ x / w.sum()
+            spin = (w[:, None] * np.cross(r, v)).sum(axis=0)
+            inertia = (w * (r * r).sum(1)).sum() * np.eye(3) - (w[:, None] * r).T @ r
+            omega = np.linalg.pinv(inertia, rcond=1e-12, hermitian=True) @ spin
+            target[idx] += w @ v / w.sum() + np.cross(omega, r)
+        return target / self.counts[:, None]
+
     def step(self, h, gravity=(0.0, 0.0, 0.0), ground=None, boxes=(), spheres=(),
              radius=0.0):
-        """Eq. 13-14, then colliders (met by spheres of ``radius``), then kinematic
-        particles."""
+        """Damping, Eq. 13-14, then colliders (met by spheres of ``radius``), then
+        kinematic particles."""
         p = self.params.at_step(h)             # the material's coefficients at this step
         goals, changed = self.goals(h)
         m = self.m
@@ -303,6 +316,8 @@ class ReferenceBody:
         tgt = np.concatenate([self.grab_tgt[~np.isin(self.grab_idx, self.pinned)],
                               self.x_init[self.pinned]])
         x_prev = self.x[kin].copy()
+        if p.damping > 0.0:
+            self.v = self.v + p.damping * (self._rigid_motion() - self.v)
         self.v = self.v + p.alpha * (goals - self.x) / h + h * a_part   # Eq. 13
         self.x = self.x + h * self.v                                  # Eq. 14
         thresh = max(1e-3, 2.0 * np.linalg.norm(gravity) * h)

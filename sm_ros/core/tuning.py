@@ -13,15 +13,6 @@ TOUCH_FACTOR = 1.1
 
 #: Bodies with this much work per step (particles or memberships) run multi-threaded kernels.
 PARALLEL_MIN_WORK = 262144
-#: One-cluster bodies with this many particles damp inside the particle pass.
-FUSED_DAMPING_MIN = 1024
-#: Set-layout bodies with this many particles damp inside the particle pass.
-FUSED_DAMPING_MIN_SETS = 0
-#: Multi-cluster bodies use the set layout when memberships / set-cluster pairs reach this:
-#: all of them (its compiled step beats the membership layout's on small bodies too).
-SET_LAYOUT_MIN_RATIO = 0
-#: One-cluster bodies use the set layout too (one set).
-SINGLE_CLUSTER_SETS = True
 #: Compiled-step records are shared with helper threads from this many particles in records.
 RECORDS_PARALLEL_MIN_WORK = 16384
 

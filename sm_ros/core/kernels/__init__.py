@@ -7,19 +7,18 @@ file               what it computes                                            e
 ``rotation.py``    R of the polar decomposition of A_pq (Horn's quaternion)     11
 ``goals.py``       per-cluster sums -> x_cm, A_pq, A, goal transforms; A_qq    7-12, 19-22
 ``unit_det.py``    the linear mode's unit-determinant goal matrix               18
-``integrate.py``   per-particle passes: goals averaged over clusters,          7-9, 13-14,
-                   Eq. 13-14, accumulation of the next step's sums              23
-``sets.py``        the same passes for particles grouped by cluster sets       7-9, 13-14,
-                                                                               21, 23
+``integrate.py``   Eq. 13-14 for one particle; the tuples the passes read       13-14
+``sets.py``        the particle passes, particles grouped by cluster sets      7-9, 13-14,
+                   (goals averaged over clusters, the next step's sums)        21, 23
 ``sets_sums.py``   the per-set sums                                            7-9
 ``set_maps.py``    per-set sums to per-cluster sums; the per-set goal maps     7-9, 23
-``fused.py``       the one loop of the fused passes (one cluster, set runs)     13-14
+``fused.py``       the one loop of the fused pass over a set's run             13-14
 ``grabs.py``       grabbed and pinned particles; a body's inertia tensor        (grabs)
 ``plasticity.py``  plastic state update and its caps                            24-27
 ``colliders.py``   static ground, boxes, spheres (projection, friction)         (collisions)
 ``damping.py``     damping towards each cluster's rigid motion                  (damping)
 ``limits.py``      speed and turn-per-step limits (what one step represents)   (limits)
-``world_step.py``  one compiled call steps the set-layout bodies of a world     7-14
+``world_step.py``  one compiled call steps the bodies of a world                7-14
 ``flags.py``       the indices of a body's flag array                          -
 ``jit.py``         compile options; the cache directory keyed on all files      -
 =================  ==========================================================  ============
@@ -34,13 +33,12 @@ rigid/linear modes.  Everything is re-exported here: ``from sm_ros.core import k
 """
 
 from .colliders import Colliders, _collide_range, collide_point, contact_velocity
-from .damping import (NDAMP, damp_acc_range, damp_accumulate, damp_kinematic, damp_rigid,
-                      damp_velocity, damping_fields, damping_targets)
+from .damping import (NDAMP, damp_acc_range, damp_accumulate, damp_kinematic, damp_velocity,
+                      damping_fields, damping_targets)
 from .goals import (ClusterMatch, ClusterShape, MatchScratch, _goal_quad, _qhat,
                     invert_moments, moments, quad_features, solve_clusters_warm)
-from .grabs import apply_kinematic, gather_rows, inertia
-from .integrate import (BLOCK, BodyParticles, ClusterRest, FusedDamping, StepGoals,
-                        accumulate_chunks, advance, integrate_chunks)
+from .grabs import gather_rows, inertia
+from .integrate import BLOCK, BodyParticles, ClusterRest, FusedDamping, advance
 from .jit import FASTMATH, JIT
 from .limits import limit_speed, limit_turn
 from .linalg import det3, jacobi3, jacobi3_warm, jacobi_eigh, matmul, norm2, pinv_sym
@@ -57,15 +55,14 @@ from .world_step import StepRecord, step_single_bodies
 
 __all__ = ['Colliders', '_collide_range', 'contact_velocity', 'collide_point', 'NDAMP',
            'damp_acc_range',
-           'damp_accumulate', 'damp_kinematic', 'damp_rigid', 'damp_velocity', 'damping_fields',
+           'damp_accumulate', 'damp_kinematic', 'damp_velocity', 'damping_fields',
            'damping_targets', 'STRETCH_LIMIT', '_goal_quad', '_logprod', '_logx', '_qhat',
            '_stretch_ok', '_unit_det_sum', 'invert_moments', 'moments', 'nearest_unit_det',
            'nearest_unit_det_warm', 'quad_features', 'solve_clusters_warm', 'ClusterMatch',
            'ClusterShape', 'MatchScratch',
            'unit_det_frames', 'unit_det_match', 'unit_det_match_warm',
            'volume_preserving', 'BLOCK', 'BodyParticles', 'ClusterRest', 'FusedDamping',
-           'StepGoals', 'accumulate_chunks', 'advance',
-           'apply_kinematic', 'gather_rows', 'inertia', 'integrate_chunks',
+           'advance', 'gather_rows', 'inertia',
            'FASTMATH', 'JIT', 'limit_speed', 'limit_turn', 'det3', 'jacobi3', 'jacobi3_warm',
            'jacobi_eigh', 'matmul',
            'norm2', 'pinv_sym', '_add_null_projector', '_cap_plastic', 'plastic_update',

@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit
 
 from .jit import JIT, JIT_NO_REFCOUNT, U
-from .linalg import ZERO16, add_damping, add_moments, sym3_solve
+from .linalg import ZERO16, add_damping, sym3_solve
 
 
 @njit(**JIT_NO_REFCOUNT)
@@ -52,142 +52,8 @@ def _rigid_fields(scratch):
         lin[k, 3] = u2 - (o0 * d1 - o1 * d0)
 
 
-@njit(**JIT_NO_REFCOUNT)
-def _damp_rigid_single(x, v, mass, ref, k_damp, scratch):
-    """``damp_rigid`` of a one-cluster body: the same sums and the same per-particle
-    update, accumulated in 16 local scalars (registers) instead of ``lin``/``w3`` rows.
-
-    The general loop adds into array entries that LLVM cannot keep in registers (``lin``
-    may alias ``x``/``v``): 16 loads and stores a particle, each waiting on the last, as
-    costly as the rest of a small body's step.  Here both
-    loops are pure scalar streams over x, v (the first a reduction, the second a map that
-    vectorises); sums in the same order, rounding as other reductions under fast math.
-    """
-    lin, w3 = scratch[0], scratch[1]
-    r0c, r1c, r2c = ref[0, 0], ref[0, 1], ref[0, 2]
-    sw = sv0 = sv1 = sv2 = 0.0
-    sr0 = sr1 = sr2 = 0.0
-    l0 = l1 = l2 = 0.0
-    i0 = i1 = i2 = i01 = i12 = i20 = 0.0
-    n = x.shape[0]
-    for i in range(n):
-        w = mass[i]
-        r0 = x[i, 0] - r0c
-        r1 = x[i, 1] - r1c
-        r2 = x[i, 2] - r2c
-        v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
-        rr = r0 * r0 + r1 * r1 + r2 * r2
-        sw += w
-        sv0 += w * v0
-        sv1 += w * v1
-        sv2 += w * v2
-        sr0 += w * r0
-        sr1 += w * r1
-        sr2 += w * r2
-        l0 += w * (r1 * v2 - r2 * v1)
-        l1 += w * (r2 * v0 - r0 * v2)
-        l2 += w * (r0 * v1 - r1 * v0)
-        i0 += w * (rr - r0 * r0)
-        i1 += w * (rr - r1 * r1)
-        i2 += w * (rr - r2 * r2)
-        i01 -= w * r0 * r1
-        i12 -= w * r1 * r2
-        i20 -= w * r2 * r0
-    lin[0, 0] = sw
-    lin[0, 1] = sv0
-    lin[0, 2] = sv1
-    lin[0, 3] = sv2
-    lin[0, 4] = l0
-    lin[0, 5] = l1
-    lin[0, 6] = l2
-    lin[0, 7] = i0
-    lin[0, 8] = i1
-    lin[0, 9] = i2
-    lin[0, 10] = i01
-    lin[0, 11] = i12
-    lin[0, 12] = i20
-    w3[0, 0] = sr0
-    w3[0, 1] = sr1
-    w3[0, 2] = sr2
-    _rigid_fields(scratch)
-    c0, c1, c2 = lin[0, 1], lin[0, 2], lin[0, 3]
-    o0, o1, o2 = w3[0, 0], w3[0, 1], w3[0, 2]
-    # one cluster a particle: the mean of its clusters' fields is the field itself
-    for i in range(n):
-        r0 = x[i, 0] - r0c
-        r1 = x[i, 1] - r1c
-        r2 = x[i, 2] - r2c
-        v[i, 0] += k_damp * (c0 + o1 * r2 - o2 * r1 - v[i, 0])
-        v[i, 1] += k_damp * (c1 + o2 * r0 - o0 * r2 - v[i, 1])
-        v[i, 2] += k_damp * (c2 + o0 * r1 - o1 * r0 - v[i, 2])
-
-
-@njit(**JIT_NO_REFCOUNT)
-def damp_rigid(x, v, mass, members, ref, k_damp, scratch):
-    """Damp velocities towards each cluster's rigid motion (v_cm + w x r), never the motion.
-
-    Per cluster: v_cm = sum w v / W, L = sum w r x v, I = sum w (|r|^2 - r r^T),
-    omega = I^+ L; each particle moves a fraction ``k_damp`` towards the mean of its
-    clusters' rigid velocities.  Linear and angular momentum of every cluster are kept.
-    ``members`` = (ptr, cluster_ids), the clusters of each particle (empty: one cluster);
-    ``scratch`` = (lin (K, 13), w3 (K, 3), four 3 x 3).
-
-    r = x - ref is taken about the centre of mass d = sum w r / W that ``ref`` holds only
-    up to rounding: L and I are corrected to d (L - W d x v_cm, parallel axes).  Without
-    that, a body flying at 1e10 m/s far from the origin got ``(sum w r) x v`` of rounding
-    noise as angular momentum, and the damping spun it apart.
-    """
-    ptr, cluster_ids = members
-    lin, w3 = scratch[0], scratch[1]
-    if ptr.shape[0] == 0:
-        _damp_rigid_single(x, v, mass, ref, k_damp, scratch)
-        return
-    nk = ref.shape[0]
-    for k in range(nk):
-        for j in range(13):
-            lin[k, j] = 0.0
-        for j in range(3):
-            w3[k, j] = 0.0
-    n = x.shape[0]
-    for i in range(n):
-        j0, j1 = ptr[i], ptr[i + 1]
-        w = mass[i] / (j1 - j0)
-        for j in range(j0, j1):
-            k = cluster_ids[j]
-            r0 = x[i, 0] - ref[k, 0]
-            r1 = x[i, 1] - ref[k, 1]
-            r2 = x[i, 2] - ref[k, 2]
-            v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
-            lin[k, 0] += w
-            lin[k, 1] += w * v0
-            lin[k, 2] += w * v1
-            lin[k, 3] += w * v2
-            w3[k, 0] += w * r0
-            w3[k, 1] += w * r1
-            w3[k, 2] += w * r2
-            add_moments(lin, k, w, (r0, r1, r2), (v0, v1, v2))
-    _rigid_fields(scratch)
-    for i in range(n):
-        j0, j1 = ptr[i], ptr[i + 1]
-        t0 = 0.0
-        t1 = 0.0
-        t2 = 0.0
-        for j in range(j0, j1):
-            k = cluster_ids[j]
-            r0 = x[i, 0] - ref[k, 0]
-            r1 = x[i, 1] - ref[k, 1]
-            r2 = x[i, 2] - ref[k, 2]
-            t0 += lin[k, 1] + w3[k, 1] * r2 - w3[k, 2] * r1
-            t1 += lin[k, 2] + w3[k, 2] * r0 - w3[k, 0] * r2
-            t2 += lin[k, 3] + w3[k, 0] * r1 - w3[k, 1] * r0
-        inv = 1.0 / (j1 - j0)
-        v[i, 0] += k_damp * (t0 * inv - v[i, 0])
-        v[i, 1] += k_damp * (t1 * inv - v[i, 1])
-        v[i, 2] += k_damp * (t2 * inv - v[i, 2])
-
-
 # ---------------------------------------------------------------------------------------
-# Damping fused into the step (set layout and one-cluster bodies).  The sums damping needs
+# Damping fused into the step.  The sums damping needs
 # are per-set sums of the state, accumulated in the integration pass of the previous step
 # (``damp_acc_range``, block by block while the block is in L1).  Row ``dpart[chunk, s]``:
 #   [sum m d (3), sum m v (3), sum m d x v (3), sum m d d^T (6: xx yy zz xy yz zx),
@@ -208,7 +74,7 @@ NDAMP = 20
 @njit(inline='always', **JIT)
 def damp_velocity(v, i, r0, r1, r2, dmp, s, k_damp):
     """v_i moves the fraction ``k_damp`` towards its set's field c_s + omega_s x r (r = x -
-    r_s, before the step): the damping of ``damp_rigid``, inlined into the particle pass."""
+    r_s, before the step), inlined into the particle pass."""
     damp_towards(v=v, i=i, r=(r0, r1, r2),
                  field=(dmp[s, 0], dmp[s, 1], dmp[s, 2], dmp[s, 3], dmp[s, 4], dmp[s, 5]),
                  k_damp=k_damp)

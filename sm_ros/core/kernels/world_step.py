@@ -13,9 +13,8 @@ A record (``Body._fast_record``) is a ``StepRecord``, a named tuple of the body'
 (x, v, x0, y0 as their (3, N) blocks, transposed back to (N, 3) views of layout F here);
 ``state`` holds the body's numbers at the step (``R_*`` below), ``force`` the force over
 the total mass (divided in Python, as ``Body._step`` does: fast math would round it
-otherwise), ``flags`` the body's flags (``kernels.flags``: a
-sleeping record is not stepped), ``counts`` the limit counters; the set-layout buffers
-(``s_*``) are empty for one-cluster bodies.
+otherwise), ``flags`` the body's flags (``kernels.flags``: a sleeping record is not
+stepped), ``counts`` the limit counters, ``s_*`` the set layout's buffers.
 """
 
 from collections import namedtuple
@@ -27,12 +26,11 @@ from numba import njit
 from ..step_threads import HELPERS
 from .flags import DIRTY, ERR_STALE, SLEEP
 from .colliders import Colliders
-from .damping import damp_accumulate, damp_rigid, damping_fields, damping_targets
+from .damping import damp_accumulate, damping_fields, damping_targets
 from .goals import ClusterMatch, ClusterShape, MatchScratch, solve_clusters_warm
-from .integrate import (BodyParticles, ClusterRest, FusedDamping, StepGoals, accumulate_chunks,
-                        integrate_chunks)
+from .integrate import BodyParticles, ClusterRest, FusedDamping
 from .jit import JIT, JIT_NO_REFCOUNT, claim_next
-from .limits import limit_speed, limit_turn
+from .limits import limit_turn
 from .sets import SetMotion, Sets, _fused_refs, sets_integrate_chunks
 from .set_maps import SetClusters, sets_maps, sets_reduce
 from .sets_sums import sets_accumulate_chunks
@@ -42,18 +40,17 @@ from .sets_sums import sets_accumulate_chunks
 StepRecord = namedtuple('StepRecord', (
     'xt vt x0t mass ptr cluster_ids rest_lin rest_off part wsum sum_q ref quat aqq3 aqq9 scale '
     'trans goal_lin goal_off apq accbuf m3a m3b m3c m3d m39 n4 v4 nmat cdet acc ang com err dpart '
-    'dmp dref dacc lin w3 sptr scl scnt quat_prev flagged lim_lin lim_w force state flags '
+    'dmp dref dacc lin w3 quat_prev flagged lim_lin lim_w force state flags '
     'counts rest_local_t sid goal_maps sref s_part s_ptr s_cluster_ids s_cnt s_phi s_org work '
     'quad_map s_pair_offsets s_cluster_maps s_runs '
     'udv match_work').split())
 
 #: Where ``StepRecord.state`` holds each number (``body_build.retime_record`` writes them):
 #: the material at the step (alpha, beta, damping), the limits (max_speed, max_turn and
-#: max_turn / h), the mode (0 rigid, 1 linear, 2 quadratic), whether the damping is fused
-#: into the particle pass, quadratic, the set layout, the particles' one mass or 0
-#: (``Body._wuni``) and the radius the body meets the colliders with.
-(R_ALPHA, R_BETA, R_DAMPING, R_MAX_SPEED, R_MAX_TURN, R_TURN_RATE, R_MODE, R_FUSED, R_QUAD,
- R_SETS, R_WUNI, R_RADIUS, R_SIZE) = range(13)
+#: max_turn / h), the mode (0 rigid, 1 linear, 2 quadratic), quadratic, the particles' one
+#: mass or 0 (``Body._wuni``) and the radius the body meets the colliders with.
+(R_ALPHA, R_BETA, R_DAMPING, R_MAX_SPEED, R_MAX_TURN, R_TURN_RATE, R_MODE, R_QUAD, R_WUNI,
+ R_RADIUS, R_SIZE) = range(11)
 
 
 @njit(**JIT)
@@ -119,30 +116,20 @@ def _step_record(rec, h, gravity, colliders, counters):
     if rec.flags[SLEEP] > 0.0:                 # asleep (``sm_ros.core.sleep``): not stepped
         return
     state = rec.state
-    fused = state[R_FUSED] > 0.0 and state[R_DAMPING] > 0.0
-    sets = state[R_SETS] > 0.0
+    damped = state[R_DAMPING] > 0.0
     dirty = rec.flags[DIRTY] > 0.0
-    _record_sums(rec, sets, dirty, counters)
+    _record_sums(rec, dirty, counters)
     turned = _record_match(rec)
-    if sets:
-        sets_maps(_set_clusters(rec), rec.rest_lin, (rec.trans, rec.goal_lin, rec.goal_off),
-                  rec.ref, state[R_QUAD] > 0.0, (rec.goal_maps, rec.sref),
-                  (rec.quad_map, rec.s_cluster_maps))
+    sets_maps(_set_clusters(rec), rec.rest_lin, (rec.trans, rec.goal_lin, rec.goal_off),
+              rec.ref, state[R_QUAD] > 0.0, (rec.goal_maps, rec.sref),
+              (rec.quad_map, rec.s_cluster_maps))
     for i in range(3):
         rec.acc[i] = rec.force[i] + gravity[i]
         rec.ang[i] = 0.0
-    _record_damping(rec, fused, sets, dirty or turned > 0)
-    if sets:
-        _record_integrate_sets(rec, h, colliders, fused, counters)
-    else:
-        _record_integrate(rec, h, colliders, fused, counters)
+    if damped:
+        _record_damping(rec, dirty or turned > 0)
+    _record_integrate(rec, h, colliders, damped, counters)
     rec.flags[ERR_STALE] = 1.0
-
-
-@njit(inline='always', **JIT)
-def _record_particles(rec):
-    """A record's particles as the passes of ``integrate.py`` read them."""
-    return BodyParticles(rec.xt.T, rec.vt.T, rec.x0t.T, rec.mass)
 
 
 @njit(inline='always', **JIT)
@@ -166,20 +153,16 @@ def _claim(counters):
 
 
 @njit(inline='always', **JIT)
-def _record_sums(rec, sets, dirty, counters):
-    """The clusters' sums of the current state: taken afresh where the state changed since
-    the last pass summed it (``dirty``); the set layout reduces its per-set sums."""
+def _record_sums(rec, dirty, counters):
+    """The clusters' sums of the current state: the per-set sums, taken afresh where the
+    state changed since the last pass summed them (``dirty``), reduced to the clusters."""
     quad = rec.state[R_QUAD] > 0.0
-    if sets:
-        if dirty:
-            sets_accumulate_chunks(claim=_claim(counters), quad=quad, x=rec.xt.T,
-                                   y0=rec.rest_local_t.T, mass=rec.mass, sid=rec.sid,
-                                   runs=rec.s_runs, sref=rec.sref, part=rec.s_part)
-        sets_reduce(rec.s_part, _set_clusters(rec), rec.sref, rec.rest_lin, rec.ref, quad,
-                    rec.part, (rec.work, rec.quad_map))
-    elif dirty:
-        accumulate_chunks(_claim(counters), quad, _record_particles(rec),
-                          _record_rest(rec), rec.part)
+    if dirty:
+        sets_accumulate_chunks(claim=_claim(counters), quad=quad, x=rec.xt.T,
+                               y0=rec.rest_local_t.T, mass=rec.mass, sid=rec.sid,
+                               runs=rec.s_runs, sref=rec.sref, part=rec.s_part)
+    sets_reduce(rec.s_part, _set_clusters(rec), rec.sref, rec.rest_lin, rec.ref, quad,
+                rec.part, (rec.work, rec.quad_map))
 
 
 @njit(inline='always', **JIT)
@@ -220,35 +203,19 @@ def _record_match(rec):
 
 
 @njit(inline='always', **JIT)
-def _record_damping(rec, fused, sets, stale):
-    """Damping towards each cluster's rigid motion: fused into the particle pass (its
-    fields from the last pass's sums, taken again where the state is ``stale``) or a pass
-    of its own."""
-    x, v = rec.xt.T, rec.vt.T
-    if fused:
-        if stale:
-            if sets:
-                damp_accumulate(x=x, v=v, mass=rec.mass, sid=rec.sid, dpart=rec.dpart)
-            else:
-                damp_accumulate(x=x, v=v, mass=rec.mass, sid=rec.sid[:0],
-                                dpart=rec.dpart)
-        damping_fields(rec.dpart, (rec.sptr, rec.scl, rec.scnt), rec.dref, rec.dacc,
-                       _damping_scratch(rec))
-        damping_targets(sptr=rec.sptr, scl=rec.scl, scnt=rec.scnt, lin=rec.lin, w3=rec.w3,
-                        dref=rec.dref, sref=rec.sref if sets else rec.ref, dmp=rec.dmp)
-    elif rec.state[R_DAMPING] > 0.0:
-        damp_rigid(x, v, rec.mass, (rec.ptr, rec.cluster_ids), rec.ref, rec.state[R_DAMPING],
-                   _damping_scratch(rec))
+def _record_damping(rec, stale):
+    """The field of the damping towards each cluster's rigid motion, which the particle
+    pass applies: from the last pass's sums, taken again where the state is ``stale``."""
+    if stale:
+        damp_accumulate(x=rec.xt.T, v=rec.vt.T, mass=rec.mass, sid=rec.sid, dpart=rec.dpart)
+    damping_fields(rec.dpart, (rec.s_ptr, rec.s_cluster_ids, rec.s_cnt), rec.dref, rec.dacc,
+                   (rec.lin, rec.w3, rec.m3a, rec.m3b, rec.m3c, rec.m3d))
+    damping_targets(sptr=rec.s_ptr, scl=rec.s_cluster_ids, scnt=rec.s_cnt, lin=rec.lin,
+                    w3=rec.w3, dref=rec.dref, sref=rec.sref, dmp=rec.dmp)
 
 
 @njit(inline='always', **JIT)
-def _damping_scratch(rec):
-    """A record's scratch of the damping towards the clusters' rigid motion."""
-    return (rec.lin, rec.w3, rec.m3a, rec.m3b, rec.m3c, rec.m3d)
-
-
-@njit(inline='always', **JIT)
-def _record_integrate_sets(rec, h, colliders, fused, counters):
+def _record_integrate(rec, h, colliders, damped, counters):
     """Eq. 13-14 with the static colliders and the speed cap, set by set: the speeds are
     capped block by block before the sums are taken, so the sums stay valid."""
     state = rec.state
@@ -260,25 +227,7 @@ def _record_integrate_sets(rec, h, colliders, fused, counters):
     motion = SetMotion(state[R_ALPHA], h, rec.acc, rec.ang, rec.com, state[R_MAX_SPEED])
     sets_integrate_chunks(_claim(counters), chunk_capped, quad, particles, sets,
                           motion, rec.s_part, rec.err, colliders,
-                          FusedDamping(fused, state[R_DAMPING], rec.dmp, rec.dpart))
-    _fused_refs(quad, state[R_WUNI], rec.ang, rec.s_runs, fused, rec.sref, rec.dpart)
+                          FusedDamping(damped, state[R_DAMPING], rec.dmp, rec.dpart))
+    _fused_refs(quad, state[R_WUNI], rec.ang, rec.s_runs, damped, rec.sref, rec.dpart)
     rec.counts[0] += chunk_capped.sum()
     rec.flags[DIRTY] = 0.0
-
-
-@njit(inline='always', **JIT)
-def _record_integrate(rec, h, colliders, fused, counters):
-    """Eq. 13-14 with the static colliders, then the speed cap (capped positions leave
-    the sums stale: ``DIRTY``)."""
-    state = rec.state
-    x, v = rec.xt.T, rec.vt.T
-    goals = StepGoals(rec.goal_lin, rec.goal_off, rec.trans, state[R_ALPHA], h, rec.acc, rec.ang,
-                      rec.com)
-    integrate_chunks(_claim(counters), state[R_QUAD] > 0.0, _record_particles(rec),
-                     _record_rest(rec), goals, rec.part, rec.err, colliders,
-                     FusedDamping(fused, state[R_DAMPING], rec.dmp, rec.dpart))
-    capped = 0
-    if state[R_MAX_SPEED] > 0.0:
-        capped = limit_speed(x=x, v=v, h=h, v_max=state[R_MAX_SPEED])
-        rec.counts[0] += capped
-    rec.flags[DIRTY] = 1.0 if capped > 0 else 0.0
