@@ -70,8 +70,7 @@ def _modes() -> None:
 
 
 def _damped() -> None:
-    """Damping: the separate pass (small bodies) and the one fused into the particle pass
-    (bodies of tuning.FUSED_DAMPING_MIN particles and more; one cluster, and the set layout)."""
+    """Damping inside the particle pass, of bodies of one and of several clusters."""
     from sm_ros.core import BodyParams, Ground, World
     from sm_ros.core.contact import ContactParams
     big = _cube(11)
@@ -86,9 +85,10 @@ def _damped() -> None:
         damped.step(1.0 / 120.0)
 
 
-def _one_cluster() -> None:
-    """Step one-cluster rigid and linear bodies under the static and moving colliders,
-    several at once with contact under gravity (``solve_bodies``)."""
+def warm_packed() -> None:
+    """Step the one-cluster rigid and linear bodies (the packed step, ``core/packed.py``)
+    under the static and moving colliders, several at once with contact under gravity
+    (``solve_bodies``)."""
     from sm_ros.core import BodyParams, World
     cube = _cube()
     world = World(gravity=(0.0, 0.0, -9.81))
@@ -100,9 +100,9 @@ def _one_cluster() -> None:
         world.step(1.0 / 120.0)
 
 
-def _alone() -> None:
-    """Sleeping bodies (``core/sleep.py``), a body alone (the collider pass on its own
-    buffers) and one spinning past its turn limit (``limits.limit_turn``)."""
+def _packed_alone() -> None:
+    """Sleeping bodies (``core/sleep.py``), a packed body alone (the collider pass on its
+    own buffers) and one spinning past its turn limit (``Pack._limit_turn``)."""
     from sm_ros.core import BodyParams, Capsule, Ground, World
     cube = _cube()
     pile = World(gravity=(0.0, 0.0, -9.81))
@@ -155,10 +155,10 @@ def _default_scene() -> None:
     warm_scene('default')
 
 
-#: What a cold warm-up compiles, split between this process (``MAIN_STAGES``), a second
-#: one (``EXTRA_STAGES``) and a third (:func:`warm_stiff`: contact) so that each takes
-#: about as long.
-MAIN_STAGES = (_default_scene, _one_cluster, _modes, _alone)
+#: What a cold warm-up compiles, split between this process (``MAIN_STAGES``: the packed
+#: step's bodies), a second one (``EXTRA_STAGES``: the set layout's and the compiled
+#: records') and a third (:func:`warm_stiff`: contact) so that each takes about as long.
+MAIN_STAGES = (_default_scene, warm_packed, _modes, _packed_alone)
 EXTRA_STAGES = (_damped, _points)
 
 

@@ -109,9 +109,9 @@ def test_plastic_refresh_at_cluster_cost_matches_the_particle_pass(mode, cluster
 
 
 def _many_world(compiled):
-    """Small and large bodies of one and eight clusters (damped in a pass, fused,
-    undamped; rigid, linear, quadratic), a body the compiled step does not cover (plastic),
-    colliders, a force."""
+    """Small and large one-cluster and set-layout bodies (damped in a pass, fused,
+    undamped; rigid, linear, quadratic), a body the compiled step does not cover (8
+    clusters without the set layout), colliders, a force."""
     world = World()
     world.compiled_step = compiled
     world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.2))
@@ -151,9 +151,9 @@ def test_compiled_world_step_equals_stepping_bodies_one_by_one(monkeypatch, para
                 world.bodies[0].clear_wrench()
                 world.add_body(lattice(3) + (0.0, 0.5, 0.1), masses=0.01, name='late')
         if compiled:
-            records, slow, helpers = world._split_bodies(1.0 / 120.0)
+            pack, records, slow, helpers = world._split_bodies(1.0 / 120.0)
             assert helpers == (parallel and numba.get_num_threads() > 1)
-            assert len(records) == 8 and [b.name for b in slow] == ['b4']
+            assert len(pack) == 5 and len(records) == 3 and [b.name for b in slow] == ['b4']
             assert world.body('b7')._sets is not None and world.body('b4')._sets is not None
         states.append([(b.x.copy(), b.v.copy(), b.shape_error_rms(), b._limit_counts.copy())
                        for b in world.bodies])

@@ -1,6 +1,6 @@
 """The one-loop passes: the set layout's (``kernels.sets._sets_fused_lin``) against a NumPy
-twin and against the two-loop pass it replaces on long runs, and on a ground against the
-NumPy reference.
+twin and against the two-loop pass it replaces on long runs, and the one-cluster one
+(``packed._pass``) on a ground against the NumPy reference.
 
 A rigid/linear body stored set by set (as the core stores it) without torque is stepped run by
 run in one loop: damping towards the set's field, Eq. 13-14, the speed count, the set's
@@ -19,7 +19,7 @@ from sm_ros.core import BodyParams, Ground, World
 from sm_ros.core import body_build
 from sm_ros.core import kernels as K
 from sm_ros.core.kernels import sets as KS
-from sm_ros.core.kernels.sets import FUSED_SETS_BLOCK as FUSED_BLOCK
+from sm_ros.core.packed import FUSED_BLOCK
 
 H = 1.0 / 120.0
 
@@ -218,10 +218,10 @@ def test_damping_of_a_set_layout_body_flying_far_out_at_huge_speed():
 
 @pytest.mark.parametrize('mode', ['rigid', 'linear'])
 def test_one_cluster_body_landing_on_the_ground_matches_the_numpy_twin(mode):
-    """The one-loop pass of a one-cluster body (one set) of two blocks (4,913 particles,
-    stored layer by layer from the bottom) landing on a ground: the lower block, which the
-    ground reaches, is projected and summed again, the upper one keeps the loop's sums; the
-    states follow the NumPy reference to round-off."""
+    """The packed one-cluster pass on a body of two blocks (4,913 particles, stored layer by
+    layer from the bottom) landing on a ground: the lower block, which the ground reaches,
+    is projected and summed again, the upper one keeps the loop's sums; the states follow
+    the NumPy reference to round-off."""
     from sm_ros.core.reference import ReferenceBody
     rng = np.random.default_rng(5)
     x0 = _lattice(17)[:, ::-1] + rng.uniform(-0.004, 0.004, (17 ** 3, 3)) + (0.0, 0.0, 0.03)
@@ -235,7 +235,7 @@ def test_one_cluster_body_landing_on_the_ground_matches_the_numpy_twin(mode):
     v0 = rng.normal(scale=0.2, size=x0.shape)
     body.set_state(v=v0)
     ref.v = v0.copy()
-    assert len(body._sets.cnt) == 1 and FUSED_BLOCK < body.n <= 2 * FUSED_BLOCK
+    assert body._packed_ok() and FUSED_BLOCK < body.n <= 2 * FUSED_BLOCK
     # the upper block lies above every particle of the lower one
     assert x0[FUSED_BLOCK:, 2].min() > x0[:FUSED_BLOCK, 2].min() + 0.4
     for _ in range(60):
@@ -312,37 +312,47 @@ def test_ground_projection_corrects_the_sums_it_changes(damp):
 
 
 
-@pytest.mark.parametrize('clusters', [1, 2])
-def test_sums_stay_those_of_the_state_on_the_ground(clusters):
+@pytest.mark.parametrize('layout', ['packed', 'sets'])
+def test_sums_stay_those_of_the_state_on_the_ground(layout):
     """A damped body landing on the ground, no speed capped: the one-loop passes take the
     shape and damping sums in their loop and correct them for what the ground's
     projection moved (``ground_range_sums``), so after every step the stored sums equal
-    the sums of the state taken afresh (one cluster: one set of two blocks, the lower one
-    on the ground; two clusters: the runs of the lower sets)."""
+    the sums of the state taken afresh (one-cluster pack: two blocks, the lower one on the
+    ground; set layout: the runs of the lower sets)."""
     from sm_ros.core.kernels.damping import damp_acc_range
+    from sm_ros.core.kernels.packed_pass import one_cluster_sums
     rng = np.random.default_rng(6)
-    side = 17 if clusters == 1 else 10
+    side = 17 if layout == 'packed' else 10
     x0 = _lattice(side)[:, ::-1] + rng.uniform(-0.004, 0.004, (side ** 3, 3)) + (0, 0, 0.02)
     m = 1.3                                  # one mass: the one-loop passes
     world = World(gravity=(0.0, 0.0, -9.81))
     world.set_colliders(ground=Ground(height=0.0, friction=0.4, restitution=0.2))
     params = BodyParams(mode='linear', alpha=0.5, beta=0.5, damping=0.05,
-                        clusters=clusters)
+                        clusters=1 if layout == 'packed' else 2)
     body = world.add_body(x0, m, params)
     body.set_state(v=rng.normal(scale=0.3, size=x0.shape) + (0.0, 0.0, -0.5))
-    assert _fused(body)
+    assert body._packed_ok() == (layout == 'packed')
+    assert layout == 'packed' or _fused(body)
     projected = 0
     for _ in range(12):
         world.step(H)
         assert body.limit_counts[0] == 0
         on = int((body.x[:, 2] == body._collider_radius).sum())
         projected += on
-        st = body._sets
-        shape = np.zeros_like(st.part)
-        K.sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64),
-                                 quad=False, x=body._x, y0=st.rest_local, mass=body._m,
-                                 sid=st.sid, runs=st.runs, sref=st.ref, part=shape)
-        stored, sid = st.part, st.sid
+        if layout == 'packed':
+            shape = np.zeros((1, 12))
+            one_cluster_sums(start=0, end=body.n, x=body._x, x0=body._x0, mass=body._m,
+                             rest_lin=body._rest_lin, rest_off=body._rest_off, ref=body._ref,
+                             sums=shape)
+            stored = body._part[0]
+            sid = np.zeros(0, dtype=np.int32)
+        else:
+            st = body._sets
+            shape = np.zeros_like(st.part)
+            K.sets_accumulate_chunks(claim=np.zeros(1, dtype=np.int64),
+                                     quad=False, x=body._x, y0=st.rest_local, mass=body._m,
+                                     sid=st.sid, runs=st.runs, sref=st.ref, part=shape)
+            stored, sid = st.part, st.sid
         np.testing.assert_allclose(stored, shape, rtol=1e-10, atol=1e-12 * np.abs(shape).max())
         # the damping rows, chunk by chunk (a chunk's rows sum its particles about its points)
         nch = body._dpart.shape[0]

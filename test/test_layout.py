@@ -56,7 +56,7 @@ def test_views_are_column_major_read_only_and_follow_the_state():
 
 def test_compiled_world_step_takes_a_one_particle_body():
     """A one-particle body's (1, 3) view is C- and F-contiguous at once; its particle
-    record goes into the same typed list as the others' and it steps as it
+    arrays go into the same typed list as the others' (``packed.Pack``) and it steps as it
     does alone (bit for bit)."""
     def run(names):
         world = World(gravity=(0.0, 0.0, -9.81))
@@ -72,8 +72,8 @@ def test_compiled_world_step_takes_a_one_particle_body():
         return {b.name: (b.x.copy(), b.v.copy()) for b in world.bodies}, world
 
     both, world = run(('dot', 'cube'))
-    records, slow, _ = world._split_bodies(H)
-    assert len(records) == 2 and not slow
+    pack, records, slow, _ = world._split_bodies(H)
+    assert len(pack) == 2 and len(records) == 0 and not slow      # one-cluster: packed
     for name in ('dot', 'cube'):
         alone, _ = run((name,))
         assert np.array_equal(both[name][0], alone[name][0])
@@ -154,34 +154,3 @@ def test_state_blocks_start_on_a_cache_line(n_side, clusters):
         order_ = body._perm if body._perm is not None else np.arange(body.n)
         assert np.array_equal(body.x, pts) and np.array_equal(body.v, vel)
         assert np.allclose(body._x0, pts[order_] - pts.mean(axis=0), atol=1e-12)
-
-
-def _copy_world():
-    world = World()
-    world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.2))
-    g = np.arange(6) * 0.02
-    x0 = np.stack(np.meshgrid(g, g, g, indexing='ij'), axis=-1).reshape(-1, 3) + 0.01
-    world.add_body(x0, masses=0.01, velocities=np.tile((0.0, 0.0, -1.0), (len(x0), 1)))
-    return world
-
-
-def test_a_copied_world_steps_its_own_bodies():
-    """The records hold their bodies' particle arrays: a deep copy of a stepped world
-    builds its own, so that stepping the copy leaves the original's state as it was (and
-    both step alike)."""
-    import copy
-    h = 1.0 / 240.0
-    world = _copy_world()
-    for _ in range(3):
-        world.step(h)
-    records = world._split_bodies(h)[0]
-    twin = copy.deepcopy(world)
-    x, v = world.bodies[0].x.copy(), world.bodies[0].v.copy()
-    for _ in range(5):
-        twin.step(h)
-    assert np.array_equal(world.bodies[0].x, x) and np.array_equal(world.bodies[0].v, v)
-    assert twin._split_bodies(h)[0] is not records
-    for _ in range(5):
-        world.step(h)
-    assert np.array_equal(world.bodies[0].x, twin.bodies[0].x)
-    assert not np.array_equal(world.bodies[0].x, x)

@@ -78,8 +78,8 @@ def test_the_pass_flags_a_poisoned_value(monkeypatch, mode, clusters, plastic, p
 
 @pytest.mark.parametrize('threaded,in_python', [(False, True), (True, False)])
 def test_the_compiled_world_step_flags_it(monkeypatch, threaded, in_python):
-    """Many small bodies in the compiled world steps (bodies of one and of two clusters, on
-    records): the poisoned ones are found from their flags, whichever thread
+    """Many small bodies in the compiled world steps (the packed one-cluster bodies and the
+    set-layout records): the poisoned ones are found from their flags, whichever thread
     stepped them, the flags read in Python or in one compiled call."""
     monkeypatch.setattr(nonfinite, 'PYTHON_FLAGS_MAX', 10 ** 6 if in_python else 0)
     # the records on the helper threads
@@ -94,8 +94,9 @@ def test_the_compiled_world_step_flags_it(monkeypatch, threaded, in_python):
     bodies = world.bodies
     check = NonFiniteCheck()
     world.step(1.0 / 240.0)
-    records, slow, par = world._split_bodies(1.0 / 240.0)
-    assert len(records) == 12 and not slow
+    pack, records, slow, par = world._split_bodies(1.0 / 240.0)
+    # one-cluster bodies in the packed step (core/packed.py), 8-cluster ones as records
+    assert len(pack) == 8 and len(records) == 4 and not slow
     for trial in range(6):
         picks = sorted(rng.choice(12, size=int(rng.integers(1, 4)), replace=False))
         for k in picks:

@@ -34,8 +34,12 @@ def test_helpers_share_a_job_and_every_item_is_done_once():
     for _ in range(3):                      # the same helper thread, job after job
         entered, lock, who = threading.Event(), threading.Lock(), set()
         done = [0] * 200
-        helpers.run(1, _claiming_job(200, entered, done, lock, who), ())
+        before = []
+        helpers.run(1, _claiming_job(200, entered, done, lock, who), (),
+                    before=lambda b=before: b.append(threading.current_thread().name))
         assert done == [1] * 200 and entered.is_set()
+        # ``before`` ran once, on the calling thread (the helper may have started already)
+        assert before == [threading.current_thread().name]
     assert len(helpers._threads) == 1 and helpers._active == 0 and helpers._job is None
 
 
@@ -111,5 +115,5 @@ def test_the_world_shares_its_records_with_the_helpers(monkeypatch):
         world.add_body(lat + (0.2 * b, 0.0, 0.5), masses=0.01,
                        params=BodyParams(mode='linear', clusters=2, damping=0.05))
     world.step(1.0 / 240.0)
-    assert len(world._split[1]) == 3 and world._split[3]
+    assert len(world._split[2]) == 3 and world._split[4]
     assert calls == [3]

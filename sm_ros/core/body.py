@@ -13,6 +13,7 @@ from . import body_build, body_step, param_energy, tuning
 from . import kernels as K
 from .kernels.flags import DIRTY, ERR_STALE, SLEEP
 from .body_build import _EMPTY_I64, _GENERATION, soa  # noqa: F401 (body.soa)
+from .packed import Pack
 from .params import BodyParams
 
 
@@ -187,6 +188,38 @@ class Body:
         return ((point or not (self._params.plastic or self._has_torque))
                 and len(self._kin_idx) == 0 and not self._parallel)
 
+    def _packed_ok(self) -> bool:
+        """Whether the packed world step (``packed.py``) may step this body: one cluster,
+        rigid or linear, every particle of one mass (its loop sums unweighted), no
+        plasticity, grabs or torque (a body built for threads too: it steps on one thread in
+        the pack)."""
+        return (self._params.clusters == 1 and not self._quad
+                and self._wuni > 0.0
+                and (self._fast_ok() or (self._parallel and not self._params.plastic
+                                         and len(self._kin_idx) == 0
+                                         and not self._has_torque)))
+
+    def _unpack(self):
+        """Mark this body as stepped by the set layout's step: leaving a pack, its sums are
+        taken afresh (the pack kept the one-cluster sums only), and a pack it joins later
+        takes them afresh too (``_in_sets``)."""
+        owner = getattr(self, '_pack_owner', None)
+        if owner is not None:
+            owner.stale = True
+            self._pack_owner = None
+            self._dirty = True
+        self._in_sets = True
+
+    def _one_pack(self, h):
+        """A ``packed.Pack`` of this body alone, kept until a body changes, h or its collider
+        radius does or the body was packed elsewhere."""
+        key = (_GENERATION[0], h, self._collider_radius)
+        one = getattr(self, '_one', None)
+        if (one is None or one[0] != key or not isinstance(one[1], Pack)
+                or getattr(self, '_pack_owner', None) is not one[1]):
+            one = self._one = (key, Pack([self], h))
+        return one[1]
+
     def _fast_record(self, h):
         """The tuple of buffers ``kernels.world_step`` steps (``body_build.fast_record``)."""
         return body_build.fast_record(self, h)
@@ -194,6 +227,7 @@ class Body:
     def __getstate__(self):
         state = self.__dict__.copy()
         state.pop('_one', None)                # a typed list does not copy: rebuilt
+        state.pop('_pack_owner', None)
         return state
 
     def __setstate__(self, state):

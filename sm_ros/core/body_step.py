@@ -26,6 +26,10 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     runs for it (the kernels compiled inside one caller or called one by one from Python
     can round differently under fast math).
     """
+    if body._packed_ok():
+        body._one_pack(h).step(h, gravity, has_col, ground, boxes, spheres, thresh)
+        return
+    body._unpack()
     if body._fast_ok():
         K.step_single_bodies(body._one_record(h), h, gravity, has_col, ground, boxes, spheres,
                              thresh)
@@ -209,7 +213,7 @@ def _grabbed(body, damped, h) -> None:
 
 def _chunks(body, kernel, **args):
     """Run a pass over the body's particle chunks (``kernel``: one that claims its chunks,
-    such as ``K.integrate_chunks``): on this thread, or on it and helper threads for a body
+    such as ``K.sets_integrate_chunks``): on this thread, or on it and helper threads for a body
     built for threads (``Body._parallel``: a chunk per thread)."""
     claim = np.zeros(1, dtype=np.int64)
     nchunks = len(args['part'])

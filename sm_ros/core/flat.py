@@ -163,8 +163,10 @@ class FlatState:
 
     def flag_list(self):
         """The bodies' flag arrays (``Body._flags``) as a typed list for the kernels."""
-        # rebuilt when one of the bodies' flag arrays is not the array it holds (a body
-        # rebuilt for new parameters has new ones)
+        # the bodies' flag arrays (``Body._dirty`` is ``_flags[DIRTY]``): a packed body's are
+        # a view of its pack's row, replaced when it is packed again, so the typed list is
+        # rebuilt when one of them is not the array it holds (a check of identities,
+        # cheaper than setting a property on every body)
         flags = [b._flags for b in self.bodies]
         seen = self._flags_seen
         if seen is None or any(map(operator.is_not, flags, seen)):

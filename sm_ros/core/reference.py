@@ -414,7 +414,7 @@ def cluster_sums(x, x0, m, ptr, cluster_ids, rest_lin, rest_off, ref, quad):
     """Per-cluster accumulators (clusters, 12 or 30) straight from the particles: row k =
     [sum w (x - ref_k), sum w (x - ref_k) f^T (row-major)] over k's members, w = m / (the
     particle's number of clusters), f = q-hat = G_k x0 + h_k or its quadratic features q~.
-    Twin of ``kernels.sets_reduce`` (after ``sets_accumulate``) and ``accumulate_chunks``."""
+    Twin of ``kernels.sets_reduce`` (after ``sets_accumulate_chunks``)."""
     nk = len(rest_lin)
     out = np.zeros((nk, 30 if quad else 12))
     counts = np.diff(ptr)

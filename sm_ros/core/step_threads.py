@@ -47,20 +47,24 @@ class Helpers:
                     self._active -= 1
                     self._cond.notify_all()
 
-    def run(self, helpers, fn, args):
+    def run(self, helpers, fn, args, before=None):
         """Call ``fn(*args)`` here and on up to ``helpers`` helper threads; return when
         this call has returned and no helper is still inside its call (an exception
-        raised in a helper is raised here).  While another thread's job runs (two worlds
-        stepped from two threads), ``fn`` runs on the calling thread alone."""
+        raised in a helper is raised here).  ``before()`` runs here first, after the
+        helpers were woken (work of the calling thread alone, while they start).  While
+        another thread's job runs (two worlds stepped from two threads), ``before`` and
+        ``fn`` run on the calling thread alone."""
         if not self._busy.acquire(blocking=False):
+            if before is not None:
+                before()
             fn(*args)
             return
         try:
-            self._run(helpers, fn, args)
+            self._run(helpers, fn, args, before)
         finally:
             self._busy.release()
 
-    def _run(self, helpers, fn, args):
+    def _run(self, helpers, fn, args, before):
         with self._cond:
             while len(self._threads) < helpers:
                 t = threading.Thread(target=self._loop, daemon=True,
@@ -72,6 +76,8 @@ class Helpers:
             self._error = None
             self._cond.notify(helpers)
         try:
+            if before is not None:
+                before()
             fn(*args)
         finally:
             with self._cond:

@@ -2,9 +2,9 @@
 so that a change here needs no recompilation).  The users read them at call time
 (``tuning.NAME``), so a test may set them with ``monkeypatch.setattr(tuning, ...)``.
 
-The block sizes that Numba kernels compile in stay beside their kernels in ``kernels/``:
-Numba's on-disk cache is keyed on the kernel's own source file, so such a constant edited
-here would leave a stale cached kernel."""
+The block sizes that Numba kernels compile in (``packed.FUSED_BLOCK``, those in
+``kernels/``) stay beside their kernels: Numba's on-disk cache is keyed on the kernel's own
+source file, so such a constant edited here would leave a stale cached kernel."""
 
 #: Sleeping: restless above this many times ``sleep_speed``, two steps in a row.
 WAKE_FACTOR = 4.0

@@ -10,6 +10,7 @@ from numba.typed import List as TypedList
 from . import body as body_mod, body_build, tuning
 from .body import Body
 from .kernels.world_step import step_bodies_parallel, step_single_bodies
+from .packed import Pack
 from .contact import BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
 from .kernels.flags import SLEEP
@@ -274,15 +275,21 @@ class World(WorldColliders):
             self.time += h
             return
         self._stiff_pass(h, thresh)
-        _, records, slow, helpers, nrec = self._split_now(h)
+        _, pack, records, slow, helpers, nrec = self._split_now(h)
         args = (h, self._gravity, self._has_col, self._ground_row, self._box_rows,
                 self._sphere_rows, thresh)
-        # one compiled call for the bodies it covers (kernels/world_step.py), shared with
-        # helper threads where there is enough work
+        # the one-cluster rigid/linear bodies: one compiled call over their rows (packed.py)
+        step_pack = None if pack is None else (lambda: pack.step(*args))
         if nrec and helpers:
-            step_bodies_parallel(records, *args)
-        elif nrec:
-            step_single_bodies(records, *args)
+            # the records (kernels/world_step.py) shared with helper threads; the pack is
+            # stepped here while they wake
+            step_bodies_parallel(records, *args, before=step_pack)
+        else:
+            if step_pack is not None:
+                step_pack()
+            if nrec:
+                # one compiled call for the bodies it covers (kernels/world_step.py)
+                step_single_bodies(records, *args)
         for body in slow:
             if not body.asleep:                # asleep: not stepped (sleep.py)
                 body._step(*args)
@@ -318,17 +325,19 @@ class World(WorldColliders):
     compiled_step = True
 
     def _split_bodies(self, h):
-        """(typed list of the compiled-step records of the bodies it covers, bodies
-        stepped one by one, whether the records are shared with helper threads):
-        ``_split_now``'s."""
-        return self._split_now(h)[1:4]
+        """(``packed.Pack`` of the one-cluster rigid/linear bodies or None, typed list of
+        compiled-step records of the other covered bodies, bodies stepped one by one,
+        whether the records are shared with helper threads): ``_split_now``'s."""
+        return self._split_now(h)[1:5]
 
     def _split_now(self, h):
-        """The split of the bodies at the step ``h``: (key, typed list of the
-        compiled-step records of the bodies it covers, bodies stepped one by one, whether
-        the records are shared with helper threads, how many records), rebuilt only when a
-        body's buffers, parameters, grabs or wrench kind, the bodies or the step changed.
-        Python cost per step does not grow with the number of bodies.  The records are shared
+        """The split of the bodies at the step ``h``: (key, ``packed.Pack`` of the
+        one-cluster rigid/linear bodies or None, typed list of compiled-step records of the
+        other covered bodies, bodies stepped one by one, whether the records are shared
+        with helper threads, how many records), rebuilt only when a body's buffers,
+        parameters, grabs or wrench kind, the bodies, the step or the packing
+        (``Pack.stale``: one of its bodies was packed elsewhere since) changed.  Python
+        cost per step does not grow with the number of bodies.  The records are shared
         with helper threads with several threads, several records and
         ``tuning.RECORDS_PARALLEL_MIN_WORK`` particles in records (``step_bodies_parallel``
         never waits for a helper that has not started).  The record count is kept: a typed
@@ -336,30 +345,37 @@ class World(WorldColliders):
         self._collider_radii(h)                # their radii before their records take them
         key = (body_mod._GENERATION[0], h, self._layout, self.compiled_step)
         split = self._split
-        if (split is not None and split[0] != key
-                and split[0][:1] + split[0][2:] == key[:1] + key[2:]):
+        fresh = split is not None and not (split[1] is not None and split[1].stale)
+        if fresh and split[0] != key and split[0][:1] + split[0][2:] == key[:1] + key[2:]:
             # only the step changed (the live error estimate's half steps): the numbers
             # that depend on it, in place
             self._retime_split(h)
             split = self._split = (key,) + split[1:]
-        if split is None or split[0] != key:
-            records, slow, rec_work = TypedList(), [], 0
+        if split is None or split[0] != key or (split[1] is not None and split[1].stale):
+            records, packed, slow, rec_work = TypedList(), [], [], 0
             self._split_fstates = []            # each record's numbers (``retime_record``)
             for body in self._bodies.values():
-                if self.compiled_step and body._fast_ok():
+                if self.compiled_step and body._packed_ok():
+                    packed.append(body)
+                elif self.compiled_step and body._fast_ok():
+                    body._unpack()
                     records.append(body._fast_record(h))
                     self._split_fstates.append((body, body._fstate))
                     rec_work += body.n
                 else:
                     slow.append(body)
+            pack = Pack(packed, h) if packed else None
             helpers = (numba.get_num_threads() > 1 and len(records) > 1
                        and rec_work >= tuning.RECORDS_PARALLEL_MIN_WORK)
-            split = self._split = (key, records, slow, helpers, len(records))
+            split = self._split = (key, pack, records, slow, helpers, len(records))
         return split
 
     def _retime_split(self, h):
-        """Write the numbers of the split's records for steps of ``h`` in place
-        (``body_build.retime_record``)."""
+        """Write the numbers of the split's pack rows and records for steps of ``h`` in
+        place (``Pack.retime``, ``body_build.retime_record``)."""
+        pack = self._split[1]
+        if pack is not None:
+            pack.retime(h)
         for body, fstate in self._split_fstates:
             body_build.retime_record(body, fstate, h)
 

@@ -220,6 +220,6 @@ class WorldColliders:
         for b, r in zip(bodies, radii):
             b._collider_radius = float(r)
         if changed and self._split is not None:
-            self._retime_split(self._split[0][1])   # the records take them
+            self._retime_split(self._split[0][1])   # the pack rows and records take them
         self._collider_radius = radii
         self._radii_key = key

@@ -1,27 +1,28 @@
 """Numba kernels of the solver, one file per part of the method (algorithm.md numbering).
 
-=================  ==========================================================  ============
-file               what it computes                                            equations
-=================  ==========================================================  ============
-``linalg.py``      hand-written 3x3 / 4x4 / 9x9 eigen-solver, pseudo-inverse    (support)
-``rotation.py``    R of the polar decomposition of A_pq (Horn's quaternion)     11
-``goals.py``       per-cluster sums -> x_cm, A_pq, A, goal transforms; A_qq    7-12, 19-22
-``unit_det.py``    the linear mode's unit-determinant goal matrix               18
-``integrate.py``   Eq. 13-14 for one particle; the tuples the passes read       13-14
-``sets.py``        the particle passes, particles grouped by cluster sets      7-9, 13-14,
-                   (goals averaged over clusters, the next step's sums)        21, 23
-``sets_sums.py``   the per-set sums                                            7-9
-``set_maps.py``    per-set sums to per-cluster sums; the per-set goal maps     7-9, 23
-``fused.py``       the one loop of the fused pass over a set's run             13-14
-``grabs.py``       grabbed and pinned particles; a body's inertia tensor        (grabs)
-``plasticity.py``  plastic state update and its caps                            24-27
-``colliders.py``   static ground, boxes, spheres (projection, friction)         (collisions)
-``damping.py``     damping towards each cluster's rigid motion                  (damping)
-``limits.py``      speed and turn-per-step limits (what one step represents)   (limits)
-``world_step.py``  one compiled call steps the bodies of a world                7-14
-``flags.py``       the indices of a body's flag array                          -
-``jit.py``         compile options; the cache directory keyed on all files      -
-=================  ==========================================================  ============
+==================  ==========================================================  ============
+file                what it computes                                            equations
+==================  ==========================================================  ============
+``linalg.py``       hand-written 3x3 / 4x4 / 9x9 eigen-solver, pseudo-inverse    (support)
+``rotation.py``     R of the polar decomposition of A_pq (Horn's quaternion)     11
+``goals.py``        per-cluster sums -> x_cm, A_pq, A, goal transforms; A_qq    7-12, 19-22
+``unit_det.py``     the linear mode's unit-determinant goal matrix               18
+``integrate.py``    Eq. 13-14 for one particle; the tuples the passes read       13-14
+``sets.py``         the particle passes, particles grouped by cluster sets      7-9, 13-14,
+                    (goals averaged over clusters, the next step's sums)        21, 23
+``sets_sums.py``    the per-set sums                                            7-9
+``set_maps.py``     per-set sums to per-cluster sums; the per-set goal maps     7-9, 23
+``fused.py``        the one loop of the fused passes (a set's run, one cluster)  13-14
+``grabs.py``        grabbed and pinned particles; a body's inertia tensor        (grabs)
+``plasticity.py``   plastic state update and its caps                            24-27
+``colliders.py``    static ground, boxes, spheres (projection, friction)         (collisions)
+``damping.py``      damping towards each cluster's rigid motion                  (damping)
+``limits.py``       speed and turn-per-step limits (what one step represents)   (limits)
+``world_step.py``   one compiled call steps the bodies of a world                7-14
+``packed_pass.py``  the packed step's one-cluster pass (``core/packed.py``)       7-9, 13-14
+``flags.py``        the indices of a body's flag array                          -
+``jit.py``          compile options; the cache directory keyed on all files      -
+==================  ==========================================================  ============
 
 Public kernels never raise and assume clean, contiguous input; ``sm_ros.core.body``
 validates and owns every buffer, so nothing here allocates.  ``x``, ``v`` and ``h`` are

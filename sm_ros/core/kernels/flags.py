@@ -1,5 +1,5 @@
-"""Indices of a body's flag array (``Body._flags``), read and written by Python and by the
-compiled steps."""
+"""Indices of a body's flag array (``Body._flags``; the same four columns of a pack row,
+``packed.C_FLAGS``), read and written by Python and by the compiled steps."""
 
 #: The per-cluster sums must be taken again before the next step (the state was changed).
 DIRTY = 0

@@ -1,9 +1,10 @@
 """The one loop of the fused particle passes (Eq. 13-14 with damping, the speed count and
-the next step's sums in one sweep) of the set layout's runs (``sets._sets_fused_lin``).
+the next step's sums in one sweep), shared by the one-cluster pass
+(``packed_pass._int_single_fused``) and the set layout's runs (``sets._sets_fused_lin``).
 
 The loop serves bodies whose particles all have one mass (``wuni`` > 0): it sums
 unweighted and scales once, so a body of several masses takes the two-loop passes instead
-(``sets._fused_pass``).  ``damp_constants`` folds the damping towards a
+(``Body._packed_ok``, ``sets._fused_pass``).  ``damp_constants`` folds the damping towards a
 rigid field into three multiply-adds a component.
 """
 
@@ -163,7 +164,7 @@ def damp_sums_uniform(lo, hi, x, v, wuni, k0, k1, k2):
     """Rows 3-14 of ``damping.damp_sums_range``'s sums (sum w v, sum w d x v, the six
     second moments of d = x - k), then W, for particles that all weigh ``wuni``: summed
     unweighted and scaled once (12 products a particle, not 18).  Inlined by Numba into the
-    one-loop pass (``sets._sets_fused_lin``) for a block or run the
+    one-loop passes (``packed._pass``, ``sets._sets_fused_lin``) for a block or run the
     colliders or the speed cap moved after their loop (``_fused_loop`` takes the same
     sums); they take sum w d from their shape sums."""
     sums = ZERO16

@@ -93,7 +93,8 @@ def solve_clusters_warm(part, rest, shape, match, scratch, mode, beta, warm):
     from the eigenvectors of its last (``match.udv``; ``nearest_unit_det_warm``).
     """
     m39 = scratch.m39
-    # the linear mode's 3x3 scratch
+    # the linear mode's 3x3 scratch (the last two C-contiguous like the packed step's, so
+    # both callers share one compiled eigen solver)
     work = (m39[:, 3:6], m39[:, 6:9], scratch.work[0], scratch.work[1])
     _match_clusters(part, rest, shape, match, scratch, mode, beta, warm, work)
 

@@ -38,7 +38,7 @@ def limit_speed(x, v, h, v_max):
 
 @njit(**JIT_NO_REFCOUNT)
 def limit_speed_range(start, end, x, v, h, v_max):
-    """``limit_speed`` for particles start..end (the set layout's pass caps run by run).
+    """``limit_speed`` for particles start..end (the packed step caps block by block).
 
     A first loop only counts the speeds above the cap: compares and a masked count over
     the unit-stride columns of v with an unsigned index (``jit.U``), which vectorises; the

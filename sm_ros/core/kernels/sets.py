@@ -232,7 +232,7 @@ def _sets_fused_lin(start, end, particles, sets, motion, damping, sums, dsums, c
     (so the damping row's sum w d and W are the shape sums' own: 12 damping accumulators,
     not 16): undamped the set's reference ``sref[s]``; damped where the set goes, sref +
     h (c_s + h acc) with c_s the damping field's velocity at sref, so that the second
-    moments of a body far out at huge speed do not lose it to rounding.
+    moments of a body far out at huge speed do not lose it to rounding (as ``packed``).
     The damping row holds P_s (its entries 15-17); ``sets_integrate_*`` makes it the
     set's reference for the next step's ``sets_reduce``.
     """

@@ -5,9 +5,11 @@ microseconds in the dispatcher, while a 144-particle body's own work is about on
 body's step calls 4-6 kernels.  ``step_single_bodies`` runs the same
 kernels, in the same order and with the same arguments as ``Body._step``, for every body
 of a typed list of per-body records, so the Python cost of a step does not grow with the
-number of such bodies.  It covers the bodies without plasticity, kinematic particles or
-torque on one thread (``Body._fast_ok``); the others keep ``Body._step``, which steps a
-covered body as a list of one record.
+number of such bodies.  It covers set-layout bodies (and one-cluster quadratic ones)
+without plasticity, kinematic particles or torque, on one thread (``Body._fast_ok``);
+one-cluster rigid/linear bodies take the packed step (``sm_ros.core.packed``: no per-body
+record) and the others keep ``Body._step``, which steps a covered body as a list of one
+record.
 
 A record (``Body._fast_record``) is a ``StepRecord``, a named tuple of the body's own buffers
 (x, v, x0, y0 as their (3, N) blocks, transposed back to (N, 3) views of layout F here);
@@ -86,10 +88,13 @@ def step_single_bodies(bodies, h, gravity, has_col, ground, boxes, spheres, thre
                         boxes, spheres, thresh)
 
 
-def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, thresh):
+def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, thresh,
+                         before=None):
     """``Body._step`` for every record of ``bodies``, on the calling thread and up to
     ``numba.get_num_threads() - 1`` helper threads (``step_threads.Helpers``) that claim
     records one at a time (``step_bodies_claimed``; the kernels release the GIL).
+    ``before()``, if given, runs on the calling thread after the helpers were woken and
+    before it joins them (``World.step``: the packed bodies, while the helpers start).
 
     Unlike a ``prange`` loop (static halves, and a join that waits for every thread), the
     calling thread never waits for a helper that has not started: on shared cores where
@@ -102,9 +107,11 @@ def step_bodies_parallel(bodies, h, gravity, has_col, ground, boxes, spheres, th
     claim = np.zeros(1, dtype=np.int64)
     args = (bodies, claim, h, gravity, has_col, ground, boxes, spheres, thresh)
     if threads < 2 or len(bodies) < 2:
+        if before is not None:
+            before()
         step_bodies_claimed(*args)
         return
-    HELPERS.run(min(threads, len(bodies)) - 1, step_bodies_claimed, args)
+    HELPERS.run(min(threads, len(bodies)) - 1, step_bodies_claimed, args, before)
 
 
 @njit(**JIT_NO_REFCOUNT)
