@@ -398,7 +398,7 @@ def _fused_refs(quad, wuni, ang, runs, damp, sref, dpart):
 def sets_integrate_chunks(claim, capped, quad, particles, sets, motion, part, err, col,
                           damping):
     """Fused step pass of a set-layout body over the chunks this call claims (``claim``, as
-    ``integrate.accumulate_chunks``); ``capped[chunk]``: the speeds it capped there.  Once
+    ``sets_sums.sets_accumulate_chunks``); ``capped[chunk]``: the speeds it capped there.  Once
     every chunk is done, ``_fused_refs`` completes the pass."""
     nchunks = part.shape[0]
     while True:

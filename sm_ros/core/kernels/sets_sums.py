@@ -211,8 +211,8 @@ def _sets_acc_chunk(chunk, nchunks, quad, x, y0, mass, sid, runs, sref, part):
 @njit(**JIT_NO_REFCOUNT)
 def sets_accumulate_chunks(claim, quad, x, y0, mass, sid, runs, sref, part):
     """Per-set sums of the current state (when it was changed outside a step) over the
-    chunks this call claims (``claim``, counted up atomically; as
-    ``integrate.accumulate_chunks``)."""
+    chunks this call claims (``claim``, counted up atomically: called once it does every
+    chunk; called on several threads with one ``claim``, each chunk once)."""
     nchunks = part.shape[0]
     while True:
         chunk = claim_next(claim)
