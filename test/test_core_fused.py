@@ -7,6 +7,7 @@ import pytest
 
 from sm_ros.core import BodyParams, Ground, World, tuning
 from sm_ros.core.reference import ReferenceBody
+from twins import on_ground
 
 
 def lattice(n, spacing=0.02):
@@ -29,14 +30,9 @@ def test_damped_body_matches_the_numpy_reference(monkeypatch, mode, clusters, pl
     m = 0.01 + 0.02 * rng.random(len(x0))
     kw = dict(plastic_yield=0.01, plastic_creep=20.0, plastic_max=0.3) if plastic else {}
     params = BodyParams(mode=mode, clusters=clusters, alpha=0.3, beta=0.4, damping=0.3, **kw)
-    world = World(gravity=(0.0, 0.0, -9.81))
     ground = Ground(height=0.0, friction=0.4, restitution=0.2)
-    world.set_colliders(ground=ground)
-    body = world.add_body(x0, m, params)
-    ref = ReferenceBody(x0, m, params)
     v0 = rng.normal(scale=0.3, size=x0.shape)
-    body.set_state(v=v0)
-    ref.v = v0.copy()
+    world, body, ref = on_ground(x0, m, params, v0, ground)
     for b in (body, ref):
         b.set_wrench((0.02, 0.0, 0.1), (0.0, 0.001, 0.002))
     assert body._parallel == parallel

@@ -7,6 +7,7 @@ import pytest
 import sm_ros.core.body as body_mod
 import sm_ros.core.packed as packed
 from sm_ros.core import BodyParams, Box, Ground, World, tuning
+from twins import on_ground
 
 
 
@@ -270,18 +271,11 @@ def test_a_body_leaving_and_joining_the_pack_follows_the_numpy_reference(mode):
     """A packed body grabbed (it leaves the pack for the set layout's step), released (it
     joins again), turned by a torque and let go: each step takes its sums afresh where it
     changed hands (``Body._unpack``), so the states follow the NumPy reference to 1e-9."""
-    from sm_ros.core.reference import ReferenceBody
     rng = np.random.default_rng(8)
     x0 = lattice(6) + 0.002 * rng.standard_normal((216, 3)) + (0.0, 0.0, 0.05)
     params = BodyParams(mode=mode, alpha=0.4, beta=0.5, damping=0.1)
-    world = World(gravity=(0.0, 0.0, -9.81))
     ground = Ground(height=0.0, friction=0.4, restitution=0.2)
-    world.set_colliders(ground=ground)
-    body = world.add_body(x0, 0.01, params)
-    ref = ReferenceBody(x0, 0.01, params)
-    v0 = rng.normal(scale=0.3, size=x0.shape)
-    body.set_state(v=v0)
-    ref.v = v0.copy()
+    world, body, ref = on_ground(x0, 0.01, params, rng.normal(scale=0.3, size=x0.shape), ground)
     h = 1.0 / 240.0
     packed_at = []
     for step in range(60):

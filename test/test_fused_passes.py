@@ -20,6 +20,7 @@ from sm_ros.core import body_build
 from sm_ros.core import kernels as K
 from sm_ros.core.kernels import sets as KS
 from sm_ros.core.packed import FUSED_BLOCK
+from twins import on_ground
 
 H = 1.0 / 120.0
 
@@ -222,19 +223,12 @@ def test_one_cluster_body_landing_on_the_ground_matches_the_numpy_twin(mode):
     layer from the bottom) landing on a ground: the lower block, which the ground reaches,
     is projected and summed again, the upper one keeps the loop's sums; the states follow
     the NumPy reference to round-off."""
-    from sm_ros.core.reference import ReferenceBody
     rng = np.random.default_rng(5)
     x0 = _lattice(17)[:, ::-1] + rng.uniform(-0.004, 0.004, (17 ** 3, 3)) + (0.0, 0.0, 0.03)
     m = 0.7                                  # one mass: the one-loop pass
     params = BodyParams(mode=mode, alpha=0.5, beta=0.5)
     ground = Ground(height=0.0, friction=0.4, restitution=0.2)
-    world = World(gravity=(0.0, 0.0, -9.81))
-    world.set_colliders(ground=ground)
-    body = world.add_body(x0, m, params)
-    ref = ReferenceBody(x0, m, params)
-    v0 = rng.normal(scale=0.2, size=x0.shape)
-    body.set_state(v=v0)
-    ref.v = v0.copy()
+    world, body, ref = on_ground(x0, m, params, rng.normal(scale=0.2, size=x0.shape), ground)
     assert body._packed_ok() and FUSED_BLOCK < body.n <= 2 * FUSED_BLOCK
     # the upper block lies above every particle of the lower one
     assert x0[FUSED_BLOCK:, 2].min() > x0[:FUSED_BLOCK, 2].min() + 0.4

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from sm_ros.core import BodyParams, Ground, World
-from sm_ros.core.reference import ReferenceBody
+from twins import on_ground
 
 
 H = 1.0 / 120.0
@@ -109,14 +109,8 @@ def test_compiled_step_on_the_layout_matches_the_numpy_twin(monkeypatch, mode, c
     x0 = _lattice(4) + rng.uniform(-0.02, 0.02, (64, 3)) + (0.0, 0.0, 0.12)
     m = rng.uniform(0.5, 2.0, len(x0))
     params = BodyParams(mode=mode, alpha=0.4, beta=0.6, clusters=clusters)
-    world = World(gravity=(0.0, 0.0, -9.81))
     ground = Ground(height=0.0, friction=0.3, restitution=0.2)
-    world.set_colliders(ground=ground)
-    body = world.add_body(x0, m, params)
-    ref = ReferenceBody(x0, m, params)
-    v0 = rng.normal(scale=0.3, size=x0.shape)
-    body.set_state(v=v0)
-    ref.v = v0.copy()
+    world, body, ref = on_ground(x0, m, params, rng.normal(scale=0.3, size=x0.shape), ground)
     assert body._fast_ok()
     _layout_ok(body)
     landed = False
