@@ -29,6 +29,7 @@ import numpy as np
 from numba import njit
 from numba.typed import List
 
+from . import packed
 from .body_build import _GENERATION
 from .kernels import JIT
 from .kernels.flags import SLEEP
@@ -100,6 +101,7 @@ class FlatState:
         self.w_version = 0
         self._flags_seen = None
         self._flag_list = None
+        self._packs_seen = None
         self.refresh_masses()
 
     def step_state(self) -> tuple:
@@ -163,10 +165,11 @@ class FlatState:
 
     def flag_list(self):
         """The bodies' flag arrays (``Body._flags``) as a typed list for the kernels."""
-        # the bodies' flag arrays (``Body._dirty`` is ``_flags[DIRTY]``): a packed body's are
-        # a view of its pack's row, replaced when it is packed again, so the typed list is
-        # rebuilt when one of them is not the array it holds (a check of identities,
-        # cheaper than setting a property on every body)
+        # a packed body's flag array is a view of its pack's row, replaced when a pack is
+        # built (``packed.PACKS_BUILT``): only then are the arrays compared with the list's
+        if self._flag_list is not None and self._packs_seen == packed.PACKS_BUILT[0]:
+            return self._flag_list
+        self._packs_seen = packed.PACKS_BUILT[0]
         flags = [b._flags for b in self.bodies]
         seen = self._flags_seen
         if seen is None or any(map(operator.is_not, flags, seen)):

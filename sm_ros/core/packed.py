@@ -78,10 +78,16 @@ _CHUNKED = ('_part', '_err', '_dpart')
  C_NMAT, C_PART, C_ERR, C_DPART, C_UDV) = (COLS[name][0] for name, _ in STATE)
 
 
+#: Packs built so far in this process: a body's flag array changes only when one is built
+#: (``flat.FlatState.flag_list`` checks this instead of every body).
+PACKS_BUILT = [0]
+
+
 class Pack:
     """The rows of a list of packable bodies at the step ``h`` (see the module docstring)."""
 
     def __init__(self, bodies, h):
+        PACKS_BUILT[0] += 1
         nb = len(bodies)
         self.bodies = list(bodies)
         self.rows = np.zeros((max(nb, 1), NCOL))
