@@ -1,31 +1,21 @@
 """The packed world step: one-cluster rigid/linear bodies without per-body records.
 
-``kernels.world_step`` steps a body from a record, a tuple of ~63 of its own arrays held
-in a typed list, which costs about as much per body as a small body's shape match.  Here
-the bodies the ``many`` scenes are made of (one cluster, rigid or linear, no plasticity,
-grabs or torque: ``Body._packed_ok``) keep their per-body scalars and per-cluster state
-in one row each of a world-level array ``Pack.rows`` (nb, NCOL): the body's own attributes
-(``_ref``, ``_quat``, ``_part``, ...) become views of its row, so every reader of the body
-sees the state the packed step writes, and the compiled loop reads a body's state from
-``rows[b]`` with no array fetched but the four particle arrays (x, v, x0, m), viewed from
-the pack's typed list (``Pack.arrays``).  Scratch (3x3, 4x4, ...) is allocated once per
-call, not per body.
+Kept beside the records of ``kernels.world_step`` for the default scene and worlds of many
+small bodies: its step compiles in half the time of the records' (the first simulated
+cloud of a cold start) and steps a small body in half the time (doc/architecture.md).  A
+packable body (``Body._packed_ok``: one cluster, rigid or linear, one mass, no plasticity,
+grabs or torque) keeps its per-body scalars and per-cluster state in one row of
+``Pack.rows`` (nb, NCOL): its attributes (``_ref``, ``_quat``, ``_part``, ...) become views
+of the row, so every reader sees what the step writes.  One pass over a body's particles,
+in blocks of ``FUSED_BLOCK``, damps (the field of the last pass's sums), applies Eq. 13-14,
+the static colliders and the speed limit, and takes the next step's sums while the block
+is in cache (``kernels.packed_pass``).
 
-One pass over a body's particles does it all: in blocks of ``FUSED_BLOCK`` particles,
-the damping (the rigid field of the last pass's sums), Eq. 13-14, the static colliders,
-the speed limit and the sums of the next step (shape match and damping) while the block
-is in cache.  The speed limit comes before the sums, so a capped particle forces no
-re-accumulation the next step.  The damping is the fused damping of ``kernels.damping``
-(sums per step taken in the pass, the field from them by ``damping_fields``), with its
-per-body 3x3 solve.
-
-``Body._step`` steps such a body as a pack of one (``Body._one_pack``): the same compiled
-function as ``World.step`` (``step_packed``), so both agree bit for bit
-(test_core_fused.py).  A body belongs to one pack at a time: building a pack copies the
-body's current state into its row and rebinds the attributes and marks the pack the body
-left ``stale``, so a world whose bodies were packed elsewhere (a body stepped on its own)
-packs them again before stepping, and only then: two worlds (the live error estimate's
-copies, a user's second world) each keep their packs while they step in turn.
+``Body._step`` steps such a body as a pack of one (``Body._one_pack``), the same compiled
+function as ``World.step``, so both agree bit for bit.  A body belongs to one pack at a
+time: building a pack copies its state into the row and marks the pack it left ``stale``,
+so a world packs its bodies again only after one was packed elsewhere; one that comes from
+the set layout's step (``Body._unpack``) has its sums taken afresh.
 """
 from collections import namedtuple
 
