@@ -270,7 +270,7 @@ def test_two_worlds_stepped_in_turn_keep_their_packs(copy_world):
 def test_a_body_leaving_and_joining_the_pack_follows_the_numpy_reference(mode):
     """A packed body grabbed (it leaves the pack for the set layout's step), released (it
     joins again), turned by a torque and let go: each step takes its sums afresh where it
-    changed hands (``Body._unpack``), so the states follow the NumPy reference to 1e-9."""
+    changed hands (``flags.SUMS_PACKED``), so the states follow the NumPy reference to 1e-9."""
     rng = np.random.default_rng(8)
     x0 = lattice(6) + 0.002 * rng.standard_normal((216, 3)) + (0.0, 0.0, 0.05)
     params = BodyParams(mode=mode, alpha=0.4, beta=0.5, damping=0.1)

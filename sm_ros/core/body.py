@@ -11,7 +11,7 @@ import numpy as np
 
 from . import body_build, body_step, param_energy, tuning
 from . import kernels as K
-from .kernels.flags import DIRTY, ERR_STALE, SLEEP
+from .kernels.flags import DIRTY, ERR_STALE, NFLAGS, SLEEP
 from .body_build import _EMPTY_I64, _GENERATION, soa  # noqa: F401 (body.soa)
 from .packed import Pack
 from .params import BodyParams
@@ -115,7 +115,7 @@ class Body:
         self._at_step = (None, None, None)
         self._limit_counts = np.zeros(2, dtype=np.int64)
         # read and written by the compiled steps too (indices: ``kernels.flags``)
-        self._flags = np.zeros(4)
+        self._flags = np.zeros(NFLAGS)
         self._build()
         self._merge_kinematic()
 
@@ -198,17 +198,6 @@ class Body:
                 and (self._fast_ok() or (self._parallel and not self._params.plastic
                                          and len(self._kin_idx) == 0
                                          and not self._has_torque)))
-
-    def _unpack(self):
-        """Mark this body as stepped by the set layout's step: leaving a pack, its sums are
-        taken afresh (the pack kept the one-cluster sums only), and a pack it joins later
-        takes them afresh too (``_in_sets``)."""
-        owner = getattr(self, '_pack_owner', None)
-        if owner is not None:
-            owner.stale = True
-            self._pack_owner = None
-            self._dirty = True
-        self._in_sets = True
 
     def _one_pack(self, h):
         """A ``packed.Pack`` of this body alone, kept until a body changes, h or its collider

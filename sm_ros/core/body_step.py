@@ -14,7 +14,7 @@ import numpy as np
 from . import kernels as K
 from .step_threads import HELPERS
 from .kernels.colliders import Colliders
-from .kernels.flags import DAMP_SUMS
+from .kernels.flags import DAMP_SUMS, SUMS_PACKED
 
 def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     """One step of h seconds of ``body`` (``Body._step``; the kernels of ``kernels/``
@@ -29,7 +29,9 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     if body._packed_ok():
         body._one_pack(h).step(h, gravity, has_col, ground, boxes, spheres, thresh)
         return
-    body._unpack()
+    if body._flags[SUMS_PACKED] > 0.0:     # last stepped by the pack: its sums, not the sets'
+        body._flags[SUMS_PACKED] = 0.0
+        body._dirty = True
     if body._fast_ok():
         K.step_single_bodies(body._one_record(h), h, gravity, has_col, ground, boxes, spheres,
                              thresh)

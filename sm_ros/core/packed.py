@@ -14,8 +14,8 @@ is in cache (``kernels.packed_pass``).
 ``Body._step`` steps such a body as a pack of one (``Body._one_pack``), the same compiled
 function as ``World.step``, so both agree bit for bit.  A body belongs to one pack at a
 time: building a pack copies its state into the row and marks the pack it left ``stale``,
-so a world packs its bodies again only after one was packed elsewhere; one that comes from
-the set layout's step (``Body._unpack``) has its sums taken afresh.
+so a world packs its bodies again only after one was packed elsewhere.  A body moving
+between this step and the set layout's has its sums taken afresh (``flags.SUMS_PACKED``).
 """
 from collections import namedtuple
 
@@ -28,7 +28,7 @@ from .kernels import (JIT, NDAMP, STRETCH_LIMIT, _collide_range, damp_acc_range,
 from .kernels.fused import damp_sums_uniform
 from .kernels.colliders import Colliders, ground_height, ground_range, ground_range_sums
 from .kernels.packed_pass import _add_rest_sums, _int_single_fused, one_cluster_sums
-from .kernels.flags import DAMP_SUMS, DIRTY, ERR_STALE, SLEEP
+from .kernels.flags import DAMP_SUMS, DIRTY, ERR_STALE, NFLAGS, SLEEP, SUMS_PACKED
 from .kernels.jit import finite
 from .kernels.limits import limit_speed_range
 from .kernels.linalg import sym3_solve
@@ -44,7 +44,7 @@ FUSED_BLOCK = 4096
 # C_RADIUS: the radius its particles meet the colliders with (``Body._collider_radius``)
 C_ALPHA, C_BETA, C_DAMP, C_VMAX, C_TURN, C_WMAX, C_MODE, C_WUNI, C_RADIUS = range(9)
 NPARAM = 9
-STATE = (('_flags', (4,)), ('_facc', (3,)), ('_ref', (1, 3)), ('_quat', (1, 4)),
+STATE = (('_flags', (NFLAGS,)), ('_facc', (3,)), ('_ref', (1, 3)), ('_quat', (1, 4)),
          ('_rest_lin', (1, 3, 3)), ('_rest_off', (1, 3)), ('_sum_q', (1, 9)),
          ('_wsum', (1,)), ('_scale', (1,)), ('_cdet', (1,)), ('_aqq3', (1, 3, 3)),
          ('_nmat', (1, 3, 3)), ('_part', (1, 1, 12)), ('_err', (1,)),
@@ -106,12 +106,9 @@ class Pack:
                 view = row[off:off + size]
                 view[:] = src.reshape(-1)
                 setattr(body, name, view.reshape(shape))
-            if rebuild or getattr(body, '_in_sets', False):
-                # a body built for threads or last stepped by the set layout's step
-                # (``Body._unpack``): the shape-match and damping sums are taken again
-                row[C_FLAGS + DIRTY] = 1.0
-                row[C_FLAGS + DAMP_SUMS] = 0.0
-            body._in_sets = False
+            if rebuild:
+                row[C_FLAGS + DIRTY] = 1.0        # the shape-match sums are taken again
+                row[C_FLAGS + DAMP_SUMS] = 0.0    # and the damping sums
             self.counts[b] = body._limit_counts
             body._limit_counts = self.counts[b]
             old = getattr(body, '_pack_owner', None)
@@ -223,6 +220,10 @@ def step_packed(rows, counts, arrays, h, gravity, colliders, first, turned_first
             for j in range(3):
                 rest_lin[0, i, j] = row[C_RLIN + 3 * i + j]
         damp = row[C_DAMP] > 0.0
+        if not row[C_FLAGS + SUMS_PACKED] > 0.0:
+            # new, or last stepped by the set layout's step: the sums are taken here
+            row[C_FLAGS + SUMS_PACKED] = 1.0
+            row[C_FLAGS + DIRTY] = 1.0
         dirty = row[C_FLAGS + DIRTY] > 0.0
         for j in range(12):
             part0[0, j] = 0.0 if dirty else row[C_PART + j]

@@ -358,7 +358,6 @@ class World(WorldColliders):
                 if self.compiled_step and body._packed_ok():
                     packed.append(body)
                 elif self.compiled_step and body._fast_ok():
-                    body._unpack()
                     records.append(body._fast_record(h))
                     self._split_fstates.append((body, body._fstate))
                     rec_work += body.n

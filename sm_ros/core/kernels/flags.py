@@ -10,3 +10,8 @@ DAMP_SUMS = 2
 #: Sleeping (``sm_ros.core.sleep``): 1 asleep (the steps skip the body), 0 awake, -1 held
 #: awake (a force, torque or grab acts on it).
 SLEEP = 3
+#: The body's sums are the packed step's (``core/packed.py``: one-cluster sums), not the set
+#: layout's: whichever step takes the body next from the other takes its sums afresh.
+SUMS_PACKED = 4
+#: Entries of a body's flag array.
+NFLAGS = 5

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from ..step_threads import HELPERS
-from .flags import DIRTY, ERR_STALE, SLEEP
+from .flags import DIRTY, ERR_STALE, SLEEP, SUMS_PACKED
 from .colliders import Colliders
 from .damping import damp_accumulate, damping_fields, damping_targets
 from .goals import ClusterMatch, ClusterShape, MatchScratch, solve_clusters_warm
@@ -122,6 +122,9 @@ def _step_record(rec, h, gravity, colliders, counters):
     the record's arrays would otherwise cost an atomic operation each."""
     if rec.flags[SLEEP] > 0.0:                 # asleep (``sm_ros.core.sleep``): not stepped
         return
+    if rec.flags[SUMS_PACKED] > 0.0:           # last stepped by the pack: its sums are stale
+        rec.flags[SUMS_PACKED] = 0.0
+        rec.flags[DIRTY] = 1.0
     state = rec.state
     damped = state[R_DAMPING] > 0.0
     dirty = rec.flags[DIRTY] > 0.0
