@@ -342,10 +342,10 @@ def fast_record(body, h):
     body._fstate = np.zeros(R.R_SIZE)
     retime_record(body, body._fstate, h)
     s3 = body._mat3
-    # x, v, x0 (and the set layout's rest_local) as their (3, N) C-contiguous blocks: a typed list
-    # fixes the element type from its first record, and a one-particle body's (1, 3) view
-    # is typed C (both orders at once); the world step transposes them back (layout F)
-    own = (body._x.T, body._v.T, body._x0.T, body._m, body._ptr, body._cluster_ids, body._rest_lin,
+    # x, v (and the set layout's rest_local) as their (3, N) C-contiguous blocks: a typed
+    # list fixes the element type from its first record, and a one-particle body's (1, 3)
+    # view is typed C (both orders at once); the world step transposes them back (layout F)
+    own = (body._x.T, body._v.T, body._m, body._ptr, body._cluster_ids, body._rest_lin,
            body._rest_off, body._part, body._wsum, body._sum_q, body._ref, body._quat,
            body._aqq3, body._aqq9, body._scale, body._trans, body._goal_lin, body._goal_off,
            body._apq, body._accbuf, s3[0], s3[1], s3[2], s3[3], body._mat39, body._quat_n,

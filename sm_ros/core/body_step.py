@@ -16,6 +16,7 @@ from .step_threads import HELPERS
 from .kernels.colliders import Colliders
 from .kernels.flags import DAMP_SUMS, SUMS_PACKED
 
+
 def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     """One step of h seconds of ``body`` (``Body._step``; the kernels of ``kernels/``
     in the order of algorithm.md): goals, limits, plasticity, damping, Eq. 13-14 with

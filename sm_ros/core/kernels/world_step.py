@@ -12,7 +12,8 @@ record) and the others keep ``Body._step``, which steps a covered body as a list
 record.
 
 A record (``Body._fast_record``) is a ``StepRecord``, a named tuple of the body's own buffers
-(x, v, x0, y0 as their (3, N) blocks, transposed back to (N, 3) views of layout F here);
+(x, v and the set offsets y0 as their (3, N) blocks, transposed back to (N, 3) views of
+layout F here);
 ``state`` holds the body's numbers at the step (``R_*`` below), ``force`` the force over
 the total mass (divided in Python, as ``Body._step`` does: fast math would round it
 otherwise), ``flags`` the body's flags (``kernels.flags``: a sleeping record is not
@@ -40,7 +41,7 @@ from .sets_sums import sets_accumulate_chunks
 #: The buffers of one body that ``step_bodies_claimed`` steps (``body_build.fast_record``):
 #: the names of ``Body``'s own attributes, the set layout's with ``s_``.
 StepRecord = namedtuple('StepRecord', (
-    'xt vt x0t mass ptr cluster_ids rest_lin rest_off part wsum sum_q ref quat aqq3 aqq9 scale '
+    'xt vt mass ptr cluster_ids rest_lin rest_off part wsum sum_q ref quat aqq3 aqq9 scale '
     'trans goal_lin goal_off apq accbuf m3a m3b m3c m3d m39 n4 v4 nmat cdet acc ang com err dpart '
     'dmp dref dacc lin w3 quat_prev flagged lim_lin lim_w force state flags '
     'counts rest_local_t sid goal_maps sref s_part s_ptr s_cluster_ids s_cnt s_phi s_org work '
