@@ -156,3 +156,42 @@ def test_compiled_world_step_equals_stepping_bodies_one_by_one(monkeypatch, para
     for got, want in zip(*states):
         assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
         assert got[2] == want[2] and np.array_equal(got[3], want[3])
+
+
+@pytest.mark.parametrize('mode,clusters', [('rigid', 1), ('linear', 8), ('quadratic', 8)])
+def test_held_and_turned_bodies_take_the_records_as_the_kernels_one_by_one(monkeypatch, mode,
+                                                                           clusters):
+    """A body with grabbed particles, a pinned one and one under a torque are stepped by
+    the compiled records, to round-off as by the same kernels called one by one."""
+    import sm_ros.core.body as body_mod
+
+    def run():
+        world = World(gravity=(0.0, 0.0, -9.81))
+        world.set_colliders(ground=Ground(height=0.0, friction=0.5))
+        rng = np.random.default_rng(4)
+        params = BodyParams(mode=mode, clusters=clusters, alpha=0.4, beta=0.5, damping=0.1)
+        held, pinned, turned = (
+            world.add_body(lattice(5) + (0.3 * i, 0.0, 0.05), name=name, params=params,
+                           masses=0.01 + 0.01 * rng.random(125),
+                           pinned=[0, 4] if name == 'pinned' else None)
+            for i, name in enumerate(('held', 'pinned', 'turned')))
+        held.set_kinematic(np.array([3, 60]), held.x[[3, 60]] + (0.0, 0.01, 0.03))
+        turned.set_wrench((0.0, 0.0, 0.0), (0.0, 0.0, 2e-3))
+        for step in range(40):
+            if step == 20:
+                held.set_kinematic(np.array([3, 60]), held.x[[3, 60]] + (0.01, 0.0, 0.0))
+            world.step(1.0 / 240.0)
+        return world
+
+    got = run()
+    pack, records, slow, _ = got._split_bodies(1.0 / 240.0)
+    assert pack is None and len(records) == 3 and not slow
+    monkeypatch.setattr(body_mod.Body, '_fast_ok', lambda self: False)
+    want = run()
+    assert len(want._split_bodies(1.0 / 240.0)[2]) == 3      # one by one from Python
+    for g, w in zip(got.bodies, want.bodies):
+        for a, b in ((g.x, w.x), (g.v, w.v)):
+            assert np.abs(a - b).max() <= 1e-11 * np.abs(b).max()
+    turn = got.body('turned')
+    assert abs(turn.angular_momentum()[2]) > 1e-5              # the torque turned it
+    assert np.abs(got.body('pinned').x[[0, 4]] - got.body('pinned').x_init[[0, 4]]).max() == 0.0

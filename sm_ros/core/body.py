@@ -180,24 +180,21 @@ class Body:
         return names
 
     def _fast_ok(self) -> bool:
-        """Whether ``kernels.world_step`` may step this body (see its docstring).  A body of
-        one particle has no shape to deform or turn, so plasticity and torque do nothing to
-        it; it takes this step, whose records hold x as a (3, 1) block, since its own (1, 3)
-        arrays would need kernels compiled for them alone."""
-        point = self.n == 1
-        return ((point or not (self._params.plastic or self._has_torque))
-                and len(self._kin_idx) == 0 and not self._parallel)
+        """Whether ``kernels.world_step`` may step this body (see its docstring): not
+        plastic (its rest shape is rebuilt in Python) nor built for threads.  A body of one
+        particle has no shape to deform, so plasticity does nothing to it; it takes this
+        step, whose records hold x as a (3, 1) block, since its own (1, 3) arrays would need
+        kernels compiled for them alone."""
+        return (self.n == 1 or not self._params.plastic) and not self._parallel
 
     def _packed_ok(self) -> bool:
         """Whether the packed world step (``packed.py``) may step this body: one cluster,
         rigid or linear, every particle of one mass (its loop sums unweighted), no
         plasticity, grabs or torque (a body built for threads too: it steps on one thread in
         the pack)."""
-        return (self._params.clusters == 1 and not self._quad
-                and self._wuni > 0.0
-                and (self._fast_ok() or (self._parallel and not self._params.plastic
-                                         and len(self._kin_idx) == 0
-                                         and not self._has_torque)))
+        return (self._params.clusters == 1 and not self._quad and self._wuni > 0.0
+                and (self.n == 1 or not self._params.plastic) and len(self._kin_idx) == 0
+                and not self._has_torque)
 
     def _one_pack(self, h):
         """A ``packed.Pack`` of this body alone, kept until a body changes, h or its collider

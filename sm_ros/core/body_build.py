@@ -353,7 +353,9 @@ def fast_record(body, h):
            body._dpart, body._dmp, body._dref, body._dacc, body._lin, body._damp_spin,
            body._quat_prev, body._flagged, body._lim_lin, body._lim_w, body._facc,
            body._fstate, body._flags, body._limit_counts)
-    return K.StepRecord(*own, *body._fast_sets(), body._udv, body._match_work)
+    wrench = (body._torque, body._inertia, body._inertia_inv, body._kin_idx, body._kin_tgt,
+              body._kin_prev)
+    return K.StepRecord(*own, *body._fast_sets(), body._udv, body._match_work, *wrench)
 
 
 def retime_record(body, fstate, h):

@@ -150,25 +150,12 @@ def _plastic_flow(body, p, h) -> int:
 
 
 def _forces(body, gravity, h) -> None:
-    """The step's acceleration (the body's force over its mass, gravity) and angular
-    acceleration (the torque through the inverse inertia, at most ``max_turn`` / h of spin
-    added in one step: beyond that the step cannot represent the turn)."""
-    np.add(body._facc, gravity, out=body._acc)
-    if not body._has_torque:
-        body._ang[:] = 0.0
-        return
+    """The step's acceleration and angular acceleration (``kernels.wrench_accelerations``)."""
     s3 = body._mat3
-    np.dot(body._wsum, body._ref, out=body._com)
-    body._com /= body._wsum.sum()
-    K.inertia(body._x, body._m, body._com, body._inertia)
-    K.pinv_sym(mat=body._inertia, out=body._inertia_inv, wa=s3[0], wv=s3[1], rcond=1e-12)
-    np.dot(body._inertia_inv, body._torque, out=body._ang)
-    turn = body._params.max_turn
-    if turn > 0.0:
-        a_norm = float(np.sqrt(body._ang @ body._ang))
-        if a_norm * h * h > turn:
-            body._ang *= turn / (a_norm * h * h)
-            body._limit_counts[1] += 1
+    body._limit_counts[1] += K.wrench_accelerations(
+        (body._facc, body._torque), gravity, (body._wsum, body._ref), (body._x, body._m),
+        (float(h), body._params.max_turn), (body._acc, body._ang, body._com),
+        (body._inertia, body._inertia_inv, s3[0], s3[1]))
 
 
 def _damping(body, turned) -> None:

@@ -38,7 +38,7 @@ from .damping import (NDAMP, damp_acc_range, damp_accumulate, damp_kinematic, da
                       damping_fields, damping_targets)
 from .goals import (ClusterMatch, ClusterShape, MatchScratch, _goal_quad, _qhat,
                     invert_moments, moments, quad_features, solve_clusters_warm)
-from .grabs import gather_rows, inertia
+from .grabs import gather_rows, inertia, wrench_accelerations
 from .integrate import BLOCK, BodyParticles, ClusterRest, FusedDamping, advance
 from .jit import FASTMATH, JIT
 from .limits import limit_speed, limit_turn
@@ -63,7 +63,7 @@ __all__ = ['Colliders', '_collide_range', 'contact_velocity', 'collide_point', '
            'ClusterShape', 'MatchScratch',
            'unit_det_frames', 'unit_det_match', 'unit_det_match_warm',
            'volume_preserving', 'BLOCK', 'BodyParticles', 'ClusterRest', 'FusedDamping',
-           'advance', 'gather_rows', 'inertia',
+           'advance', 'gather_rows', 'inertia', 'wrench_accelerations',
            'FASTMATH', 'JIT', 'limit_speed', 'limit_turn', 'det3', 'jacobi3', 'jacobi3_warm',
            'jacobi_eigh', 'matmul',
            'norm2', 'pinv_sym', '_add_null_projector', '_cap_plastic', 'plastic_update',

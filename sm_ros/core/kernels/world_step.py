@@ -5,11 +5,11 @@ microseconds in the dispatcher, while a 144-particle body's own work is about on
 body's step calls 4-6 kernels.  ``step_single_bodies`` runs the same
 kernels, in the same order and with the same arguments as ``Body._step``, for every body
 of a typed list of per-body records, so the Python cost of a step does not grow with the
-number of such bodies.  It covers set-layout bodies (and one-cluster quadratic ones)
-without plasticity, kinematic particles or torque, on one thread (``Body._fast_ok``);
-one-cluster rigid/linear bodies take the packed step (``sm_ros.core.packed``: no per-body
-record) and the others keep ``Body._step``, which steps a covered body as a list of one
-record.
+number of such bodies.  It covers every body that is neither plastic nor built for
+threads (``Body._fast_ok``), grabbed, pinned or under a torque too; one-cluster
+rigid/linear bodies without those take the packed step (``sm_ros.core.packed``: no
+per-body record), and the plastic and threaded ones ``Body._step``, which steps a covered
+body as a list of one record.
 
 A record (``Body._fast_record``) is a ``StepRecord``, a named tuple of the body's own buffers
 (x, v and the set offsets y0 as their (3, N) blocks, transposed back to (N, 3) views of
@@ -29,24 +29,26 @@ from numba import njit
 from ..step_threads import HELPERS
 from .flags import DIRTY, ERR_STALE, SLEEP, SUMS_PACKED
 from .colliders import Colliders
-from .damping import damp_accumulate, damping_fields, damping_targets
+from .damping import damp_accumulate, damp_kinematic, damping_fields, damping_targets
+from .grabs import gather_rows, wrench_accelerations
 from .goals import ClusterMatch, ClusterShape, MatchScratch, solve_clusters_warm
 from .integrate import BodyParticles, ClusterRest, FusedDamping
 from .jit import JIT, JIT_NO_REFCOUNT, claim_next
 from .limits import limit_turn
-from .sets import SetMotion, Sets, _fused_refs, sets_integrate_chunks
+from .sets import SetMotion, Sets, _fused_refs, sets_integrate_chunks, sets_kinematic
 from .set_maps import SetClusters, sets_maps, sets_reduce
 from .sets_sums import sets_accumulate_chunks
 
 #: The buffers of one body that ``step_bodies_claimed`` steps (``body_build.fast_record``):
-#: the names of ``Body``'s own attributes, the set layout's with ``s_``.
+#: the names of ``Body``'s own attributes, the set layout's with ``s_``; ``kin_*`` its
+#: grabbed and pinned particles, their targets and their positions before the step.
 StepRecord = namedtuple('StepRecord', (
     'xt vt mass ptr cluster_ids rest_lin rest_off part wsum sum_q ref quat aqq3 aqq9 scale '
     'trans goal_lin goal_off apq accbuf m3a m3b m3c m3d m39 n4 v4 nmat cdet acc ang com err dpart '
     'dmp dref dacc lin w3 quat_prev flagged lim_lin lim_w force state flags '
     'counts rest_local_t sid goal_maps sref s_part s_ptr s_cluster_ids s_cnt s_phi s_org work '
     'quad_map s_pair_offsets s_cluster_maps s_runs '
-    'udv match_work').split())
+    'udv match_work torque inertia inertia_inv kin_idx kin_tgt kin_prev').split())
 
 #: Where ``StepRecord.state`` holds each number (``body_build.retime_record`` writes them):
 #: the material at the step (alpha, beta, damping), the limits (max_speed, max_turn and
@@ -134,12 +136,18 @@ def _step_record(rec, h, gravity, colliders, counters):
     sets_maps(_set_clusters(rec), rec.rest_lin, (rec.trans, rec.goal_lin, rec.goal_off),
               rec.ref, state[R_QUAD] > 0.0, (rec.goal_maps, rec.sref),
               (rec.quad_map, rec.s_cluster_maps))
-    for i in range(3):
-        rec.acc[i] = rec.force[i] + gravity[i]
-        rec.ang[i] = 0.0
+    rec.counts[1] += wrench_accelerations(
+        (rec.force, rec.torque), gravity, (rec.wsum, rec.ref), (rec.xt.T, rec.mass),
+        (h, state[R_MAX_TURN]), (rec.acc, rec.ang, rec.com),
+        (rec.inertia, rec.inertia_inv, rec.m3a, rec.m3b))
     if damped:
         _record_damping(rec, dirty or turned > 0)
+    held = rec.kin_idx.shape[0] > 0
+    if held:
+        gather_rows(rec.xt.T, rec.kin_idx, rec.kin_prev)
     _record_integrate(rec, h, colliders, damped, counters)
+    if held:
+        _record_held(rec, h, damped)
     rec.flags[ERR_STALE] = 1.0
 
 
@@ -242,3 +250,19 @@ def _record_integrate(rec, h, colliders, damped, counters):
     _fused_refs(quad, state[R_WUNI], rec.ang, rec.s_runs, damped, rec.sref, rec.dpart)
     rec.counts[0] += chunk_capped.sum()
     rec.flags[DIRTY] = 0.0
+
+
+@njit(inline='always', **JIT)
+def _record_held(rec, h, damped):
+    """The grabbed and pinned particles onto their targets (their per-set sums, and damped
+    their damping sums, follow them)."""
+    x, v = rec.xt.T, rec.vt.T
+    if damped:
+        damp_kinematic(x=x, v=v, mass=rec.mass, sid=rec.sid, dpart=rec.dpart, idx=rec.kin_idx,
+                       sign=-1.0)
+    sets_kinematic(rec.state[R_QUAD] > 0.0, BodyParticles(x, v, rec.rest_local_t.T, rec.mass),
+                   Sets(rec.sid, rec.s_runs, rec.goal_maps, rec.sref, rec.state[R_WUNI]),
+                   rec.s_part, (rec.kin_idx, rec.kin_tgt, rec.kin_prev), h)
+    if damped:
+        damp_kinematic(x=x, v=v, mass=rec.mass, sid=rec.sid, dpart=rec.dpart, idx=rec.kin_idx,
+                       sign=1.0)
