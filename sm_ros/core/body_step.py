@@ -190,15 +190,8 @@ def _integrate(body, p, h, damped, colliders) -> None:
 def _grabbed(body, damped, h) -> None:
     """The grabbed and pinned particles to their targets (their sums, and damped their
     damping sums, follow them)."""
-    sets = body._sets
-    targets = (body._kin_idx, body._kin_tgt, body._kin_prev)
-    if damped:
-        K.damp_kinematic(x=body._x, v=body._v, mass=body._m, sid=sets.sid,
-                         dpart=body._dpart, idx=body._kin_idx, sign=-1.0)
-    K.sets_kinematic(body._quad, _set_particles(body), _sets(body), sets.part, targets, h)
-    if damped:
-        K.damp_kinematic(x=body._x, v=body._v, mass=body._m, sid=sets.sid,
-                         dpart=body._dpart, idx=body._kin_idx, sign=1.0)
+    K.sets_hold(body._quad, _set_particles(body), _sets(body), body._sets.part,
+                (body._kin_idx, body._kin_tgt, body._kin_prev), h, (damped, body._dpart))
 
 
 def _chunks(body, kernel, **args):

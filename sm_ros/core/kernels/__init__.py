@@ -45,7 +45,8 @@ from .limits import limit_speed, limit_turn
 from .linalg import det3, jacobi3, jacobi3_warm, jacobi_eigh, matmul, norm2, pinv_sym
 from .plasticity import _add_null_projector, _cap_plastic, plastic_update
 from .rotation import extract_rotation, quat_to_mat
-from .sets import SetMotion, Sets, _fused_refs, sets_integrate_chunks, sets_kinematic
+from .sets import (SetMotion, Sets, _fused_refs, sets_hold, sets_integrate_chunks,
+                   sets_kinematic)
 from .set_maps import SetClusters, sets_maps, sets_reduce
 from .sets_sums import sets_accumulate_chunks
 from .spread import moved_box, spread_of
@@ -70,4 +71,5 @@ __all__ = ['Colliders', '_collide_range', 'contact_velocity', 'collide_point', '
            'extract_rotation', 'quat_to_mat', 'moved_box', 'spread_of', 'step_single_bodies',
            'StepRecord',
            'sets_accumulate_chunks', '_fused_refs', 'sets_integrate_chunks',
-           'sets_kinematic', 'sets_maps', 'sets_reduce', 'SetMotion', 'Sets', 'SetClusters']
+           'sets_hold', 'sets_kinematic', 'sets_maps', 'sets_reduce', 'SetMotion', 'Sets',
+           'SetClusters']

@@ -33,7 +33,7 @@ from numba import njit
 
 from .jit import JIT, JIT_NO_REFCOUNT, U, claim_next
 from .colliders import _collide_range, ground_height, ground_range_sums
-from .damping import damp_acc_range, damp_towards
+from .damping import damp_acc_range, damp_kinematic, damp_towards
 from .fused import _fused_range, damp_constants, damp_sums_uniform
 from .integrate import BLOCK, _rest_sums, _zero_chunk, advance
 from .limits import limit_speed_range
@@ -439,3 +439,16 @@ def sets_kinematic(quad, particles, sets, part, targets, h):
         for a in range(3):
             v[i, a] = (tgt[p, a] - prev[p, a]) / h
             x[i, a] = tgt[p, a]
+
+
+@njit(**JIT_NO_REFCOUNT)
+def sets_hold(quad, particles, sets, part, targets, h, damping):
+    """``sets_kinematic``, and with ``damping`` = (damped, dpart) the held particles' damping
+    sums moved with them (``damping.damp_kinematic``: out before, in after)."""
+    damped, dpart = damping
+    x, v, mass, idx = particles.x, particles.v, particles.mass, targets[0]
+    if damped:
+        damp_kinematic(x=x, v=v, mass=mass, sid=sets.sid, dpart=dpart, idx=idx, sign=-1.0)
+    sets_kinematic(quad, particles, sets, part, targets, h)
+    if damped:
+        damp_kinematic(x=x, v=v, mass=mass, sid=sets.sid, dpart=dpart, idx=idx, sign=1.0)

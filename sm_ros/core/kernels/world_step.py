@@ -29,13 +29,13 @@ from numba import njit
 from ..step_threads import HELPERS
 from .flags import DIRTY, ERR_STALE, SLEEP, SUMS_PACKED
 from .colliders import Colliders
-from .damping import damp_accumulate, damp_kinematic, damping_fields, damping_targets
+from .damping import damp_accumulate, damping_fields, damping_targets
 from .grabs import gather_rows, wrench_accelerations
 from .goals import ClusterMatch, ClusterShape, MatchScratch, solve_clusters_warm
 from .integrate import BodyParticles, ClusterRest, FusedDamping
 from .jit import JIT, JIT_NO_REFCOUNT, claim_next
 from .limits import limit_turn
-from .sets import SetMotion, Sets, _fused_refs, sets_integrate_chunks, sets_kinematic
+from .sets import SetMotion, Sets, _fused_refs, sets_hold, sets_integrate_chunks
 from .set_maps import SetClusters, sets_maps, sets_reduce
 from .sets_sums import sets_accumulate_chunks
 
@@ -153,7 +153,7 @@ def _step_record(rec, h, gravity, colliders, counters):
 
 @njit(inline='always', **JIT)
 def _record_rest(rec):
-    """A record's clusters as the passes of ``integrate.py`` read them."""
+    """A record's clusters as the shape match reads them (``integrate.ClusterRest``)."""
     return ClusterRest(rec.ptr, rec.cluster_ids, rec.rest_lin, rec.rest_off, rec.ref)
 
 
@@ -256,13 +256,7 @@ def _record_integrate(rec, h, colliders, damped, counters):
 def _record_held(rec, h, damped):
     """The grabbed and pinned particles onto their targets (their per-set sums, and damped
     their damping sums, follow them)."""
-    x, v = rec.xt.T, rec.vt.T
-    if damped:
-        damp_kinematic(x=x, v=v, mass=rec.mass, sid=rec.sid, dpart=rec.dpart, idx=rec.kin_idx,
-                       sign=-1.0)
-    sets_kinematic(rec.state[R_QUAD] > 0.0, BodyParticles(x, v, rec.rest_local_t.T, rec.mass),
-                   Sets(rec.sid, rec.s_runs, rec.goal_maps, rec.sref, rec.state[R_WUNI]),
-                   rec.s_part, (rec.kin_idx, rec.kin_tgt, rec.kin_prev), h)
-    if damped:
-        damp_kinematic(x=x, v=v, mass=rec.mass, sid=rec.sid, dpart=rec.dpart, idx=rec.kin_idx,
-                       sign=1.0)
+    particles = BodyParticles(rec.xt.T, rec.vt.T, rec.rest_local_t.T, rec.mass)
+    sets_hold(rec.state[R_QUAD] > 0.0, particles,
+              Sets(rec.sid, rec.s_runs, rec.goal_maps, rec.sref, rec.state[R_WUNI]),
+              rec.s_part, (rec.kin_idx, rec.kin_tgt, rec.kin_prev), h, (damped, rec.dpart))
