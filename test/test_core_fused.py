@@ -103,9 +103,8 @@ def test_plastic_refresh_at_cluster_cost_matches_the_particle_pass(mode, cluster
 
 
 def _many_world(compiled):
-    """Small and large one-cluster and set-layout bodies (damped in a pass, fused,
-    undamped; rigid, linear, quadratic), a body the compiled step does not cover (8
-    clusters without the set layout), colliders, a force."""
+    """Small and large one-cluster and set-layout bodies (damped and undamped; rigid,
+    linear, quadratic), a plastic one, colliders, a force."""
     world = World()
     world.compiled_step = compiled
     world.set_colliders(ground=Ground(height=0.0, friction=0.5, restitution=0.2))
@@ -147,7 +146,7 @@ def test_compiled_world_step_equals_stepping_bodies_one_by_one(monkeypatch, para
         if compiled:
             pack, records, slow, helpers = world._split_bodies(1.0 / 120.0)
             assert helpers == (parallel and numba.get_num_threads() > 1)
-            assert len(pack) == 5 and len(records) == 3 and [b.name for b in slow] == ['b4']
+            assert len(pack) == 5 and len(records) == 4 and slow == []   # b4 plastic
             assert world.body('b7')._sets is not None and world.body('b4')._sets is not None
         states.append([(b.x.copy(), b.v.copy(), b.shape_error_rms(), b._limit_counts.copy())
                        for b in world.bodies])

@@ -79,7 +79,7 @@ def test_packed_step_equals_stepping_bodies_one_at_a_time(monkeypatch, parallel)
     want = _run(_world(False), 12)
     pack, records, slow, _ = got._split_bodies(1.0 / 240.0)
     assert [b.name for b in pack.bodies] == ['b0', 'b1', 'b2', 'b3', 'b4', 'late']
-    assert len(records) == 2 and [b.name for b in slow] == ['b7']   # b5, b6: sets
+    assert len(records) == 3 and slow == []        # b5, b6: sets; b7 plastic
     counts = np.array([s[3] for s in _states(got)])
     assert counts[:5, 0].sum() > 0 and counts[:5, 1].sum() > 0        # both limits acted
     assert got.bodies[2].n > 256 and got.bodies[3].n > 256               # several blocks

@@ -66,7 +66,7 @@ def test_plastic_update_leaves_the_plastic_state_of_a_non_finite_match(bad):
         changed = np.ones(1, dtype=np.bool_)
         clusters = (np.eye(3)[None].copy(), np.ones(1), np.array([[1.0, 0.0, 0.0, 0.0]]))
         scratch = (np.zeros(4), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3)),
-                   np.zeros((4, 4)), np.zeros((4, 4)))
+                   np.zeros((4, 4)), np.zeros((4, 4)), np.zeros((3, 3)), np.zeros((3, 3)))
         n = plasticity.plastic_update(a[None].copy(), clusters, sp, (0.05, 2.0, 0.3, 1.0 / 120.0),
                                       changed, scratch)
         assert n == 0 and not changed[0]

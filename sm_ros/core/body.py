@@ -180,12 +180,9 @@ class Body:
         return names
 
     def _fast_ok(self) -> bool:
-        """Whether ``kernels.world_step`` may step this body (see its docstring): not
-        plastic (its rest shape is rebuilt in Python) nor built for threads.  A body of one
-        particle has no shape to deform, so plasticity does nothing to it; it takes this
-        step, whose records hold x as a (3, 1) block, since its own (1, 3) arrays would need
-        kernels compiled for them alone."""
-        return (self.n == 1 or not self._params.plastic) and not self._parallel
+        """Whether ``kernels.world_step`` may step this body (see its docstring): every body
+        not built for threads."""
+        return not self._parallel
 
     def _packed_ok(self) -> bool:
         """Whether the packed world step (``packed.py``) may step this body: one cluster,

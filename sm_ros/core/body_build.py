@@ -46,8 +46,6 @@ def soa(a):
 
 
 _MODE_ID = {'rigid': 0, 'linear': 1, 'quadratic': 2}
-#: Relative eigenvalue cut-off of the A_qq / A~_qq pseudo-inverses.
-RCOND = 1e-10
 _EMPTY_I64 = np.zeros(0, dtype=np.int64)
 #: Bumped whenever a body's buffers, parameters, grabs or wrench kind change: ``World``
 #: rebuilds its list of compiled-step records (``kernels.world_step``) when it moved.
@@ -292,35 +290,25 @@ def _damping_buffers(body) -> None:
 
 
 def refresh_rest(body, which):
-    """Plastic rest shape q = Sp (x0 - cm0) / s of the clusters in ``which``; A_qq.
+    """Plastic rest shape and A_qq of the clusters in ``which`` (``kernels.refresh_rest``,
+    the kernel the compiled step runs after plastic flow)."""
+    work = plastic_work(body)
+    K.refresh_rest(which, rest_shape(body), (body._need3, body._need9), body._mode == 1,
+                   (work.features9, body._mat3[0], body._mat3[1], work.m9a, work.m9b))
 
-    Rigid/linear: q = G d with d = x0 - cm0, so sum w q = G sum w d and the centred
-    moments are G (sum w d d^T) G^T - (sum w q)(sum w q)^T / W, from the rest moments
-    kept since the build: the cost is per changed cluster (plasticity at cluster cost).
-    Quadratic features need moments up to degree 4: one pass over the particles.
-    """
-    idx = np.nonzero(which)[0]
-    needs = (body._need3, body._need9)
-    body._rest_lin[idx] = body._s_plastic[idx] / body._scale[idx, None, None]
-    body._rest_off[idx] = -np.einsum('kij,kj->ki', body._rest_lin[idx], body._cm0[idx])
-    if not body._need9:
-        g = body._rest_lin[idx]
-        sq = np.einsum('kij,kj->ki', g, body._dsum0[idx])
-        body._sum_q[idx] = 0.0
-        body._sum_q[idx, :3] = sq
-        if body._need3:
-            mom = (np.einsum('kia,kab,kjb->kij', g, body._cov0[idx], g)
-                   - sq[:, :, None] * sq[:, None, :] / body._wsum[idx, None, None])
-            body._mom3[idx] = 0.5 * (mom + mom.transpose(0, 2, 1))
-    else:
-        K.moments(body._x0, body._m, (body._ptr, body._cluster_ids),
-                  (body._rest_lin, body._rest_off), body._wsum, which, needs,
-                  (body._sum_q, body._mom3, body._mom9), body._features9)
-    K.invert_moments(which, needs, (body._mom3, body._mom9), (body._aqq3, body._aqq9),
-                     (body._mat3[0], body._mat3[1], body._mat9[0], body._mat9[1]), RCOND)
-    if body._mode == 1:
-        K.unit_det_frames(which=which, mom3=body._mom3, nmat=body._nmat, cdet=body._cdet,
-                          wa=body._mat3[0], wv=body._mat3[1], rcond=RCOND)
+
+def rest_shape(body):
+    """The body's rest shape as ``kernels.refresh_rest`` reads and rebuilds it."""
+    return K.RestShape(body._x0.T, body._m, body._ptr, body._cluster_ids, body._s_plastic,
+                       body._scale, body._cm0, body._dsum0, body._cov0, body._wsum,
+                       body._rest_lin, body._rest_off, body._sum_q, body._mom3, body._mom9,
+                       body._aqq3, body._aqq9, body._nmat, body._cdet)
+
+
+def plastic_work(body):
+    """The plastic flow's buffers (``kernels.PlasticWork``)."""
+    return K.PlasticWork(body._changed, body._features9, body._mat9[0], body._mat9[1],
+                         body._quat_scratch)
 
 
 def merge_kinematic(body):
@@ -355,7 +343,8 @@ def fast_record(body, h):
            body._fstate, body._flags, body._limit_counts)
     wrench = (body._torque, body._inertia, body._inertia_inv, body._kin_idx, body._kin_tgt,
               body._kin_prev)
-    return K.StepRecord(*own, *body._fast_sets(), body._udv, body._match_work, *wrench)
+    return K.StepRecord(*own, *body._fast_sets(), body._udv, body._match_work, *wrench,
+                        rest_shape(body), plastic_work(body))
 
 
 def retime_record(body, fstate, h):
@@ -369,7 +358,9 @@ def retime_record(body, fstate, h):
                R.R_MAX_SPEED: params.max_speed, R.R_MAX_TURN: params.max_turn,
                R.R_TURN_RATE: params.max_turn / h, R.R_MODE: body._mode,
                R.R_QUAD: body._quad, R.R_WUNI: body._wuni,
-               R.R_RADIUS: body._collider_radius}
+               R.R_RADIUS: body._collider_radius,
+               R.R_PLASTIC: params.plastic and body.n > 1, R.R_YIELD: params.plastic_yield,
+               R.R_CREEP: p.creep, R.R_PLASTIC_MAX: params.plastic_max}
     for slot, value in numbers.items():
         fstate[slot] = float(value)
 

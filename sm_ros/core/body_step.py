@@ -141,7 +141,7 @@ def _plastic_flow(body, p, h) -> int:
         nchanged = K.plastic_update(body._apq, (body._aqq3, body._scale, body._quat),
                                     body._s_plastic, law, body._changed,
                                     (body._quat_scratch, s3[0], s3[1], s3[2], body._quat_n,
-                                     body._quat_v))
+                                     body._quat_v, body._match_work[0], body._match_work[1]))
     sets = body._sets
     K.sets_maps(_set_clusters(sets), body._rest_lin, (body._trans, body._goal_lin, body._goal_off),
                 body._ref, body._quad, (sets.goal_maps, sets.ref),

@@ -43,7 +43,8 @@ from .integrate import BLOCK, BodyParticles, ClusterRest, FusedDamping, advance
 from .jit import FASTMATH, JIT
 from .limits import limit_speed, limit_turn
 from .linalg import det3, jacobi3, jacobi3_warm, jacobi_eigh, matmul, norm2, pinv_sym
-from .plasticity import _add_null_projector, _cap_plastic, plastic_update
+from .plasticity import (PlasticWork, RestShape, _add_null_projector, _cap_plastic,
+                         plastic_update, refresh_rest)
 from .rotation import extract_rotation, quat_to_mat
 from .sets import (SetMotion, Sets, _fused_refs, sets_hold, sets_integrate_chunks,
                    sets_kinematic)
@@ -68,6 +69,7 @@ __all__ = ['Colliders', '_collide_range', 'contact_velocity', 'collide_point', '
            'FASTMATH', 'JIT', 'limit_speed', 'limit_turn', 'det3', 'jacobi3', 'jacobi3_warm',
            'jacobi_eigh', 'matmul',
            'norm2', 'pinv_sym', '_add_null_projector', '_cap_plastic', 'plastic_update',
+           'PlasticWork', 'RestShape', 'refresh_rest',
            'extract_rotation', 'quat_to_mat', 'moved_box', 'spread_of', 'step_single_bodies',
            'StepRecord',
            'sets_accumulate_chunks', '_fused_refs', 'sets_integrate_chunks',

@@ -3,18 +3,39 @@
 From this step's A = A_pq A_qq: its symmetric factor S (polar decomposition, Eq. 24-25);
 if ||S - I||_2 > c_yield the plastic state creeps, S^P <- (I + h c_creep (S - I)) S^P,
 normalised to det S^P = 1 and capped at ||S^P - I||_2 <= c_max (Eq. 27, tested on S^P).
-A cluster whose S^P changed gets its rest shape and A_qq refreshed by ``goals.moments``.
+A cluster whose S^P changed gets its rest shape and A_qq refreshed (``refresh_rest``).
 """
+
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
 
-from .jit import JIT, finite
+from .goals import invert_moments, moments
+from .jit import JIT_NO_REFCOUNT, finite
 from .linalg import det3, jacobi_eigh, matmul, norm2
 from .rotation import extract_rotation
+from .unit_det import unit_det_frames
+
+#: Below this fraction of the largest eigenvalue a rest moment counts as zero (its
+#: pseudo-inverse drops the direction).
+RCOND = 1e-10
+
+#: A body's rest shape as ``refresh_rest`` rebuilds it: the rest positions as their (3, N)
+#: block ``x0t`` and the masses, the memberships (ptr, cluster_ids), the plastic state S^P
+#: and each cluster's scale, the rest moments kept from the build (centres ``cm0``, sum w d,
+#: sum w d d^T, weights), and what the refresh writes: the rest map (rest_lin, rest_off),
+#: sum w q, the moments and their pseudo-inverses, the linear mode's unit-determinant frames.
+RestShape = namedtuple('RestShape', (
+    'x0t mass ptr cluster_ids s_plastic scale cm0 dsum0 cov0 wsum rest_lin rest_off sum_q '
+    'mom3 mom9 aqq3 aqq9 nmat cdet').split())
+
+#: The plastic flow's buffers: the clusters whose S^P changed this step, and scratch (a
+#: 9-vector and two 9 x 9 for ``refresh_rest``, a quaternion for ``plastic_update``).
+PlasticWork = namedtuple('PlasticWork', 'changed features9 m9a m9b quat')
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _cap_plastic(s_plastic, c_max, m3, wa, wv):
     """Sp <- Sp / cbrt(det Sp), then pulled towards I until ||Sp - I||_2 <= c_max (Eq. 27).
 
@@ -56,7 +77,7 @@ def _cap_plastic(s_plastic, c_max, m3, wa, wv):
             s_plastic[i, j] = wa[i, j] * inv_cbrt
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _add_null_projector(aqq, out, wa, wv):
     """out += the projector onto the null space of the symmetric PSD ``aqq`` (3x3)."""
     for i in range(3):
@@ -71,20 +92,19 @@ def _add_null_projector(aqq, out, wa, wv):
                     out[i, j] += wv[i, e] * wv[j, e]
 
 
-@njit(**JIT)
+@njit(**JIT_NO_REFCOUNT)
 def plastic_update(apq, clusters, s_plastic, law, changed, scratch):
     """Plasticity (Eq. 24-27) of every cluster from this step's A_pq-hat (``apq``);
     ``clusters`` = (A_qq (``aqq3``), scale, rotation quaternion), ``law`` = (yield, creep,
-    max, h), ``scratch`` = (a 4-vector, three 3 x 3, two 4 x 4).
+    max, h), ``scratch`` = (a 4-vector, three 3 x 3, two 4 x 4, two C-contiguous 3 x 3).
 
     Updates the plastic state ``s_plastic``; ``changed`` marks the clusters whose rest
     shape must be refreshed.  Returns the number of changed clusters.
     """
     aqq3, scale, quat = clusters
     c_yield, c_creep, c_max, h = law
-    q4, m3a, m3b, m3c, n4, v4 = scratch
+    q4, m3a, m3b, m3c, n4, v4, wa, wv = scratch
     nchanged = 0
-    wa, wv = np.empty((3, 3)), np.empty((3, 3))     # C-contiguous: one eigen solver for all
     for k in range(apq.shape[0]):
         changed[k] = False
         s_k = scale[k]
@@ -144,3 +164,58 @@ def plastic_update(apq, clusters, s_plastic, law, changed, scratch):
                 changed[k] = True
                 nchanged += 1
     return nchanged
+
+
+@njit(**JIT_NO_REFCOUNT)
+def refresh_rest(which, rest, needs, linear, work):
+    """Plastic rest shape q = S^P (x0 - cm0) / s of the clusters marked in ``which``, and
+    A_qq (``rest``: a ``RestShape``; ``needs`` = (need3, need9): which moments; ``linear``:
+    the linear mode's frames too; ``work`` = (9-vector, two 3 x 3, two 9 x 9)).
+
+    Rigid/linear: q = G d with d = x0 - cm0 and G = S^P / s, so sum w q = G sum w d and the
+    centred moments are G (sum w d d^T) G^T - (sum w q)(sum w q)^T / W: a refresh costs per
+    changed cluster.  Quadratic features need moments up to degree 4: a pass over the
+    particles (``goals.moments``).
+    """
+    need3, need9 = needs
+    f9, w3a, w3b, w9a, w9b = work
+    for k in range(which.shape[0]):
+        if which[k]:
+            _rest_map(k, rest, need3 and not need9)
+    if need9:
+        moments(rest.x0t.T, rest.mass, (rest.ptr, rest.cluster_ids),
+                (rest.rest_lin, rest.rest_off), rest.wsum, which, needs,
+                (rest.sum_q, rest.mom3, rest.mom9), f9)
+    invert_moments(which, needs, (rest.mom3, rest.mom9), (rest.aqq3, rest.aqq9),
+                   (w3a, w3b, w9a, w9b), RCOND)
+    if linear:
+        unit_det_frames(which, rest.mom3, rest.nmat, rest.cdet, w3a, w3b, RCOND)
+
+
+@njit(inline='always', **JIT_NO_REFCOUNT)
+def _rest_map(k, rest, mom3):
+    """Cluster k's rest map G = S^P / s, offset -G cm0, sum w q = G sum w d and, with
+    ``mom3``, its centred moment from the build's sum w d d^T."""
+    g, cm0, dsum0 = rest.rest_lin[k], rest.cm0[k], rest.dsum0[k]
+    inv_scale = 1.0 / rest.scale[k]
+    for i in range(3):
+        for j in range(3):
+            g[i, j] = rest.s_plastic[k, i, j] * inv_scale
+    for i in range(3):
+        rest.rest_off[k, i] = -(g[i, 0] * cm0[0] + g[i, 1] * cm0[1] + g[i, 2] * cm0[2])
+    for j in range(9):
+        rest.sum_q[k, j] = 0.0
+    for i in range(3):
+        rest.sum_q[k, i] = g[i, 0] * dsum0[0] + g[i, 1] * dsum0[1] + g[i, 2] * dsum0[2]
+    if not mom3:
+        return
+    cov, sq, inv_w = rest.cov0[k], rest.sum_q[k], 1.0 / rest.wsum[k]
+    for i in range(3):
+        for j in range(i, 3):
+            s = 0.0
+            for a in range(3):
+                for b in range(3):
+                    s += g[i, a] * cov[a, b] * g[j, b]
+            s -= sq[i] * sq[j] * inv_w
+            rest.mom3[k, i, j] = s
+            rest.mom3[k, j, i] = s

@@ -35,27 +35,32 @@ from .goals import ClusterMatch, ClusterShape, MatchScratch, solve_clusters_warm
 from .integrate import BodyParticles, ClusterRest, FusedDamping
 from .jit import JIT, JIT_NO_REFCOUNT, claim_next
 from .limits import limit_turn
+from .plasticity import plastic_update, refresh_rest
 from .sets import SetMotion, Sets, _fused_refs, sets_hold, sets_integrate_chunks
 from .set_maps import SetClusters, sets_maps, sets_reduce
 from .sets_sums import sets_accumulate_chunks
 
 #: The buffers of one body that ``step_bodies_claimed`` steps (``body_build.fast_record``):
 #: the names of ``Body``'s own attributes, the set layout's with ``s_``; ``kin_*`` its
-#: grabbed and pinned particles, their targets and their positions before the step.
+#: grabbed and pinned particles, their targets and their positions before the step;
+#: ``rest_shape`` (``plasticity.RestShape``) and ``plastic`` (``plasticity.PlasticWork``)
+#: what plastic flow reshapes.
 StepRecord = namedtuple('StepRecord', (
     'xt vt mass ptr cluster_ids rest_lin rest_off part wsum sum_q ref quat aqq3 aqq9 scale '
     'trans goal_lin goal_off apq accbuf m3a m3b m3c m3d m39 n4 v4 nmat cdet acc ang com err dpart '
     'dmp dref dacc lin w3 quat_prev flagged lim_lin lim_w force state flags '
     'counts rest_local_t sid goal_maps sref s_part s_ptr s_cluster_ids s_cnt s_phi s_org work '
     'quad_map s_pair_offsets s_cluster_maps s_runs '
-    'udv match_work torque inertia inertia_inv kin_idx kin_tgt kin_prev').split())
+    'udv match_work torque inertia inertia_inv kin_idx kin_tgt kin_prev rest_shape '
+    'plastic').split())
 
 #: Where ``StepRecord.state`` holds each number (``body_build.retime_record`` writes them):
 #: the material at the step (alpha, beta, damping), the limits (max_speed, max_turn and
 #: max_turn / h), the mode (0 rigid, 1 linear, 2 quadratic), quadratic, the particles' one
-#: mass or 0 (``Body._wuni``) and the radius the body meets the colliders with.
+#: mass or 0 (``Body._wuni``), the radius the body meets the colliders with, and the
+#: plastic law: whether the body flows, its yield, creep at the step and cap (Eq. 24-27).
 (R_ALPHA, R_BETA, R_DAMPING, R_MAX_SPEED, R_MAX_TURN, R_TURN_RATE, R_MODE, R_QUAD, R_WUNI,
- R_RADIUS, R_SIZE) = range(11)
+ R_RADIUS, R_PLASTIC, R_YIELD, R_CREEP, R_PLASTIC_MAX, R_SIZE) = range(15)
 
 
 @njit(**JIT)
@@ -133,6 +138,8 @@ def _step_record(rec, h, gravity, colliders, counters):
     dirty = rec.flags[DIRTY] > 0.0
     _record_sums(rec, dirty, counters)
     turned = _record_match(rec)
+    plastic = state[R_PLASTIC] > 0.0
+    changed = _record_plastic_flow(rec, h) if plastic else 0
     sets_maps(_set_clusters(rec), rec.rest_lin, (rec.trans, rec.goal_lin, rec.goal_off),
               rec.ref, state[R_QUAD] > 0.0, (rec.goal_maps, rec.sref),
               (rec.quad_map, rec.s_cluster_maps))
@@ -148,6 +155,11 @@ def _step_record(rec, h, gravity, colliders, counters):
     _record_integrate(rec, h, colliders, damped, counters)
     if held:
         _record_held(rec, h, damped)
+    if changed > 0:
+        work = rec.plastic
+        refresh_rest(work.changed, rec.rest_shape, (True, state[R_QUAD] > 0.0),
+                     state[R_MODE] == 1.0, (work.features9, rec.m3a, rec.m3b, work.m9a,
+                                            work.m9b))
     rec.flags[ERR_STALE] = 1.0
 
 
@@ -219,6 +231,17 @@ def _record_match(rec):
                         (rec.lim_lin, rec.lim_w, rec.m3a, rec.m3b, rec.m3c, rec.m3d))
     rec.counts[1] += turned
     return turned
+
+
+@njit(inline='always', **JIT)
+def _record_plastic_flow(rec, h):
+    """Plasticity (Eq. 24-27) from this step's match; returns the clusters whose rest
+    shape changed (``rec.plastic.changed``), refreshed at the end of the step."""
+    state, work = rec.state, rec.plastic
+    law = (state[R_YIELD], state[R_CREEP], state[R_PLASTIC_MAX], h)
+    return plastic_update(rec.apq, (rec.aqq3, rec.scale, rec.quat), rec.rest_shape.s_plastic,
+                          law, work.changed, (work.quat, rec.m3a, rec.m3b, rec.m3c, rec.n4,
+                                              rec.v4, rec.match_work[0], rec.match_work[1]))
 
 
 @njit(inline='always', **JIT)
