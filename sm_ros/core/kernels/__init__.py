@@ -54,7 +54,8 @@ from .spread import moved_box, spread_of
 from .unit_det import (STRETCH_LIMIT, _logprod, _logx, _stretch_ok, _unit_det_sum,
                        nearest_unit_det, nearest_unit_det_warm, unit_det_frames, unit_det_match,
                        unit_det_match_warm, volume_preserving)
-from .world_step import StepRecord, step_single_bodies
+from .world_step import (StepRecord, record_begins, record_ends, record_goals,
+                         record_integrate_chunks, record_sums_chunks, step_single_bodies)
 
 __all__ = ['Colliders', '_collide_range', 'contact_velocity', 'collide_point', 'NDAMP',
            'damp_acc_range',
@@ -71,7 +72,8 @@ __all__ = ['Colliders', '_collide_range', 'contact_velocity', 'collide_point', '
            'norm2', 'pinv_sym', '_add_null_projector', '_cap_plastic', 'plastic_update',
            'PlasticWork', 'RestShape', 'refresh_rest',
            'extract_rotation', 'quat_to_mat', 'moved_box', 'spread_of', 'step_single_bodies',
-           'StepRecord',
+           'StepRecord', 'record_begins', 'record_ends', 'record_goals',
+           'record_integrate_chunks', 'record_sums_chunks',
            'sets_accumulate_chunks', '_fused_refs', 'sets_integrate_chunks',
            'sets_hold', 'sets_kinematic', 'sets_maps', 'sets_reduce', 'SetMotion', 'Sets',
            'SetClusters']

@@ -127,39 +127,97 @@ def _step_record(rec, h, gravity, colliders, counters):
     """``Body._step`` for one record; ``colliders``: ``colliders.Colliders`` with the body's
     radius, ``counters`` int64 scratch of at least its chunks + 1 (the passes' claim and
     capped counts).  It allocates nothing, so it runs without reference counting: reading
-    the record's arrays would otherwise cost an atomic operation each."""
-    if rec.flags[SLEEP] > 0.0:                 # asleep (``sm_ros.core.sleep``): not stepped
+    the record's arrays would otherwise cost an atomic operation each.
+
+    The step's five phases are also called one by one (``body_step``), so that a body built
+    for threads shares its two particle passes out to helper threads between them."""
+    if not record_begins(rec):
         return
+    if rec.flags[DIRTY] > 0.0:
+        record_sums_chunks(rec, _claim(counters))
+    changed = record_goals(rec, h, gravity)
+    chunk_capped = counters[1:1 + rec.s_part.shape[0]]
+    chunk_capped[:] = 0
+    record_integrate_chunks(rec, _claim(counters), chunk_capped, colliders)
+    record_ends(rec, h, chunk_capped, changed)
+
+
+@njit(inline='always', **JIT_NO_REFCOUNT)
+def record_begins(rec):
+    """Whether the record is stepped (not asleep: ``sm_ros.core.sleep``); marks its sums
+    to be taken afresh where the pack stepped it last."""
+    if rec.flags[SLEEP] > 0.0:
+        return False
     if rec.flags[SUMS_PACKED] > 0.0:           # last stepped by the pack: its sums are stale
         rec.flags[SUMS_PACKED] = 0.0
         rec.flags[DIRTY] = 1.0
+    return True
+
+
+@njit(inline='always', **JIT_NO_REFCOUNT)
+def record_sums_chunks(rec, claim):
+    """The per-set sums of the current state (Eq. 7-11), chunk by chunk as ``claim`` hands
+    them out (a body whose state changed since the last pass summed it)."""
+    sets_accumulate_chunks(claim=claim, quad=rec.state[R_QUAD] > 0.0, x=rec.xt.T,
+                           y0=rec.rest_local_t.T, mass=rec.mass, sid=rec.sid,
+                           runs=rec.s_runs, sref=rec.sref, part=rec.s_part)
+
+
+@njit(inline='always', **JIT_NO_REFCOUNT)
+def record_goals(rec, h, gravity):
+    """Everything between the two particle passes: the clusters' sums, the shape match
+    and turn limit, plastic flow, the goal maps, the step's accelerations, the damping
+    field, the held particles' positions; returns the clusters plastic flow changed."""
     state = rec.state
-    damped = state[R_DAMPING] > 0.0
-    dirty = rec.flags[DIRTY] > 0.0
-    _record_sums(rec, dirty, counters)
+    quad = state[R_QUAD] > 0.0
+    sets_reduce(rec.s_part, _set_clusters(rec), rec.sref, rec.rest_lin, rec.ref, quad,
+                rec.part, (rec.work, rec.quad_map))
     turned = _record_match(rec)
-    plastic = state[R_PLASTIC] > 0.0
-    changed = _record_plastic_flow(rec, h) if plastic else 0
+    changed = _record_plastic_flow(rec, h) if state[R_PLASTIC] > 0.0 else 0
     sets_maps(_set_clusters(rec), rec.rest_lin, (rec.trans, rec.goal_lin, rec.goal_off),
-              rec.ref, state[R_QUAD] > 0.0, (rec.goal_maps, rec.sref),
-              (rec.quad_map, rec.s_cluster_maps))
+              rec.ref, quad, (rec.goal_maps, rec.sref), (rec.quad_map, rec.s_cluster_maps))
     rec.counts[1] += wrench_accelerations(
         (rec.force, rec.torque), gravity, (rec.wsum, rec.ref), (rec.xt.T, rec.mass),
         (h, state[R_MAX_TURN]), (rec.acc, rec.ang, rec.com),
         (rec.inertia, rec.inertia_inv, rec.m3a, rec.m3b))
-    if damped:
-        _record_damping(rec, dirty or turned > 0)
-    held = rec.kin_idx.shape[0] > 0
-    if held:
+    if state[R_DAMPING] > 0.0:
+        _record_damping(rec, rec.flags[DIRTY] > 0.0 or turned > 0)
+    if rec.kin_idx.shape[0] > 0:
         gather_rows(rec.xt.T, rec.kin_idx, rec.kin_prev)
-    _record_integrate(rec, h, colliders, damped, counters)
-    if held:
+    return changed
+
+
+@njit(inline='always', **JIT_NO_REFCOUNT)
+def record_integrate_chunks(rec, claim, chunk_capped, colliders):
+    """Eq. 13-14 with the static colliders and the speed cap, set by set, chunk by chunk as
+    ``claim`` hands them out; the speeds are capped block by block before the next step's
+    sums are taken in the same loop, so the sums stay valid."""
+    state = rec.state
+    particles = BodyParticles(rec.xt.T, rec.vt.T, rec.rest_local_t.T, rec.mass)
+    sets = Sets(rec.sid, rec.s_runs, rec.goal_maps, rec.sref, state[R_WUNI])
+    motion = SetMotion(state[R_ALPHA], colliders.h, rec.acc, rec.ang, rec.com,
+                       state[R_MAX_SPEED])
+    sets_integrate_chunks(claim, chunk_capped, state[R_QUAD] > 0.0, particles, sets,
+                          motion, rec.s_part, rec.err, colliders,
+                          FusedDamping(state[R_DAMPING] > 0.0, state[R_DAMPING], rec.dmp,
+                                       rec.dpart))
+
+
+@njit(inline='always', **JIT_NO_REFCOUNT)
+def record_ends(rec, h, chunk_capped, changed):
+    """After the particle pass: the sums' reference points, the capped count, the held
+    particles onto their targets, the rest shape of the clusters plastic flow changed."""
+    state = rec.state
+    quad, damped = state[R_QUAD] > 0.0, state[R_DAMPING] > 0.0
+    _fused_refs(quad, state[R_WUNI], rec.ang, rec.s_runs, damped, rec.sref, rec.dpart)
+    rec.counts[0] += chunk_capped.sum()
+    rec.flags[DIRTY] = 0.0
+    if rec.kin_idx.shape[0] > 0:
         _record_held(rec, h, damped)
     if changed > 0:
         work = rec.plastic
-        refresh_rest(work.changed, rec.rest_shape, (True, state[R_QUAD] > 0.0),
-                     state[R_MODE] == 1.0, (work.features9, rec.m3a, rec.m3b, work.m9a,
-                                            work.m9b))
+        refresh_rest(work.changed, rec.rest_shape, (True, quad), state[R_MODE] == 1.0,
+                     (work.features9, rec.m3a, rec.m3b, work.m9a, work.m9b))
     rec.flags[ERR_STALE] = 1.0
 
 
@@ -181,19 +239,6 @@ def _claim(counters):
     """A fresh claim counter (``claim_next``) from ``counters``' first slot."""
     counters[0] = 0
     return counters[0:1]
-
-
-@njit(inline='always', **JIT)
-def _record_sums(rec, dirty, counters):
-    """The clusters' sums of the current state: the per-set sums, taken afresh where the
-    state changed since the last pass summed them (``dirty``), reduced to the clusters."""
-    quad = rec.state[R_QUAD] > 0.0
-    if dirty:
-        sets_accumulate_chunks(claim=_claim(counters), quad=quad, x=rec.xt.T,
-                               y0=rec.rest_local_t.T, mass=rec.mass, sid=rec.sid,
-                               runs=rec.s_runs, sref=rec.sref, part=rec.s_part)
-    sets_reduce(rec.s_part, _set_clusters(rec), rec.sref, rec.rest_lin, rec.ref, quad,
-                rec.part, (rec.work, rec.quad_map))
 
 
 @njit(inline='always', **JIT)
@@ -254,25 +299,6 @@ def _record_damping(rec, stale):
                    (rec.lin, rec.w3, rec.m3a, rec.m3b, rec.m3c, rec.m3d))
     damping_targets(sptr=rec.s_ptr, scl=rec.s_cluster_ids, scnt=rec.s_cnt, lin=rec.lin,
                     w3=rec.w3, dref=rec.dref, sref=rec.sref, dmp=rec.dmp)
-
-
-@njit(inline='always', **JIT)
-def _record_integrate(rec, h, colliders, damped, counters):
-    """Eq. 13-14 with the static colliders and the speed cap, set by set: the speeds are
-    capped block by block before the sums are taken, so the sums stay valid."""
-    state = rec.state
-    quad = state[R_QUAD] > 0.0
-    chunk_capped = counters[1:1 + rec.s_part.shape[0]]
-    chunk_capped[:] = 0
-    particles = BodyParticles(rec.xt.T, rec.vt.T, rec.rest_local_t.T, rec.mass)
-    sets = Sets(rec.sid, rec.s_runs, rec.goal_maps, rec.sref, state[R_WUNI])
-    motion = SetMotion(state[R_ALPHA], h, rec.acc, rec.ang, rec.com, state[R_MAX_SPEED])
-    sets_integrate_chunks(_claim(counters), chunk_capped, quad, particles, sets,
-                          motion, rec.s_part, rec.err, colliders,
-                          FusedDamping(damped, state[R_DAMPING], rec.dmp, rec.dpart))
-    _fused_refs(quad, state[R_WUNI], rec.ang, rec.s_runs, damped, rec.sref, rec.dpart)
-    rec.counts[0] += chunk_capped.sum()
-    rec.flags[DIRTY] = 0.0
 
 
 @njit(inline='always', **JIT)
