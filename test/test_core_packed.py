@@ -88,12 +88,11 @@ def test_packed_step_equals_stepping_bodies_one_at_a_time(monkeypatch, parallel)
         assert g[2] == w[2] and np.array_equal(g[3], w[3]) and np.array_equal(g[4], w[4])
 
 
-def test_packed_step_matches_the_kernel_by_kernel_step(monkeypatch):
+def test_packed_step_matches_the_record_step(monkeypatch):
     """The packed step (damping fused into the particle pass, the speed limit inside it)
-    gives the states of the set layout's body step kernel by kernel (one set, the damping
-    field from its own sums, the speed limit run by run) to round-off."""
+    gives the states of the records' step (one set, the damping field from its own sums,
+    the speed limit run by run) to round-off."""
     got = _run(_world(True), 4, events=False)
-    monkeypatch.setattr(body_mod.Body, '_fast_ok', lambda self: False)
     monkeypatch.setattr(body_mod.Body, '_packed_ok', lambda self: False)
     want = _run(_world(True), 4, events=False)
     assert want._split_bodies(1.0 / 240.0)[0] is None
@@ -105,12 +104,11 @@ def test_packed_step_matches_the_kernel_by_kernel_step(monkeypatch):
 
 
 @pytest.mark.parametrize('ground', [False, True])
-def test_packed_damping_of_bodies_of_one_mass_matches_the_kernel_by_kernel_step(monkeypatch,
-                                                                                 ground):
+def test_packed_damping_of_bodies_of_one_mass_matches_the_record_step(monkeypatch, ground):
     """The packed pass sums the damping of a body whose particles all have one mass
     unweighted and scales the sums once a block (``packed._pass``): such bodies (rigid and
-    linear, several blocks, with and without a collider pass) step as the kernel-by-kernel
-    step (the set layout's weighted sums) to round-off; a body of varied masses is not
+    linear, several blocks, with and without a collider pass) step as the records' step
+    (the set layout's weighted sums) to round-off; a body of varied masses is not
     packed (it steps outside the pack, weighted)."""
     def build(damping=0.2):
         world = World()
@@ -130,7 +128,6 @@ def test_packed_damping_of_bodies_of_one_mass_matches_the_kernel_by_kernel_step(
     pack = got._split_bodies(1.0 / 240.0)[0]
     assert [b.name for b in pack.bodies] == ['u0', 'u1']
     assert [row[packed.C_WUNI] for row in pack.rows] == [0.01, 0.01]
-    monkeypatch.setattr(body_mod.Body, '_fast_ok', lambda self: False)
     monkeypatch.setattr(body_mod.Body, '_packed_ok', lambda self: False)
     want = _run(build(), 4, events=False)
     assert want._split_bodies(1.0 / 240.0)[0] is None

@@ -179,11 +179,6 @@ class Body:
                       '_nmat', '_cdet')
         return names
 
-    def _fast_ok(self) -> bool:
-        """Whether ``kernels.world_step`` may step this body (see its docstring): every body
-        not built for threads."""
-        return not self._parallel
-
     def _packed_ok(self) -> bool:
         """Whether the packed world step (``packed.py``) may step this body: one cluster,
         rigid or linear, every particle of one mass (its loop sums unweighted), no

@@ -326,14 +326,15 @@ class World(WorldColliders):
 
     def _split_bodies(self, h):
         """(``packed.Pack`` of the one-cluster rigid/linear bodies or None, typed list of
-        compiled-step records of the other covered bodies, bodies stepped one by one,
-        whether the records are shared with helper threads): ``_split_now``'s."""
+        compiled-step records of the other bodies, bodies stepped on their own (built for
+        threads), whether the records are shared with helper threads): ``_split_now``'s."""
         return self._split_now(h)[1:5]
 
     def _split_now(self, h):
         """The split of the bodies at the step ``h``: (key, ``packed.Pack`` of the
         one-cluster rigid/linear bodies or None, typed list of compiled-step records of the
-        other covered bodies, bodies stepped one by one, whether the records are shared
+        other bodies, bodies stepped on their own (built for threads: ``Body._step``),
+        whether the records are shared
         with helper threads, how many records), rebuilt only when a body's buffers,
         parameters, grabs or wrench kind, the bodies, the step or the packing
         (``Pack.stale``: one of its bodies was packed elsewhere since) changed.  Python
@@ -357,7 +358,7 @@ class World(WorldColliders):
             for body in self._bodies.values():
                 if self.compiled_step and body._packed_ok():
                     packed.append(body)
-                elif self.compiled_step and body._fast_ok():
+                elif self.compiled_step and not body._parallel:
                     records.append(body._fast_record(h))
                     self._split_fstates.append((body, body._fstate))
                     rec_work += body.n

@@ -2,20 +2,18 @@
 
 Each call of a Numba function with 10-30 array arguments from Python costs several
 microseconds in the dispatcher, while a 144-particle body's own work is about one, and a
-body's step calls 4-6 kernels.  ``step_single_bodies`` runs the same
-kernels, in the same order and with the same arguments as ``Body._step``, for every body
-of a typed list of per-body records, so the Python cost of a step does not grow with the
-number of such bodies.  It covers every body that is neither plastic nor built for
-threads (``Body._fast_ok``), grabbed, pinned or under a torque too; one-cluster
-rigid/linear bodies without those take the packed step (``sm_ros.core.packed``: no
-per-body record), and the plastic and threaded ones ``Body._step``, which steps a covered
-body as a list of one record.
+body's step calls dozens of kernels.  ``step_single_bodies`` runs the whole step of
+every body of a typed list of per-body records in one call, so the Python cost of a step
+does not grow with the number of bodies.  It covers every body (grabbed, pinned, under a
+torque, plastic) but the one-cluster rigid/linear bodies without those, which take the
+packed step (``sm_ros.core.packed``: no per-body record); ``Body._step`` steps a body as a
+list of one record, and a body built for threads by the record step's phases, its
+particle passes on helper threads.
 
-A record (``Body._fast_record``) is a ``StepRecord``, a named tuple of the body's own buffers
-(x, v and the set offsets y0 as their (3, N) blocks, transposed back to (N, 3) views of
-layout F here);
-``state`` holds the body's numbers at the step (``R_*`` below), ``force`` the force over
-the total mass (divided in Python, as ``Body._step`` does: fast math would round it
+A record (``Body._fast_record``) is a ``StepRecord``, a named tuple of the body's own
+buffers (x, v and the set offsets y0 as their (3, N) blocks, transposed back to (N, 3)
+views of layout F here); ``state`` holds the body's numbers at the step (``R_*`` below),
+``force`` the force over the total mass (divided in Python: fast math would round it
 otherwise), ``flags`` the body's flags (``kernels.flags``: a sleeping record is not
 stepped), ``counts`` the limit counters, ``s_*`` the set layout's buffers.
 """
