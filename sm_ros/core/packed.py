@@ -212,13 +212,7 @@ def step_packed(rows, counts, arrays, h, gravity, colliders, first, turned_first
         xt, vt, x0t, mass = arrays[b]
         n = mass.shape[0]
         x, v, x0 = xt.T, vt.T, x0t.T
-        # ---- the state the pass reads as arrays (rest map, ref), the shape-match sums
-        for j in range(3):
-            ref[0, j] = row[C_REF + j]
-            rest_off[0, j] = row[C_ROFF + j]
-        for i in range(3):
-            for j in range(3):
-                rest_lin[0, i, j] = row[C_RLIN + 3 * i + j]
+        _load_rest(row, work)                  # the rest map and ref the pass reads
         damp = row[C_DAMP] > 0.0
         if not row[C_FLAGS + SUMS_PACKED] > 0.0:
             # new, or last stepped by the set layout's step: the sums are taken here
@@ -292,6 +286,17 @@ def _work():
                 np.zeros((4, 3, 3)), np.zeros((3, 9)), np.zeros((4, 4)), np.zeros((4, 4)),
                 np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((1, 6)), np.zeros(3),
                 np.zeros((1, NDAMP)), np.zeros((3, 3)), np.zeros((3, 3)))
+
+
+@njit(inline='always', **JIT)
+def _load_rest(row, work):
+    """A row's rest map and reference point into the work arrays the pass reads."""
+    for j in range(3):
+        work.ref[0, j] = row[C_REF + j]
+        work.rest_off[0, j] = row[C_ROFF + j]
+    for i in range(3):
+        for j in range(3):
+            work.rest_lin[0, i, j] = row[C_RLIN + 3 * i + j]
 
 
 @njit(inline='always', **JIT)
