@@ -1,8 +1,8 @@
 """The packed world step: one-cluster rigid/linear bodies without per-body records.
 
 Kept beside the records of ``kernels.world_step`` for the default scene and worlds of many
-small bodies: its step compiles in half the time of the records' (the first simulated
-cloud of a cold start) and steps a small body in half the time (doc/architecture.md).  A
+small bodies: its step is smaller, so it compiles sooner (the first simulated cloud of a
+cold start) and steps a small body with less overhead (figures: doc/architecture.md).  A
 packable body (``Body._packed_ok``: one cluster, rigid or linear, one mass, no plasticity,
 grabs or torque) keeps its per-body scalars and per-cluster state in one row of
 ``Pack.rows`` (nb, NCOL): its attributes (``_ref``, ``_quat``, ``_part``, ...) become views

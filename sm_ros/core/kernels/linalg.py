@@ -108,7 +108,7 @@ def jacobi3(mat, vecs, max_sweeps=50):
     """``jacobi_eigh`` for a symmetric 3x3 ``mat``: the same cyclic rotations and stopping
     rule, on the six distinct entries held in registers (the rotated pair's diagonal by
     a_pp - t a_pq, a_qq + t a_pq) instead of full row and column sweeps of the array:
-    about three times faster, equal to rounding.  Diagonal of ``mat`` <- eigenvalues,
+    less memory traffic, equal to rounding.  Diagonal of ``mat`` <- eigenvalues,
     columns of ``vecs`` <- eigenvectors."""
     a00, a11, a22 = mat[0, 0], mat[1, 1], mat[2, 2]
     a01, a02, a12 = mat[0, 1], mat[0, 2], mat[1, 2]

@@ -1,8 +1,8 @@
 """One compiled call steps the bodies of a world (Eq. 7-14, 23, damping, limits).
 
-Each call of a Numba function with 10-30 array arguments from Python costs several
-microseconds in the dispatcher, while a 144-particle body's own work is about one, and a
-body's step calls dozens of kernels.  ``step_single_bodies`` runs the whole step of
+A call of a Numba function from Python unboxes each of its array arguments, which for a
+small body costs more than the body's own work, and a body's step calls dozens of
+kernels.  ``step_single_bodies`` runs the whole step of
 every body of a typed list of per-body records in one call, so the Python cost of a step
 does not grow with the number of bodies.  It covers every body (grabbed, pinned, under a
 torque, plastic) but the one-cluster rigid/linear bodies without those, which take the
