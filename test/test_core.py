@@ -507,6 +507,29 @@ def test_kinematic_particles_follow_targets_exactly():
     assert body.x[:, 2].min() < x0[:, 2].min() - 0.01   # the rest sags under gravity
 
 
+def test_moving_a_grab_keeps_the_worlds_split_and_a_new_grab_rebuilds_it():
+    """A grab moved to new targets (the same particles) is written in place, so the world
+    keeps its compiled-step records; grabbing other particles rebuilds them."""
+    x0 = lattice(5, 3, 3, 0.1)
+    world = World(gravity=(0, 0, -9.81))
+    body = world.add_body(x0, 1.0, BodyParams(mode='linear', clusters=2))
+    world.add_body(x0 + [1.0, 0.0, 0.0], 1.0, BodyParams(mode='linear', clusters=2))
+    idx = np.array([3, 4])
+    body.set_kinematic(idx, x0[idx])
+    world.step(0.01)
+    records = world._split_bodies(0.01)[1]
+    for k in range(1, 6):
+        tgt = x0[idx] + [0.0, 0.01 * k, 0.0]
+        body.set_kinematic(idx, tgt)
+        world.step(0.01)
+        np.testing.assert_array_equal(body.x[idx], tgt)
+        assert world._split_bodies(0.01)[1] is records
+    body.set_kinematic(np.array([3, 5]), x0[[3, 5]])
+    world.step(0.01)
+    assert world._split_bodies(0.01)[1] is not records
+    np.testing.assert_array_equal(body.x[[3, 5]], x0[[3, 5]])
+
+
 def test_damping_keeps_momentum_and_reduces_deformation_energy():
     x0 = lattice(5, 5, 5, 0.1, jitter=0.1)
     out = {}

@@ -317,9 +317,15 @@ def merge_kinematic(body):
     pins = body._pinned
     grab = body._grab_idx
     keep = ~np.isin(grab, pins)
-    body._kin_idx = np.concatenate([grab[keep], pins]).astype(np.int64)
-    body._kin_tgt = np.ascontiguousarray(
-        np.concatenate([body._grab_tgt[keep], body._x_init[pins]]), dtype=np.float64)
+    idx = np.concatenate([grab[keep], pins]).astype(np.int64)
+    targets = np.concatenate([body._grab_tgt[keep], body._x_init[pins]])
+    held = getattr(body, '_kin_idx', None)
+    if held is not None and np.array_equal(held, idx):
+        # the same particles, moved: in place, so the step's records keep their arrays
+        body._kin_tgt[:] = targets
+        return
+    body._kin_idx = idx
+    body._kin_tgt = np.ascontiguousarray(targets, dtype=np.float64)
     body._kin_prev = np.zeros_like(body._kin_tgt)
     _GENERATION[0] += 1
 
