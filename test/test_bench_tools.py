@@ -61,6 +61,14 @@ def test_tick_times_a_bundled_scene():
     assert res['asleep_at_end'] == 0                # one body alone never sleeps
 
 
+def test_tick_with_a_moving_gripper_holds_the_body():
+    res = tick.measure('default', ticks=3, grab=True)
+    assert res['grab'] and 0.0 < res['tick_ms_median'] <= res['tick_ms_max']
+    assert res['held_particles'] > 0
+    assert tick.measure('default', ticks=3)['held_particles'] == 0
+
+
+
 def test_profile_prints_the_top_entries(tmp_path, capsys):
     raw = tmp_path / 'ticks.prof'
     assert main(['profile', '--scene', 'default', '--ticks', '2', '--warmup', '1', '--top',

@@ -6,7 +6,9 @@ Builds ``Simulation({'scene': SCENE})`` as the node does and times ``--ticks`` c
 budget; no publishing) from the scene's start, or after ``--settle`` world steps. Prints
 the median, 90th percentile and largest tick, the median and the worst of the per-second
 medians (one second = ``rate`` ticks), and how many bodies sleep at the end; with
-``--timeline`` also every second's median as it goes. Run it on two checkouts in turn
+``--timeline`` also every second's median as it goes; with ``--grab`` a gripper holds the
+first body and moves it up and down every tick, as a driver node would (the grab is
+timed with the tick). Run it on two checkouts in turn
 (``PYTHONPATH=CHECKOUT``) to compare them::
 
     python -m sm_ros.bench tick --scene paper_384 --ticks 600 --timeline
@@ -31,12 +33,15 @@ def add_arguments(parser: argparse.ArgumentParser):
     parser.add_argument('--sleep', choices=('on', 'off'), default='on',
                         help='sleeping bodies (contact.sleep)')
     parser.add_argument('--timeline', action='store_true', help="print every second's median")
+    parser.add_argument('--grab', action='store_true',
+                        help='a gripper holds the first body and moves it every tick')
     parser.add_argument('--json', action='store_true', help='print the figures as one JSON line')
 
 
 def measure(scene: str, ticks: int, settle: int = 0, sleep: bool = True,
-            timeline: bool = False) -> Dict[str, Any]:
-    """Time ``ticks`` ticks of ``scene``; return the figures (ms)."""
+            timeline: bool = False, grab: bool = False) -> Dict[str, Any]:
+    """Time ``ticks`` ticks of ``scene`` (with ``grab``, each after a gripper move);
+    return the figures (ms)."""
     from sm_ros.sim import Simulation
     sim = Simulation({'scene': scene, 'contact.sleep': sleep})
     dt = float(sim.params['dt'])
@@ -45,8 +50,12 @@ def measure(scene: str, ticks: int, settle: int = 0, sleep: bool = True,
         sim.world.step(dt)
     wall: List[float] = []
     seconds: List[float] = []
-    for _ in range(ticks):
+    centre = sim.world.bodies[0].x.mean(axis=0)
+    for k in range(ticks):
         start = time.perf_counter()
+        if grab:
+            lift = 0.05 * (1.0 - np.cos(k / 30.0)) if k else 0.0
+            sim.grab('bench', centre + (0.0, 0.0, lift), (0.0, 0.0, 0.0, 1.0))
         sim.tick()
         wall.append(1e3 * (time.perf_counter() - start))
         if len(wall) % per_second == 0:
@@ -55,14 +64,15 @@ def measure(scene: str, ticks: int, settle: int = 0, sleep: bool = True,
                 print(f'second {len(seconds):3d}: median tick {seconds[-1]:7.2f} ms, '
                       f'{sim.world.asleep_count} bodies asleep', flush=True)
     times_ms = np.asarray(wall)
-    return {'scene': scene, 'ticks': ticks, 'settle_steps': settle, 'sleep': sleep,
+    return {'scene': scene, 'ticks': ticks, 'settle_steps': settle, 'sleep': sleep, 'grab': grab,
             'points': sim.num_points, 'bodies': len(sim.world.bodies),
             'tick_ms_median': float(np.median(times_ms)),
             'tick_ms_p90': float(np.percentile(times_ms, 90)),
             'tick_ms_max': float(times_ms.max()),
             'second_ms_median': float(np.median(seconds)) if seconds else None,
             'second_ms_worst': max(seconds) if seconds else None,
-            'asleep_at_end': sim.world.asleep_count, 'loadavg_1min': _load()}
+            'asleep_at_end': sim.world.asleep_count, 'loadavg_1min': _load(),
+            'held_particles': sum(len(a.indices) for a in sim.grippers.get('bench', []))}
 
 
 def _load() -> Optional[float]:
@@ -78,7 +88,8 @@ def main(argv: Optional[List[str]] = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     add_arguments(parser)
     args = parser.parse_args(argv)
-    res = measure(args.scene, args.ticks, args.settle, args.sleep == 'on', args.timeline)
+    res = measure(args.scene, args.ticks, args.settle, args.sleep == 'on', args.timeline,
+                  args.grab)
     if args.json:
         print(json.dumps(res))
         return 0
@@ -89,7 +100,8 @@ def main(argv: Optional[List[str]] = None) -> int:
           f"{res['second_ms_median'] or float('nan'):.2f}, worst "
           f"{worst if worst is not None else float('nan'):.2f} ms; sleep "
           f"{'on' if res['sleep'] else 'off'}: {res['asleep_at_end']} of {res['bodies']} "
-          f"bodies asleep at the end; load average {res['loadavg_1min']}")
+          f"bodies asleep at the end{'; a gripper moved every tick' if res['grab'] else ''}; "
+          f"load average {res['loadavg_1min']}")
     return 0
 
 
