@@ -290,11 +290,20 @@ def _damping_buffers(body) -> None:
 
 
 def refresh_rest(body, which):
-    """Plastic rest shape and A_qq of the clusters in ``which`` (``kernels.refresh_rest``,
-    the kernel the compiled step runs after plastic flow)."""
-    work = plastic_work(body)
-    K.refresh_rest(which, rest_shape(body), (body._need3, body._need9), body._mode == 1,
-                   (work.features9, body._mat3[0], body._mat3[1], work.m9a, work.m9b))
+    """Plastic rest shape and A_qq of the clusters in ``which``: the kernels of
+    ``kernels.refresh_rest`` (which the compiled step runs after plastic flow) one by one,
+    so that building a body compiles only those it needs."""
+    rest, needs = rest_shape(body), (body._need3, body._need9)
+    K.rest_maps(which, rest, body._need3 and not body._need9)
+    if body._need9:
+        K.moments(body._x0, body._m, (body._ptr, body._cluster_ids),
+                  (body._rest_lin, body._rest_off), body._wsum, which, needs,
+                  (body._sum_q, body._mom3, body._mom9), body._features9)
+    K.invert_moments(which, needs, (body._mom3, body._mom9), (body._aqq3, body._aqq9),
+                     (body._mat3[0], body._mat3[1], body._mat9[0], body._mat9[1]), K.RCOND)
+    if body._mode == 1:
+        K.unit_det_frames(which=which, mom3=body._mom3, nmat=body._nmat, cdet=body._cdet,
+                          wa=body._mat3[0], wv=body._mat3[1], rcond=K.RCOND)
 
 
 def rest_shape(body):

@@ -21,23 +21,31 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
     if body._packed_ok():
         body._one_pack(h).step(h, gravity, has_col, ground, boxes, spheres, thresh)
         return
+    records = body._one_record(h)
     if not body._parallel:
-        K.step_single_bodies(body._one_record(h), h, gravity, has_col, ground, boxes, spheres,
-                             thresh)
+        K.step_single_bodies(records, h, gravity, has_col, ground, boxes, spheres, thresh)
+    elif not _step_threaded(body, records[0], h, gravity,
+                            Colliders(bool(has_col), ground, boxes, spheres, float(thresh),
+                                      body._collider_radius, float(h))):
         return
-    rec = body._one_record(h)[0]
+    if body._params.plastic:
+        K.flow_plastic_bodies(records, float(h))
+
+
+def _step_threaded(body, rec, h, gravity, colliders) -> bool:
+    """The record step's phases one by one, the particle passes shared with helper
+    threads; whether the body was stepped (not asleep)."""
     if not K.record_begins(rec):
-        return
+        return False
     helpers = len(body._sets.part) - 1
     if body._flags[DIRTY] > 0.0:
         HELPERS.run(helpers, K.record_sums_chunks, (rec, np.zeros(1, dtype=np.int64)))
-    changed = K.record_goals(rec, float(h), gravity)
+    K.record_goals(rec, float(h), gravity)
     chunk_capped = np.zeros(len(body._sets.part), dtype=np.int64)
-    colliders = Colliders(bool(has_col), ground, boxes, spheres, float(thresh),
-                          body._collider_radius, float(h))
     HELPERS.run(helpers, K.record_integrate_chunks,
                 (rec, np.zeros(1, dtype=np.int64), chunk_capped, colliders))
-    K.record_ends(rec, float(h), chunk_capped, changed)
+    K.record_ends(rec, float(h), chunk_capped)
+    return True
 
 
 def _rest(body):

@@ -9,7 +9,7 @@ from numba.typed import List as TypedList
 
 from . import body as body_mod, body_build, tuning
 from .body import Body
-from .kernels.world_step import step_bodies_parallel, step_single_bodies
+from .kernels.world_step import flow_plastic_bodies, step_bodies_parallel, step_single_bodies
 from .packed import Pack
 from .contact import BodyContact, Contact, ContactParams, default_radius
 from .flat import FlatState
@@ -275,7 +275,7 @@ class World(WorldColliders):
             self.time += h
             return
         self._stiff_pass(h, thresh)
-        _, pack, records, slow, helpers, nrec = self._split_now(h)
+        _, pack, records, slow, helpers, nrec, plastic = self._split_now(h)
         args = (h, self._gravity, self._has_col, self._ground_row, self._box_rows,
                 self._sphere_rows, thresh)
         # the one-cluster rigid/linear bodies: one compiled call over their rows (packed.py)
@@ -290,6 +290,8 @@ class World(WorldColliders):
             if nrec:
                 # one compiled call for the bodies it covers (kernels/world_step.py)
                 step_single_bodies(records, *args)
+        if plastic is not None:
+            flow_plastic_bodies(plastic, h)    # after their step (kernels/world_step.py)
         for body in slow:
             if not body.asleep:                # asleep: not stepped (sleep.py)
                 body._step(*args)
@@ -334,8 +336,8 @@ class World(WorldColliders):
         """The split of the bodies at the step ``h``: (key, ``packed.Pack`` of the
         one-cluster rigid/linear bodies or None, typed list of compiled-step records of the
         other bodies, bodies stepped on their own (built for threads: ``Body._step``),
-        whether the records are shared
-        with helper threads, how many records), rebuilt only when a body's buffers,
+        whether the records are shared with helper threads, how many records, the records
+        of plastic bodies or None), rebuilt only when a body's buffers,
         parameters, grabs or wrench kind, the bodies, the step or the packing
         (``Pack.stale``: one of its bodies was packed elsewhere since) changed.  Python
         cost per step does not grow with the number of bodies.  The records are shared
@@ -353,13 +355,17 @@ class World(WorldColliders):
             self._retime_split(h)
             split = self._split = (key,) + split[1:]
         if split is None or split[0] != key or (split[1] is not None and split[1].stale):
-            records, packed, slow, rec_work = TypedList(), [], [], 0
+            records, packed, slow, rec_work, plastic = TypedList(), [], [], 0, None
             self._split_fstates = []            # each record's numbers (``retime_record``)
             for body in self._bodies.values():
                 if self.compiled_step and body._packed_ok():
                     packed.append(body)
                 elif self.compiled_step and not body._parallel:
-                    records.append(body._fast_record(h))
+                    record = body._fast_record(h)
+                    records.append(record)
+                    if body._params.plastic:
+                        plastic = plastic if plastic is not None else TypedList()
+                        plastic.append(record)
                     self._split_fstates.append((body, body._fstate))
                     rec_work += body.n
                 else:
@@ -367,7 +373,7 @@ class World(WorldColliders):
             pack = Pack(packed, h) if packed else None
             helpers = (numba.get_num_threads() > 1 and len(records) > 1
                        and rec_work >= tuning.RECORDS_PARALLEL_MIN_WORK)
-            split = self._split = (key, pack, records, slow, helpers, len(records))
+            split = self._split = (key, pack, records, slow, helpers, len(records), plastic)
         return split
 
     def _retime_split(self, h):

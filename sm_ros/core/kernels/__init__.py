@@ -43,8 +43,8 @@ from .integrate import BLOCK, BodyParticles, ClusterRest, FusedDamping, advance
 from .jit import FASTMATH, JIT
 from .limits import limit_speed, limit_turn
 from .linalg import det3, jacobi3, jacobi3_warm, jacobi_eigh, matmul, norm2, pinv_sym
-from .plasticity import (PlasticWork, RestShape, _add_null_projector, _cap_plastic,
-                         plastic_update, refresh_rest)
+from .plasticity import (RCOND, PlasticWork, RestShape, _add_null_projector, _cap_plastic,
+                         plastic_update, refresh_rest, rest_maps)
 from .rotation import extract_rotation, quat_to_mat
 from .sets import (SetMotion, Sets, _fused_refs, sets_hold, sets_integrate_chunks,
                    sets_kinematic)
@@ -54,8 +54,9 @@ from .spread import moved_box, spread_of
 from .unit_det import (STRETCH_LIMIT, _logprod, _logx, _stretch_ok, _unit_det_sum,
                        nearest_unit_det, nearest_unit_det_warm, unit_det_frames, unit_det_match,
                        unit_det_match_warm, volume_preserving)
-from .world_step import (StepRecord, record_begins, record_ends, record_goals,
-                         record_integrate_chunks, record_sums_chunks, step_single_bodies)
+from .world_step import (StepRecord, flow_plastic_bodies, record_begins, record_ends,
+                         record_goals, record_integrate_chunks, record_sums_chunks,
+                         step_single_bodies)
 
 __all__ = ['Colliders', '_collide_range', 'contact_velocity', 'collide_point', 'NDAMP',
            'damp_acc_range',
@@ -70,9 +71,9 @@ __all__ = ['Colliders', '_collide_range', 'contact_velocity', 'collide_point', '
            'FASTMATH', 'JIT', 'limit_speed', 'limit_turn', 'det3', 'jacobi3', 'jacobi3_warm',
            'jacobi_eigh', 'matmul',
            'norm2', 'pinv_sym', '_add_null_projector', '_cap_plastic', 'plastic_update',
-           'PlasticWork', 'RestShape', 'refresh_rest',
+           'PlasticWork', 'RestShape', 'RCOND', 'refresh_rest', 'rest_maps',
            'extract_rotation', 'quat_to_mat', 'moved_box', 'spread_of', 'step_single_bodies',
-           'StepRecord', 'record_begins', 'record_ends', 'record_goals',
+           'StepRecord', 'flow_plastic_bodies', 'record_begins', 'record_ends', 'record_goals',
            'record_integrate_chunks', 'record_sums_chunks',
            'sets_accumulate_chunks', '_fused_refs', 'sets_integrate_chunks',
            'sets_hold', 'sets_kinematic', 'sets_maps', 'sets_reduce', 'SetMotion', 'Sets',

@@ -170,18 +170,12 @@ def plastic_update(apq, clusters, s_plastic, law, changed, scratch):
 def refresh_rest(which, rest, needs, linear, work):
     """Plastic rest shape q = S^P (x0 - cm0) / s of the clusters marked in ``which``, and
     A_qq (``rest``: a ``RestShape``; ``needs`` = (need3, need9): which moments; ``linear``:
-    the linear mode's frames too; ``work`` = (9-vector, two 3 x 3, two 9 x 9)).
-
-    Rigid/linear: q = G d with d = x0 - cm0 and G = S^P / s, so sum w q = G sum w d and the
-    centred moments are G (sum w d d^T) G^T - (sum w q)(sum w q)^T / W: a refresh costs per
-    changed cluster.  Quadratic features need moments up to degree 4: a pass over the
-    particles (``goals.moments``).
-    """
+    the linear mode's frames too; ``work`` = (9-vector, two 3 x 3, two 9 x 9)): the rest
+    maps (``rest_maps``), the quadratic moments, their pseudo-inverses and the frames.
+    ``body_build.refresh_rest`` calls the same kernels one by one (a body's build)."""
     need3, need9 = needs
     f9, w3a, w3b, w9a, w9b = work
-    for k in range(which.shape[0]):
-        if which[k]:
-            _rest_map(k, rest, need3 and not need9)
+    rest_maps(which, rest, need3 and not need9)
     if need9:
         moments(rest.x0t.T, rest.mass, (rest.ptr, rest.cluster_ids),
                 (rest.rest_lin, rest.rest_off), rest.wsum, which, needs,
@@ -190,6 +184,18 @@ def refresh_rest(which, rest, needs, linear, work):
                    (w3a, w3b, w9a, w9b), RCOND)
     if linear:
         unit_det_frames(which, rest.mom3, rest.nmat, rest.cdet, w3a, w3b, RCOND)
+
+
+@njit(**JIT_NO_REFCOUNT)
+def rest_maps(which, rest, mom3):
+    """The rest maps of the clusters marked in ``which``: G = S^P / s, q = G (x0 - cm0),
+    so sum w q = G sum w d, and with ``mom3`` the centred moments G (sum w d d^T) G^T -
+    (sum w q)(sum w q)^T / W, from the rest moments kept since the build: a cost per
+    changed cluster.  Quadratic features need moments up to degree 4 (``goals.moments``:
+    a pass over the particles)."""
+    for k in range(which.shape[0]):
+        if which[k]:
+            _rest_map(k, rest, mom3)
 
 
 @njit(inline='always', **JIT_NO_REFCOUNT)

@@ -133,11 +133,11 @@ def _step_record(rec, h, gravity, colliders, counters):
         return
     if rec.flags[DIRTY] > 0.0:
         record_sums_chunks(rec, _claim(counters))
-    changed = record_goals(rec, h, gravity)
+    record_goals(rec, h, gravity)
     chunk_capped = counters[1:1 + rec.s_part.shape[0]]
     chunk_capped[:] = 0
     record_integrate_chunks(rec, _claim(counters), chunk_capped, colliders)
-    record_ends(rec, h, chunk_capped, changed)
+    record_ends(rec, h, chunk_capped)
 
 
 @njit(inline='always', **JIT_NO_REFCOUNT)
@@ -164,14 +164,13 @@ def record_sums_chunks(rec, claim):
 @njit(inline='always', **JIT_NO_REFCOUNT)
 def record_goals(rec, h, gravity):
     """Everything between the two particle passes: the clusters' sums, the shape match
-    and turn limit, plastic flow, the goal maps, the step's accelerations, the damping
-    field, the held particles' positions; returns the clusters plastic flow changed."""
+    and turn limit, the goal maps, the step's accelerations, the damping field, the held
+    particles' positions."""
     state = rec.state
     quad = state[R_QUAD] > 0.0
     sets_reduce(rec.s_part, _set_clusters(rec), rec.sref, rec.rest_lin, rec.ref, quad,
                 rec.part, (rec.work, rec.quad_map))
     turned = _record_match(rec)
-    changed = _record_plastic_flow(rec, h) if state[R_PLASTIC] > 0.0 else 0
     sets_maps(_set_clusters(rec), rec.rest_lin, (rec.trans, rec.goal_lin, rec.goal_off),
               rec.ref, quad, (rec.goal_maps, rec.sref), (rec.quad_map, rec.s_cluster_maps))
     rec.counts[1] += wrench_accelerations(
@@ -182,7 +181,6 @@ def record_goals(rec, h, gravity):
         _record_damping(rec, rec.flags[DIRTY] > 0.0 or turned > 0)
     if rec.kin_idx.shape[0] > 0:
         gather_rows(rec.xt.T, rec.kin_idx, rec.kin_prev)
-    return changed
 
 
 @njit(inline='always', **JIT_NO_REFCOUNT)
@@ -202,9 +200,9 @@ def record_integrate_chunks(rec, claim, chunk_capped, colliders):
 
 
 @njit(inline='always', **JIT_NO_REFCOUNT)
-def record_ends(rec, h, chunk_capped, changed):
+def record_ends(rec, h, chunk_capped):
     """After the particle pass: the sums' reference points, the capped count, the held
-    particles onto their targets, the rest shape of the clusters plastic flow changed."""
+    particles onto their targets."""
     state = rec.state
     quad, damped = state[R_QUAD] > 0.0, state[R_DAMPING] > 0.0
     _fused_refs(quad, state[R_WUNI], rec.ang, rec.s_runs, damped, rec.sref, rec.dpart)
@@ -212,11 +210,17 @@ def record_ends(rec, h, chunk_capped, changed):
     rec.flags[DIRTY] = 0.0
     if rec.kin_idx.shape[0] > 0:
         _record_held(rec, h, damped)
-    if changed > 0:
-        work = rec.plastic
-        refresh_rest(work.changed, rec.rest_shape, (True, quad), state[R_MODE] == 1.0,
-                     (work.features9, rec.m3a, rec.m3b, work.m9a, work.m9b))
     rec.flags[ERR_STALE] = 1.0
+
+
+@njit(**JIT)
+def flow_plastic_bodies(bodies, h):
+    """Plastic flow (Eq. 24-27) of the records of plastic bodies, after their step: from
+    the step's match (A_pq-hat, rotations), S^P and the rest shape of the clusters that
+    yielded (the next step's match reads them).  Kept out of the step's entry, so a world
+    without plastic bodies does not compile it."""
+    for b in range(len(bodies)):
+        _record_plastic_flow(bodies[b], h)
 
 
 @njit(inline='always', **JIT)
@@ -276,15 +280,21 @@ def _record_match(rec):
     return turned
 
 
-@njit(inline='always', **JIT)
+@njit(**JIT_NO_REFCOUNT)
 def _record_plastic_flow(rec, h):
-    """Plasticity (Eq. 24-27) from this step's match; returns the clusters whose rest
-    shape changed (``rec.plastic.changed``), refreshed at the end of the step."""
+    """``flow_plastic_bodies`` for one record (not one asleep: it was not stepped)."""
     state, work = rec.state, rec.plastic
+    if rec.flags[SLEEP] > 0.0 or not state[R_PLASTIC] > 0.0:
+        return
     law = (state[R_YIELD], state[R_CREEP], state[R_PLASTIC_MAX], h)
-    return plastic_update(rec.apq, (rec.aqq3, rec.scale, rec.quat), rec.rest_shape.s_plastic,
-                          law, work.changed, (work.quat, rec.m3a, rec.m3b, rec.m3c, rec.n4,
-                                              rec.v4, rec.match_work[0], rec.match_work[1]))
+    changed = plastic_update(rec.apq, (rec.aqq3, rec.scale, rec.quat),
+                             rec.rest_shape.s_plastic, law, work.changed,
+                             (work.quat, rec.m3a, rec.m3b, rec.m3c, rec.n4, rec.v4,
+                              rec.match_work[0], rec.match_work[1]))
+    if changed > 0:
+        refresh_rest(work.changed, rec.rest_shape, (True, state[R_QUAD] > 0.0),
+                     state[R_MODE] == 1.0, (work.features9, rec.m3a, rec.m3b, work.m9a,
+                                            work.m9b))
 
 
 @njit(inline='always', **JIT)
