@@ -358,8 +358,17 @@ def fast_record(body, h):
            body._fstate, body._flags, body._limit_counts)
     wrench = (body._torque, body._inertia, body._inertia_inv, body._kin_idx, body._kin_tgt,
               body._kin_prev)
-    return K.StepRecord(*own, *body._fast_sets(), body._udv, body._match_work, *wrench,
-                        rest_shape(body), plastic_work(body))
+    return K.StepRecord(*own, *body._fast_sets(), body._udv, body._match_work, *wrench)
+
+
+def plastic_record(body):
+    """What plastic flow reads and writes of ``body`` (``kernels.PlasticRecord``), with
+    the state of its record (``fast_record``, made first)."""
+    s3 = body._mat3
+    scratch = (s3[0], s3[1], s3[2], body._quat_n, body._quat_v, body._match_work[0],
+               body._match_work[1])
+    return K.PlasticRecord(body._fstate, body._flags, body._apq, body._aqq3, body._scale,
+                           body._quat, scratch, rest_shape(body), plastic_work(body))
 
 
 def retime_record(body, fstate, h):
@@ -386,8 +395,16 @@ def one_record(body, h):
     key = (_GENERATION[0], h, body._collider_radius)
     one = getattr(body, '_one', None)
     if one is None or one[0] != key or not isinstance(one[1], TypedList):
-        one = body._one = (key, TypedList([fast_record(body, h)]))
+        record = TypedList([fast_record(body, h)])
+        plastic = TypedList([plastic_record(body)]) if body._params.plastic else None
+        one = body._one = (key, record, plastic)
     return one[1]
+
+
+def one_plastic_record(body, h):
+    """A typed list holding ``plastic_record(body)``, kept with ``one_record``'s."""
+    one_record(body, h)
+    return body._one[2]
 
 
 def fast_sets(body):

@@ -9,7 +9,7 @@ current state with scratch copies (nothing of the body changes).
 
 import numpy as np
 
-from . import kernels as K
+from . import body_build, kernels as K
 from .kernels.colliders import Colliders
 from .kernels.flags import DIRTY
 from .step_threads import HELPERS
@@ -29,7 +29,7 @@ def step(body, h, gravity, has_col, ground, boxes, spheres, thresh):
                                       body._collider_radius, float(h))):
         return
     if body._params.plastic:
-        K.flow_plastic_bodies(records, float(h))
+        K.flow_plastic_bodies(body_build.one_plastic_record(body, h), float(h))
 
 
 def _step_threaded(body, rec, h, gravity, colliders) -> bool:

@@ -365,7 +365,7 @@ class World(WorldColliders):
                     records.append(record)
                     if body._params.plastic:
                         plastic = plastic if plastic is not None else TypedList()
-                        plastic.append(record)
+                        plastic.append(body_build.plastic_record(body))
                     self._split_fstates.append((body, body._fstate))
                     rec_work += body.n
                 else:

@@ -54,9 +54,9 @@ from .spread import moved_box, spread_of
 from .unit_det import (STRETCH_LIMIT, _logprod, _logx, _stretch_ok, _unit_det_sum,
                        nearest_unit_det, nearest_unit_det_warm, unit_det_frames, unit_det_match,
                        unit_det_match_warm, volume_preserving)
-from .world_step import (StepRecord, flow_plastic_bodies, record_begins, record_ends,
-                         record_goals, record_integrate_chunks, record_sums_chunks,
-                         step_single_bodies)
+from .world_step import (PlasticRecord, StepRecord, flow_plastic_bodies, record_begins,
+                         record_ends, record_goals, record_integrate_chunks,
+                         record_sums_chunks, step_single_bodies)
 
 __all__ = ['Colliders', '_collide_range', 'contact_velocity', 'collide_point', 'NDAMP',
            'damp_acc_range',
@@ -73,7 +73,8 @@ __all__ = ['Colliders', '_collide_range', 'contact_velocity', 'collide_point', '
            'norm2', 'pinv_sym', '_add_null_projector', '_cap_plastic', 'plastic_update',
            'PlasticWork', 'RestShape', 'RCOND', 'refresh_rest', 'rest_maps',
            'extract_rotation', 'quat_to_mat', 'moved_box', 'spread_of', 'step_single_bodies',
-           'StepRecord', 'flow_plastic_bodies', 'record_begins', 'record_ends', 'record_goals',
+           'PlasticRecord', 'StepRecord', 'flow_plastic_bodies', 'record_begins',
+           'record_ends', 'record_goals',
            'record_integrate_chunks', 'record_sums_chunks',
            'sets_accumulate_chunks', '_fused_refs', 'sets_integrate_chunks',
            'sets_hold', 'sets_kinematic', 'sets_maps', 'sets_reduce', 'SetMotion', 'Sets',

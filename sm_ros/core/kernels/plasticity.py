@@ -166,7 +166,7 @@ def plastic_update(apq, clusters, s_plastic, law, changed, scratch):
     return nchanged
 
 
-@njit(**JIT_NO_REFCOUNT)
+@njit(inline='always', **JIT_NO_REFCOUNT)
 def refresh_rest(which, rest, needs, linear, work):
     """Plastic rest shape q = S^P (x0 - cm0) / s of the clusters marked in ``which``, and
     A_qq (``rest``: a ``RestShape``; ``needs`` = (need3, need9): which moments; ``linear``:

@@ -40,17 +40,21 @@ from .sets_sums import sets_accumulate_chunks
 
 #: The buffers of one body that ``step_bodies_claimed`` steps (``body_build.fast_record``):
 #: the names of ``Body``'s own attributes, the set layout's with ``s_``; ``kin_*`` its
-#: grabbed and pinned particles, their targets and their positions before the step;
-#: ``rest_shape`` (``plasticity.RestShape``) and ``plastic`` (``plasticity.PlasticWork``)
-#: what plastic flow reshapes.
+#: grabbed and pinned particles, their targets and their positions before the step.
 StepRecord = namedtuple('StepRecord', (
     'xt vt mass ptr cluster_ids rest_lin rest_off part wsum sum_q ref quat aqq3 aqq9 scale '
     'trans goal_lin goal_off apq accbuf m3a m3b m3c m3d m39 n4 v4 nmat cdet acc ang com err dpart '
     'dmp dref dacc lin w3 quat_prev flagged lim_lin lim_w force state flags '
     'counts rest_local_t sid goal_maps sref s_part s_ptr s_cluster_ids s_cnt s_phi s_org work '
     'quad_map s_pair_offsets s_cluster_maps s_runs '
-    'udv match_work torque inertia inertia_inv kin_idx kin_tgt kin_prev rest_shape '
-    'plastic').split())
+    'udv match_work torque inertia inertia_inv kin_idx kin_tgt kin_prev').split())
+
+#: What plastic flow (``flow_plastic_bodies``) reads and writes of a plastic body
+#: (``body_build.plastic_record``): its record's ``state`` and ``flags``, the step's match
+#: (A_pq-hat, A_qq, scale, rotations), scratch (three 3 x 3, two 4 x 4, two C-contiguous
+#: 3 x 3), its rest shape (``plasticity.RestShape``) and buffers (``plasticity.PlasticWork``).
+PlasticRecord = namedtuple('PlasticRecord',
+                           'state flags apq aqq3 scale quat scratch rest_shape work')
 
 #: Where ``StepRecord.state`` holds each number (``body_build.retime_record`` writes them):
 #: the material at the step (alpha, beta, damping), the limits (max_speed, max_turn and
@@ -218,7 +222,8 @@ def flow_plastic_bodies(bodies, h):
     """Plastic flow (Eq. 24-27) of the records of plastic bodies, after their step: from
     the step's match (A_pq-hat, rotations), S^P and the rest shape of the clusters that
     yielded (the next step's match reads them).  Kept out of the step's entry, so a world
-    without plastic bodies does not compile it."""
+    without plastic bodies does not compile it; its helpers are inlined (each compiled
+    caller optimises its callees again)."""
     for b in range(len(bodies)):
         _record_plastic_flow(bodies[b], h)
 
@@ -280,21 +285,21 @@ def _record_match(rec):
     return turned
 
 
-@njit(**JIT_NO_REFCOUNT)
+@njit(inline='always', **JIT)
 def _record_plastic_flow(rec, h):
-    """``flow_plastic_bodies`` for one record (not one asleep: it was not stepped)."""
-    state, work = rec.state, rec.plastic
+    """``flow_plastic_bodies`` for one ``PlasticRecord`` (not one asleep: it was not
+    stepped)."""
+    state, work = rec.state, rec.work
     if rec.flags[SLEEP] > 0.0 or not state[R_PLASTIC] > 0.0:
         return
+    m3a, m3b, m3c, n4, v4, wa, wv = rec.scratch
     law = (state[R_YIELD], state[R_CREEP], state[R_PLASTIC_MAX], h)
     changed = plastic_update(rec.apq, (rec.aqq3, rec.scale, rec.quat),
                              rec.rest_shape.s_plastic, law, work.changed,
-                             (work.quat, rec.m3a, rec.m3b, rec.m3c, rec.n4, rec.v4,
-                              rec.match_work[0], rec.match_work[1]))
+                             (work.quat, m3a, m3b, m3c, n4, v4, wa, wv))
     if changed > 0:
         refresh_rest(work.changed, rec.rest_shape, (True, state[R_QUAD] > 0.0),
-                     state[R_MODE] == 1.0, (work.features9, rec.m3a, rec.m3b, work.m9a,
-                                            work.m9b))
+                     state[R_MODE] == 1.0, (work.features9, m3a, m3b, work.m9a, work.m9b))
 
 
 @njit(inline='always', **JIT)
