@@ -100,6 +100,12 @@ def test_plastic_refresh_at_cluster_cost_matches_the_particle_pass(mode, cluster
     scale = np.abs(mom3).max()
     assert np.abs(body._mom3 - mom3).max() <= 1e-12 * scale
     assert np.abs(body._sum_q - sum_q).max() <= 1e-12 * np.sqrt(scale * body._wsum.max())
+    # NumPy twins of the rest maps G = S^P / s, -G cm0 and of A_qq = (sum w q q^T)^+
+    g = body.plastic_state / body._scale[:, None, None]
+    assert np.abs(body._rest_lin - g).max() <= 1e-15 * np.abs(g).max()
+    assert np.abs(body._rest_off + np.einsum('kij,kj->ki', g, body._cm0)).max() <= 1e-15
+    aqq = np.linalg.pinv(mom3, hermitian=True)
+    assert np.abs(body._aqq3 - aqq).max() <= 1e-9 * np.abs(aqq).max()
 
 
 def _many_world(compiled):
