@@ -93,3 +93,28 @@ def test_source_stamp_changes_with_any_file(tmp_path):
     second = jit.source_stamp(str(tmp_path))
     (tmp_path / 'notes.txt').write_text('not source')
     assert first != second == jit.source_stamp(str(tmp_path))
+
+
+def test_a_stale_cache_clears_only_its_own_folders_under_numba_cache_dir(tmp_path,
+                                                                        monkeypatch):
+    """With ``NUMBA_CACHE_DIR`` set, a stale copy of the kernels drops the cache indexes of
+    its own folders there, not those of another copy whose folders have the same names
+    (an install tree built from the checkout must not make the checkout recompile)."""
+    from numba.core.caching import _CacheLocator
+    mine, other = tmp_path / 'a' / 'core' / 'kernels', tmp_path / 'b' / 'core' / 'kernels'
+    for folder in (mine, other):
+        folder.mkdir(parents=True)
+        (folder / 'k.py').write_text('x = 1\n')
+    # the folder names Numba gives them
+    assert jit.cache_folder_name(mine) == _CacheLocator.get_suitable_cache_subpath(
+        str(mine / 'k.py'))
+    cache = tmp_path / 'cache'
+    index = {}
+    for folder in (mine, mine.parent, other, other.parent):
+        index[folder] = cache / jit.cache_folder_name(folder) / 'f.nbi'
+        index[folder].parent.mkdir(parents=True)
+        index[folder].write_text('')
+    monkeypatch.setattr(jit.config, 'CACHE_DIR', str(cache))
+    jit.clear_stale_cache(str(mine))               # no stamp yet: stale
+    assert not index[mine].exists() and not index[mine.parent].exists()
+    assert index[other].exists() and index[other.parent].exists()

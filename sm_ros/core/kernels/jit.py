@@ -68,10 +68,7 @@ def clear_stale_cache(directory=_KERNEL_DIR, root=None):
     root = root or os.path.dirname(directory)
     tops = [root]
     if config.CACHE_DIR and os.path.isdir(config.CACHE_DIR):
-        # Numba names a folder's cache there <folder name>_<hash of its path>
-        names = {os.path.basename(f) for f, _, _ in os.walk(root)}
-        tops += [os.path.join(config.CACHE_DIR, d) for d in os.listdir(config.CACHE_DIR)
-                 if d.rsplit('_', 1)[0] in names]
+        tops += [os.path.join(config.CACHE_DIR, cache_folder_name(f)) for f, _, _ in os.walk(root)]
     for top in tops:
         for folder, _, names in os.walk(top):
             for name in names:
@@ -86,6 +83,14 @@ def clear_stale_cache(directory=_KERNEL_DIR, root=None):
             f.write(stamp)
     except OSError:                             # a read-only install: nothing is cached
         pass
+
+
+def cache_folder_name(folder):
+    """The folder under ``NUMBA_CACHE_DIR`` that holds the cache of the files of ``folder``:
+    Numba names it after the folder and the SHA-1 of its absolute path, so another copy of
+    the package (an install tree, say) has folders of the same names but other hashes."""
+    path = os.path.abspath(folder)
+    return f'{os.path.basename(path)}_{hashlib.sha1(path.encode()).hexdigest()}'
 
 
 clear_stale_cache()
