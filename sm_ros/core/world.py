@@ -327,9 +327,8 @@ class World(WorldColliders):
     compiled_step = True
 
     def _split_bodies(self, h):
-        """(``packed.Pack`` of the one-cluster rigid/linear bodies or None, typed list of
-        compiled-step records of the other bodies, bodies stepped on their own (built for
-        threads), whether the records are shared with helper threads): ``_split_now``'s."""
+        """The pack, the records, the bodies stepped on their own and whether the records
+        are shared with helper threads (``_split_now``'s)."""
         return self._split_now(h)[1:5]
 
     def _split_now(self, h):
@@ -355,16 +354,14 @@ class World(WorldColliders):
             self._retime_split(h)
             split = self._split = (key,) + split[1:]
         if split is None or split[0] != key or (split[1] is not None and split[1].stale):
-            records, packed, slow, rec_work, plastic = TypedList(), [], [], 0, None
+            records, packed, slow, rec_work, plastic = TypedList(), [], [], 0, []
             self._split_fstates = []            # each record's numbers (``retime_record``)
             for body in self._bodies.values():
                 if self.compiled_step and body._packed_ok():
                     packed.append(body)
                 elif self.compiled_step and not body._parallel:
-                    record = body._fast_record(h)
-                    records.append(record)
+                    records.append(body._fast_record(h))
                     if body._params.plastic:
-                        plastic = plastic if plastic is not None else TypedList()
                         plastic.append(body_build.plastic_record(body))
                     self._split_fstates.append((body, body._fstate))
                     rec_work += body.n
@@ -373,6 +370,7 @@ class World(WorldColliders):
             pack = Pack(packed, h) if packed else None
             helpers = (numba.get_num_threads() > 1 and len(records) > 1
                        and rec_work >= tuning.RECORDS_PARALLEL_MIN_WORK)
+            plastic = TypedList(plastic) if plastic else None
             split = self._split = (key, pack, records, slow, helpers, len(records), plastic)
         return split
 
