@@ -219,11 +219,11 @@ def record_ends(rec, h, chunk_capped):
 
 @njit(**JIT)
 def flow_plastic_bodies(bodies, h):
-    """Plastic flow (Eq. 24-27) of the records of plastic bodies, after their step: from
-    the step's match (A_pq-hat, rotations), S^P and the rest shape of the clusters that
-    yielded (the next step's match reads them).  Kept out of the step's entry, so a world
-    without plastic bodies does not compile it; its helpers are inlined (each compiled
-    caller optimises its callees again)."""
+    """Plastic flow (Eq. 24-27) of plastic bodies (their ``PlasticRecord``s), after their
+    step: from the step's match (A_pq-hat, rotations), S^P and the rest shape of the
+    clusters that yielded (the next step's match reads them).  Kept out of the step's
+    entry, so a world without plastic bodies does not compile it; its helpers are inlined
+    (each compiled caller optimises its callees again)."""
     for b in range(len(bodies)):
         _record_plastic_flow(bodies[b], h)
 
