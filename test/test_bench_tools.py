@@ -43,6 +43,15 @@ def test_write_doc_quick_page_has_every_section_and_its_command(tmp_path):
     assert (tmp_path / 'work' / 'scaling' / 'scaling.csv').is_file()
 
 
+def test_accuracy_estimate_only_writes_the_estimate_tables(tmp_path):
+    out = tmp_path / 'acc'
+    assert main(['accuracy', '--estimate-only', '--accuracy-points', '27', '--duration', '0.5',
+                 '--estimate-seconds', '0.5', '--out', str(out)]) == 0
+    for table in ('estimate_accuracy', 'estimate_timing', 'estimate_cost'):
+        assert (out / f'{table}.csv').is_file(), table
+    assert not (out / 'accuracy.csv').exists()             # no sweep
+
+
 def test_write_doc_full_flags_are_valid_commands():
     for part in ('scaling', 'accuracy', 'node'):
         args = _parser().parse_args([part] + doc.FULL[part])

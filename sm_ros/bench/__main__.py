@@ -91,14 +91,14 @@ def main(argv: Optional[List[str]] = None) -> int:
         return int(importlib.import_module(f'sm_ros.bench.{argv[0]}').main(argv[1:]) or 0)
     if '--write-doc' in argv:
         from . import doc
-        return doc.main(argv)
+        return doc.main(argv, main)
     if not argv or argv[0] not in ('scaling', 'accuracy', 'node', 'material', 'all', '-h',
                                    '--help'):
         argv = ['all'] + argv
     args = _parser().parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from . import accuracy, material, node_bench, scaling
+    from . import accuracy, estimate, material, node_bench, scaling
     cmd = 'python -m sm_ros.bench ' + shlex.join(argv)
     info = bc.machine_info()
     findings: Dict[str, Any] = {'command': cmd, 'machine': info}
@@ -115,6 +115,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         for name, mod in parts:
             progress.set_postfix_str(name)
             findings[name] = mod.run(args, out)
+            if name == 'accuracy':             # the live estimate's tables, if asked
+                findings[name].update(estimate.run(args, out))
             progress.update()
     findings['wall_s'] = time.perf_counter() - t0
     _write_targets(findings, out)

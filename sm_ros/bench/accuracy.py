@@ -322,23 +322,12 @@ def order_of(rows: List[Dict[str, Any]]) -> Optional[float]:
 
 
 def run(args, out: Path) -> Dict[str, Any]:
-    """Sweep every scene; write tables and one plot per scene; return findings (and the
-    live error estimate's tables with ``--estimate`` / ``--estimate-only``)."""
-    import numba
-    from . import estimate
-    threads = numba.get_num_threads()
-    numba.set_num_threads(1)                  # solver time on one thread
-    try:
-        only = getattr(args, 'estimate_only', False)
-        findings = {} if only else _run(args, out)
-        if only or getattr(args, 'estimate', False):
-            findings['estimate_accuracy'] = estimate.estimate_accuracy(
-                list(ESTIMATE_SCENES), args.accuracy_points, args.duration, out)
-            findings['estimate_timing'] = estimate.estimate_timing(out)
-            findings['estimate_cost'] = estimate.estimate_cost(args.estimate_seconds, out)
-        return findings
-    finally:
-        numba.set_num_threads(threads)
+    """Sweep every scene (none with ``--estimate-only``); write tables and one plot per
+    scene; return findings.  The live error estimate's tables: ``estimate.run``."""
+    if getattr(args, 'estimate_only', False):
+        return {}
+    with bc.one_numba_thread():               # solver time on one thread
+        return _run(args, out)
 
 
 def _run(args, out: Path) -> Dict[str, Any]:

@@ -5,6 +5,7 @@ Nothing here imports rclpy; matplotlib is imported lazily (Agg backend) so that 
 tables can be written where it is missing.
 """
 
+import contextlib
 import csv
 import math
 import os
@@ -233,3 +234,15 @@ def ints(text: str) -> List[int]:
     """'1,2,4' -> [1, 2, 4] (accepts 1e3-style numbers)."""
     return [int(float(t)) for t in as_list(text, str)]
 
+
+
+@contextlib.contextmanager
+def one_numba_thread():
+    """Run the block with Numba on one thread (solver time, not parallel speed-up)."""
+    import numba
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(threads)

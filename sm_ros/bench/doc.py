@@ -286,8 +286,9 @@ def page(run: Run, command: str) -> str:
     return '\n'.join(lines).rstrip('\n') + '\n'
 
 
-def main(argv: Optional[List[str]] = None) -> int:
-    """Entry point of ``python -m sm_ros.bench --write-doc [PATH]``."""
+def main(argv: List[str], bench_main: Callable[[List[str]], int]) -> int:
+    """Entry point of ``python -m sm_ros.bench --write-doc [PATH]``; ``bench_main``: the
+    bench's own entry (``sm_ros.bench.__main__.main``), which runs the parts."""
     parser = argparse.ArgumentParser(prog='python -m sm_ros.bench --write-doc',
                                      description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -296,9 +297,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument('--quick', action='store_true', help='tiny sizes (the smoke test)')
     parser.add_argument('--work', default='', help="keep the parts' tables here (default: a "
                    'temporary folder)')
-    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(argv)
     from . import tick
-    from .__main__ import main as bench_main
 
     def run_tick(tick_argv):
         tick_parser = argparse.ArgumentParser()

@@ -28,6 +28,19 @@ from . import common as bc
 COST_SCENES = (('default', None), ('paper_384', None), ('paper_384', 2.0))
 
 
+def run(args, out) -> Dict[str, Any]:
+    """The live error estimate's tables of ``python -m sm_ros.bench accuracy --estimate``
+    (or ``--estimate-only``): its accuracy, timing and cost; nothing without those."""
+    if not (getattr(args, 'estimate_only', False) or getattr(args, 'estimate', False)):
+        return {}
+    from . import accuracy as acc
+    with bc.one_numba_thread():               # solver time on one thread
+        return {'estimate_accuracy': estimate_accuracy(
+                    list(acc.ESTIMATE_SCENES), args.accuracy_points, args.duration, out),
+                'estimate_timing': estimate_timing(out),
+                'estimate_cost': estimate_cost(args.estimate_seconds, out)}
+
+
 def ratios(scene, h: float, duration: float, every_s: float = 0.25) -> Dict[str, Any]:
     """Estimates every ``every_s`` s along a run of ``scene`` (``accuracy.Scene``) against
     its true error over ``duration`` s."""
