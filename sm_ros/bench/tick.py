@@ -54,7 +54,7 @@ def measure(scene: str, ticks: int, settle: int = 0, sleep: bool = True,
     for k in range(ticks):
         start = time.perf_counter()
         if grab:
-            lift = 0.05 * (1.0 - np.cos(k / 30.0)) if k else 0.0
+            lift = 0.05 * (1.0 - np.cos(k / 30.0))        # 0 at the first, attaching, grab
             sim.grab('bench', centre + (0.0, 0.0, lift), (0.0, 0.0, 0.0, 1.0))
         sim.tick()
         wall.append(1e3 * (time.perf_counter() - start))

@@ -112,7 +112,6 @@ class Body:
         # body-level match for poses of multi-cluster bodies
         self._quat_body = np.array([1.0, 0.0, 0.0, 0.0])
         self._params = params
-        self._at_step = (None, None, None)
         self._limit_counts = np.zeros(2, dtype=np.int64)
         # read and written by the compiled steps too (indices: ``kernels.flags``)
         self._flags = np.zeros(NFLAGS)

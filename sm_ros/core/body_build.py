@@ -377,7 +377,6 @@ def retime_record(body, fstate, h):
     into ``fstate``."""
     params = body._params
     p = params.at_step(h)
-    body._at_step = (h, params, p)
     numbers = {R.R_ALPHA: p.alpha, R.R_BETA: p.beta, R.R_DAMPING: p.damping,
                R.R_MAX_SPEED: params.max_speed, R.R_MAX_TURN: params.max_turn,
                R.R_TURN_RATE: params.max_turn / h, R.R_MODE: body._mode,

@@ -133,7 +133,6 @@ class Pack:
         for b, body in enumerate(self.bodies):
             prm = body._params
             p = prm.at_step(h)
-            body._at_step = (h, prm, p)
             self.rows[b, :NPARAM] = (p.alpha, p.beta, p.damping, prm.max_speed, prm.max_turn,
                                   prm.max_turn / h, body._mode, body._wuni,
                                   body._collider_radius)
