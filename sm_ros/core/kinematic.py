@@ -6,10 +6,11 @@ too), per-particle mass ``m`` and inverse mass ``w`` (0 for pinned or grabbed pa
 which the colliders then leave alone: they act as infinite mass).
 
 A particle inside a collider is projected to the nearest surface point along the surface
-normal, or, where it crossed the collider's middle within the step (a rod or a plate
-thinner than its step: the nearest surface faces away from where it came from), back onto
-the tangent plane of the side it came from (``_swept_contact``), so a thin collider holds
-what a body pulls over it instead of letting it through; its velocity relative to the
+normal, or, where its path entered the collider through a surface that turns from the one
+nearest to its end by more than 45 degrees (a rod or a plate thinner than its step, a
+particle pulled hard round a rod), back onto the tangent plane where it entered
+(``_swept_contact``), so a thin collider holds what a body pulls over it instead of
+letting it through; its velocity relative to the
 collider's surface velocity ``v + omega x (p - c)``
 gets the ground's contact rule (restitution above ``thresh``, Coulomb friction removing up
 to mu * dv_n of the tangential velocity), and the step's displacement gets the same
@@ -36,7 +37,7 @@ import numpy as np
 from numba import njit
 
 from .kernels.colliders import (C_ANG, C_BOUND, C_DIM, C_E, C_KIND, C_MU,  # noqa: F401
-                                C_POS, C_ROT, C_VEL, FACING, ROW, contact_velocity,
+                                C_POS, C_ROT, C_VEL, ROW, contact_velocity,
                                 surface_gap)
 from .kernels.jit import JIT
 
@@ -88,23 +89,73 @@ def _passes_by(row, p, came, reach):
     return ex * ex + ey * ey + ez * ez < reach * reach
 
 
+#: Where the surface a particle's path entered through and the one nearest its end turn
+#: by more than 45 degrees (cosine below this), it goes back onto the entry's tangent plane.
+ENTRY_TURN = math.sqrt(0.5)
+#: Halvings of the path that place its entry into a collider (1/4096 of the step's move).
+ENTRY_HALVINGS = 12
+#: A particle that starts its step this close to a collider's surface (a fraction of its
+#: radius: one resting on it) enters where it starts.
+ENTRY_SLACK = 1e-3
+
+
+@njit(**JIT)
+def _entry(row, came, inside, radius):
+    """(gap, nx, ny, nz, point) where the path from ``came`` (outside) to ``inside`` first
+    reaches the collider grown by ``radius``, by halving: the last point outside, its gap
+    (>= 0) and the normal of the surface nearest to it."""
+    ox, oy, oz = came
+    ix, iy, iz = inside
+    for _ in range(ENTRY_HALVINGS):
+        mx, my, mz = 0.5 * (ox + ix), 0.5 * (oy + iy), 0.5 * (oz + iz)
+        if surface_gap(row, mx, my, mz, radius)[0] >= 0.0:
+            ox, oy, oz = mx, my, mz
+        else:
+            ix, iy, iz = mx, my, mz
+    gap, nx, ny, nz = surface_gap(row, ox, oy, oz, radius)
+    return gap, nx, ny, nz, (ox, oy, oz)
+
+
+@njit(**JIT)
+def _inside_on_path(row, came, p, radius):
+    """(found, point): a point of the path from ``came`` to p inside the collider grown
+    by ``radius``: its middle, or on a path longer than ``radius`` its first or third
+    quarter (so a path through it on a chord longer than a quarter of the path is seen)."""
+    ox, oy, oz = came
+    dx, dy, dz = p[0] - ox, p[1] - oy, p[2] - oz
+    long_path = dx * dx + dy * dy + dz * dz >= radius * radius
+    for t in (0.5, 0.25, 0.75):
+        qx, qy, qz = ox + t * dx, oy + t * dy, oz + t * dz
+        if surface_gap(row, qx, qy, qz, radius)[0] < 0.0:
+            return True, (qx, qy, qz)
+        if not long_path:
+            break
+    return False, p
+
+
 @njit(**JIT)
 def _swept_contact(row, p, came, radius):
     """(depth, nx, ny, nz) of the particle now at p, which was at ``came``: against the
-    collider's nearest surface (depth > 0: overlap), or, where it crossed the collider's
-    middle within the step (it ends inside, or its path's midpoint is inside, and the
-    nearest surfaces to ``came`` and to p face opposite ways), against the tangent plane of
-    the side it came from, so a rod or a plate thinner than a step holds it."""
+    collider's nearest surface (depth > 0: overlap), or, where its path went inside and
+    the surface it entered through turns from the one nearest to p by more than 45
+    degrees, against that entry's tangent plane (``came``'s nearest surface where it
+    started on or inside it), so a rod or a plate thinner than a step holds it and a
+    particle pulled hard over a rod stays on the side it came from."""
     px, py, pz = p
-    ox, oy, oz = came
     gap, nx, ny, nz = surface_gap(row, px, py, pz, radius)
-    if gap >= 0.0 and surface_gap(row, 0.5 * (px + ox), 0.5 * (py + oy), 0.5 * (pz + oz),
-                                  radius)[0] >= 0.0:
-        return -gap, nx, ny, nz                     # neither it nor its path's middle
-    came_gap, mx, my, mz = surface_gap(row, ox, oy, oz, radius)
-    if mx * nx + my * ny + mz * nz < -FACING:
-        return -(came_gap + (px - ox) * mx + (py - oy) * my + (pz - oz) * mz), mx, my, mz
-    return -gap, nx, ny, nz
+    inside = p
+    if gap >= 0.0:
+        found, inside = _inside_on_path(row, came, p, radius)
+        if not found:
+            return -gap, nx, ny, nz
+    ox, oy, oz = came
+    came_gap, ex, ey, ez = surface_gap(row, ox, oy, oz, radius)
+    if came_gap > ENTRY_SLACK * radius:             # it came from outside: where did it enter?
+        came_gap, ex, ey, ez, came = _entry(row, came, inside, radius)
+        ox, oy, oz = came
+    if ex * nx + ey * ny + ez * nz >= ENTRY_TURN:
+        return -gap, nx, ny, nz
+    return -(came_gap + (px - ox) * ex + (py - oy) * ey + (pz - oz) * ez), ex, ey, ez
 
 
 @njit(**JIT)
@@ -206,6 +257,22 @@ def _surface_numpy(row, p, rad):
     return row[C_DIM] + rad - d, np.where(d > 0, e / safe, rot[:, 0:1])
 
 
+def _entry_numpy(row, came, inside, rad):
+    """``_entry`` for the points ``came`` (3, N) outside the collider (farther than
+    ``ENTRY_SLACK``), towards ``inside``; elsewhere ``came`` itself: (the points, their
+    depth and normal)."""
+    depth, n = _surface_numpy(row, came, rad)
+    outside = depth < -ENTRY_SLACK * rad
+    lo, hi = came.copy(), inside.copy()
+    for _ in range(ENTRY_HALVINGS):
+        mid = 0.5 * (lo + hi)
+        out = _surface_numpy(row, mid, rad)[0] <= 0.0
+        lo, hi = np.where(out, mid, lo), np.where(out, hi, mid)
+    depth_lo, n_lo = _surface_numpy(row, lo, rad)
+    return (np.where(outside, lo, came), np.where(outside, depth_lo, depth),
+            np.where(outside, n_lo, n))
+
+
 def collide_numpy(particles, rows, h, thresh, tally):
     """Plain NumPy twin of ``collide_range`` over every particle (vectorised per collider;
     the same sequence of colliders per particle)."""
@@ -223,11 +290,17 @@ def collide_numpy(particles, rows, h, thresh, tally):
         rel = p - row[C_POS:C_POS + 3, None]
         surface = row[C_VEL:C_VEL + 3, None] + np.cross(row[C_ANG:C_ANG + 3], rel, axis=0)
         came = p - h * (V[:, free] - surface)
-        depth_came, n_came = _surface_numpy(row, came, rad)
-        midway = _surface_numpy(row, 0.5 * (p + came), rad)[0]
-        crossed = ((n * n_came).sum(axis=0) < -FACING) & ((depth > 0) | (midway > 0))
-        depth = np.where(crossed, depth_came - ((p - came) * n_came).sum(axis=0), depth)
-        n = np.where(crossed, n_came, n)
+        inside, on_path = p, depth > 0
+        long_path = ((p - came) ** 2).sum(axis=0) >= rad * rad
+        for t in (0.75, 0.25, 0.5):           # the first found by ``_inside_on_path`` last
+            point = came + t * (p - came)
+            hit = ((depth <= 0) & (_surface_numpy(row, point, rad)[0] > 0)
+                   & (long_path | (t == 0.5)))
+            inside, on_path = np.where(hit, point, inside), on_path | hit
+        came, depth_came, n_came = _entry_numpy(row, came, inside, rad)
+        turned = ((n * n_came).sum(axis=0) < ENTRY_TURN) & on_path
+        depth = np.where(turned, depth_came - ((p - came) * n_came).sum(axis=0), depth)
+        n = np.where(turned, n_came, n)
         hit = depth > 0
         if not hit.any():
             continue
