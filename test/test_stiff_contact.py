@@ -571,6 +571,47 @@ def test_a_soft_ball_on_a_stack_of_stiff_boxes_comes_to_rest():
         assert np.linalg.norm(body.x.mean(axis=0) - start[body.name]) < 1e-3, body.name
 
 
+_SOFT_LOAD = """
+colliders: {ground: {friction: 0.6}}
+contact: {friction: 0.6, sleep: false}
+bodies:
+  - {name: base, shape: box, size: [0.3, 0.3, 0.12], spacing: 0.04, mass: 2.0,
+     position: [0.0, 0.0, 0.09], mode: rigid, alpha: 0.9}
+  - {name: upper, shape: box, size: [0.24, 0.24, 0.12], spacing: 0.04, mass: 1.0,
+     position: [0.0, 0.0, 0.26], mode: rigid, alpha: 0.9}
+"""
+_SPONGE = """
+  - {name: sponge, shape: box, size: [0.24, 0.24, 0.09], spacing: 0.03, mass: MASS,
+     position: [0.0, 0.0, 0.42], mode: linear, alpha: 0.3, beta: 0.2, damping: 0.2}
+"""
+
+
+@pytest.mark.parametrize('mass', [0.3, 3.0])
+def test_a_soft_load_does_not_sink_a_stiff_box_into_the_one_it_lies_on(mass):
+    """A soft block (alpha 0.3: met particle by particle, after the stiff pass) of 0.3 or
+    3 kg on a stiff box lying on another: after 3 s the upper box lies as deep in the
+    lower one as without the load (within 1 mm), the lower one on the ground, both at
+    rest.  The pass that meets the soft block moves the box as a whole; without what it
+    lies on there, the load sank it 4 and 11 mm deeper every step, which the stiff pass
+    pushed back, and the lower box into the ground."""
+    import yaml
+    from sm_ros.scene import build_world, parse_scene
+
+    def gap(text):
+        world, _ = build_world(parse_scene(yaml.safe_load(text)))
+        for _ in range(360):
+            world.step(1.0 / 120.0)
+        base, upper = world.body('base'), world.body('upper')
+        for body in (base, upper):
+            assert np.abs(body.v).max() < 5e-3, body.name
+        return upper.x[:, 2].min() - base.x[:, 2].max(), base.x[:, 2].min()
+
+    alone, _ = gap(_SOFT_LOAD)
+    loaded, lowest = gap(_SOFT_LOAD + _SPONGE.replace('MASS', str(mass)))
+    assert loaded == pytest.approx(alone, abs=1e-3)
+    assert lowest > 0.02 - 1e-4                     # the ground holds the lower box
+
+
 def test_a_soft_body_alone_still_lands_on_its_particles():
     """Two soft blocks (alpha 0.5: carried as a whole) dropped apart beside a stiff box:
     they take their contacts with it and each other in the stiff pass, but each meets the

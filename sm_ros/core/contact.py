@@ -233,6 +233,7 @@ class Contact:
         self._body_inv_inertia = np.zeros((max(nb, 1), 9))
         self._dbox = np.zeros(6)        # displacements since the last build: their box
         self._ground_impulse = np.zeros((2, max(nb, 1)))
+        self._floor = np.zeros((2, max(nb, 1)))      # what a carried body rests on
         self._warm = False              # the impulses are the last step's (list kept)
         self._wall_particles = np.zeros(n, dtype=np.int64)   # near boxes and spheres
         self._wall_start = np.zeros(max(nb, 1) + 1, dtype=np.int64)
@@ -307,7 +308,7 @@ class Contact:
         self.valid = True
         self.builds += 1
 
-    def run(self, h, thresh, col=None, gravity=None):
+    def run(self, h, thresh, col=None, gravity=None, supported=None):
         """Detect and resolve contacts on ``flat.X``/``flat.V`` (already gathered).
 
         ``col``: the World's static colliders (``kernels.colliders.Colliders``, its radius
@@ -315,6 +316,8 @@ class Contact:
         moved.  ``gravity`` (3,): with a nonzero one, ``params.stacking`` and a body
         marked in ``coupling``, the bodies so marked carry their contacts as a whole
         (``solve_bodies``); otherwise every pair acts per particle (``solve_pairs``).
+        ``supported`` (bodies,) bool: the stiff bodies the stiff pass left lying on another;
+        a load from a softer body cannot push them down into it here (``_set_floors``).
         """
         f = self.flat
         half = 0.5 * self.skin
@@ -336,6 +339,7 @@ class Contact:
             # stiff pass puts it (stiff_contact.py), the others as their own pass does
             n = len(self.radii)
             self._lowest[0, :n] -= np.where(self.rigid[:n], self.radii, col.radius[:n])
+            self._set_floors(supported)
         else:
             spread2 = moved_spread2(f.X, self._xref, f.off, self.act)
         # rebuilt once the displacements since the last build no longer fit in a ball of
@@ -376,7 +380,20 @@ class Contact:
         return CarriedBodies(self.flat.off, self._body_inv_mass, self.coupling,
                              self._body_velocity, self._lowest, self._body_centre,
                              self._body_inv_inertia, self._body_spin, self._body_change,
-                             self._pending, self._ground_impulse)
+                             self._pending, self._ground_impulse, self._floor)
+
+    def _set_floors(self, supported):
+        """What a stiff body the stiff pass left lying on another rests on here, beside the
+        ground: its lowest point as it is now, with the bodies' friction.  The stiff pass
+        holds it up against its own weight and what the stiff bodies put on it; a softer
+        body's load, which this pass meets, then goes into what it lies on instead of
+        sinking it into that."""
+        n = len(self.radii)
+        self._floor[0, :n] = -np.inf
+        self._floor[1, :n] = self.params.friction
+        if supported is not None:
+            held = supported[:n] & self.rigid[:n]
+            self._floor[0, :n][held] = self._lowest[0, :n][held]
 
     def _near_walls(self, col) -> WallCandidates:
         """The carried bodies' particles near the boxes and spheres (grown by the

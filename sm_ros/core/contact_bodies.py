@@ -45,7 +45,8 @@ def solve_bodies(parts, pairs, sweep, bodies, law, col, walls, report):
     (or the first one changes nothing at all).  Other pairs get the law of
     ``solve_pairs`` in the first sweep.  Friction: Coulomb, at most ``law.friction`` times
     the normal change.  Impulses are equal and opposite: linear momentum is kept to
-    round-off.  A carried body rests on the ground as a whole (``_ground_sweep``) and is
+    round-off.  A carried body rests on the ground as a whole (``_floor_sweep``; a
+    stiff body lying on another on that one too) and is
     pushed out of boxes and spheres as a whole (``_wall_sweep``); each step starts from
     the last step's impulses (``warm_start``).  ``change``, ``pending`` and
     ``parts.moved`` are zero on entry and on return.  Returns the overlapping pairs of
@@ -88,10 +89,9 @@ def solve_bodies(parts, pairs, sweep, bodies, law, col, walls, report):
                     listed += 1
             if ch > big:
                 big = ch
-        if col.on and col.ground[0] > 0.5:
-            ch = _ground_sweep(bodies, law, col.ground)
-            if ch > big:
-                big = ch
+        ch = _floor_sweep(bodies, law, col.ground if col.on else _NO_GROUND)
+        if ch > big:
+            big = ch
         if col.on and walls.particles.shape[0] > 0:
             ch = _wall_sweep(parts, bodies, law, col, walls)
             if ch > big:
@@ -274,19 +274,22 @@ def _take(parts, bodies, i, carried, inv_mass, h, push, shift):
 
 
 @njit(**JIT_NO_REFCOUNT)
-def _ground_sweep(bodies, law, ground):
-    """The ground in a sweep: a carried body rests on it as a whole (its lowest particle,
-    ``bodies.lowest``), with accumulated impulses like a pair's and the ground's
-    friction, so the load of the bodies above goes into the ground instead of squashing
-    the body against it.  Returns the largest velocity change it made."""
+def _floor_sweep(bodies, law, ground):
+    """The floors in a sweep (the ground, or the higher ``bodies.floor``: the body a
+    stiff one lies on): a carried body rests on its floor as a whole (its lowest particle,
+    ``bodies.lowest``), with accumulated impulses like a pair's and the floor's friction,
+    so the load of the bodies above goes into the floor instead of squashing the body
+    against it.  Returns the largest velocity change it made."""
     h = law.h
     ih = 1.0 / h
     big = 0.0
-    gh = ground[1]
     zlo, dv, bw, accg = bodies.lowest, bodies.change, bodies.inv_mass, bodies.ground_impulse
     vb = bodies.velocity
     for b in range(bodies.pending.shape[0]):
-        if not is_carried(bodies, b):
+        gh, mu = (ground[1], ground[2]) if ground[0] > 0.5 else (-np.inf, 0.0)
+        if bodies.floor[0, b] > gh:
+            gh, mu = bodies.floor[0, b], bodies.floor[1, b]
+        if not is_carried(bodies, b) or gh == -np.inf:
             continue
         z = zlo[0, b] + h * dv[b, 2] + dv[b, 5]
         if not (z <= gh + 1e-9 or accg[0, b] > 0.0 or accg[1, b] > 0.0):
@@ -308,7 +311,7 @@ def _ground_sweep(bodies, law, ground):
         tl = np.sqrt(tx * tx + ty * ty)
         pt = 0.0
         if tl > 0.0:
-            pt = min(ground[2] * max(pn + qq * ih, 0.0), tl * m) / tl
+            pt = min(mu * max(pn + qq * ih, 0.0), tl * m) / tl
         if pn == 0.0 and qq == 0.0 and pt == 0.0:
             continue           # resting on it, nothing to change: not pending
         dv[b, 0] -= bw[b] * pt * tx

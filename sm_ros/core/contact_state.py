@@ -26,9 +26,12 @@ ContactReport = namedtuple('ContactReport', 'touched count deepest')
 #: lowest particle (2, bodies: height, vertical velocity), the centre, the inverse inertia
 #: (9 per body) and the spin; during the pass the body's changes (``change``: velocity,
 #: position, 1 when another body held it), whether it has any (``pending``) and its
-#: accumulated ground impulses (2, bodies: velocity, position).
+#: accumulated ground impulses (2, bodies: velocity, position); what else than the ground
+#: each rests on as a whole (``floor`` (2, bodies): height and friction of the stiff body
+#: a stiff one lies on, where the stiff pass left it; -inf: nothing).
 CarriedBodies = namedtuple('CarriedBodies', 'offsets inv_mass carried velocity lowest centre '
-                                            'inv_inertia spin change pending ground_impulse')
+                                            'inv_inertia spin change pending ground_impulse '
+                                            'floor')
 #: Per pair of the list, for the carried bodies' sweeps: the pairs the later sweeps visit
 #: (``active``), the accumulated impulses (2, P: velocity, position), the law fixed at a
 #: pair's first visit (``target``), and the compact rows of pairs of two carried bodies
@@ -46,7 +49,8 @@ def carried_bodies_for(offsets, inv_mass, carried) -> CarriedBodies:
     return CarriedBodies(np.asarray(offsets, dtype=np.int64), inv_mass, carried,
                          np.zeros((nb, 3)), np.zeros((2, nb)), np.zeros((nb, 3)),
                          np.zeros((nb, 9)), np.zeros((nb, 3)), np.zeros((nb, 7)),
-                         np.zeros(nb, dtype=np.uint8), np.zeros((2, nb)))
+                         np.zeros(nb, dtype=np.uint8), np.zeros((2, nb)),
+                         np.full((2, nb), -np.inf))
 
 
 def pair_sweep_for(count: int) -> PairSweep:

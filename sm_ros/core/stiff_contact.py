@@ -110,6 +110,18 @@ _MASSES = types.Array(types.float64, 1, 'C', readonly=True)
 
 
 @njit(**JIT)
+def lying_on_another(touches, count: int):
+    """(count,) bool: the bodies that the stiff pass's body pairs in contact
+    (``stiff_contacts.touches``, rows a, b, which lies above) show lying on another; None
+    without any."""
+    if not len(touches):
+        return None
+    lying = np.zeros(count, dtype=np.bool_)
+    lying[touches[touches[:, 2] > 0, 0]] = True
+    lying[touches[touches[:, 2] < 0, 1]] = True
+    return lying
+
+
 def _empty_lists():
     return (TypedList.empty_list(_BLOCK), TypedList.empty_list(_BLOCK),
             TypedList.empty_list(_MASSES))

@@ -16,7 +16,7 @@ from .flat import FlatState
 from .kernels.flags import SLEEP
 from .kinematic import Particles
 from .sleep import NO_TOUCHES, Sleep
-from .stiff_contact import StiffContact
+from .stiff_contact import StiffContact, lying_on_another
 from .world_colliders import WorldColliders
 
 
@@ -393,8 +393,7 @@ class World(WorldColliders):
         touched bodies back.  With pass colliders but no contact to run, the collider
         pass works on each body's own buffers (seen as (3, N)) and copies nothing.
         """
-        c = self._contact
-        cs = self._cset
+        c, cs = self._contact, self._cset
         need_contact = c is not None and c.needed
         f = self._flat
         st = self._coll_stats
@@ -406,7 +405,8 @@ class World(WorldColliders):
             if sl is not None:
                 sl.sync()                      # bodies woken from outside: masses back
             f.gather()
-            c.run(h, thresh, self._contact_colliders(thresh), self._gravity)
+            c.run(h, thresh, self._contact_colliders(thresh), self._gravity,
+                  lying_on_another(self._stiff_touches, len(f.bodies)))
             c.add_counts(self._stiff_stats)
             if cs is not None:
                 st[:] = 0.0
