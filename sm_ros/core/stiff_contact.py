@@ -109,7 +109,6 @@ _BLOCK = types.Array(types.float64, 2, 'A')
 _MASSES = types.Array(types.float64, 1, 'C', readonly=True)
 
 
-@njit(**JIT)
 def lying_on_another(touches, count: int):
     """(count,) bool: the bodies that the stiff pass's body pairs in contact
     (``stiff_contacts.touches``, rows a, b, which lies above) show lying on another; None
@@ -122,6 +121,7 @@ def lying_on_another(touches, count: int):
     return lying
 
 
+@njit(**JIT)
 def _empty_lists():
     return (TypedList.empty_list(_BLOCK), TypedList.empty_list(_BLOCK),
             TypedList.empty_list(_MASSES))
