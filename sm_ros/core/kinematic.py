@@ -37,8 +37,8 @@ import numpy as np
 from numba import njit
 
 from .kernels.colliders import (C_ANG, C_BOUND, C_DIM, C_E, C_KIND, C_MU,  # noqa: F401
-                                C_POS, C_ROT, C_VEL, ROW, contact_velocity,
-                                surface_gap)
+                                C_POS, C_ROT, C_VEL, ENTRY_TURN, ROW,
+                                contact_velocity, surface_gap)
 from .kernels.jit import JIT
 
 
@@ -89,9 +89,6 @@ def _passes_by(row, p, came, reach):
     return ex * ex + ey * ey + ez * ez < reach * reach
 
 
-#: Where the surface a particle's path entered through and the one nearest its end turn
-#: by more than 45 degrees (cosine below this), it goes back onto the entry's tangent plane.
-ENTRY_TURN = math.sqrt(0.5)
 #: Halvings of the path that place its entry into a collider (1/4096 of the step's move).
 ENTRY_HALVINGS = 12
 #: A particle that starts its step this close to a collider's surface (a fraction of its

@@ -10,7 +10,7 @@ damping moves each velocity towards its clusters' rigid motion before Eq. 13.
 import numpy as np
 
 from .clusters import build_memberships
-from .kernels.colliders import FACING
+from .kernels.colliders import ENTRY_TURN
 from .params import BodyParams
 
 RCOND = 1e-10
@@ -365,8 +365,9 @@ def collide(x, v, ground, boxes, spheres, thresh, radius=0.0, h=0.0):
     """Project one particle, a sphere of ``radius``, out of the colliders (each grown by
     the radius; a box keeps its square edges) and correct its velocity; one the step of
     ``h`` s carried past a box's middle, or through it, leaves by the face it entered
-    through, and past a sphere's middle by the tangent plane of its side (where it was:
-    x - h v)."""
+    through, and one whose path entered a sphere through a surface that turns from the
+    one nearest its end by more than 45 degrees by the tangent plane where it entered (it
+    was at x - h v)."""
     x, v = x.copy(), v.copy()
     came = x - h * v
     if ground is not None and x[2] < ground.height + radius:
@@ -392,16 +393,31 @@ def collide(x, v, ground, boxes, spheres, thresh, radius=0.0, h=0.0):
             v = _contact(v, n, b.friction, b.restitution, thresh)
     for s in spheres:
         c, rad = np.asarray(s.center, dtype=float), s.radius + radius
-        n, m = _unit(x - c), _unit(came - c)
+        n, m = _unit(x - c), _sphere_entry(came - c, x - came, rad)
         inside = np.linalg.norm(x - c) < rad
-        if n @ m < -FACING and (inside or np.linalg.norm(0.5 * (x + came) - c) < rad):
-            x, n = x + (rad - (x - c) @ m) * m, m       # the tangent plane it came by
+        u = x - came
+        t = np.clip(-((came - c) @ u) / (u @ u), 0.0, 1.0) if u @ u > 0 else 0.0
+        meets = inside or np.linalg.norm(came + t * u - c) < rad
+        push = rad - (x - c) @ m
+        if meets and n @ m < ENTRY_TURN:
+            if push <= 0.0:
+                continue
+            x, n = x + push * m, m                      # the tangent plane it entered by
         elif inside:
             x = c + rad * n
         else:
             continue
         v = _contact(v, n, s.friction, s.restitution, thresh)
     return x, v
+
+
+def _sphere_entry(o, u, rad):
+    """The outward normal where the path o + t u (t in [0, 1], relative to a sphere's
+    centre) enters the sphere of ``rad``; where it starts inside, at o."""
+    b, c = o @ u, o @ o - rad * rad
+    if c > 0.0 and u @ u > 0.0 and b * b - (u @ u) * c >= 0.0:
+        return _unit(o + (-b - np.sqrt(b * b - (u @ u) * c)) / (u @ u) * u)
+    return _unit(o)
 
 
 def _unit(d):

@@ -71,9 +71,10 @@ def contact_velocity(vx, vy, vz, nx, ny, nz, friction, restitution, thresh):
     return tx + vn_new * nx, ty + vn_new * ny, tz + vn_new * nz
 
 
-#: Two surface normals face opposite ways below this cosine (not two faces at right angles,
-#: whose cosine rounds to either side of 0).
-FACING = 1e-9
+#: Where the surface a particle's path entered a collider through and the one nearest its
+#: end turn by more than 45 degrees (cosine below this), it goes back onto the entry's
+#: tangent plane.
+ENTRY_TURN = 0.7071067811865476
 
 
 @njit(**JIT_NO_REFCOUNT)
@@ -107,7 +108,8 @@ def collide_point(px, py, pz, vx, vy, vz, col):
     step (``col.h``, from p - h v) carried the particle past a box's middle (it ends
     nearest the face opposite the one it entered through) or through it, it goes back out
     of the face it entered through, so a plate thinner than a step's fall holds it; past a
-    sphere's middle, onto the tangent plane of the side it came from."""
+    sphere, onto the tangent plane where it entered (``_sphere_entry``) where that turns
+    from the surface nearest its end by more than 45 degrees."""
     ground, boxes, spheres, r = col.ground, col.boxes, col.spheres, col.radius
     came = (px - col.h * vx, py - col.h * vy, pz - col.h * vz)
     gz = ground[1] + r
@@ -164,13 +166,14 @@ def collide_point(px, py, pz, vx, vy, vz, col):
         c0, c1, c2, rad = spheres[s, 0], spheres[s, 1], spheres[s, 2], spheres[s, 3] + r
         dx, dy, dz = px - c0, py - c1, pz - c2
         inside = _inside_sphere(dx, dy, dz, rad)
-        if not (inside or _inside_sphere(0.5 * (px + came[0]) - c0, 0.5 * (py + came[1]) - c1,
-                                         0.5 * (pz + came[2]) - c2, rad)):
-            continue                                    # neither it nor its path's middle
+        if not (inside or _path_meets_sphere(came, (dx, dy, dz), (c0, c1, c2), rad)):
+            continue                                    # neither it nor its path
         nx, ny, nz = _unit(dx, dy, dz)
-        mx, my, mz = _unit(came[0] - c0, came[1] - c1, came[2] - c2)
-        if mx * nx + my * ny + mz * nz < -FACING:
-            push = rad - (dx * mx + dy * my + dz * mz)   # onto the tangent plane it came by
+        mx, my, mz = _sphere_entry(came, (dx, dy, dz), (c0, c1, c2), rad)
+        if mx * nx + my * ny + mz * nz < ENTRY_TURN:
+            push = rad - (dx * mx + dy * my + dz * mz)   # onto the tangent plane it entered by
+            if push <= 0.0:
+                continue
             px, py, pz, nx, ny, nz = px + push * mx, py + push * my, pz + push * mz, mx, my, mz
         elif inside:
             px, py, pz = c0 + rad * nx, c1 + rad * ny, c2 + rad * nz
@@ -180,6 +183,32 @@ def collide_point(px, py, pz, vx, vy, vz, col):
                                       friction=spheres[s, 4], restitution=spheres[s, 5],
                                       thresh=col.thresh)
     return px, py, pz, vx, vy, vz
+
+
+@njit(inline='always', **JIT)
+def _path_meets_sphere(came, d, centre, rad):
+    """Whether the path from ``came`` to the point at offset ``d`` from ``centre`` comes
+    closer to it than ``rad``."""
+    ox, oy, oz = came[0] - centre[0], came[1] - centre[1], came[2] - centre[2]
+    ux, uy, uz = d[0] - ox, d[1] - oy, d[2] - oz
+    uu = ux * ux + uy * uy + uz * uz
+    t = min(max(-(ox * ux + oy * uy + oz * uz) / uu, 0.0), 1.0) if uu > 0.0 else 0.0
+    return _inside_sphere(ox + t * ux, oy + t * uy, oz + t * uz, rad)
+
+
+@njit(inline='always', **JIT)
+def _sphere_entry(came, d, centre, rad):
+    """The outward normal where the path from ``came`` to the point at offset ``d`` from
+    ``centre`` enters the sphere of ``rad`` (where it starts inside, at ``came``)."""
+    ox, oy, oz = came[0] - centre[0], came[1] - centre[1], came[2] - centre[2]
+    ux, uy, uz = d[0] - ox, d[1] - oy, d[2] - oz
+    uu = ux * ux + uy * uy + uz * uz
+    b = ox * ux + oy * uy + oz * uz
+    c = ox * ox + oy * oy + oz * oz - rad * rad
+    if c > 0.0 and uu > 0.0 and b * b - uu * c >= 0.0:
+        t = (-b - np.sqrt(b * b - uu * c)) / uu
+        return _unit(ox + t * ux, oy + t * uy, oz + t * uz)
+    return _unit(ox, oy, oz)
 
 
 @njit(inline='always', **JIT)
