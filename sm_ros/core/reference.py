@@ -390,7 +390,7 @@ def collide(x, v, ground, boxes, spheres, thresh, radius=0.0, h=0.0):
             n = np.zeros(3)
             n[axis] = 1.0 if positive else -1.0
             x[axis] = hi[axis] if positive else lo[axis]
-            v = _contact(v, n, b.friction, b.restitution, thresh)
+            v, x = _held(v, _contact(v, n, b.friction, b.restitution, thresh), x, n, h)
     for s in spheres:
         c, rad = np.asarray(s.center, dtype=float), s.radius + radius
         n, m = _unit(x - c), _sphere_entry(came - c, x - came, rad)
@@ -407,8 +407,15 @@ def collide(x, v, ground, boxes, spheres, thresh, radius=0.0, h=0.0):
             x = c + rad * n
         else:
             continue
-        v = _contact(v, n, s.friction, s.restitution, thresh)
+        v, x = _held(v, _contact(v, n, s.friction, s.restitution, thresh), x, n, h)
     return x, v
+
+
+def _held(v, v_new, x, n, h):
+    """(v_new, x moved by h times the tangential part of v_new - v at the normal n)."""
+    dv = v_new - v
+    dn = dv[0] * n[0] + dv[1] * n[1] + dv[2] * n[2]
+    return v_new, x + h * (dv - dn * n)
 
 
 def _sphere_entry(o, u, rad):

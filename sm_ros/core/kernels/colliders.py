@@ -109,7 +109,9 @@ def collide_point(px, py, pz, vx, vy, vz, col):
     nearest the face opposite the one it entered through) or through it, it goes back out
     of the face it entered through, so a plate thinner than a step's fall holds it; past a
     sphere, onto the tangent plane where it entered (``_sphere_entry``) where that turns
-    from the surface nearest its end by more than 45 degrees."""
+    from the surface nearest its end by more than 45 degrees.  On a box or a sphere the
+    step's displacement gets the tangential change of velocity too (``_held``); the
+    ground, flat, changes the velocity only."""
     ground, boxes, spheres, r = col.ground, col.boxes, col.spheres, col.radius
     came = (px - col.h * vx, py - col.h * vy, pz - col.h * vz)
     gz = ground[1] + r
@@ -159,9 +161,12 @@ def collide_point(px, py, pz, vx, vy, vz, col):
                 py = hi1 if sgn > 0.0 else lo1
             else:
                 pz = hi2 if sgn > 0.0 else lo2
-            vx, vy, vz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
+            ux, uy, uz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
                                           friction=boxes[b, 6], restitution=boxes[b, 7],
                                           thresh=col.thresh)
+            px, py, pz = _held(col.h, (px, py, pz), (ux - vx, uy - vy, uz - vz),
+                               (nx, ny, nz))
+            vx, vy, vz = ux, uy, uz
     for s in range(spheres.shape[0]):
         c0, c1, c2, rad = spheres[s, 0], spheres[s, 1], spheres[s, 2], spheres[s, 3] + r
         dx, dy, dz = px - c0, py - c1, pz - c2
@@ -179,10 +184,22 @@ def collide_point(px, py, pz, vx, vy, vz, col):
             px, py, pz = c0 + rad * nx, c1 + rad * ny, c2 + rad * nz
         else:
             continue
-        vx, vy, vz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
+        ux, uy, uz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
                                       friction=spheres[s, 4], restitution=spheres[s, 5],
                                       thresh=col.thresh)
+        px, py, pz = _held(col.h, (px, py, pz), (ux - vx, uy - vy, uz - vz), (nx, ny, nz))
+        vx, vy, vz = ux, uy, uz
     return px, py, pz, vx, vy, vz
+
+
+@njit(inline='always', **JIT)
+def _held(h, p, dv, n):
+    """p moved by h times the tangential part of the velocity change ``dv`` at a surface
+    of normal n: friction acts over the whole step, so static friction holds a particle
+    where it is (as the collider pass does, ``kinematic.collide_range``)."""
+    dn = dv[0] * n[0] + dv[1] * n[1] + dv[2] * n[2]
+    return (p[0] + h * (dv[0] - dn * n[0]), p[1] + h * (dv[1] - dn * n[1]),
+            p[2] + h * (dv[2] - dn * n[2]))
 
 
 @njit(inline='always', **JIT)
