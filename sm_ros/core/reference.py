@@ -399,15 +399,16 @@ def collide(x, v, ground, boxes, spheres, thresh, radius=0.0, h=0.0):
         t = np.clip(-((came - c) @ u) / (u @ u), 0.0, 1.0) if u @ u > 0 else 0.0
         meets = inside or np.linalg.norm(came + t * u - c) < rad
         push = rad - (x - c) @ m
-        if meets and n @ m < ENTRY_TURN:
+        on_plane = meets and n @ m < ENTRY_TURN
+        if on_plane:
             if push <= 0.0:
                 continue
             x, n = x + push * m, m                      # the tangent plane it entered by
-        elif inside:
-            x = c + rad * n
-        else:
+        elif not inside:
             continue
         v, x = _held(v, _contact(v, n, s.friction, s.restitution, thresh), x, n, h)
+        if not on_plane:                # onto the surface where friction held it
+            x = c + rad * _unit(x - c)
     return x, v
 
 

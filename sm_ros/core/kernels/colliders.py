@@ -175,19 +175,21 @@ def collide_point(px, py, pz, vx, vy, vz, col):
             continue                                    # neither it nor its path
         nx, ny, nz = _unit(dx, dy, dz)
         mx, my, mz = _sphere_entry(came, (dx, dy, dz), (c0, c1, c2), rad)
-        if mx * nx + my * ny + mz * nz < ENTRY_TURN:
+        on_plane = mx * nx + my * ny + mz * nz < ENTRY_TURN
+        if on_plane:
             push = rad - (dx * mx + dy * my + dz * mz)   # onto the tangent plane it entered by
             if push <= 0.0:
                 continue
             px, py, pz, nx, ny, nz = px + push * mx, py + push * my, pz + push * mz, mx, my, mz
-        elif inside:
-            px, py, pz = c0 + rad * nx, c1 + rad * ny, c2 + rad * nz
-        else:
+        elif not inside:
             continue
         ux, uy, uz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
                                       friction=spheres[s, 4], restitution=spheres[s, 5],
                                       thresh=col.thresh)
         px, py, pz = _held(col.h, (px, py, pz), (ux - vx, uy - vy, uz - vz), (nx, ny, nz))
+        if not on_plane:               # onto the surface where friction held it, not off it
+            sx, sy, sz = _unit(px - c0, py - c1, pz - c2)
+            px, py, pz = c0 + rad * sx, c1 + rad * sy, c2 + rad * sz
         vx, vy, vz = ux, uy, uz
     return px, py, pz, vx, vy, vz
 
