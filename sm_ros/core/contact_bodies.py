@@ -285,8 +285,9 @@ def _floor_sweep(bodies, law, ground):
     big = 0.0
     zlo, dv, bw, accg = bodies.lowest, bodies.change, bodies.inv_mass, bodies.ground_impulse
     vb = bodies.velocity
+    ground_h, ground_mu = (ground[1], ground[2]) if ground[0] > 0.5 else (-np.inf, 0.0)
     for b in range(bodies.pending.shape[0]):
-        gh, mu = (ground[1], ground[2]) if ground[0] > 0.5 else (-np.inf, 0.0)
+        gh, mu = ground_h, ground_mu
         if bodies.floor[0, b] > gh:
             gh, mu = bodies.floor[0, b], bodies.floor[1, b]
         if not is_carried(bodies, b) or gh == -np.inf:

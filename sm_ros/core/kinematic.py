@@ -38,7 +38,7 @@ from numba import njit
 
 from .kernels.colliders import (C_ANG, C_BOUND, C_DIM, C_E, C_KIND, C_MU,  # noqa: F401
                                 C_POS, C_ROT, C_VEL, ENTRY_TURN, ROW,
-                                contact_velocity, surface_gap)
+                                contact_velocity, held_by_friction, surface_gap)
 from .kernels.jit import JIT
 
 
@@ -199,14 +199,11 @@ def collide_range(particles, start, end, rows, h, thresh, tally):
             vx, vy, vz = V[0, i], V[1, i], V[2, i]
             ux, uy, uz = contact_velocity(vx - sx, vy - sy, vz - sz, nx, ny, nz, row[C_MU],
                                           row[C_E], thresh)
-            # friction acts over the whole step: the tangential change of velocity also
-            # applies to the step's displacement (static friction holds a particle in place,
-            # as position-based friction does; the normal part is the projection above)
-            dx, dy, dz = ux - (vx - sx), uy - (vy - sy), uz - (vz - sz)
-            dn = dx * nx + dy * ny + dz * nz
-            px += h * (dx - dn * nx)
-            py += h * (dy - dn * ny)
-            pz += h * (dz - dn * nz)
+            # the tangential change moves the step's displacement too (the normal part is
+            # the projection above)
+            px, py, pz = held_by_friction(h, (px, py, pz),
+                                          (ux - (vx - sx), uy - (vy - sy), uz - (vz - sz)),
+                                          (nx, ny, nz))
             ux += sx
             uy += sy
             uz += sz

@@ -110,8 +110,8 @@ def collide_point(px, py, pz, vx, vy, vz, col):
     of the face it entered through, so a plate thinner than a step's fall holds it; past a
     sphere, onto the tangent plane where it entered (``_sphere_entry``) where that turns
     from the surface nearest its end by more than 45 degrees.  On a box or a sphere the
-    step's displacement gets the tangential change of velocity too (``_held``); the
-    ground, flat, changes the velocity only."""
+    step's displacement gets the tangential change of velocity too (``held_by_friction``);
+    the ground, flat, changes the velocity only."""
     ground, boxes, spheres, r = col.ground, col.boxes, col.spheres, col.radius
     came = (px - col.h * vx, py - col.h * vy, pz - col.h * vz)
     gz = ground[1] + r
@@ -164,7 +164,7 @@ def collide_point(px, py, pz, vx, vy, vz, col):
             ux, uy, uz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
                                           friction=boxes[b, 6], restitution=boxes[b, 7],
                                           thresh=col.thresh)
-            px, py, pz = _held(col.h, (px, py, pz), (ux - vx, uy - vy, uz - vz),
+            px, py, pz = held_by_friction(col.h, (px, py, pz), (ux - vx, uy - vy, uz - vz),
                                (nx, ny, nz))
             vx, vy, vz = ux, uy, uz
     for s in range(spheres.shape[0]):
@@ -186,7 +186,8 @@ def collide_point(px, py, pz, vx, vy, vz, col):
         ux, uy, uz = contact_velocity(vx=vx, vy=vy, vz=vz, nx=nx, ny=ny, nz=nz,
                                       friction=spheres[s, 4], restitution=spheres[s, 5],
                                       thresh=col.thresh)
-        px, py, pz = _held(col.h, (px, py, pz), (ux - vx, uy - vy, uz - vz), (nx, ny, nz))
+        px, py, pz = held_by_friction(col.h, (px, py, pz), (ux - vx, uy - vy, uz - vz),
+                                      (nx, ny, nz))
         if not on_plane:               # onto the surface where friction held it, not off it
             sx, sy, sz = _unit(px - c0, py - c1, pz - c2)
             px, py, pz = c0 + rad * sx, c1 + rad * sy, c2 + rad * sz
@@ -195,10 +196,10 @@ def collide_point(px, py, pz, vx, vy, vz, col):
 
 
 @njit(inline='always', **JIT)
-def _held(h, p, dv, n):
+def held_by_friction(h, p, dv, n):
     """p moved by h times the tangential part of the velocity change ``dv`` at a surface
     of normal n: friction acts over the whole step, so static friction holds a particle
-    where it is (as the collider pass does, ``kinematic.collide_range``)."""
+    where it is (static colliders here, the collider pass in ``kinematic``)."""
     dn = dv[0] * n[0] + dv[1] * n[1] + dv[2] * n[2]
     return (p[0] + h * (dv[0] - dn * n[0]), p[1] + h * (dv[1] - dn * n[1]),
             p[2] + h * (dv[2] - dn * n[2]))
